@@ -1,0 +1,43 @@
+"""What cities are on disk under a processed-data root, read from their manifests."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from pydantic import ValidationError
+
+from schemas import CityManifest, InputError
+
+#: Default root of ingested cities and bundles.
+DEFAULT_ROOT = Path("data/processed")
+INGESTED_MANIFEST = Path("ingested") / "manifest.json"
+
+
+@dataclass(frozen=True)
+class CityEntry:
+    name: str
+    path: Path
+    manifest: CityManifest
+
+
+def read_city_manifest(path: str | Path) -> CityManifest:
+    path = Path(path)
+    try:
+        return CityManifest.model_validate_json(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(path, "no such manifest (run `uavdata ingest` first)") from None
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        raise InputError(path, err["msg"], field=".".join(map(str, err["loc"]))) from None
+
+
+def list_cities(root: str | Path = DEFAULT_ROOT) -> list[CityEntry]:
+    """Every ingested city below ``root``, by name."""
+    root = Path(root)
+    if not root.is_dir():
+        return []
+    return [
+        CityEntry(name=p.parent.parent.name, path=p.parent.parent, manifest=read_city_manifest(p))
+        for p in sorted(root.glob(f"*/{INGESTED_MANIFEST.as_posix()}"))
+    ]

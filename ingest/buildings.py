@@ -1,0 +1,119 @@
+"""Format-neutral buildings: what every geometry reader (InSite .city, GeoJSON, meshes) returns.
+
+A building is one or more parts (tiers); each part a footprint polygon with a
+base and roof z. ``buildings_tables`` validates them against the
+``schemas.Building`` contract and lays them out as the BUILDINGS and
+BUILDING_PARTS tables.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import pyarrow as pa
+import shapely
+from pydantic import ValidationError
+from shapely.geometry.base import BaseGeometry
+
+from schemas import BUILDING_PARTS, BUILDINGS, Building, InputError, Rejection
+
+#: Footprints smaller than this [m^2] are degenerate (a wall seen from above).
+MIN_AREA_M2 = 1e-6
+
+
+@dataclass
+class Part:
+    footprint: BaseGeometry
+    base_z_m: float
+    roof_z_m: float
+
+
+@dataclass
+class BuildingRecord:
+    name: str | None
+    source_file: str
+    source_line: int | None
+    parts: list[Part] = field(default_factory=list)
+
+    @property
+    def source(self) -> str:
+        return self.source_file if self.source_line is None else f"{self.source_file}:{self.source_line}"
+
+
+def polygon_or_none(coords_xy) -> BaseGeometry | None:
+    """A valid polygon from a ring of xy vertices, or None if it has no area (a vertical face)."""
+    poly = shapely.Polygon(coords_xy)
+    if poly.area <= MIN_AREA_M2:
+        return None
+    if not poly.is_valid:
+        poly = shapely.make_valid(poly)
+        poly = shapely.union_all([g for g in shapely.get_parts(poly) if g.geom_type == "Polygon"])
+    return poly if poly.area > MIN_AREA_M2 else None
+
+
+def buildings_tables(records: list[BuildingRecord]) -> tuple[pa.Table, pa.Table, list[Rejection]]:
+    """Validate buildings and return (buildings, parts, rejections).
+
+    A building whose parts have no footprint area is rejected (counted, with
+    its source line), never silently dropped. A footprint that is not a valid
+    polygon raises ``InputError``.
+    """
+    rows: dict[str, list] = {c: [] for c in BUILDINGS.column_names}
+    parts: dict[str, list] = {c: [] for c in BUILDING_PARTS.column_names}
+    rejected: list[Rejection] = []
+    for rec in records:
+        kept = [p for p in rec.parts if p.footprint is not None and not p.footprint.is_empty and p.footprint.area > MIN_AREA_M2]
+        if not kept:
+            rejected.append(
+                Rejection(
+                    file=rec.source_file,
+                    line=rec.source_line,
+                    field="footprint",
+                    reason="building has no footprint area (no roof and no closed walls)",
+                )
+            )
+            continue
+        footprint = shapely.union_all([p.footprint for p in kept])
+        base = min(p.base_z_m for p in kept)
+        roof = max(p.roof_z_m for p in kept)
+        bid = len(rows["building_id"])
+        try:
+            Building(
+                building_id=bid,
+                name=rec.name,
+                footprint_wkt=footprint.wkt,
+                base_z_m=base,
+                roof_z_m=roof,
+                n_parts=len(kept),
+                source=rec.source,
+            )
+        except ValidationError as exc:
+            err = exc.errors()[0]
+            raise InputError(
+                rec.source_file, err["msg"], line=rec.source_line, field=".".join(map(str, err["loc"])) or "building"
+            ) from None
+        for key, value in (
+            ("building_id", bid),
+            ("name", rec.name),
+            ("footprint_wkb", shapely.to_wkb(footprint)),
+            ("base_z_m", base),
+            ("roof_z_m", roof),
+            ("height_m", roof - base),
+            ("n_parts", len(kept)),
+            ("source", rec.source),
+        ):
+            rows[key].append(value)
+        for pid, p in enumerate(kept):
+            for key, value in (
+                ("building_id", bid),
+                ("part_id", pid),
+                ("footprint_wkb", shapely.to_wkb(p.footprint)),
+                ("base_z_m", p.base_z_m),
+                ("roof_z_m", p.roof_z_m),
+            ):
+                parts[key].append(value)
+    return (
+        pa.Table.from_pydict(rows, schema=BUILDINGS.arrow_schema()),
+        pa.Table.from_pydict(parts, schema=BUILDING_PARTS.arrow_schema()),
+        rejected,
+    )

@@ -1,0 +1,456 @@
+"""The ingest recipe: a city folder of raw exports -> validated tables in ``<out>/<city>/ingested/``.
+
+1. discover and classify every file (``classify``);
+2. read the .setup and .txrx (frequencies, thresholds, sets);
+3. read receiver outputs, check them against their .txrx sets, merge the
+   quantities of one transmitter x receiver set into one row per receiver;
+4. read building geometry and terrain;
+5. write the tables, the manifest and the ingest report atomically.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from collections import defaultdict
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+
+from ingest.buildings import BuildingRecord, buildings_tables
+from ingest.geojson import read_geojson
+from ingest.mesh import MESH_SUFFIXES, read_mesh
+from ingest.wireless_insite.city import read_city, read_terrain
+from ingest.wireless_insite.p2m import POSITION_COLUMNS, parse_filename, read_p2m
+from ingest.wireless_insite.setup import read_setup
+from ingest.wireless_insite.txrx import read_txrx
+from schemas import (
+    BUILDING_PARTS,
+    BUILDINGS,
+    RECEIVERS,
+    TRANSMITTERS,
+    CityManifest,
+    FileReport,
+    IngestReport,
+    InputError,
+    Origin,
+    ReceiverSet,
+    Rejection,
+    SetupInfo,
+    SourceFile,
+    TerrainInfo,
+    TxRxSet,
+)
+from schemas.base import uavplace_version
+from schemas.files import atomic_directory, sha256_file, write_model_json
+from schemas.tables import RECEIVER_KEY
+
+INGESTED = "ingested"
+MANIFEST = "manifest.json"
+REPORT = "ingest_report.json"
+TERRAIN = "terrain.npz"
+
+#: Receiver positions from two files of one set agree within this [m] (+ 1e-5 relative: 6 significant digits).
+POSITION_TOL_M = 1e-3
+
+
+@dataclass(frozen=True)
+class Classified:
+    path: Path
+    rel: str
+    kind: str
+    skip_reason: str | None = None
+
+
+def classify(folder: Path) -> list[Classified]:
+    """Every non-hidden file below ``folder``, sorted, with its format family."""
+    out = []
+    for path in sorted(p for p in folder.rglob("*") if p.is_file()):
+        rel = path.relative_to(folder).as_posix()
+        if any(part.startswith(".") for part in Path(rel).parts):
+            continue
+        low = path.name.lower()
+        kind, reason = "other", None
+        if low.endswith((".p2m", ".p2m.gz")):
+            ident = parse_filename(path.name)
+            if ident is None:
+                reason = "a .p2m whose name is not <project>.<output>.tTTT_SS.rRRR.p2m"
+            elif not ident.is_receiver_output:
+                reason = ident.skip_reason
+            kind = "p2m"
+        elif low.endswith(".txrx"):
+            kind = "txrx"
+        elif low.endswith(".setup"):
+            kind = "setup"
+        elif low.endswith(".city"):
+            kind = "city"
+        elif low.endswith(".ter"):
+            kind = "terrain"
+        elif low.endswith(".geojson"):
+            kind = "geojson"
+        elif low.endswith(MESH_SUFFIXES):
+            kind = "mesh"
+        elif low.endswith((".object", ".veg", ".flp")):
+            kind, reason = "geometry", "InSite object/foliage/floor-plan feature (not used as buildings)"
+        elif low == "simulation.json":
+            kind, reason = "provenance", "simulation provenance (copied into the manifest's sources)"
+        out.append(Classified(path, rel, kind, reason))
+    return out
+
+
+def _positions_agree(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.abs(a - b) <= POSITION_TOL_M + 1e-5 * np.abs(a)
+
+
+def merge_receiver_files(key: tuple[int, int, int], parts: list[tuple[ReceiverSet, pa.Table]]) -> pd.DataFrame:
+    """One frame per (tx set, tx point, rx set): the quantities of several outputs side by side.
+
+    Raises ``InputError`` if two files give the same quantity, or give the same
+    receiver number at different positions.
+    """
+    meta0, table0 = parts[0]
+    merged = table0.to_pandas(types_mapper={pa.bool_(): pd.BooleanDtype()}.get)
+    given = {c: meta0.source for c in meta0.columns}
+    for meta, table in parts[1:]:
+        for c in meta.columns:
+            if c in given:
+                raise InputError(
+                    meta.source, f"{c} for t{key[1]:03d}_{key[0]:02d} r{key[2]:03d} is also given by {given[c]}", field=c
+                )
+            given[c] = meta.source
+        frame = table.to_pandas(types_mapper={pa.bool_(): pd.BooleanDtype()}.get)
+        joined = merged.merge(frame, on="rx_index", how="outer", suffixes=("", "_new"), sort=True, indicator=True)
+        both = (joined["_merge"] == "both").to_numpy()
+        for c in POSITION_COLUMNS:
+            old, new = joined[c].to_numpy(), joined[f"{c}_new"].to_numpy()
+            bad = both & ~_positions_agree(old, new)
+            if bad.any():
+                i = int(np.argmax(bad))
+                raise InputError(
+                    meta.source,
+                    f"receiver {int(joined['rx_index'].iat[i])} at {c}={new[i]}, but {old[i]} in {meta0.source}",
+                    field=c,
+                )
+            joined[c] = joined[c].fillna(joined[f"{c}_new"])
+        ra, rb = joined["reached"], joined["reached_new"]
+        reached = ra.fillna(True) & rb.fillna(True)
+        reached[ra.isna() & rb.isna()] = pd.NA
+        joined["reached"] = reached
+        merged = joined.drop(columns=[f"{c}_new" for c in (*POSITION_COLUMNS, "reached")] + ["_merge"])
+    merged["tx_set_id"], merged["tx_point"], merged["rx_set_id"] = key
+    return merged
+
+
+def _check_against_set(meta: ReceiverSet, table: pa.Table, rx_set: TxRxSet, warnings: list[str]) -> None:
+    """A grid output must have one row per lattice point, each on its lattice position.
+
+    A points set whose point count differs from the output's rows is a warning
+    (once per set), not an error: exporters such as 5G-MIMO scripts rewrite the
+    .txrx after each run.
+    """
+    shape = rx_set.grid_shape
+    if shape is None:
+        if rx_set.kind == "points" and len(rx_set.vertices_m) != meta.num_rows:
+            text = (
+                f"receiver set '{rx_set.name}' ({rx_set.source}) lists {len(rx_set.vertices_m)} point(s) but its "
+                f"outputs have {meta.num_rows} rows (e.g. {meta.source}): the .txrx was probably rewritten after "
+                "the run; positions not checked"
+            )
+            if text.split(" (e.g.")[0] not in (w.split(" (e.g.")[0] for w in warnings):
+                warnings.append(text)
+        return
+    nx, ny = shape
+    if meta.num_rows != nx * ny:
+        raise InputError(
+            meta.source,
+            f"{meta.num_rows} rows, but grid '{rx_set.name}' ({rx_set.source}) is {nx} x {ny} = {nx * ny} receivers",
+            field="rows",
+        )
+    assert rx_set.spacing_m is not None
+    i = table.column("rx_index").to_numpy() - 1
+    cx, cy, _ = rx_set.vertices_m[0]
+    for col, expect in (("x_m", cx + (i % nx) * rx_set.spacing_m), ("y_m", cy + (i // nx) * rx_set.spacing_m)):
+        got = table.column(col).to_numpy()
+        bad = ~_positions_agree(expect, got) & ~(np.abs(got - expect) <= 0.01)
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise InputError(
+                meta.source,
+                f"receiver {i[k] + 1} at {col}={got[k]}, off grid '{rx_set.name}' ({rx_set.source}) which puts it at {expect[k]:.4f}",
+                field=col,
+            )
+
+
+def _transmitters(sets: list[TxRxSet], setup: SetupInfo | None, seen: set[tuple[int, int]], warnings: list[str]) -> pa.Table:
+    rows: dict[str, list] = {c: [] for c in TRANSMITTERS.column_names}
+
+    def add(**kw: object) -> None:
+        for c in TRANSMITTERS.column_names:
+            rows[c].append(kw.get(c))
+
+    defined = set()
+    for s in sets:
+        if not s.is_transmitter:
+            continue
+        wave = setup.waveform(s.tx_waveform) if setup else None
+        if wave is None and setup and len(setup.waveforms) == 1:
+            wave = setup.waveforms[0]
+        ant = setup.antenna(s.tx_antenna) if setup else None
+        for point, (x, y, z) in enumerate(s.vertices_m, start=1):
+            defined.add((s.project_id, point))
+            add(
+                tx_set_id=s.project_id,
+                tx_point=point,
+                set_name=s.name,
+                x_m=x,
+                y_m=y,
+                z_m=z,
+                power_dbm=s.tx_power_dbm,
+                frequency_hz=wave.carrier_frequency_hz if wave else None,
+                antenna=(ant.type or ant.name) if ant else None,
+                source=s.source,
+            )
+    for tx_set, point in sorted(seen - defined):
+        warnings.append(f"transmitter set {tx_set} point {point} has outputs but no .txrx definition: position unknown")
+        add(tx_set_id=tx_set, tx_point=point, source="receiver outputs")
+    return TRANSMITTERS.conform(pa.Table.from_pydict(rows))
+
+
+def _single(files: list[Classified], kind: str) -> Classified | None:
+    if len(files) > 1:
+        raise InputError(
+            files[1].rel, f"several .{kind} files ({', '.join(f.rel for f in files)}): keep one per city folder", field="file"
+        )
+    return files[0] if files else None
+
+
+def ingest_city(
+    folder: str | Path,
+    out_root: str | Path = "data/processed",
+    *,
+    name: str | None = None,
+    command: str = "",
+    on_file: Callable[[str], None] | None = None,
+) -> tuple[Path, CityManifest, IngestReport]:
+    """Ingest one city folder; returns (output folder, manifest, report).
+
+    ``on_file`` is called with each file's relative path before it is read
+    (for progress display). Raises ``InputError`` on bad input; nothing is
+    written then, and an earlier ingest of the city stays as it was.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(folder, "not a folder")
+    city = name or folder.resolve().name
+    files = classify(folder)
+    if not files:
+        raise InputError(folder, "empty folder: nothing to ingest")
+    by_kind: dict[str, list[Classified]] = defaultdict(list)
+    for f in files:
+        by_kind[f.kind].append(f)
+    usable = [f for f in files if f.kind not in ("other",) and f.skip_reason is None]
+    if not usable:
+        raise InputError(
+            folder,
+            f"no receiver output, .txrx, .setup or geometry file among {len(files)} file(s): {', '.join(f.rel for f in files[:5])}",
+        )
+
+    warnings: list[str] = []
+    reports: dict[str, FileReport] = {}
+    rejections: list[Rejection] = []
+    tick = on_file or (lambda rel: None)
+
+    def done(f: Classified, rows: int = 0, rejected: int = 0, message: str | None = None, status: str = "parsed") -> None:
+        reports[f.rel] = FileReport(
+            path=f.rel, kind=f.kind, status=status, rows_read=rows, rows_rejected=rejected, message=message
+        )  # type: ignore[arg-type]
+
+    for f in files:
+        if f.kind == "other":
+            warnings.append(f"{f.rel}: unknown file type, ignored")
+            done(f, status="unknown", message="unknown file type")
+        elif f.skip_reason is not None:
+            done(f, status="skipped", message=f.skip_reason)
+
+    setup = None
+    if (f := _single(by_kind["setup"], "setup")) is not None:
+        tick(f.rel)
+        setup = read_setup(f.path, f.rel)
+        done(
+            f,
+            message=f"{len(setup.waveforms)} waveform(s), {len(setup.antennas)} antenna(s), {len(setup.comm_systems)} comm system(s)",
+        )
+        present = {Path(x.rel).name for x in files}
+        for feat in setup.features:
+            if feat.active and Path(feat.filename).name not in present:
+                warnings.append(f"{f.rel}: active {feat.kind} feature '{feat.filename}' is not in the folder")
+
+    sets: dict[int, TxRxSet] = {}
+    for f in by_kind["txrx"]:
+        tick(f.rel)
+        for s in read_txrx(f.path, f.rel):
+            if s.project_id in sets:
+                raise InputError(
+                    f.rel, f"set project_id {s.project_id} also defined at {sets[s.project_id].source}", field="project_id"
+                )
+            sets[s.project_id] = s
+        done(f, rows=len(sets), message=f"{len(sets)} set(s)")
+
+    groups: dict[tuple[int, int, int], list[tuple[ReceiverSet, pa.Table]]] = defaultdict(list)
+    receiver_sets: list[ReceiverSet] = []
+    p2m_files = [f for f in by_kind["p2m"] if f.skip_reason is None]
+    if p2m_files and not sets:
+        warnings.append("no .txrx: receiver grids were not checked and transmitter positions are unknown")
+    for f in p2m_files:
+        tick(f.rel)
+        ident = parse_filename(f.path.name)
+        assert ident is not None and ident.rx_set is not None and ident.tx_point is not None
+        rx_set = sets.get(ident.rx_set)
+        ant = setup.antenna(rx_set.rx_antenna) if setup and rx_set else None
+        meta, table = read_p2m(f.path, display=f.rel, power_threshold_dbm=ant.power_threshold_dbm if ant else None)
+        if rx_set is not None:
+            _check_against_set(meta, table, rx_set, warnings)
+        elif sets:
+            warnings.append(f"{f.rel}: receiver set {ident.rx_set} is not in the .txrx; not checked")
+        groups[(ident.tx_set, ident.tx_point, ident.rx_set)].append((meta, table))
+        receiver_sets.append(meta)
+        done(
+            f,
+            rows=meta.num_rows,
+            message=f"{meta.output}: {meta.num_rows} receivers, {meta.num_reached if meta.num_reached is not None else 'n/a'} reached",
+        )
+
+    frames = [merge_receiver_files(k, groups[k]) for k in sorted(groups)]
+    if frames:
+        receivers_df = pd.concat(frames, ignore_index=True)
+        for c in RECEIVERS.column_names:
+            if c not in receivers_df:
+                receivers_df[c] = pd.Series(
+                    np.nan if c != "reached" else pd.NA,
+                    index=receivers_df.index,
+                    dtype="float64" if c != "reached" else "boolean",
+                )
+        receivers = RECEIVERS.conform(pa.Table.from_pandas(receivers_df[RECEIVERS.column_names], preserve_index=False))
+    else:
+        receivers = RECEIVERS.arrow_schema().empty_table()
+    transmitters = _transmitters(list(sets.values()), setup, {(k[0], k[1]) for k in groups}, warnings)
+
+    records: list[BuildingRecord] = []
+    origin = None
+    if setup and setup.longitude is not None and setup.latitude is not None and (setup.longitude, setup.latitude) != (0.0, 0.0):
+        origin = Origin(longitude=setup.longitude, latitude=setup.latitude, source=setup.source)
+    for f in by_kind["city"]:
+        tick(f.rel)
+        recs = read_city(f.path, f.rel)
+        records += recs
+        done(f, rows=len(recs), message=f"{len(recs)} structure(s)")
+    for f in by_kind["geojson"]:
+        tick(f.rel)
+        recs, rej = read_geojson(f.path, f.rel)
+        records += recs
+        rejections += rej
+        done(f, rows=len(recs) + len(rej), rejected=len(rej), message=f"{len(recs)} footprint(s)")
+    for f in by_kind["mesh"]:
+        tick(f.rel)
+        recs, rej = read_mesh(f.path, f.rel)
+        records += recs
+        rejections += rej
+        done(f, rows=len(recs) + len(rej), rejected=len(rej), message=f"{len(recs)} building bod(ies)")
+    buildings, parts, rej = buildings_tables(records)
+    rejections += rej
+    for r in rej:
+        old = reports[r.file]
+        reports[r.file] = old.model_copy(update={"rows_rejected": old.rows_rejected + r.count})
+
+    terrain_arrays = None
+    terrain_info = None
+    if by_kind["terrain"]:
+        verts, tris = [], []
+        for f in by_kind["terrain"]:
+            tick(f.rel)
+            v, t = read_terrain(f.path, f.rel)
+            tris.append(t + sum(len(x) for x in verts))
+            verts.append(v)
+            done(f, rows=len(t), message=f"{len(v)} vertices, {len(t)} triangles")
+        terrain_arrays = (np.vstack(verts), np.vstack(tris))
+        terrain_info = TerrainInfo(
+            source=", ".join(f.rel for f in by_kind["terrain"]),
+            num_vertices=len(terrain_arrays[0]),
+            num_faces=len(terrain_arrays[1]),
+            z_min_m=float(terrain_arrays[0][:, 2].min()),
+            z_max_m=float(terrain_arrays[0][:, 2].max()),
+        )
+
+    freqs = sorted({float(x) for x in transmitters.column("frequency_hz").drop_null().to_pylist()})
+    if not freqs and setup and len(setup.waveforms) == 1:
+        freqs = [setup.waveforms[0].carrier_frequency_hz]
+    powers = tuple(sorted({float(x) for x in transmitters.column("power_dbm").drop_null().to_pylist()}))
+    reached = receivers.column("reached")
+    report = IngestReport(
+        city=city, files=tuple(reports[f.rel] for f in files), rejections=tuple(rejections), warnings=tuple(warnings)
+    )
+
+    out_dir = Path(out_root) / city / INGESTED
+    with atomic_directory(out_dir) as tmp:
+        tables = {}
+        for spec, table in (
+            (RECEIVERS, receivers),
+            (TRANSMITTERS, transmitters),
+            (BUILDINGS, buildings),
+            (BUILDING_PARTS, parts),
+        ):
+            pq.write_table(table, tmp / spec.filename, compression="zstd")
+            tables[spec.name] = sha256_file(tmp / spec.filename)
+        if terrain_arrays is not None:
+            np.savez_compressed(tmp / TERRAIN, vertices_m=terrain_arrays[0], triangles=terrain_arrays[1])
+            tables["terrain"] = sha256_file(tmp / TERRAIN)
+        manifest = CityManifest(
+            name=city,
+            created_utc=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+            uavplace_version=uavplace_version(),
+            command=command,
+            source_dir=str(folder),
+            origin=origin,
+            frequency_hz=freqs[0] if len(freqs) == 1 else None,
+            tx_power_dbm=powers,
+            counts={
+                "files": len(files),
+                "files_parsed": sum(r.status == "parsed" for r in report.files),
+                "files_skipped": sum(r.status == "skipped" for r in report.files),
+                "files_unknown": sum(r.status == "unknown" for r in report.files),
+                "transmitters": transmitters.num_rows,
+                "receiver_sets": len({k[2] for k in groups}),
+                "receiver_rows": receivers.num_rows,
+                "receiver_rows_reached": int(pc.sum(reached).as_py() or 0),
+                "buildings": buildings.num_rows,
+                "building_parts": parts.num_rows,
+                "terrain_triangles": terrain_info.num_faces if terrain_info else 0,
+                "rows_rejected": report.rows_rejected,
+            },
+            sources=tuple(
+                SourceFile(
+                    path=f.rel,
+                    sha256=sha256_file(f.path),
+                    size_bytes=f.path.stat().st_size,
+                    kind=f.kind,
+                    status=reports[f.rel].status,
+                )
+                for f in files
+            ),
+            tables=tables,
+            setup=setup,
+            txrx_sets=tuple(sets.values()),
+            receiver_sets=tuple(receiver_sets),
+            terrain=terrain_info,
+        )
+        write_model_json(manifest, tmp / MANIFEST)
+        write_model_json(report, tmp / REPORT)
+    return out_dir, manifest, report
+
+
+__all__ = ["RECEIVER_KEY", "classify", "ingest_city", "merge_receiver_files"]

@@ -1,0 +1,83 @@
+"""Geometry files (.city buildings, .ter terrain) of Wireless InSite.
+
+``begin_<structure_group>`` > ``begin_<structure>`` (a building) >
+``begin_<sub_structure>`` (a part, e.g. one tier) > ``begin_<face>`` with
+``nVertices K`` and K vertex lines ``x y z`` [m]. Buildings carry no footprint
+or height field: a part's footprint is the union of its non-vertical faces
+seen from above (roof, floor) or, failing those, the polygons its walls
+enclose; its base and roof are the min and max vertex z.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import shapely
+
+from ingest.buildings import BuildingRecord, Part, polygon_or_none
+from ingest.wireless_insite.keyword import Block, parse_keyword_file
+from schemas import InputError
+
+
+def _faces(block: Block) -> list[np.ndarray]:
+    faces = []
+    for face in block.walk("face"):
+        v = face.vertices()
+        if len(v) < 3:
+            found = face.find_entry("nVertices")
+            line = found[0] if found else face.line
+            raise InputError(face.path, f"face has {len(v)} vertices, a face needs at least 3", line=line, field="nVertices")
+        faces.append(v)
+    return faces
+
+
+def _part(faces: list[np.ndarray]) -> Part:
+    flat = [p for f in faces if (p := polygon_or_none(f[:, :2])) is not None]
+    if flat:
+        footprint = shapely.union_all(flat)
+    else:
+        edges = [shapely.LineString(np.vstack([f[:, :2], f[:1, :2]])) for f in faces]
+        noded = shapely.union_all(edges)  # split the walls' base lines where they meet
+        footprint = shapely.union_all(list(shapely.get_parts(shapely.polygonize([noded]))))
+    z = np.concatenate([f[:, 2] for f in faces])
+    return Part(footprint=footprint, base_z_m=float(z.min()), roof_z_m=float(z.max()))
+
+
+def read_city(path: str | Path, display: str | None = None) -> list[BuildingRecord]:
+    """Buildings of an InSite .city file, one per ``structure``, in file order."""
+    name = display or str(path)
+    root = parse_keyword_file(path, name)
+    records = []
+    for structure in root.walk("structure"):
+        subs = structure.blocks("sub_structure") or [structure]
+        parts = []
+        for sub in subs:
+            faces = _faces(sub)
+            if faces:
+                parts.append(_part(faces))
+        records.append(BuildingRecord(name=structure.name or None, source_file=name, source_line=structure.line, parts=parts))
+    return records
+
+
+def read_terrain(path: str | Path, display: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Terrain mesh of a .ter file: vertices [V, 3] (float64, m) and triangles [F, 3] (int64).
+
+    Faces with more than 3 vertices are split into a triangle fan.
+    """
+    name = display or str(path)
+    root = parse_keyword_file(path, name)
+    faces = _faces(root)
+    if not faces:
+        raise InputError(name, "terrain has no faces", field="face")
+    vertices = np.vstack(faces)
+    tris = []
+    start = 0
+    for f in faces:
+        k = len(f)
+        idx = np.arange(1, k - 1)
+        tris.append(np.column_stack([np.full(k - 2, start), start + idx, start + idx + 1]))
+        start += k
+    triangles = np.vstack(tris)
+    unique, inverse = np.unique(np.round(vertices, 6), axis=0, return_inverse=True)
+    return unique, inverse.reshape(-1)[triangles]

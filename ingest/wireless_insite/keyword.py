@@ -1,0 +1,166 @@
+"""The keyword format shared by InSite's .city, .ter, .txrx and .setup files.
+
+A file is nested blocks::
+
+    begin_<structure> small building #2      <- kind "structure", name "small building #2"
+    begin_<face> 1
+    Material 6                               <- entry: key "Material", value "6"
+    nVertices 4
+    602.3186950684 650.5581359863 11.0000000000
+    ...
+    end_<face>
+    end_<structure>
+
+``parse_keyword_file`` turns it into a tree of ``Block`` with every entry's
+line number kept, so later errors can name the line.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from schemas import InputError
+
+_BEGIN = re.compile(r"^begin_<([^>]*)>\s*(.*)$")
+_END = re.compile(r"^end_<([^>]*)>\s*$")
+#: Entry giving a vertex count, e.g. ``nVertices 4``.
+N_VERTICES = "nVertices"
+
+
+@dataclass
+class Block:
+    kind: str
+    name: str
+    line: int
+    path: str
+    entries: list[tuple[int, str]] = field(default_factory=list)
+    children: list[Block] = field(default_factory=list)
+
+    def blocks(self, kind: str) -> list[Block]:
+        """Direct children of this kind."""
+        return [c for c in self.children if c.kind == kind]
+
+    def walk(self, kind: str) -> Iterator[Block]:
+        """All descendants of this kind, depth first, in file order."""
+        for c in self.children:
+            if c.kind == kind:
+                yield c
+            yield from c.walk(kind)
+
+    def find_entry(self, key: str) -> tuple[int, str] | None:
+        """First entry whose first word is ``key``: (line, rest of the line)."""
+        for lineno, text in self.entries:
+            head, _, rest = text.partition(" ")
+            if head == key:
+                return lineno, rest.strip()
+        return None
+
+    def value(self, key: str) -> str | None:
+        found = self.find_entry(key)
+        return None if found is None else found[1]
+
+    def number(self, key: str, cast: type = float) -> float | int | None:
+        found = self.find_entry(key)
+        if found is None:
+            return None
+        lineno, text = found
+        word = text.split()[0] if text.split() else ""
+        try:
+            return cast(word)
+        except ValueError:
+            raise InputError(self.path, f"'{word}' is not a number", line=lineno, field=key) from None
+
+    def has_word(self, word: str) -> bool:
+        """True if an entry is exactly ``word`` (flags such as ``active``)."""
+        return any(text == word for _, text in self.entries)
+
+    def yes(self, key: str) -> bool | None:
+        v = self.value(key)
+        return None if v is None else v.split()[0].lower() in ("yes", "true", "1")
+
+    def where(self) -> str:
+        return f"{self.path}:{self.line}"
+
+    def vertices(self) -> np.ndarray:
+        """The ``nVertices K`` entry and the K ``x y z`` lines after it, as a [K, 3] float array [m]."""
+        for i, (lineno, text) in enumerate(self.entries):
+            head, _, rest = text.partition(" ")
+            if head != N_VERTICES:
+                continue
+            try:
+                k = int(rest.strip())
+            except ValueError:
+                raise InputError(self.path, f"'{rest.strip()}' is not a count", line=lineno, field=N_VERTICES) from None
+            lines = self.entries[i + 1 : i + 1 + k]
+            if len(lines) < k:
+                raise InputError(
+                    self.path,
+                    f"{N_VERTICES} {k} but only {len(lines)} vertex lines follow",
+                    line=lineno,
+                    field=N_VERTICES,
+                )
+            out = np.empty((k, 3))
+            for j, (vline, vtext) in enumerate(lines):
+                words = vtext.split()
+                if len(words) != 3:
+                    raise InputError(self.path, f"vertex needs 3 numbers (x y z), found {len(words)}", line=vline, field="vertex")
+                try:
+                    out[j] = [float(w) for w in words]
+                except ValueError:
+                    raise InputError(self.path, f"vertex '{vtext}' holds text, not numbers", line=vline, field="vertex") from None
+            if not np.isfinite(out).all():
+                raise InputError(self.path, "vertex is not finite", line=lines[0][0], field="vertex")
+            return out
+        raise InputError(self.path, f"{self.kind} block has no {N_VERTICES} entry", line=self.line, field=N_VERTICES)
+
+
+def read_text(path: str | Path) -> str:
+    """A text file's content, CRLF or LF, UTF-8 or (as a fallback) Latin-1."""
+    raw = Path(path).read_bytes()
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        text = raw.decode("latin-1")
+    return text
+
+
+def parse_keyword_file(path: str | Path, display: str | None = None) -> Block:
+    """Parse a keyword file into a root ``Block`` (kind ``""``) holding the top-level blocks.
+
+    ``display`` is the name errors use for the file (default: the path).
+    Raises ``InputError`` on an ``end_`` that does not match its ``begin_`` or
+    on a block left open at the end of the file.
+    """
+    name = display or str(path)
+    root = Block(kind="", name="", line=0, path=name)
+    stack = [root]
+    for lineno, raw_line in enumerate(read_text(path).splitlines(), start=1):
+        text = raw_line.strip()
+        if not text:
+            continue
+        if text.startswith("begin_<"):
+            m = _BEGIN.match(text)
+            if m is None:
+                raise InputError(name, f"malformed block start '{text}'", line=lineno)
+            block = Block(kind=m.group(1), name=m.group(2).strip(), line=lineno, path=name)
+            stack[-1].children.append(block)
+            stack.append(block)
+        elif text.startswith("end_<"):
+            m = _END.match(text)
+            if m is None:
+                raise InputError(name, f"malformed block end '{text}'", line=lineno)
+            if len(stack) == 1 or stack[-1].kind != m.group(1):
+                opened = stack[-1].kind if len(stack) > 1 else "nothing"
+                raise InputError(name, f"end_<{m.group(1)}> closes {opened}", line=lineno)
+            stack.pop()
+        else:
+            stack[-1].entries.append((lineno, text))
+    if len(stack) > 1:
+        b = stack[-1]
+        raise InputError(name, f"begin_<{b.kind}> at line {b.line} is never closed (file truncated?)", line=b.line)
+    return root

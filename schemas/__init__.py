@@ -1,0 +1,47 @@
+"""uavplace contracts: the pydantic models and table declarations every stage relies on.
+
+Everything that crosses a stage boundary (ingest -> dataset -> rl -> eval) is
+declared here once. Nothing in this package imports another uavplace package.
+"""
+
+from schemas.base import SCHEMA_VERSION, Contract, InputError
+from schemas.city import (
+    CityManifest,
+    FileReport,
+    IngestReport,
+    Origin,
+    Rejection,
+    SourceFile,
+)
+from schemas.geometry import Building, TerrainInfo
+from schemas.receivers import QUANTITIES, Quantity, ReceiverSet
+from schemas.tables import BUILDING_PARTS, BUILDINGS, RECEIVERS, TRANSMITTERS, TableSpec
+from schemas.txrx import AntennaInfo, CommSystemInfo, SetupInfo, Transmitter, TxRxSet, WaveformInfo
+
+__all__ = [
+    "SCHEMA_VERSION",
+    "AntennaInfo",
+    "BUILDINGS",
+    "BUILDING_PARTS",
+    "Building",
+    "CityManifest",
+    "CommSystemInfo",
+    "Contract",
+    "FileReport",
+    "IngestReport",
+    "InputError",
+    "Origin",
+    "QUANTITIES",
+    "Quantity",
+    "RECEIVERS",
+    "ReceiverSet",
+    "Rejection",
+    "SetupInfo",
+    "SourceFile",
+    "TRANSMITTERS",
+    "TableSpec",
+    "TerrainInfo",
+    "Transmitter",
+    "TxRxSet",
+    "WaveformInfo",
+]

@@ -1,0 +1,56 @@
+"""Shared base of every contract: the schema version, the model config and the one error type."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pydantic import BaseModel, ConfigDict
+
+#: Version of every contract in this package. Bumped whenever a model or a
+#: table declaration changes in a way a reader must know about.
+SCHEMA_VERSION = "1.0"
+
+
+class Contract(BaseModel):
+    """Base of all uavplace models: unknown fields are errors, instances are immutable."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class InputError(Exception):
+    """Bad input: names the file, the line (1-based, when known) and the field.
+
+    ``str(err)`` is one line, ``<file>:<line>: <field>: <message>``, fit for a
+    terminal and for grep.
+    """
+
+    def __init__(
+        self,
+        path: str | Path | None,
+        message: str,
+        *,
+        line: int | None = None,
+        field: str | None = None,
+    ) -> None:
+        self.path = str(path) if path is not None else None
+        self.line = line
+        self.field = field
+        self.message = message
+        super().__init__(self.__str__())
+
+    def __str__(self) -> str:
+        where = self.path or "<input>"
+        if self.line is not None:
+            where += f":{self.line}"
+        field = f" {self.field}:" if self.field else ""
+        return f"{where}:{field} {self.message}"
+
+
+def uavplace_version() -> str:
+    """The installed distribution's version (``0+src`` when run from a source tree that is not installed)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("uavplace")
+    except PackageNotFoundError:
+        return "0+src"

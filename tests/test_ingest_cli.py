@@ -1,0 +1,215 @@
+"""`uavdata ingest` end to end: real fixture folders, synthetic cities, the bad-input corpus."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import duckdb
+import pandas as pd
+import pyarrow.parquet as pq
+import pytest
+from click.testing import CliRunner
+
+from dataset.cli import main as uavdata
+from ingest.pipeline import ingest_city
+from rl.cli import main as uavrl
+from schemas import CityManifest, IngestReport
+from schemas.files import sha256_file
+from tests.conftest import write_grid_city
+
+
+def run(*args: str):
+    return CliRunner().invoke(uavdata, list(args), catch_exceptions=False)
+
+
+def ingested(out, city):
+    base = out / city / "ingested"
+    manifest = CityManifest.model_validate_json((base / "manifest.json").read_text())
+    report = IngestReport.model_validate_json((base / "ingest_report.json").read_text())
+    return base, manifest, report
+
+
+def test_rosslyn_folder(rosslyn, tmp_path):
+    res = run("ingest", str(rosslyn), "--out", str(tmp_path), "--name", "rosslyn")
+    assert res.exit_code == 0, res.output
+    assert "1 users, 10 receiver rows (10 reached), 29 buildings, 0 rows rejected" in res.output
+    base, m, report = ingested(tmp_path, "rosslyn")
+    assert m.counts["files"] == 14 and m.counts["files_skipped"] == 5 and m.counts["terrain_triangles"] == 119
+    assert m.origin is not None and (m.origin.longitude, m.origin.latitude) == (-77.0787, 38.8907)
+    assert m.frequency_hz == 60e9 and m.tx_power_dbm == (0.0,)
+    skipped = {f.path for f in report.files if f.status == "skipped"}
+    assert skipped == {f"model.{o}.t001_01.r002.p2m" for o in ("doa", "dod", "dspower", "paths")} | {"model.inputpower.t01.p2m"}
+    rx = pq.read_table(base / "receivers.parquet").to_pandas()
+    assert len(rx) == 10
+    row = rx.iloc[0]
+    assert (row.path_loss_db, row.path_gain_db, row.power_dbm, row.txloss_db) == (147.583, -147.583, -143.281, 147.583)
+    assert row.delay_spread_s == pytest.approx(7.35315e-08) and bool(row.reached)
+    assert rx.sinr_db.isna().all()
+    tx = pq.read_table(base / "transmitters.parquet").to_pylist()
+    assert tx[0]["x_m"] == 746.0 and tx[0]["frequency_hz"] == 60e9 and tx[0]["antenna"] == "HalfWaveDipole"
+    # every table's hash is in the manifest, every source file's hash too
+    for name, digest in m.tables.items():
+        fname = "terrain.npz" if name == "terrain" else f"{name}.parquet"
+        assert sha256_file(base / fname) == digest
+    assert {s.path: s.sha256 for s in m.sources}["Rosslyn.city"] == sha256_file(rosslyn / "Rosslyn.city")
+    assert any("lists 1 point(s) but its outputs have 10 rows" in w for w in report.warnings)
+
+
+def test_deepmimo_folder(deepmimo, tmp_path):
+    res = run("ingest", str(deepmimo), "--out", str(tmp_path), "--quiet")
+    assert res.exit_code == 0, res.output
+    _, m, report = ingested(tmp_path, "deepmimo-2025-grid")
+    assert m.counts["receiver_rows"] == 1 + 1 + 4617 and m.counts["receiver_rows_reached"] == 1 + 457
+    assert m.counts["transmitters"] == 3 and m.counts["buildings"] == 0 and m.frequency_hz == 3.5e9
+    assert {r.status for r in report.files if r.path.startswith(("insite.cir", "insite.doa", "insite.paths"))} == {"skipped"}
+    con = duckdb.connect()
+    rx = f"'{tmp_path}/deepmimo-2025-grid/ingested/receivers.parquet'"
+    # r002 has both a pl and a pg file: one row, both columns, both sentinels
+    merged = con.sql(f"select path_loss_db, path_gain_db, reached from {rx} where rx_set_id = 2").fetchall()
+    assert merged == [(None, None, False)]
+    assert con.sql(f"select count(*) from {rx} where rx_set_id = 4 and not reached").fetchall() == [(4160,)]
+
+
+def test_boxes_folder(boxes, tmp_path):
+    res = run("ingest", str(boxes), "--out", str(tmp_path))
+    assert res.exit_code == 0, res.output
+    base, m, _ = ingested(tmp_path, "halosnoopy-2023-boxes")
+    assert m.counts["buildings"] == 6 and m.counts["receiver_rows"] == 0 and m.counts["transmitters"] == 3
+    assert [t["power_dbm"] for t in pq.read_table(base / "transmitters.parquet").to_pylist()] == [30.0] * 3
+    assert m.setup is not None and len(m.setup.comm_systems) == 3
+
+
+def test_synthetic_city_gz_crlf_merge(tmp_path):
+    city = write_grid_city(tmp_path / "raw" / "tiny", outputs=("pl", "power"), gz=True, crlf=True)
+    out, m, report = ingest_city(city, tmp_path / "proc")
+    rx = pd.read_parquet(out / "receivers.parquet")
+    assert len(rx) == 2 * 30 and m.counts["transmitters"] == 2 and m.frequency_hz == 8e8
+    assert m.tx_power_dbm == (20.0,)
+    # power = 20 - path loss wherever reached, null with the path loss where not
+    reached = rx[rx.reached.astype(bool)]
+    assert ((20 - reached.path_loss_db) - reached.power_dbm).abs().max() < 1e-3
+    assert rx[~rx.reached.astype(bool)][["path_loss_db", "power_dbm", "phase_deg"]].isna().all().all()
+    assert report.rows_rejected == 0 and report.warnings == ()
+
+
+def test_unknown_file_is_a_warning(tmp_path):
+    city = write_grid_city(tmp_path / "tiny")
+    (city / "notes.txt").write_text("hello")
+    res = run("ingest", str(city), "--out", str(tmp_path / "proc"))
+    assert res.exit_code == 0
+    assert "warning: notes.txt: unknown file type, ignored" in res.output
+    _, m, _ = ingested(tmp_path / "proc", "tiny")
+    assert m.counts["files_unknown"] == 1
+
+
+def _rewrite(path, old, new):
+    text = path.read_text()
+    assert old in text
+    path.write_text(text.replace(old, new, 1))
+
+
+BAD = {
+    "truncated row": (
+        lambda c: _rewrite(c / "city.pl.t001_01.r002.p2m", "\n30 ", "\n30 1 "),
+        "city.pl.t001_01.r002.p2m:33: row:",
+    ),
+    "missing column": (
+        lambda c: _rewrite(c / "city.pl.t002_01.r002.p2m", "<Distance(m)> ", ""),
+        "city.pl.t002_01.r002.p2m:3: header:",
+    ),
+    "text in number": (
+        lambda c: _rewrite(c / "city.pl.t001_01.r002.p2m", "\n5 ", "\n5 x"),
+        "city.pl.t001_01.r002.p2m:8: x_m: 'x",
+    ),
+    "duplicate receiver": (
+        lambda c: _rewrite(c / "city.pl.t001_01.r002.p2m", "\n6 ", "\n5 "),
+        "city.pl.t001_01.r002.p2m:9: rx_index: duplicate",
+    ),
+    "nan": (
+        lambda c: (c / "city.pl.t001_01.r002.p2m").write_text(
+            (c / "city.pl.t001_01.r002.p2m").read_text().replace("\n", "\n", 3)[:-1].rsplit(" ", 1)[0] + " nan\n"
+        ),
+        "city.pl.t001_01.r002.p2m:33: path_loss_db: value nan",
+    ),
+    "grid row count": (
+        lambda c: _rewrite(c / "city.txrx", "side2 16.0", "side2 20.0"),
+        "city.pl.t001_01.r002.p2m: rows: 30 rows, but grid 'Drone_grid' (city.txrx:19) is 6 x 6 = 36",
+    ),
+    "off the lattice": (
+        lambda c: _rewrite(c / "city.txrx", "\n10.0 -20.0 10.0", "\n11.0 -20.0 10.0"),
+        "x_m: receiver 1 at x_m=10.0, off grid",
+    ),
+    "face with 2 vertices": (
+        lambda c: (c / "b.city").write_text(
+            "begin_<city> c\nbegin_<structure> s\nbegin_<face> f\nnVertices 2\n0 0 0\n1 1 1\nend_<face>\nend_<structure>\nend_<city>\n"
+        ),
+        "b.city:4: nVertices: face has 2 vertices",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_bad_input_corpus(tmp_path, case):
+    """Each bad input: one line naming file, line and field; exit 2; the previous ingest untouched."""
+    city = write_grid_city(tmp_path / "tiny")
+    proc = tmp_path / "proc"
+    assert run("ingest", str(city), "--out", str(proc), "--quiet").exit_code == 0
+    before = {p.name: p.read_bytes() for p in (proc / "tiny" / "ingested").iterdir()}
+    mutate, expected = BAD[case]
+    mutate(city)
+    res = run("ingest", str(city), "--out", str(proc), "--quiet")
+    assert res.exit_code == 2
+    lines = [line for line in res.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: ") and expected in lines[0], res.output
+    after = {p.name: p.read_bytes() for p in (proc / "tiny" / "ingested").iterdir()}
+    assert after == before
+    assert sorted(p.name for p in (proc / "tiny").iterdir()) == ["ingested"]
+
+
+def test_empty_and_unknown_only_folders(tmp_path):
+    (tmp_path / "empty").mkdir()
+    res = run("ingest", str(tmp_path / "empty"), "--out", str(tmp_path / "proc"))
+    assert res.exit_code == 2 and "empty folder" in res.output
+    (tmp_path / "junk").mkdir()
+    (tmp_path / "junk" / "photo.jpg").write_bytes(b"\xff\xd8")
+    res = run("ingest", str(tmp_path / "junk"), "--out", str(tmp_path / "proc"))
+    assert res.exit_code == 2 and "no receiver output" in res.output
+    assert not (tmp_path / "proc").exists() or not any((tmp_path / "proc").rglob("*.parquet"))
+
+
+def test_quantity_given_twice(tmp_path):
+    city = write_grid_city(tmp_path / "tiny")
+    shutil.copy(city / "city.pl.t001_01.r002.p2m", city / "other.pl.t001_01.r002.p2m")
+    res = run("ingest", str(city), "--out", str(tmp_path / "proc"))
+    assert res.exit_code == 2 and "path_loss_db for t001_01 r002 is also given by" in res.output
+
+
+def test_interrupted_swap_recovers(tmp_path):
+    city = write_grid_city(tmp_path / "tiny")
+    out, _, _ = ingest_city(city, tmp_path / "proc")
+    # a crash between the two renames leaves only the old folder, renamed aside
+    out.rename(out.parent / ".ingested.old")
+    (out.parent / ".ingested.tmp-dead").mkdir()
+    out2, _, _ = ingest_city(city, tmp_path / "proc")
+    assert sorted(p.name for p in out2.parent.iterdir()) == ["ingested"]
+
+
+def test_list_schema_and_help(tmp_path, rosslyn):
+    assert run("ingest", str(rosslyn), "--out", str(tmp_path / "p"), "--quiet").exit_code == 0
+    res = run("list", "--root", str(tmp_path / "p"))
+    assert "lasse-2018-rosslyn" in res.output and res.exit_code == 0
+    res = CliRunner().invoke(uavrl, ["datasets", "--root", str(tmp_path / "p")])
+    assert res.exit_code == 0 and "lasse-2018-rosslyn" in res.output
+    res = run("schema", "--out", str(tmp_path / "s"))
+    assert res.exit_code == 0
+    names = sorted(p.name for p in (tmp_path / "s").iterdir())
+    assert "city_manifest.schema.json" in names and "table_receivers.schema.json" in names
+    table = json.loads((tmp_path / "s" / "table_receivers.schema.json").read_text())
+    assert table["properties"]["power_dbm"]["unit"] == "dBm" and table["properties"]["reached"]["type"] == ["boolean", "null"]
+    res = run("schema", "ingest_report")
+    assert res.exit_code == 0 and json.loads(res.output)["title"] == "IngestReport"
+    for cmd in (["--help"], ["ingest", "--help"], ["schema", "--help"], ["list", "--help"]):
+        res = run(*cmd)
+        assert res.exit_code == 0 and "Usage:" in res.output
+    assert "--out" in run("ingest", "--help").output

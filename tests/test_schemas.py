@@ -1,0 +1,60 @@
+"""The contracts: validation at the boundary, table declarations, JSON schema export."""
+
+from __future__ import annotations
+
+import pyarrow as pa
+import pytest
+from pydantic import ValidationError
+
+from schemas import RECEIVERS, SCHEMA_VERSION, Building, CityManifest, InputError, TxRxSet
+from schemas.export import SCHEMA_MODELS, json_schemas
+
+
+def test_building_contract():
+    ok = Building(building_id=0, footprint_wkt="POLYGON ((0 0, 4 0, 4 4, 0 4, 0 0))", base_z_m=0, roof_z_m=12, source="x:1")
+    assert ok.height_m == 12
+    with pytest.raises(ValidationError, match="not a valid polygon"):
+        Building(building_id=0, footprint_wkt="POLYGON ((0 0, 4 4, 4 0, 0 4, 0 0))", base_z_m=0, roof_z_m=1, source="x")
+    with pytest.raises(ValidationError, match="not a polygon"):
+        Building(building_id=0, footprint_wkt="POINT (0 0)", base_z_m=0, roof_z_m=1, source="x")
+    with pytest.raises(ValidationError, match="below base"):
+        Building(building_id=0, footprint_wkt="POLYGON ((0 0, 4 0, 4 4, 0 0))", base_z_m=5, roof_z_m=1, source="x")
+    with pytest.raises(ValidationError, match="Extra inputs"):
+        Building(building_id=0, footprint_wkt="POLYGON ((0 0, 4 0, 4 4, 0 0))", base_z_m=0, roof_z_m=1, source="x", color="red")
+
+
+def test_grid_set_contract():
+    grid = TxRxSet(kind="grid", name="g", project_id=2, vertices_m=((0, 0, 10),), side1_m=8, side2_m=4, spacing_m=4, source="a:1")
+    assert grid.grid_shape == (3, 2)
+    with pytest.raises(ValidationError, match="needs side1"):
+        TxRxSet(kind="grid", name="g", project_id=2, vertices_m=((0, 0, 10),), spacing_m=4, source="a:1")
+    with pytest.raises(ValidationError, match="spacing 0.0"):
+        TxRxSet(kind="grid", name="g", project_id=2, vertices_m=((0, 0, 10),), side1_m=8, side2_m=4, spacing_m=0, source="a:1")
+
+
+def test_table_conform():
+    n = 2
+    cols = {c: pa.nulls(n, c.type) if c.nullable else pa.array([1] * n).cast(c.type) for c in RECEIVERS.columns}
+    table = pa.table({c.name: v for c, v in cols.items()})
+    out = RECEIVERS.conform(table)
+    assert out.schema.field("power_dbm").metadata[b"unit"] == b"dBm"
+    assert out.schema.metadata[b"schema_version"] == SCHEMA_VERSION.encode()
+    with pytest.raises(ValueError, match=r"missing columns \['reached'\]"):
+        RECEIVERS.conform(table.drop_columns(["reached"]))
+    with pytest.raises(ValueError, match="column x_m has 2 nulls"):
+        RECEIVERS.conform(table.set_column(4, "x_m", pa.nulls(n, pa.float64())))
+
+
+def test_json_schemas_cover_every_contract():
+    schemas = json_schemas()
+    assert set(schemas) == set(SCHEMA_MODELS)
+    assert all(s["x-schema-version"] == SCHEMA_VERSION for s in schemas.values())
+    manifest = schemas["city_manifest"]
+    assert "sources" in manifest["properties"] and manifest["additionalProperties"] is False
+    assert CityManifest.model_config["frozen"]
+
+
+def test_input_error_is_one_line():
+    err = InputError("a/b.p2m", "bad value", line=12, field="x_m")
+    assert str(err) == "a/b.p2m:12: x_m: bad value"
+    assert str(InputError("f", "no rows")) == "f: no rows"
