@@ -29,6 +29,16 @@ def command_line() -> str:
     return " ".join(shlex.quote(a) for a in [Path(sys.argv[0]).name, *sys.argv[1:]])
 
 
+#: ``--root``: where ingested cities and bundles live (shared by uavdata and uavrl commands).
+root_option = click.option(
+    "--root",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=DEFAULT_ROOT,
+    show_default=True,
+    help="Root of processed data.",
+)
+
+
 def fail(err: InputError) -> None:
     console.print(f"[bold red]error:[/] {err}", highlight=False, soft_wrap=True)
     sys.exit(2)
@@ -133,13 +143,7 @@ def schema(model: str | None, out_dir: Path | None) -> None:
 
 
 @main.command(name="list")
-@click.option(
-    "--root",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=DEFAULT_ROOT,
-    show_default=True,
-    help="Root of processed data.",
-)
+@root_option
 def list_(root: Path) -> None:
     """List the ingested cities under ROOT with their users, receivers and buildings."""
     out = stdout()

@@ -57,6 +57,8 @@ TERRAIN = "terrain.npz"
 
 #: Receiver positions from two files of one set agree within this [m] (+ 1e-5 relative: 6 significant digits).
 POSITION_TOL_M = 1e-3
+#: A grid receiver lies on its .txrx lattice point within this [m] (+ 1e-5 relative).
+LATTICE_TOL_M = 1e-2
 
 
 @dataclass(frozen=True)
@@ -103,8 +105,8 @@ def classify(folder: Path) -> list[Classified]:
     return out
 
 
-def _positions_agree(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.abs(a - b) <= POSITION_TOL_M + 1e-5 * np.abs(a)
+def _positions_agree(a: np.ndarray, b: np.ndarray, tol_m: float = POSITION_TOL_M) -> np.ndarray:
+    return np.abs(a - b) <= tol_m + 1e-5 * np.abs(a)
 
 
 def merge_receiver_files(key: tuple[int, int, int], parts: list[tuple[ReceiverSet, pa.Table]]) -> pd.DataFrame:
@@ -176,7 +178,7 @@ def _check_against_set(meta: ReceiverSet, table: pa.Table, rx_set: TxRxSet, warn
     cx, cy, _ = rx_set.vertices_m[0]
     for col, expect in (("x_m", cx + (i % nx) * rx_set.spacing_m), ("y_m", cy + (i // nx) * rx_set.spacing_m)):
         got = table.column(col).to_numpy()
-        bad = ~_positions_agree(expect, got) & ~(np.abs(got - expect) <= 0.01)
+        bad = ~_positions_agree(expect, got, LATTICE_TOL_M)
         if bad.any():
             k = int(np.argmax(bad))
             raise InputError(

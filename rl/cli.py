@@ -7,8 +7,8 @@ from pathlib import Path
 import click
 from rich.table import Table
 
-from dataset.catalog import DEFAULT_ROOT, list_cities
-from dataset.cli import stdout
+from dataset.catalog import list_cities
+from dataset.cli import root_option, stdout
 from schemas import InputError
 
 
@@ -18,13 +18,7 @@ def main() -> None:
 
 
 @main.command()
-@click.option(
-    "--root",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=DEFAULT_ROOT,
-    show_default=True,
-    help="Root of processed data.",
-)
+@root_option
 def datasets(root: Path) -> None:
     """List the cities under ROOT that agents can be given (`--dataset NAME`), with their users."""
     out = stdout()
