@@ -295,13 +295,14 @@ def ingest_city(
     sets: dict[int, TxRxSet] = {}
     for f in by_kind["txrx"]:
         tick(f.rel)
-        for s in read_txrx(f.path, f.rel):
+        file_sets = read_txrx(f.path, f.rel)
+        for s in file_sets:
             if s.project_id in sets:
                 raise InputError(
                     f.rel, f"set project_id {s.project_id} also defined at {sets[s.project_id].source}", field="project_id"
                 )
             sets[s.project_id] = s
-        done(f, rows=len(sets), message=f"{len(sets)} set(s)")
+        done(f, rows=len(file_sets), message=f"{len(file_sets)} set(s)")
 
     groups: dict[tuple[int, int, int], list[tuple[ReceiverSet, pa.Table]]] = defaultdict(list)
     receiver_sets: list[ReceiverSet] = []
