@@ -13,7 +13,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from dataset.catalog import DEFAULT_ROOT, list_cities
-from ingest.pipeline import classify, ingest_city
+from ingest.pipeline import ingest_city
 from schemas import InputError
 from schemas.export import SCHEMA_MODELS, json_schemas
 
@@ -76,7 +76,6 @@ def ingest(folder: Path, out_root: Path, name: str | None, quiet: bool) -> None:
     listed as warnings. On any error nothing is written and the exit status is 2.
     """
     try:
-        n = len(classify(folder)) if folder.is_dir() else 0
         with Progress(
             TextColumn("[bold]ingest[/] {task.description}"),
             BarColumn(),
@@ -86,10 +85,10 @@ def ingest(folder: Path, out_root: Path, name: str | None, quiet: bool) -> None:
             disable=quiet,
             transient=True,
         ) as progress:
-            task = progress.add_task(str(folder), total=n)
+            task = progress.add_task(str(folder), total=None)
 
-            def on_file(rel: str) -> None:
-                progress.update(task, description=rel, advance=1)
+            def on_file(rel: str, total: int) -> None:
+                progress.update(task, description=rel, total=total, advance=1)
 
             out_dir, manifest, report = ingest_city(folder, out_root, name=name, command=command_line(), on_file=on_file)
     except InputError as err:

@@ -48,7 +48,6 @@ from schemas import (
 )
 from schemas.base import uavplace_version
 from schemas.files import atomic_directory, sha256_file, write_model_json
-from schemas.tables import RECEIVER_KEY
 
 INGESTED = "ingested"
 MANIFEST = "manifest.json"
@@ -237,11 +236,11 @@ def ingest_city(
     *,
     name: str | None = None,
     command: str = "",
-    on_file: Callable[[str], None] | None = None,
+    on_file: Callable[[str, int], None] | None = None,
 ) -> tuple[Path, CityManifest, IngestReport]:
     """Ingest one city folder; returns (output folder, manifest, report).
 
-    ``on_file`` is called with each file's relative path before it is read
+    ``on_file(rel_path, total)`` is called before each of the ``total`` files that are read
     (for progress display). Raises ``InputError`` on bad input; nothing is
     written then, and an earlier ingest of the city stays as it was.
     """
@@ -265,7 +264,10 @@ def ingest_city(
     warnings: list[str] = []
     reports: dict[str, FileReport] = {}
     rejections: list[Rejection] = []
-    tick = on_file or (lambda rel: None)
+
+    def tick(rel: str) -> None:
+        if on_file is not None:
+            on_file(rel, len(usable))
 
     def done(f: Classified, rows: int = 0, rejected: int = 0, message: str | None = None, status: str = "parsed") -> None:
         reports[f.rel] = FileReport(
@@ -456,4 +458,4 @@ def ingest_city(
     return out_dir, manifest, report
 
 
-__all__ = ["RECEIVER_KEY", "classify", "ingest_city", "merge_receiver_files"]
+__all__ = ["classify", "ingest_city", "merge_receiver_files"]
