@@ -1,7 +1,8 @@
-"""``uavdata``: ingest raw ray-tracer exports (and, later stages, build map bundles)."""
+"""``uavdata``: ingest raw ray-tracer exports, build versioned map bundles, list and show them."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import shlex
 import sys
@@ -12,9 +13,12 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from dataset.build import build_city
+from dataset.bundle import list_versions, load_bundle, read_latest
 from dataset.catalog import DEFAULT_ROOT, list_cities
 from ingest.pipeline import ingest_city
 from schemas import InputError
+from schemas.bundle import BuildConfig
 from schemas.export import SCHEMA_MODELS, json_schemas
 
 console = Console(stderr=True)
@@ -51,6 +55,7 @@ def main() -> None:
     \b
     Typical use on a new city:
       uavdata ingest data/raw/cityA/
+      uavdata build --grid 4m --alt 10
     """
 
 
@@ -141,10 +146,215 @@ def schema(model: str | None, out_dir: Path | None) -> None:
     out.print(f"wrote {len(schemas)} schema(s) to {out_dir}")
 
 
+class Metres(click.ParamType):
+    """A length in metres: ``4``, ``4m`` or ``2.5 m``."""
+
+    name = "metres"
+
+    def convert(self, value, param, ctx):  # noqa: ANN001, ANN201 - click's signature
+        if isinstance(value, float | int):
+            return float(value)
+        text = str(value).strip().lower().removesuffix("m").strip()
+        try:
+            return float(text)
+        except ValueError:
+            self.fail(f"{value!r} is not a length in metres (e.g. 4m, 2.5)", param, ctx)
+
+
+class Bounds(click.ParamType):
+    """``auto``, ``receivers``, ``buildings`` or ``XMIN,YMIN,XMAX,YMAX`` in metres."""
+
+    name = "bounds"
+
+    def convert(self, value, param, ctx):  # noqa: ANN001, ANN201 - click's signature
+        if value in ("auto", "receivers", "buildings") or isinstance(value, tuple):
+            return value
+        try:
+            box = tuple(float(v) for v in str(value).split(","))
+        except ValueError:
+            box = ()
+        if len(box) != 4:
+            self.fail(f"{value!r}: expected auto, receivers, buildings or XMIN,YMIN,XMAX,YMAX", param, ctx)
+        return box
+
+
+def _splits(values: tuple[str, ...]) -> dict[str, str]:
+    out = {}
+    for v in values:
+        city, sep, role = v.partition("=")
+        if not sep or role not in ("train", "test"):
+            raise click.BadParameter(f"{v!r}: expected CITY=train or CITY=test", param_hint="--split")
+        out[city] = role
+    return out
+
+
+@main.command()
+@click.option("--grid", "grid_m", type=Metres(), default="4m", show_default=True, help="Grid spacing of the maps (e.g. 4m).")
+@click.option(
+    "--alt",
+    "altitude_m",
+    type=Metres(),
+    default="10m",
+    show_default=True,
+    help="UAV altitude above ground; the receivers at this height (terrain taken into account) make the SINR maps.",
+)
+@click.option(
+    "--alt-tol",
+    "altitude_tol_m",
+    type=Metres(),
+    default="0.5m",
+    show_default=True,
+    help="Receivers within this distance of the altitude are used.",
+)
+@click.option("--city", "cities", multiple=True, help="Build only this ingested city (repeatable; default: all).")
+@click.option(
+    "--noise-dbm",
+    type=float,
+    default=-104.0,
+    show_default=True,
+    help="Noise plus background interference power [dBm] (the paper's combined -104 dBm).",
+)
+@click.option(
+    "--interference-std-db",
+    type=float,
+    default=0.0,
+    show_default=True,
+    help="Std [dB] of a Gaussian per-cell offset of the noise+interference level (0: none).",
+)
+@click.option(
+    "--tx-dbm",
+    type=float,
+    default=None,
+    help="User transmit power [dBm]: needed when the export has path loss/gain and no power; "
+    "else it overrides the export's (received power shifts with it).",
+)
+@click.option(
+    "--sinr-floor-db",
+    type=float,
+    default=-40.0,
+    show_default=True,
+    help="SINR given to dead cells (no ray-traced path) and lowest SINR reported anywhere [dB].",
+)
+@click.option(
+    "--bounds",
+    type=Bounds(),
+    default="auto",
+    show_default=True,
+    help="Grid extent: auto (the receiver grid; receivers and buildings when the receivers are points), "
+    "receivers, buildings (buildings and receivers), or XMIN,YMIN,XMAX,YMAX [m].",
+)
+@click.option("--crop", is_flag=True, help="Drop buildings wholly outside the grid (counted in the manifest) instead of failing.")
+@click.option(
+    "--split",
+    "splits",
+    multiple=True,
+    metavar="CITY=ROLE",
+    help="Declare a city's role: train or test (repeatable). Recorded in the bundle.",
+)
+@click.option(
+    "--val-users",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="Users of each train city held out for validation (seeded).",
+)
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the interference draw and of the user split.")
+@click.option("--force", is_flag=True, help="Rebuild even if an identical bundle exists.")
+@root_option
+@click.option("--quiet", is_flag=True, help="Only the summary lines.")
+def build(
+    grid_m: float,
+    altitude_m: float,
+    altitude_tol_m: float,
+    cities: tuple[str, ...],
+    noise_dbm: float,
+    interference_std_db: float,
+    tx_dbm: float | None,
+    sinr_floor_db: float,
+    bounds,
+    crop: bool,
+    splits: tuple[str, ...],
+    val_users: int,
+    seed: int,
+    force: bool,
+    root: Path,
+    quiet: bool,
+) -> None:
+    """Rasterise ingested cities into versioned map bundles under ROOT/<city>/<version>/.
+
+    \b
+    A bundle holds maps.npz (height map, blocked mask, per-user SINR and dead
+    masks), cells.parquet (the same as a long table), users.parquet and
+    manifest.json (every parameter, counts, sha256 of inputs and files). The
+    version is a hash of the inputs and these options: rebuilding unchanged
+    inputs does nothing. ROOT/<city>/latest names the newest build.
+    SINR = received power - (noise + interference), averaged over receivers in
+    the linear domain; the export's own SINR is used when it has one.
+    """
+    role = _splits(splits)
+    names = list(cities) or [c.name for c in list_cities(root)]
+    if not names:
+        fail(InputError(root, "no ingested city: run `uavdata ingest data/raw/<city>/` first"))
+    unknown = sorted(set(role) - set(names))
+    if unknown:
+        raise click.BadParameter(f"cities {unknown} are not being built", param_hint="--split")
+    out = stdout()
+    errors = 0
+    for name in names:
+        try:
+            config = BuildConfig(
+                grid_m=grid_m,
+                altitude_m=altitude_m,
+                altitude_tol_m=altitude_tol_m,
+                noise_dbm=noise_dbm,
+                interference_std_db=interference_std_db,
+                seed=seed,
+                sinr_floor_db=sinr_floor_db,
+                tx_dbm=tx_dbm,
+                bounds=bounds,
+                crop=crop,
+                role=role.get(name),
+                val_users=val_users if role.get(name) == "train" else 0,
+            )
+        except ValueError as exc:
+            raise click.BadParameter(str(exc)) from None
+        try:
+            with console.status(f"[bold]build[/] {name}", spinner="dots") if not quiet else contextlib.nullcontext() as status:
+
+                def on_stage(stage: str, name: str = name, status=status) -> None:
+                    if status is not None:
+                        status.update(f"[bold]build[/] {name}: {stage}")
+
+                result = build_city(name, config, root, command=command_line(), force=force, on_stage=on_stage)
+        except InputError as err:
+            console.print(f"[bold red]error:[/] {name}: {err}", highlight=False, soft_wrap=True)
+            errors += 1
+            continue
+        m = result.manifest
+        if not quiet:
+            for w in m.warnings:
+                console.print(f"[yellow]warning:[/] {name}: {w}", highlight=False, soft_wrap=True)
+        what = "built" if result.built else "up to date (nothing to do)"
+        out.print(
+            f"{what} {name}@{m.version}: {m.grid.num_x} x {m.grid.num_y} cells of {m.grid.spacing_m:g} m at "
+            f"{m.config.altitude_m:g} m, {m.num_users} users, SINR from {m.sinr.source}, "
+            f"{m.counts['blocked_cells']} blocked cells, {m.counts['dead_cells']} dead user-cells -> {result.path}",
+            highlight=False,
+            soft_wrap=True,
+        )
+    if errors:
+        sys.exit(2)
+
+
+def _size(path: Path) -> str:
+    total = sum(p.stat().st_size for p in path.iterdir() if p.is_file())
+    return f"{total / 1e6:.1f} MB"
+
+
 @main.command(name="list")
 @root_option
 def list_(root: Path) -> None:
-    """List the ingested cities under ROOT with their users, receivers and buildings."""
+    """List ingested cities and their bundles (versions, grid, altitude, users, size) under ROOT."""
     out = stdout()
     try:
         cities = list_cities(root)
@@ -154,7 +364,20 @@ def list_(root: Path) -> None:
     if not cities:
         out.print(f"no ingested city under {root} (run `uavdata ingest data/raw/<city>/`)")
         return
-    table = Table("city", "users", "receiver rows", "reached", "buildings", "frequency [MHz]", "ingested (UTC)")
+    table = Table("city", "users", "receiver rows", "reached", "buildings", "frequency [MHz]", "ingested (UTC)", title="ingested")
+    bundles = Table(
+        "city",
+        "version",
+        "grid [m]",
+        "alt [m]",
+        "cells",
+        "users",
+        "split",
+        "SINR from",
+        "size",
+        "built (UTC)",
+        title="bundles (* latest)",
+    )
     for c in cities:
         k = c.manifest.counts
         f = c.manifest.frequency_hz
@@ -167,4 +390,52 @@ def list_(root: Path) -> None:
             f"{f / 1e6:g}" if f else "-",
             c.manifest.created_utc,
         )
+        latest = read_latest(c.name, root)
+        for m in list_versions(c.name, root):
+            role = m.config.role or "-"
+            split = ", ".join(f"{v} {k}" for k, v in m.split.items() if v) if m.config.role else "-"
+            bundles.add_row(
+                c.name,
+                m.version + (" *" if m.version == latest else ""),
+                f"{m.grid.spacing_m:g}",
+                f"{m.config.altitude_m:g}",
+                f"{m.grid.num_x} x {m.grid.num_y}",
+                str(m.num_users),
+                f"{role} ({split})" if m.config.role else "-",
+                m.sinr.source,
+                _size(c.path / m.version),
+                m.created_utc,
+            )
     out.print(table)
+    if bundles.row_count:
+        out.print(bundles)
+    else:
+        out.print("no bundle yet: run `uavdata build --grid 4m --alt 10`")
+
+
+@main.command()
+@click.argument("city")
+@click.option("--version", default=None, help="Bundle version (default: the city's latest). CITY@VERSION works too.")
+@click.option("--user", type=click.IntRange(min=0), default=0, show_default=True, help="User whose SINR map is drawn.")
+@click.option(
+    "--out",
+    "out_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="PNG to write (default: reports/show/<city>-<version>-user<N>.png).",
+)
+@root_option
+def show(city: str, version: str | None, user: int, out_path: Path | None, root: Path) -> None:
+    """Render a bundle's height map and one user's SINR map to a PNG."""
+    from dataset.preview import render_bundle
+
+    try:
+        bundle = load_bundle(city, version, root)
+    except InputError as err:
+        fail(err)
+        return
+    if user >= bundle.num_users:
+        raise click.BadParameter(f"the bundle has {bundle.num_users} users (0..{bundle.num_users - 1})", param_hint="--user")
+    out_path = out_path or Path("reports") / "show" / f"{bundle.city}-{bundle.version}-user{user}.png"
+    path = render_bundle(bundle, user, out_path)
+    stdout().print(f"wrote {path}", highlight=False, soft_wrap=True)

@@ -133,11 +133,11 @@ BAD = {
         "city.pl.t001_01.r002.p2m:33: path_loss_db: value nan",
     ),
     "grid row count": (
-        lambda c: _rewrite(c / "city.txrx", "side2 16.0", "side2 20.0"),
+        lambda c: _rewrite(c / "city.txrx", "side2 16.000000", "side2 20.000000"),
         "city.pl.t001_01.r002.p2m: rows: 30 rows, but grid 'Drone_grid' (city.txrx:19) is 6 x 6 = 36",
     ),
     "off the lattice": (
-        lambda c: _rewrite(c / "city.txrx", "\n10.0 -20.0 10.0", "\n11.0 -20.0 10.0"),
+        lambda c: _rewrite(c / "city.txrx", "\n10.000000 -20.000000 10.000000", "\n11.000000 -20.000000 10.000000"),
         "x_m: receiver 1 at x_m=10.0, off grid",
     ),
     "face with 2 vertices": (

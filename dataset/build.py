@@ -1,0 +1,470 @@
+"""`uavdata build`: turn an ingested city into a versioned map bundle.
+
+The recipe, per city:
+
+1. read the ingested tables and check them against their manifest hashes;
+2. version = hash(input hashes, build config, schema version): an existing
+   valid bundle of that version means there is nothing to do;
+3. take the receivers at the UAV altitude (height above the terrain under
+   them), find the users (transmitters with receivers there) and the grid;
+4. per user, received power (or the export's SINR) averaged in the linear
+   domain over the receivers that fall into each cell, then SINR against
+   noise plus interference, a floor for dead and very weak cells;
+5. the building height map; blocked cells;
+6. write maps.npz, cells.parquet, users.parquet, manifest.json into a
+   temporary folder, rename it into place, move ``latest``.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import hashlib
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+from scipy import ndimage
+
+from dataset.bundle import load_bundle, read_latest, write_latest
+from dataset.catalog import DEFAULT_ROOT, INGESTED_MANIFEST, read_city_manifest
+from dataset.raster import cell_centres, cell_index, grid_over, ground_z, height_map
+from schemas import SCHEMA_VERSION, CityManifest, InputError
+from schemas.base import uavplace_version
+from schemas.bundle import BUNDLE_MANIFEST, CELLS, USERS, BuildConfig, BundleManifest, GridSpec, SinrInfo, SinrSource
+from schemas.files import atomic_directory, sha256_file, write_model_json
+from schemas.tables import BUILDING_PARTS, BUILDINGS, RECEIVERS, TRANSMITTERS
+
+#: How many distinct receiver heights an altitude error lists.
+_HEIGHTS_SHOWN = 8
+#: Order in which export quantities are used to make SINR.
+_SINR_SOURCES: tuple[tuple[SinrSource, str], ...] = (
+    ("export_sinr", "sinr_db"),
+    ("power", "power_dbm"),
+    ("path_gain", "path_gain_db"),
+    ("path_loss", "path_loss_db"),
+)
+
+
+@dataclass(frozen=True)
+class BuildResult:
+    city: str
+    path: Path
+    manifest: BundleManifest
+    built: bool  # False: an identical bundle existed (nothing was written)
+
+
+@dataclass(frozen=True)
+class Ingested:
+    """An ingested city as the build reads it."""
+
+    folder: Path
+    manifest: CityManifest
+    receivers: pd.DataFrame
+    transmitters: pd.DataFrame
+    buildings: pd.DataFrame
+    parts: pd.DataFrame
+    terrain: dict[str, np.ndarray] | None
+    hashes: dict[str, str]
+
+
+def read_ingested(city: str, root: str | Path = DEFAULT_ROOT) -> Ingested:
+    """Read an ingested city, refusing tables whose sha256 differs from the ingest manifest."""
+    folder = Path(root) / city / INGESTED_MANIFEST.parent
+    manifest = read_city_manifest(folder / INGESTED_MANIFEST.name)
+    files = {spec.name: spec.filename for spec in (RECEIVERS, TRANSMITTERS, BUILDINGS, BUILDING_PARTS)}
+    files["terrain"] = "terrain.npz"
+    hashes: dict[str, str] = {}
+    for name, expected in manifest.tables.items():
+        path = folder / files.get(name, name)
+        if not path.is_file():
+            raise InputError(path, "missing ingested table: run `uavdata ingest` again")
+        actual = sha256_file(path)
+        if actual != expected:
+            raise InputError(path, "sha256 differs from the ingest manifest: the table was changed after ingest", field="sha256")
+        hashes[files.get(name, name)] = actual
+
+    def table(spec) -> pd.DataFrame:
+        return pq.read_table(folder / spec.filename).to_pandas()
+
+    terrain = None
+    if "terrain" in manifest.tables:
+        with np.load(folder / "terrain.npz", allow_pickle=False) as npz:
+            terrain = {k: npz[k] for k in npz.files}
+    return Ingested(
+        folder=folder,
+        manifest=manifest,
+        receivers=table(RECEIVERS),
+        transmitters=table(TRANSMITTERS),
+        buildings=table(BUILDINGS),
+        parts=table(BUILDING_PARTS),
+        terrain=terrain,
+        hashes=hashes,
+    )
+
+
+def bundle_version(inputs: dict[str, str], config: BuildConfig) -> str:
+    """12 hex digits of sha256 over the input hashes, the config and the schema version."""
+    doc = {"schema_version": SCHEMA_VERSION, "inputs": inputs, "config": config.model_dump(mode="json")}
+    return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:12]
+
+
+def _receivers_at_altitude(ing: Ingested, config: BuildConfig) -> pd.DataFrame:
+    rx = ing.receivers
+    src = ing.folder / RECEIVERS.filename
+    if len(rx) == 0:
+        raise InputError(src, "the city has no receiver outputs: nothing to build a SINR map from (empty city)")
+    above = rx["z_m"].to_numpy() - ground_z(ing.terrain, rx["x_m"].to_numpy(), rx["y_m"].to_numpy())
+    keep = np.abs(above - config.altitude_m) <= config.altitude_tol_m
+    if not keep.any():
+        heights, counts = np.unique(np.round(above, 2), return_counts=True)
+        top = np.argsort(-counts)[:_HEIGHTS_SHOWN]
+        listed = ", ".join(f"{heights[i]:g} m ({counts[i]} rx)" for i in sorted(top))
+        raise InputError(
+            src,
+            f"no receiver at {config.altitude_m:g} +/- {config.altitude_tol_m:g} m above ground; heights present: {listed}"
+            + (" ..." if len(heights) > _HEIGHTS_SHOWN else "")
+            + " (choose one with --alt, or widen --alt-tol)",
+            field="z_m",
+        )
+    return rx.loc[keep].reset_index(drop=True)
+
+
+def _export_spacing(ing: Ingested, rx: pd.DataFrame) -> float | None:
+    """The receiver spacing if every receiver set used is a grid of one spacing, else None."""
+    sets = {s.project_id: s for s in ing.manifest.txrx_sets}
+    used = [sets.get(int(i)) for i in np.unique(rx["rx_set_id"])]
+    spacings = {s.spacing_m for s in used if s is not None and s.kind == "grid"}
+    if len(spacings) == 1 and all(s is not None and s.kind == "grid" for s in used):
+        return float(spacings.pop())
+    return None
+
+
+def _grid(ing: Ingested, rx: pd.DataFrame, config: BuildConfig, export_spacing: float | None) -> GridSpec:
+    half = (export_spacing or 0.0) / 2
+    rx_box = (rx["x_m"].min() - half, rx["y_m"].min() - half, rx["x_m"].max() + half, rx["y_m"].max() + half)
+    mode = config.bounds
+    if mode == "auto":
+        mode = "receivers" if export_spacing is not None else "buildings"
+    if isinstance(mode, tuple):
+        box = mode
+    elif mode == "receivers" or len(ing.buildings) == 0:
+        box = rx_box
+    else:
+        import shapely
+
+        bx = shapely.total_bounds(shapely.from_wkb(ing.buildings["footprint_wkb"].to_numpy()))
+        box = (min(rx_box[0], bx[0]), min(rx_box[1], bx[1]), max(rx_box[2], bx[2]), max(rx_box[3], bx[3]))
+    return grid_over(*box, config.grid_m)
+
+
+def _check_coverage(ing: Ingested, rx: pd.DataFrame, users: pd.DataFrame, tol_m: float) -> None:
+    """Every user's receivers must span the same area (users are compared on one map)."""
+    ext = rx.groupby(["tx_set_id", "tx_point"])[["x_m", "y_m"]].agg(["min", "max"])
+    ref = ext.median()
+    off = (ext - ref).abs().max(axis=1)
+    bad = off[off > tol_m]
+    if len(bad):
+        (s, p) = bad.index[0]
+        e = ext.loc[(s, p)]
+        raise InputError(
+            ing.folder / RECEIVERS.filename,
+            f"users' receivers do not cover the same area: user t{p:03d}_{s:02d} spans x {e[('x_m', 'min')]:g}..{e[('x_m', 'max')]:g},"
+            f" y {e[('y_m', 'min')]:g}..{e[('y_m', 'max')]:g}; most span x {ref[('x_m', 'min')]:g}..{ref[('x_m', 'max')]:g},"
+            f" y {ref[('y_m', 'min')]:g}..{ref[('y_m', 'max')]:g} ({len(bad)} of {len(ext)} users differ)",
+            field="x_m",
+        )
+
+
+def _sinr_source(ing: Ingested, rx: pd.DataFrame) -> tuple[SinrSource, str]:
+    reached = rx["reached"].fillna(True).to_numpy(bool)
+    for source, column in _SINR_SOURCES:
+        values = rx[column].to_numpy(dtype=float, na_value=np.nan)
+        if reached.any() and not np.isnan(values[reached]).any():
+            return source, column
+    present = [c for _, c in _SINR_SOURCES if rx[c].notna().any()]
+    raise InputError(
+        ing.folder / RECEIVERS.filename,
+        "no quantity to make SINR from on every reached receiver (need sinr, power, path gain or path loss);"
+        f" partly present: {present or 'none'}",
+        field="power_dbm",
+    )
+
+
+def _tx_power(ing: Ingested, users: pd.DataFrame, config: BuildConfig, source: SinrSource) -> tuple[np.ndarray, np.ndarray]:
+    """(power used [dBm], shift applied to exported received power [dB]) per user."""
+    export = users["power_dbm"].to_numpy(dtype=float, na_value=np.nan)
+    if config.tx_dbm is not None:
+        if source in ("power", "export_sinr") and np.isnan(export).any():
+            raise InputError(
+                ing.folder / TRANSMITTERS.filename,
+                "--tx-dbm rescales exported received power, but the export's transmit power is unknown for some users",
+                field="power_dbm",
+            )
+        used = np.full(len(users), config.tx_dbm)
+        return used, (used - export if source in ("power", "export_sinr") else np.zeros(len(users)))
+    if source in ("path_gain", "path_loss") and np.isnan(export).any():
+        i = int(np.flatnonzero(np.isnan(export))[0])
+        u = users.iloc[i]
+        raise InputError(
+            ing.folder / TRANSMITTERS.filename,
+            f"user t{u.tx_point:03d}_{u.tx_set_id:02d} has no transmit power in the .txrx and the export gives only"
+            " path loss/gain: pass --tx-dbm",
+            field="power_dbm",
+        )
+    return export, np.zeros(len(users))
+
+
+def rasterise(
+    ing: Ingested, config: BuildConfig
+) -> tuple[GridSpec, dict[str, np.ndarray], pd.DataFrame, SinrInfo, dict[str, int], list[str]]:
+    """The arrays of a bundle (see ``schemas.bundle.MAP_ARRAYS``), its users table, SINR info, counts, warnings."""
+    warnings: list[str] = []
+    rx = _receivers_at_altitude(ing, config)
+    tx = ing.transmitters.set_index(["tx_set_id", "tx_point"])
+    keys = sorted(set(zip(rx["tx_set_id"].astype(int), rx["tx_point"].astype(int), strict=True)))
+    users = pd.DataFrame(keys, columns=["tx_set_id", "tx_point"])
+    users = users.join(tx, on=["tx_set_id", "tx_point"])
+    without = len(tx) - len(set(keys) & set(tx.index))
+    if without:
+        warnings.append(f"{without} transmitter(s) have no receivers at the altitude and are not users of the bundle")
+    export_spacing = _export_spacing(ing, rx)
+    grid = _grid(ing, rx, config, export_spacing)
+    _check_coverage(ing, rx, users, tol_m=max(export_spacing or 0.0, config.grid_m) / 2 + 1e-6)
+
+    source, column = _sinr_source(ing, rx)
+    tx_used, shift = _tx_power(ing, users, config, source)
+    user_of = pd.Series(np.arange(len(users)), index=pd.MultiIndex.from_frame(users[["tx_set_id", "tx_point"]]))
+    u = user_of.loc[list(zip(rx["tx_set_id"], rx["tx_point"], strict=True))].to_numpy()
+    ix, iy, inside = cell_index(grid, rx["x_m"].to_numpy(), rx["y_m"].to_numpy())
+    outside = int((~inside).sum())
+    if outside == len(rx):
+        raise InputError(ing.folder / RECEIVERS.filename, "no receiver at the altitude lies inside the grid bounds (empty map)")
+    if outside:
+        warnings.append(f"{outside} receiver(s) at the altitude lie outside the grid bounds and are not used")
+
+    # Received power [dBm] (or exported SINR [dB]) per receiver; unreached receivers contribute 0 mW.
+    value = rx[column].to_numpy(dtype=float, na_value=np.nan)
+    if source == "path_gain":
+        value = tx_used[u] + value
+    elif source == "path_loss":
+        value = tx_used[u] - value
+    else:
+        value = value + shift[u]
+    reached = rx["reached"].fillna(True).to_numpy(bool) & ~np.isnan(value)
+    lin = np.where(reached, 10.0 ** (np.where(reached, value, 0.0) / 10.0), 0.0)
+
+    ny, nx = grid.shape
+    flat = (u * ny + iy) * nx + ix
+    flat, lin, reached = flat[inside], lin[inside], reached[inside]
+    size = len(users) * ny * nx
+    num_rx = np.bincount(flat, minlength=size).reshape(len(users), ny, nx)
+    num_reached = np.bincount(flat, weights=reached, minlength=size).reshape(len(users), ny, nx)
+    mean_mw = np.bincount(flat, weights=lin, minlength=size).reshape(len(users), ny, nx) / np.maximum(num_rx, 1)
+
+    if export_spacing is not None and export_spacing > config.grid_m * (1 + 1e-6):
+        # Export coarser than the grid: cells between receivers take their nearest sampled cell.
+        reach = export_spacing / config.grid_m
+        for k in range(len(users)):
+            dist, (jy, jx) = ndimage.distance_transform_edt(num_rx[k] == 0, return_indices=True)
+            fill = (num_rx[k] == 0) & (dist <= reach)
+            mean_mw[k][fill] = mean_mw[k][jy[fill], jx[fill]]
+            num_reached[k][fill] = num_reached[k][jy[fill], jx[fill]]
+        warnings.append(f"export spacing {export_spacing:g} m is coarser than the grid: cells filled from the nearest receiver")
+    dead = num_reached == 0
+
+    rng = np.random.default_rng(config.seed)
+    with np.errstate(divide="ignore"):
+        level_db = 10.0 * np.log10(mean_mw)  # [num_users, ny, nx] dBm, or dB for exported SINR
+    if source == "export_sinr":
+        sinr = level_db
+        if config.interference_std_db > 0:
+            warnings.append("the export carries SINR: --noise-dbm and --interference-std-db are not applied")
+    else:
+        offset = rng.normal(0.0, config.interference_std_db, size=(ny, nx)) if config.interference_std_db > 0 else 0.0
+        sinr = level_db - (config.noise_dbm + offset)
+    clipped = int(((sinr < config.sinr_floor_db) & ~dead).sum())
+    sinr = np.where(dead, config.sinr_floor_db, np.maximum(sinr, config.sinr_floor_db)).astype(np.float32)
+
+    hm = height_map(grid, ing.buildings, ing.parts)
+    if len(hm.outside):
+        names = ing.buildings.set_index("building_id").loc[hm.outside, "name"].fillna("?").tolist()
+        msg = (
+            f"{len(hm.outside)} building(s) lie wholly outside the grid "
+            f"x {grid.x_min_m:g}..{grid.x_max_m:g}, y {grid.y_min_m:g}..{grid.y_max_m:g}: "
+            f"ids {hm.outside[:5].tolist()} ({', '.join(map(str, names[:5]))})"
+        )
+        if not config.crop:
+            raise InputError(
+                ing.folder / BUILDINGS.filename,
+                msg + " (wrong frame? use --bounds buildings to widen the grid, or --crop to drop them)",
+                field="footprint_wkb",
+            )
+        warnings.append(msg + ": dropped (--crop)")
+    if len(hm.unresolved):
+        warnings.append(f"{len(hm.unresolved)} building(s) cover no cell centre (smaller than a {grid.spacing_m:g} m cell)")
+    height_rel = (hm.height_m - config.altitude_m).astype(np.float32)
+    blocked = (hm.building_id >= 0) & (hm.height_m >= config.altitude_m)
+
+    x_m, y_m = cell_centres(grid)
+    ux, uy, uin = cell_index(
+        grid, users["x_m"].to_numpy(dtype=float, na_value=np.nan), users["y_m"].to_numpy(dtype=float, na_value=np.nan)
+    )
+    users_table = pd.DataFrame(
+        {
+            "user": np.arange(len(users)),
+            "tx_set_id": users["tx_set_id"],
+            "tx_point": users["tx_point"],
+            "x_m": users["x_m"],
+            "y_m": users["y_m"],
+            "z_m": users["z_m"],
+            "ix": ux,
+            "iy": uy,
+            "tx_power_dbm": tx_used,
+            "frequency_hz": users["frequency_hz"],
+            "split": _split(len(users), config),
+            "num_receivers": np.bincount(u[inside], minlength=len(users)),
+            "num_dead_cells": dead.reshape(len(users), -1).sum(axis=1),
+        }
+    )
+    arrays = {
+        "x_m": x_m,
+        "y_m": y_m,
+        "height_rel_m": height_rel,
+        "blocked": blocked,
+        "building_id": hm.building_id.astype(np.int32),
+        "sinr_db": sinr,
+        "dead": dead,
+        "num_rx": np.minimum(num_rx, np.iinfo(np.uint16).max).astype(np.uint16),
+    }
+    info = SinrInfo(
+        source=source,
+        noise_dbm=None if source == "export_sinr" else config.noise_dbm,
+        interference_std_db=config.interference_std_db,
+        floor_db=config.sinr_floor_db,
+        tx_power_dbm=tuple(sorted({float(t) for t in tx_used if not np.isnan(t)})),
+        resampled=export_spacing is None or abs(export_spacing - config.grid_m) > 1e-6,
+        export_spacing_m=export_spacing,
+    )
+    counts = {
+        "cells": ny * nx,
+        "blocked_cells": int(blocked.sum()),
+        "building_cells": int((hm.building_id >= 0).sum()),
+        "dead_cells": int(dead.sum()),
+        "clipped_to_floor_cells": clipped,
+        "receivers_used": int(inside.sum()),
+        "receivers_outside_grid": outside,
+        "receivers_other_heights": len(ing.receivers) - len(rx),
+        "transmitters_without_receivers": without,
+        "buildings": len(ing.buildings),
+        "buildings_in_grid": len(ing.buildings) - len(hm.outside),
+        "buildings_cropped": len(hm.outside),
+        "buildings_unresolved": len(hm.unresolved),
+        "users_without_position": int((~uin).sum()),
+    }
+    return grid, arrays, users_table, info, counts, warnings
+
+
+def _split(num_users: int, config: BuildConfig) -> list[str | None]:
+    if config.role is None:
+        return [None] * num_users
+    if config.role == "test":
+        return ["test"] * num_users
+    if config.val_users >= num_users:
+        raise InputError(None, f"--val-users {config.val_users} leaves no training user of {num_users}", field="val_users")
+    split = np.array(["train"] * num_users, dtype=object)
+    val = np.random.default_rng([config.seed, 1]).choice(num_users, size=config.val_users, replace=False)
+    split[val] = "val"
+    return split.tolist()
+
+
+def _write_parquet(spec, frame: pd.DataFrame, path: Path) -> None:
+    table = spec.conform(pa.Table.from_pandas(frame, preserve_index=False))
+    pq.write_table(table, path)
+
+
+def cells_frame(grid: GridSpec, arrays: dict[str, np.ndarray]) -> pd.DataFrame:
+    """The long table of ``cells.parquet``: one row per user x cell, user-major then iy then ix."""
+    num_users = arrays["sinr_db"].shape[0]
+    ny, nx = grid.shape
+    iy, ix = np.divmod(np.arange(ny * nx), nx)
+    return pd.DataFrame(
+        {
+            "user": np.repeat(np.arange(num_users, dtype=np.int32), ny * nx),
+            "ix": np.tile(ix, num_users),
+            "iy": np.tile(iy, num_users),
+            "x_m": np.tile(arrays["x_m"][ix], num_users),
+            "y_m": np.tile(arrays["y_m"][iy], num_users),
+            "sinr_db": arrays["sinr_db"].ravel(),
+            "dead": arrays["dead"].ravel(),
+            "blocked": np.tile(arrays["blocked"].ravel(), num_users),
+            "height_rel_m": np.tile(arrays["height_rel_m"].ravel(), num_users),
+        }
+    )
+
+
+def build_city(
+    city: str,
+    config: BuildConfig,
+    root: str | Path = DEFAULT_ROOT,
+    *,
+    command: str = "",
+    force: bool = False,
+    on_stage: Callable[[str], None] | None = None,
+) -> BuildResult:
+    """Build (or find up to date) the bundle of one ingested city; ``InputError`` on bad input.
+
+    The bundle is written into a temporary folder and renamed into
+    ``root/city/<version>``; ``latest`` moves only after that. An interrupted
+    build leaves earlier bundles and ``latest`` as they were.
+    """
+
+    def stage(name: str) -> None:
+        if on_stage is not None:
+            on_stage(name)
+
+    stage("read")
+    ing = read_ingested(city, root)
+    version = bundle_version(ing.hashes, config)
+    final = Path(root) / city / version
+    if not force and (final / BUNDLE_MANIFEST).is_file():
+        try:
+            bundle = load_bundle(str(final))
+        except InputError:
+            bundle = None  # damaged: rebuild it below
+        if bundle is not None:
+            if read_latest(city, root) != version:
+                write_latest(city, version, root)
+            return BuildResult(city, final, bundle.manifest, built=False)
+
+    stage("rasterise")
+    grid, arrays, users, info, counts, warnings = rasterise(ing, config)
+    stage("write")
+    with atomic_directory(final) as tmp:
+        np.savez(tmp / "maps.npz", **arrays)
+        _write_parquet(CELLS, cells_frame(grid, arrays), tmp / CELLS.filename)
+        _write_parquet(USERS, users, tmp / USERS.filename)
+        split = users["split"].value_counts().to_dict()
+        manifest = BundleManifest(
+            city=city,
+            version=version,
+            created_utc=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+            uavplace_version=uavplace_version(),
+            command=command,
+            config=config,
+            grid=grid,
+            sinr=info,
+            num_users=len(users),
+            split={k: int(split.get(k, 0)) for k in ("train", "val", "test")},
+            counts={"users": len(users), **counts},
+            files={name: sha256_file(tmp / name) for name in ("maps.npz", CELLS.filename, USERS.filename)},
+            inputs=ing.hashes,
+            warnings=tuple(warnings),
+        )
+        write_model_json(manifest, tmp / BUNDLE_MANIFEST)
+    write_latest(city, version, root)
+    return BuildResult(city, final, manifest, built=True)

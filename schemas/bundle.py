@@ -1,0 +1,185 @@
+"""Map bundles: what `uavdata build` writes and what `rl/` and `eval/` read.
+
+A bundle is one city rasterised at one grid spacing and one UAV altitude:
+
+``data/processed/<city>/<version>/``
+    ``maps.npz``       the arrays (shapes below), ``cells.parquet`` (the same
+    as a long table), ``users.parquet`` and ``manifest.json`` (``BundleManifest``).
+
+Grid convention (shared by every array): cell ``(iy, ix)`` has its centre at
+``x = x_min_m + (ix + 0.5) * spacing_m`` and ``y = y_min_m + (iy + 0.5) * spacing_m``;
+arrays are indexed ``[..., iy, ix]`` (rows are y, like Sionna's radio maps),
+``iy = 0`` is the southern edge. Heights are above the local ground (terrain
+where the city has one), so ``height_rel_m = building height above ground -
+altitude_m``; a cell with no building holds ``-altitude_m``.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import pyarrow as pa
+from pydantic import Field, field_validator, model_validator
+
+from schemas.base import SCHEMA_VERSION, Contract
+from schemas.tables import Column, TableSpec
+
+SplitRole = Literal["train", "test"]
+UserSplit = Literal["train", "val", "test"]
+BoundsMode = Literal["auto", "receivers", "buildings"]
+SinrSource = Literal["export_sinr", "power", "path_gain", "path_loss"]
+
+#: Files of a bundle, each hashed in the manifest.
+BUNDLE_FILES = ("maps.npz", "cells.parquet", "users.parquet")
+BUNDLE_MANIFEST = "manifest.json"
+
+#: Arrays of ``maps.npz``: name -> (dtype, shape description).
+MAP_ARRAYS: dict[str, tuple[str, str]] = {
+    "x_m": ("float64", "[num_x] cell centre x [m]"),
+    "y_m": ("float64", "[num_y] cell centre y [m]"),
+    "height_rel_m": ("float32", "[num_y, num_x] building height above ground minus the altitude [m]"),
+    "blocked": ("bool", "[num_y, num_x] a building at or above the altitude: the UAV may not enter"),
+    "building_id": ("int32", "[num_y, num_x] tallest building covering the cell centre, -1 where none"),
+    "sinr_db": ("float32", "[num_users, num_y, num_x] SINR [dB]; dead cells hold the manifest's SINR floor"),
+    "dead": ("bool", "[num_users, num_y, num_x] no ray-traced path reached the cell (or no receiver sampled it)"),
+    "num_rx": ("uint16", "[num_users, num_y, num_x] receivers of the export averaged into the cell"),
+}
+
+
+class BuildConfig(Contract):
+    """Every parameter of `uavdata build` for one city (saved in the bundle's manifest)."""
+
+    grid_m: float = Field(gt=0, description="Grid spacing [m]")
+    altitude_m: float = Field(ge=0, description="UAV altitude above ground [m]; receivers are taken at this height")
+    altitude_tol_m: float = Field(default=0.5, ge=0, description="Receivers within this of the altitude are used [m]")
+    noise_dbm: float = Field(default=-104.0, description="Noise plus background interference power [dBm]")
+    interference_std_db: float = Field(
+        default=0.0, ge=0, description="Std of a Gaussian per-cell offset of the noise+interference level [dB]"
+    )
+    seed: int = Field(default=0, description="Seed of the interference draw and of the user split")
+    sinr_floor_db: float = Field(
+        default=-40.0,
+        description="SINR of dead cells, and the lowest SINR reported anywhere (lower values are raised to it) [dB]",
+    )
+    tx_dbm: float | None = Field(
+        default=None, description="User transmit power [dBm]; overrides the export's (received power shifts with it)"
+    )
+    bounds: BoundsMode | tuple[float, float, float, float] = Field(
+        default="auto",
+        description="Grid extent: auto (receiver grids, or receivers and buildings for point receivers), "
+        "receivers, buildings (buildings and receivers), or (x_min, y_min, x_max, y_max) [m]",
+    )
+    crop: bool = Field(default=False, description="Drop buildings wholly outside the grid (counted) instead of failing")
+    role: SplitRole | None = Field(default=None, description="The city's role in experiments, if declared")
+    val_users: int = Field(default=0, ge=0, description="Users of a train city held out for validation (seeded)")
+
+    @field_validator("bounds")
+    @classmethod
+    def _bounds_ordered(cls, b: object) -> object:
+        if isinstance(b, tuple) and not (b[0] < b[2] and b[1] < b[3]):
+            raise ValueError(f"bounds {b} must be x_min < x_max and y_min < y_max")
+        return b
+
+    @model_validator(mode="after")
+    def _val_only_in_train(self) -> BuildConfig:
+        if self.val_users and self.role == "test":
+            raise ValueError("val_users is for train cities; a test city's users are all test users")
+        return self
+
+
+class GridSpec(Contract):
+    """The regular grid every array of a bundle lives on (see the module docstring)."""
+
+    x_min_m: float
+    y_min_m: float
+    spacing_m: float = Field(gt=0)
+    num_x: int = Field(ge=1)
+    num_y: int = Field(ge=1)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(num_y, num_x)``, the shape of a 2-D map."""
+        return (self.num_y, self.num_x)
+
+    @property
+    def x_max_m(self) -> float:
+        return self.x_min_m + self.num_x * self.spacing_m
+
+    @property
+    def y_max_m(self) -> float:
+        return self.y_min_m + self.num_y * self.spacing_m
+
+
+class SinrInfo(Contract):
+    """How the SINR maps were made."""
+
+    source: SinrSource = Field(description="Export quantity the SINR comes from")
+    noise_dbm: float | None = Field(description="Noise + interference used [dBm]; None when the export gave SINR")
+    interference_std_db: float
+    floor_db: float
+    tx_power_dbm: tuple[float, ...] = Field(description="Distinct user transmit powers used [dBm]")
+    resampled: bool = Field(description="True when the export's receiver spacing differs from the grid's")
+    export_spacing_m: float | None = Field(description="Receiver spacing of the export (None for point receivers)")
+
+
+class BundleManifest(Contract):
+    """Everything a bundle is made of and how it was made; ``load_bundle`` checks it."""
+
+    schema_version: str = SCHEMA_VERSION
+    city: str = Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+    version: str = Field(pattern=r"^[0-9a-f]{12}$", description="Content hash of inputs, config and schema version")
+    created_utc: str
+    uavplace_version: str
+    command: str
+    config: BuildConfig
+    grid: GridSpec
+    sinr: SinrInfo
+    num_users: int = Field(ge=1)
+    split: dict[str, int] = Field(description="Users per split (train, val, test)")
+    counts: dict[str, int]
+    files: dict[str, str] = Field(description="Bundle file -> sha256")
+    inputs: dict[str, str] = Field(description="Ingested file -> sha256 (the tables and terrain the bundle came from)")
+    warnings: tuple[str, ...] = ()
+
+
+_I32 = pa.int32()
+_F64 = pa.float64()
+_F32 = pa.float32()
+
+CELLS = TableSpec(
+    name="cells",
+    filename="cells.parquet",
+    description="One row per user x cell: the maps of maps.npz as a long table (user-major, then iy, then ix).",
+    columns=(
+        Column("user", _I32, "", "User index in the bundle (row of users.parquet)"),
+        Column("ix", _I32, "", "Cell column, 0 at x_min"),
+        Column("iy", _I32, "", "Cell row, 0 at y_min"),
+        Column("x_m", _F64, "m", "Cell centre x"),
+        Column("y_m", _F64, "m", "Cell centre y"),
+        Column("sinr_db", _F32, "dB", "SINR at the cell (the SINR floor where dead)"),
+        Column("dead", pa.bool_(), "", "No ray-traced path reached the cell"),
+        Column("blocked", pa.bool_(), "", "Building at or above the UAV altitude"),
+        Column("height_rel_m", _F32, "m", "Building height above ground minus the UAV altitude"),
+    ),
+)
+
+USERS = TableSpec(
+    name="users",
+    filename="users.parquet",
+    description="One row per user (ray-traced transmitter) of the bundle.",
+    columns=(
+        Column("user", _I32, "", "User index in the bundle, 0-based"),
+        Column("tx_set_id", _I32, "", "Transmitter set project_id in the export"),
+        Column("tx_point", _I32, "", "Point number within the set in the export"),
+        Column("x_m", _F64, "m", "User position x", nullable=True),
+        Column("y_m", _F64, "m", "User position y", nullable=True),
+        Column("z_m", _F64, "m", "User position z as in the export", nullable=True),
+        Column("ix", _I32, "", "Cell column of the user position (-1 outside the grid or unknown)"),
+        Column("iy", _I32, "", "Cell row of the user position (-1 outside the grid or unknown)"),
+        Column("tx_power_dbm", _F64, "dBm", "Transmit power used", nullable=True),
+        Column("frequency_hz", _F64, "Hz", "Carrier frequency", nullable=True),
+        Column("split", pa.string(), "", "train, val or test; null when the city declares no role", nullable=True),
+        Column("num_receivers", _I32, "", "Receivers of the export used for this user"),
+        Column("num_dead_cells", _I32, "", "Cells of the grid no path reached for this user"),
+    ),
+)
