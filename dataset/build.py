@@ -28,7 +28,6 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
-from scipy import ndimage
 
 from dataset.bundle import load_bundle, read_latest, write_latest
 from dataset.catalog import DEFAULT_ROOT, INGESTED_MANIFEST, read_city_manifest
@@ -268,6 +267,8 @@ def rasterise(
 
     if export_spacing is not None and export_spacing > config.grid_m * (1 + 1e-6):
         # Export coarser than the grid: cells between receivers take their nearest sampled cell.
+        from scipy import ndimage
+
         reach = export_spacing / config.grid_m
         for k in range(len(users)):
             dist, (jy, jx) = ndimage.distance_transform_edt(num_rx[k] == 0, return_indices=True)

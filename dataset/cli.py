@@ -13,10 +13,8 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from dataset.build import build_city
 from dataset.bundle import list_versions, load_bundle, read_latest
 from dataset.catalog import DEFAULT_ROOT, list_cities
-from ingest.pipeline import ingest_city
 from schemas import InputError
 from schemas.bundle import BuildConfig
 from schemas.export import SCHEMA_MODELS, json_schemas
@@ -80,6 +78,8 @@ def ingest(folder: Path, out_root: Path, name: str | None, quiet: bool) -> None:
     (paths, doa, dod, cir, ...) are recognised and skipped; unknown files are
     listed as warnings. On any error nothing is written and the exit status is 2.
     """
+    from ingest.pipeline import ingest_city
+
     try:
         with Progress(
             TextColumn("[bold]ingest[/] {task.description}"),
@@ -291,6 +291,8 @@ def build(
     SINR = received power - (noise + interference), averaged over receivers in
     the linear domain; the export's own SINR is used when it has one.
     """
+    from dataset.build import build_city
+
     role = _splits(splits)
     names = list(cities) or [c.name for c in list_cities(root)]
     if not names:
@@ -439,3 +441,7 @@ def show(city: str, version: str | None, user: int, out_path: Path | None, root:
     out_path = out_path or Path("reports") / "show" / f"{bundle.city}-{bundle.version}-user{user}.png"
     path = render_bundle(bundle, user, out_path)
     stdout().print(f"wrote {path}", highlight=False, soft_wrap=True)
+
+
+if __name__ == "__main__":
+    main()

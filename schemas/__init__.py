@@ -5,6 +5,7 @@ declared here once. Nothing in this package imports another uavplace package.
 """
 
 from schemas.base import SCHEMA_VERSION, Contract, InputError
+from schemas.bundle import CELLS, USERS, BuildConfig, BundleManifest, GridSpec, SinrInfo
 from schemas.city import (
     CityManifest,
     FileReport,
@@ -24,6 +25,12 @@ __all__ = [
     "BUILDINGS",
     "BUILDING_PARTS",
     "Building",
+    "BuildConfig",
+    "BundleManifest",
+    "CELLS",
+    "GridSpec",
+    "SinrInfo",
+    "USERS",
     "CityManifest",
     "CommSystemInfo",
     "Contract",

@@ -7,6 +7,7 @@ from typing import Any
 from pydantic import BaseModel
 
 from schemas.base import SCHEMA_VERSION
+from schemas.bundle import CELLS, USERS, BuildConfig, BundleManifest
 from schemas.city import CityManifest, IngestReport
 from schemas.geometry import Building, TerrainInfo
 from schemas.receivers import ReceiverSet
@@ -22,13 +23,16 @@ SCHEMA_MODELS: dict[str, type[BaseModel] | TableSpec] = {
     "setup": SetupInfo,
     "building": Building,
     "terrain": TerrainInfo,
-    **{f"table_{t.name}": t for t in ALL_TABLES},
+    "bundle_manifest": BundleManifest,
+    "build_config": BuildConfig,
+    **{f"table_{t.name}": t for t in (*ALL_TABLES, CELLS, USERS)},
 }
 
 _JSON_TYPES = {
     "int32": "integer",
     "int64": "integer",
     "double": "number",
+    "float": "number",
     "bool": "boolean",
     "string": "string",
     "binary": "string",
