@@ -31,6 +31,7 @@ import pyarrow.parquet as pq
 
 from dataset.bundle import load_bundle, read_latest, write_latest
 from dataset.catalog import DEFAULT_ROOT, INGESTED_MANIFEST, read_city_manifest
+from dataset.difficulty import difficulty
 from dataset.raster import cell_centres, cell_index, grid_over, ground_z, height_map
 from schemas import SCHEMA_VERSION, CityManifest, InputError
 from schemas.base import uavplace_version
@@ -161,7 +162,7 @@ def _grid(ing: Ingested, rx: pd.DataFrame, config: BuildConfig, export_spacing: 
     return grid_over(*box, config.grid_m)
 
 
-def _check_coverage(ing: Ingested, rx: pd.DataFrame, users: pd.DataFrame, tol_m: float) -> None:
+def _check_coverage(ing: Ingested, rx: pd.DataFrame, tol_m: float) -> None:
     """Every user's receivers must span the same area (users are compared on one map)."""
     ext = rx.groupby(["tx_set_id", "tx_point"])[["x_m", "y_m"]].agg(["min", "max"])
     ref = ext.median()
@@ -233,7 +234,7 @@ def rasterise(
         warnings.append(f"{without} transmitter(s) have no receivers at the altitude and are not users of the bundle")
     export_spacing = _export_spacing(ing, rx)
     grid = _grid(ing, rx, config, export_spacing)
-    _check_coverage(ing, rx, users, tol_m=max(export_spacing or 0.0, config.grid_m) / 2 + 1e-6)
+    _check_coverage(ing, rx, tol_m=max(export_spacing or 0.0, config.grid_m) / 2 + 1e-6)
 
     source, column = _sinr_source(ing, rx)
     tx_used, shift = _tx_power(ing, users, config, source)
@@ -462,6 +463,7 @@ def build_city(
             num_users=len(users),
             split={k: int(split.get(k, 0)) for k in ("train", "val", "test")},
             counts={"users": len(users), **counts},
+            difficulty=difficulty(arrays["blocked"], arrays["dead"], arrays["sinr_db"], config.p_t_db),
             files={name: sha256_file(tmp / name) for name in ("maps.npz", CELLS.filename, USERS.filename)},
             inputs=ing.hashes,
             warnings=tuple(warnings),

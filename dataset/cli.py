@@ -58,7 +58,7 @@ def main() -> None:
 
 
 @main.command()
-@click.argument("folder", type=click.Path(file_okay=False, path_type=Path))
+@click.argument("folders", nargs=-1, required=True, type=click.Path(file_okay=False, path_type=Path))
 @click.option(
     "--out",
     "out_root",
@@ -67,17 +67,24 @@ def main() -> None:
     show_default=True,
     help="Root of processed data; tables go to OUT/<city>/ingested/.",
 )
-@click.option("--name", default=None, help="City name (default: the folder's name).")
+@click.option("--name", default=None, help="City name (default: the folder's name; only with one FOLDER).")
 @click.option("--quiet", is_flag=True, help="No progress bar and no per-file table; only the summary line.")
-def ingest(folder: Path, out_root: Path, name: str | None, quiet: bool) -> None:
-    """Read every export in FOLDER, validate it and write tables.
+def ingest(folders: tuple[Path, ...], out_root: Path, name: str | None, quiet: bool) -> None:
+    """Read every export in each city FOLDER, validate it and write tables (e.g. `uavdata ingest data/raw/*/`).
 
     Understands Wireless InSite receiver outputs (.p2m, .p2m.gz: power, pl,
     pg, txloss, spread, noise), .txrx, .setup, .city, .ter, GeoJSON footprints
     (.geojson) and meshes (.obj .ply .stl .glb .gltf). Per-path outputs
     (paths, doa, dod, cir, ...) are recognised and skipped; unknown files are
-    listed as warnings. On any error nothing is written and the exit status is 2.
+    listed as warnings. On any error nothing is written for that city and the exit status is 2.
     """
+    if name is not None and len(folders) > 1:
+        raise click.BadParameter("--name names one city: give one FOLDER", param_hint="--name")
+    for folder in folders:
+        _ingest_one(folder, out_root, name, quiet)
+
+
+def _ingest_one(folder: Path, out_root: Path, name: str | None, quiet: bool) -> None:
     from ingest.pipeline import ingest_city
 
     try:
@@ -344,13 +351,155 @@ def build(
             highlight=False,
             soft_wrap=True,
         )
+        out.print(f"  difficulty: {format_difficulty(m.difficulty)}", highlight=False, soft_wrap=True)
     if errors:
         sys.exit(2)
+
+
+def format_difficulty(d: dict[str, float | None]) -> str:
+    def pct(v: float | None) -> str:
+        return "-" if v is None else f"{100 * v:.1f} %"
+
+    def num(v: float | None) -> str:
+        return "inf" if v is None else f"{v:g}"
+
+    return (
+        f"at P_T {d['p_t_db']:g} dB: {pct(d['target_share'])} of legal cells are targets, {pct(d['dead_share'])} dead; "
+        f"BFS steps to a target from {int(d['num_starts'] or 0)} starts: median {num(d['bfs_median_steps'])}, "
+        f"mean {num(d['bfs_mean_steps'])}, {pct(d['unreachable_start_share'])} unreachable"
+    )
 
 
 def _size(path: Path) -> str:
     total = sum(p.stat().st_size for p in path.iterdir() if p.is_file())
     return f"{total / 1e6:.1f} MB"
+
+
+class Point(click.ParamType):
+    """``X,Y`` in metres."""
+
+    name = "x,y"
+
+    def convert(self, value, param, ctx):  # noqa: ANN001, ANN201 - click's signature
+        if isinstance(value, tuple):
+            return value
+        try:
+            x, y = (float(v) for v in str(value).split(","))
+        except ValueError:
+            self.fail(f"{value!r}: expected X,Y in metres", param, ctx)
+        return (x, y)
+
+
+@main.command()
+@click.argument("source")
+@click.option("--name", required=True, help="City name: the exports go to OUT/<name>/.")
+@click.option(
+    "--out",
+    "out_root",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("data/raw"),
+    show_default=True,
+    help="Folder of raw city exports.",
+)
+@click.option(
+    "--users",
+    "num_users",
+    type=click.IntRange(min=1),
+    default=27,
+    show_default=True,
+    help="Users (ground transmitters at 1.5 m) sampled uniformly over open ground.",
+)
+@click.option(
+    "--user",
+    "users_m",
+    type=Point(),
+    multiple=True,
+    help="Place a user at X,Y instead of sampling (repeatable; overrides --users).",
+)
+@click.option("--grid", "grid_m", type=Metres(), default="4m", show_default=True, help="Receiver grid spacing.")
+@click.option(
+    "--alt", "altitude_m", type=Metres(), default="10m", show_default=True, help="Receiver grid height (the UAV altitude)."
+)
+@click.option("--extent", type=Bounds(), default=None, help="Grid extent XMIN,YMIN,XMAX,YMAX [m] (default: the city's bounds).")
+@click.option("--freq", "frequency_hz", type=float, default=800e6, show_default=True, help="Carrier frequency [Hz].")
+@click.option("--tx-dbm", type=float, default=20.0, show_default=True, help="User transmit power [dBm].")
+@click.option("--samples", type=float, default=1e6, show_default=True, help="Rays per user (Sionna samples_per_tx).")
+@click.option("--depth", type=click.IntRange(min=0), default=5, show_default=True, help="Maximum interactions per path.")
+@click.option("--no-diffraction", is_flag=True, help="Switch edge diffraction off (faster, more dead cells).")
+@click.option(
+    "--gap-fill",
+    default="4,16",
+    show_default=True,
+    help="Coarser maps (cell x factor, samples / factor) whose cells fill Monte Carlo gaps of the grid; "
+    "'none' to keep gaps as unreached.",
+)
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the city generator, the users and the ray sampler.")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+def simulate(
+    source: str,
+    name: str,
+    out_root: Path,
+    num_users: int,
+    users_m: tuple,
+    grid_m: float,
+    altitude_m: float,
+    extent,
+    frequency_hz: float,
+    tx_dbm: float,
+    samples: float,
+    depth: int,
+    no_diffraction: bool,
+    gap_fill: str,
+    seed: int,
+    quiet: bool,
+) -> None:
+    """Ray-trace a city with Sionna RT and write it as Wireless InSite exports in OUT/<name>/.
+
+    \b
+    SOURCE is procedural[:train|test|tiny] (a seeded generated city: train
+    552 x 500 m, test 400 x 500 m, tiny 96 x 80 m), an InSite .city file or
+    a GeoJSON file of footprints with heights. Writes <name>.txrx (users and
+    the receiver grid), <name>.setup, <name>.city, one
+    <name>.power.tNNN_01.r002.p2m.gz per user and simulation.json (every
+    parameter, package versions, materials, wall time). Then:
+    uavdata ingest OUT/<name>/ && uavdata build.
+    Needs the raytrace extra: pip install -e '.[raytrace]' (CPU: libllvm19).
+    """
+    from simulate.pipeline import SimulationSpec, simulate_city
+    from simulate.raytrace import RayTraceConfig
+
+    if isinstance(extent, str):
+        raise click.BadParameter("expected XMIN,YMIN,XMAX,YMAX", param_hint="--extent")
+    spec = SimulationSpec(source=source, name=name, num_users=len(users_m) or num_users, grid_m=grid_m, altitude_m=altitude_m,
+                          tx_dbm=tx_dbm, seed=seed, extent_m=extent, users_m=tuple(users_m))  # fmt: skip
+    rt = RayTraceConfig(
+        frequency_hz=frequency_hz, samples_per_tx=int(samples), max_depth=depth, diffraction=not no_diffraction, seed=seed
+    )
+    try:
+        with Progress(TextColumn("[bold]simulate[/] {task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                      console=console, disable=quiet, transient=True) as progress:  # fmt: skip
+            task = progress.add_task(name, total=None)
+
+            def on_progress(stage: str, done: int, total: int) -> None:
+                progress.update(task, description=f"{name}: {stage}", completed=done, total=total)
+
+            folder, record = simulate_city(spec, rt, out_root, command=command_line(), on_progress=on_progress)
+    except InputError as err:
+        fail(err)
+        return
+    except RuntimeError as err:
+        console.print(f"[bold red]error:[/] {err}", highlight=False, soft_wrap=True)
+        sys.exit(2)
+    g = record["grid"]
+    stdout().print(
+        f"simulated {name}: {record['geometry']}, {record['num_buildings']} buildings, {len(record['users_m'])} users, "
+        f"grid {g['num_x']} x {g['num_y']} at {g['spacing_m']:g} m and {g['altitude_m']:g} m, "
+        f"{100 * record['unreached_cell_share']:.1f} % of user-cells unreached "
+        f"({100 * record['gap_filled_cell_share']:.1f} % Monte Carlo gaps filled), ray tracing {record['raytrace_seconds']:.1f} s "
+        f"(wall {record['wall_seconds']:.1f} s) -> {folder}",
+        highlight=False,
+        soft_wrap=True,
+    )
 
 
 @main.command(name="list")

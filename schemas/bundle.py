@@ -71,6 +71,7 @@ class BuildConfig(Contract):
     )
     crop: bool = Field(default=False, description="Drop buildings wholly outside the grid (counted) instead of failing")
     role: SplitRole | None = Field(default=None, description="The city's role in experiments, if declared")
+    p_t_db: float = Field(default=5.0, description="SINR target the manifest's difficulty figures are computed at [dB]")
     val_users: int = Field(default=0, ge=0, description="Users of a train city held out for validation (seeded)")
 
     @field_validator("bounds")
@@ -137,6 +138,9 @@ class BundleManifest(Contract):
     num_users: int = Field(ge=1)
     split: dict[str, int] = Field(description="Users per split (train, val, test)")
     counts: dict[str, int]
+    difficulty: dict[str, float | None] = Field(
+        description="Search difficulty at P_T (dataset.difficulty): target and dead shares, BFS steps to a target"
+    )
     files: dict[str, str] = Field(description="Bundle file -> sha256")
     inputs: dict[str, str] = Field(description="Ingested file -> sha256 (the tables and terrain the bundle came from)")
     warnings: tuple[str, ...] = ()

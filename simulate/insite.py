@@ -208,16 +208,17 @@ def write_p2m(
     return _write(path, text, gz=gz, crlf=crlf)
 
 
-def write_city(path: str | Path, buildings: Sequence[tuple[shapely.Polygon, float]], *, name: str = "city") -> Path:
-    """An InSite .city: per building a ``structure`` with one ``sub_structure`` whose faces are the
-    roof (the footprint at its height) and one vertical wall per footprint edge. Heights [m] above z = 0."""
+def write_city(path: str | Path, buildings: Sequence[tuple[shapely.Polygon, float, float]], *, name: str = "city") -> Path:
+    """An InSite .city: per building ``(footprint, base z, roof z)`` [m] a ``structure`` with one
+    ``sub_structure`` whose faces are the roof (the footprint at roof z) and one vertical wall per
+    exterior edge. z is above the terrain (``reference terrain``)."""
     out = ["Format type:keyword version: 1.1.0", f"begin_<city> {name}", "begin_<reference>", "cartesian", "terrain",
            "end_<reference>"]  # fmt: skip
-    for k, (poly, height) in enumerate(buildings):
+    for k, (poly, base, roof) in enumerate(buildings):
         ring = np.asarray(shapely.get_coordinates(shapely.force_2d(poly.exterior)))[:-1]
-        faces = [[(x, y, height) for x, y in ring]]
+        faces = [[(x, y, roof) for x, y in ring]]
         for (x1, y1), (x2, y2) in zip(ring, np.roll(ring, -1, axis=0), strict=True):
-            faces.append([(x1, y1, 0.0), (x2, y2, 0.0), (x2, y2, height), (x1, y1, height)])
+            faces.append([(x1, y1, base), (x2, y2, base), (x2, y2, roof), (x1, y1, roof)])
         out += ["begin_<structure_group> ", f"begin_<structure> building_{k}", "begin_<sub_structure> 1"]
         for face in faces:
             out += ["begin_<face> ", "Material 1", f"nVertices {len(face)}"]

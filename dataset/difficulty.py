@@ -1,0 +1,74 @@
+"""How hard a bundle's search problem is: target share, dead share, shortest-path steps (the genie's).
+
+``steps_to_target`` is one multi-source breadth-first search per user over
+the legal (not blocked) cells, from every target cell (SINR >= P_T) at once,
+done as a frontier expansion on whole arrays: ``[num_users, ny, nx]`` in, the
+number of 4-neighbour moves from every cell to the nearest target out.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Steps value of a cell from which no target can be reached (and of blocked cells).
+UNREACHABLE = np.iinfo(np.int32).max
+
+
+def steps_to_target(legal: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Shortest number of 4-neighbour moves over ``legal`` cells to any ``target`` cell.
+
+    ``legal``: ``[ny, nx]`` or broadcastable to ``target``'s ``[..., ny, nx]``; ``target``
+    cells must be legal to count. Returns int32 ``[..., ny, nx]``, ``UNREACHABLE`` where
+    no target can be reached or the cell is not legal.
+    """
+    legal = np.broadcast_to(legal, target.shape)
+    dist = np.full(target.shape, UNREACHABLE, dtype=np.int32)
+    frontier = target & legal
+    seen = frontier.copy()
+    d = 0
+    while frontier.any():
+        dist[frontier] = d
+        grown = np.zeros_like(frontier)
+        grown[..., 1:, :] |= frontier[..., :-1, :]
+        grown[..., :-1, :] |= frontier[..., 1:, :]
+        grown[..., :, 1:] |= frontier[..., :, :-1]
+        grown[..., :, :-1] |= frontier[..., :, 1:]
+        frontier = grown & legal & ~seen
+        seen |= frontier
+        d += 1
+    return dist
+
+
+def valid_starts(blocked: np.ndarray, dead: np.ndarray, sinr_db: np.ndarray, p_t_db: float) -> np.ndarray:
+    """Cells an episode may start in: legal, not dead, below the target. ``[num_users, ny, nx]``."""
+    return ~blocked & ~dead & (sinr_db < p_t_db)
+
+
+def difficulty(blocked: np.ndarray, dead: np.ndarray, sinr_db: np.ndarray, p_t_db: float = 5.0) -> dict[str, float | None]:
+    """Summary of the search problem over all users at target ``p_t_db``.
+
+    ``target_share``: legal, live cells at or above P_T, over legal cells; ``dead_share``:
+    legal cells no path reached, over legal cells; ``bfs_median_steps`` / ``bfs_mean_steps``:
+    over every valid start of every user, the shortest legal path to a target cell
+    (unreachable starts count as infinite in the median and are left out of the mean);
+    ``unreachable_start_share``. A figure that does not exist (no start, an infinite median) is None.
+    """
+    legal = ~blocked
+    target = legal & ~dead & (sinr_db >= p_t_db)
+    steps = steps_to_target(legal, target)
+    starts = valid_starts(blocked, dead, sinr_db, p_t_db)
+    s = steps[starts].astype(float)
+    s[s == UNREACHABLE] = np.inf
+    n_legal = legal.sum() * sinr_db.shape[0]
+    finite = s[np.isfinite(s)]
+    out = {
+        "p_t_db": float(p_t_db),
+        "target_share": float(target.sum() / n_legal),
+        "dead_share": float((dead & legal).sum() / n_legal),
+        "blocked_share": float(blocked.mean()),
+        "num_starts": int(starts.sum()),
+        "bfs_median_steps": float(np.median(s)) if s.size else float("nan"),
+        "bfs_mean_steps": float(finite.mean()) if finite.size else float("nan"),
+        "unreachable_start_share": float(np.isinf(s).mean()) if s.size else float("nan"),
+    }
+    return {k: (v if np.isfinite(v) else None) for k, v in out.items()}

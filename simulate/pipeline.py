@@ -1,0 +1,224 @@
+"""`uavdata simulate`: a city source -> Sionna RT radio maps -> a folder of Wireless InSite exports.
+
+The recipe:
+
+1. geometry from the source: the procedural generator (``procedural:train``,
+   ``procedural:test``, ``procedural:tiny``), an InSite ``.city`` or a GeoJSON
+   file of footprints with heights (read with ingest's own parsers);
+2. the grid (``--grid`` cells covering the city at ``--alt``) and the users
+   (sampled on open ground, or given);
+3. a Mitsuba scene (extruded buildings, ground plane, P.2040 materials) and
+   one Sionna radio map per user;
+4. written as InSite would: ``<name>.txrx``, ``<name>.setup``, ``<name>.city``,
+   one ``<name>.power.t<PPP>_01.r002.p2m.gz`` per user (unreached cells at the
+   -250 dBm threshold sentinel), and ``simulation.json`` (every parameter,
+   package versions, material mapping, seed, wall time), all into a temporary
+   folder renamed into place.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import shapely
+
+from schemas import InputError
+from schemas.base import uavplace_version
+from schemas.files import atomic_directory
+from simulate.insite import UNREACHED_POWER_DBM, ReceiverGrid, write_city, write_p2m, write_setup, write_txrx
+from simulate.procedural import PRESETS, USER_HEIGHT_M, generate_city, sample_users
+from simulate.raytrace import RadioMapJob, RayTraceConfig, path_gain_maps_isolated, sionna_versions
+from simulate.scene import Block, write_scene
+
+USER_SET = (1, "User")
+GRID_SET = (2, "Drone_grid")
+#: Files of a simulated city beside the exports (ingest lists them as provenance and skips them).
+PROVENANCE = "simulation.json"
+
+
+@dataclass(frozen=True)
+class SimulationSpec:
+    """Everything `uavdata simulate` was asked for (saved in simulation.json)."""
+
+    source: str
+    name: str
+    num_users: int = 27
+    grid_m: float = 4.0
+    altitude_m: float = 10.0
+    tx_dbm: float = 20.0
+    seed: int = 0
+    extent_m: tuple[float, float, float, float] | None = None
+    users_m: tuple[tuple[float, float], ...] = ()
+
+
+def load_geometry(source: str, seed: int) -> tuple[list[Block], tuple[float, float, float, float], str]:
+    """(building parts, city bounds, description) of a source."""
+    if source.startswith("procedural"):
+        preset = source.partition(":")[2] or "train"
+        if preset not in PRESETS:
+            raise InputError(source, f"unknown procedural preset '{preset}' (known: {', '.join(PRESETS)})", field="source")
+        size = PRESETS[preset]
+        city = generate_city(size, 0, seed)
+        blocks = [] if preset == "open" else [Block(f, 0.0, h) for f, h in zip(city.footprints, city.heights_m, strict=True)]
+        return blocks, (0.0, 0.0, *size), f"procedural preset {preset} ({size[0]:g} x {size[1]:g} m), seed {seed}"
+    path = Path(source)
+    if not path.is_file():
+        raise InputError(path, "no such file: expected procedural[:train|test|tiny], a .city or a .geojson", field="source")
+    if path.suffix.lower() == ".city":
+        from ingest.wireless_insite.city import read_city
+
+        records = read_city(path)
+    elif path.suffix.lower() in (".geojson", ".json"):
+        from ingest.geojson import read_geojson
+
+        records, rejected = read_geojson(path)
+        if rejected:
+            raise InputError(
+                path, f"{sum(r.count for r in rejected)} feature(s) rejected: {rejected[0].reason}", field="geometry"
+            )
+    else:
+        raise InputError(path, f"unknown geometry format '{path.suffix}' (expected .city or .geojson)", field="source")
+    blocks = []
+    for rec in records:
+        base = min(p.base_z_m for p in rec.parts) if rec.parts else 0.0
+        for p in rec.parts:
+            if not p.footprint.is_valid or p.footprint.area <= 0:
+                raise InputError(
+                    rec.source, f"footprint is not a valid polygon: {shapely.is_valid_reason(p.footprint)}", field="footprint"
+                )
+            for poly in shapely.get_parts(p.footprint):
+                blocks.append(Block(poly, p.base_z_m - base, p.roof_z_m - base))
+    if not blocks:
+        raise InputError(path, "no building in the geometry file", field="geometry")
+    b = shapely.total_bounds([blk.footprint for blk in blocks])
+    return blocks, (float(b[0]), float(b[1]), float(b[2]), float(b[3])), f"{path.name}: {len(records)} buildings"
+
+
+def receiver_grid(bounds: tuple[float, float, float, float], spec: SimulationSpec) -> ReceiverGrid:
+    x0, y0, x1, y1 = spec.extent_m or bounds
+    nx, ny = int((x1 - x0) // spec.grid_m), int((y1 - y0) // spec.grid_m)
+    if nx < 2 or ny < 2:
+        raise InputError(
+            spec.source, f"a {x1 - x0:g} x {y1 - y0:g} m extent holds fewer than 2 x 2 cells of {spec.grid_m:g} m", field="extent"
+        )
+    return ReceiverGrid(
+        x0_m=x0 + spec.grid_m / 2, y0_m=y0 + spec.grid_m / 2, z_m=spec.altitude_m, num_x=nx, num_y=ny, spacing_m=spec.grid_m
+    )
+
+
+def place_users(blocks: list[Block], grid: ReceiverGrid, spec: SimulationSpec) -> np.ndarray:
+    foot = [b.footprint for b in blocks]
+    union = shapely.union_all(foot) if foot else shapely.Polygon()
+    x0, y0 = grid.x0_m - grid.spacing_m / 2, grid.y0_m - grid.spacing_m / 2
+    x1, y1 = x0 + grid.num_x * grid.spacing_m, y0 + grid.num_y * grid.spacing_m
+    if spec.extent_m is not None and foot and not shapely.intersects(shapely.box(x0, y0, x1, y1), union):
+        raise InputError(
+            spec.source, f"the grid x {x0:g}..{x1:g}, y {y0:g}..{y1:g} does not overlap the city's buildings", field="extent"
+        )
+    if spec.users_m:
+        users = np.array([(x, y, USER_HEIGHT_M) for x, y in spec.users_m])
+        inside = shapely.contains_xy(union, users[:, 0], users[:, 1]) if foot else np.zeros(len(users), bool)
+        if inside.any():
+            k = int(np.flatnonzero(inside)[0])
+            raise InputError(
+                spec.source, f"user {k + 1} at ({users[k, 0]:g}, {users[k, 1]:g}) is inside a building", field="user"
+            )
+        off = (users[:, 0] < x0) | (users[:, 0] > x1) | (users[:, 1] < y0) | (users[:, 1] > y1)
+        if off.any():
+            k = int(np.flatnonzero(off)[0])
+            raise InputError(spec.source, f"user {k + 1} at ({users[k, 0]:g}, {users[k, 1]:g}) is outside the grid", field="user")
+        return users
+    rng = np.random.default_rng([spec.seed, 2])
+    users = sample_users((x1 - x0, y1 - y0), [shapely.transform(f, lambda c: c - [x0, y0]) for f in foot], spec.num_users, rng)
+    return users + [x0, y0, 0.0]
+
+
+def simulate_city(
+    spec: SimulationSpec,
+    rt_config: RayTraceConfig,
+    out_root: str | Path = "data/raw",
+    *,
+    command: str = "",
+    on_progress: Callable[[str, int, int], None] | None = None,
+) -> tuple[Path, dict]:
+    """Simulate one city into ``out_root/<name>/``; returns (folder, the simulation.json record)."""
+
+    def progress(stage: str, done: int, total: int) -> None:
+        if on_progress is not None:
+            on_progress(stage, done, total)
+
+    t_start = time.perf_counter()
+    blocks, bounds, described = load_geometry(spec.source, spec.seed)
+    grid = receiver_grid(bounds, spec)
+    users = place_users(blocks, grid, spec)
+    size = (grid.num_x * grid.spacing_m, grid.num_y * grid.spacing_m)
+    corner = (grid.x0_m - grid.spacing_m / 2, grid.y0_m - grid.spacing_m / 2)
+    center = (corner[0] + size[0] / 2, corner[1] + size[1] / 2, spec.altitude_m)
+    progress("scene", 0, len(users))
+    with tempfile.TemporaryDirectory(prefix="uavplace-scene-") as tmp:
+        xml, materials = write_scene(
+            tmp, blocks, (corner[0], corner[1], corner[0] + size[0], corner[1] + size[1]), rt_config.frequency_hz
+        )
+        t_rt = time.perf_counter()
+        job = RadioMapJob(str(xml), tuple(map(tuple, users.tolist())), center, size, spec.grid_m)
+        gain, filled = path_gain_maps_isolated(job, rt_config, on_batch=lambda d, t: progress("ray tracing", d, t))
+        rt_seconds = time.perf_counter() - t_rt
+    pos = grid.points()  # [ny * nx, 3], x fastest: the same order as gain[u].ravel()
+    with atomic_directory(Path(out_root) / spec.name) as out:
+        write_txrx(out / f"{spec.name}.txrx", users, grid, tx_power_dbm=spec.tx_dbm, user_set=USER_SET, grid_set=GRID_SET)
+        write_setup(out / f"{spec.name}.setup", spec.name, frequency_hz=rt_config.frequency_hz, features=[f"{spec.name}.city"])
+        write_city(out / f"{spec.name}.city", [(b.footprint, b.base_z_m, b.roof_z_m) for b in blocks], name=spec.name)
+        for u in range(len(users)):
+            g = gain[u].ravel()
+            with np.errstate(divide="ignore"):
+                power = np.where(g > 0, spec.tx_dbm + 10 * np.log10(g), np.nan)
+            dist = np.linalg.norm(pos - users[u], axis=1)
+            write_p2m(out, spec.name, "power", tx_point=u + 1, tx_set=USER_SET, rx_set=GRID_SET, positions_m=pos,
+                      distance_m=dist, values=power, gz=True)  # fmt: skip
+            progress("writing", u + 1, len(users))
+        reached = gain > 0
+        record = {
+            "tool": "uavdata simulate",
+            "created_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+            "uavplace_version": uavplace_version(),
+            "command": command,
+            "spec": asdict(spec),
+            "geometry": described,
+            "num_buildings": len(blocks),
+            "grid": {
+                "x0_m": grid.x0_m,
+                "y0_m": grid.y0_m,
+                "num_x": grid.num_x,
+                "num_y": grid.num_y,
+                "spacing_m": grid.spacing_m,
+                "altitude_m": spec.altitude_m,
+            },  # fmt: skip
+            "users_m": np.round(users, 3).tolist(),
+            "raytrace": asdict(rt_config),
+            "receiver_antenna": "isotropic (Sionna's radio map); user antenna: vertical " + rt_config.antenna,
+            "phase_deg": "not computed (the radio map is an incoherent power sum); written as 0 in the power outputs",
+            "unreached_power_dbm": UNREACHED_POWER_DBM,
+            "materials": materials,
+            "packages": sionna_versions(),
+            "cells": {
+                "user_cells": int(gain.size),
+                "hit_by_rays": int((reached & ~filled).sum()),
+                "monte_carlo_gaps_filled": int(filled.sum()),
+                "unreached": int((~reached).sum()),
+                "gap_fill": f"a cell no ray hit takes the mean path gain of its parent cell in the maps of "
+                f"{rt_config.gap_fill_factors} x coarser cells (traced with samples / factor), finest first",
+            },
+            "unreached_cell_share": float(1 - reached.mean()),
+            "gap_filled_cell_share": float(filled.mean()),
+            "raytrace_seconds": round(rt_seconds, 2),
+            "wall_seconds": round(time.perf_counter() - t_start, 2),
+        }
+        (out / PROVENANCE).write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
+    return Path(out_root) / spec.name, record
