@@ -430,7 +430,7 @@ class Point(click.ParamType):
     "--gap-fill",
     default="4,16",
     show_default=True,
-    help="Coarser maps (cell x factor, samples / factor) whose cells fill Monte Carlo gaps of the grid; "
+    help="Coarser maps (cell x factor, same samples) whose cells fill Monte Carlo gaps of the grid; "
     "'none' to keep gaps as unreached.",
 )
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the city generator, the users and the ray sampler.")
@@ -472,8 +472,19 @@ def simulate(
         raise click.BadParameter("expected XMIN,YMIN,XMAX,YMAX", param_hint="--extent")
     spec = SimulationSpec(source=source, name=name, num_users=len(users_m) or num_users, grid_m=grid_m, altitude_m=altitude_m,
                           tx_dbm=tx_dbm, seed=seed, extent_m=extent, users_m=tuple(users_m))  # fmt: skip
+    try:
+        factors = () if gap_fill == "none" else tuple(int(f) for f in gap_fill.split(","))
+    except ValueError:
+        raise click.BadParameter(f"{gap_fill!r}: expected factors like 4,16, or none", param_hint="--gap-fill") from None
+    if any(f < 2 for f in factors):
+        raise click.BadParameter("factors must be >= 2", param_hint="--gap-fill")
     rt = RayTraceConfig(
-        frequency_hz=frequency_hz, samples_per_tx=int(samples), max_depth=depth, diffraction=not no_diffraction, seed=seed
+        frequency_hz=frequency_hz,
+        samples_per_tx=int(samples),
+        max_depth=depth,
+        diffraction=not no_diffraction,
+        seed=seed,
+        gap_fill_factors=factors,
     )
     try:
         with Progress(TextColumn("[bold]simulate[/] {task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),

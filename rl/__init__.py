@@ -1,1 +1,11 @@
-"""Reinforcement learning over map bundles. Reads cities through ``dataset`` only, never raw files."""
+"""UAV placement environments and agents; reads map bundles only (``dataset.bundle``).
+
+Importing ``rl`` registers the Gymnasium environments ``uavplace/UavPlacement-v0`` and
+``uavplace/BlindUavPlacement-v0``: ``gymnasium.make("uavplace/UavPlacement-v0", dataset="cityA")``.
+"""
+
+from gymnasium.envs.registration import register, registry
+
+for _id, _kwargs in (("uavplace/UavPlacement-v0", {}), ("uavplace/BlindUavPlacement-v0", {"blind": True})):
+    if _id not in registry:
+        register(id=_id, entry_point="rl.env:UavPlacementEnv", kwargs=_kwargs)

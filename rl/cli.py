@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
+import pandas as pd
 from rich.table import Table
 
 from dataset.bundle import list_versions, read_latest
@@ -46,3 +47,59 @@ def datasets(root: Path) -> None:
         out.print(f"no built city under {root}: run `uavdata ingest data/raw/<city>/` then `uavdata build`")
     if unbuilt:
         out.print(f"ingested but not built (run `uavdata build`): {', '.join(unbuilt)}")
+
+
+def summarise(df: pd.DataFrame) -> dict[str, float]:
+    """Success rate, and steps to P_T over all episodes with failures counted as infinite (> t_max)."""
+    import numpy as np
+
+    steps = np.where(df["success"], df["steps"], np.inf)
+    ok = df["success"].to_numpy()
+    return {
+        "success": float(ok.mean()),
+        "median_steps": float(np.median(steps)),
+        "mean_steps_success": float(df.loc[ok, "steps"].mean()) if ok.any() else float("nan"),
+        "p90_steps": float(np.percentile(steps, 90)),
+        "steps_over_genie": float(np.median(np.where(ok, df["steps"] / np.maximum(df["genie_steps"], 1), np.inf))),
+    }
+
+
+@main.command()
+@click.option("--dataset", "datasets", multiple=True, required=True, help="Built city to play in (repeatable).")
+@click.option(
+    "--episodes", type=click.IntRange(min=1), default=1000, show_default=True, help="Episodes, the same for every method."
+)
+@click.option(
+    "--t-max", type=click.IntRange(min=1), default=500, show_default=True, help="Step budget per episode (paper: 500 at test)."
+)
+@click.option("--p-t-db", type=float, default=5.0, show_default=True, help="SINR target P_T [dB].")
+@click.option("--split", type=click.Choice(["train", "val", "test"]), default=None, help="Users of this split only.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the episodes and of the random policies.")
+@root_option
+def baselines(
+    datasets: tuple[str, ...], episodes: int, t_max: int, p_t_db: float, split: str | None, seed: int, root: Path
+) -> None:
+    """Play the genie, the steered random walk and greedy hill-climbing on the same episodes; print the table."""
+    import numpy as np
+    from rich.progress import Progress
+
+    from rl.config import EnvConfig
+    from rl.maps import MapSet
+    from rl.policies import GeniePolicy, GreedyPolicy, RandomWalkPolicy
+    from rl.rollout import run_episodes
+
+    config = EnvConfig(t_max=t_max, p_t_db=p_t_db, split=split, rotate=False)
+    try:
+        maps = MapSet.load(list(datasets), config, root=str(root))
+    except InputError as err:
+        raise click.ClickException(str(err)) from None
+    eps = maps.sample_episodes(episodes, np.random.default_rng(seed))
+    table = Table("method", "success", "median steps", "mean steps (successes)", "p90 steps", "median steps / genie")
+    with Progress(console=stdout(), transient=True) as progress:
+        for policy in (GeniePolicy(), RandomWalkPolicy(seed=seed), GreedyPolicy(config.p_h_db, seed=seed)):
+            task = progress.add_task(policy.name, total=episodes)
+            df = run_episodes(maps, policy, eps, on_step=lambda d, t, task=task: progress.update(task, completed=d))
+            s = summarise(df)
+            table.add_row(policy.name, f"{100 * s['success']:.1f} %", f"{s['median_steps']:g}", f"{s['mean_steps_success']:.1f}",
+                          f"{s['p90_steps']:g}", f"{s['steps_over_genie']:.2f}")  # fmt: skip
+    stdout().print(table)

@@ -213,7 +213,7 @@ def simulate_city(
                 "monte_carlo_gaps_filled": int(filled.sum()),
                 "unreached": int((~reached).sum()),
                 "gap_fill": f"a cell no ray hit takes the mean path gain of its parent cell in the maps of "
-                f"{rt_config.gap_fill_factors} x coarser cells (traced with samples / factor), finest first",
+                f"{rt_config.gap_fill_factors} x coarser cells (same samples per user), finest first",
             },
             "unreached_cell_share": float(1 - reached.mean()),
             "gap_filled_cell_share": float(filled.mean()),

@@ -35,8 +35,9 @@ class RayTraceConfig:
     seed: int = 0
     antenna: str = "hw_dipole"  # vertical half-wave dipole at the users; Sionna's radio map takes an isotropic receiver
     users_per_call: int = 8
-    #: Coarser maps traced as well (cell size x factor, samples / factor: still factor x more rays per cell)
-    #: to fill Monte Carlo gaps; () for none.
+    #: Coarser maps traced as well (cell size x factor, so factor**2 more rays per cell) to fill Monte
+    #: Carlo gaps; () for none. Each costs about one more solver call (measured: fewer samples for the
+    #: coarse maps saved only ~20 % of the time and left 1.7 x more cells unreached).
     gap_fill_factors: tuple[int, ...] = (4, 16)
 
 
@@ -124,7 +125,7 @@ def path_gain_maps(
                 orientation=mi.Point3f(0.0, 0.0, 0.0),
                 size=mi.Point2f(float(size[0]), float(size[1])),
                 cell_size=mi.Point2f(float(cell), float(cell)),
-                samples_per_tx=int(config.samples_per_tx // factor),
+                samples_per_tx=int(config.samples_per_tx),
                 max_depth=config.max_depth,
                 diffraction=config.diffraction,
                 refraction=config.refraction,

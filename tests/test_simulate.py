@@ -109,6 +109,8 @@ def test_bad_simulation_inputs(tmp_path):
     )
     assert res.exit_code == 2 and "is inside a building" in res.output
     assert not (tmp_path / "t").exists()
+    res = CliRunner().invoke(uavdata, ["simulate", "procedural:tiny", "--name", "t", "--out", str(tmp_path), "--gap-fill", "1"])
+    assert res.exit_code == 2 and "factors must be >= 2" in res.output
 
 
 def _simulate(tmp_path, *args: str) -> subprocess.CompletedProcess:

@@ -1,0 +1,87 @@
+"""Steps/s of the batched environment vs Gymnasium's SyncVectorEnv over the single environment.
+
+Both play random legal moves (from the action mask) on the same bundle with the same
+config, seeded alike, for --steps vector steps each, at N = 1, 16 and 256 parallel
+episodes. Targets: batched >= 10 x SyncVectorEnv at N = 256, and >= 50 k steps/s.
+
+    python benchmarks/bench_env.py [--dataset train --root data/processed] [--steps 300]
+
+Without --dataset it ingests and builds the embedded training city into a temporary root.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pandas as pd
+
+from dataset.build import build_city
+from ingest.pipeline import ingest_city
+from rl.config import EnvConfig
+from rl.env import UavPlacementEnv
+from rl.maps import MapSet
+from rl.vec_env import BatchedEnv
+from schemas.bundle import BuildConfig
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def bench_batched(maps: MapSet, n: int, steps: int, seed: int = 0) -> float:
+    env = BatchedEnv(maps, n)
+    env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    mask = env.action_mask()
+    t = time.perf_counter()
+    for _ in range(steps):
+        a = np.argmax(rng.random(mask.shape) * mask, axis=1)
+        _, _, _, _, info = env.step(a)
+        mask = info["action_mask"]
+    return n * steps / (time.perf_counter() - t)
+
+
+def bench_sync(maps: MapSet, n: int, steps: int, seed: int = 0) -> float:
+    env = gym.vector.SyncVectorEnv([lambda: UavPlacementEnv(maps) for _ in range(n)])
+    _, info = env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    mask = info["action_mask"].astype(bool)
+    t = time.perf_counter()
+    for _ in range(steps):
+        a = np.argmax(rng.random(mask.shape) * mask, axis=1)
+        _, _, _, _, info = env.step(a)
+        mask = info["action_mask"].astype(bool)
+    return n * steps / (time.perf_counter() - t)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--dataset", default=None, help="built city (default: the embedded train city, built here)")
+    ap.add_argument("--root", default="data/processed")
+    ap.add_argument("--steps", type=int, default=300, help="vector steps per measurement")
+    ap.add_argument("--noise-dbm", type=float, default=-68.0, help="build setting when building the embedded city")
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        root, name = args.root, args.dataset
+        if name is None:
+            root, name = tmp, "train"
+            ingest_city(REPO / "data" / "raw" / "train", tmp)
+            build_city("train", BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=args.noise_dbm), tmp)
+        maps = MapSet.load(name, EnvConfig(rotate=True), root=root)
+        rows = []
+        for n in (1, 16, 256):
+            ours = bench_batched(maps, n, args.steps)
+            sync = bench_sync(maps, n, max(20, args.steps // max(1, n // 16)))
+            rows.append({"N": n, "batched steps/s": ours, "SyncVectorEnv steps/s": sync, "ratio": ours / sync})
+        print(
+            f"dataset {name}: {maps.bundles[0].shape[1]} x {maps.bundles[0].shape[0]} cells, {len(maps.scenarios)} users, window 61"
+        )
+        print(pd.DataFrame(rows).to_string(index=False, float_format=lambda v: f"{v:,.1f}"))
+        print("targets: ratio >= 10 at N = 256; batched >= 50,000 steps/s")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,43 @@
+"""The environment's parameters: one pydantic model, the paper's values as defaults."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from schemas.base import Contract
+
+Split = Literal["train", "val", "test"]
+
+
+class EnvConfig(Contract):
+    """Everything that defines the UAV placement problem (method.md: Problem, Observation, Reward)."""
+
+    p_t_db: float = Field(default=5.0, description="SINR target P_T: the episode ends (terminated) when reached [dB]")
+    t_max: int = Field(
+        default=800, ge=1, description="Step budget: the episode is truncated after t_max moves (paper: 800 train, 500 test)"
+    )
+    c_e: float = Field(default=1.2, description="Exploration bonus c_E added to the reward for a never-visited cell")
+    p_h_db: float = Field(default=50.0, description="P_H: SINR memory value of unvisited cells [dB]")
+    p_l_db: float = Field(
+        default=-150.0, description="P_L: SINR memory value of blocked cells and of cells beyond the map edge [dB]"
+    )
+    window: int = Field(default=61, ge=3, description="Observation side in cells (odd), centred on the UAV")
+    blind: bool = Field(
+        default=False, description="Blind variant: no height channel; blocked cells shown as P_H in the SINR memory"
+    )
+    rotate: bool = Field(default=False, description="Rotate each episode's maps by a random multiple of 90 degrees (training)")
+    edge_height_m: float = Field(
+        default=100.0, description="Height channel value beyond the map edge (blocked) [m above the UAV]"
+    )
+    height_clip_m: float = Field(default=100.0, gt=0, description="Height channel clipped to +/- this [m]")
+    start: Literal["legal_live_below_target"] = Field(
+        default="legal_live_below_target",
+        description="Start cells: not blocked, not dead, SINR below P_T (a start at the target is no search)",
+    )
+    split: Split | None = Field(default=None, description="Users of this split only (bundles' users.parquet); None: all users")
+
+    @property
+    def num_channels(self) -> int:
+        return 1 if self.blind else 2

@@ -1,0 +1,100 @@
+"""The Gymnasium environment: one episode of the UAV placement problem over map bundles.
+
+## Description
+A UAV at a fixed altitude moves on the bundle's grid to find a cell where the
+SINR of a ground user, at an unknown position, reaches P_T (method.md).
+
+## Observation space
+``Box(-150, 100, (C, window, window), float32)`` centred on the UAV: channel 0
+the building height minus the altitude [m] (clipped to +/- 100; beyond the map
+edge ``edge_height_m``), channel 1 the SINR memory [dB] (measured SINR at
+visited cells, P_H = +50 at unvisited ones, P_L = -150 at blocked cells and
+beyond the edge). Blind variant: only the SINR memory, with blocked map cells
+shown as P_H.
+
+## Action space
+``Discrete(4)``: 0 north (+y), 1 east (+x), 2 south (-y), 3 west (-x).
+``info["action_mask"]`` (and ``action_mask()``) marks the legal moves; an
+illegal action leaves the UAV in place.
+
+## Rewards
+``SINR_{t+1} - SINR_t + c_E * [the new cell was never visited]``.
+
+## Episode end
+``terminated`` when SINR >= P_T; ``truncated`` after ``t_max`` moves.
+
+## Arguments
+``dataset`` (a city name or list, or loaded ``MapSet``), ``config`` (``EnvConfig``
+or a dict of its fields), ``root`` (processed-data root), ``**overrides``
+(``EnvConfig`` fields, e.g. ``blind=True``).
+
+## Version history
+- v0: first version.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+
+from rl.config import EnvConfig
+from rl.maps import MapSet
+from rl.vec_env import BatchedEnv
+
+
+class UavPlacementEnv(gym.Env):
+    metadata = {"render_modes": []}
+
+    def __init__(
+        self,
+        dataset: str | list[str] | MapSet,
+        config: EnvConfig | dict | None = None,
+        root: str = "data/processed",
+        **overrides: object,
+    ) -> None:
+        if isinstance(dataset, MapSet):
+            maps = dataset
+            if config is not None or overrides:
+                raise ValueError("a MapSet carries its config; pass config/overrides when loading it")
+        else:
+            base = config if isinstance(config, EnvConfig) else EnvConfig(**(config or {}))
+            maps = MapSet.load(dataset, base.model_copy(update=overrides) if overrides else base, root=root)
+        self.config = maps.config
+        self._env = BatchedEnv(maps, 1, autoreset=False)
+        c, w = self.config.num_channels, self.config.window
+        low = min(self.config.p_l_db, -self.config.height_clip_m)
+        high = max(self.config.p_h_db, self.config.height_clip_m, self.config.edge_height_m)
+        self.observation_space = gym.spaces.Box(low, high, (c, w, w), np.float32)
+        self.action_space = gym.spaces.Discrete(4)
+
+    @property
+    def maps(self) -> MapSet:
+        return self._env.maps
+
+    def action_mask(self) -> np.ndarray:
+        """``[4]`` int8: 1 where the move is legal."""
+        return self._env.action_mask()[0].astype(np.int8)
+
+    def _info(self, extra: dict | None = None) -> dict:
+        e = self._env
+        info = {
+            "action_mask": self.action_mask(),
+            "sinr_db": float(e.sinr_here()[0]),
+            "genie_steps": int(e.genie_steps()[0]),
+            "view": int(e.view[0]),
+            "position": e.pos[0].copy(),
+        }
+        return info | (extra or {})
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
+        super().reset(seed=seed)
+        e = self._env
+        e.rng = self.np_random  # all randomness from Gymnasium's seeded generator
+        e._start(np.array([0]))
+        return e.observe()[0], self._info()
+
+    def step(self, action: int) -> tuple[np.ndarray, float, bool, bool, dict]:
+        e = self._env
+        _, reward, terminated, truncated, info = e.step(np.array([int(action)]))
+        extra = {"illegal": bool(info["illegal"][0])}
+        return e.observe()[0], float(reward[0]), bool(terminated[0]), bool(truncated[0]), self._info(extra)

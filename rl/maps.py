@@ -1,0 +1,137 @@
+"""Bundles laid out for fast batched episodes: every (user, rotation) map on one padded canvas.
+
+A *scenario* is one user of one bundle; a *view* is a scenario under one of 4
+rotations (``view = 4 * scenario + k``, ``k`` quarter turns counter-clockwise,
+``np.rot90``). Every map is placed at offset ``pad = window // 2`` on a square
+canvas of side ``L = max(num_x, num_y over bundles) + 2 * pad``; the canvas
+outside the map is beyond the edge: blocked, height ``edge_height_m``, SINR
+memory ``P_L``. A window of side ``window`` centred on any map cell is then a
+plain slice of the canvas. Positions are canvas coordinates ``(y, x)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from dataset.bundle import Bundle, load_bundle
+from dataset.difficulty import UNREACHABLE, steps_to_target
+from rl.config import EnvConfig
+
+#: Moves of the 4 actions in canvas coordinates (dy, dx): 0 north (+y), 1 east (+x), 2 south (-y), 3 west (-x).
+MOVES = np.array([[1, 0], [0, 1], [-1, 0], [0, -1]], dtype=np.int64)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    bundle: int  # index in MapSet.bundles
+    city: str
+    user: int  # user index in the bundle
+
+
+class MapSet:
+    """The maps of one or more bundles, for one ``EnvConfig``. Arrays are indexed by view (or view-of-map).
+
+    ``height`` [num_bundles * 4, L, L] float32, ``blocked`` [num_bundles * 4, L, L] bool,
+    ``sinr`` / ``steps`` [num_views, L, L] float32 / int32 (``steps``: genie's BFS moves to a target),
+    ``memory0`` [num_views, L, L] float32 (the SINR memory channel at the start of an episode).
+    """
+
+    def __init__(self, bundles: list[Bundle], config: EnvConfig) -> None:
+        if not bundles:
+            raise ValueError("a MapSet needs at least one bundle")
+        if config.window % 2 != 1:
+            raise ValueError(f"window {config.window} must be odd")
+        self.bundles = bundles
+        self.config = config
+        self.pad = config.window // 2
+        side = max(max(b.shape) for b in bundles)
+        self.side = side + 2 * self.pad
+        L, p = self.side, self.pad
+        scenarios = []
+        for i, b in enumerate(bundles):
+            users = b.user_indices(config.split) if config.split else b.user_indices()
+            scenarios += [Scenario(i, b.city, int(u)) for u in users]
+        if not scenarios:
+            raise ValueError(f"no user of split {config.split!r} in bundles {[b.city for b in bundles]}")
+        self.scenarios = scenarios
+        nb, nv = len(bundles), 4 * len(scenarios)
+        self.height = np.full((4 * nb, L, L), config.edge_height_m, np.float32)
+        self.blocked = np.ones((4 * nb, L, L), bool)
+        self.sinr = np.full((nv, L, L), config.p_l_db, np.float32)
+        self.dead = np.ones((nv, L, L), bool)
+        self.steps = np.full((nv, L, L), UNREACHABLE, np.int32)
+        self.shapes = np.zeros((4 * nb, 2), np.int64)  # rotated (num_y, num_x) per bundle-rotation
+        for i, b in enumerate(bundles):
+            for k in range(4):
+                h = np.rot90(np.clip(b.height_rel_m, -config.height_clip_m, config.height_clip_m), k)
+                ny, nx = h.shape
+                self.height[4 * i + k, p : p + ny, p : p + nx] = h
+                self.blocked[4 * i + k, p : p + ny, p : p + nx] = np.rot90(b.blocked, k)
+                self.shapes[4 * i + k] = (ny, nx)
+        for s, sc in enumerate(scenarios):
+            b = bundles[sc.bundle]
+            legal = ~b.blocked
+            target = legal & ~b.dead[sc.user] & (b.sinr_db[sc.user] >= config.p_t_db)
+            steps = steps_to_target(legal, target)
+            for k in range(4):
+                v = 4 * s + k
+                ny, nx = self.shapes[4 * sc.bundle + k]
+                self.sinr[v, p : p + ny, p : p + nx] = np.rot90(b.sinr_db[sc.user], k)
+                self.dead[v, p : p + ny, p : p + nx] = np.rot90(b.dead[sc.user], k)
+                self.steps[v, p : p + ny, p : p + nx] = np.rot90(steps, k)
+        self.view_map = np.repeat(4 * np.array([sc.bundle for sc in scenarios]), 4) + np.tile(np.arange(4), len(scenarios))
+        blocked_v = self.blocked[self.view_map]
+        self.memory0 = np.where(blocked_v, config.p_l_db, config.p_h_db).astype(np.float32)
+        if config.blind:  # buildings unknown: blocked map cells look unvisited; beyond the edge stays P_L
+            inside = np.zeros((L, L), bool)
+            for v, m in enumerate(self.view_map):
+                ny, nx = self.shapes[m]
+                inside[:] = False
+                inside[p : p + ny, p : p + nx] = True
+                self.memory0[v][inside] = config.p_h_db
+        # Valid starts per view, concatenated: flat canvas indices, with offset and count per view.
+        valid = ~blocked_v & ~self.dead & (self.sinr < config.p_t_db)
+        flat = [np.flatnonzero(valid[v]) for v in range(nv)]
+        self.start_count = np.array([len(f) for f in flat], np.int64)
+        self.start_offset = np.r_[0, np.cumsum(self.start_count)[:-1]]
+        self.start_cells = np.concatenate(flat) if flat else np.zeros(0, np.int64)
+        self.startable = np.flatnonzero(self.start_count[::4] > 0)  # scenarios with at least one valid start
+
+    @classmethod
+    def load(cls, datasets: list[str] | str, config: EnvConfig, root: str = "data/processed") -> MapSet:
+        names = [datasets] if isinstance(datasets, str) else list(datasets)
+        return cls([load_bundle(n, root=root) for n in names], config)
+
+    @property
+    def num_views(self) -> int:
+        return len(self.view_map)
+
+    def sample_episodes(self, n: int, rng: np.random.Generator, rotate: bool | None = None) -> np.ndarray:
+        """``[n, 3]`` int64 episode specs ``(view, y, x)``: a uniformly drawn startable scenario,
+        rotation (if ``rotate``, default ``config.rotate``) and start cell."""
+        if len(self.startable) == 0:
+            raise ValueError("no scenario has a valid start cell (every legal, live cell is at or above P_T)")
+        rotate = self.config.rotate if rotate is None else rotate
+        scen = self.startable[rng.integers(0, len(self.startable), n)]
+        k = rng.integers(0, 4, n) if rotate else np.zeros(n, np.int64)
+        view = 4 * scen + k
+        pick = self.start_offset[view] + np.floor(rng.random(n) * self.start_count[view]).astype(np.int64)
+        y, x = np.divmod(self.start_cells[pick], self.side)
+        return np.stack([view, y, x], axis=1)
+
+    def unrotate(self, view: np.ndarray, y: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Map cells ``(iy, ix)`` (bundle indices) of canvas positions in a view, undoing its rotation."""
+        k = np.asarray(view) % 4
+        m = self.view_map[np.asarray(view)]
+        ny, nx = self.shapes[m, 0], self.shapes[m, 1]
+        r, c = np.asarray(y) - self.pad, np.asarray(x) - self.pad
+        # np.rot90(a, k)[r, c] == a[...]: invert one quarter turn at a time.
+        for _ in range(4):
+            turn = k > 0
+            # a = rot90(b): a[r, c] = b[c, n_cols_b - 1 - r] where b has shape (nx_a, ny_a)
+            r, c = np.where(turn, c, r), np.where(turn, ny - 1 - r, c)
+            ny, nx = np.where(turn, nx, ny), np.where(turn, ny, nx)
+            k = np.where(turn, k - 1, k)
+        return r, c

@@ -1,0 +1,205 @@
+"""The RL environment over bundles: spaces, reward, masks, rotation, memory, blind variant, seeding, genie, baselines."""
+
+from __future__ import annotations
+
+import json
+from collections import deque
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import rl  # noqa: F401  (registers the environments)
+from dataset.build import build_city
+from dataset.difficulty import UNREACHABLE, steps_to_target
+from ingest.pipeline import ingest_city
+from rl.config import EnvConfig
+from rl.env import UavPlacementEnv
+from rl.maps import MOVES, MapSet
+from rl.policies import GeniePolicy, GreedyPolicy, RandomWalkPolicy
+from rl.rollout import run_episodes
+from rl.vec_env import BatchedEnv, decode_obs, encode_obs
+from schemas.bundle import BuildConfig
+from tests.conftest import write_grid_city
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory):
+    """A 14 x 11 city, 3 users, two buildings (one above the 10 m altitude, one below), SINR spread around P_T."""
+    tmp = tmp_path_factory.mktemp("env")
+    raw = write_grid_city(tmp / "raw", nx=14, ny=11, n_tx=3, outputs=("power",), dead_share=0.1, seed=2)
+    tall = [[26, -10], [38, -10], [38, -2], [26, -2], [26, -10]]
+    low = [[46, 6], [58, 6], [58, 14], [46, 14], [46, 6]]
+    fc = {
+        "type": "FeatureCollection",
+        "features": [
+            {"type": "Feature", "properties": {"height_m": h}, "geometry": {"type": "Polygon", "coordinates": [ring]}}
+            for ring, h in ((tall, 30.0), (low, 6.0))
+        ],
+    }
+    (raw / "b.geojson").write_text(json.dumps(fc))
+    ingest_city(raw, tmp / "p", name="tiny")
+    build_city("tiny", BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=-58.0), tmp / "p")
+    return tmp / "p"
+
+
+@pytest.fixture
+def maps(root):
+    return MapSet.load("tiny", EnvConfig(t_max=60), root=str(root))
+
+
+def test_check_env_and_registration(root):
+    for env_id, channels in (("uavplace/UavPlacement-v0", 2), ("uavplace/BlindUavPlacement-v0", 1)):
+        env = gym.make(env_id, dataset="tiny", root=str(root))
+        check_env(env.unwrapped)
+        assert env.observation_space.shape == (channels, 61, 61)
+        obs, info = env.reset(seed=1)
+        assert obs.shape == (channels, 61, 61) and info["action_mask"].shape == (4,)
+
+
+def test_scenarios_have_starts_below_target(maps):
+    assert len(maps.startable) == 3
+    eps = maps.sample_episodes(500, np.random.default_rng(0))
+    v, y, x = eps.T
+    assert np.all(maps.sinr[v, y, x] < 5.0) and not maps.dead[v, y, x].any()
+    assert not maps.blocked[maps.view_map[v], y, x].any()
+
+
+def test_reward_termination_and_memory(maps):
+    env = BatchedEnv(maps, 8, autoreset=False)
+    env.reset(seed=4)
+    cfg = maps.config
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        mask = env.action_mask()
+        a = np.argmax(rng.random(mask.shape) * mask, axis=1)
+        before = env.sinr_here().copy()
+        target = env.pos + MOVES[a]
+        fresh = ~env.visited[np.arange(8), target[:, 0], target[:, 1]]
+        _, r, term, trunc, info = env.step(a)
+        assert not info["illegal"].any()
+        np.testing.assert_array_equal(env.pos, target)
+        now = env.sinr_here()
+        np.testing.assert_allclose(r, now - before + cfg.c_e * fresh, atol=1e-5)
+        np.testing.assert_array_equal(term, now >= cfg.p_t_db)
+        assert not (term & trunc).any()
+    # Memory channel: measured SINR where visited, P_H elsewhere on legal cells, P_L on blocked and beyond the edge.
+    i = 0
+    mem, vis, view = env.memory[i], env.visited[i], env.view[i]
+    np.testing.assert_allclose(mem[vis], maps.sinr[view][vis])
+    blocked = maps.blocked[maps.view_map[view]]
+    assert np.all(mem[~vis & ~blocked] == cfg.p_h_db) and np.all(mem[~vis & blocked] == cfg.p_l_db)
+    obs = env.observe()
+    c = cfg.window // 2
+    assert obs[i, 1, c, c] == pytest.approx(env.sinr_here()[i])
+    # The map is 14 x 11 cells: most of a 61-cell window lies beyond the edge (height 100 m, memory P_L).
+    assert obs[i, 0, 0, 0] == cfg.edge_height_m and obs[i, 1, 0, 0] == cfg.p_l_db
+
+
+def test_masks_and_illegal_moves(maps):
+    env = BatchedEnv(maps, 16)
+    env.reset(seed=0)
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        mask = env.action_mask()
+        nb = env.pos[:, None, :] + MOVES[None]
+        blocked = maps.blocked[maps.view_map[env.view][:, None], nb[..., 0], nb[..., 1]]
+        np.testing.assert_array_equal(mask, ~blocked)
+        a = rng.integers(0, 4, 16)  # unmasked: some moves are illegal
+        before = env.pos.copy()
+        _, _, term, trunc, info = env.step(a)
+        stay = info["illegal"] & ~(term | trunc)
+        np.testing.assert_array_equal(env.pos[stay], before[stay])
+        assert not maps.blocked[maps.view_map[env.view], env.pos[:, 0], env.pos[:, 1]].any()
+
+
+def test_rotation_consistency(root):
+    maps = MapSet.load("tiny", EnvConfig(rotate=True), root=str(root))
+    b = maps.bundles[0]
+    eps = maps.sample_episodes(400, np.random.default_rng(3))
+    v, y, x = eps.T
+    assert set(v % 4) == {0, 1, 2, 3}
+    r, c = maps.unrotate(v, y, x)
+    users = np.array([maps.scenarios[i // 4].user for i in v])
+    np.testing.assert_allclose(maps.sinr[v, y, x], b.sinr_db[users, r, c])
+    unrotated = maps.steps[v - v % 4, r + maps.pad, c + maps.pad]
+    np.testing.assert_array_equal(maps.steps[v, y, x], unrotated)
+
+
+def test_blind_variant(root):
+    maps = MapSet.load("tiny", EnvConfig(blind=True), root=str(root))
+    env = BatchedEnv(maps, 4)
+    obs, _ = env.reset(seed=0)
+    assert obs.shape == (4, 1, 61, 61)
+    p = maps.pad
+    blocked_inside = maps.blocked[0, p : p + 11, p : p + 14]
+    assert blocked_inside.any()
+    np.testing.assert_array_equal(maps.memory0[0, p : p + 11, p : p + 14][blocked_inside], maps.config.p_h_db)
+    assert maps.memory0[0, 0, 0] == maps.config.p_l_db
+
+
+def test_seeding_gives_the_same_episodes(root):
+    a = UavPlacementEnv("tiny", root=str(root), rotate=True)
+    b = UavPlacementEnv("tiny", root=str(root), rotate=True)
+    for seed in (0, 5):
+        oa, ia = a.reset(seed=seed)
+        ob, ib = b.reset(seed=seed)
+        np.testing.assert_array_equal(oa, ob)
+        assert ia["view"] == ib["view"] and np.array_equal(ia["position"], ib["position"])
+    for act in (0, 1, 2, 3, 1):
+        assert a.step(act)[1] == b.step(act)[1]
+
+
+def test_compact_observations_round_trip(maps):
+    env = BatchedEnv(maps, 2, compact=True)
+    obs, _ = env.reset(seed=0)
+    assert obs.dtype == np.uint8
+    full = BatchedEnv(maps, 2)
+    ref, _ = full.reset(seed=0)
+    np.testing.assert_allclose(decode_obs(obs), np.clip(np.rint(ref), -150, 105))
+    assert encode_obs(np.array([-150.0, 50.0, 105.0])).tolist() == [0, 200, 255]
+
+
+def _bfs_brute(legal: np.ndarray, target: np.ndarray) -> np.ndarray:
+    ny, nx = legal.shape
+    out = np.full((ny, nx), UNREACHABLE, np.int32)
+    for sy in range(ny):
+        for sx in range(nx):
+            if not legal[sy, sx]:
+                continue
+            seen, q = {(sy, sx)}, deque([(sy, sx, 0)])
+            while q:
+                y, x, d = q.popleft()
+                if target[y, x]:
+                    out[sy, sx] = d
+                    break
+                for dy, dx in MOVES:
+                    yy, xx = y + dy, x + dx
+                    if 0 <= yy < ny and 0 <= xx < nx and legal[yy, xx] and (yy, xx) not in seen:
+                        seen.add((yy, xx))
+                        q.append((yy, xx, d + 1))
+    return out
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(2, 9), st.integers(2, 9), st.integers(0, 2**31 - 1), st.floats(0.0, 0.5), st.floats(0.02, 0.3))
+def test_genie_bfs_matches_brute_force(ny, nx, seed, p_block, p_target):
+    rng = np.random.default_rng(seed)
+    legal = rng.random((ny, nx)) >= p_block
+    target = legal & (rng.random((ny, nx)) < p_target)
+    np.testing.assert_array_equal(steps_to_target(legal, target), _bfs_brute(legal, target))
+
+
+def test_baselines_on_the_same_episodes(maps):
+    eps = maps.sample_episodes(120, np.random.default_rng(9))
+    genie = run_episodes(maps, GeniePolicy(), eps, num_envs=32)
+    walk = run_episodes(maps, RandomWalkPolicy(seed=1), eps, num_envs=32)
+    greedy = run_episodes(maps, GreedyPolicy(maps.config.p_h_db, seed=1), eps, num_envs=32)
+    assert genie.success.all() and np.array_equal(genie.steps, genie.genie_steps)
+    for other in (walk, greedy):
+        assert np.array_equal(other.genie_steps, genie.genie_steps)  # same episodes
+        assert np.all(genie.steps <= np.where(other.success, other.steps, np.iinfo(np.int64).max))
+    assert walk.success.mean() < 1.0 or walk.steps.mean() > genie.steps.mean()
