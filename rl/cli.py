@@ -50,18 +50,26 @@ def datasets(root: Path) -> None:
 
 
 def summarise(df: pd.DataFrame) -> dict[str, float]:
-    """Success rate, and steps to P_T over all episodes with failures counted as infinite (> t_max)."""
+    """Success rate, and steps to P_T over all episodes with failures counted as infinite (> t_max).
+
+    Quantiles are order statistics (``inverted_cdf``), so a quantile that falls on a failure is inf.
+    """
     import numpy as np
 
-    steps = np.where(df["success"], df["steps"], np.inf)
     ok = df["success"].to_numpy()
+    steps = np.where(ok, df["steps"], np.inf)
+    ratio = np.where(ok, df["steps"] / np.maximum(df["genie_steps"], 1), np.inf)
     return {
         "success": float(ok.mean()),
-        "median_steps": float(np.median(steps)),
+        "median_steps": float(np.quantile(steps, 0.5, method="inverted_cdf")),
         "mean_steps_success": float(df.loc[ok, "steps"].mean()) if ok.any() else float("nan"),
-        "p90_steps": float(np.percentile(steps, 90)),
-        "steps_over_genie": float(np.median(np.where(ok, df["steps"] / np.maximum(df["genie_steps"], 1), np.inf))),
+        "p90_steps": float(np.quantile(steps, 0.9, method="inverted_cdf")),
+        "steps_over_genie": float(np.quantile(ratio, 0.5, method="inverted_cdf")),
     }
+
+
+def _steps(v: float) -> str:
+    return "> t_max" if v == float("inf") else f"{v:g}"
 
 
 @main.command()
@@ -100,6 +108,6 @@ def baselines(
             task = progress.add_task(policy.name, total=episodes)
             df = run_episodes(maps, policy, eps, on_step=lambda d, t, task=task: progress.update(task, completed=d))
             s = summarise(df)
-            table.add_row(policy.name, f"{100 * s['success']:.1f} %", f"{s['median_steps']:g}", f"{s['mean_steps_success']:.1f}",
-                          f"{s['p90_steps']:g}", f"{s['steps_over_genie']:.2f}")  # fmt: skip
+            table.add_row(policy.name, f"{100 * s['success']:.1f} %", _steps(s["median_steps"]), f"{s['mean_steps_success']:.1f}",
+                          _steps(s["p90_steps"]), "> t_max" if s["steps_over_genie"] == float("inf") else f"{s['steps_over_genie']:.2f}")  # fmt: skip
     stdout().print(table)

@@ -203,3 +203,28 @@ def test_baselines_on_the_same_episodes(maps):
         assert np.array_equal(other.genie_steps, genie.genie_steps)  # same episodes
         assert np.all(genie.steps <= np.where(other.success, other.steps, np.iinfo(np.int64).max))
     assert walk.success.mean() < 1.0 or walk.steps.mean() > genie.steps.mean()
+
+
+def test_summary_counts_failures_as_infinite():
+    import pandas as pd
+
+    from rl.cli import summarise
+
+    df = pd.DataFrame(
+        {"success": [True, True, False, False, True], "steps": [4, 10, 500, 500, 2], "genie_steps": [2, 5, 3, 3, 2]}
+    )
+    s = summarise(df)
+    assert s["success"] == 0.6 and s["median_steps"] == 10 and s["p90_steps"] == float("inf")
+    assert s["mean_steps_success"] == pytest.approx(16 / 3) and s["steps_over_genie"] == 2.0
+
+
+def test_uavrl_baselines_cli(root):
+    from click.testing import CliRunner
+
+    from rl.cli import main as uavrl
+
+    res = CliRunner().invoke(uavrl, ["baselines", "--dataset", "tiny", "--root", str(root), "--episodes", "40", "--t-max", "60"])
+    assert res.exit_code == 0, res.output
+    assert "genie" in res.output and "100.0 %" in res.output and "random_walk" in res.output and "greedy" in res.output
+    res = CliRunner().invoke(uavrl, ["datasets", "--root", str(root)])
+    assert res.exit_code == 0 and "tiny" in res.output
