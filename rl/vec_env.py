@@ -2,8 +2,8 @@
 
 Observation ``[N, C, window, window]`` (C = 2: height channel, then SINR memory;
 blind: the SINR memory only), float32, or uint8 with ``compact=True``
-(``encode_obs``: 1 dB / 1 m per step, offset 150; a 5e5-transition replay of
-two 61 x 61 uint8 channels takes 3.7 GB for obs and next obs).
+(``encode_obs``: 1 dB / 1 m per step, offset 150; two 61 x 61 uint8 channels are
+7.4 kB, so 5e5 transitions that store each observation once take 3.5 GiB).
 
 Step semantics (method.md): a legal action moves the UAV one cell; an illegal
 one (into a blocked cell or off the map, never taken by a masked policy)

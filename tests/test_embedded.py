@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import json
 
+import gymnasium as gym
 import pytest
+from gymnasium.utils.env_checker import check_env
 
+import rl  # noqa: F401  (registers the environments)
 from dataset.build import build_city
 from dataset.bundle import load_bundle
 from ingest.pipeline import ingest_city
@@ -35,3 +38,6 @@ def test_embedded_city_ingests_and_builds(tmp_path, city):
     assert b.manifest.counts["buildings"] == record["num_buildings"]
     d = b.manifest.difficulty
     assert 0 < d["target_share"] < 1 and d["num_starts"] > 0
+    env = gym.make("uavplace/UavPlacement-v0", dataset=city, root=str(tmp_path), rotate=True)
+    check_env(env.unwrapped)
+    assert env.reset(seed=0)[0].shape == (2, 61, 61)
