@@ -111,3 +111,77 @@ def baselines(
             table.add_row(policy.name, f"{100 * s['success']:.1f} %", _steps(s["median_steps"]), f"{s['mean_steps_success']:.1f}",
                           _steps(s["p90_steps"]), "> t_max" if s["steps_over_genie"] == float("inf") else f"{s['steps_over_genie']:.2f}")  # fmt: skip
     stdout().print(table)
+
+
+@main.command()
+@click.option("--dataset", "datasets", multiple=True, required=True, help="Built city to train in (repeatable: several cities).")
+@click.option(
+    "--agent",
+    type=click.Choice(["dqn", "blind"]),
+    default="dqn",
+    show_default=True,
+    help="dqn: height map + SINR memory (the paper's proposed agent); blind: SINR memory only.",
+)
+@click.option(
+    "--preset",
+    type=click.Choice(["paper", "fast", "best"]),
+    default="paper",
+    show_default=True,
+    help="Hyperparameters: paper (method.md, ~7 M steps), fast (minutes, for checks), best (ours, 1 M steps).",
+)
+@click.option("--steps", type=click.IntRange(min=1), default=None, help="Environment steps (default: the preset's).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the whole run.")
+@click.option(
+    "--out",
+    "runs",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("runs"),
+    show_default=True,
+    help="Folder of runs; this one goes to OUT/<run-id>/.",
+)
+@click.option(
+    "--resume",
+    type=click.Path(file_okay=False, exists=True, path_type=Path),
+    default=None,
+    help="Continue the run in this folder exactly where its last checkpoint left it.",
+)
+@root_option
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+def train(
+    datasets, agent: str, preset: str, steps: int | None, seed: int, runs: Path, resume: Path | None, root: Path, quiet: bool
+) -> None:
+    """Train the DQN agent (or its blind twin) on built cities; write config, metrics and checkpoints to a run folder."""
+    import json
+
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    from dataset.cli import command_line
+    from rl.agent.dqn import DQNConfig, preset_config
+    from rl.agent.train import Trainer, new_run_dir
+
+    if resume is not None:
+        doc = json.loads((resume / "run.json").read_text())
+        config = DQNConfig.model_validate(doc["config"])
+        datasets, run_dir = tuple(doc["datasets"]), resume
+    else:
+        overrides = {"agent": agent, "seed": seed} | ({"total_steps": steps} if steps else {})
+        config = preset_config(preset, **overrides)
+        run_dir = new_run_dir(runs, config)
+    try:
+        trainer = Trainer(config, list(datasets), root, run_dir, command=command_line())
+    except (InputError, ValueError) as err:
+        raise click.ClickException(str(err)) from None
+    columns = (TextColumn("[bold]train[/] {task.description}"), BarColumn(), TextColumn("{task.completed:,}/{task.total:,}"),
+               TimeElapsedColumn(), TimeRemainingColumn())  # fmt: skip
+    with Progress(*columns, console=stdout(), disable=quiet) as bar:
+        task = bar.add_task(run_dir.name, total=config.total_steps)
+
+        def on_progress(p) -> None:
+            best = "-" if p.best is None else f"{100 * p.best:.0f} %"
+            bar.update(task, completed=p.step, description=f"ep {p.episodes} gain100 {p.gain_mean100:.1f} dB "
+                       f"success100 {100 * p.success100:.0f} % eps {p.epsilon:.2f} loss {p.loss:.3f} best eval {best}")  # fmt: skip
+
+        trainer.run(resume=resume is not None, on_progress=on_progress)
+    last = trainer.state.evals[-1] if trainer.state.evals else None
+    summary = f"; last evaluation: {100 * last['success']:.1f} % success, median {last['median_steps']:g} steps" if last else ""
+    stdout().print(f"trained {run_dir}{summary}", highlight=False, soft_wrap=True)

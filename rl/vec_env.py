@@ -10,8 +10,9 @@ one (into a blocked cell or off the map, never taken by a masked policy)
 leaves it in place. Reward ``SINR_{t+1} - SINR_t + c_E * [new cell never
 visited]``. ``terminated`` when ``SINR >= P_T``; ``truncated`` when ``t_max``
 moves are spent without it. Finished episodes restart at once (same step):
-the returned observation is the new episode's first; ``info["final_obs"]``
-holds the last observation of the finished ones.
+the returned observation is the new episode's first; ``info["final_obs"]`` and
+``info["final_mask"]`` hold the last observation and legal moves of the
+finished ones (rows ``info["final_index"]``).
 """
 
 from __future__ import annotations
@@ -164,6 +165,7 @@ class BatchedEnv:
         if done.any():
             ended = np.flatnonzero(done)
             info["final_obs"] = self.observe(ended)
+            info["final_mask"] = self.action_mask()[ended]
             info["final_index"] = ended
             self._start(ended)
         info |= {"action_mask": self.action_mask(), "view": self.view.copy(), "started": done}

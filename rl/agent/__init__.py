@@ -1,0 +1,1 @@
+"""The learned agent: Q-network, replay, double DQN and its training loop."""

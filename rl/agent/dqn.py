@@ -1,0 +1,208 @@
+"""Double DQN with a dueling head, legal-move masking and the paper's steered exploration.
+
+The update, in one screen (``DQN.update``)::
+
+    q      = online(obs)[a]                                   # [B]
+    a*     = argmax over legal moves of online(next_obs)      # double Q: the online net picks
+    target = R_n + discount * target_net(next_obs)[a*]        # ... the target net evaluates
+    loss   = huber(q, target); clip grad norm; Adam step
+
+``R_n``/``discount`` are the n-step return and ``gamma**n`` (0 past a terminal state), from
+the replay; a truncated episode bootstraps from its final observation (no single done flag).
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import Literal
+
+import numpy as np
+import torch
+from pydantic import Field
+
+from rl.agent.network import QNetwork
+from rl.agent.replay import Batch
+from rl.config import EnvConfig
+from rl.vec_env import BatchedEnv, decode_obs
+from schemas.base import Contract
+
+
+class DQNConfig(Contract):
+    """Every hyperparameter of a run (saved with it); ``PRESETS`` holds the named sets."""
+
+    preset: str = Field(default="custom", description="Name of the preset this config came from")
+    agent: Literal["dqn", "blind"] = Field(default="dqn", description="dqn: height + SINR memory; blind: SINR memory only")
+    total_steps: int = Field(default=7_000_000, ge=1, description="Environment steps (all envs together)")
+    num_envs: int = Field(default=8, ge=1, description="Episodes acted on in parallel (batched env)")
+    buffer_size: int = Field(default=500_000, ge=1, description="Replay capacity in transitions (FIFO)")
+    batch_size: int = Field(default=20, ge=1, description="Transitions per gradient step")
+    train_every: int = Field(default=3, ge=1, description="Environment steps per gradient step")
+    learning_starts: int = Field(default=10_000, ge=0, description="Environment steps before the first update")
+    gamma: float = Field(default=0.99, gt=0, le=1, description="Discount factor")
+    n_step: int = Field(default=1, ge=1, description="Steps of the return before bootstrapping")
+    lr_start: float = Field(default=1e-4, gt=0, description="Learning rate at the start (annealed linearly)")
+    lr_end: float = Field(default=1e-5, gt=0, description="Learning rate at the end")
+    grad_clip: float = Field(default=10.0, gt=0, description="Max global gradient norm")
+    target_update: int = Field(default=10_000, ge=1, description="Environment steps between target-network copies")
+    eps_start: float = Field(default=1.0, ge=0, le=1, description="Exploration rate at the start")
+    eps_end: float = Field(default=0.0, ge=0, le=1, description="Exploration rate at the end of the annealing")
+    eps_fraction: float = Field(default=1.0, gt=0, le=1, description="Share of total_steps over which epsilon anneals")
+    p_repeat: float = Field(default=0.4, ge=0, le=1, description="Share of exploratory moves that repeat the previous move")
+    hidden: int = Field(default=256, ge=1, description="Width of the fully connected layer")
+    conv_channels: tuple[int, int, int] = Field(default=(32, 64, 64), description="Filters of the 3 convolutions")
+    dropout: float = Field(default=0.4, ge=0, lt=1, description="Dropout after the fully connected layer")
+    eval_every: int = Field(default=100_000, ge=1, description="Environment steps between evaluations (best checkpoint)")
+    eval_episodes: int = Field(default=200, ge=1, description="Episodes per evaluation (fixed, seeded)")
+    eval_split: Literal["train", "val", "test"] | None = Field(
+        default="val", description="Users the evaluation plays (val: held-out users of the training cities)"
+    )
+    test_epsilon: float = Field(default=0.096, ge=0, le=1, description="Random legal move rate when evaluating (paper: 0.096)")
+    eval_t_max: int = Field(default=500, ge=1, description="Step budget of evaluation episodes (paper: 500)")
+    seed: int = Field(default=0, description="Seed of everything (envs, exploration, replay sampling, torch)")
+    env: EnvConfig = Field(default_factory=lambda: EnvConfig(t_max=800, rotate=True), description="Training environment")
+
+    def env_config(self, *, evaluation: bool = False) -> EnvConfig:
+        blind = self.agent == "blind"
+        if evaluation:
+            return self.env.model_copy(
+                update={"blind": blind, "rotate": False, "t_max": self.eval_t_max, "split": self.eval_split}
+            )
+        return self.env.model_copy(update={"blind": blind})
+
+
+PRESETS: dict[str, dict] = {
+    # The paper's agent (method.md): batch 20, an update per 3 env steps, 5e5 replay, gamma 0.99,
+    # epsilon 1 -> 0 over the run, t_max 800 in training, about 7 M steps.
+    "paper": {},
+    # Minutes on a CPU: for tests, CI and smoke runs.
+    "fast": {
+        "total_steps": 40_000,
+        "num_envs": 16,
+        "buffer_size": 40_000,
+        "batch_size": 64,
+        "train_every": 8,
+        "learning_starts": 2_000,
+        "n_step": 3,
+        "lr_start": 1e-3,
+        "lr_end": 1e-4,
+        "target_update": 2_000,
+        "eps_end": 0.05,
+        "eps_fraction": 0.5,
+        "hidden": 128,
+        "conv_channels": (16, 32, 32),
+        "eval_every": 10_000,
+        "eval_episodes": 100,
+        "env": {"t_max": 200, "rotate": True},
+    },
+    # Better than the paper within 1 M steps: more envs, n-step returns, larger batches, fewer updates.
+    "best": {
+        "total_steps": 1_000_000,
+        "num_envs": 64,
+        "buffer_size": 200_000,
+        "batch_size": 128,
+        "train_every": 16,
+        "learning_starts": 20_000,
+        "n_step": 3,
+        "lr_start": 5e-4,
+        "lr_end": 5e-5,
+        "target_update": 20_000,
+        "eps_end": 0.02,
+        "eps_fraction": 0.4,
+        "eval_every": 50_000,
+        "env": {"t_max": 300, "rotate": True},
+    },
+}
+
+
+def preset_config(name: str, **overrides: object) -> DQNConfig:
+    if name not in PRESETS:
+        raise ValueError(f"unknown preset {name!r} (known: {', '.join(PRESETS)})")
+    values = dict(PRESETS[name]) | {"preset": name} | overrides
+    if isinstance(values.get("env"), dict):
+        values["env"] = EnvConfig(**values["env"])
+    return DQNConfig(**values)
+
+
+def to_tensor(obs: np.ndarray) -> torch.Tensor:
+    """uint8 (compact) or float observations -> float32 tensor in dB / m."""
+    return torch.from_numpy(decode_obs(obs) if obs.dtype == np.uint8 else obs.astype(np.float32, copy=False))
+
+
+def masked_argmax(q: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """argmax over legal actions: ``q`` [B, A], ``mask`` [B, A] bool -> [B]."""
+    return q.masked_fill(~mask, float("-inf")).argmax(dim=1)
+
+
+class DQN:
+    """The online and target networks, the optimiser and the action rule."""
+
+    def __init__(self, config: DQNConfig, in_channels: int, window: int) -> None:
+        self.config = config
+        self.online = QNetwork(in_channels, window, hidden=config.hidden, dropout=config.dropout, channels=config.conv_channels)
+        self.target = copy.deepcopy(self.online)
+        self.target.eval()
+        self.optimizer = torch.optim.Adam(self.online.parameters(), lr=config.lr_start)
+        self.updates = 0
+
+    def q_values(self, obs: np.ndarray) -> torch.Tensor:
+        self.online.eval()
+        with torch.no_grad():
+            return self.online(to_tensor(obs))
+
+    def act(self, obs: np.ndarray, mask: np.ndarray, eps: float, last: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """The paper's rule: w.p. ``p_repeat * eps`` repeat ``last`` (if legal), w.p. ``(1 - p_repeat) * eps``
+        a random legal move, else the legal move of highest Q."""
+        n = len(mask)
+        greedy = masked_argmax(self.q_values(obs), torch.from_numpy(mask)).numpy()
+        u = rng.random(n)
+        random_legal = np.argmax(rng.random(mask.shape) * mask, axis=1)
+        can_repeat = (last >= 0) & mask[np.arange(n), np.maximum(last, 0)]
+        repeat = (u < self.config.p_repeat * eps) & can_repeat
+        explore = (u < eps) & ~repeat
+        return np.where(repeat, last, np.where(explore, random_legal, greedy))
+
+    def td_target(self, batch: Batch) -> torch.Tensor:
+        """Double-Q n-step target ``[B]``, legal moves only."""
+        next_obs = to_tensor(batch.next_obs)
+        next_mask = torch.from_numpy(batch.next_mask)
+        with torch.no_grad():
+            self.online.eval()
+            best = masked_argmax(self.online(next_obs), next_mask)  # [B]
+            q_next = self.target(next_obs).gather(1, best[:, None]).squeeze(1)  # [B]
+        return torch.from_numpy(batch.reward) + torch.from_numpy(batch.discount) * q_next
+
+    def update(self, batch: Batch, lr: float) -> float:
+        target = self.td_target(batch)
+        self.online.train()
+        q = self.online(to_tensor(batch.obs)).gather(1, torch.from_numpy(batch.action)[:, None]).squeeze(1)  # [B]
+        loss = torch.nn.functional.smooth_l1_loss(q, target)
+        for group in self.optimizer.param_groups:
+            group["lr"] = lr
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(self.online.parameters(), self.config.grad_clip)
+        self.optimizer.step()
+        self.updates += 1
+        return loss.item()
+
+    def sync_target(self) -> None:
+        self.target.load_state_dict(self.online.state_dict())
+
+
+class DQNPolicy:
+    """A trained network as a ``Policy``: the legal move of highest Q, a random legal move w.p. ``epsilon``."""
+
+    def __init__(self, net: QNetwork, epsilon: float = 0.096, seed: int = 0, name: str = "dqn") -> None:
+        self.net = net.eval()
+        self.epsilon = epsilon
+        self.rng = np.random.default_rng(seed)
+        self.name = name
+
+    def reset(self, rows: np.ndarray, num_envs: int) -> None:
+        pass
+
+    def act(self, obs: np.ndarray, mask: np.ndarray, env: BatchedEnv) -> np.ndarray:
+        with torch.no_grad():
+            greedy = masked_argmax(self.net(to_tensor(obs)), torch.from_numpy(mask)).numpy()
+        random_legal = np.argmax(self.rng.random(mask.shape) * mask, axis=1)
+        return np.where(self.rng.random(len(mask)) < self.epsilon, random_legal, greedy)

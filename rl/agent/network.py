@@ -1,0 +1,52 @@
+"""The Q-network of the paper: 3 convolutions, 2 fully connected layers, batch norm, dropout, dueling head."""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+#: Observations (dB and m) are divided by this before the first layer.
+INPUT_SCALE = 50.0
+
+
+class QNetwork(nn.Module):
+    """``[B, C, w, w]`` observations (float, or uint8 decoded by the caller) -> ``[B, 4]`` Q values.
+
+    conv 5x5/2 (c1) -> conv 3x3/2 (c2) -> conv 3x3/2 (c3), each with batch norm and ReLU;
+    fc (hidden) with ReLU and dropout; dueling head Q = V + A - mean(A). ``channels`` = (c1, c2, c3),
+    by default (32, 64, 64).
+    """
+
+    def __init__(
+        self,
+        in_channels: int,
+        window: int = 61,
+        hidden: int = 256,
+        dropout: float = 0.4,
+        n_actions: int = 4,
+        channels: tuple[int, int, int] = (32, 64, 64),
+    ) -> None:
+        super().__init__()
+        c1, c2, c3 = channels
+        self.features = nn.Sequential(
+            nn.Conv2d(in_channels, c1, kernel_size=5, stride=2),
+            nn.BatchNorm2d(c1),
+            nn.ReLU(),
+            nn.Conv2d(c1, c2, kernel_size=3, stride=2),
+            nn.BatchNorm2d(c2),
+            nn.ReLU(),
+            nn.Conv2d(c2, c3, kernel_size=3, stride=2),
+            nn.BatchNorm2d(c3),
+            nn.ReLU(),
+            nn.Flatten(),
+        )
+        with torch.no_grad():
+            n_flat = self.features(torch.zeros(2, in_channels, window, window)).shape[1]
+        self.fc = nn.Sequential(nn.Linear(n_flat, hidden), nn.ReLU(), nn.Dropout(dropout))
+        self.value = nn.Linear(hidden, 1)
+        self.advantage = nn.Linear(hidden, n_actions)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        x = self.fc(self.features(obs / INPUT_SCALE))  # [B, hidden]
+        a = self.advantage(x)  # [B, n_actions]
+        return self.value(x) + a - a.mean(dim=1, keepdim=True)

@@ -1,0 +1,150 @@
+"""The DQN agent: double-Q target by hand, masking, replay n-step returns, config round trip, exact resume."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from dataset.build import build_city
+from ingest.pipeline import ingest_city
+from rl.agent.dqn import DQN, DQNConfig, masked_argmax, preset_config
+from rl.agent.replay import Batch, ReplayBuffer
+from rl.agent.train import Trainer, load_policy
+from schemas.bundle import BuildConfig
+from tests.conftest import write_grid_city
+
+
+class TableNet(torch.nn.Module):
+    """Q values looked up from the first pixel of the observation: a network whose outputs we choose."""
+
+    def __init__(self, table: dict[int, list[float]]) -> None:
+        super().__init__()
+        self.table = table
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return torch.tensor([self.table[int(k)] for k in obs[:, 0, 0, 0]], dtype=torch.float32)
+
+
+def test_double_q_target_by_hand():
+    agent = DQN(DQNConfig(gamma=0.9, hidden=8, conv_channels=(4, 4, 4)), in_channels=1, window=21)
+    # Online prefers action 3 at state 7 but it is illegal there: the legal argmax is action 1.
+    agent.online = TableNet({7: [0.0, 5.0, 1.0, 9.0], 8: [2.0, 0.0, 0.0, 0.0]})
+    agent.target = TableNet({7: [10.0, 20.0, 30.0, 40.0], 8: [-1.0, 3.0, 3.0, 3.0]})
+    next_obs = np.zeros((3, 1, 21, 21), np.float32)
+    next_obs[:, 0, 0, 0] = [7, 8, 7]
+    batch = Batch(
+        obs=next_obs,
+        action=np.zeros(3, np.int64),
+        reward=np.array([1.0, 2.0, 3.0], np.float32),
+        discount=np.array([0.9, 0.81, 0.0], np.float32),
+        next_obs=next_obs,
+        next_mask=np.array([[1, 1, 1, 0], [1, 1, 1, 1], [1, 1, 1, 1]], bool),
+    )
+    # row 0: online picks a*=1 among legal, target says 20 -> 1 + 0.9 * 20; row 1: a*=0, target -1;
+    # row 2: terminal (discount 0) -> the reward alone.
+    np.testing.assert_allclose(agent.td_target(batch).numpy(), [1 + 0.9 * 20, 2 - 0.81, 3.0], rtol=1e-6)
+
+
+def test_masked_argmax_never_picks_an_illegal_move():
+    rng = np.random.default_rng(0)
+    q = torch.from_numpy(rng.normal(size=(500, 4)).astype(np.float32))
+    mask = rng.random((500, 4)) < 0.5
+    mask[np.arange(500), rng.integers(0, 4, 500)] = True
+    a = masked_argmax(q, torch.from_numpy(mask)).numpy()
+    assert mask[np.arange(500), a].all()
+    agent = DQN(DQNConfig(hidden=8, conv_channels=(4, 4, 4)), in_channels=2, window=61)
+    obs = rng.normal(size=(500, 2, 61, 61)).astype(np.float32)
+    for eps in (0.0, 0.5, 1.0):
+        acts = agent.act(obs, mask, eps, last=rng.integers(-1, 4, 500), rng=rng)
+        assert mask[np.arange(500), acts].all()
+
+
+def test_replay_n_step_returns_and_truncation():
+    n_env, gamma = 2, 0.5
+    rb = ReplayBuffer(capacity=40, num_envs=n_env, obs_shape=(1, 1, 1), t_max=5, n_step=3, gamma=gamma)
+    mask = np.ones((n_env, 4), bool)
+    # env 0: rewards 1, 2, 3, 4, ... never ends; env 1: ends terminated at its 2nd step, then truncated at its 4th.
+    for t in range(8):
+        obs = np.array([[[[t]]], [[[100 + t]]]], np.uint8)
+        term = np.array([False, t == 1])
+        trunc = np.array([False, t == 3])
+        final = np.array([[[[200 + t]]]], np.uint8) if t == 3 else np.zeros((0, 1, 1, 1), np.uint8)
+        rb.add(
+            obs,
+            mask,
+            np.zeros(n_env, np.int8),
+            np.array([t + 1, 10 * (t + 1)], np.float32),
+            term,
+            trunc,
+            final,
+            mask[:1] if t == 3 else mask[:0],
+        )
+    batch = rb.sample(400, np.random.default_rng(0))
+    for o, r, d, no in zip(batch.obs[:, 0, 0, 0], batch.reward, batch.discount, batch.next_obs[:, 0, 0, 0], strict=True):
+        if o < 100:  # env 0 at step t=o: r_t + g r_{t+1} + g^2 r_{t+2}, bootstrap from obs t+3
+            assert r == pytest.approx((o + 1) + gamma * (o + 2) + gamma**2 * (o + 3))
+            assert d == pytest.approx(gamma**3) and no == o + 3
+        elif o == 100:  # env 1, t=0: rewards 10, 20 then terminated
+            assert r == pytest.approx(10 + gamma * 20) and d == 0.0
+        elif o == 101:
+            assert r == pytest.approx(20) and d == 0.0
+        elif o == 102:  # t=2: rewards 30, 40 then truncated: bootstrap from the final observation 203
+            assert r == pytest.approx(30 + gamma * 40) and d == pytest.approx(gamma**2) and no == 203
+    assert {int(o) for o in batch.obs[:, 0, 0, 0]} >= {0, 1, 100, 101, 102}
+
+
+def test_config_round_trip_and_presets():
+    for name in ("paper", "fast", "best"):
+        cfg = preset_config(name, seed=3)
+        again = DQNConfig.model_validate_json(cfg.model_dump_json())
+        assert again == cfg and again.preset == name
+    paper = preset_config("paper")
+    assert (paper.batch_size, paper.train_every, paper.buffer_size, paper.gamma, paper.dropout) == (20, 3, 500_000, 0.99, 0.4)
+    assert paper.env.t_max == 800 and paper.env.rotate and paper.eps_end == 0.0 and paper.test_epsilon == 0.096
+    with pytest.raises(ValueError, match="unknown preset"):
+        preset_config("huge")
+
+
+@pytest.fixture(scope="module")
+def city_root(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("agent")
+    ingest_city(write_grid_city(tmp / "raw", nx=12, ny=10, n_tx=4, outputs=("power",), seed=5), tmp / "p", name="tiny")
+    build_city("tiny", BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=-58.0, role="train", val_users=1), tmp / "p")
+    return tmp / "p"
+
+
+def _tiny_config() -> DQNConfig:
+    return preset_config(
+        "fast", total_steps=256, num_envs=8, buffer_size=512, batch_size=16, train_every=4, learning_starts=64,
+        eval_every=128, eval_episodes=16, hidden=16, conv_channels=(4, 8, 8), env={"t_max": 30, "rotate": True},
+    )  # fmt: skip
+
+
+def test_resume_continues_exactly(tmp_path, city_root):
+    """Train 256 steps straight, or 128 then resume to 256: identical networks and next actions."""
+    straight = Trainer(_tiny_config(), ["tiny"], city_root, tmp_path / "a")
+    straight.run()
+    half = Trainer(_tiny_config(), ["tiny"], city_root, tmp_path / "b")
+    half.run(stop_at=128)  # an interruption right after the checkpoint at step 128
+    doc = json.loads((tmp_path / "b" / "run.json").read_text())
+    assert doc["train_split"] == "train" and doc["eval_split"] == "val" and doc["datasets"]["tiny"]
+    resumed = Trainer(_tiny_config(), ["tiny"], city_root, tmp_path / "b")
+    resumed.run(resume=True)
+    assert resumed.state.step == straight.state.step == 256
+    for a, b in zip(straight.agent.online.state_dict().values(), resumed.agent.online.state_dict().values(), strict=True):
+        torch.testing.assert_close(a, b)
+    obs, mask = straight.env.observe(), straight.env.action_mask()
+    np.testing.assert_array_equal(obs, resumed.env.observe())
+    rng_a, rng_b = np.random.default_rng(1), np.random.default_rng(1)
+    last = np.full(8, -1)
+    np.testing.assert_array_equal(straight.agent.act(obs, mask, 0.0, last, rng_a), resumed.agent.act(obs, mask, 0.0, last, rng_b))
+    policy, cfg = load_policy(tmp_path / "a" / "checkpoints" / "best.pt")
+    assert cfg == straight.config and policy.act(obs, mask, straight.env).shape == (8,)
+    metrics = tmp_path / "a" / "metrics.parquet"
+
+    df = pd.read_parquet(metrics)
+    assert {"step", "episode", "sinr_gain_db", "sinr_gain_mean100_db", "success", "loss", "epsilon", "lr"} <= set(df.columns)
