@@ -148,3 +148,34 @@ def test_resume_continues_exactly(tmp_path, city_root):
 
     df = pd.read_parquet(metrics)
     assert {"step", "episode", "sinr_gain_db", "sinr_gain_mean100_db", "success", "loss", "epsilon", "lr"} <= set(df.columns)
+
+
+def test_uavrl_train_cli(tmp_path, city_root):
+    from click.testing import CliRunner
+
+    from rl.cli import main as uavrl
+
+    run = CliRunner().invoke
+    assert "--resume" in run(uavrl, ["train", "--help"]).output
+    args = [
+        "train",
+        "--dataset",
+        "tiny",
+        "--root",
+        str(city_root),
+        "--preset",
+        "fast",
+        "--steps",
+        "96",
+        "--out",
+        str(tmp_path),
+        "--quiet",
+    ]
+    res = run(uavrl, args)
+    assert res.exit_code == 0, res.output
+    (run_dir,) = tmp_path.iterdir()
+    assert "fast-dqn-s0" in run_dir.name and "last evaluation" in res.output
+    assert {"run.json", "metrics.parquet", "eval.parquet", "checkpoints"} <= {p.name for p in run_dir.iterdir()}
+    assert (run_dir / "checkpoints" / "best.pt").is_file()
+    res = run(uavrl, ["train", "--dataset", "nowhere", "--root", str(city_root), "--out", str(tmp_path)])
+    assert res.exit_code != 0 and "no bundle of city 'nowhere'" in res.output
