@@ -25,6 +25,7 @@ from ingest.pipeline import ingest_city
 from rl.config import EnvConfig
 from rl.env import UavPlacementEnv
 from rl.maps import MapSet
+from rl.policies import random_legal
 from rl.vec_env import BatchedEnv
 from schemas.bundle import BuildConfig
 
@@ -38,7 +39,7 @@ def bench_batched(maps: MapSet, n: int, steps: int, seed: int = 0) -> float:
     mask = env.action_mask()
     t = time.perf_counter()
     for _ in range(steps):
-        a = np.argmax(rng.random(mask.shape) * mask, axis=1)
+        a = random_legal(mask, rng)
         _, _, _, _, info = env.step(a)
         mask = info["action_mask"]
     return n * steps / (time.perf_counter() - t)
@@ -51,7 +52,7 @@ def bench_sync(maps: MapSet, n: int, steps: int, seed: int = 0) -> float:
     mask = info["action_mask"].astype(bool)
     t = time.perf_counter()
     for _ in range(steps):
-        a = np.argmax(rng.random(mask.shape) * mask, axis=1)
+        a = random_legal(mask, rng)
         _, _, _, _, info = env.step(a)
         mask = info["action_mask"].astype(bool)
     return n * steps / (time.perf_counter() - t)

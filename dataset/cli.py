@@ -41,7 +41,8 @@ root_option = click.option(
 )
 
 
-def fail(err: InputError) -> None:
+def fail(err: Exception) -> None:
+    """Print one error line and exit with status 2."""
     console.print(f"[bold red]error:[/] {err}", highlight=False, soft_wrap=True)
     sys.exit(2)
 
@@ -508,9 +509,9 @@ def simulate(
     except InputError as err:
         fail(err)
         return
-    except RuntimeError as err:
-        console.print(f"[bold red]error:[/] {err}", highlight=False, soft_wrap=True)
-        sys.exit(2)
+    except RuntimeError as err:  # Sionna RT missing or its child process failed
+        fail(err)
+        return
     g = record["grid"]
     stdout().print(
         f"simulated {name}: {record['geometry']}, {record['num_buildings']} buildings, {len(record['users_m'])} users, "

@@ -5,12 +5,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
-import pandas as pd
 from rich.table import Table
 
 from dataset.bundle import list_versions, read_latest
 from dataset.catalog import list_cities
 from dataset.cli import root_option, stdout
+from rl.rollout import summarise
 from schemas import InputError
 
 
@@ -47,25 +47,6 @@ def datasets(root: Path) -> None:
         out.print(f"no built city under {root}: run `uavdata ingest data/raw/<city>/` then `uavdata build`")
     if unbuilt:
         out.print(f"ingested but not built (run `uavdata build`): {', '.join(unbuilt)}")
-
-
-def summarise(df: pd.DataFrame) -> dict[str, float]:
-    """Success rate, and steps to P_T over all episodes with failures counted as infinite (> t_max).
-
-    Quantiles are order statistics (``inverted_cdf``), so a quantile that falls on a failure is inf.
-    """
-    import numpy as np
-
-    ok = df["success"].to_numpy()
-    steps = np.where(ok, df["steps"], np.inf)
-    ratio = np.where(ok, df["steps"] / np.maximum(df["genie_steps"], 1), np.inf)
-    return {
-        "success": float(ok.mean()),
-        "median_steps": float(np.quantile(steps, 0.5, method="inverted_cdf")),
-        "mean_steps_success": float(df.loc[ok, "steps"].mean()) if ok.any() else float("nan"),
-        "p90_steps": float(np.quantile(steps, 0.9, method="inverted_cdf")),
-        "steps_over_genie": float(np.quantile(ratio, 0.5, method="inverted_cdf")),
-    }
 
 
 def _steps(v: float) -> str:

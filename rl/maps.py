@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dataset.bundle import Bundle, load_bundle
-from dataset.difficulty import UNREACHABLE, steps_to_target
+from dataset.difficulty import UNREACHABLE, steps_to_target, valid_starts
 from rl.config import EnvConfig
 
 #: Moves of the 4 actions in canvas coordinates (dy, dx): 0 north (+y), 1 east (+x), 2 south (-y), 3 west (-x).
@@ -63,12 +63,14 @@ class MapSet:
         self.dead = np.ones((nv, L, L), bool)
         self.steps = np.full((nv, L, L), UNREACHABLE, np.int32)
         self.shapes = np.zeros((4 * nb, 2), np.int64)  # rotated (num_y, num_x) per bundle-rotation
+        on_map = np.zeros((4 * nb, L, L), bool)  # False beyond the edge
         for i, b in enumerate(bundles):
             for k in range(4):
                 h = np.rot90(np.clip(b.height_rel_m, -config.height_clip_m, config.height_clip_m), k)
                 ny, nx = h.shape
                 self.height[4 * i + k, p : p + ny, p : p + nx] = h
                 self.blocked[4 * i + k, p : p + ny, p : p + nx] = np.rot90(b.blocked, k)
+                on_map[4 * i + k, p : p + ny, p : p + nx] = True
                 self.shapes[4 * i + k] = (ny, nx)
         for s, sc in enumerate(scenarios):
             b = bundles[sc.bundle]
@@ -83,16 +85,11 @@ class MapSet:
                 self.steps[v, p : p + ny, p : p + nx] = np.rot90(steps, k)
         self.view_map = np.repeat(4 * np.array([sc.bundle for sc in scenarios]), 4) + np.tile(np.arange(4), len(scenarios))
         blocked_v = self.blocked[self.view_map]
-        self.memory0 = np.where(blocked_v, config.p_l_db, config.p_h_db).astype(np.float32)
-        if config.blind:  # buildings unknown: blocked map cells look unvisited; beyond the edge stays P_L
-            inside = np.zeros((L, L), bool)
-            for v, m in enumerate(self.view_map):
-                ny, nx = self.shapes[m]
-                inside[:] = False
-                inside[p : p + ny, p : p + nx] = True
-                self.memory0[v][inside] = config.p_h_db
+        # Blind: buildings unknown, so blocked map cells look unvisited; beyond the edge stays P_L.
+        hidden = ~on_map[self.view_map] if config.blind else blocked_v
+        self.memory0 = np.where(hidden, config.p_l_db, config.p_h_db).astype(np.float32)
         # Valid starts per view, concatenated: flat canvas indices, with offset and count per view.
-        valid = ~blocked_v & ~self.dead & (self.sinr < config.p_t_db)
+        valid = valid_starts(blocked_v, self.dead, self.sinr, config.p_t_db)
         flat = [np.flatnonzero(valid[v]) for v in range(nv)]
         self.start_count = np.array([len(f) for f in flat], np.int64)
         self.start_offset = np.r_[0, np.cumsum(self.start_count)[:-1]]

@@ -40,8 +40,7 @@ class GeniePolicy:
         pass
 
     def act(self, obs: np.ndarray, mask: np.ndarray, env: BatchedEnv) -> np.ndarray:
-        ny = env.pos[:, None, 0] + MOVES[None, :, 0]
-        nx = env.pos[:, None, 1] + MOVES[None, :, 1]
+        ny, nx = env.neighbours()
         steps = env.maps.steps[env.view[:, None], ny, nx].astype(np.int64)  # [N, 4]
         steps[~mask] = np.iinfo(np.int64).max
         return np.argmin(steps, axis=1)

@@ -73,3 +73,20 @@ def run_episodes(
             "return_": ret,
         }
     )
+
+
+def summarise(df: pd.DataFrame) -> dict[str, float]:
+    """Success rate, and steps to P_T over all episodes with failures counted as infinite (> t_max).
+
+    Quantiles are order statistics (``inverted_cdf``), so a quantile that falls on a failure is inf.
+    """
+    ok = df["success"].to_numpy()
+    steps = np.where(ok, df["steps"], np.inf)
+    ratio = np.where(ok, df["steps"] / np.maximum(df["genie_steps"], 1), np.inf)
+    return {
+        "success": float(ok.mean()),
+        "median_steps": float(np.quantile(steps, 0.5, method="inverted_cdf")),
+        "mean_steps_success": float(df.loc[ok, "steps"].mean()) if ok.any() else float("nan"),
+        "p90_steps": float(np.quantile(steps, 0.9, method="inverted_cdf")),
+        "steps_over_genie": float(np.quantile(ratio, 0.5, method="inverted_cdf")),
+    }

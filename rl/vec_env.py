@@ -112,11 +112,16 @@ class BatchedEnv:
         """SINR [dB] at each UAV position, ``[N]``."""
         return self.maps.sinr[self.view, self.pos[:, 0], self.pos[:, 1]]
 
-    def action_mask(self) -> np.ndarray:
-        """``[N, 4]`` bool: the moves into a legal cell (not blocked, on the map)."""
-        ny = self.pos[:, None, 0] + MOVES[None, :, 0]
-        nx = self.pos[:, None, 1] + MOVES[None, :, 1]
-        return ~self.maps.blocked[self.maps.view_map[self.view][:, None], ny, nx]
+    def neighbours(self, idx: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Canvas ``(y, x)`` of the 4 cells the actions lead to, each ``[len(idx), 4]``."""
+        idx = self._rows if idx is None else idx
+        return self.pos[idx, None, 0] + MOVES[None, :, 0], self.pos[idx, None, 1] + MOVES[None, :, 1]
+
+    def action_mask(self, idx: np.ndarray | None = None) -> np.ndarray:
+        """``[len(idx), 4]`` bool (all envs by default): the moves into a legal cell (not blocked, on the map)."""
+        idx = self._rows if idx is None else idx
+        ny, nx = self.neighbours(idx)
+        return ~self.maps.blocked[self.maps.view_map[self.view[idx]][:, None], ny, nx]
 
     def genie_steps(self) -> np.ndarray:
         """Shortest number of legal moves from each UAV position to a target cell, ``[N]``."""
@@ -147,7 +152,7 @@ class BatchedEnv:
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
         actions = np.asarray(actions, np.int64)
         rows, view = self._rows, self.view
-        old = self.maps.sinr[view, self.pos[:, 0], self.pos[:, 1]]
+        old = self.sinr_here()
         target = self.pos + MOVES[actions]
         legal = ~self.maps.blocked[self.maps.view_map[view], target[:, 0], target[:, 1]]
         self.pos = np.where(legal[:, None], target, self.pos)
@@ -165,7 +170,7 @@ class BatchedEnv:
         if done.any():
             ended = np.flatnonzero(done)
             info["final_obs"] = self.observe(ended)
-            info["final_mask"] = self.action_mask()[ended]
+            info["final_mask"] = self.action_mask(ended)
             info["final_index"] = ended
             self._start(ended)
         info |= {"action_mask": self.action_mask(), "view": self.view.copy(), "started": done}

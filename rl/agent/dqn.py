@@ -23,6 +23,7 @@ from pydantic import Field
 from rl.agent.network import QNetwork
 from rl.agent.replay import Batch
 from rl.config import EnvConfig
+from rl.policies import random_legal
 from rl.vec_env import BatchedEnv, decode_obs
 from schemas.base import Contract
 
@@ -155,11 +156,11 @@ class DQN:
         n = len(mask)
         greedy = masked_argmax(self.q_values(obs), torch.from_numpy(mask)).numpy()
         u = rng.random(n)
-        random_legal = np.argmax(rng.random(mask.shape) * mask, axis=1)
+        explore_move = random_legal(mask, rng)
         can_repeat = (last >= 0) & mask[np.arange(n), np.maximum(last, 0)]
         repeat = (u < self.config.p_repeat * eps) & can_repeat
         explore = (u < eps) & ~repeat
-        return np.where(repeat, last, np.where(explore, random_legal, greedy))
+        return np.where(repeat, last, np.where(explore, explore_move, greedy))
 
     def td_target(self, batch: Batch) -> torch.Tensor:
         """Double-Q n-step target ``[B]``, legal moves only."""
@@ -204,5 +205,4 @@ class DQNPolicy:
     def act(self, obs: np.ndarray, mask: np.ndarray, env: BatchedEnv) -> np.ndarray:
         with torch.no_grad():
             greedy = masked_argmax(self.net(to_tensor(obs)), torch.from_numpy(mask)).numpy()
-        random_legal = np.argmax(self.rng.random(mask.shape) * mask, axis=1)
-        return np.where(self.rng.random(len(mask)) < self.epsilon, random_legal, greedy)
+        return np.where(self.rng.random(len(mask)) < self.epsilon, random_legal(mask, self.rng), greedy)

@@ -90,7 +90,6 @@ class ReplayBuffer:
         ret = np.zeros(batch_size, np.float32)
         disc = np.ones(batch_size, np.float32)
         alive = np.ones(batch_size, bool)
-        nxt = idx.copy()
         last = idx.copy()
         for k in range(self.n_step):
             j = (idx + k * n) % c

@@ -21,10 +21,11 @@ import numpy as np
 import pandas as pd
 import torch
 
+from dataset.bundle import Bundle, load_bundle
 from rl.agent.dqn import DQN, DQNConfig, DQNPolicy
 from rl.agent.replay import ReplayBuffer
 from rl.maps import MapSet
-from rl.rollout import run_episodes
+from rl.rollout import run_episodes, summarise
 from rl.vec_env import BatchedEnv
 from schemas.base import uavplace_version
 
@@ -61,11 +62,11 @@ def linear(start: float, end: float, frac: float) -> float:
     return start + (end - start) * min(max(frac, 0.0), 1.0)
 
 
-def _split_or_none(maps_bundles, wanted: str | None) -> str | None:
+def _split_or_none(bundles: list[Bundle], wanted: str | None) -> str | None:
     """``wanted`` if some bundle user is in that split, else None (all users)."""
     if wanted is None:
         return None
-    return wanted if any(len(b.user_indices(wanted)) for b in maps_bundles) else None
+    return wanted if any(len(b.user_indices(wanted)) for b in bundles) else None
 
 
 def _atomic_torch_save(obj: object, path: Path) -> None:
@@ -87,12 +88,12 @@ class Trainer:
         self.config, self.datasets, self.root, self.run_dir = config, list(datasets), str(root), Path(run_dir)
         torch.manual_seed(config.seed)
         torch.set_num_threads(max(1, min(2, os.cpu_count() or 1)))
-        probe = MapSet.load(self.datasets, config.env_config(), root=self.root)
-        train_split = _split_or_none(probe.bundles, "train")
-        self.maps = MapSet(probe.bundles, config.env_config().model_copy(update={"split": train_split}))
+        bundles = [load_bundle(name, root=self.root) for name in self.datasets]
+        train_split = _split_or_none(bundles, "train")
+        self.maps = MapSet(bundles, config.env_config().model_copy(update={"split": train_split}))
         eval_cfg = config.env_config(evaluation=True)
-        self.eval_split = _split_or_none(probe.bundles, config.eval_split)
-        self.eval_maps = MapSet(probe.bundles, eval_cfg.model_copy(update={"split": self.eval_split}))
+        self.eval_split = _split_or_none(bundles, config.eval_split)
+        self.eval_maps = MapSet(bundles, eval_cfg.model_copy(update={"split": self.eval_split}))
         self.eval_episodes = self.eval_maps.sample_episodes(config.eval_episodes, np.random.default_rng([config.seed, 2]))
         self.env = BatchedEnv(self.maps, config.num_envs, compact=True)
         c, w = self.maps.config.num_channels, self.maps.config.window
@@ -163,18 +164,17 @@ class Trainer:
         self.env.rng.bit_generator.state = ck["env"]["rng"]
         self.replay.load(self.checkpoints / "replay.npz")
         self.state.episodes = pd.read_parquet(self.run_dir / "metrics.parquet").to_dict("records")
-        evals = self.run_dir / "eval.parquet"
-        self.state.evals = pd.read_parquet(evals).to_dict("records") if evals.stat().st_size else []
+        self.state.evals = pd.read_parquet(self.run_dir / "eval.parquet").to_dict("records")
 
     # -- evaluation ---------------------------------------------------------------------------------
     def evaluate(self) -> dict:
         policy = DQNPolicy(self.agent.online, self.config.test_epsilon, seed=self.config.seed)
         df = run_episodes(self.eval_maps, policy, self.eval_episodes, num_envs=min(256, len(self.eval_episodes)))
-        steps = np.where(df.success, df.steps, np.inf)
+        summary = summarise(df)
         row = {
             "step": self.state.step,
-            "success": float(df.success.mean()),
-            "median_steps": float(np.quantile(steps, 0.5, method="inverted_cdf")),
+            "success": summary["success"],
+            "median_steps": summary["median_steps"],
             "mean_return": float(df.return_.mean()),
         }
         score = (row["success"], -row["median_steps"])
