@@ -9,7 +9,7 @@ from rich.table import Table
 
 from dataset.bundle import list_versions, read_latest
 from dataset.catalog import list_cities
-from dataset.cli import root_option, stdout
+from dataset.cli import fail, root_option, stdout
 from rl.rollout import summarise
 from schemas import InputError
 
@@ -53,17 +53,23 @@ def _steps(v: float) -> str:
     return "> t_max" if v == float("inf") else f"{v:g}"
 
 
+def episode_options(command):
+    """The evaluation protocol's options, shared by ``baselines`` and ``report``."""
+    options = (
+        click.option("--episodes", type=click.IntRange(min=1), default=1000, show_default=True, help="Episodes, the same for every method."),
+        click.option("--t-max", type=click.IntRange(min=1), default=500, show_default=True, help="Step budget per episode (paper: 500 at test)."),
+        click.option("--p-t-db", type=float, default=5.0, show_default=True, help="SINR target P_T [dB]."),
+        click.option("--split", type=click.Choice(["train", "val", "test"]), default=None, help="Users of this split only (default: all)."),
+        click.option("--seed", type=int, default=0, show_default=True, help="Seed of the episodes and of every random move."),
+    )  # fmt: skip
+    for option in reversed(options):
+        command = option(command)
+    return command
+
+
 @main.command()
 @click.option("--dataset", "datasets", multiple=True, required=True, help="Built city to play in (repeatable).")
-@click.option(
-    "--episodes", type=click.IntRange(min=1), default=1000, show_default=True, help="Episodes, the same for every method."
-)
-@click.option(
-    "--t-max", type=click.IntRange(min=1), default=500, show_default=True, help="Step budget per episode (paper: 500 at test)."
-)
-@click.option("--p-t-db", type=float, default=5.0, show_default=True, help="SINR target P_T [dB].")
-@click.option("--split", type=click.Choice(["train", "val", "test"]), default=None, help="Users of this split only.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the episodes and of the random policies.")
+@episode_options
 @root_option
 def baselines(
     datasets: tuple[str, ...], episodes: int, t_max: int, p_t_db: float, split: str | None, seed: int, root: Path
@@ -113,12 +119,25 @@ def baselines(
 @click.option("--steps", type=click.IntRange(min=1), default=None, help="Environment steps (default: the preset's).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the whole run.")
 @click.option(
+    "--eval-every",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Environment steps between evaluations of held-out users (best checkpoint; default: the preset's).",
+)
+@click.option(
     "--out",
     "runs",
     type=click.Path(file_okay=False, path_type=Path),
     default=Path("runs"),
     show_default=True,
     help="Folder of runs; this one goes to OUT/<run-id>/.",
+)
+@click.option("--name", default=None, help="Run folder name under OUT (default: <time>-<preset>-<agent>-s<seed>); must be new.")
+@click.option(
+    "--until",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Stop at this step (after its checkpoint) instead of the end; `--resume` continues the same schedule later.",
 )
 @click.option(
     "--resume",
@@ -129,8 +148,9 @@ def baselines(
 @root_option
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def train(
-    datasets, agent: str, preset: str, steps: int | None, seed: int, runs: Path, resume: Path | None, root: Path, quiet: bool
-) -> None:
+    datasets, agent: str, preset: str, steps: int | None, seed: int, eval_every: int | None, runs: Path, name: str | None,
+    until: int | None, resume: Path | None, root: Path, quiet: bool,
+) -> None:  # fmt: skip
     """Train the DQN agent (or its blind twin) on built cities; write config, metrics and checkpoints to a run folder."""
     import json
 
@@ -146,8 +166,11 @@ def train(
         datasets, run_dir = tuple(doc["datasets"]), resume
     else:
         overrides = {"agent": agent, "seed": seed} | ({"total_steps": steps} if steps else {})
+        overrides |= {"eval_every": eval_every} if eval_every else {}
         config = preset_config(preset, **overrides)
-        run_dir = new_run_dir(runs, config)
+        run_dir = runs / name if name else new_run_dir(runs, config)
+        if run_dir.exists():
+            fail(FileExistsError(f"{run_dir} exists: choose another --name, or continue it with --resume {run_dir}"))
     try:
         trainer = Trainer(config, list(datasets), root, run_dir, command=command_line())
     except (InputError, ValueError) as err:
@@ -162,7 +185,7 @@ def train(
             bar.update(task, completed=p.step, description=f"ep {p.episodes} gain100 {p.gain_mean100:.1f} dB "
                        f"success100 {100 * p.success100:.0f} % eps {p.epsilon:.2f} loss {p.loss:.3f} best eval {best}")  # fmt: skip
 
-        trainer.run(resume=resume is not None, on_progress=on_progress)
+        trainer.run(resume=resume is not None, on_progress=on_progress, stop_at=until)
     last = trainer.state.evals[-1] if trainer.state.evals else None
     summary = f"; last evaluation: {100 * last['success']:.1f} % success, median {last['median_steps']:g} steps" if last else ""
     stdout().print(f"trained {run_dir}{summary}", highlight=False, soft_wrap=True)

@@ -19,6 +19,9 @@ class EnvConfig(Contract):
         default=800, ge=1, description="Step budget: the episode is truncated after t_max moves (paper: 800 train, 500 test)"
     )
     c_e: float = Field(default=1.2, description="Exploration bonus c_E added to the reward for a never-visited cell")
+    success_bonus: float = Field(
+        default=0.0, description="Reward added on reaching P_T (the paper: 0); makes ending the search worth more than wandering"
+    )
     p_h_db: float = Field(default=50.0, description="P_H: SINR memory value of unvisited cells [dB]")
     p_l_db: float = Field(
         default=-150.0, description="P_L: SINR memory value of blocked cells and of cells beyond the map edge [dB]"

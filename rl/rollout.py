@@ -7,7 +7,7 @@ from collections.abc import Callable
 import numpy as np
 import pandas as pd
 
-from rl.maps import MapSet
+from rl.maps import MOVES, MapSet
 from rl.policies import Policy
 from rl.vec_env import BatchedEnv
 
@@ -19,12 +19,15 @@ def run_episodes(
     *,
     num_envs: int = 256,
     on_step: Callable[[int, int], None] | None = None,
+    record: np.ndarray | None = None,
 ) -> pd.DataFrame:
     """Play ``episodes`` (``[K, 3]`` specs from ``MapSet.sample_episodes``) to their end with ``policy``.
 
     Returns one row per episode: ``episode, view, city, user, rotation, start_y, start_x,
     genie_steps`` (shortest possible), ``steps`` (moves played), ``success`` (P_T reached
     within ``t_max``) and ``return_`` (sum of rewards). ``on_step(done, total)`` reports progress.
+    ``record``: episode numbers whose cells, start included, go to ``df.attrs["paths"]``
+    (``{episode: [T + 1, 2] (y, x)}`` in the episode's view, i.e. map cells when not rotated).
     """
     k = len(episodes)
     env = BatchedEnv(maps, min(num_envs, k), queue=episodes)
@@ -36,12 +39,28 @@ def run_episodes(
     success = np.zeros(k, bool)
     ret = np.zeros(k, np.float64)
     acc = np.zeros(env.num_envs, np.float64)
+    wanted = np.zeros(k, bool)
+    if record is not None:
+        wanted[np.asarray(record, np.int64)] = True
+    trail: dict[int, list[np.ndarray]] = {}
+    paths: dict[int, np.ndarray] = {}
+
+    def follow(rows: np.ndarray) -> None:
+        for r in rows[wanted[env.episode_id[rows]] & ~env.exhausted[rows]]:
+            trail[int(env.episode_id[r])] = [env.pos[r].copy()]
+
+    follow(np.arange(env.num_envs))
     finished = 0
     while finished < k:
         actions = policy.act(obs, info["action_mask"], env)
         live = ~env.exhausted
         ids = env.episode_id.copy()
+        moved = env.pos.copy()
         obs, reward, terminated, truncated, info = env.step(actions)
+        for r in np.flatnonzero(live & wanted[ids]):
+            # After an episode ends the row restarts; its last cell is the move's target, not env.pos.
+            here = env.pos[r] if not info["started"][r] else _landed(moved[r], actions[r], info["illegal"][r])
+            trail[int(ids[r])].append(here.copy())
         acc += reward
         done = (terminated | truncated) & live
         if done.any():
@@ -51,6 +70,9 @@ def run_episodes(
             ret[ids[rows]] = acc[rows]
             acc[rows] = 0.0
             finished += len(rows)
+            for r in rows[wanted[ids[rows]]]:
+                paths[int(ids[r])] = np.array(trail.pop(int(ids[r])), np.int64)
+            follow(rows)
             policy.reset(rows, env.num_envs)
             fresh = rows[~env.exhausted[rows]]
             genie[env.episode_id[fresh]] = env.genie_steps()[fresh]
@@ -58,7 +80,7 @@ def run_episodes(
                 on_step(finished, k)
     view = episodes[:, 0]
     scen = [maps.scenarios[v // 4] for v in view]
-    return pd.DataFrame(
+    df = pd.DataFrame(
         {
             "episode": np.arange(k),
             "view": view,
@@ -73,20 +95,38 @@ def run_episodes(
             "return_": ret,
         }
     )
+    df.attrs["paths"] = paths
+    return df
+
+
+def _landed(pos: np.ndarray, action: int, illegal: bool) -> np.ndarray:
+    return pos if illegal else pos + MOVES[action]
 
 
 def summarise(df: pd.DataFrame) -> dict[str, float]:
-    """Success rate, and steps to P_T over all episodes with failures counted as infinite (> t_max).
+    """Success rate, and steps to P_T over all episodes with failures counted as infinite (> t_max)."""
+    stats = episode_stats(df["steps"].to_numpy(), df["success"].to_numpy(), df["genie_steps"].to_numpy())
+    return {name: float(v) for name, v in stats.items()}
 
-    Quantiles are order statistics (``inverted_cdf``), so a quantile that falls on a failure is inf.
+
+def episode_stats(steps: np.ndarray, success: np.ndarray, genie_steps: np.ndarray) -> dict[str, np.ndarray]:
+    """The evaluation's statistics over the last axis (episodes); leading axes are kept (bootstrap resamples).
+
+    ``success`` rate; ``median_steps`` and ``p90_steps`` of steps to P_T with failures infinite;
+    ``mean_steps_success`` (nan without successes); ``steps_over_genie``: median of steps / genie
+    steps per episode (infinite for failures). Quantiles are order statistics (``inverted_cdf``), so a
+    quantile that falls on a failure is inf.
     """
-    ok = df["success"].to_numpy()
-    steps = np.where(ok, df["steps"], np.inf)
-    ratio = np.where(ok, df["steps"] / np.maximum(df["genie_steps"], 1), np.inf)
+    ok = np.asarray(success, bool)
+    to_target = np.where(ok, steps, np.inf)
+    ratio = np.where(ok, steps / np.maximum(genie_steps, 1), np.inf)
+    n_ok = ok.sum(axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_ok = np.where(n_ok > 0, np.where(ok, steps, 0).sum(axis=-1) / n_ok, np.nan)
     return {
-        "success": float(ok.mean()),
-        "median_steps": float(np.quantile(steps, 0.5, method="inverted_cdf")),
-        "mean_steps_success": float(df.loc[ok, "steps"].mean()) if ok.any() else float("nan"),
-        "p90_steps": float(np.quantile(steps, 0.9, method="inverted_cdf")),
-        "steps_over_genie": float(np.quantile(ratio, 0.5, method="inverted_cdf")),
+        "success": ok.mean(axis=-1),
+        "median_steps": np.quantile(to_target, 0.5, axis=-1, method="inverted_cdf"),
+        "mean_steps_success": mean_ok,
+        "p90_steps": np.quantile(to_target, 0.9, axis=-1, method="inverted_cdf"),
+        "steps_over_genie": np.quantile(ratio, 0.5, axis=-1, method="inverted_cdf"),
     }

@@ -162,8 +162,8 @@ class BatchedEnv:
         self.visited[rows, y, x] = True
         self.memory[rows, y, x] = new
         self.t += 1
-        reward = (new - old + self.config.c_e * fresh).astype(np.float32)
         terminated = new >= self.config.p_t_db
+        reward = (new - old + self.config.c_e * fresh + self.config.success_bonus * terminated).astype(np.float32)
         truncated = (self.t >= self.config.t_max) & ~terminated
         info = {"illegal": ~legal, "steps": self.t.copy(), "sinr": new, "episode_id": self.episode_id.copy()}
         done = (terminated | truncated) & self.autoreset

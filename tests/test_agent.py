@@ -125,13 +125,14 @@ def _tiny_config() -> DQNConfig:
 
 
 def test_resume_continues_exactly(tmp_path, city_root):
-    """Train 256 steps straight, or 128 then resume to 256: identical networks and next actions."""
+    """Train 256 steps straight, or stop at 96 and 200 and resume each time: identical networks and next actions."""
     straight = Trainer(_tiny_config(), ["tiny"], city_root, tmp_path / "a")
     straight.run()
     half = Trainer(_tiny_config(), ["tiny"], city_root, tmp_path / "b")
-    half.run(stop_at=128)  # an interruption right after the checkpoint at step 128
+    half.run(stop_at=96)  # a planned stop between evaluations (`--until 96`) checkpoints there
     doc = json.loads((tmp_path / "b" / "run.json").read_text())
     assert doc["train_split"] == "train" and doc["eval_split"] == "val" and doc["datasets"]["tiny"]
+    Trainer(_tiny_config(), ["tiny"], city_root, tmp_path / "b").run(resume=True, stop_at=200)
     resumed = Trainer(_tiny_config(), ["tiny"], city_root, tmp_path / "b")
     resumed.run(resume=True)
     assert resumed.state.step == straight.state.step == 256
@@ -177,5 +178,44 @@ def test_uavrl_train_cli(tmp_path, city_root):
     assert "fast-dqn-s0" in run_dir.name and "last evaluation" in res.output
     assert {"run.json", "metrics.parquet", "eval.parquet", "checkpoints"} <= {p.name for p in run_dir.iterdir()}
     assert (run_dir / "checkpoints" / "best.pt").is_file()
+    res = run(uavrl, [*args, "--name", run_dir.name])
+    assert res.exit_code == 2 and "exists" in res.output
     res = run(uavrl, ["train", "--dataset", "nowhere", "--root", str(city_root), "--out", str(tmp_path)])
     assert res.exit_code != 0 and "no bundle of city 'nowhere'" in res.output
+
+
+def test_fovea_network_sees_a_centred_fovea_and_surround():
+    from rl.agent.network import FoveaQNetwork
+
+    for window, fovea in ((61, 15), (21, 7), (15, 15)):
+        net = FoveaQNetwork(2, window, hidden=8, fovea=fovea)
+        assert (window - net.kernel) // net.stride + 1 == fovea and net(torch.zeros(3, 2, window, window)).shape == (3, 4)
+        assert (window - 1 - (net.stride * (fovea - 1) + net.kernel - 1)) == 0  # the pooled grid spans the window exactly
+    with pytest.raises(ValueError, match="odd"):
+        FoveaQNetwork(2, 21, fovea=8)
+
+
+def test_short_training_run_learns(tmp_path):
+    """On the embedded tiny city (noisier, so that few cells reach P_T), 15 k steps beat the random walk
+    clearly on held-out episodes (drawn with another seed than training's)."""
+    from pathlib import Path
+
+    from rl.policies import RandomWalkPolicy
+    from rl.rollout import run_episodes, summarise
+
+    raw = Path(__file__).resolve().parents[1] / "data" / "raw" / "tiny"
+    ingest_city(raw, tmp_path / "p", name="tiny")
+    build_city("tiny", BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=-40.0), tmp_path / "p")
+    config = preset_config(
+        "best", total_steps=15_000, num_envs=16, buffer_size=15_000, batch_size=32, train_every=2, learning_starts=500,
+        target_update=1_000, eval_every=5_000, eval_episodes=50, eval_t_max=40, eps_fraction=0.6, lr_start=1e-3,
+        lr_end=1e-4, fovea=7, hidden=64, env={"t_max": 40, "rotate": True, "window": 21},
+    )  # fmt: skip
+    trainer = Trainer(config, ["tiny"], tmp_path / "p", tmp_path / "run")
+    trainer.run()
+    policy, cfg = load_policy(tmp_path / "run" / "checkpoints" / "best.pt", epsilon=0.0)
+    maps = trainer.eval_maps  # all 4 users (the tiny city has no split), rotation off, t_max 40
+    held_out = maps.sample_episodes(400, np.random.default_rng(12345))
+    learned = summarise(run_episodes(maps, policy, held_out))["success"]
+    walk = summarise(run_episodes(maps, RandomWalkPolicy(seed=1), held_out))["success"]
+    assert learned >= walk + 0.1, (learned, walk)

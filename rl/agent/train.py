@@ -22,7 +22,7 @@ import pandas as pd
 import torch
 
 from dataset.bundle import Bundle, load_bundle
-from rl.agent.dqn import DQN, DQNConfig, DQNPolicy
+from rl.agent.dqn import DQN, DQNConfig, DQNPolicy, make_network
 from rl.agent.replay import ReplayBuffer
 from rl.maps import MapSet
 from rl.rollout import run_episodes, summarise
@@ -87,7 +87,8 @@ class Trainer:
     def __init__(self, config: DQNConfig, datasets: list[str], root: str | Path, run_dir: Path, command: str = "") -> None:
         self.config, self.datasets, self.root, self.run_dir = config, list(datasets), str(root), Path(run_dir)
         torch.manual_seed(config.seed)
-        torch.set_num_threads(max(1, min(2, os.cpu_count() or 1)))
+        if "OMP_NUM_THREADS" not in os.environ:  # both cores of the reference machine, unless told otherwise
+            torch.set_num_threads(max(1, min(2, os.cpu_count() or 1)))
         bundles = [load_bundle(name, root=self.root) for name in self.datasets]
         train_split = _split_or_none(bundles, "train")
         self.maps = MapSet(bundles, config.env_config().model_copy(update={"split": train_split}))
@@ -195,8 +196,8 @@ class Trainer:
     def run(
         self, resume: bool = False, on_progress: Callable[[Progress], None] | None = None, stop_at: int | None = None
     ) -> Path:
-        """Train to ``total_steps`` (from the last checkpoint if ``resume``). ``stop_at`` stops early at
-        that step, as an interruption would: what a resume continues from is the last checkpoint."""
+        """Train to ``total_steps`` (from the last checkpoint if ``resume``). ``stop_at`` stops at that
+        step (the first multiple of ``num_envs`` at or past it) and checkpoints there."""
         cfg, env, s = self.config, self.env, self.state
         n = cfg.num_envs
         if resume:
@@ -269,6 +270,8 @@ class Trainer:
                 )
         if s.step >= cfg.total_steps:
             self._finish_metrics()
+        elif stop_at is not None and s.step >= stop_at:
+            self.save()  # a planned stop (`--until`): resumable from here
         return self.run_dir
 
     def _finish_metrics(self) -> None:
@@ -286,13 +289,11 @@ def new_run_dir(runs: str | Path, config: DQNConfig) -> Path:
 
 def load_policy(path: str | Path, epsilon: float = 0.096, seed: int = 0, name: str | None = None) -> tuple[DQNPolicy, DQNConfig]:
     """A checkpoint (``best.pt`` or ``last.pt``) as a ``Policy``, with the config it was trained with."""
-    from rl.agent.network import QNetwork
-
     ck = torch.load(path, weights_only=False)
     config = DQNConfig.model_validate(ck["config"]) if "config" in ck else None
     if config is None:
         raise ValueError(f"{path}: no config in the checkpoint")
     env = config.env_config()
-    net = QNetwork(env.num_channels, env.window, hidden=config.hidden, dropout=config.dropout, channels=config.conv_channels)
+    net = make_network(config, env.num_channels, env.window)
     net.load_state_dict(ck["online"])
     return DQNPolicy(net, epsilon, seed, name or config.agent), config

@@ -1,0 +1,138 @@
+"""The evaluation protocol and `uavrl report`: metrics on hand-made episodes, and a report made end to end."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+
+from dataset.build import build_city
+from eval.cli import main as uavrl
+from eval.metrics import bootstrap_table, ecdf, format_stat
+from ingest.pipeline import ingest_city
+from rl.agent.dqn import preset_config
+from rl.agent.train import Trainer
+from rl.rollout import summarise
+from schemas.bundle import BuildConfig
+from tests.conftest import write_grid_city
+
+
+def episodes(steps, success, genie=None) -> pd.DataFrame:
+    n = len(steps)
+    return pd.DataFrame(
+        {
+            "episode": np.arange(n),
+            "view": np.zeros(n, np.int64),
+            "start_y": np.arange(n),
+            "start_x": np.arange(n),
+            "steps": np.asarray(steps),
+            "success": np.asarray(success, bool),
+            "genie_steps": np.ones(n, np.int64) if genie is None else np.asarray(genie),
+        }
+    )
+
+
+def test_median_counts_failures_as_beyond_t_max():
+    # 5 episodes: 3 successes in 2, 4, 6 steps and 2 failures (played to t_max = 10).
+    df = episodes([2, 4, 6, 10, 10], [1, 1, 1, 0, 0], genie=[1, 2, 2, 1, 1])
+    table = bootstrap_table({"m": df}, n_boot=200)
+    row = table.iloc[0]
+    assert row["success"] == pytest.approx(0.6)
+    assert row["median_steps"] == 6  # order statistic 3 of 5: the failures sit above every success
+    assert row["mean_steps_success"] == pytest.approx(4.0)
+    assert row["p90_steps"] == np.inf
+    assert row["steps_over_genie"] == 3.0  # ratios 2, 2, 3, inf, inf
+    assert summarise(df) == pytest.approx({k: row[k] for k in summarise(df)})
+    # With failures in the majority the median is past t_max (at exactly half, it is the last success).
+    assert bootstrap_table({"m": episodes([2, 4, 6, 10, 10, 10], [1, 1, 1, 0, 0, 0])}, n_boot=200).iloc[0]["median_steps"] == 6
+    worse = episodes([2, 4, 6, 10, 10, 10, 10], [1, 1, 1, 0, 0, 0, 0])
+    assert bootstrap_table({"m": worse}, n_boot=200).iloc[0]["median_steps"] == np.inf
+    assert format_stat("median_steps", np.inf) == "> t_max" and format_stat("success", 0.6, 0.2, 1.0) == "60.0 % [20.0, 100.0 %]"
+
+
+def test_ecdf_of_known_steps():
+    df = episodes([1, 1, 3, 5, 5], [1, 1, 1, 1, 0])
+    s, f = ecdf(df, t_max=5)
+    np.testing.assert_array_equal(s, np.arange(6))
+    np.testing.assert_allclose(f, [0, 0.4, 0.4, 0.6, 0.6, 0.8])  # the failure never counts
+
+
+def test_bootstrap_interval_covers_a_known_rate():
+    rng = np.random.default_rng(3)
+    n, p = 1000, 0.7
+    ok = rng.random(n) < p
+    table = bootstrap_table({"m": episodes(np.where(ok, 5, 500), ok)}, n_boot=2000, seed=1)
+    lo, hi = table.iloc[0][["success_lo", "success_hi"]]
+    half = 1.96 * np.sqrt(p * (1 - p) / n)
+    assert lo < ok.mean() < hi and hi - lo == pytest.approx(2 * half, rel=0.15)
+    again = bootstrap_table({"m": episodes(np.where(ok, 5, 500), ok)}, n_boot=2000, seed=1)
+    pd.testing.assert_frame_equal(table, again)
+
+
+def test_bootstrap_refuses_unpaired_methods():
+    a = episodes([1, 2, 3], [1, 1, 1])
+    b = a.assign(start_x=[0, 1, 9])
+    with pytest.raises(ValueError, match="other episodes"):
+        bootstrap_table({"a": a, "b": b})
+
+
+@pytest.fixture(scope="module")
+def two_cities(tmp_path_factory):
+    """A training city and a test city (different seeds), built; an agent trained a few hundred steps in the first."""
+    tmp = tmp_path_factory.mktemp("eval")
+    root = tmp / "p"
+    for name, seed, role in (("citya", 5, "train"), ("cityb", 6, "test")):
+        ingest_city(write_grid_city(tmp / "raw" / name, nx=14, ny=12, n_tx=3, outputs=("power",), seed=seed), root, name=name)
+        build_city(
+            name,
+            BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=-58.0, role=role, val_users=1 if role == "train" else 0),
+            root,
+        )
+    config = preset_config(
+        "best", total_steps=256, num_envs=8, buffer_size=512, batch_size=16, train_every=4, learning_starts=64,
+        eval_every=128, eval_episodes=8, hidden=16, env={"t_max": 30, "rotate": True},
+    )  # fmt: skip
+    Trainer(config, ["citya"], root, tmp / "runs" / "a").run()
+    return root, tmp / "runs" / "a"
+
+
+def test_report_end_to_end(tmp_path, two_cities):
+    root, run = two_cities
+    out = tmp_path / "report"
+    args = ["report", "--run", str(run), "--dataset", "cityb", "--root", str(root), "--out", str(out)]
+    res = CliRunner().invoke(uavrl, [*args, "--episodes", "60", "--t-max", "40", "--bootstrap", "200", "--quiet"])
+    assert res.exit_code == 0, res.output
+    assert "report.html" in res.output and "genie" in res.output
+    page = (out / "report.html").read_text()
+    assert page.count('src="data:image/png;base64,') == 3  # CDF, training curves, trajectories
+    for text in ("DQN (best)", "genie", "random_walk", "greedy", "paper: success", "cityb", "citya"):
+        assert text in page
+    table = pd.read_csv(out / "results.csv")
+    assert list(table["method"]) == ["DQN (best)", "genie", "random_walk", "greedy"]
+    assert table.loc[table.method == "genie", "success"].item() == 1.0
+    assert (table["success_lo"] <= table["success"]).all() and (table["success"] <= table["success_hi"]).all()
+    eps = pd.read_parquet(out / "episodes.parquet")
+    starts = {m: g[["episode", "view", "start_y", "start_x", "genie_steps"]].to_numpy() for m, g in eps.groupby("method")}
+    first = next(iter(starts.values()))
+    assert len(first) == 60 and all(np.array_equal(first, s) for s in starts.values())  # identical episodes
+    wide = eps.pivot(index="episode", columns="method", values="steps")
+    ok = eps.pivot(index="episode", columns="method", values="success")
+    assert ok["genie"].all() and (wide["genie"] == eps[eps.method == "genie"].set_index("episode")["genie_steps"]).all()
+    for m in wide.columns:  # the genie is never slower than any method on any episode it finished
+        assert (wide["genie"][ok[m]] <= wide[m][ok[m]]).all(), m
+    doc = json.loads((out / "report.json").read_text())
+    assert doc["test_bundle"] and set(doc["agents"]["DQN (best)"]["trained_on"]) == {"citya"}
+    assert doc["report_config"]["episodes"] == 60 and "upper_bounds_db" in doc
+    # The same command again gives the same table (seeded episodes, agent moves and bootstrap).
+    res = CliRunner().invoke(uavrl, [*args, "--episodes", "60", "--t-max", "40", "--bootstrap", "200", "--quiet"])
+    pd.testing.assert_frame_equal(table, pd.read_csv(out / "results.csv"))
+
+
+def test_report_refuses_the_training_city(tmp_path, two_cities):
+    root, run = two_cities
+    res = CliRunner().invoke(uavrl, ["report", "--run", str(run), "--dataset", "citya", "--root", str(root), "--out", str(tmp_path / "r"),
+                                     "--episodes", "5", "--quiet"])  # fmt: skip
+    assert res.exit_code == 2 and "trained in citya" in res.output and not (tmp_path / "r").exists()
