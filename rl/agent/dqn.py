@@ -66,6 +66,9 @@ class DQNConfig(Contract):
     test_epsilon: float = Field(default=0.096, ge=0, le=1, description="Random legal move rate when evaluating (paper: 0.096)")
     eval_t_max: int = Field(default=500, ge=1, description="Step budget of evaluation episodes (paper: 500)")
     seed: int = Field(default=0, description="Seed of everything (envs, exploration, replay sampling, torch)")
+    device: str = Field(
+        default="auto", description="Where the networks train: auto (CUDA if present, else CPU), cpu, cuda, cuda:N"
+    )
     env: EnvConfig = Field(default_factory=lambda: EnvConfig(t_max=800, rotate=True), description="Training environment")
 
     def env_config(self, *, evaluation: bool = False) -> EnvConfig:
@@ -142,11 +145,17 @@ def make_network(config: DQNConfig, in_channels: int, window: int) -> nn.Module:
     return QNetwork(in_channels, window, hidden=config.hidden, dropout=config.dropout, channels=config.conv_channels)
 
 
-def to_tensor(obs: np.ndarray) -> torch.Tensor:
-    """uint8 (compact) or float observations -> float32 tensor in dB / m."""
-    if obs.dtype == np.uint8:  # decode_obs, in torch (faster, and no float copy in numpy)
-        return torch.from_numpy(obs).to(torch.float32).sub_(OBS_OFFSET)
-    return torch.from_numpy(obs.astype(np.float32, copy=False))
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+def to_tensor(obs: np.ndarray, device: torch.device | None = None) -> torch.Tensor:
+    """uint8 (compact) or float observations -> float32 tensor in dB / m, on ``device``."""
+    if obs.dtype == np.uint8:  # decode_obs, in torch (faster; on a GPU the uint8 bytes travel, not floats)
+        return torch.from_numpy(obs).to(device).to(torch.float32).sub_(OBS_OFFSET)
+    return torch.from_numpy(obs.astype(np.float32, copy=False)).to(device)
 
 
 def masked_argmax(q: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -159,7 +168,8 @@ class DQN:
 
     def __init__(self, config: DQNConfig, in_channels: int, window: int) -> None:
         self.config = config
-        self.online = make_network(config, in_channels, window)
+        self.device = resolve_device(config.device)
+        self.online = make_network(config, in_channels, window).to(self.device)
         self.target = copy.deepcopy(self.online)
         self.target.eval()
         self.optimizer = torch.optim.Adam(self.online.parameters(), lr=config.lr_start)
@@ -168,13 +178,13 @@ class DQN:
     def q_values(self, obs: np.ndarray) -> torch.Tensor:
         self.online.eval()
         with torch.no_grad():
-            return self.online(to_tensor(obs))
+            return self.online(to_tensor(obs, self.device))
 
     def act(self, obs: np.ndarray, mask: np.ndarray, eps: float, last: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """The paper's rule: w.p. ``p_repeat * eps`` repeat ``last`` (if legal), w.p. ``(1 - p_repeat) * eps``
         a random legal move, else the legal move of highest Q."""
         n = len(mask)
-        greedy = masked_argmax(self.q_values(obs), torch.from_numpy(mask)).numpy()
+        greedy = masked_argmax(self.q_values(obs), torch.from_numpy(mask).to(self.device)).cpu().numpy()
         u = rng.random(n)
         explore_move = random_legal(mask, rng)
         can_repeat = (last >= 0) & mask[np.arange(n), np.maximum(last, 0)]
@@ -184,18 +194,20 @@ class DQN:
 
     def td_target(self, batch: Batch) -> torch.Tensor:
         """Double-Q n-step target ``[B]``, legal moves only."""
-        next_obs = to_tensor(batch.next_obs)
-        next_mask = torch.from_numpy(batch.next_mask)
+        next_obs = to_tensor(batch.next_obs, self.device)
+        next_mask = torch.from_numpy(batch.next_mask).to(self.device)
         with torch.no_grad():
             self.online.eval()
             best = masked_argmax(self.online(next_obs), next_mask)  # [B]
             q_next = self.target(next_obs).gather(1, best[:, None]).squeeze(1)  # [B]
-        return torch.from_numpy(batch.reward) + torch.from_numpy(batch.discount) * q_next
+        reward, discount = (torch.from_numpy(a).to(self.device) for a in (batch.reward, batch.discount))
+        return reward + discount * q_next
 
     def update(self, batch: Batch, lr: float) -> float:
         target = self.td_target(batch)
         self.online.train()
-        q = self.online(to_tensor(batch.obs)).gather(1, torch.from_numpy(batch.action)[:, None]).squeeze(1)  # [B]
+        action = torch.from_numpy(batch.action).to(self.device)
+        q = self.online(to_tensor(batch.obs, self.device)).gather(1, action[:, None]).squeeze(1)  # [B]
         loss = torch.nn.functional.smooth_l1_loss(q, target)
         for group in self.optimizer.param_groups:
             group["lr"] = lr
@@ -215,6 +227,7 @@ class DQNPolicy:
 
     def __init__(self, net: nn.Module, epsilon: float = 0.096, seed: int = 0, name: str = "dqn") -> None:
         self.net = net.eval()
+        self.device = next(net.parameters()).device
         self.epsilon = epsilon
         self.rng = np.random.default_rng(seed)
         self.name = name
@@ -224,5 +237,6 @@ class DQNPolicy:
 
     def act(self, obs: np.ndarray, mask: np.ndarray, env: BatchedEnv) -> np.ndarray:
         with torch.no_grad():
-            greedy = masked_argmax(self.net(to_tensor(obs)), torch.from_numpy(mask)).numpy()
+            q = self.net(to_tensor(obs, self.device))
+            greedy = masked_argmax(q, torch.from_numpy(mask).to(self.device)).cpu().numpy()
         return np.where(self.rng.random(len(mask)) < self.epsilon, random_legal(mask, self.rng), greedy)

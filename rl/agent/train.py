@@ -136,6 +136,7 @@ class Trainer:
                 "state": {k: getattr(s, k) for k in ("step", "last_action", "start_sinr", "best_score", "synced_at")},
                 "rng": self.rng.bit_generator.state,
                 "torch_rng": torch.get_rng_state(),
+                "cuda_rng": torch.cuda.get_rng_state_all() if self.agent.device.type == "cuda" else None,
                 "env": env_state,
             },
             self.checkpoints / "last.pt",
@@ -147,7 +148,7 @@ class Trainer:
         _atomic_parquet(s.evals, self.run_dir / "eval.parquet")
 
     def load(self) -> None:
-        ck = torch.load(self.checkpoints / "last.pt", weights_only=False)
+        ck = torch.load(self.checkpoints / "last.pt", weights_only=False, map_location=self.agent.device)
         self.agent.online.load_state_dict(ck["online"])
         self.agent.target.load_state_dict(ck["target"])
         self.agent.optimizer.load_state_dict(ck["optimizer"])
@@ -155,7 +156,9 @@ class Trainer:
         for k, v in ck["state"].items():
             setattr(self.state, k, v)
         self.rng.bit_generator.state = ck["rng"]
-        torch.set_rng_state(ck["torch_rng"])
+        torch.set_rng_state(ck["torch_rng"].cpu())
+        if ck.get("cuda_rng") is not None:
+            torch.cuda.set_rng_state_all([t.cpu() for t in ck["cuda_rng"]])
         for k in _ENV_STATE:
             value = ck["env"][k]
             if isinstance(value, np.ndarray):
@@ -289,7 +292,7 @@ def new_run_dir(runs: str | Path, config: DQNConfig) -> Path:
 
 def load_policy(path: str | Path, epsilon: float = 0.096, seed: int = 0, name: str | None = None) -> tuple[DQNPolicy, DQNConfig]:
     """A checkpoint (``best.pt`` or ``last.pt``) as a ``Policy``, with the config it was trained with."""
-    ck = torch.load(path, weights_only=False)
+    ck = torch.load(path, weights_only=False, map_location="cpu")
     config = DQNConfig.model_validate(ck["config"]) if "config" in ck else None
     if config is None:
         raise ValueError(f"{path}: no config in the checkpoint")
