@@ -33,7 +33,7 @@ from pydantic import Field
 from dataset.bundle import Bundle, load_bundle
 from eval.metrics import STATS, bootstrap_table, ecdf, format_stat
 from rl.agent.dqn import DQNConfig
-from rl.agent.train import load_policy
+from rl.agent.train import load_policy, with_running_means
 from rl.config import EnvConfig
 from rl.maps import MapSet
 from rl.policies import GeniePolicy, GreedyPolicy, Policy, RandomWalkPolicy
@@ -213,8 +213,8 @@ def plot_training(agents: list[Agent], bounds: dict[str, float], out: Path) -> P
     for a in agents:
         path = a.folder / "metrics.parquet"
         if path.is_file():
-            df = pd.read_parquet(path)
-            if len(df) and "sinr_gain_mean100_db" in df:
+            df = with_running_means(pd.read_parquet(path))
+            if len(df):
                 curves.append((a.name, df))
     if not curves:
         return None

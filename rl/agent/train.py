@@ -144,7 +144,7 @@ class Trainer:
         tmp = self.checkpoints / "replay.tmp.npz"
         self.replay.save(tmp)
         os.replace(tmp, self.checkpoints / "replay.npz")
-        _atomic_parquet(s.episodes, self.run_dir / "metrics.parquet")
+        _atomic_parquet(with_running_means(pd.DataFrame(s.episodes)).to_dict("records"), self.run_dir / "metrics.parquet")
         _atomic_parquet(s.evals, self.run_dir / "eval.parquet")
 
     def load(self) -> None:
@@ -167,7 +167,10 @@ class Trainer:
                 setattr(self.env, k, value)
         self.env.rng.bit_generator.state = ck["env"]["rng"]
         self.replay.load(self.checkpoints / "replay.npz")
-        self.state.episodes = pd.read_parquet(self.run_dir / "metrics.parquet").to_dict("records")
+        metrics = pd.read_parquet(self.run_dir / "metrics.parquet")
+        self.state.episodes = metrics.drop(columns=["sinr_gain_mean100_db", "success_mean100"], errors="ignore").to_dict(
+            "records"
+        )
         self.state.evals = pd.read_parquet(self.run_dir / "eval.parquet").to_dict("records")
 
     # -- evaluation ---------------------------------------------------------------------------------
@@ -271,18 +274,19 @@ class Trainer:
                         best=s.best_score[0] if s.best_score else None,
                     )
                 )
-        if s.step >= cfg.total_steps:
-            self._finish_metrics()
-        elif stop_at is not None and s.step >= stop_at:
+        if stop_at is not None and stop_at <= s.step < cfg.total_steps:
             self.save()  # a planned stop (`--until`): resumable from here
         return self.run_dir
 
-    def _finish_metrics(self) -> None:
-        df = pd.DataFrame(self.state.episodes)
-        if len(df):
-            df["sinr_gain_mean100_db"] = df["sinr_gain_db"].rolling(100, min_periods=1).mean()
-            df["success_mean100"] = df["success"].astype(float).rolling(100, min_periods=1).mean()
-        _atomic_parquet(df.to_dict("records"), self.run_dir / "metrics.parquet")
+
+def with_running_means(df: pd.DataFrame) -> pd.DataFrame:
+    """Per-episode metrics plus their means over the last 100 episodes (the paper's training curve)."""
+    if len(df):
+        df = df.assign(
+            sinr_gain_mean100_db=df["sinr_gain_db"].rolling(100, min_periods=1).mean(),
+            success_mean100=df["success"].astype(float).rolling(100, min_periods=1).mean(),
+        )
+    return df
 
 
 def new_run_dir(runs: str | Path, config: DQNConfig) -> Path:
