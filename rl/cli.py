@@ -101,7 +101,9 @@ def baselines(
 
 
 @main.command()
-@click.option("--dataset", "datasets", multiple=True, required=True, help="Built city to train in (repeatable: several cities).")
+@click.option(
+    "--dataset", "datasets", multiple=True, help="Built city to train in (repeatable: several cities); required unless --resume."
+)
 @click.option(
     "--agent",
     type=click.Choice(["dqn", "blind"]),
@@ -164,6 +166,8 @@ def train(
         doc = json.loads((resume / "run.json").read_text())
         config = DQNConfig.model_validate(doc["config"])
         datasets, run_dir = tuple(doc["datasets"]), resume
+    elif not datasets:
+        raise click.UsageError("give --dataset CITY (or --resume RUN_FOLDER)")
     else:
         overrides = {"agent": agent, "seed": seed} | ({"total_steps": steps} if steps else {})
         overrides |= {"eval_every": eval_every} if eval_every else {}
