@@ -105,7 +105,7 @@ PRESETS: dict[str, dict] = {
         "env": {"t_max": 200, "rotate": True},
     },
     # Better than the paper within 1 M steps and 1 hour on 2 CPU cores (the lever table in the README):
-    # the foveated network (4 x cheaper per sample on a CPU), 64 envs acting in one batch,
+    # the foveated network (about a tenth of the paper network's time per update on a CPU), 64 envs acting in one batch,
     # 3-step returns, batches of 128 every 16 env steps (8 replayed samples per env step), no dropout.
     "best": {
         "total_steps": 1_000_000,
