@@ -31,6 +31,7 @@ import pandas as pd
 from pydantic import Field
 
 from dataset.bundle import Bundle, load_bundle
+from dataset.difficulty import valid_starts
 from eval.metrics import STATS, bootstrap_table, ecdf, format_stat
 from rl.agent.dqn import DQNConfig
 from rl.agent.train import load_policy, with_running_means
@@ -118,6 +119,7 @@ def evaluate(
     base = EnvConfig(t_max=config.t_max, p_t_db=config.p_t_db, split=config.split, rotate=False)
     maps = {"": MapSet([bundle], base)}
     episodes = maps[""].sample_episodes(config.episodes, np.random.default_rng(config.seed))  # as `uavrl baselines`
+    shown = shown_method(agents)
     record = np.arange(config.episodes)[: max(50, 10 * config.trajectories)] if config.trajectories else None
     methods: list[tuple[str, Policy, MapSet]] = []
     for a in agents:
@@ -139,7 +141,7 @@ def evaluate(
     results = {}
     for name, policy, mapset in methods:
         report = None if on_progress is None else (lambda done, total, name=name: on_progress(name, done, total))
-        results[name] = run_episodes(mapset, policy, episodes, on_step=report, record=record)
+        results[name] = run_episodes(mapset, policy, episodes, on_step=report, record=record if name == shown else None)
     return results
 
 
@@ -162,14 +164,23 @@ def _paper_key(method: str) -> str | None:
     return None
 
 
+def shown_method(agents: list[Agent]) -> str:
+    """The method whose trajectories the report draws: the first agent, else the genie."""
+    return agents[0].name if agents else "genie"
+
+
 def upper_bound_db(bundles: list[Bundle], split: str | None, p_t_db: float) -> float:
-    """The paper's training bound on the mean SINR gain: mean over users, then start cells, of P_T - start SINR."""
-    maps = MapSet(bundles, EnvConfig(p_t_db=p_t_db, split=split))
+    """The paper's training bound on the mean SINR gain: mean over users, then start cells, of P_T - start SINR.
+
+    Users and starts as training draws them: the users of ``split`` (all if None) with at least one
+    valid start (``dataset.difficulty.valid_starts``).
+    """
     per_user = []
-    for s in maps.startable:
-        v = 4 * s
-        cells = maps.start_cells[maps.start_offset[v] : maps.start_offset[v] + maps.start_count[v]]
-        per_user.append(float(np.mean(p_t_db - maps.sinr[v].ravel()[cells])))
+    for b in bundles:
+        for u in b.user_indices(split) if split else b.user_indices():
+            starts = valid_starts(b.blocked, b.dead[u], b.sinr_db[u], p_t_db)
+            if starts.any():
+                per_user.append(float(np.mean(p_t_db - b.sinr_db[u][starts])))
     return float(np.mean(per_user))
 
 
@@ -243,7 +254,7 @@ def pick_trajectories(results: dict[str, pd.DataFrame], agent: str, count: int) 
 
 
 def plot_trajectories(
-    bundle: Bundle, maps_pad: int, results: dict[str, pd.DataFrame], agent: str, episodes: list[int], out: Path
+    bundle: Bundle, results: dict[str, pd.DataFrame], agent: str, episodes: list[int], out: Path
 ) -> Path | None:
     if not episodes:
         return None
@@ -257,7 +268,7 @@ def plot_trajectories(
     for j, ep in enumerate(episodes):
         row = df.loc[ep]
         user = int(row["user"])
-        cells = results[agent].attrs["paths"][ep] - maps_pad  # [T + 1, 2] (iy, ix), not rotated
+        cells = results[agent].attrs["paths"][ep]  # [T + 1, 2] (iy, ix) map cells
         px = g.x_min_m + (cells[:, 1] + 0.5) * g.spacing_m
         py = g.y_min_m + (cells[:, 0] + 0.5) * g.spacing_m
         urow = bundle.users.iloc[user]
@@ -393,10 +404,9 @@ def make_report(
     try:
         figures: dict[str, Path | None] = {"cdf": plot_cdf(results, config.t_max, tmp / "cdf.png")}
         figures["training"] = plot_training(agents, bounds, tmp / "training.png")
-        shown = agents[0].name if agents else "genie"
+        shown = shown_method(agents)
         picked = pick_trajectories(results, shown, config.trajectories)
-        pad = MapSet([bundle], EnvConfig(split=config.split)).pad
-        figures["trajectories"] = plot_trajectories(bundle, pad, results, shown, picked, tmp / "trajectories.png")
+        figures["trajectories"] = plot_trajectories(bundle, results, shown, picked, tmp / "trajectories.png")
         table.to_csv(tmp / "results.csv", index=False)
         table.to_parquet(tmp / "results.parquet", index=False)
         episodes.to_parquet(tmp / "episodes.parquet", index=False)

@@ -27,7 +27,7 @@ def run_episodes(
     genie_steps`` (shortest possible), ``steps`` (moves played), ``success`` (P_T reached
     within ``t_max``) and ``return_`` (sum of rewards). ``on_step(done, total)`` reports progress.
     ``record``: episode numbers whose cells, start included, go to ``df.attrs["paths"]``
-    (``{episode: [T + 1, 2] (y, x)}`` in the episode's view, i.e. map cells when not rotated).
+    (``{episode: [T + 1, 2] (iy, ix)}``, cells of the bundle's map, the view's rotation undone).
     """
     k = len(episodes)
     env = BatchedEnv(maps, min(num_envs, k), queue=episodes)
@@ -71,7 +71,9 @@ def run_episodes(
             acc[rows] = 0.0
             finished += len(rows)
             for r in rows[wanted[ids[rows]]]:
-                paths[int(ids[r])] = np.array(trail.pop(int(ids[r])), np.int64)
+                canvas = np.array(trail.pop(int(ids[r])), np.int64)  # [T + 1, 2] (y, x) in the view
+                iy, ix = maps.unrotate(np.full(len(canvas), episodes[ids[r], 0]), canvas[:, 0], canvas[:, 1])
+                paths[int(ids[r])] = np.stack([iy, ix], axis=1)
             follow(rows)
             policy.reset(rows, env.num_envs)
             fresh = rows[~env.exhausted[rows]]

@@ -75,9 +75,9 @@ def _atomic_torch_save(obj: object, path: Path) -> None:
     os.replace(tmp, path)
 
 
-def _atomic_parquet(rows: list[dict], path: Path) -> None:
+def _atomic_parquet(df: pd.DataFrame, path: Path) -> None:
     tmp = path.with_name(path.name + ".tmp")
-    pd.DataFrame(rows).to_parquet(tmp, index=False)
+    df.to_parquet(tmp, index=False)
     os.replace(tmp, path)
 
 
@@ -144,8 +144,8 @@ class Trainer:
         tmp = self.checkpoints / "replay.tmp.npz"
         self.replay.save(tmp)
         os.replace(tmp, self.checkpoints / "replay.npz")
-        _atomic_parquet(with_running_means(pd.DataFrame(s.episodes)).to_dict("records"), self.run_dir / "metrics.parquet")
-        _atomic_parquet(s.evals, self.run_dir / "eval.parquet")
+        _atomic_parquet(with_running_means(pd.DataFrame(s.episodes)), self.run_dir / "metrics.parquet")
+        _atomic_parquet(pd.DataFrame(s.evals), self.run_dir / "eval.parquet")
 
     def load(self) -> None:
         ck = torch.load(self.checkpoints / "last.pt", weights_only=False, map_location=self.agent.device)
