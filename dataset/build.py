@@ -446,7 +446,7 @@ def build_city(
     stage("rasterise")
     grid, arrays, users, info, counts, warnings = rasterise(ing, config)
     stage("write")
-    with atomic_directory(final) as tmp:
+    with atomic_directory(final, marker=BUNDLE_MANIFEST, what="map bundle") as tmp:
         np.savez(tmp / "maps.npz", **arrays)
         _write_parquet(CELLS, cells_frame(grid, arrays), tmp / CELLS.filename)
         _write_parquet(USERS, users, tmp / USERS.filename)

@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import shlex
 import sys
 from pathlib import Path
+from typing import NoReturn
 
 import click
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
@@ -18,6 +21,7 @@ from dataset.catalog import DEFAULT_ROOT, list_cities
 from schemas import InputError
 from schemas.bundle import BuildConfig
 from schemas.export import SCHEMA_MODELS, json_schemas
+from schemas.files import check_name, describe_os_error
 
 console = Console(stderr=True)
 
@@ -41,13 +45,47 @@ root_option = click.option(
 )
 
 
-def fail(err: Exception) -> None:
+def fail(err: Exception | str) -> NoReturn:
     """Print one error line and exit with status 2."""
-    console.print(f"[bold red]error:[/] {err}", highlight=False, soft_wrap=True)
+    text = describe_os_error(err) if isinstance(err, OSError) and not isinstance(err, InputError) else str(err)
+    text = " ".join(text.split()) or type(err).__name__  # one line, whatever the message held
+    console.print(f"[bold red]error:[/] {escape(text)}", highlight=False, soft_wrap=True)
     sys.exit(2)
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+class UavGroup(click.Group):
+    """A click group whose every failure is one ``error: ...`` line and exit status 2, never a traceback.
+
+    Bad input (``InputError``), usage errors, operating-system errors (a full
+    disk, a permission) and, as a last resort, any other exception are caught
+    here. ``UAVPLACE_DEBUG=1`` lets an unexpected exception through with its
+    traceback, for bug reports.
+    """
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):  # noqa: ANN001, ANN201
+        try:
+            rv = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        except click.exceptions.Abort:
+            fail("aborted")
+        except click.UsageError as err:
+            hint = f" (see '{err.ctx.command_path} --help')" if err.ctx is not None else ""
+            fail(f"{err.format_message()}{hint}")
+        except click.ClickException as err:
+            fail(err.format_message())
+        except InputError as err:
+            fail(err)
+        except OSError as err:
+            fail(describe_os_error(err))
+        except Exception as err:
+            if os.environ.get("UAVPLACE_DEBUG"):
+                raise
+            fail(f"internal error ({type(err).__name__}: {err}); run again with UAVPLACE_DEBUG=1 for the traceback")
+        if not standalone_mode:
+            return rv
+        sys.exit(rv if isinstance(rv, int) else 0)
+
+
+@click.group(cls=UavGroup, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 def main() -> None:
     """uavplace data pipeline: raw ray-tracer exports -> validated tables -> map bundles.
 
@@ -81,6 +119,8 @@ def ingest(folders: tuple[Path, ...], out_root: Path, name: str | None, quiet: b
     """
     if name is not None and len(folders) > 1:
         raise click.BadParameter("--name names one city: give one FOLDER", param_hint="--name")
+    if name is not None:
+        check_name(name, "city name")
     for folder in folders:
         _ingest_one(folder, out_root, name, quiet)
 
@@ -311,6 +351,8 @@ def build(
     from dataset.build import build_city
 
     role = _splits(splits)
+    for city in cities:
+        check_name(city, "city name")
     names = list(cities) or [c.name for c in list_cities(root)]
     if not names:
         fail(InputError(root, "no ingested city: run `uavdata ingest data/raw/<city>/` first"))
@@ -347,7 +389,7 @@ def build(
 
                 result = build_city(name, config, root, command=command_line(), force=force, on_stage=on_stage)
         except InputError as err:
-            console.print(f"[bold red]error:[/] {name}: {err}", highlight=False, soft_wrap=True)
+            console.print(f"[bold red]error:[/] {escape(name)}: {escape(str(err))}", highlight=False, soft_wrap=True)
             errors += 1
             continue
         m = result.manifest
@@ -479,6 +521,7 @@ def simulate(
     from simulate.pipeline import SimulationSpec, simulate_city
     from simulate.raytrace import RayTraceConfig
 
+    check_name(name, "city name")
     if isinstance(extent, str):
         raise click.BadParameter("expected XMIN,YMIN,XMAX,YMAX", param_hint="--extent")
     spec = SimulationSpec(source=source, name=name, num_users=len(users_m) or num_users, grid_m=grid_m, altitude_m=altitude_m,

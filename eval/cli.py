@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 from rich.table import Table
 
-from dataset.cli import command_line, fail, root_option, stdout
+from dataset.cli import command_line, root_option, stdout
 from rl.cli import episode_options, main
 
 __all__ = ["main"]
@@ -27,7 +27,8 @@ __all__ = ["main"]
     "--out",
     type=click.Path(file_okay=False, path_type=Path),
     default=None,
-    help="Report folder (replaced if it exists).  [default: reports/<dataset>]",
+    help="Report folder; an existing one is replaced only if it is a report (holds report.json), "
+    "anything else is refused.  [default: reports/<dataset>]",
 )
 @episode_options
 @click.option(
@@ -73,17 +74,14 @@ def report(
     out = out or Path("reports") / dataset.split("@")[0]
     tasks: dict[str, int] = {}
     columns = (TextColumn("[bold]report[/] {task.description:<20}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
-    try:
-        with Progress(*columns, console=stdout(), disable=quiet) as bar:
+    with Progress(*columns, console=stdout(), disable=quiet) as bar:
 
-            def on_progress(method: str, done: int, total: int) -> None:
-                if method not in tasks:
-                    tasks[method] = bar.add_task(method, total=total)
-                bar.update(tasks[method], completed=done)
+        def on_progress(method: str, done: int, total: int) -> None:
+            if method not in tasks:
+                tasks[method] = bar.add_task(method, total=total)
+            bar.update(tasks[method], completed=done)
 
-            result = make_report(config, out, root=root, command=command_line(), on_progress=on_progress)
-    except (OSError, ValueError) as err:
-        fail(err)
+        result = make_report(config, out, root=root, command=command_line(), on_progress=on_progress)
     rows = table_rows(result.table, t_max)
     table = Table(*rows[0], title=f"{episodes} episodes in {dataset} (t_max {t_max}, P_T {p_t_db:g} dB)")
     for r in rows[1:]:

@@ -19,9 +19,6 @@ import base64
 import datetime as dt
 import html
 import json
-import os
-import shutil
-import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,13 +30,16 @@ from pydantic import Field
 from dataset.bundle import Bundle, load_bundle
 from dataset.difficulty import valid_starts
 from eval.metrics import STATS, bootstrap_table, ecdf, format_stat
+from rl.agent.checkpoint import load_tensors
 from rl.agent.dqn import DQNConfig
-from rl.agent.train import load_policy, with_running_means
+from rl.agent.train import RUN_JSON, RunRecord, policy_from_checkpoint, read_run_json, with_running_means
 from rl.config import EnvConfig
 from rl.maps import MapSet
 from rl.policies import GeniePolicy, GreedyPolicy, Policy, RandomWalkPolicy
 from rl.rollout import run_episodes
+from schemas import InputError
 from schemas.base import Contract, uavplace_version
+from schemas.files import atomic_directory, check_replaceable
 
 #: The paper's test-city results (method.md, "Headline results"): success within t_max = 500, median steps.
 PAPER = {
@@ -48,6 +48,8 @@ PAPER = {
     "genie": {"label": "genie", "success": 1.00, "median_steps": 14.0},
 }
 BASELINES = ("genie", "random_walk", "greedy")
+#: A report folder's marker: only a folder holding it is ever replaced.
+REPORT_JSON = "report.json"
 
 
 class ReportConfig(Contract):
@@ -72,8 +74,15 @@ class Agent:
     name: str
     folder: Path
     config: DQNConfig
-    run: dict  # run.json
+    run: RunRecord | None  # run.json (None: a bare checkpoint folder)
     policy: Policy
+    best_eval: dict | None  # the evaluation that chose best.pt
+    metrics: pd.DataFrame | None  # metrics.parquet: one row per training episode (None: not shipped)
+
+    @property
+    def trained_on(self) -> dict[str, str]:
+        """Training city -> bundle version (empty when unknown)."""
+        return dict(self.run.datasets) if self.run is not None else {}
 
 
 @dataclass
@@ -88,15 +97,22 @@ def agent_name(config: DQNConfig) -> str:
 
 
 def load_agent(folder: str | Path, epsilon: float, seed: int) -> Agent:
-    """A run folder (``run.json`` + ``checkpoints/best.pt``) as an evaluable agent."""
+    """A run folder (``run.json`` + ``checkpoints/best.pt``) as an evaluable agent; ``InputError`` if it is not one."""
     folder = Path(folder)
     ckpt = folder / "checkpoints" / "best.pt"
     if not ckpt.is_file():
-        raise FileNotFoundError(f"{folder}: no checkpoints/best.pt (not a training run, or it never evaluated)")
-    run = json.loads((folder / "run.json").read_text(encoding="utf-8")) if (folder / "run.json").is_file() else {}
-    policy, config = load_policy(ckpt, epsilon=epsilon, seed=seed)
+        raise InputError(folder, "no checkpoints/best.pt (not a training run, or it never evaluated)")
+    run = read_run_json(folder) if (folder / RUN_JSON).is_file() else None
+    ck = load_tensors(ckpt)
+    policy, config = policy_from_checkpoint(ck, ckpt, epsilon=epsilon, seed=seed)
     policy.name = agent_name(config)
-    return Agent(policy.name, folder, config, run, policy)
+    metrics = None
+    if (folder / "metrics.parquet").is_file():
+        try:
+            metrics = pd.read_parquet(folder / "metrics.parquet")
+        except (OSError, ValueError) as exc:
+            raise InputError(folder / "metrics.parquet", f"unreadable ({str(exc)[:160]})") from None
+    return Agent(policy.name, folder, config, run, policy, ck.get("eval"), metrics)
 
 
 def default_agents(root: str | Path = "data/agents") -> list[Path]:
@@ -222,11 +238,8 @@ def plot_cdf(results: dict[str, pd.DataFrame], t_max: int, out: Path) -> Path:
 def plot_training(agents: list[Agent], bounds: dict[str, float], out: Path) -> Path | None:
     curves = []
     for a in agents:
-        path = a.folder / "metrics.parquet"
-        if path.is_file():
-            df = with_running_means(pd.read_parquet(path))
-            if len(df):
-                curves.append((a.name, df))
+        if a.metrics is not None and len(a.metrics):
+            curves.append((a.name, with_running_means(a.metrics)))
     if not curves:
         return None
     plt = _pyplot()
@@ -370,38 +383,32 @@ def make_report(
     command: str = "",
     on_progress: Callable[[str, int, int], None] | None = None,
 ) -> Report:
-    """Evaluate every method on ``config.dataset`` and write the report folder ``out`` (atomically)."""
+    """Evaluate every method on ``config.dataset`` and write the report folder ``out`` (atomically).
+
+    Everything that can fail is checked before the first episode: the output
+    folder (replaced only if it is a report, ``report.json``), the test bundle,
+    every agent (weights only), and that no agent was trained in the test city.
+    A training city whose bundle is not built here only loses its upper bound.
+    """
     out = Path(out)
+    check_replaceable(out, REPORT_JSON, "report")
     bundle = load_bundle(config.dataset, root=root)
     agents = [load_agent(r, config.test_epsilon, config.seed) for r in config.runs]
+    for a in agents:
+        if bundle.city in a.trained_on:
+            raise InputError(
+                a.folder, f"was trained in {bundle.city}, the test city: not an unseen-city evaluation", field="datasets"
+            )
     names = [a.name for a in agents]
     for a in agents:  # same agent and preset twice: tell them apart by folder
         if names.count(a.name) > 1:
             a.name = a.policy.name = f"{a.name} [{a.folder.name}]"
+    bounds, missing = training_bounds(agents, root, config.p_t_db)
+
     results = evaluate(config, bundle, agents, on_progress)
     table = results_table(results, config)
     episodes = pd.concat([_plain(df.assign(method=name)) for name, df in results.items()], ignore_index=True)
-
-    trained_on = {}
-    for a in agents:
-        for city in a.run.get("datasets", {}):
-            if city == bundle.city:
-                raise ValueError(f"agent {a.folder} was trained in {city}, the test city: not an unseen-city evaluation")
-        key = ", ".join(f"{c}@{v}" for c, v in a.run.get("datasets", {}).items())
-        if key and key not in trained_on:
-            trained_on[key] = a
-    bounds = {}
-    for key, a in trained_on.items():
-        try:
-            bundles = [load_bundle(c, v, root=root) for c, v in a.run["datasets"].items()]
-        except (FileNotFoundError, ValueError, OSError):
-            continue  # training bundles not built here: the curves are drawn without their bound
-        bounds[key] = upper_bound_db(bundles, a.run.get("train_split"), config.p_t_db)
-
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    tmp.chmod(0o755)  # mkdtemp makes it private; the report is not
-    try:
+    with atomic_directory(out, marker=REPORT_JSON, what="report") as tmp:
         figures: dict[str, Path | None] = {"cdf": plot_cdf(results, config.t_max, tmp / "cdf.png")}
         figures["training"] = plot_training(agents, bounds, tmp / "training.png")
         shown = shown_method(agents)
@@ -419,39 +426,46 @@ def make_report(
             "test_bundle": bundle.version,
             "test_bundle_config": json.loads(bundle.manifest.config.model_dump_json()),
             "upper_bounds_db": bounds,
+            "upper_bounds_missing": missing,
             "trajectories": {"agent": shown, "episodes": picked},
             "agents": {
                 a.name: {
                     "folder": str(a.folder),
-                    "trained_on": a.run.get("datasets"),
-                    "command": a.run.get("command"),
-                    "best_eval": _best_eval(a.folder),
+                    "trained_on": a.trained_on or None,
+                    "command": a.run.command if a.run is not None else None,
+                    "best_eval": a.best_eval,
                     "config": json.loads(a.config.model_dump_json()),
                 }
                 for a in agents
             },
         }
-        (tmp / "report.json").write_text(json.dumps(provenance, indent=2) + "\n", encoding="utf-8")
         rows = table_rows(table, config.t_max)
         (tmp / "report.html").write_text(render_html(config, rows, figures, provenance), encoding="utf-8")
-        old = out.with_name(f".{out.name}.old")
-        if out.exists():
-            os.replace(out, old)
-        os.replace(tmp, out)
-        shutil.rmtree(old, ignore_errors=True)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+        (tmp / REPORT_JSON).write_text(json.dumps(provenance, indent=2) + "\n", encoding="utf-8")
     return Report(out, table, episodes)
+
+
+def training_bounds(agents: list[Agent], root: str | Path, p_t_db: float) -> tuple[dict[str, float], dict[str, str]]:
+    """The upper bound of each distinct training set (``city@version, ...`` -> dB), and why some are missing.
+
+    A training bundle that is not built here (or fails its checks) only costs
+    its bound: the curves come from the run's ``metrics.parquet``.
+    """
+    bounds: dict[str, float] = {}
+    missing: dict[str, str] = {}
+    for a in agents:
+        key = ", ".join(f"{c}@{v}" for c, v in a.trained_on.items())
+        if not key or key in bounds or key in missing:
+            continue
+        try:
+            bundles = [load_bundle(c, v, root=root) for c, v in a.trained_on.items()]
+        except InputError as err:
+            missing[key] = str(err)
+            continue
+        bounds[key] = upper_bound_db(bundles, a.run.train_split if a.run else None, p_t_db)
+    return bounds, missing
 
 
 def _plain(df: pd.DataFrame) -> pd.DataFrame:
     df.attrs = {}  # the recorded paths stay with the per-method frames
     return df
-
-
-def _best_eval(folder: Path) -> dict | None:
-    import torch
-
-    ck = torch.load(folder / "checkpoints" / "best.pt", weights_only=False, map_location="cpu")
-    return ck.get("eval")

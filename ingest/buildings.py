@@ -16,6 +16,7 @@ from pydantic import ValidationError
 from shapely.geometry.base import BaseGeometry
 
 from schemas import BUILDING_PARTS, BUILDINGS, Building, InputError, Rejection
+from schemas.base import validation_message
 
 #: Footprints smaller than this [m^2] are degenerate (a wall seen from above).
 MIN_AREA_M2 = 1e-6
@@ -38,17 +39,6 @@ class BuildingRecord:
     @property
     def source(self) -> str:
         return self.source_file if self.source_line is None else f"{self.source_file}:{self.source_line}"
-
-
-def polygon_or_none(coords_xy) -> BaseGeometry | None:
-    """A valid polygon from a ring of xy vertices, or None if it has no area (a vertical face)."""
-    poly = shapely.Polygon(coords_xy)
-    if poly.area <= MIN_AREA_M2:
-        return None
-    if not poly.is_valid:
-        poly = shapely.make_valid(poly)
-        poly = shapely.union_all([g for g in shapely.get_parts(poly) if g.geom_type == "Polygon"])
-    return poly if poly.area > MIN_AREA_M2 else None
 
 
 def buildings_tables(records: list[BuildingRecord]) -> tuple[pa.Table, pa.Table, list[Rejection]]:
@@ -88,10 +78,8 @@ def buildings_tables(records: list[BuildingRecord]) -> tuple[pa.Table, pa.Table,
                 source=rec.source,
             )
         except ValidationError as exc:
-            err = exc.errors()[0]
-            raise InputError(
-                rec.source_file, err["msg"], line=rec.source_line, field=".".join(map(str, err["loc"])) or "building"
-            ) from None
+            field, message = validation_message(exc)
+            raise InputError(rec.source_file, message, line=rec.source_line, field=field) from None
         for key, value in (
             ("building_id", bid),
             ("name", rec.name),

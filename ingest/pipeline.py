@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import datetime as dt
 from collections import defaultdict
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,7 +26,7 @@ from ingest.buildings import BuildingRecord, buildings_tables
 from ingest.geojson import read_geojson
 from ingest.mesh import MESH_SUFFIXES, read_mesh
 from ingest.wireless_insite.city import read_city, read_terrain
-from ingest.wireless_insite.p2m import POSITION_COLUMNS, parse_filename, read_p2m
+from ingest.wireless_insite.p2m import MAX_ANTENNA_GAINS_DB, POSITION_COLUMNS, P2MStream, parse_filename
 from ingest.wireless_insite.setup import read_setup
 from ingest.wireless_insite.txrx import read_txrx
 from schemas import (
@@ -47,7 +47,7 @@ from schemas import (
     TxRxSet,
 )
 from schemas.base import uavplace_version
-from schemas.files import atomic_directory, sha256_file, write_model_json
+from schemas.files import atomic_directory, check_name, sha256_file, write_model_json
 
 INGESTED = "ingested"
 MANIFEST = "manifest.json"
@@ -69,15 +69,23 @@ class Classified:
 
 
 def classify(folder: Path) -> list[Classified]:
-    """Every non-hidden file below ``folder``, sorted, with its format family."""
+    """Every non-hidden file below ``folder``, sorted, with its format family.
+
+    A symbolic link that leads out of ``folder`` is listed as skipped (kind
+    ``link``) and never opened: a city folder cannot make ingest read files
+    elsewhere on the machine.
+    """
     out = []
+    inside = folder.resolve()
     for path in sorted(p for p in folder.rglob("*") if p.is_file()):
         rel = path.relative_to(folder).as_posix()
         if any(part.startswith(".") for part in Path(rel).parts):
             continue
         low = path.name.lower()
         kind, reason = "other", None
-        if low.endswith((".p2m", ".p2m.gz")):
+        if not path.resolve().is_relative_to(inside):
+            kind, reason = "link", f"symbolic link to {path.resolve()}, outside the city folder: not read"
+        elif low.endswith((".p2m", ".p2m.gz")):
             ident = parse_filename(path.name)
             if ident is None:
                 reason = "a .p2m whose name is not <project>.<output>.tTTT_SS.rRRR.p2m"
@@ -147,8 +155,8 @@ def merge_receiver_files(key: tuple[int, int, int], parts: list[tuple[ReceiverSe
     return merged
 
 
-def _check_against_set(meta: ReceiverSet, table: pa.Table, rx_set: TxRxSet, warnings: list[str]) -> None:
-    """A grid output must have one row per lattice point, each on its lattice position.
+def _check_count(meta: ReceiverSet, rx_set: TxRxSet, warnings: list[str]) -> None:
+    """A grid output must have one row per lattice point.
 
     A points set whose point count differs from the output's rows is a warning
     (once per set), not an error: exporters such as 5G-MIMO scripts rewrite the
@@ -172,8 +180,21 @@ def _check_against_set(meta: ReceiverSet, table: pa.Table, rx_set: TxRxSet, warn
             f"{meta.num_rows} rows, but grid '{rx_set.name}' ({rx_set.source}) is {nx} x {ny} = {nx * ny} receivers",
             field="rows",
         )
+
+
+def _check_lattice(source: str, table: pa.Table, rx_set: TxRxSet) -> None:
+    """Every receiver of a grid output lies on its .txrx lattice point (x varying fastest)."""
+    shape = rx_set.grid_shape
+    if shape is None:
+        return
+    nx, ny = shape
     assert rx_set.spacing_m is not None
-    i = table.column("rx_index").to_numpy() - 1
+    i = table.column("rx_index").to_numpy().astype(np.int64) - 1
+    if i.max() >= nx * ny:
+        k = int(np.argmax(i))
+        raise InputError(
+            source, f"receiver {i[k] + 1}, but grid '{rx_set.name}' ({rx_set.source}) has {nx * ny}", field="rx_index"
+        )
     cx, cy, _ = rx_set.vertices_m[0]
     for col, expect in (("x_m", cx + (i % nx) * rx_set.spacing_m), ("y_m", cy + (i // nx) * rx_set.spacing_m)):
         got = table.column(col).to_numpy()
@@ -181,10 +202,95 @@ def _check_against_set(meta: ReceiverSet, table: pa.Table, rx_set: TxRxSet, warn
         if bad.any():
             k = int(np.argmax(bad))
             raise InputError(
-                meta.source,
+                source,
                 f"receiver {i[k] + 1} at {col}={got[k]}, off grid '{rx_set.name}' ({rx_set.source}) which puts it at {expect[k]:.4f}",
                 field=col,
             )
+
+
+def _receiver_rows(key: tuple[int, int, int], table: pa.Table, source: str) -> pa.Table:
+    """One group's rows as the RECEIVERS table: the group's ids, the columns its files gave, nulls for the rest."""
+    n = table.num_rows
+    cols: dict[str, pa.Array | pa.ChunkedArray] = {}
+    for c in RECEIVERS.columns:
+        if c.name in ("tx_set_id", "tx_point", "rx_set_id"):
+            cols[c.name] = pa.array(np.full(n, key[("tx_set_id", "tx_point", "rx_set_id").index(c.name)], np.int32))
+        elif c.name in table.column_names:
+            cols[c.name] = table.column(c.name)
+        else:
+            cols[c.name] = pa.nulls(n, c.type)
+    return RECEIVERS.conform(pa.table(cols), source)
+
+
+class _ReceiverReader:
+    """Reads the receiver outputs of one group (transmitter point x receiver set) and appends them to receivers.parquet.
+
+    A group of one file is streamed batch by batch (memory stays flat however
+    large the file); the files of a group of several outputs (pl and power,
+    say) are read whole and merged side by side. Counts what it wrote.
+    """
+
+    def __init__(
+        self,
+        sets: dict[int, TxRxSet],
+        setup: SetupInfo | None,
+        warnings: list[str],
+        tick: Callable[[str], None],
+        done: Callable[..., None],
+    ) -> None:
+        self.txrx, self.setup, self.warnings, self.tick, self.done = sets, setup, warnings, tick, done
+        self.rows = 0
+        self.reached = 0
+        self.sets: list[ReceiverSet] = []
+
+    def _open(self, f: Classified) -> tuple[P2MStream, TxRxSet | None]:
+        ident = parse_filename(f.path.name)
+        assert ident is not None and ident.rx_set is not None
+        rx_set, tx_set = self.txrx.get(ident.rx_set), self.txrx.get(ident.tx_set)
+        if rx_set is None and self.txrx:
+            self.warnings.append(f"{f.rel}: receiver set {ident.rx_set} is not in the .txrx; not checked")
+        ant = self.setup.antenna(rx_set.rx_antenna) if self.setup and rx_set else None
+        max_power = None
+        if tx_set is not None and tx_set.tx_power_dbm is not None:
+            max_power = tx_set.tx_power_dbm + MAX_ANTENNA_GAINS_DB
+        stream = P2MStream(
+            f.path, display=f.rel, power_threshold_dbm=ant.power_threshold_dbm if ant else None, max_power_dbm=max_power
+        )
+        return stream, rx_set
+
+    def _batches(self, f: Classified) -> Iterator[pa.Table]:
+        """The file's checked batches; once they are all read, its ``ReceiverSet`` is ``self.sets[-1]``."""
+        self.tick(f.rel)
+        stream, rx_set = self._open(f)
+        for batch in stream:
+            if rx_set is not None:
+                _check_lattice(f.rel, batch, rx_set)
+            yield batch
+        if rx_set is not None:
+            _check_count(stream.meta, rx_set, self.warnings)
+        self._record(f, stream.meta)
+
+    def _record(self, f: Classified, meta: ReceiverSet) -> None:
+        self.sets.append(meta)
+        reached = meta.num_reached if meta.num_reached is not None else "n/a"
+        self.done(f, rows=meta.num_rows, message=f"{meta.output}: {meta.num_rows} receivers, {reached} reached")
+
+    def _append(self, writer: pq.ParquetWriter, rows: pa.Table) -> None:
+        writer.write_table(rows)
+        self.rows += rows.num_rows
+        self.reached += int(pc.sum(rows.column("reached")).as_py() or 0)
+
+    def write(self, key: tuple[int, int, int], files: list[Classified], writer: pq.ParquetWriter) -> None:
+        if len(files) == 1:
+            for batch in self._batches(files[0]):
+                self._append(writer, _receiver_rows(key, batch, files[0].rel))
+            return
+        parts = []
+        for f in files:
+            table = pa.concat_tables(list(self._batches(f)))
+            parts.append((self.sets[-1], table))
+        merged = pa.Table.from_pandas(merge_receiver_files(key, parts), preserve_index=False)
+        self._append(writer, _receiver_rows(key, merged, files[0].rel))
 
 
 def _transmitters(sets: list[TxRxSet], setup: SetupInfo | None, seen: set[tuple[int, int]], warnings: list[str]) -> pa.Table:
@@ -247,7 +353,11 @@ def ingest_city(
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError(folder, "not a folder")
-    city = name or folder.resolve().name
+    city = (
+        check_name(name, "city name")
+        if name is not None
+        else check_name(folder.resolve().name, "city name (the folder's; or pass --name)")
+    )
     files = classify(folder)
     if not files:
         raise InputError(folder, "empty folder: nothing to ingest")
@@ -280,6 +390,8 @@ def ingest_city(
             done(f, status="unknown", message="unknown file type")
         elif f.skip_reason is not None:
             done(f, status="skipped", message=f.skip_reason)
+            if f.kind == "link":
+                warnings.append(f"{f.rel}: {f.skip_reason}")
 
     setup = None
     if (f := _single(by_kind["setup"], "setup")) is not None:
@@ -306,44 +418,18 @@ def ingest_city(
             sets[s.project_id] = s
         done(f, rows=len(file_sets), message=f"{len(file_sets)} set(s)")
 
-    groups: dict[tuple[int, int, int], list[tuple[ReceiverSet, pa.Table]]] = defaultdict(list)
-    receiver_sets: list[ReceiverSet] = []
-    p2m_files = [f for f in by_kind["p2m"] if f.skip_reason is None]
-    if p2m_files and not sets:
+    # Receiver outputs, one group per transmitter point x receiver set. They are read after the rest, streamed
+    # batch by batch into receivers.parquet inside the output's temporary folder (memory stays flat).
+    groups: dict[tuple[int, int, int], list[Classified]] = defaultdict(list)
+    for f in by_kind["p2m"]:
+        if f.skip_reason is None:
+            ident = parse_filename(f.path.name)
+            assert ident is not None and ident.rx_set is not None and ident.tx_point is not None
+            groups[(ident.tx_set, ident.tx_point, ident.rx_set)].append(f)
+    if groups and not sets:
         warnings.append("no .txrx: receiver grids were not checked and transmitter positions are unknown")
-    for f in p2m_files:
-        tick(f.rel)
-        ident = parse_filename(f.path.name)
-        assert ident is not None and ident.rx_set is not None and ident.tx_point is not None
-        rx_set = sets.get(ident.rx_set)
-        ant = setup.antenna(rx_set.rx_antenna) if setup and rx_set else None
-        meta, table = read_p2m(f.path, display=f.rel, power_threshold_dbm=ant.power_threshold_dbm if ant else None)
-        if rx_set is not None:
-            _check_against_set(meta, table, rx_set, warnings)
-        elif sets:
-            warnings.append(f"{f.rel}: receiver set {ident.rx_set} is not in the .txrx; not checked")
-        groups[(ident.tx_set, ident.tx_point, ident.rx_set)].append((meta, table))
-        receiver_sets.append(meta)
-        done(
-            f,
-            rows=meta.num_rows,
-            message=f"{meta.output}: {meta.num_rows} receivers, {meta.num_reached if meta.num_reached is not None else 'n/a'} reached",
-        )
-
-    frames = [merge_receiver_files(k, groups[k]) for k in sorted(groups)]
-    if frames:
-        receivers_df = pd.concat(frames, ignore_index=True)
-        for c in RECEIVERS.column_names:
-            if c not in receivers_df:
-                receivers_df[c] = pd.Series(
-                    np.nan if c != "reached" else pd.NA,
-                    index=receivers_df.index,
-                    dtype="float64" if c != "reached" else "boolean",
-                )
-        receivers = RECEIVERS.conform(pa.Table.from_pandas(receivers_df[RECEIVERS.column_names], preserve_index=False))
-    else:
-        receivers = RECEIVERS.arrow_schema().empty_table()
     transmitters = _transmitters(list(sets.values()), setup, {(k[0], k[1]) for k in groups}, warnings)
+    receivers = _ReceiverReader(sets, setup, warnings, tick, done)
 
     records: list[BuildingRecord] = []
     origin = None
@@ -369,8 +455,9 @@ def ingest_city(
     buildings, parts, rej = buildings_tables(records)
     rejections += rej
     for r in rej:
-        old = reports[r.file]
-        reports[r.file] = old.model_copy(update={"rows_rejected": old.rows_rejected + r.count})
+        rel = r.file.split("#", 1)[0]  # "file#features[3]" or "file#body[2]": the file's report
+        old = reports[rel]
+        reports[rel] = old.model_copy(update={"rows_rejected": old.rows_rejected + r.count})
 
     terrain_arrays = None
     terrain_info = None
@@ -395,25 +482,23 @@ def ingest_city(
     if not freqs and setup and len(setup.waveforms) == 1:
         freqs = [setup.waveforms[0].carrier_frequency_hz]
     powers = tuple(sorted({float(x) for x in transmitters.column("power_dbm").drop_null().to_pylist()}))
-    reached = receivers.column("reached")
-    report = IngestReport(
-        city=city, files=tuple(reports[f.rel] for f in files), rejections=tuple(rejections), warnings=tuple(warnings)
-    )
 
     out_dir = Path(out_root) / city / INGESTED
-    with atomic_directory(out_dir) as tmp:
+    with atomic_directory(out_dir, marker=MANIFEST, what="ingested city") as tmp:
         tables = {}
-        for spec, table in (
-            (RECEIVERS, receivers),
-            (TRANSMITTERS, transmitters),
-            (BUILDINGS, buildings),
-            (BUILDING_PARTS, parts),
-        ):
+        with pq.ParquetWriter(tmp / RECEIVERS.filename, RECEIVERS.arrow_schema(), compression="zstd") as writer:
+            for key in sorted(groups):
+                receivers.write(key, groups[key], writer)
+        tables[RECEIVERS.name] = sha256_file(tmp / RECEIVERS.filename)
+        for spec, table in ((TRANSMITTERS, transmitters), (BUILDINGS, buildings), (BUILDING_PARTS, parts)):
             pq.write_table(table, tmp / spec.filename, compression="zstd")
             tables[spec.name] = sha256_file(tmp / spec.filename)
         if terrain_arrays is not None:
             np.savez_compressed(tmp / TERRAIN, vertices_m=terrain_arrays[0], triangles=terrain_arrays[1])
             tables["terrain"] = sha256_file(tmp / TERRAIN)
+        report = IngestReport(
+            city=city, files=tuple(reports[f.rel] for f in files), rejections=tuple(rejections), warnings=tuple(warnings)
+        )
         manifest = CityManifest(
             name=city,
             created_utc=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
@@ -430,8 +515,8 @@ def ingest_city(
                 "files_unknown": sum(r.status == "unknown" for r in report.files),
                 "transmitters": transmitters.num_rows,
                 "receiver_sets": len({k[2] for k in groups}),
-                "receiver_rows": receivers.num_rows,
-                "receiver_rows_reached": int(pc.sum(reached).as_py() or 0),
+                "receiver_rows": receivers.rows,
+                "receiver_rows_reached": receivers.reached,
                 "buildings": buildings.num_rows,
                 "building_parts": parts.num_rows,
                 "terrain_triangles": terrain_info.num_faces if terrain_info else 0,
@@ -450,7 +535,7 @@ def ingest_city(
             tables=tables,
             setup=setup,
             txrx_sets=tuple(sets.values()),
-            receiver_sets=tuple(receiver_sets),
+            receiver_sets=tuple(sorted(receivers.sets, key=lambda m: m.source)),
             terrain=terrain_info,
         )
         write_model_json(manifest, tmp / MANIFEST)

@@ -9,12 +9,12 @@ from rich.table import Table
 
 from dataset.bundle import list_versions, read_latest
 from dataset.catalog import list_cities
-from dataset.cli import fail, root_option, stdout
+from dataset.cli import UavGroup, fail, root_option, stdout
 from rl.rollout import summarise
 from schemas import InputError
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.group(cls=UavGroup, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 def main() -> None:
     """UAV placement agents: the datasets they can use, training and reports."""
 
@@ -154,25 +154,23 @@ def train(
     until: int | None, resume: Path | None, root: Path, quiet: bool,
 ) -> None:  # fmt: skip
     """Train the DQN agent (or its blind twin) on built cities; write config, metrics and checkpoints to a run folder."""
-    import json
-
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     from dataset.cli import command_line
-    from rl.agent.dqn import DQNConfig, preset_config
-    from rl.agent.train import Trainer, new_run_dir
+    from rl.agent.dqn import preset_config
+    from rl.agent.train import Trainer, new_run_dir, read_run_json
+    from schemas.files import check_name
 
     if resume is not None:
-        doc = json.loads((resume / "run.json").read_text())
-        config = DQNConfig.model_validate(doc["config"])
-        datasets, run_dir = tuple(doc["datasets"]), resume
+        doc = read_run_json(resume)
+        config, datasets, run_dir = doc.config, tuple(doc.datasets), resume
     elif not datasets:
         raise click.UsageError("give --dataset CITY (or --resume RUN_FOLDER)")
     else:
         overrides = {"agent": agent, "seed": seed} | ({"total_steps": steps} if steps else {})
         overrides |= {"eval_every": eval_every} if eval_every else {}
         config = preset_config(preset, **overrides)
-        run_dir = runs / name if name else new_run_dir(runs, config)
+        run_dir = runs / check_name(name, "run name") if name else new_run_dir(runs, config)
         if run_dir.exists():
             fail(FileExistsError(f"{run_dir} exists: choose another --name, or continue it with --resume {run_dir}"))
     try:

@@ -4,11 +4,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, ValidationError
 
 #: Version of every contract in this package. Bumped whenever a model or a
 #: table declaration changes in a way a reader must know about.
 SCHEMA_VERSION = "1.0"
+
+#: A name that becomes one path component (a city, a run, a simulated city): ASCII letters, digits, ``_ . -``,
+#: starting with a letter or digit, at most 64 characters. No separator, no ``..``, nothing a shell expands.
+NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"
 
 
 class Contract(BaseModel):
@@ -44,6 +48,13 @@ class InputError(Exception):
             where += f":{self.line}"
         field = f" {self.field}:" if self.field else ""
         return f"{where}:{field} {self.message}"
+
+
+def validation_message(exc: ValidationError) -> tuple[str, str]:
+    """(field, message) of a pydantic error's first problem, fit for an ``InputError`` (no URL, no input dump)."""
+    err = exc.errors()[0]
+    message = str(err["msg"]).removeprefix("Value error, ")
+    return ".".join(map(str, err["loc"])) or "value", message
 
 
 def uavplace_version() -> str:

@@ -21,8 +21,8 @@ from typing import Literal
 import pyarrow as pa
 from pydantic import Field, field_validator, model_validator
 
-from schemas.base import SCHEMA_VERSION, Contract
-from schemas.tables import Column, TableSpec
+from schemas.base import NAME_PATTERN, SCHEMA_VERSION, Contract
+from schemas.tables import FREQUENCY_RANGE_HZ, POWER_RANGE_DBM, RATIO_RANGE_DB, XY_RANGE_M, Z_RANGE_M, Column, TableSpec
 
 SplitRole = Literal["train", "test"]
 UserSplit = Literal["train", "val", "test"]
@@ -127,7 +127,7 @@ class BundleManifest(Contract):
     """Everything a bundle is made of and how it was made; ``load_bundle`` checks it."""
 
     schema_version: str = SCHEMA_VERSION
-    city: str = Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+    city: str = Field(pattern=NAME_PATTERN)
     version: str = Field(pattern=r"^[0-9a-f]{12}$", description="Content hash of inputs, config and schema version")
     created_utc: str
     uavplace_version: str
@@ -158,12 +158,16 @@ CELLS = TableSpec(
         Column("user", _I32, "", "User index in the bundle (row of users.parquet)"),
         Column("ix", _I32, "", "Cell column, 0 at x_min"),
         Column("iy", _I32, "", "Cell row, 0 at y_min"),
-        Column("x_m", _F64, "m", "Cell centre x"),
-        Column("y_m", _F64, "m", "Cell centre y"),
-        Column("sinr_db", _F32, "dB", "SINR at the cell (the SINR floor where dead)"),
+        Column("x_m", _F64, "m", "Cell centre x", min=XY_RANGE_M[0], max=XY_RANGE_M[1]),
+        Column("y_m", _F64, "m", "Cell centre y", min=XY_RANGE_M[0], max=XY_RANGE_M[1]),
+        Column(
+            "sinr_db", _F32, "dB", "SINR at the cell (the SINR floor where dead)", min=RATIO_RANGE_DB[0], max=RATIO_RANGE_DB[1]
+        ),
         Column("dead", pa.bool_(), "", "No ray-traced path reached the cell"),
         Column("blocked", pa.bool_(), "", "Building at or above the UAV altitude"),
-        Column("height_rel_m", _F32, "m", "Building height above ground minus the UAV altitude"),
+        Column(
+            "height_rel_m", _F32, "m", "Building height above ground minus the UAV altitude", min=-Z_RANGE_M[1], max=Z_RANGE_M[1]
+        ),
     ),
 )
 
@@ -180,8 +184,10 @@ USERS = TableSpec(
         Column("z_m", _F64, "m", "User position z as in the export", nullable=True),
         Column("ix", _I32, "", "Cell column of the user position (-1 outside the grid or unknown)"),
         Column("iy", _I32, "", "Cell row of the user position (-1 outside the grid or unknown)"),
-        Column("tx_power_dbm", _F64, "dBm", "Transmit power used", nullable=True),
-        Column("frequency_hz", _F64, "Hz", "Carrier frequency", nullable=True),
+        Column("tx_power_dbm", _F64, "dBm", "Transmit power used", nullable=True, min=POWER_RANGE_DBM[0], max=POWER_RANGE_DBM[1]),
+        Column(
+            "frequency_hz", _F64, "Hz", "Carrier frequency", nullable=True, min=FREQUENCY_RANGE_HZ[0], max=FREQUENCY_RANGE_HZ[1]
+        ),
         Column("split", pa.string(), "", "train, val or test; null when the city declares no role", nullable=True),
         Column("num_receivers", _I32, "", "Receivers of the export used for this user"),
         Column("num_dead_cells", _I32, "", "Cells of the grid no path reached for this user"),

@@ -6,7 +6,7 @@ from typing import Literal
 
 from pydantic import Field
 
-from schemas.base import SCHEMA_VERSION, Contract
+from schemas.base import NAME_PATTERN, SCHEMA_VERSION, Contract
 from schemas.geometry import TerrainInfo
 from schemas.receivers import ReceiverSet
 from schemas.txrx import SetupInfo, TxRxSet
@@ -69,7 +69,7 @@ class CityManifest(Contract):
     """Everything an ingested city is made of, and how it was made."""
 
     schema_version: str = SCHEMA_VERSION
-    name: str = Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+    name: str = Field(pattern=NAME_PATTERN)
     created_utc: str
     uavplace_version: str
     command: str

@@ -47,6 +47,10 @@ def table_json_schema(spec: TableSpec) -> dict[str, Any]:
         prop: dict[str, Any] = {"type": [t, "null"] if c.nullable else t, "description": c.description}
         if c.unit:
             prop["unit"] = c.unit
+        if c.min is not None:
+            prop["minimum"] = c.min
+        if c.max is not None:
+            prop["maximum"] = c.max
         if str(c.type) == "binary":
             prop["contentEncoding"] = "base64"
         props[c.name] = prop

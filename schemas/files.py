@@ -1,11 +1,23 @@
-"""File-level contracts shared by every stage: content hashes and atomic publication of outputs."""
+"""File-level contracts shared by every stage: safe names, content hashes, and atomic publication of outputs.
+
+Every folder uavplace writes is built in a temporary folder beside its final
+place and renamed into place (``atomic_directory``). The swap holds a per-folder
+lock, so two processes writing the same output (two ingests of one city) take
+turns instead of deleting each other's temporary folders, and it replaces an
+existing folder only if that folder carries uavplace's own marker file (an
+ingest manifest, a bundle manifest, a report's ``report.json``): a folder a
+user made is never deleted.
+"""
 
 from __future__ import annotations
 
 import contextlib
+import errno
+import fcntl
 import hashlib
 import json
 import os
+import re
 import shutil
 import tempfile
 from collections.abc import Iterator
@@ -13,7 +25,27 @@ from pathlib import Path
 
 from pydantic import BaseModel
 
+from schemas.base import NAME_PATTERN, InputError
+
 _CHUNK = 1 << 20
+_NAME_RE = re.compile(NAME_PATTERN)
+
+
+def check_name(name: str, what: str = "name") -> str:
+    """``name`` if it is one safe path component (``NAME_PATTERN``), else ``InputError`` saying why.
+
+    Called before anything is created, so a name such as ``../../x`` or ``/abs/path`` never reaches the file system.
+    """
+    if _NAME_RE.match(name) and name not in (".", ".."):
+        return name
+    suggestion = re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._-")[:64]
+    hint = f" (e.g. '{suggestion}')" if suggestion and _NAME_RE.match(suggestion) else ""
+    raise InputError(
+        None,
+        f"{what} {name!r} is not a safe name: use 1-64 ASCII letters, digits, '_', '.' or '-', starting with a letter "
+        f"or digit, and no path separators{hint}",
+        field=what,
+    )
 
 
 def sha256_file(path: str | Path) -> str:
@@ -35,8 +67,47 @@ def write_json(obj: object, path: str | Path) -> None:
 
 
 @contextlib.contextmanager
-def atomic_directory(final: str | Path) -> Iterator[Path]:
+def folder_lock(final: str | Path) -> Iterator[None]:
+    """Hold an exclusive lock on ``final`` (a sibling ``.<name>.lock`` file) while the block runs.
+
+    A second process writing the same folder waits for the first to finish. The
+    lock is released by the kernel if its holder dies, so a killed writer never
+    leaves a folder locked.
+    """
+    final = Path(final)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(final.parent / f".{final.name}.lock", os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # closing the descriptor releases the lock
+
+
+def check_replaceable(final: str | Path, marker: str, what: str) -> None:
+    """Refuse (``InputError``) if ``final`` exists and is not an empty folder or a ``what`` uavplace made.
+
+    uavplace's outputs carry ``marker`` (e.g. ``manifest.json``); anything else at
+    that path (a file, someone's folder) is left alone.
+    """
+    final = Path(final)
+    if final.is_symlink() or (final.exists() and not final.is_dir()):
+        raise InputError(final, f"exists and is not a {what} folder: refusing to replace it")
+    if final.is_dir() and not (final / marker).is_file() and any(final.iterdir()):
+        raise InputError(
+            final,
+            f"exists and is not a {what} made by uavplace (it has no {marker}): refusing to replace it; "
+            "choose another output folder or name",
+        )
+
+
+@contextlib.contextmanager
+def atomic_directory(final: str | Path, *, marker: str | None = None, what: str = "output") -> Iterator[Path]:
     """Yield a fresh temporary folder beside ``final``; on success it replaces ``final``.
+
+    ``marker``: the file every folder of this kind holds; an existing ``final``
+    without it (and not empty) is refused before anything is written
+    (``check_replaceable``). The whole block runs under ``folder_lock(final)``.
 
     On any exception the temporary folder is removed and ``final`` is left as
     it was. The swap is two renames on the same file system: the old folder is
@@ -45,23 +116,32 @@ def atomic_directory(final: str | Path) -> Iterator[Path]:
     folder first (``recover_directory``).
     """
     final = Path(final)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    recover_directory(final)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.tmp-", dir=final.parent))
-    try:
-        yield tmp
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    old = final.parent / f".{final.name}.old"
-    if final.exists():
-        os.replace(final, old)
-    os.replace(tmp, final)
-    shutil.rmtree(old, ignore_errors=True)
+    with folder_lock(final):
+        recover_directory(final)
+        if marker is not None:
+            check_replaceable(final, marker, what)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.tmp-", dir=final.parent))
+        tmp.chmod(0o755)  # mkdtemp makes it private; outputs are not
+        try:
+            yield tmp
+            if marker is not None and not (tmp / marker).is_file():
+                raise RuntimeError(f"{final}: the output has no {marker}: not published")
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        old = final.parent / f".{final.name}.old"
+        if final.exists():
+            os.replace(final, old)
+        os.replace(tmp, final)
+        shutil.rmtree(old, ignore_errors=True)
 
 
 def recover_directory(final: str | Path) -> None:
-    """Undo a swap interrupted between its two renames, and remove stale temporary folders."""
+    """Undo a swap interrupted between its two renames, and remove stale temporary folders.
+
+    Call it only while holding ``folder_lock(final)``: then every temporary
+    folder of ``final`` belongs to a writer that is gone.
+    """
     final = Path(final)
     old = final.parent / f".{final.name}.old"
     if old.exists():
@@ -71,3 +151,11 @@ def recover_directory(final: str | Path) -> None:
             os.replace(old, final)
     for stale in final.parent.glob(f".{final.name}.tmp-*"):
         shutil.rmtree(stale, ignore_errors=True)
+
+
+def describe_os_error(err: OSError) -> str:
+    """One line for an operating-system error: the path and what went wrong (``ENOSPC`` spelled out)."""
+    where = err.filename if err.filename is not None else "<file system>"
+    if err.errno == errno.ENOSPC:
+        return f"{where}: no space left on device (nothing was published; free space and run again)"
+    return f"{where}: {err.strerror or err}"

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import numpy as np
 import shapely
 from pydantic import Field, field_validator, model_validator
 
 from schemas.base import Contract
+from schemas.tables import BUILDINGS
 
 
 class Building(Contract):
@@ -32,9 +34,16 @@ class Building(Contract):
         return wkt
 
     @model_validator(mode="after")
-    def _roof_above_base(self) -> Building:
+    def _physical_heights(self) -> Building:
+        for name in ("base_z_m", "roof_z_m"):
+            col = BUILDINGS.column(name)
+            if col.first_out_of_range(np.array([getattr(self, name)])) is not None:
+                raise ValueError(f"{name} {getattr(self, name)} is outside the physical range {col.range_text()}")
         if self.roof_z_m < self.base_z_m:
             raise ValueError(f"roof z {self.roof_z_m} below base z {self.base_z_m}")
+        col = BUILDINGS.column("height_m")
+        if col.first_out_of_range(np.array([self.height_m])) is not None:
+            raise ValueError(f"height {self.height_m:g} m is outside the physical range {col.range_text()}")
         return self
 
     @property

@@ -31,7 +31,7 @@ import shapely
 
 from schemas import InputError
 from schemas.base import uavplace_version
-from schemas.files import atomic_directory
+from schemas.files import atomic_directory, check_name, check_replaceable
 from simulate.insite import UNREACHED_POWER_DBM, ReceiverGrid, write_city, write_p2m, write_setup, write_txrx
 from simulate.procedural import PRESETS, USER_HEIGHT_M, generate_city, sample_users
 from simulate.raytrace import RadioMapJob, RayTraceConfig, path_gain_maps_isolated, sionna_versions
@@ -154,6 +154,8 @@ def simulate_city(
         if on_progress is not None:
             on_progress(stage, done, total)
 
+    check_name(spec.name, "city name")
+    check_replaceable(Path(out_root) / spec.name, PROVENANCE, "simulated city")  # before minutes of ray tracing
     t_start = time.perf_counter()
     blocks, bounds, described = load_geometry(spec.source, spec.seed)
     grid = receiver_grid(bounds, spec)
@@ -171,7 +173,7 @@ def simulate_city(
         gain, filled = path_gain_maps_isolated(job, rt_config, on_batch=lambda d, t: progress("ray tracing", d, t))
         rt_seconds = time.perf_counter() - t_rt
     pos = grid.points()  # [ny * nx, 3], x fastest: the same order as gain[u].ravel()
-    with atomic_directory(Path(out_root) / spec.name) as out:
+    with atomic_directory(Path(out_root) / spec.name, marker=PROVENANCE, what="simulated city") as out:
         write_txrx(out / f"{spec.name}.txrx", users, grid, tx_power_dbm=spec.tx_dbm, user_set=USER_SET, grid_set=GRID_SET)
         write_setup(out / f"{spec.name}.setup", spec.name, frequency_hz=rt_config.frequency_hz, features=[f"{spec.name}.city"])
         write_city(out / f"{spec.name}.city", [(b.footprint, b.base_z_m, b.roof_z_m) for b in blocks], name=spec.name)

@@ -208,11 +208,11 @@ def test_half_written_bundle_is_never_loaded(tmp_path):
 def test_kill_9_during_build_leaves_a_loadable_latest(tmp_path):
     """A real `uavdata build` killed with SIGKILL at several moments: latest always loads, every bundle folder is whole."""
     root = tmp_path / "p"
-    ingest(write_grid_city(tmp_path / "raw", nx=150, ny=120, n_tx=8, spacing=2.0, outputs=("power",)), root)
+    ingest(write_grid_city(tmp_path / "raw", nx=150, ny=120, n_tx=16, spacing=2.0, outputs=("power",)), root)
     first = build_city("city", cfg(), root).manifest.version
     env = os.environ | {"PYTHONPATH": str(REPO)}
     killed = 0
-    for k, delay in enumerate(np.linspace(0.4, 2.0, 8)):
+    for k, delay in enumerate(np.linspace(0.3, 1.6, 8)):
         cmd = [sys.executable, "-m", "dataset.cli", "build", "--root", str(root), "--quiet", "--noise-dbm", str(-90 - k)]
         proc = subprocess.Popen(cmd, env=env, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         time.sleep(delay)

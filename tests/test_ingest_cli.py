@@ -164,7 +164,7 @@ def test_bad_input_corpus(tmp_path, case):
     assert len(lines) == 1 and lines[0].startswith("error: ") and expected in lines[0], res.output
     after = {p.name: p.read_bytes() for p in (proc / "tiny" / "ingested").iterdir()}
     assert after == before
-    assert sorted(p.name for p in (proc / "tiny").iterdir()) == ["ingested"]
+    assert sorted(p.name for p in (proc / "tiny").iterdir()) == [".ingested.lock", "ingested"]
 
 
 def test_empty_and_unknown_only_folders(tmp_path):
@@ -192,7 +192,7 @@ def test_interrupted_swap_recovers(tmp_path):
     out.rename(out.parent / ".ingested.old")
     (out.parent / ".ingested.tmp-dead").mkdir()
     out2, _, _ = ingest_city(city, tmp_path / "proc")
-    assert sorted(p.name for p in out2.parent.iterdir()) == ["ingested"]
+    assert sorted(p.name for p in out2.parent.iterdir()) == [".ingested.lock", "ingested"]
 
 
 def test_list_schema_and_help(tmp_path, rosslyn):

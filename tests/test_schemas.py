@@ -39,9 +39,9 @@ def test_table_conform():
     out = RECEIVERS.conform(table)
     assert out.schema.field("power_dbm").metadata[b"unit"] == b"dBm"
     assert out.schema.metadata[b"schema_version"] == SCHEMA_VERSION.encode()
-    with pytest.raises(ValueError, match=r"missing columns \['reached'\]"):
+    with pytest.raises(InputError, match=r"missing columns \['reached'\]"):
         RECEIVERS.conform(table.drop_columns(["reached"]))
-    with pytest.raises(ValueError, match="column x_m has 2 nulls"):
+    with pytest.raises(InputError, match="x_m: table receivers has 2 nulls"):
         RECEIVERS.conform(table.set_column(4, "x_m", pa.nulls(n, pa.float64())))
 
 

@@ -15,32 +15,42 @@ from pathlib import Path
 import numpy as np
 import shapely
 
-from ingest.buildings import BuildingRecord, Part, polygon_or_none
-from ingest.wireless_insite.keyword import Block, parse_keyword_file
+from ingest.buildings import MIN_AREA_M2, BuildingRecord, Part
+from ingest.wireless_insite.keyword import N_VERTICES, Block, parse_keyword_file
 from schemas import InputError
 
 
-def _faces(block: Block) -> list[np.ndarray]:
+def _faces(block: Block) -> list[tuple[int, np.ndarray]]:
+    """Every face below ``block``: (line of its vertex count, vertices [K, 3] in metres)."""
     faces = []
     for face in block.walk("face"):
         v = face.vertices()
+        found = face.find_entry(N_VERTICES)
+        line = found[0] if found else face.line
         if len(v) < 3:
-            found = face.find_entry("nVertices")
-            line = found[0] if found else face.line
-            raise InputError(face.path, f"face has {len(v)} vertices, a face needs at least 3", line=line, field="nVertices")
-        faces.append(v)
+            raise InputError(face.path, f"face has {len(v)} vertices, a face needs at least 3", line=line, field=N_VERTICES)
+        faces.append((line, v))
     return faces
 
 
-def _part(faces: list[np.ndarray]) -> Part:
-    flat = [p for f in faces if (p := polygon_or_none(f[:, :2])) is not None]
+def _part(path: str, faces: list[tuple[int, np.ndarray]]) -> Part:
+    flat = []
+    for line, f in faces:
+        poly = shapely.Polygon(f[:, :2])
+        if poly.area <= MIN_AREA_M2:
+            continue  # a wall, seen from above
+        if not poly.is_valid:  # a roof or floor that crosses itself: the same polygon in GeoJSON is refused too
+            raise InputError(
+                path, f"face is not a simple polygon seen from above ({shapely.is_valid_reason(poly)})", line=line, field="face"
+            )
+        flat.append(poly)
     if flat:
         footprint = shapely.union_all(flat)
     else:
-        edges = [shapely.LineString(np.vstack([f[:, :2], f[:1, :2]])) for f in faces]
+        edges = [shapely.LineString(np.vstack([f[:, :2], f[:1, :2]])) for _, f in faces]
         noded = shapely.union_all(edges)  # split the walls' base lines where they meet
         footprint = shapely.union_all(list(shapely.get_parts(shapely.polygonize([noded]))))
-    z = np.concatenate([f[:, 2] for f in faces])
+    z = np.concatenate([f[:, 2] for _, f in faces])
     return Part(footprint=footprint, base_z_m=float(z.min()), roof_z_m=float(z.max()))
 
 
@@ -55,7 +65,7 @@ def read_city(path: str | Path, display: str | None = None) -> list[BuildingReco
         for sub in subs:
             faces = _faces(sub)
             if faces:
-                parts.append(_part(faces))
+                parts.append(_part(name, faces))
         records.append(BuildingRecord(name=structure.name or None, source_file=name, source_line=structure.line, parts=parts))
     return records
 
@@ -67,7 +77,7 @@ def read_terrain(path: str | Path, display: str | None = None) -> tuple[np.ndarr
     """
     name = display or str(path)
     root = parse_keyword_file(path, name)
-    faces = _faces(root)
+    faces = [f for _, f in _faces(root)]
     if not faces:
         raise InputError(name, "terrain has no faces", field="face")
     vertices = np.vstack(faces)

@@ -17,6 +17,7 @@ line number kept, so later errors can name the line.
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -25,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from schemas import InputError
+from schemas.tables import XY_RANGE_M, Z_RANGE_M, Column
 
 _BEGIN = re.compile(r"^begin_<([^>]*)>\s*(.*)$")
 _END = re.compile(r"^end_<([^>]*)>\s*$")
@@ -64,16 +66,26 @@ class Block:
         found = self.find_entry(key)
         return None if found is None else found[1]
 
-    def number(self, key: str, cast: type = float) -> float | int | None:
+    def number(self, key: str, cast: type = float, column: Column | None = None) -> float | int | None:
+        """The first word of entry ``key`` as a number (None if absent).
+
+        A float must be finite; with ``column``, it must also lie in that table
+        column's physical range. Anything else is an ``InputError`` at the entry's line.
+        """
         found = self.find_entry(key)
         if found is None:
             return None
         lineno, text = found
         word = text.split()[0] if text.split() else ""
         try:
-            return cast(word)
-        except ValueError:
-            raise InputError(self.path, f"'{word}' is not a number", line=lineno, field=key) from None
+            value = cast(word)
+        except (ValueError, OverflowError):
+            raise InputError(self.path, f"'{word[:40]}' is not a number", line=lineno, field=key) from None
+        if cast is float and not math.isfinite(value):
+            raise InputError(self.path, f"{word} is not a finite number", line=lineno, field=key)
+        if column is not None and column.first_out_of_range(np.array([value])) is not None:
+            raise InputError(self.path, f"{word} is outside the physical range {column.range_text()}", line=lineno, field=key)
+        return value
 
     def has_word(self, word: str) -> bool:
         """True if an entry is exactly ``word`` (flags such as ``active``)."""
@@ -113,20 +125,42 @@ class Block:
                     out[j] = [float(w) for w in words]
                 except ValueError:
                     raise InputError(self.path, f"vertex '{vtext}' holds text, not numbers", line=vline, field="vertex") from None
-            if not np.isfinite(out).all():
-                raise InputError(self.path, "vertex is not finite", line=lines[0][0], field="vertex")
+            for j, (lo, hi) in enumerate((XY_RANGE_M, XY_RANGE_M, Z_RANGE_M)):
+                bad = ~np.isfinite(out[:, j]) | (out[:, j] < lo) | (out[:, j] > hi)
+                if bad.any():
+                    k = int(np.argmax(bad))
+                    raise InputError(
+                        self.path,
+                        f"vertex coordinate {out[k, j]:g} is not finite or outside [{lo:g}, {hi:g}] m",
+                        line=lines[k][0],
+                        field="xyz"[j],
+                    )
             return out
         raise InputError(self.path, f"{self.kind} block has no {N_VERTICES} entry", line=self.line, field=N_VERTICES)
 
 
-def read_text(path: str | Path) -> str:
-    """A text file's content, CRLF or LF, UTF-8 or (as a fallback) Latin-1."""
+def read_text(path: str | Path, display: str | None = None) -> str:
+    """A text file's content: UTF-8 (with or without a byte-order mark), UTF-16 with its byte-order mark,
+    or (as a fallback) Latin-1; LF, CRLF or CR line ends are all split by ``str.splitlines``.
+
+    Binary data (NUL bytes outside UTF-16) is an ``InputError``.
+    """
     raw = Path(path).read_bytes()
+    if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
+        try:
+            return raw.decode("utf-16")
+        except UnicodeDecodeError as exc:
+            raise InputError(display or path, f"starts with a UTF-16 byte-order mark but is not UTF-16 ({exc.reason})") from None
+    if b"\0" in raw:
+        raise InputError(
+            display or path,
+            f"holds NUL bytes (first at byte {raw.index(0)}): binary data, or UTF-16 without a byte-order mark; "
+            "InSite writes text",
+        )
     try:
-        text = raw.decode("utf-8")
+        return raw.decode("utf-8-sig")
     except UnicodeDecodeError:
-        text = raw.decode("latin-1")
-    return text
+        return raw.decode("latin-1")
 
 
 def parse_keyword_file(path: str | Path, display: str | None = None) -> Block:
@@ -139,7 +173,7 @@ def parse_keyword_file(path: str | Path, display: str | None = None) -> Block:
     name = display or str(path)
     root = Block(kind="", name="", line=0, path=name)
     stack = [root]
-    for lineno, raw_line in enumerate(read_text(path).splitlines(), start=1):
+    for lineno, raw_line in enumerate(read_text(path, name).splitlines(), start=1):
         text = raw_line.strip()
         if not text:
             continue

@@ -20,19 +20,18 @@ fails does a line-by-line pass run, to name the line and field at fault.
 
 from __future__ import annotations
 
-import gzip
-import io
 import re
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
 from schemas import InputError, ReceiverSet
 from schemas.receivers import QUANTITIES, RECEIVER_OUTPUTS, SKIPPED_OUTPUTS
+from schemas.tables import RECEIVERS, Column
 
 #: ``model.pl.t001_01.r002.p2m`` -> project "model", output "pl", tx point 1, tx set 1, rx set 2.
 FILENAME_RE = re.compile(
@@ -54,6 +53,18 @@ _NON_SPACE = re.compile(rb"\S")
 _HEADER_PROBE = 1 << 16
 #: InSite's power threshold when the .setup gives none [dBm].
 DEFAULT_POWER_THRESHOLD_DBM = -250.0
+#: A received power may exceed its transmitter's power by at most both antennas' gains [dB] (two 30 dBi dishes).
+MAX_ANTENNA_GAINS_DB = 60.0
+#: Text read per batch by the streaming reader (a row is about 45 bytes: some 350 k rows a batch).
+BATCH_BYTES = 16 << 20
+#: A number as every reader parses it (no ``_`` separators), or nan/inf (refused later as not finite).
+_NUMBER = re.compile(rb"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|[-+]?(?:nan|inf|infinity)", re.IGNORECASE)
+_INTEGER = re.compile(rb"\+?\d+")
+#: Longest number word accepted [characters] (a float has at most 17 significant digits).
+_MAX_WORD = 40
+_NUL = b"\0"
+_UTF8_BOM = b"\xef\xbb\xbf"
+_UTF16_BOMS = (b"\xff\xfe", b"\xfe\xff")
 
 
 @dataclass(frozen=True)
@@ -84,17 +95,6 @@ def parse_filename(name: str) -> P2MName | None:
     if m:
         return P2MName(m["project"], m["output"].lower(), None, int(m["tx_set"]), None)
     return None
-
-
-def read_bytes(path: str | Path) -> bytes:
-    path = Path(path)
-    if path.name.endswith(".gz"):
-        try:
-            with gzip.open(path, "rb") as f:
-                return f.read()
-        except (OSError, EOFError) as exc:
-            raise InputError(path, f"not a readable gzip file ({exc})") from None
-    return path.read_bytes()
 
 
 @dataclass(frozen=True)
@@ -173,11 +173,14 @@ def _line_of_row(raw: bytes, body_offset: int, n_header: int, row: int) -> int:
     return n_header + row + 1
 
 
-def _diagnose(path: str, raw: bytes, header: _Header, names: list[str]) -> list[list[str]]:
-    """Line-by-line check of the body: raise on the first bad line, else return the rows' words."""
-    rows: list[list[str]] = []
+def _diagnose(path: str, raw: bytes, header: _Header, names: list[str]) -> bytes:
+    """Line-by-line check of the body: raise on the first bad line, else return the rows single-space separated.
+
+    Numbers must look like numbers to any reader (``-7_0.5`` does to Python, not to Arrow), and be short.
+    """
+    rows: list[bytes] = []
     n_header = len(header.lines)
-    for i, line in enumerate(raw[header.body_offset :].decode("utf-8", "replace").splitlines()):
+    for i, line in enumerate(raw[header.body_offset :].splitlines()):
         words = line.split()
         if not words:
             continue
@@ -192,36 +195,292 @@ def _diagnose(path: str, raw: bytes, header: _Header, names: list[str]) -> list[
                 field=missing or "row",
             )
         for word, name in zip(words, names, strict=True):
+            pattern = _INTEGER if name == "rx_index" else _NUMBER
+            if len(word) > _MAX_WORD or pattern.fullmatch(word) is None:
+                shown = word[:_MAX_WORD].decode("utf-8", "replace") + ("..." if len(word) > _MAX_WORD else "")
+                what = "a receiver number" if name == "rx_index" else "a number"
+                raise InputError(path, f"'{shown}' is not {what}", line=lineno, field=name)
+        rows.append(b" ".join(words))
+    return b"\n".join(rows) + b"\n"
+
+
+def _text_conversion(probe: bytes) -> str | None:
+    """What a body must be converted from before Arrow reads it: None (ASCII/UTF-8, LF or CRLF), or
+    ``utf-8-sig`` (a byte-order mark), ``utf-16`` (with its byte-order mark) or ``cr`` (old Mac line ends)."""
+    if probe.startswith(_UTF8_BOM):
+        return "utf-8-sig"
+    if probe[:2] in _UTF16_BOMS:
+        return "utf-16"
+    if b"\r" in probe and b"\n" not in probe:
+        return "cr"
+    return None
+
+
+def _converted(path: str, raw: bytes, conversion: str) -> bytes:
+    if conversion == "utf-16":
+        try:
+            raw = raw.decode("utf-16").encode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise InputError(path, f"starts with a UTF-16 byte-order mark but is not UTF-16 text ({exc.reason})") from None
+    elif conversion == "utf-8-sig":
+        raw = raw[len(_UTF8_BOM) :]
+    return raw.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+
+
+class P2MStream:
+    """One receiver output, read in batches of about ``batch_bytes`` of text (memory stays flat).
+
+    Iterating yields validated ``pa.Table`` batches with ``rx_index`` (int32),
+    ``x_m``, ``y_m``, ``z_m``, ``distance_m``, the output's value columns
+    (float64, null where not reached) and ``reached`` (bool, null if the output
+    carries no reach information). ``meta`` is the file's ``ReceiverSet`` once
+    every batch has been read. Any bad row raises ``InputError`` naming the
+    file's line and column; the caller discards what it got so far.
+
+    Args:
+        path: the .p2m or .p2m.gz file.
+        display: the name errors and the metadata use for it.
+        power_threshold_dbm: the receiving antenna's threshold [dBm]; received
+            powers at or below it are "not reached" (default -250, InSite's).
+        max_power_dbm: the highest physical received power [dBm] (the
+            transmit power plus antenna gains), when known.
+        batch_bytes: text read per batch.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        display: str | None = None,
+        power_threshold_dbm: float | None = None,
+        max_power_dbm: float | None = None,
+        batch_bytes: int = BATCH_BYTES,
+    ) -> None:
+        self.path = Path(path)
+        self.name = display or str(path)
+        ident = parse_filename(self.path.name)
+        if ident is None or not ident.is_receiver_output:
+            raise InputError(self.name, "not a receiver output name (<project>.<output>.tTTT_SS.rRRR.p2m)", field="file name")
+        assert ident.tx_point is not None and ident.rx_set is not None
+        self.ident = ident
+        self.gz = self.path.name.endswith(".gz")
+        self.batch_bytes = batch_bytes
+        self.threshold = DEFAULT_POWER_THRESHOLD_DBM if power_threshold_dbm is None else power_threshold_dbm
+        self.max_power_dbm = max_power_dbm
+        self._raw: bytes | None = None  # the whole (converted) file, when it had to be read whole
+        probe = self._probe()
+        conversion = _text_conversion(probe)
+        if _NUL in probe and conversion != "utf-16":
+            raise InputError(
+                self.name,
+                f"holds NUL bytes (first at byte {probe.index(_NUL)}): binary data, or UTF-16 text without a "
+                "byte-order mark; a .p2m is ASCII text",
+            )
+        if conversion is not None:
+            self._raw = _converted(self.name, self._read_all(), conversion)
+            probe = self._raw
+        elif len(probe) == _HEADER_PROBE and probe.count(b"\n#") + 1 >= probe.count(b"\n"):
+            self._raw = self._read_all()  # an unusually long header
+            probe = self._raw
+        self.conversion = conversion
+        header = _split_header(probe)
+        self.header = header
+        values = _value_columns(self.name, ident.output, header)
+        if header.tx and (int(header.tx["id"]) != ident.tx_set or int(header.tx["point"]) != ident.tx_point):
+            raise InputError(
+                self.name,
+                f"header says transmitter set {header.tx['id']} point {header.tx['point']}, "
+                f"file name says set {ident.tx_set} point {ident.tx_point}",
+                line=1,
+                field="Transmitter Set",
+            )
+        if header.rx and int(header.rx["id"]) != ident.rx_set:
+            raise InputError(
+                self.name, f"header says receiver set {header.rx['id']}, file name says {ident.rx_set}", field="Receiver Set"
+            )
+        self.values = values
+        self.names = ["rx_index", *POSITION_COLUMNS, *values]
+        whole = self._raw is not None or len(probe) < _HEADER_PROBE
+        if whole and _NON_SPACE.search(probe, header.body_offset) is None:
+            raise InputError(self.name, "no receiver rows after the header (empty or truncated file)", line=len(header.lines) + 1)
+        self._rows = 0
+        self._reached = 0
+        self._has_reach = any(QUANTITIES[n].sentinel != "none" for n in values)
+        self._rx_parts: list[np.ndarray] = []
+        self._finished = False
+
+    # -- bytes ------------------------------------------------------------------------------------
+    def _stream(self) -> pa.NativeFile:
+        return pa.input_stream(str(self.path), compression="gzip" if self.gz else None)
+
+    def _read(self, size: int | None) -> bytes:
+        try:
+            with self._stream() as f:
+                return f.read() if size is None else f.read(size)
+        except OSError as exc:
+            raise InputError(self.name, f"not a readable gzip file ({exc})" if self.gz else f"unreadable ({exc})") from None
+
+    def _probe(self) -> bytes:
+        return self._read(_HEADER_PROBE)
+
+    def _read_all(self) -> bytes:
+        return self._read(None)
+
+    def _whole(self) -> bytes:
+        """The whole (converted) file: read only when an error has to name its line."""
+        if self._raw is None:
+            self._raw = self._read_all()
+        return self._raw
+
+    def _body(self) -> pa.NativeFile:
+        if self._raw is not None:
+            buf = pa.BufferReader(self._raw)
+        else:
+            buf = self._stream()
+        buf.read(self.header.body_offset)
+        return buf
+
+    # -- rows -------------------------------------------------------------------------------------
+    def _options(self) -> tuple[pacsv.ReadOptions, pacsv.ParseOptions, pacsv.ConvertOptions]:
+        types = {n: (pa.int64() if n == "rx_index" else pa.float64()) for n in self.names}
+        read = pacsv.ReadOptions(column_names=self.names, use_threads=True, block_size=self.batch_bytes)
+        parse = pacsv.ParseOptions(delimiter=" ", ignore_empty_lines=True)
+        convert = pacsv.ConvertOptions(
+            column_types=types, null_values=[], strings_can_be_null=False, quoted_strings_can_be_null=False
+        )
+        return read, parse, convert
+
+    def _fail(self, row: int, field: str, message: str) -> InputError:
+        line = _line_of_row(self._whole(), self.header.body_offset, len(self.header.lines), row)
+        return InputError(self.name, message, line=line, field=field)
+
+    def __iter__(self) -> Iterator[pa.Table]:
+        if self._finished:
+            raise RuntimeError(f"{self.name}: a P2MStream is read once")
+        done = 0
+        try:
+            for batch in pacsv.open_csv(self._body(), *self._options()):
+                table = pa.Table.from_batches([batch])
+                yield self._checked(table, done)
+                done += table.num_rows
+        except pa.ArrowInvalid:
+            # Irregular spacing (tabs, padding) or a real error: find out line by line, then go on from row `done`.
+            normalised = _diagnose(self.name, self._whole(), self.header, self.names)
+            skip = done
             try:
-                int(word) if name == "rx_index" else float(word)
-            except ValueError:
-                raise InputError(path, f"'{word}' is not a number", line=lineno, field=name) from None
-        rows.append(words)
-    return rows
+                for batch in pacsv.open_csv(pa.BufferReader(normalised), *self._options()):
+                    table = pa.Table.from_batches([batch])
+                    if skip >= table.num_rows:
+                        skip -= table.num_rows
+                        continue
+                    table, skip = table.slice(skip), 0
+                    yield self._checked(table, done)
+                    done += table.num_rows
+            except pa.ArrowInvalid as exc:
+                raise InputError(self.name, f"unreadable rows ({exc})") from None
+        except OSError as exc:
+            raise InputError(self.name, f"not a readable gzip file ({exc})" if self.gz else f"unreadable ({exc})") from None
+        self._finish()
 
+    def _checked(self, table: pa.Table, row0: int) -> pa.Table:
+        """Validate one batch (rows ``row0``...) and turn it into the output columns."""
+        rx = table.column("rx_index").to_numpy()
+        cols = {n: table.column(n).to_numpy() for n in self.names[1:]}
+        for n, v in cols.items():
+            if not np.isfinite(v).all():
+                row = int(np.argmax(~np.isfinite(v)))
+                raise self._fail(row0 + row, n, f"value {v[row]} is not a finite number")
+        if rx.min() < 1:
+            row = int(np.argmin(rx))
+            raise self._fail(row0 + row, "rx_index", f"receiver number {rx[row]} < 1")
+        if rx.max() > np.iinfo(np.int32).max:
+            row = int(np.argmax(rx))
+            raise self._fail(row0 + row, "rx_index", f"receiver number {rx[row]} is too large")
+        self._check_unique(rx, row0)  # within the batch now; across batches at the end
+        self._rx_parts.append(rx.astype(np.int32))
 
-def _parse_body(path: str, raw: bytes, header: _Header, names: list[str], file: Path | None = None) -> pa.Table:
-    """Parse the rows after the header: memory-mapped from ``file`` when given, else from ``raw``."""
-    types = {n: (pa.int64() if n == "rx_index" else pa.float64()) for n in names}
-    read = pacsv.ReadOptions(column_names=names, use_threads=True)
-    parse = pacsv.ParseOptions(delimiter=" ", ignore_empty_lines=True)
-    convert = pacsv.ConvertOptions(
-        column_types=types, null_values=[], strings_can_be_null=False, quoted_strings_can_be_null=False
-    )
-    try:
-        if file is not None:
-            with pa.memory_map(str(file)) as mm:
-                mm.seek(header.body_offset)
-                return pacsv.read_csv(mm, read, parse, convert)
-        return pacsv.read_csv(io.BytesIO(memoryview(raw)[header.body_offset :]), read, parse, convert)
-    except pa.ArrowInvalid:
-        pass
-    if file is not None:
-        raw = file.read_bytes()
-    # Irregular spacing (tabs, padding) or a real error: find out line by line.
-    words = _diagnose(path, raw, header, names)
-    normalised = "\n".join(" ".join(w) for w in words).encode()
-    return pacsv.read_csv(io.BytesIO(normalised), read, parse, convert)
+        unreached = np.zeros(len(rx), bool)
+        for n in self.values:
+            q = QUANTITIES[n]
+            if q.sentinel == "ge":
+                unreached |= cols[n] >= q.sentinel_value
+            elif q.sentinel == "le":
+                unreached |= cols[n] <= q.sentinel_value
+            elif q.sentinel == "threshold":
+                unreached |= cols[n] <= self.threshold
+        for n in POSITION_COLUMNS:
+            self._check_range(RECEIVERS.column(n), cols[n], None, row0)
+        for n in self.values:
+            self._check_range(RECEIVERS.column(n), cols[n], ~unreached, row0)
+        if self.max_power_dbm is not None and "power_dbm" in cols:
+            over = ~unreached & (cols["power_dbm"] > self.max_power_dbm)
+            if over.any():
+                row = int(np.argmax(over))
+                raise self._fail(
+                    row0 + row,
+                    "power_dbm",
+                    f"received power {cols['power_dbm'][row]:g} dBm exceeds the transmit power plus antenna gains "
+                    f"({self.max_power_dbm:g} dBm): not physical",
+                )
+
+        self._rows += len(rx)
+        self._reached += int((~unreached).sum())
+        out: dict[str, pa.Array] = {"rx_index": pa.array(rx.astype(np.int32))}
+        for n in POSITION_COLUMNS:
+            out[n] = pa.array(cols[n])
+        for n in self.values:
+            out[n] = pa.array(cols[n], mask=unreached) if unreached.any() else pa.array(cols[n])
+        out["reached"] = pa.array(~unreached) if self._has_reach else pa.nulls(len(rx), pa.bool_())
+        return pa.table(out)
+
+    def _check_range(self, column: Column, values: np.ndarray, valid: np.ndarray | None, row0: int) -> None:
+        row = column.first_out_of_range(values, valid)
+        if row is not None:
+            raise self._fail(row0 + row, column.name, f"{values[row]:g} is outside the physical range {column.range_text()}")
+
+    def _finish(self) -> None:
+        """After the last batch: the file's receiver numbers must be unique."""
+        self._finished = True
+        rx = np.concatenate(self._rx_parts) if self._rx_parts else np.zeros(0, np.int32)
+        self._rx_parts = []
+        if len(rx) == 0:
+            raise InputError(
+                self.name, "no receiver rows after the header (empty or truncated file)", line=len(self.header.lines) + 1
+            )
+        self._check_unique(rx, 0)
+
+    def _check_unique(self, rx: np.ndarray, row0: int) -> None:
+        """Receiver numbers ``rx`` (rows ``row0``...) hold no duplicate."""
+        if (np.diff(rx) > 0).all():
+            return
+        order = np.argsort(rx, kind="stable")
+        dup = np.flatnonzero(np.diff(rx[order]) == 0)
+        if dup.size:
+            first, second = sorted((int(order[dup[0]]), int(order[dup[0] + 1])))
+            line1 = _line_of_row(self._whole(), self.header.body_offset, len(self.header.lines), row0 + first)
+            raise self._fail(row0 + second, "rx_index", f"duplicate receiver number {rx[second]} (first at line {line1})")
+
+    @property
+    def meta(self) -> ReceiverSet:
+        """What the file held; available once every batch has been read."""
+        if not self._finished:
+            raise RuntimeError(f"{self.name}: read every batch before asking for its metadata")
+        header, ident = self.header, self.ident
+        return ReceiverSet(
+            source=self.name,
+            output=ident.output,
+            project=ident.project,
+            header_style=header.style,  # type: ignore[arg-type]
+            tx_set_id=ident.tx_set,
+            tx_point=ident.tx_point,  # type: ignore[arg-type]
+            tx_set_name=header.tx["name"] if header.tx else None,
+            rx_set_id=ident.rx_set,  # type: ignore[arg-type]
+            rx_set_name=(header.rx["name"] or None) if header.rx else None,
+            columns=self.values,
+            num_rows=self._rows,
+            num_reached=self._reached if self._has_reach else None,
+            power_threshold_dbm=self.threshold if "power_dbm" in self.values else None,
+        )
 
 
 def read_p2m(
@@ -229,114 +488,9 @@ def read_p2m(
     *,
     display: str | None = None,
     power_threshold_dbm: float | None = None,
+    max_power_dbm: float | None = None,
 ) -> tuple[ReceiverSet, pa.Table]:
-    """Read one receiver output.
-
-    Args:
-        path: the .p2m or .p2m.gz file.
-        display: the name errors and the returned metadata use for it.
-        power_threshold_dbm: the receiving antenna's threshold [dBm]; received
-            powers at or below it are "not reached" (default -250, InSite's).
-
-    Returns:
-        The file's ``ReceiverSet`` and a table with ``rx_index`` [N] (int32),
-        ``x_m``, ``y_m``, ``z_m``, ``distance_m`` and the output's value
-        columns [N] (float64, null where not reached), and ``reached`` [N]
-        (bool, null if the output carries no reach information).
-    """
-    path = Path(path)
-    name = display or str(path)
-    ident = parse_filename(path.name)
-    if ident is None or not ident.is_receiver_output:
-        raise InputError(name, "not a receiver output name (<project>.<output>.tTTT_SS.rRRR.p2m)", field="file name")
-    assert ident.tx_point is not None and ident.rx_set is not None
-    gz = path.name.endswith(".gz")
-    if gz:
-        raw = read_bytes(path)
-    else:  # the header from the file's start; the body is memory-mapped by the CSV reader
-        with open(path, "rb") as f:
-            raw = f.read(_HEADER_PROBE)
-            if len(raw) == _HEADER_PROBE and raw.count(b"\n#") + 1 >= raw.count(b"\n"):
-                raw += f.read()  # an unusually long header
-    header = _split_header(raw)
-    values = _value_columns(name, ident.output, header)
-    if header.tx and (int(header.tx["id"]) != ident.tx_set or int(header.tx["point"]) != ident.tx_point):
-        raise InputError(
-            name,
-            f"header says transmitter set {header.tx['id']} point {header.tx['point']}, "
-            f"file name says set {ident.tx_set} point {ident.tx_point}",
-            line=1,
-            field="Transmitter Set",
-        )
-    if header.rx and int(header.rx["id"]) != ident.rx_set:
-        raise InputError(name, f"header says receiver set {header.rx['id']}, file name says {ident.rx_set}", field="Receiver Set")
-    names = ["rx_index", *POSITION_COLUMNS, *values]
-    if _NON_SPACE.search(raw, header.body_offset) is None and (gz or path.stat().st_size <= len(raw)):
-        raise InputError(name, "no receiver rows after the header (empty or truncated file)", line=len(header.lines) + 1)
-    table = _parse_body(name, raw, header, names, file=None if gz else path)
-    if not gz:
-        raw = b""  # read again, whole, only if an error has to name its line
-
-    def whole() -> bytes:
-        return raw or path.read_bytes()
-
-    # Checks and sentinels run on Arrow's chunked columns: no concatenation, no Python loop over rows.
-    rx = table.column("rx_index").to_numpy()
-
-    def fail(row: int, field: str, message: str) -> InputError:
-        return InputError(name, message, line=_line_of_row(whole(), header.body_offset, len(header.lines), row), field=field)
-
-    for n in names[1:]:
-        col = table.column(n)
-        if not pc.all(pc.is_finite(col)).as_py():
-            row = int(np.argmax(~np.isfinite(col.to_numpy())))
-            raise fail(row, n, f"value {col[row].as_py()} is not a finite number")
-    if rx.min() < 1:
-        row = int(np.argmin(rx))
-        raise fail(row, "rx_index", f"receiver number {rx[row]} < 1")
-    if not (np.diff(rx) > 0).all():
-        order = np.argsort(rx, kind="stable")
-        dup = np.flatnonzero(np.diff(rx[order]) == 0)
-        if dup.size:
-            first, second = sorted((int(order[dup[0]]), int(order[dup[0] + 1])))
-            line1 = _line_of_row(whole(), header.body_offset, len(header.lines), first)
-            raise fail(second, "rx_index", f"duplicate receiver number {rx[second]} (first at line {line1})")
-
-    threshold = DEFAULT_POWER_THRESHOLD_DBM if power_threshold_dbm is None else power_threshold_dbm
-    unreached = None
-    for n in values:
-        q = QUANTITIES[n]
-        if q.sentinel == "ge":
-            mask = pc.greater_equal(table.column(n), q.sentinel_value)
-        elif q.sentinel == "le":
-            mask = pc.less_equal(table.column(n), q.sentinel_value)
-        elif q.sentinel == "threshold":
-            mask = pc.less_equal(table.column(n), threshold)
-        else:
-            continue
-        unreached = mask if unreached is None else pc.or_(unreached, mask)
-
-    num_unreached = 0 if unreached is None else int(pc.sum(unreached).as_py() or 0)
-    out: dict[str, pa.ChunkedArray] = {"rx_index": table.column("rx_index").cast(pa.int32())}
-    for n in POSITION_COLUMNS:
-        out[n] = table.column(n)
-    null = pa.scalar(None, pa.float64())
-    for n in values:
-        out[n] = pc.if_else(unreached, null, table.column(n)) if num_unreached else table.column(n)
-    out["reached"] = pc.invert(unreached) if unreached is not None else pa.chunked_array([pa.nulls(len(rx), pa.bool_())])
-    meta = ReceiverSet(
-        source=name,
-        output=ident.output,
-        project=ident.project,
-        header_style=header.style,  # type: ignore[arg-type]
-        tx_set_id=ident.tx_set,
-        tx_point=ident.tx_point,
-        tx_set_name=header.tx["name"] if header.tx else None,
-        rx_set_id=ident.rx_set,
-        rx_set_name=(header.rx["name"] or None) if header.rx else None,
-        columns=values,
-        num_rows=len(rx),
-        num_reached=len(rx) - num_unreached if unreached is not None else None,
-        power_threshold_dbm=threshold if "power_dbm" in values else None,
-    )
-    return meta, pa.table(out)
+    """Read one receiver output whole: its ``ReceiverSet`` and one table of the columns ``P2MStream`` yields."""
+    stream = P2MStream(path, display=display, power_threshold_dbm=power_threshold_dbm, max_power_dbm=max_power_dbm)
+    tables = list(stream)
+    return stream.meta, pa.concat_tables(tables)

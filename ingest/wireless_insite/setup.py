@@ -14,6 +14,7 @@ from pathlib import Path
 
 from ingest.wireless_insite.keyword import Block, parse_keyword_file
 from schemas import AntennaInfo, CommSystemInfo, InputError, SetupInfo, WaveformInfo
+from schemas.tables import RECEIVERS, TRANSMITTERS, Column
 from schemas.txrx import FeatureFile
 
 _FEATURE_KINDS = {"city": "city", "terrain": "terrain", "object": "object", "floorplan": "floorplan", "foliage": "foliage"}
@@ -30,8 +31,8 @@ def _ints(block: Block, key: str) -> tuple[int, ...]:
         raise InputError(block.path, f"'{text}' is not a list of set numbers", line=line, field=key) from None
 
 
-def _required_number(block: Block, key: str, cast: type = float) -> float | int:
-    value = block.number(key, cast)
+def _required_number(block: Block, key: str, cast: type = float, column: Column | None = None) -> float | int:
+    value = block.number(key, cast, column)
     if value is None:
         raise InputError(block.path, f"{block.kind} '{block.name}' has no {key}", line=block.line, field=key)
     return value
@@ -48,8 +49,8 @@ def read_setup(path: str | Path, display: str | None = None) -> SetupInfo:
         WaveformInfo(
             number=int(_required_number(b, "waveform", int)),
             name=b.name,
-            carrier_frequency_hz=float(_required_number(b, "CarrierFrequency")),
-            bandwidth_hz=b.number("bandwidth"),
+            carrier_frequency_hz=float(_required_number(b, "CarrierFrequency", column=TRANSMITTERS.column("frequency_hz"))),
+            bandwidth_hz=b.number("bandwidth", column=TRANSMITTERS.column("frequency_hz")),
         )
         for b in project.blocks("Waveform")
     )
@@ -59,7 +60,7 @@ def read_setup(path: str | Path, display: str | None = None) -> SetupInfo:
             name=b.name,
             type=b.value("type"),
             polarization=b.value("polarization"),
-            power_threshold_dbm=b.number("power_threshold"),
+            power_threshold_dbm=b.number("power_threshold", column=RECEIVERS.column("power_dbm")),
         )
         for b in project.blocks("antenna")
     )

@@ -12,8 +12,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from pydantic import ValidationError
+
 from ingest.wireless_insite.keyword import Block, parse_keyword_file
 from schemas import InputError, TxRxSet
+from schemas.base import validation_message
+from schemas.tables import TRANSMITTERS, XY_RANGE_M
 
 #: Block kinds that define transmitter/receiver sets.
 SET_KINDS = ("points", "grid", "polygon", "route", "trajectory", "arc", "cylinder", "sphere", "xyzgrid", "areagrid")
@@ -47,6 +51,12 @@ def parse_txrx_set(block: Block) -> TxRxSet:
     rx = block.blocks("receiver")
     tx_antenna, tx_waveform = _pattern_numbers(tx[0] if tx else None)
     rx_antenna, _ = _pattern_numbers(rx[0] if rx else None)
+    lengths = {key: loc_block.number(key) for key in ("side1", "side2", "spacing")}
+    for key, value in lengths.items():
+        if value is not None and not (0 < value <= XY_RANGE_M[1]) and not (key != "spacing" and value == 0):
+            line = loc_block.find_entry(key)[0]  # type: ignore[index]
+            what = "> 0" if key == "spacing" else ">= 0"
+            raise InputError(block.path, f"{key} {value:g} m: must be {what} and finite", line=line, field=key)
     try:
         return TxRxSet(
             kind=block.kind,
@@ -56,17 +66,18 @@ def parse_txrx_set(block: Block) -> TxRxSet:
             is_transmitter=bool(block.yes("is_transmitter")) if block.yes("is_transmitter") is not None else bool(tx),
             is_receiver=bool(block.yes("is_receiver")) if block.yes("is_receiver") is not None else bool(rx),
             vertices_m=_location_vertices(block),
-            side1_m=loc_block.number("side1"),
-            side2_m=loc_block.number("side2"),
-            spacing_m=loc_block.number("spacing"),
-            tx_power_dbm=tx[0].number("power") if tx else None,
+            side1_m=lengths["side1"],
+            side2_m=lengths["side2"],
+            spacing_m=lengths["spacing"],
+            tx_power_dbm=tx[0].number("power", column=TRANSMITTERS.column("power_dbm")) if tx else None,
             tx_antenna=tx_antenna,
             tx_waveform=tx_waveform,
             rx_antenna=rx_antenna,
             source=block.where(),
         )
-    except ValueError as exc:  # pydantic's cross-field checks
-        raise InputError(block.path, str(exc).splitlines()[-1].strip(), line=block.line, field=block.kind) from None
+    except ValidationError as exc:  # pydantic's cross-field checks
+        field, message = validation_message(exc)
+        raise InputError(block.path, message, line=block.line, field=field) from None
 
 
 def read_txrx(path: str | Path, display: str | None = None) -> list[TxRxSet]:

@@ -123,7 +123,7 @@ class ReplayBuffer:
         np.savez(path, **{k: getattr(self, k) for k in self._ARRAYS}, counters=np.array([self.pos, self.size, self.side_pos]))
 
     def load(self, path: str | Path) -> None:
-        with np.load(path) as z:
+        with np.load(path, allow_pickle=False) as z:
             for k in self._ARRAYS:
                 if z[k].shape != getattr(self, k).shape:
                     raise ValueError(f"replay {path}: {k} has shape {z[k].shape}, this run's is {getattr(self, k).shape}")

@@ -2,9 +2,11 @@
 
 ``runs/<run-id>/``: ``run.json`` (the ``DQNConfig``, datasets and bundle versions, the command),
 ``metrics.parquet`` (one row per finished training episode), ``eval.parquet`` (one row per
-evaluation), ``checkpoints/last.pt`` (everything needed to continue exactly: networks,
-optimiser, step counters, every random state, the environments' state) with
-``checkpoints/replay.npz``, and ``checkpoints/best.pt`` (the network of the best evaluation).
+evaluation), ``checkpoints/last/`` (everything needed to continue exactly: networks, optimiser,
+step counters, every random state, the environments' state, the replay, the metrics up to its
+step; one folder renamed into place, see ``rl.agent.checkpoint``), and ``checkpoints/best.pt``
+(the network of the best evaluation). No checkpoint is a pickle of Python objects: they load
+with ``weights_only=True``.
 """
 
 from __future__ import annotations
@@ -20,16 +22,55 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import torch
+from pydantic import Field, ValidationError
 
 from dataset.bundle import Bundle, load_bundle
+from rl.agent.checkpoint import CHECKPOINT_JSON, load_tensors, require, save_tensors
 from rl.agent.dqn import DQN, DQNConfig, DQNPolicy, make_network
 from rl.agent.replay import ReplayBuffer
 from rl.maps import MapSet
 from rl.rollout import run_episodes, summarise
 from rl.vec_env import BatchedEnv
-from schemas.base import uavplace_version
+from schemas import InputError
+from schemas.base import Contract, uavplace_version, validation_message
+from schemas.files import atomic_directory, recover_directory, write_model_json
 
-_ENV_STATE = ("view", "pos", "t", "episode_id", "memory", "visited", "_episodes_started")
+#: The environment's arrays a checkpoint keeps (with its counter and random state).
+_ENV_ARRAYS = ("view", "pos", "t", "episode_id", "memory", "visited")
+#: The resumable checkpoint folder under ``checkpoints/``.
+LAST = "last"
+
+
+#: The run's record: how it was made.
+RUN_JSON = "run.json"
+
+
+class RunRecord(Contract):
+    """``run.json``: the configuration, the bundles trained on, the command; written when a run starts."""
+
+    config: DQNConfig
+    datasets: dict[str, str] = Field(description="Training city -> bundle version")
+    train_split: str | None = Field(description="Users episodes were drawn from (None: all users)")
+    eval_split: str | None = Field(description="Users the periodic evaluation (and best.pt) used")
+    command: str
+    uavplace_version: str
+    torch_version: str
+    created_utc: str
+
+
+def read_run_json(folder: str | Path) -> RunRecord:
+    """A run folder's ``run.json``; ``InputError`` naming the file when it is missing or malformed."""
+    path = Path(folder) / RUN_JSON
+    try:
+        return RunRecord.model_validate_json(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(path, "no run.json: not a folder written by `uavrl train`") from None
+    except (ValidationError, UnicodeDecodeError, ValueError) as exc:
+        if isinstance(exc, ValidationError):
+            field, message = validation_message(exc)
+        else:
+            field, message = "json", str(exc)
+        raise InputError(path, message, field=field) from None
 
 
 @dataclass
@@ -69,9 +110,9 @@ def _split_or_none(bundles: list[Bundle], wanted: str | None) -> str | None:
     return wanted if any(len(b.user_indices(wanted)) for b in bundles) else None
 
 
-def _atomic_torch_save(obj: object, path: Path) -> None:
+def _atomic_torch_save(obj: dict, path: Path) -> None:
     tmp = path.with_name(path.name + ".tmp")
-    torch.save(obj, tmp)
+    save_tensors(obj, tmp)
     os.replace(tmp, path)
 
 
@@ -110,68 +151,90 @@ class Trainer:
         return self.run_dir / "checkpoints"
 
     def write_run_json(self) -> None:
-        doc = {
-            "config": json.loads(self.config.model_dump_json()),
-            "datasets": {b.city: b.version for b in self.maps.bundles},
-            "train_split": self.maps.config.split,
-            "eval_split": self.eval_split,
-            "command": self.command,
-            "uavplace_version": uavplace_version(),
-            "torch_version": torch.__version__,
-            "created_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
-        }
+        record = RunRecord(
+            config=self.config,
+            datasets={b.city: b.version for b in self.maps.bundles},
+            train_split=self.maps.config.split,
+            eval_split=self.eval_split,
+            command=self.command,
+            uavplace_version=uavplace_version(),
+            torch_version=torch.__version__,
+            created_utc=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+        )
         self.run_dir.mkdir(parents=True, exist_ok=True)
-        (self.run_dir / "run.json").write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+        write_model_json(record, self.run_dir / RUN_JSON)
 
     def save(self) -> None:
-        self.checkpoints.mkdir(parents=True, exist_ok=True)
+        """Write ``checkpoints/last/`` as one unit (a folder renamed into place), then publish the metrics."""
         s = self.state
-        env_state = {k: getattr(self.env, k) for k in _ENV_STATE} | {"rng": self.env.rng.bit_generator.state}
-        _atomic_torch_save(
-            {
+        metrics = with_running_means(pd.DataFrame(s.episodes))
+        evals = pd.DataFrame(s.evals)
+        with atomic_directory(self.checkpoints / LAST, marker=CHECKPOINT_JSON, what="training checkpoint") as tmp:
+            networks = {
                 "online": self.agent.online.state_dict(),
                 "target": self.agent.target.state_dict(),
                 "optimizer": self.agent.optimizer.state_dict(),
-                "updates": self.agent.updates,
-                "state": {k: getattr(s, k) for k in ("step", "last_action", "start_sinr", "best_score", "synced_at")},
-                "rng": self.rng.bit_generator.state,
                 "torch_rng": torch.get_rng_state(),
-                "cuda_rng": torch.cuda.get_rng_state_all() if self.agent.device.type == "cuda" else None,
-                "env": env_state,
-            },
-            self.checkpoints / "last.pt",
-        )
-        tmp = self.checkpoints / "replay.tmp.npz"
-        self.replay.save(tmp)
-        os.replace(tmp, self.checkpoints / "replay.npz")
-        _atomic_parquet(with_running_means(pd.DataFrame(s.episodes)), self.run_dir / "metrics.parquet")
-        _atomic_parquet(pd.DataFrame(s.evals), self.run_dir / "eval.parquet")
+            }
+            if self.agent.device.type == "cuda":
+                networks["cuda_rng"] = torch.cuda.get_rng_state_all()
+            save_tensors(networks, tmp / "networks.pt")
+            arrays = {k: getattr(self.env, k) for k in _ENV_ARRAYS}
+            np.savez(tmp / "env.npz", **arrays, last_action=s.last_action, start_sinr=s.start_sinr)
+            self.replay.save(tmp / "replay.npz")
+            metrics.to_parquet(tmp / "metrics.parquet", index=False)
+            evals.to_parquet(tmp / "eval.parquet", index=False)
+            doc = {
+                "step": s.step,
+                "updates": self.agent.updates,
+                "best_score": list(s.best_score) if s.best_score is not None else None,
+                "synced_at": s.synced_at,
+                "episodes_started": self.env._episodes_started,
+                "rng": self.rng.bit_generator.state,
+                "env_rng": self.env.rng.bit_generator.state,
+            }
+            (tmp / CHECKPOINT_JSON).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+        _atomic_parquet(metrics, self.run_dir / "metrics.parquet")
+        _atomic_parquet(evals, self.run_dir / "eval.parquet")
 
     def load(self) -> None:
-        ck = torch.load(self.checkpoints / "last.pt", weights_only=False, map_location=self.agent.device)
-        self.agent.online.load_state_dict(ck["online"])
-        self.agent.target.load_state_dict(ck["target"])
-        self.agent.optimizer.load_state_dict(ck["optimizer"])
-        self.agent.updates = ck["updates"]
-        for k, v in ck["state"].items():
-            setattr(self.state, k, v)
-        self.rng.bit_generator.state = ck["rng"]
-        torch.set_rng_state(ck["torch_rng"].cpu())
-        if ck.get("cuda_rng") is not None:
-            torch.cuda.set_rng_state_all([t.cpu() for t in ck["cuda_rng"]])
-        for k in _ENV_STATE:
-            value = ck["env"][k]
-            if isinstance(value, np.ndarray):
-                getattr(self.env, k)[...] = value
-            else:
-                setattr(self.env, k, value)
-        self.env.rng.bit_generator.state = ck["env"]["rng"]
-        self.replay.load(self.checkpoints / "replay.npz")
-        metrics = pd.read_parquet(self.run_dir / "metrics.parquet")
+        """Restore everything from ``checkpoints/last/`` (``InputError`` if it is missing, partial or not data)."""
+        last = self.checkpoints / LAST
+        recover_directory(last)  # a kill between the swap's two renames leaves the previous checkpoint aside
+        if not (last / CHECKPOINT_JSON).is_file():
+            old = " (an old pickled last.pt is not loaded: start a new run)" if (self.checkpoints / "last.pt").exists() else ""
+            raise InputError(last, f"no complete checkpoint to resume from{old}", field=CHECKPOINT_JSON)
+        try:
+            doc = json.loads((last / CHECKPOINT_JSON).read_text(encoding="utf-8"))
+            ck = load_tensors(last / "networks.pt", map_location=self.agent.device)
+            require(ck, last / "networks.pt", "online", "target", "optimizer", "torch_rng")
+            self.agent.online.load_state_dict(ck["online"])
+            self.agent.target.load_state_dict(ck["target"])
+            self.agent.optimizer.load_state_dict(ck["optimizer"])
+            torch.set_rng_state(ck["torch_rng"].cpu())
+            if ck.get("cuda_rng") is not None and self.agent.device.type == "cuda":
+                torch.cuda.set_rng_state_all([t.cpu() for t in ck["cuda_rng"]])
+            with np.load(last / "env.npz", allow_pickle=False) as z:
+                for k in _ENV_ARRAYS:
+                    getattr(self.env, k)[...] = z[k]
+                self.state.last_action, self.state.start_sinr = z["last_action"], z["start_sinr"]
+            self.agent.updates = int(doc["updates"])
+            self.state.step, self.state.synced_at = int(doc["step"]), int(doc["synced_at"])
+            self.state.best_score = tuple(doc["best_score"]) if doc["best_score"] is not None else None
+            self.env._episodes_started = int(doc["episodes_started"])
+            self.rng.bit_generator.state = doc["rng"]
+            self.env.rng.bit_generator.state = doc["env_rng"]
+            self.replay.load(last / "replay.npz")
+            metrics = pd.read_parquet(last / "metrics.parquet")
+            evals = pd.read_parquet(last / "eval.parquet")
+        except InputError:
+            raise
+        except (OSError, ValueError, KeyError, TypeError, RuntimeError) as exc:  # a damaged or foreign checkpoint
+            raise InputError(last, f"cannot resume from this checkpoint ({type(exc).__name__}: {str(exc)[:200]})") from None
         self.state.episodes = metrics.drop(columns=["sinr_gain_mean100_db", "success_mean100"], errors="ignore").to_dict(
             "records"
         )
-        self.state.evals = pd.read_parquet(self.run_dir / "eval.parquet").to_dict("records")
+        self.state.evals = evals.to_dict("records")
 
     # -- evaluation ---------------------------------------------------------------------------------
     def evaluate(self) -> dict:
@@ -189,7 +252,7 @@ class Trainer:
             self.state.best_score = score
             self.checkpoints.mkdir(parents=True, exist_ok=True)
             _atomic_torch_save(
-                {"online": self.agent.online.state_dict(), "config": self.config.model_dump(mode="json"), "eval": row},
+                {"online": self.agent.online.state_dict(), "config": self.config.model_dump(mode="json"), "eval": _plain(row)},
                 self.checkpoints / "best.pt",
             )
             row["best"] = True
@@ -294,13 +357,30 @@ def new_run_dir(runs: str | Path, config: DQNConfig) -> Path:
     return Path(runs) / f"{stamp}-{config.preset}-{config.agent}-s{config.seed}"
 
 
-def load_policy(path: str | Path, epsilon: float = 0.096, seed: int = 0, name: str | None = None) -> tuple[DQNPolicy, DQNConfig]:
-    """A checkpoint (``best.pt`` or ``last.pt``) as a ``Policy``, with the config it was trained with."""
-    ck = torch.load(path, weights_only=False, map_location="cpu")
-    config = DQNConfig.model_validate(ck["config"]) if "config" in ck else None
-    if config is None:
-        raise ValueError(f"{path}: no config in the checkpoint")
+def _plain(row: dict) -> dict:
+    """A row of numbers as plain Python values (what a weights-only checkpoint may hold)."""
+    return {k: (v.item() if isinstance(v, np.generic) else v) for k, v in row.items()}
+
+
+def policy_from_checkpoint(ck: dict, path: str | Path, epsilon: float = 0.096, seed: int = 0) -> tuple[DQNPolicy, DQNConfig]:
+    """The policy a loaded ``best.pt`` (``load_tensors``) holds, with its config; ``InputError`` naming ``path``."""
+    require(ck, path, "online", "config")
+    try:
+        config = DQNConfig.model_validate(ck["config"])
+    except ValidationError as exc:
+        field, message = validation_message(exc)
+        raise InputError(path, f"checkpoint config: {message}", field=field) from None
     env = config.env_config()
     net = make_network(config, env.num_channels, env.window)
-    net.load_state_dict(ck["online"])
-    return DQNPolicy(net, epsilon, seed, name or config.agent), config
+    try:
+        net.load_state_dict(ck["online"])
+    except (RuntimeError, TypeError, AttributeError) as exc:
+        raise InputError(
+            path, f"weights do not fit the network its config describes ({str(exc)[:200]})", field="online"
+        ) from None
+    return DQNPolicy(net, epsilon, seed, config.agent), config
+
+
+def load_policy(path: str | Path, epsilon: float = 0.096, seed: int = 0) -> tuple[DQNPolicy, DQNConfig]:
+    """A ``best.pt`` as a ``Policy``, with the config it was trained with; ``InputError`` for anything but weights."""
+    return policy_from_checkpoint(load_tensors(path), path, epsilon, seed)
