@@ -89,7 +89,10 @@ def read_ingested(city: str, root: str | Path = DEFAULT_ROOT) -> Ingested:
         hashes[files.get(name, name)] = actual
 
     def table(spec) -> pd.DataFrame:
-        return pq.read_table(folder / spec.filename).to_pandas()
+        try:
+            return pq.read_table(folder / spec.filename).to_pandas()
+        except (OSError, ValueError) as exc:
+            raise InputError(folder / spec.filename, f"unreadable ingested table ({str(exc)[:160]})") from None
 
     terrain = None
     if "terrain" in manifest.tables:
@@ -135,13 +138,35 @@ def _receivers_at_altitude(ing: Ingested, config: BuildConfig) -> pd.DataFrame:
 
 
 def _export_spacing(ing: Ingested, rx: pd.DataFrame) -> float | None:
-    """The receiver spacing if every receiver set used is a grid of one spacing, else None."""
+    """The receiver spacing if the receivers used lie on one square lattice, else None.
+
+    From the .txrx when every receiver set used is a grid of one spacing;
+    otherwise (a .p2m published without its .txrx, or point sets) from the
+    positions themselves: one spacing when every x and every y step between
+    neighbouring receiver columns and rows is the same multiple-free value.
+    """
     sets = {s.project_id: s for s in ing.manifest.txrx_sets}
     used = [sets.get(int(i)) for i in np.unique(rx["rx_set_id"])]
     spacings = {s.spacing_m for s in used if s is not None and s.kind == "grid"}
     if len(spacings) == 1 and all(s is not None and s.kind == "grid" for s in used):
         return float(spacings.pop())
-    return None
+    return lattice_spacing(rx["x_m"].to_numpy(), rx["y_m"].to_numpy())
+
+
+def lattice_spacing(x: np.ndarray, y: np.ndarray, tol_m: float = 1e-3) -> float | None:
+    """The spacing d [m] if the points' x and y values are each an arithmetic sequence of step d, else None."""
+
+    def step(v: np.ndarray) -> float | None:
+        u = np.unique(np.round(v / tol_m)) * tol_m
+        if len(u) < 2:
+            return None
+        d = np.diff(u)
+        return float(np.median(d)) if np.abs(d - np.median(d)).max() <= tol_m + 1e-6 * abs(np.median(d)) else None
+
+    dx, dy = step(x), step(y)
+    if dx is None or dy is None or abs(dx - dy) > tol_m:
+        return None
+    return round((dx + dy) / 2, 6)
 
 
 def _grid(ing: Ingested, rx: pd.DataFrame, config: BuildConfig, export_spacing: float | None) -> GridSpec:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,8 +23,9 @@ from pydantic import ValidationError
 
 from dataset.catalog import DEFAULT_ROOT
 from schemas import SCHEMA_VERSION, InputError
+from schemas.base import validation_message
 from schemas.bundle import BUNDLE_FILES, BUNDLE_MANIFEST, MAP_ARRAYS, USERS, BundleManifest
-from schemas.files import sha256_file
+from schemas.files import check_name, sha256_file
 
 #: Name of the per-city file holding the version ``load_bundle`` picks by default.
 LATEST = "latest"
@@ -120,10 +122,13 @@ def read_manifest(folder: Path) -> BundleManifest:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise InputError(path, "no bundle manifest: not a bundle, or a build that did not finish") from None
+    except UnicodeDecodeError:
+        raise InputError(path, "not UTF-8 text: not a bundle manifest") from None
     try:
-        version = json.loads(text).get("schema_version")
-    except ValueError as exc:
+        doc = json.loads(text)
+    except (ValueError, RecursionError) as exc:
         raise InputError(path, f"not JSON: {exc}") from None
+    version = doc.get("schema_version") if isinstance(doc, dict) else None
     if version != SCHEMA_VERSION:
         raise InputError(
             path,
@@ -133,8 +138,8 @@ def read_manifest(folder: Path) -> BundleManifest:
     try:
         return BundleManifest.model_validate_json(text)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        raise InputError(path, err["msg"], field=".".join(map(str, err["loc"]))) from None
+        field, message = validation_message(exc)
+        raise InputError(path, message, field=field) from None
 
 
 def verify_files(folder: Path, manifest: BundleManifest) -> None:
@@ -158,6 +163,9 @@ def resolve(city: str, version: str | None = None, root: str | Path = DEFAULT_RO
     """Folder of a city's bundle: ``version`` or the ``latest`` one. ``city`` may be ``name@version``."""
     if "@" in city and version is None:
         city, version = city.split("@", 1)
+    check_name(city, "city name")
+    if version is not None:
+        check_name(version, "bundle version")
     folder = city_dir(city, root)
     if version is None:
         version = read_latest(city, root)
@@ -184,11 +192,14 @@ def load_bundle(city: str, version: str | None = None, root: str | Path = DEFAUL
     manifest = read_manifest(folder)
     if verify:
         verify_files(folder, manifest)
-    with np.load(folder / "maps.npz", allow_pickle=False) as npz:
-        missing = sorted(set(MAP_ARRAYS) - set(npz.files))
-        if missing:
-            raise InputError(folder / "maps.npz", f"missing arrays {missing}")
-        arrays = {k: npz[k] for k in MAP_ARRAYS}
+    try:
+        with np.load(folder / "maps.npz", allow_pickle=False) as npz:
+            missing = sorted(set(MAP_ARRAYS) - set(npz.files))
+            if missing:
+                raise InputError(folder / "maps.npz", f"missing arrays {missing}")
+            arrays = {k: npz[k] for k in MAP_ARRAYS}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:  # garbage, a pickle, a truncated archive
+        raise InputError(folder / "maps.npz", f"not a readable map archive ({type(exc).__name__}: {str(exc)[:160]})") from None
     ny, nx = manifest.grid.shape
     expected = {"x_m": (nx,), "y_m": (ny,), "height_rel_m": (ny, nx), "blocked": (ny, nx), "building_id": (ny, nx)}
     expected |= {k: (manifest.num_users, ny, nx) for k in ("sinr_db", "dead", "num_rx")}
@@ -198,8 +209,14 @@ def load_bundle(city: str, version: str | None = None, root: str | Path = DEFAUL
             raise InputError(
                 folder / "maps.npz", f"array {a.dtype}{list(a.shape)}, expected {MAP_ARRAYS[name][0]}{list(shape)}", field=name
             )
+        if a.dtype.kind == "f" and not np.isfinite(a).all():
+            bad = np.argwhere(~np.isfinite(a))[0].tolist()
+            raise InputError(folder / "maps.npz", f"value {a[tuple(bad)]} at {bad} is not finite", field=name)
         a.setflags(write=False)
-    users = pq.read_table(folder / USERS.filename).to_pandas()
+    try:
+        users = pq.read_table(folder / USERS.filename).to_pandas()
+    except (OSError, ValueError) as exc:
+        raise InputError(folder / USERS.filename, f"unreadable ({str(exc)[:160]})") from None
     if len(users) != manifest.num_users:
         raise InputError(folder / USERS.filename, f"{len(users)} users, manifest says {manifest.num_users}")
     return Bundle(path=folder, manifest=manifest, users=users, **arrays)

@@ -8,6 +8,7 @@ from pathlib import Path
 from pydantic import ValidationError
 
 from schemas import CityManifest, InputError
+from schemas.base import validation_message
 
 #: Default root of ingested cities and bundles.
 DEFAULT_ROOT = Path("data/processed")
@@ -27,9 +28,11 @@ def read_city_manifest(path: str | Path) -> CityManifest:
         return CityManifest.model_validate_json(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise InputError(path, "no such manifest (run `uavdata ingest` first)") from None
+    except UnicodeDecodeError:
+        raise InputError(path, "not UTF-8 text: not an ingest manifest") from None
     except ValidationError as exc:
-        err = exc.errors()[0]
-        raise InputError(path, err["msg"], field=".".join(map(str, err["loc"]))) from None
+        field, message = validation_message(exc)
+        raise InputError(path, message, field=field) from None
 
 
 def list_cities(root: str | Path = DEFAULT_ROOT) -> list[CityEntry]:

@@ -16,7 +16,6 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from dataset.bundle import list_versions, load_bundle, read_latest
 from dataset.catalog import DEFAULT_ROOT, list_cities
 from schemas import InputError
 from schemas.bundle import BuildConfig
@@ -571,6 +570,8 @@ def simulate(
 @root_option
 def list_(root: Path) -> None:
     """List ingested cities and their bundles (versions, grid, altitude, users, size) under ROOT."""
+    from dataset.bundle import list_versions, read_latest
+
     out = stdout()
     try:
         cities = list_cities(root)
@@ -643,6 +644,7 @@ def list_(root: Path) -> None:
 @root_option
 def show(city: str, version: str | None, user: int, out_path: Path | None, root: Path) -> None:
     """Render a bundle's height map and one user's SINR map to a PNG."""
+    from dataset.bundle import load_bundle
     from dataset.preview import render_bundle
 
     try:

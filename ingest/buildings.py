@@ -78,7 +78,7 @@ def buildings_tables(records: list[BuildingRecord]) -> tuple[pa.Table, pa.Table,
                 source=rec.source,
             )
         except ValidationError as exc:
-            field, message = validation_message(exc)
+            field, message = validation_message(exc, default_field="height")
             raise InputError(rec.source_file, message, line=rec.source_line, field=field) from None
         for key, value in (
             ("building_id", bid),

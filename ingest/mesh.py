@@ -12,7 +12,6 @@ from pathlib import Path
 
 import numpy as np
 import shapely
-import trimesh
 
 from ingest.buildings import MIN_AREA_M2, BuildingRecord, Part
 from schemas import InputError, Rejection
@@ -22,7 +21,7 @@ MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")
 FLAT_M = 0.5
 
 
-def _footprint(body: trimesh.Trimesh) -> shapely.Geometry:
+def _footprint(body) -> shapely.Geometry:  # noqa: ANN001 - a trimesh.Trimesh
     tri = body.triangles[:, :, :2]
     polys = shapely.polygons(tri)
     polys = polys[shapely.area(polys) > MIN_AREA_M2]
@@ -30,6 +29,8 @@ def _footprint(body: trimesh.Trimesh) -> shapely.Geometry:
 
 
 def read_mesh(path: str | Path, display: str | None = None) -> tuple[list[BuildingRecord], list[Rejection]]:
+    import trimesh  # heavy (about 50 MB): only for cities that ship meshes
+
     name = display or str(path)
     try:
         loaded = trimesh.load(str(path), force="mesh", process=True)

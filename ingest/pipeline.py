@@ -15,9 +15,9 @@ from collections import defaultdict
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
@@ -48,6 +48,9 @@ from schemas import (
 )
 from schemas.base import uavplace_version
 from schemas.files import atomic_directory, check_name, sha256_file, write_model_json
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 INGESTED = "ingested"
 MANIFEST = "manifest.json"
@@ -122,6 +125,8 @@ def merge_receiver_files(key: tuple[int, int, int], parts: list[tuple[ReceiverSe
     Raises ``InputError`` if two files give the same quantity, or give the same
     receiver number at different positions.
     """
+    import pandas as pd  # only for receivers given by several outputs (about 50 MB): a single file never needs it
+
     meta0, table0 = parts[0]
     merged = table0.to_pandas(types_mapper={pa.bool_(): pd.BooleanDtype()}.get)
     given = {c: meta0.source for c in meta0.columns}

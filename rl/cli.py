@@ -173,10 +173,9 @@ def train(
         run_dir = runs / check_name(name, "run name") if name else new_run_dir(runs, config)
         if run_dir.exists():
             fail(FileExistsError(f"{run_dir} exists: choose another --name, or continue it with --resume {run_dir}"))
-    try:
-        trainer = Trainer(config, list(datasets), root, run_dir, command=command_line())
-    except (InputError, ValueError) as err:
-        raise click.ClickException(str(err)) from None
+    trainer = Trainer(config, list(datasets), root, run_dir, command=command_line())
+    if resume is not None:
+        trainer.load()  # every check of the checkpoint before the first step
     columns = (TextColumn("[bold]train[/] {task.description}"), BarColumn(), TextColumn("{task.completed:,}/{task.total:,}"),
                TimeElapsedColumn(), TimeRemainingColumn())  # fmt: skip
     with Progress(*columns, console=stdout(), disable=quiet) as bar:

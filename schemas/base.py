@@ -24,8 +24,8 @@ class Contract(BaseModel):
 class InputError(Exception):
     """Bad input: names the file, the line (1-based, when known) and the field.
 
-    ``str(err)`` is one line, ``<file>:<line>: <field>: <message>``, fit for a
-    terminal and for grep.
+    ``str(err)`` is one line, ``<file>:<line>: <field>: <message>`` (the parts
+    that are known), fit for a terminal and for grep.
     """
 
     def __init__(
@@ -43,18 +43,24 @@ class InputError(Exception):
         super().__init__(self.__str__())
 
     def __str__(self) -> str:
-        where = self.path or "<input>"
-        if self.line is not None:
-            where += f":{self.line}"
-        field = f" {self.field}:" if self.field else ""
-        return f"{where}:{field} {self.message}"
+        parts = []
+        if self.path is not None:
+            parts.append(self.path if self.line is None else f"{self.path}:{self.line}")
+        if self.field:
+            parts.append(self.field)
+        return ": ".join([*parts, self.message])
 
 
-def validation_message(exc: ValidationError) -> tuple[str, str]:
-    """(field, message) of a pydantic error's first problem, fit for an ``InputError`` (no URL, no input dump)."""
+def validation_message(exc: ValidationError, default_field: str = "value") -> tuple[str, str]:
+    """(field, message) of a pydantic error's first problem, fit for an ``InputError`` (no URL, no input dump).
+
+    ``default_field`` names a problem that belongs to no one field (a cross-field check).
+    """
     err = exc.errors()[0]
     message = str(err["msg"]).removeprefix("Value error, ")
-    return ".".join(map(str, err["loc"])) or "value", message
+    if err["type"] == "json_invalid":
+        return "json", message
+    return ".".join(map(str, err["loc"])) or default_field, message
 
 
 def uavplace_version() -> str:

@@ -36,13 +36,13 @@ def check_name(name: str, what: str = "name") -> str:
 
     Called before anything is created, so a name such as ``../../x`` or ``/abs/path`` never reaches the file system.
     """
-    if _NAME_RE.match(name) and name not in (".", ".."):
+    if _NAME_RE.fullmatch(name) and name not in (".", ".."):
         return name
     suggestion = re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._-")[:64]
-    hint = f" (e.g. '{suggestion}')" if suggestion and _NAME_RE.match(suggestion) else ""
+    hint = f" (e.g. '{suggestion}')" if suggestion and _NAME_RE.fullmatch(suggestion) else ""
     raise InputError(
         None,
-        f"{what} {name!r} is not a safe name: use 1-64 ASCII letters, digits, '_', '.' or '-', starting with a letter "
+        f"{name!r} is not a safe name: use 1-64 ASCII letters, digits, '_', '.' or '-', starting with a letter "
         f"or digit, and no path separators{hint}",
         field=what,
     )

@@ -219,3 +219,29 @@ def test_short_training_run_learns(tmp_path):
     learned = summarise(run_episodes(maps, policy, held_out))["success"]
     walk = summarise(run_episodes(maps, RandomWalkPolicy(seed=1), held_out))["success"]
     assert learned >= walk + 0.1, (learned, walk)
+
+
+def test_checkpoint_is_one_unit(tmp_path, city_root, monkeypatch):
+    """A run killed while writing a checkpoint resumes from the last whole one, and loses no metrics row."""
+    straight = Trainer(_tiny_config(), ["tiny"], city_root, tmp_path / "a")
+    straight.run()
+    Trainer(_tiny_config(), ["tiny"], city_root, tmp_path / "b").run(stop_at=96)
+
+    def killed(self, path):
+        raise KeyboardInterrupt("killed while writing the replay")
+
+    monkeypatch.setattr(ReplayBuffer, "save", killed)
+    with pytest.raises(KeyboardInterrupt):
+        Trainer(_tiny_config(), ["tiny"], city_root, tmp_path / "b").run(resume=True, stop_at=200)
+    monkeypatch.undo()
+    last = tmp_path / "b" / "checkpoints" / "last"
+    assert json.loads((last / "checkpoint.json").read_text())["step"] == 96
+    assert sorted(p.name for p in last.parent.iterdir()) == [".last.lock", "best.pt", "last"]
+    (tmp_path / "b" / "metrics.parquet").unlink()  # as if killed before the metrics were published
+    resumed = Trainer(_tiny_config(), ["tiny"], city_root, tmp_path / "b")
+    resumed.run(resume=True)
+    pd.testing.assert_frame_equal(
+        pd.read_parquet(tmp_path / "a" / "metrics.parquet"), pd.read_parquet(tmp_path / "b" / "metrics.parquet")
+    )
+    for a, b in zip(straight.agent.online.state_dict().values(), resumed.agent.online.state_dict().values(), strict=True):
+        torch.testing.assert_close(a, b)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -367,3 +368,19 @@ def test_cli_build_list_show(tmp_path):
     assert res.exit_code == 2 and "heights present: 10 m (60 rx)" in res.output
     res = run(uavdata, ["build", "--root", str(root), "--grid", "four"])
     assert res.exit_code == 2 and "is not a length in metres" in res.output
+
+
+def test_p2m_without_txrx_puts_one_cell_on_each_receiver(tmp_path, deepmimo):
+    """Public datasets often publish the .p2m alone: the lattice is found from the receiver positions."""
+    root = tmp_path / "p"
+    ingest(deepmimo, root, "dm")
+    power = pq.read_table(root / "dm" / "ingested" / "transmitters.parquet").column("power_dbm").to_pylist()[0]
+    bare = tmp_path / "bare"
+    shutil.copytree(deepmimo, bare, ignore=shutil.ignore_patterns("*.txrx"))
+    ingest(bare, root, "bare")
+    with_txrx = load_bundle(build_city("dm", cfg(grid_m=2.5, altitude_m=2.0), root).path)
+    without = load_bundle(build_city("bare", cfg(grid_m=2.5, altitude_m=2.0, tx_dbm=power), root).path)
+    assert without.shape == with_txrx.shape == (57, 81)
+    assert without.dead.sum() == with_txrx.dead.sum() == 4160
+    assert without.num_rx.max() == 1 and without.manifest.sinr.export_spacing_m == pytest.approx(2.5)
+    np.testing.assert_allclose(without.sinr_db, with_txrx.sinr_db, atol=1e-4)

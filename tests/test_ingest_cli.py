@@ -213,3 +213,40 @@ def test_list_schema_and_help(tmp_path, rosslyn):
         res = run(*cmd)
         assert res.exit_code == 0 and "Usage:" in res.output
     assert "--out" in run("ingest", "--help").output
+
+
+def _ingest_peak_mb(city, out) -> float:
+    """Peak RSS [MB] a child process gains running the real ingest, above its own imports."""
+    import subprocess
+    import sys
+
+    from tests.conftest import REPO
+
+    code = (
+        "import sys\n"
+        "def hwm(): return int(next(l for l in open('/proc/self/status') if l.startswith('VmHWM')).split()[1]) / 1024\n"
+        "import dataset.cli, ingest.pipeline\n"
+        "base = hwm()\n"
+        "ingest.pipeline.ingest_city(sys.argv[1], sys.argv[2])\n"
+        "print(hwm() - base)\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code, str(city), str(out)], cwd=REPO, capture_output=True, text=True, check=True)
+    return float(proc.stdout.split()[-1])
+
+
+def test_ingest_memory_stays_flat(tmp_path):
+    """A .p2m ten times larger costs the ingest little more memory: it is read and written in batches."""
+    import numpy as np
+
+    from simulate.insite import write_p2m
+
+    peaks = {}
+    for rows in (100_000, 1_000_000):
+        city = tmp_path / f"c{rows}"
+        city.mkdir()
+        i = np.arange(rows)
+        pos = np.column_stack([(i % 1000) * 4.0, (i // 1000) * 4.0, np.full(rows, 10.0)])
+        write_p2m(city, "big", "power", tx_point=1, tx_set=(1, "U"), rx_set=(2, "R"), positions_m=pos,
+                  distance_m=np.hypot(pos[:, 0], pos[:, 1]) + 1, values=-60 - (i % 50) * 1.0)  # fmt: skip
+        peaks[rows] = _ingest_peak_mb(city, tmp_path / "proc")
+    assert peaks[1_000_000] < peaks[100_000] + 80, peaks  # reading whole cost about 230 MB per million rows

@@ -6,6 +6,7 @@ import gzip
 import shutil
 
 import numpy as np
+import pyarrow as pa
 import pytest
 
 from ingest.wireless_insite.p2m import parse_filename, read_p2m
@@ -169,3 +170,37 @@ def test_header_only_is_truncated(tmp_path, deepmimo):
     dst.write_text("".join((deepmimo / "insite.pl.t001_01.r001.p2m").read_text().splitlines(True)[:3]))
     with pytest.raises(InputError, match="no receiver rows"):
         read_p2m(dst)
+
+
+@pytest.mark.parametrize("encoding", ["utf-8-sig", "utf-16", "cr"])
+def test_encodings_are_detected(tmp_path, deepmimo, encoding):
+    """A byte-order mark (UTF-8 or UTF-16) or old Mac line ends read exactly like the plain file."""
+    src = deepmimo / "insite.pl.t001_01.r004.p2m"
+    text = src.read_text()
+    dst = tmp_path / src.name
+    if encoding == "cr":
+        dst.write_bytes(text.replace("\n", "\r").encode())
+    else:
+        dst.write_bytes(text.encode(encoding))
+    _, ref = read_p2m(src)
+    meta, t = read_p2m(dst)
+    assert t.equals(ref) and meta.num_rows == 81 * 57
+
+
+def test_batches_stream_and_errors_still_name_their_line(tmp_path, deepmimo):
+    """Small batches give the same table; a duplicate across batches, or a bad row after the fallback, names its line."""
+    from ingest.wireless_insite.p2m import P2MStream
+
+    src = deepmimo / "insite.pl.t001_01.r004.p2m"
+    _, ref = read_p2m(src)
+    stream = P2MStream(src, batch_bytes=4096)
+    tables = list(stream)
+    assert len(tables) > 10 and pa.concat_tables(tables).equals(ref) and stream.meta.num_rows == ref.num_rows
+    lines = src.read_text().splitlines()
+    padded = lines[:3] + ["\t".join(line.split()) if i == 3000 else line for i, line in enumerate(lines[3:])]
+    (tmp_path / src.name).write_text("\n".join(padded) + "\n")  # irregular spacing far into the file
+    assert pa.concat_tables(list(P2MStream(tmp_path / src.name, batch_bytes=4096))).equals(ref)
+    lines[4000] = lines[10].replace(lines[10].split()[0], lines[3].split()[0], 1)  # receiver 1 again, 2 batches on
+    (tmp_path / src.name).write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match=r":4001: rx_index: duplicate receiver number 1 \(first at line 4\)"):
+        list(P2MStream(tmp_path / src.name, batch_bytes=4096))

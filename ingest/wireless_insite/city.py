@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import shapely
 
-from ingest.buildings import MIN_AREA_M2, BuildingRecord, Part
+from ingest.buildings import BuildingRecord, Part
 from ingest.wireless_insite.keyword import N_VERTICES, Block, parse_keyword_file
 from schemas import InputError
 
@@ -33,12 +33,19 @@ def _faces(block: Block) -> list[tuple[int, np.ndarray]]:
     return faces
 
 
+def _is_vertical(face: np.ndarray) -> bool:
+    """True for a face whose vertices, seen from above, lie on one line (a wall): no area in any ordering."""
+    xy = face[:, :2] - face[:, :2].mean(axis=0)
+    s = np.linalg.svd(xy, compute_uv=False)
+    return bool(s[-1] <= 1e-6 * max(s[0], 1.0))
+
+
 def _part(path: str, faces: list[tuple[int, np.ndarray]]) -> Part:
     flat = []
     for line, f in faces:
-        poly = shapely.Polygon(f[:, :2])
-        if poly.area <= MIN_AREA_M2:
+        if _is_vertical(f):
             continue  # a wall, seen from above
+        poly = shapely.Polygon(f[:, :2])
         if not poly.is_valid:  # a roof or floor that crosses itself: the same polygon in GeoJSON is refused too
             raise InputError(
                 path, f"face is not a simple polygon seen from above ({shapely.is_valid_reason(poly)})", line=line, field="face"

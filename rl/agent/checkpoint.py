@@ -23,13 +23,15 @@ Formats:
 from __future__ import annotations
 
 import pickle
-import zipfile
+import re
 from pathlib import Path
 
 import torch
 
 from schemas import InputError
 
+#: The reason inside ``torch.load(weights_only=True)``'s refusal ("Unsupported global: GLOBAL os.system ...").
+_UNPICKLER_ERROR = re.compile(r"WeightsUnpickler error:\s*(\S[^\n]*)")
 #: The resumable checkpoint folder's marker, written last.
 CHECKPOINT_JSON = "checkpoint.json"
 
@@ -50,16 +52,19 @@ def load_tensors(path: str | Path, map_location: str | torch.device = "cpu") -> 
     try:
         obj = torch.load(path, weights_only=True, map_location=map_location)
     except pickle.UnpicklingError as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        found = _UNPICKLER_ERROR.search(str(exc))
+        reason = found.group(1).strip() if found else (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        if "Unsupported global" not in reason:  # not a pickle of objects at all: the bytes of something else
+            raise InputError(path, f"not a readable PyTorch checkpoint ({reason[:160]})") from None
         raise InputError(
             path,
             "refused: the checkpoint holds Python objects other than tensors and plain data, which could run code "
-            f"when loaded; uavplace loads weights only ({first[:160]})",
+            f"when loaded; uavplace loads weights only ({reason.split('. Please')[0][:160]}); nothing of it was run",
             field="pickle",
         ) from None
     except FileNotFoundError:
         raise InputError(path, "no such checkpoint") from None
-    except (RuntimeError, EOFError, OSError, ValueError, zipfile.BadZipFile, KeyError) as exc:
+    except Exception as exc:  # torch raises many types on bytes that are not a checkpoint
         raise InputError(path, f"not a readable PyTorch checkpoint ({type(exc).__name__}: {str(exc)[:160]})") from None
     if not isinstance(obj, dict):
         raise InputError(path, f"a checkpoint holds a dict, this one a {type(obj).__name__}")

@@ -144,6 +144,7 @@ class Trainer:
         self.rng = np.random.default_rng([config.seed, 1])
         self.state = RunState()
         self.command = command
+        self.loaded = False  # True once ``load()`` restored a checkpoint
 
     # -- run folder ---------------------------------------------------------------------------------
     @property
@@ -189,6 +190,7 @@ class Trainer:
                 "updates": self.agent.updates,
                 "best_score": list(s.best_score) if s.best_score is not None else None,
                 "synced_at": s.synced_at,
+                "losses": [float(x) for x in s.losses],
                 "episodes_started": self.env._episodes_started,
                 "rng": self.rng.bit_generator.state,
                 "env_rng": self.env.rng.bit_generator.state,
@@ -220,6 +222,7 @@ class Trainer:
                 self.state.last_action, self.state.start_sinr = z["last_action"], z["start_sinr"]
             self.agent.updates = int(doc["updates"])
             self.state.step, self.state.synced_at = int(doc["step"]), int(doc["synced_at"])
+            self.state.losses = [float(x) for x in doc["losses"]]
             self.state.best_score = tuple(doc["best_score"]) if doc["best_score"] is not None else None
             self.env._episodes_started = int(doc["episodes_started"])
             self.rng.bit_generator.state = doc["rng"]
@@ -235,6 +238,7 @@ class Trainer:
             "records"
         )
         self.state.evals = evals.to_dict("records")
+        self.loaded = True
 
     # -- evaluation ---------------------------------------------------------------------------------
     def evaluate(self) -> dict:
@@ -270,7 +274,8 @@ class Trainer:
         cfg, env, s = self.config, self.env, self.state
         n = cfg.num_envs
         if resume:
-            self.load()
+            if not self.loaded:
+                self.load()
             obs, mask = env.observe(), env.action_mask()
         else:
             self.write_run_json()

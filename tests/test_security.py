@@ -1,0 +1,131 @@
+"""Trust model: data files never run code, names never leave the project, outputs never replace what uavplace did not make."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+from click.testing import CliRunner
+
+from dataset.cli import main as uavdata
+from eval.cli import main as uavrl
+from eval.report import ReportConfig, make_report
+from schemas import InputError
+from tests.bad_inputs.workspace import Workspace
+from tests.conftest import REPO, write_grid_city
+from tests.test_bad_inputs import shared  # noqa: F401 - the module-scoped fixture of built data
+
+
+def invoke(cli, *args: str):
+    return CliRunner().invoke(cli, list(args), catch_exceptions=False)
+
+
+def snapshot(folder):
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_checkpoint_payloads_never_run(tmp_path, shared):  # noqa: F811
+    """A best.pt or a resumable checkpoint carrying a pickle payload is refused and its code never runs."""
+    w = Workspace(tmp_path, shared)
+    agent = w.agent()
+    w.payload(agent / "checkpoints" / "best.pt")
+    res = invoke(uavrl, *w.report("--run", str(agent)))
+    assert res.exit_code == 2 and "refused" in res.output and "GLOBAL io.open" in res.output
+    for run in (w.run_folder(payload=True),):
+        res = invoke(uavrl, "train", "--resume", str(run), "--root", str(w.root()))
+        assert res.exit_code == 2 and "refused" in res.output
+    old = Workspace(tmp_path / "old", shared).run_folder(old_last=True)  # the pre-0.2 format: a pickled last.pt
+    res = invoke(uavrl, "train", "--resume", str(old), "--root", str(w.root()))
+    assert res.exit_code == 2 and "old pickled last.pt is not loaded" in res.output
+    assert not list(tmp_path.rglob("PWNED"))
+
+
+def test_names_never_leave_their_folder(tmp_path):
+    victim = tmp_path / "victim"
+    victim.mkdir()
+    (victim / "thesis.tex").write_text("years of work")
+    before = snapshot(tmp_path)
+    city = write_grid_city(tmp_path / "work" / "raw" / "city")
+    out = tmp_path / "work" / "proc"
+    for name in ("../../evil", "../victim", str(victim), "a/b", "..", "x" * 65, "city\n"):
+        res = invoke(uavdata, "ingest", str(city), "--out", str(out), "--name", name, "--quiet")
+        assert res.exit_code == 2 and "is not a safe name" in res.output, name
+        res = invoke(uavdata, "simulate", "procedural:tiny", "--name", name, "--out", str(tmp_path / "work" / "raw"))
+        assert res.exit_code == 2 and "is not a safe name" in res.output, name
+        res = invoke(
+            uavrl, "train", "--dataset", "city", "--root", str(out), "--out", str(tmp_path / "work" / "runs"), "--name", name
+        )
+        assert res.exit_code == 2 and "is not a safe name" in res.output, name
+    assert not out.exists() and not (tmp_path / "work" / "runs").exists() and not (tmp_path / "evil").exists()
+    after = snapshot(tmp_path)
+    assert {k: v for k, v in after.items() if not k.startswith("work/")} == before
+
+
+def test_outputs_replace_only_what_uavplace_made(tmp_path, shared):  # noqa: F811
+    """`report --out` and `simulate --name` refuse a folder without their marker; the folder stays byte for byte."""
+    w = Workspace(tmp_path, shared)
+    data = tmp_path / "data"  # `--out data` must not wipe the raw data and the agents
+    (data / "raw" / "city").mkdir(parents=True)
+    (data / "raw" / "city" / "city.txrx").write_text("begin_<points> x\n")
+    (data / "agents").mkdir()
+    (data / "agents" / "notes.md").write_text("ours")
+    thesis = tmp_path / "thesis"
+    thesis.mkdir()
+    (thesis / "thesis.tex").write_text("\\documentclass{article}")
+    before = snapshot(tmp_path)
+    for out in (data, thesis):
+        res = invoke(uavrl, *w.report("--run", str(w.agent()), "--out", str(out)))
+        assert res.exit_code == 2 and "is not a report made by uavplace" in res.output
+    res = invoke(uavdata, "simulate", "procedural:tiny", "--name", "city", "--out", str(data / "raw"))
+    assert res.exit_code == 2 and "is not a simulated city made by uavplace" in res.output
+    after = snapshot(tmp_path)
+    assert {k: after[k] for k in before} == before
+    # a report folder is replaced by the next report
+    res = invoke(uavrl, *w.report("--run", str(w.agent()), "--out", str(tmp_path / "rep")))
+    assert res.exit_code == 0, res.output
+    res = invoke(uavrl, *w.report("--run", str(w.agent()), "--out", str(tmp_path / "rep")))
+    assert res.exit_code == 0 and (tmp_path / "rep" / "report.json").is_file()
+
+
+def test_symlinks_out_of_the_city_are_not_read(tmp_path):
+    secret = tmp_path / "elsewhere" / "secret.txt"
+    secret.parent.mkdir()
+    secret.write_text("not a p2m: reading it would fail\n")
+    city = write_grid_city(tmp_path / "city")
+    (city / "city.pl.t003_01.r002.p2m").symlink_to(secret)
+    (city / "inside.txt").symlink_to(city / "city.setup")  # a link within the folder is fine
+    res = invoke(uavdata, "ingest", str(city), "--out", str(tmp_path / "proc"))
+    assert res.exit_code == 0, res.output
+    assert "city.pl.t003_01.r002.p2m: symbolic link to" in res.output and "outside the city folder: not read" in res.output
+
+
+def test_concurrent_ingests_of_one_city_take_turns(tmp_path):
+    """Two `uavdata ingest` of the same city at once: both succeed (a per-folder lock), neither deletes the other's work."""
+    city = write_grid_city(tmp_path / "city", nx=150, ny=120, n_tx=8, spacing=2.0, outputs=("pl", "power"))
+    env = os.environ | {"PYTHONPATH": str(REPO)}
+    cmd = [sys.executable, "-m", "dataset.cli", "ingest", str(city), "--out", str(tmp_path / "proc"), "--quiet"]
+    procs = [subprocess.Popen(cmd, env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT) for _ in range(3)]
+    outputs = [p.communicate(timeout=120)[0].decode() for p in procs]
+    assert [p.returncode for p in procs] == [0, 0, 0], outputs
+    leftovers = sorted(p.name for p in (tmp_path / "proc" / "city").iterdir())
+    assert leftovers == [".ingested.lock", "ingested"]
+
+
+def test_report_checks_everything_before_the_first_episode(tmp_path, shared):  # noqa: F811
+    w = Workspace(tmp_path, shared)
+    played = []
+
+    def on_progress(method, done, total):
+        played.append(method)
+
+    bad = ReportConfig(dataset="city", runs=[str(w.agent(trained_on="city"))], episodes=5)
+    with pytest.raises(InputError, match="the test city"):
+        make_report(bad, tmp_path / "r", root=w.root(), on_progress=on_progress)
+    assert played == []
+    # a training bundle that is not built here costs the upper bound only
+    ok = ReportConfig(dataset="city", runs=[str(Workspace(tmp_path / "b", shared).agent(trained_on="elsewhere"))], episodes=5)
+    report = make_report(ok, tmp_path / "r", root=w.root(), on_progress=on_progress)
+    assert played and (report.out / "report.json").is_file()
+    assert "elsewhere@0123456789ab" in (report.out / "report.json").read_text()
