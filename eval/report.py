@@ -403,7 +403,7 @@ def make_report(
     for a in agents:  # same agent and preset twice: tell them apart by folder
         if names.count(a.name) > 1:
             a.name = a.policy.name = f"{a.name} [{a.folder.name}]"
-    bounds, missing = training_bounds(agents, root, config.p_t_db)
+    bounds, bound_notes = training_bounds(agents, root, config.p_t_db)
 
     results = evaluate(config, bundle, agents, on_progress)
     table = results_table(results, config)
@@ -426,7 +426,7 @@ def make_report(
             "test_bundle": bundle.version,
             "test_bundle_config": json.loads(bundle.manifest.config.model_dump_json()),
             "upper_bounds_db": bounds,
-            "upper_bounds_missing": missing,
+            "upper_bounds_notes": bound_notes,
             "trajectories": {"agent": shown, "episodes": picked},
             "agents": {
                 a.name: {
@@ -446,24 +446,31 @@ def make_report(
 
 
 def training_bounds(agents: list[Agent], root: str | Path, p_t_db: float) -> tuple[dict[str, float], dict[str, str]]:
-    """The upper bound of each distinct training set (``city@version, ...`` -> dB), and why some are missing.
+    """The upper bound of each distinct training set (``city@version, ...`` -> dB), and notes on where it came from.
 
-    A training bundle that is not built here (or fails its checks) only costs
-    its bound: the curves come from the run's ``metrics.parquet``.
+    The run's exact bundles when they are built here; else the latest bundle
+    of each of its cities (a rebuild of the same raw data with the same
+    options gives the same maps under a new version), noted; else no bound,
+    noted. A missing training bundle never stops a report: the curves come
+    from the run's ``metrics.parquet``.
     """
     bounds: dict[str, float] = {}
-    missing: dict[str, str] = {}
+    notes: dict[str, str] = {}
     for a in agents:
         key = ", ".join(f"{c}@{v}" for c, v in a.trained_on.items())
-        if not key or key in bounds or key in missing:
+        if not key or key in bounds or key in notes:
             continue
         try:
             bundles = [load_bundle(c, v, root=root) for c, v in a.trained_on.items()]
         except InputError as err:
-            missing[key] = str(err)
-            continue
+            try:
+                bundles = [load_bundle(c, root=root) for c in a.trained_on]
+            except InputError:
+                notes[key] = f"no bound: {err}"
+                continue
+            notes[key] = "computed on " + ", ".join(f"{b.city}@{b.version}" for b in bundles) + f" (latest; {err})"
         bounds[key] = upper_bound_db(bundles, a.run.train_split if a.run else None, p_t_db)
-    return bounds, missing
+    return bounds, notes
 
 
 def _plain(df: pd.DataFrame) -> pd.DataFrame:
