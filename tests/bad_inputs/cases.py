@@ -64,6 +64,12 @@ def _two_setups(w: Workspace) -> list[str]:
     return w.ingest(city)
 
 
+def _garbage_manifest(w: Workspace):  # noqa: ANN202 - a Path
+    root = w.root()
+    (root / "city" / "ingested" / "manifest.json").write_bytes(b"\xff\xfe\x00 not a manifest")
+    return root
+
+
 def _quantity_twice(w: Workspace) -> list[str]:
     city = w.city()
     (city / "other.pl.t001_01.r002.p2m").write_text((city / PL1).read_text())
@@ -636,6 +642,19 @@ CASES: list[Case] = [
         ],
         "manifest.json: not UTF-8 text",
     ),
+    Case(
+        "list with a garbage ingest manifest",
+        "uavdata",
+        lambda w: ["list", "--root", str(_garbage_manifest(w))],
+        "manifest.json: not UTF-8 text",
+    ),
+    Case(
+        "datasets with a garbage ingest manifest",
+        "uavrl",
+        lambda w: ["datasets", "--root", str(_garbage_manifest(w))],
+        "manifest.json: not UTF-8 text",
+    ),
+    Case("schema of an unknown contract", "uavdata", lambda w: ["schema", "nosuch"], "'nosuch' is not one of 'build_config'"),
     # -- show and bundles --------------------------------------------------------------------------
     Case(
         "show unknown city",
