@@ -102,7 +102,7 @@ def test_symlinks_out_of_the_city_are_not_read(tmp_path):
 
 
 def test_concurrent_ingests_of_one_city_take_turns(tmp_path):
-    """Two `uavdata ingest` of the same city at once: both succeed (a per-folder lock), neither deletes the other's work."""
+    """Three `uavdata ingest`, then three `uavdata build`, of one city at once: all succeed (a per-folder lock)."""
     city = write_grid_city(tmp_path / "city", nx=150, ny=120, n_tx=8, spacing=2.0, outputs=("pl", "power"))
     env = os.environ | {"PYTHONPATH": str(REPO)}
     cmd = [sys.executable, "-m", "dataset.cli", "ingest", str(city), "--out", str(tmp_path / "proc"), "--quiet"]
@@ -111,6 +111,11 @@ def test_concurrent_ingests_of_one_city_take_turns(tmp_path):
     assert [p.returncode for p in procs] == [0, 0, 0], outputs
     leftovers = sorted(p.name for p in (tmp_path / "proc" / "city").iterdir())
     assert leftovers == [".ingested.lock", "ingested"]
+    build = [sys.executable, "-m", "dataset.cli", "build", "--root", str(tmp_path / "proc"), "--quiet", "--force"]
+    procs = [subprocess.Popen(build, env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT) for _ in range(3)]
+    outputs = [p.communicate(timeout=120)[0].decode() for p in procs]
+    assert [p.returncode for p in procs] == [0, 0, 0], outputs
+    assert not [p.name for p in (tmp_path / "proc" / "city").iterdir() if ".tmp-" in p.name or p.name.endswith(".old")]
 
 
 def test_report_checks_everything_before_the_first_episode(tmp_path, shared):  # noqa: F811
