@@ -15,6 +15,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
+from rich.text import Text
 
 from dataset.catalog import DEFAULT_ROOT, list_cities
 from schemas import InputError
@@ -84,14 +85,25 @@ class UavGroup(click.Group):
         sys.exit(rv if isinstance(rv, int) else 0)
 
 
+def plain_table(*headers: str, **kwargs) -> Table:  # noqa: ANN003 - rich.table.Table's options
+    """A rich table whose headers are text, not markup: units such as ``[m]`` stay visible."""
+    table = Table(**kwargs)
+    for header in headers:
+        table.add_column(Text(header))
+    return table
+
+
 @click.group(cls=UavGroup, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.version_option(package_name="uavplace", prog_name="uavdata")
 def main() -> None:
     """uavplace data pipeline: raw ray-tracer exports -> validated tables -> map bundles.
 
     \b
     Typical use on a new city:
       uavdata ingest data/raw/cityA/
-      uavdata build --grid 4m --alt 10
+      uavdata build --grid 4m --alt 10 --noise-dbm -68
+    (-68 dBm of noise plus interference is the level the embedded cities and
+    the shipped agents are calibrated at; see the README.)
     """
 
 
@@ -148,9 +160,9 @@ def _ingest_one(folder: Path, out_root: Path, name: str | None, quiet: bool) -> 
         return
     out = stdout()
     if not quiet:
-        table = Table("file", "kind", "status", "rows", "rejected", "note", title=f"{manifest.name}: files")
-        for f in report.files:
-            table.add_row(f.path, f.kind, f.status, str(f.rows_read), str(f.rows_rejected), f.message or "")
+        table = plain_table("file", "kind", "status", "rows", "rejected", "note", title=f"{manifest.name}: files")
+        for f in report.files:  # file names and notes are the user's text, not markup
+            table.add_row(*map(Text, (f.path, f.kind, f.status, str(f.rows_read), str(f.rows_rejected), f.message or "")))
         out.print(table)
         for w in report.warnings:
             console.print(f"[yellow]warning:[/] {w}", highlight=False, soft_wrap=True)
@@ -581,8 +593,10 @@ def list_(root: Path) -> None:
     if not cities:
         out.print(f"no ingested city under {root} (run `uavdata ingest data/raw/<city>/`)")
         return
-    table = Table("city", "users", "receiver rows", "reached", "buildings", "frequency [MHz]", "ingested (UTC)", title="ingested")
-    bundles = Table(
+    table = plain_table(
+        "city", "users", "receiver rows", "reached", "buildings", "frequency [MHz]", "ingested (UTC)", title="ingested"
+    )
+    bundles = plain_table(
         "city",
         "version",
         "grid [m]",

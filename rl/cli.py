@@ -9,12 +9,13 @@ from rich.table import Table
 
 from dataset.bundle import list_versions, read_latest
 from dataset.catalog import list_cities
-from dataset.cli import UavGroup, fail, root_option, stdout
+from dataset.cli import UavGroup, fail, plain_table, root_option, stdout
 from rl.rollout import summarise
 from schemas import InputError
 
 
 @click.group(cls=UavGroup, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.version_option(package_name="uavplace", prog_name="uavrl")
 def main() -> None:
     """UAV placement agents: the datasets they can use, training and reports."""
 
@@ -28,7 +29,7 @@ def datasets(root: Path) -> None:
         cities = list_cities(root)
     except InputError as err:
         raise click.ClickException(str(err)) from None
-    table = Table("dataset", "version", "grid [m]", "alt [m]", "cells", "users", "role", "train / val / test users")
+    table = plain_table("dataset", "version", "grid [m]", "alt [m]", "cells", "users", "role", "train / val / test users")
     unbuilt = []
     for c in cities:
         latest = read_latest(c.name, root)

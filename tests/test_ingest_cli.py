@@ -250,3 +250,18 @@ def test_ingest_memory_stays_flat(tmp_path):
                   distance_m=np.hypot(pos[:, 0], pos[:, 1]) + 1, values=-60 - (i % 50) * 1.0)  # fmt: skip
         peaks[rows] = _ingest_peak_mb(city, tmp_path / "proc")
     assert peaks[1_000_000] < peaks[100_000] + 80, peaks  # reading whole cost about 230 MB per million rows
+
+
+def test_versions_units_and_bracketed_names_are_shown(tmp_path):
+    from importlib.metadata import version
+
+    for cli, name in ((uavdata, "uavdata"), (uavrl, "uavrl")):
+        res = CliRunner().invoke(cli, ["--version"])
+        assert res.exit_code == 0 and res.output.strip() == f"{name}, version {version('uavplace')}"
+    assert "--noise-dbm -68" in run("--help").output
+    city = write_grid_city(tmp_path / "city")
+    (city / "notes [draft].txt").write_text("x")
+    res = run("ingest", str(city), "--out", str(tmp_path / "proc"))
+    assert res.exit_code == 0 and "notes [draft].txt" in res.output
+    res = run("list", "--root", str(tmp_path / "proc"))
+    assert "frequency [MHz]" in res.output
