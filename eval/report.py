@@ -41,7 +41,7 @@ from schemas import InputError
 from schemas.base import Contract, uavplace_version
 from schemas.files import atomic_directory, check_replaceable
 
-#: The paper's test-city results (method.md, "Headline results"): success within t_max = 500, median steps.
+#: The paper's test-city results (docs/method.md, "The paper's results"): success within t_max = 500, median steps.
 PAPER = {
     "dqn": {"label": "proposed (topology + SINR)", "success": 0.90, "median_steps": 44.0},
     "blind": {"label": "blind (SINR only)", "success": 0.66, "median_steps": 69.0},

@@ -117,7 +117,7 @@ def baselines(
     type=click.Choice(["paper", "fast", "best"]),
     default="paper",
     show_default=True,
-    help="Hyperparameters: paper (method.md, ~7 M steps), fast (minutes, for checks), best (ours, 1 M steps).",
+    help="Hyperparameters: paper (docs/method.md, ~7 M steps), fast (minutes, for checks), best (ours, 1 M steps).",
 )
 @click.option("--steps", type=click.IntRange(min=1), default=None, help="Environment steps (default: the preset's).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the whole run.")

@@ -12,7 +12,7 @@ Split = Literal["train", "val", "test"]
 
 
 class EnvConfig(Contract):
-    """Everything that defines the UAV placement problem (method.md: Problem, Observation, Reward)."""
+    """Everything that defines the UAV placement problem (docs/method.md: Problem, Observation, Reward)."""
 
     p_t_db: float = Field(default=5.0, description="SINR target P_T: the episode ends (terminated) when reached [dB]")
     t_max: int = Field(

@@ -2,7 +2,7 @@
 
 ## Description
 A UAV at a fixed altitude moves on the bundle's grid to find a cell where the
-SINR of a ground user, at an unknown position, reaches P_T (method.md).
+SINR of a ground user, at an unknown position, reaches P_T (docs/method.md).
 
 ## Observation space
 ``Box(-150, 100, (C, window, window), float32)`` centred on the UAV: channel 0

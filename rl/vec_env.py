@@ -5,7 +5,7 @@ blind: the SINR memory only), float32, or uint8 with ``compact=True``
 (``encode_obs``: 1 dB / 1 m per step, offset 150; two 61 x 61 uint8 channels are
 7.4 kB, so 5e5 transitions that store each observation once take 3.5 GiB).
 
-Step semantics (method.md): a legal action moves the UAV one cell; an illegal
+Step semantics (docs/method.md): a legal action moves the UAV one cell; an illegal
 one (into a blocked cell or off the map, never taken by a masked policy)
 leaves it in place. Reward ``SINR_{t+1} - SINR_t + c_E * [new cell never
 visited]``. ``terminated`` when ``SINR >= P_T``; ``truncated`` when ``t_max``

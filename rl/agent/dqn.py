@@ -81,7 +81,7 @@ class DQNConfig(Contract):
 
 
 PRESETS: dict[str, dict] = {
-    # The paper's agent (method.md): batch 20, an update per 3 env steps, 5e5 replay, gamma 0.99,
+    # The paper's agent (docs/method.md): batch 20, an update per 3 env steps, 5e5 replay, gamma 0.99,
     # epsilon 1 -> 0 over the run, t_max 800 in training, about 7 M steps.
     "paper": {},
     # Minutes on a CPU: for tests, CI and smoke runs.
