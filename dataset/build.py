@@ -56,6 +56,7 @@ class BuildResult:
     path: Path
     manifest: BundleManifest
     built: bool  # False: an identical bundle existed (nothing was written)
+    previous_latest: str | None = None  # the version ``latest`` named before, when this build moved it
 
 
 @dataclass(frozen=True)
@@ -464,9 +465,10 @@ def build_city(
         except InputError:
             bundle = None  # damaged: rebuild it below
         if bundle is not None:
-            if read_latest(city, root) != version:
+            before = read_latest(city, root)
+            if before != version:
                 write_latest(city, version, root)
-            return BuildResult(city, final, bundle.manifest, built=False)
+            return BuildResult(city, final, bundle.manifest, built=False, previous_latest=_moved(before, version))
 
     stage("rasterise")
     grid, arrays, users, info, counts, warnings = rasterise(ing, config)
@@ -494,5 +496,10 @@ def build_city(
             warnings=tuple(warnings),
         )
         write_model_json(manifest, tmp / BUNDLE_MANIFEST)
+    before = read_latest(city, root)
     write_latest(city, version, root)
-    return BuildResult(city, final, manifest, built=True)
+    return BuildResult(city, final, manifest, built=True, previous_latest=_moved(before, version))
+
+
+def _moved(before: str | None, now: str) -> str | None:
+    return before if before is not None and before != now else None

@@ -416,6 +416,13 @@ def build(
             soft_wrap=True,
         )
         out.print(f"  difficulty: {format_difficulty(m.difficulty)}", highlight=False, soft_wrap=True)
+        if result.previous_latest is not None:
+            out.print(
+                f"  latest: {name} now means {name}@{m.version} (it was {name}@{result.previous_latest}); "
+                f"to keep using the other, name it: --dataset {name}@{result.previous_latest}",
+                highlight=False,
+                soft_wrap=True,
+            )
     if errors:
         sys.exit(2)
 

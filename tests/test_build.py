@@ -364,6 +364,9 @@ def test_cli_build_list_show(tmp_path):
     res = run(uavdata, ["show", "city", "--root", str(root), "--user", "1", "--out", str(png)])
     assert res.exit_code == 0, res.output
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    first = read_latest("city", root)
+    res = run(uavdata, ["build", "--root", str(root), "--noise-dbm", "-90"])  # another setting moves `latest`, and says so
+    assert res.exit_code == 0 and f"(it was city@{first}); to keep using the other, name it: --dataset city@{first}" in res.output
     res = run(uavdata, ["build", "--root", str(root), "--alt", "30"])
     assert res.exit_code == 2 and "heights present: 10 m (60 rx)" in res.output
     res = run(uavdata, ["build", "--root", str(root), "--grid", "four"])
