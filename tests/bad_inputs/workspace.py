@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import gzip
 import hashlib
 import json
 import shutil
@@ -159,7 +158,3 @@ class RunsCode:
 
     def __reduce__(self):  # noqa: ANN204
         return (open, (self.path, "w"))
-
-
-def gzip_bytes(data: bytes) -> bytes:
-    return gzip.compress(data)
