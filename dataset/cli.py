@@ -432,12 +432,13 @@ def format_difficulty(d: dict[str, float | None]) -> str:
         return "-" if v is None else f"{100 * v:.1f} %"
 
     def num(v: float | None) -> str:
-        return "inf" if v is None else f"{v:g}"
+        return "-" if v is None else f"{v:g}"
 
     return (
         f"at P_T {d['p_t_db']:g} dB: {pct(d['target_share'])} of legal cells are targets, {pct(d['dead_share'])} dead; "
         f"BFS steps to a target from {int(d['num_starts'] or 0)} starts: median {num(d['bfs_median_steps'])}, "
-        f"mean {num(d['bfs_mean_steps'])}, {pct(d['unreachable_start_share'])} unreachable"
+        f"mean {num(d['bfs_mean_steps'])}; {pct(d.get('excluded_start_share'))} of start cells excluded "
+        "(no reachable target)"
     )
 
 

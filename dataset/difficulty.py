@@ -39,8 +39,23 @@ def steps_to_target(legal: np.ndarray, target: np.ndarray) -> np.ndarray:
     return dist
 
 
-def valid_starts(blocked: np.ndarray, dead: np.ndarray, sinr_db: np.ndarray, p_t_db: float) -> np.ndarray:
-    """Cells an episode may start in: legal, not dead, below the target. ``[num_users, ny, nx]``."""
+def valid_starts(
+    blocked: np.ndarray, dead: np.ndarray, sinr_db: np.ndarray, p_t_db: float, steps: np.ndarray | None = None
+) -> np.ndarray:
+    """Cells an episode may start in: legal, not dead, below the target, and with a target reachable from them.
+
+    ``[num_users, ny, nx]`` (or any ``[..., ny, nx]``). A start in a courtyard closed by
+    buildings above the altitude can never succeed, so it is not a start: the genie
+    succeeds in every episode by construction. ``steps``: the ``steps_to_target`` of
+    these maps, when already computed.
+    """
+    if steps is None:
+        steps = steps_to_target(~blocked, ~blocked & ~dead & (sinr_db >= p_t_db))
+    return _candidate_starts(blocked, dead, sinr_db, p_t_db) & (steps != UNREACHABLE)
+
+
+def _candidate_starts(blocked: np.ndarray, dead: np.ndarray, sinr_db: np.ndarray, p_t_db: float) -> np.ndarray:
+    """Legal, live cells below the target: starts before the reachability rule."""
     return ~blocked & ~dead & (sinr_db < p_t_db)
 
 
@@ -48,27 +63,27 @@ def difficulty(blocked: np.ndarray, dead: np.ndarray, sinr_db: np.ndarray, p_t_d
     """Summary of the search problem over all users at target ``p_t_db``.
 
     ``target_share``: legal, live cells at or above P_T, over legal cells; ``dead_share``:
-    legal cells no path reached, over legal cells; ``bfs_median_steps`` / ``bfs_mean_steps``:
-    over every valid start of every user, the shortest legal path to a target cell
-    (unreachable starts count as infinite in the median and are left out of the mean);
-    ``unreachable_start_share``. A figure that does not exist (no start, an infinite median) is None.
+    legal cells no path reached, over legal cells; ``excluded_start_share``: legal, live
+    cells below P_T from which no target can be reached (closed courtyards), over all
+    such cells: they are not starts (``valid_starts``); ``bfs_median_steps`` /
+    ``bfs_mean_steps``: over every valid start of every user, the shortest legal path to
+    a target cell. A figure that does not exist (no start) is None.
     """
     legal = ~blocked
     target = legal & ~dead & (sinr_db >= p_t_db)
     steps = steps_to_target(legal, target)
-    starts = valid_starts(blocked, dead, sinr_db, p_t_db)
+    candidates = _candidate_starts(blocked, dead, sinr_db, p_t_db)
+    starts = valid_starts(blocked, dead, sinr_db, p_t_db, steps)
     s = steps[starts].astype(float)
-    s[s == UNREACHABLE] = np.inf
     n_legal = legal.sum() * sinr_db.shape[0]
-    finite = s[np.isfinite(s)]
     out = {
         "p_t_db": float(p_t_db),
         "target_share": float(target.sum() / n_legal),
         "dead_share": float((dead & legal).sum() / n_legal),
         "blocked_share": float(blocked.mean()),
         "num_starts": int(starts.sum()),
+        "excluded_start_share": float(1 - starts.sum() / candidates.sum()) if candidates.any() else float("nan"),
         "bfs_median_steps": float(np.median(s)) if s.size else float("nan"),
-        "bfs_mean_steps": float(finite.mean()) if finite.size else float("nan"),
-        "unreachable_start_share": float(np.isinf(s).mean()) if s.size else float("nan"),
+        "bfs_mean_steps": float(s.mean()) if s.size else float("nan"),
     }
     return {k: (v if np.isfinite(v) else None) for k, v in out.items()}

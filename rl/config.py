@@ -37,7 +37,8 @@ class EnvConfig(Contract):
     height_clip_m: float = Field(default=100.0, gt=0, description="Height channel clipped to +/- this [m]")
     start: Literal["legal_live_below_target"] = Field(
         default="legal_live_below_target",
-        description="Start cells: not blocked, not dead, SINR below P_T (a start at the target is no search)",
+        description="Start cells: not blocked, not dead, SINR below P_T, with a target reachable over legal cells "
+        "(a start at the target is no search; one in a closed courtyard can never succeed)",
     )
     split: Split | None = Field(default=None, description="Users of this split only (bundles' users.parquet); None: all users")
 

@@ -89,7 +89,7 @@ class MapSet:
         hidden = ~on_map[self.view_map] if config.blind else blocked_v
         self.memory0 = np.where(hidden, config.p_l_db, config.p_h_db).astype(np.float32)
         # Valid starts per view, concatenated: flat canvas indices, with offset and count per view.
-        valid = valid_starts(blocked_v, self.dead, self.sinr, config.p_t_db)
+        valid = valid_starts(blocked_v, self.dead, self.sinr, config.p_t_db, self.steps)
         flat = [np.flatnonzero(valid[v]) for v in range(nv)]
         self.start_count = np.array([len(f) for f in flat], np.int64)
         self.start_offset = np.r_[0, np.cumsum(self.start_count)[:-1]]

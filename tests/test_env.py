@@ -228,3 +228,21 @@ def test_uavrl_baselines_cli(root):
     assert "genie" in res.output and "100.0 %" in res.output and "random_walk" in res.output and "greedy" in res.output
     res = CliRunner().invoke(uavrl, ["datasets", "--root", str(root)])
     assert res.exit_code == 0 and "tiny" in res.output
+
+
+def test_starts_must_reach_a_target():
+    """A courtyard closed by buildings above the altitude holds no start: every start is solvable."""
+    from dataset.difficulty import difficulty, valid_starts
+
+    blocked = np.zeros((12, 12), bool)
+    blocked[2:7, 2:7] = True
+    blocked[3:6, 3:6] = False  # a 3 x 3 courtyard, closed on all sides
+    sinr = np.full((1, 12, 12), -10.0, np.float32)
+    sinr[0, 11, 11] = 10.0  # the one target, outside the courtyard
+    dead = np.zeros((1, 12, 12), bool)
+    starts = valid_starts(blocked, dead, sinr, 5.0)
+    assert not starts[0, 3:6, 3:6].any() and starts[0, 0, 0] and not starts[0, 11, 11]
+    legal_below = (~blocked).sum() - 1
+    d = difficulty(blocked, dead, sinr, 5.0)
+    assert d["num_starts"] == legal_below - 9 and d["excluded_start_share"] == pytest.approx(9 / legal_below)
+    assert np.isfinite(d["bfs_median_steps"])
