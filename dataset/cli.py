@@ -493,6 +493,12 @@ class Point(click.ParamType):
     "--alt", "altitude_m", type=Metres(), default="10m", show_default=True, help="Receiver grid height (the UAV altitude)."
 )
 @click.option("--extent", type=Bounds(), default=None, help="Grid extent XMIN,YMIN,XMAX,YMAX [m] (default: the city's bounds).")
+@click.option(
+    "--crop",
+    type=Bounds(),
+    default=None,
+    help="Real geometry only: keep the buildings inside XMIN,YMIN,XMAX,YMAX [m] (clipped; counted) and make that the city.",
+)
 @click.option("--freq", "frequency_hz", type=float, default=800e6, show_default=True, help="Carrier frequency [Hz].")
 @click.option("--tx-dbm", type=float, default=20.0, show_default=True, help="User transmit power [dBm].")
 @click.option("--samples", type=float, default=1e6, show_default=True, help="Rays per user (Sionna samples_per_tx).")
@@ -516,6 +522,7 @@ def simulate(
     grid_m: float,
     altitude_m: float,
     extent,
+    crop,
     frequency_hz: float,
     tx_dbm: float,
     samples: float,
@@ -529,8 +536,12 @@ def simulate(
 
     \b
     SOURCE is procedural[:train|test|tiny] (a seeded generated city: train
-    552 x 500 m, test 400 x 500 m, tiny 96 x 80 m), an InSite .city file or
-    a GeoJSON file of footprints with heights. Writes <name>.txrx (users and
+    552 x 500 m, test 400 x 500 m, tiny 96 x 80 m), an InSite .city file, a
+    GeoJSON file of footprints with heights, a Mitsuba .xml scene with its
+    PLY/OBJ meshes, or sionna:<scene> for a scene Sionna RT ships
+    (sionna:etoile, sionna:florence); from meshes, a building is a connected
+    body, the ground is left out and roofs are split into height tiers.
+    Writes <name>.txrx (users and
     the receiver grid), <name>.setup, <name>.city, one
     <name>.power.tNNN_01.r002.p2m.gz per user and simulation.json (every
     parameter, package versions, materials, wall time). Then:
@@ -541,10 +552,11 @@ def simulate(
     from simulate.raytrace import RayTraceConfig
 
     check_name(name, "city name")
-    if isinstance(extent, str):
-        raise click.BadParameter("expected XMIN,YMIN,XMAX,YMAX", param_hint="--extent")
+    for value, hint in ((extent, "--extent"), (crop, "--crop")):
+        if isinstance(value, str):
+            raise click.BadParameter("expected XMIN,YMIN,XMAX,YMAX", param_hint=hint)
     spec = SimulationSpec(source=source, name=name, num_users=len(users_m) or num_users, grid_m=grid_m, altitude_m=altitude_m,
-                          tx_dbm=tx_dbm, seed=seed, extent_m=extent, users_m=tuple(users_m))  # fmt: skip
+                          tx_dbm=tx_dbm, seed=seed, extent_m=extent, users_m=tuple(users_m), crop_m=crop)  # fmt: skip
     try:
         factors = () if gap_fill == "none" else tuple(int(f) for f in gap_fill.split(","))
     except ValueError:
@@ -576,7 +588,7 @@ def simulate(
         return
     g = record["grid"]
     stdout().print(
-        f"simulated {name}: {record['geometry']}, {record['num_buildings']} buildings, {len(record['users_m'])} users, "
+        f"simulated {name}: {record['geometry']}, {len(record['users_m'])} users, "
         f"grid {g['num_x']} x {g['num_y']} at {g['spacing_m']:g} m and {g['altitude_m']:g} m, "
         f"{100 * record['unreached_cell_share']:.1f} % of user-cells unreached "
         f"({100 * record['gap_filled_cell_share']:.1f} % Monte Carlo gaps filled), ray tracing {record['raytrace_seconds']:.1f} s "

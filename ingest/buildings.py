@@ -41,6 +41,27 @@ class BuildingRecord:
         return self.source_file if self.source_line is None else f"{self.source_file}:{self.source_line}"
 
 
+def crop_records(records: list[BuildingRecord], box: tuple[float, float, float, float]) -> tuple[list[BuildingRecord], int]:
+    """Buildings clipped to ``box`` (x_min, y_min, x_max, y_max), and how many fell wholly outside."""
+    clip = shapely.box(*box)
+    kept, dropped = [], 0
+    for rec in records:
+        parts = []
+        for p in rec.parts:
+            polys = [
+                g
+                for g in shapely.get_parts(shapely.intersection(p.footprint, clip))
+                if g.geom_type == "Polygon" and g.area > MIN_AREA_M2
+            ]
+            if polys:
+                parts.append(Part(footprint=shapely.union_all(polys), base_z_m=p.base_z_m, roof_z_m=p.roof_z_m))
+        if parts:
+            kept.append(BuildingRecord(name=rec.name, source_file=rec.source_file, source_line=rec.source_line, parts=parts))
+        else:
+            dropped += 1
+    return kept, dropped
+
+
 def buildings_tables(records: list[BuildingRecord]) -> tuple[pa.Table, pa.Table, list[Rejection]]:
     """Validate buildings and return (buildings, parts, rejections).
 

@@ -208,22 +208,39 @@ def write_p2m(
     return _write(path, text, gz=gz, crlf=crlf)
 
 
-def write_city(path: str | Path, buildings: Sequence[tuple[shapely.Polygon, float, float]], *, name: str = "city") -> Path:
-    """An InSite .city: per building ``(footprint, base z, roof z)`` [m] a ``structure`` with one
-    ``sub_structure`` whose faces are the roof (the footprint at roof z) and one vertical wall per
-    exterior edge. z is above the terrain (``reference terrain``)."""
-    out = ["Format type:keyword version: 1.1.0", f"begin_<city> {name}", "begin_<reference>", "cartesian", "terrain",
-           "end_<reference>"]  # fmt: skip
-    for k, (poly, base, roof) in enumerate(buildings):
-        ring = np.asarray(shapely.get_coordinates(shapely.force_2d(poly.exterior)))[:-1]
-        faces = [[(x, y, roof) for x, y in ring]]
+def _prism_faces(poly: shapely.Polygon, base: float, roof: float) -> list[list[tuple[float, float, float]]]:
+    """Roof face(s) at ``roof`` and one wall quad per edge of every ring of ``poly``."""
+    rings = [np.asarray(shapely.get_coordinates(shapely.force_2d(r)))[:-1] for r in (poly.exterior, *poly.interiors)]
+    if len(rings) == 1:
+        faces = [[(x, y, roof) for x, y in rings[0]]]
+    else:
+        tris = shapely.get_parts(shapely.constrained_delaunay_triangles(poly))
+        faces = [[(x, y, roof) for x, y in np.asarray(t.exterior.coords)[:3]] for t in tris]
+    for ring in rings:
         for (x1, y1), (x2, y2) in zip(ring, np.roll(ring, -1, axis=0), strict=True):
             faces.append([(x1, y1, base), (x2, y2, base), (x2, y2, roof), (x1, y1, roof)])
-        out += ["begin_<structure_group> ", f"begin_<structure> building_{k}", "begin_<sub_structure> 1"]
-        for face in faces:
-            out += ["begin_<face> ", "Material 1", f"nVertices {len(face)}"]
-            out += [f"{x:.6f} {y:.6f} {z:.6f}" for x, y, z in face]
-            out.append("end_<face>")
-        out += ["end_<sub_structure>", "end_<structure>", "end_<structure_group>"]
+    return faces
+
+
+def write_city(
+    path: str | Path, buildings: Sequence[Sequence[tuple[shapely.Geometry, float, float]]], *, name: str = "city"
+) -> Path:
+    """An InSite .city: per building a ``structure``, per part ``(footprint, base z, roof z)`` [m] a
+    ``sub_structure`` (a roof tier) whose faces are the roof at roof z and one vertical wall per ring
+    edge, holes (courtyards) included. A roof with holes is written as triangles (a face has one ring).
+    z is above the terrain (``reference terrain``)."""
+    out = ["Format type:keyword version: 1.1.0", f"begin_<city> {name}", "begin_<reference>", "cartesian", "terrain",
+           "end_<reference>"]  # fmt: skip
+    for k, parts in enumerate(buildings):
+        out += ["begin_<structure_group> ", f"begin_<structure> building_{k}"]
+        for j, (footprint, base, roof) in enumerate(parts):
+            out.append(f"begin_<sub_structure> {j + 1}")
+            for poly in shapely.get_parts(footprint):
+                for face in _prism_faces(poly, base, roof):
+                    out += ["begin_<face> ", "Material 1", f"nVertices {len(face)}"]
+                    out += [f"{x:.6f} {y:.6f} {z:.6f}" for x, y, z in face]
+                    out.append("end_<face>")
+            out.append("end_<sub_structure>")
+        out += ["end_<structure>", "end_<structure_group>"]
     out.append("end_<city>")
     return _write(Path(path), "\n".join(out) + "\n")

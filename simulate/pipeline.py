@@ -56,26 +56,60 @@ class SimulationSpec:
     seed: int = 0
     extent_m: tuple[float, float, float, float] | None = None
     users_m: tuple[tuple[float, float], ...] = ()
+    crop_m: tuple[float, float, float, float] | None = None
 
 
-def load_geometry(source: str, seed: int) -> tuple[list[Block], tuple[float, float, float, float], str]:
-    """(building parts, city bounds, description) of a source."""
+#: Scenes shipped with Sionna RT that ``sionna:<name>`` names (any scene of ``sionna.rt.scene`` works).
+SIONNA_SCENES = ("etoile", "florence", "munich", "san_francisco", "simple_street_canyon")
+
+
+def _sionna_scene(name: str) -> Path:
+    try:
+        from sionna.rt import scene as scenes
+    except ImportError:
+        raise InputError(f"sionna:{name}", "Sionna RT is not installed: pip install -e '.[raytrace]'", field="source") from None
+    path = getattr(scenes, name, None)
+    if not isinstance(path, str) or not path.endswith(".xml"):
+        raise InputError(f"sionna:{name}", f"Sionna RT ships no scene '{name}' (e.g. {', '.join(SIONNA_SCENES)})", field="source")
+    return Path(path)
+
+
+def load_geometry(
+    source: str, seed: int, crop: tuple[float, float, float, float] | None = None
+) -> tuple[list[Block], tuple[float, float, float, float], str]:
+    """(building parts, city bounds, description) of a source; ``crop`` keeps the buildings in that box (clipped).
+
+    Sources: ``procedural:<preset>``; an InSite ``.city``; a GeoJSON file; a Mitsuba
+    ``.xml`` scene with its PLY/OBJ meshes, or ``sionna:<scene>`` for one that Sionna
+    RT ships (``sionna:etoile``, ``sionna:florence``): buildings per connected body, the
+    ground left out, roofs split into height tiers (``ingest.mitsuba``).
+    """
     if source.startswith("procedural"):
+        if crop is not None:
+            raise InputError(source, "--crop applies to real geometry; a procedural city takes --extent", field="crop")
         preset = source.partition(":")[2] or "train"
         if preset not in PRESETS:
             raise InputError(source, f"unknown procedural preset '{preset}' (known: {', '.join(PRESETS)})", field="source")
         size = PRESETS[preset]
         city = generate_city(size, 0, seed)
-        blocks = [] if preset == "open" else [Block(f, 0.0, h) for f, h in zip(city.footprints, city.heights_m, strict=True)]
+        blocks = (
+            []
+            if preset == "open"
+            else [Block(f, 0.0, h, k) for k, (f, h) in enumerate(zip(city.footprints, city.heights_m, strict=True))]
+        )
         return blocks, (0.0, 0.0, *size), f"procedural preset {preset} ({size[0]:g} x {size[1]:g} m), seed {seed}"
-    path = Path(source)
+    path = _sionna_scene(source.partition(":")[2]) if source.startswith("sionna:") else Path(source)
     if not path.is_file():
-        raise InputError(path, "no such file: expected procedural[:train|test|tiny], a .city or a .geojson", field="source")
-    if path.suffix.lower() == ".city":
+        raise InputError(
+            path, "no such file: expected procedural[:preset], sionna:<scene>, a .city, .geojson or Mitsuba .xml", field="source"
+        )
+    suffix = path.suffix.lower()
+    cropped = 0
+    if suffix == ".city":
         from ingest.wireless_insite.city import read_city
 
         records = read_city(path)
-    elif path.suffix.lower() in (".geojson", ".json"):
+    elif suffix in (".geojson", ".json"):
         from ingest.geojson import read_geojson
 
         records, rejected = read_geojson(path)
@@ -83,10 +117,19 @@ def load_geometry(source: str, seed: int) -> tuple[list[Block], tuple[float, flo
             raise InputError(
                 path, f"{sum(r.count for r in rejected)} feature(s) rejected: {rejected[0].reason}", field="geometry"
             )
+    elif suffix == ".xml":
+        from ingest.mitsuba import read_mitsuba
+
+        scene = read_mitsuba(path, crop=crop)
+        records, cropped = scene.buildings, scene.num_cropped
     else:
-        raise InputError(path, f"unknown geometry format '{path.suffix}' (expected .city or .geojson)", field="source")
+        raise InputError(path, f"unknown geometry format '{path.suffix}' (expected .city, .geojson or .xml)", field="source")
+    if crop is not None and suffix != ".xml":
+        from ingest.buildings import crop_records
+
+        records, cropped = crop_records(records, crop)
     blocks = []
-    for rec in records:
+    for k, rec in enumerate(records):
         base = min(p.base_z_m for p in rec.parts) if rec.parts else 0.0
         for p in rec.parts:
             if not p.footprint.is_valid or p.footprint.area <= 0:
@@ -94,11 +137,23 @@ def load_geometry(source: str, seed: int) -> tuple[list[Block], tuple[float, flo
                     rec.source, f"footprint is not a valid polygon: {shapely.is_valid_reason(p.footprint)}", field="footprint"
                 )
             for poly in shapely.get_parts(p.footprint):
-                blocks.append(Block(poly, p.base_z_m - base, p.roof_z_m - base))
+                blocks.append(Block(poly, p.base_z_m - base, p.roof_z_m - base, k))
     if not blocks:
-        raise InputError(path, "no building in the geometry file", field="geometry")
-    b = shapely.total_bounds([blk.footprint for blk in blocks])
-    return blocks, (float(b[0]), float(b[1]), float(b[2]), float(b[3])), f"{path.name}: {len(records)} buildings"
+        raise InputError(path, "no building in the geometry" + (" inside --crop" if crop else ""), field="geometry")
+    b = crop if crop is not None else tuple(shapely.total_bounds([blk.footprint for blk in blocks]))
+    tiers = len(blocks)
+    described = f"{source if source.startswith('sionna:') else path.name}: {len(records)} buildings in {tiers} roof tiers"
+    if crop is not None:
+        described += f", cropped to x {crop[0]:g}..{crop[2]:g}, y {crop[1]:g}..{crop[3]:g} m ({cropped} buildings outside)"
+    return blocks, (float(b[0]), float(b[1]), float(b[2]), float(b[3])), described
+
+
+def buildings_of(blocks: list[Block]) -> list[list[tuple[shapely.Polygon, float, float]]]:
+    """Blocks grouped by building, as ``write_city`` takes them: per building its parts (footprint, base, roof)."""
+    grouped: dict[int, list[tuple[shapely.Polygon, float, float]]] = {}
+    for b in blocks:
+        grouped.setdefault(b.building, []).append((b.footprint, b.base_z_m, b.roof_z_m))
+    return list(grouped.values())
 
 
 def receiver_grid(bounds: tuple[float, float, float, float], spec: SimulationSpec) -> ReceiverGrid:
@@ -157,7 +212,7 @@ def simulate_city(
     check_name(spec.name, "city name")
     check_replaceable(Path(out_root) / spec.name, PROVENANCE, "simulated city")  # before minutes of ray tracing
     t_start = time.perf_counter()
-    blocks, bounds, described = load_geometry(spec.source, spec.seed)
+    blocks, bounds, described = load_geometry(spec.source, spec.seed, spec.crop_m)
     grid = receiver_grid(bounds, spec)
     users = place_users(blocks, grid, spec)
     size = (grid.num_x * grid.spacing_m, grid.num_y * grid.spacing_m)
@@ -176,7 +231,7 @@ def simulate_city(
     with atomic_directory(Path(out_root) / spec.name, marker=PROVENANCE, what="simulated city") as out:
         write_txrx(out / f"{spec.name}.txrx", users, grid, tx_power_dbm=spec.tx_dbm, user_set=USER_SET, grid_set=GRID_SET)
         write_setup(out / f"{spec.name}.setup", spec.name, frequency_hz=rt_config.frequency_hz, features=[f"{spec.name}.city"])
-        write_city(out / f"{spec.name}.city", [(b.footprint, b.base_z_m, b.roof_z_m) for b in blocks], name=spec.name)
+        write_city(out / f"{spec.name}.city", buildings_of(blocks), name=spec.name)
         for u in range(len(users)):
             g = gain[u].ravel()
             with np.errstate(divide="ignore"):
@@ -193,7 +248,8 @@ def simulate_city(
             "command": command,
             "spec": asdict(spec),
             "geometry": described,
-            "num_buildings": len(blocks),
+            "num_buildings": len({b.building for b in blocks}),
+            "num_building_parts": len(blocks),
             "grid": {
                 "x0_m": grid.x0_m,
                 "y0_m": grid.y0_m,

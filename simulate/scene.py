@@ -49,11 +49,12 @@ GROUND = Material("uav-medium-dry-ground", "medium_dry_ground", a=15.0, b=-0.1, 
 
 @dataclass(frozen=True)
 class Block:
-    """A building part to extrude: footprint, base and roof z [m]."""
+    """A building part to extrude: footprint, base and roof z [m], and the building it belongs to."""
 
     footprint: shapely.Polygon
     base_z_m: float
     roof_z_m: float
+    building: int = 0
 
 
 def extrude(footprint: shapely.Polygon, base_z: float, roof_z: float) -> trimesh.Trimesh:

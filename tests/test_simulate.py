@@ -74,7 +74,7 @@ def test_city_file_round_trips_through_ingest(tmp_path):
     from simulate.insite import write_city
 
     city = generate_city(PRESETS["tiny"], 0, seed=3)
-    write_city(tmp_path / "c.city", [(f, 0.0, h) for f, h in zip(city.footprints, city.heights_m, strict=True)])
+    write_city(tmp_path / "c.city", [[(f, 0.0, h)] for f, h in zip(city.footprints, city.heights_m, strict=True)])
     back = read_city(tmp_path / "c.city")
     assert len(back) == len(city.footprints)
     for rec, f, h in zip(back, city.footprints, city.heights_m, strict=True):

@@ -1,0 +1,171 @@
+"""Buildings from a Mitsuba scene (the XML that Sionna RT and Blender exports use) and its PLY/OBJ meshes.
+
+The scene is z-up in a local metric frame. Every ``<shape type="ply|obj">``
+is loaded (its ``filename`` must stay inside the scene's folder; transforms
+are refused rather than guessed), all meshes are merged with shared vertices
+welded, and each connected body (faces joined through shared vertices) is a
+building: a material split (walls in concrete, a roof in metal) does not split
+a building. Flat bodies (the ground
+plane, roads) are rejected and counted.
+
+A building's parts are its roof tiers: its upward-facing triangles grouped by
+height (a tier spans at most ``TIER_TOL_M``), each tier a part whose footprint is those
+roof triangles seen from above and whose roof is the tier's highest point. A
+tower on a podium is thus a small tall part on a lower one, and a map built
+from it is tall only under the tower. A body without upward faces becomes one
+part, its whole footprint at its top.
+
+``crop`` (x_min, y_min, x_max, y_max) clips every footprint to the box and
+drops what falls outside, counted.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import shapely
+
+from ingest.buildings import MIN_AREA_M2, BuildingRecord, Part, crop_records
+from ingest.mesh import FLAT_M
+from schemas import InputError, Rejection
+
+#: Shape types whose geometry is a mesh file.
+MESH_SHAPES = ("ply", "obj")
+#: A tier spans at most this height [m] (its roof is its highest point): a gently sloped roof is one
+#: tier, and a row of buildings of different heights is never raised to the tallest.
+TIER_TOL_M = 1.0
+#: A triangle faces up when the z component of its unit normal exceeds this (about 60 degrees from vertical).
+UP_NORMAL_Z = 0.5
+
+
+@dataclass(frozen=True)
+class SceneGeometry:
+    """What a scene held: its buildings (parts = roof tiers), what was rejected, and counts."""
+
+    buildings: list[BuildingRecord]
+    rejected: list[Rejection]
+    num_shapes: int
+    num_bodies: int
+    num_cropped: int  # bodies wholly outside the crop box
+
+
+def _scene_shapes(xml_path: Path, name: str) -> tuple[list[tuple[str, Path]], list[Rejection]]:
+    """(shape id, mesh file) of every mesh shape, after the safety checks; other shapes rejected."""
+    raw = xml_path.read_bytes()
+    if b"<!DOCTYPE" in raw or b"<!ENTITY" in raw:
+        raise InputError(name, "the scene declares a DOCTYPE or entities: refused (a scene needs neither)", field="xml")
+    try:
+        root = ET.fromstring(raw)
+    except ET.ParseError as exc:
+        raise InputError(name, f"not a Mitsuba XML scene ({exc})", line=exc.position[0], field="xml") from None
+    if root.tag != "scene":
+        raise InputError(name, f"root element is <{root.tag}>, a Mitsuba scene's is <scene>", field="xml")
+    folder = xml_path.parent.resolve()
+    shapes, rejected = [], []
+    for i, shape in enumerate(root.iter("shape")):
+        sid = shape.get("id") or f"shape[{i}]"
+        if shape.get("type") not in MESH_SHAPES:
+            rejected.append(Rejection(file=name, field=sid, reason=f"shape type '{shape.get('type')}' is not a mesh file"))
+            continue
+        if shape.find("transform") is not None:
+            raise InputError(name, f"shape '{sid}' has a transform: bake it into the mesh (not applied here)", field=sid)
+        ref = shape.find("string[@name='filename']")
+        if ref is None or not ref.get("value"):
+            raise InputError(name, f"shape '{sid}' names no filename", field=sid)
+        mesh = (folder / ref.get("value", "")).resolve()
+        if not mesh.is_relative_to(folder):
+            raise InputError(name, f"shape '{sid}' points outside the scene's folder ({ref.get('value')}): refused", field=sid)
+        if not mesh.is_file():
+            raise InputError(name, f"shape '{sid}': no such mesh file {ref.get('value')}", field=sid)
+        shapes.append((sid, mesh))
+    return shapes, rejected
+
+
+def _bodies(mesh):  # noqa: ANN001, ANN202 - trimesh.Trimesh in, a list of them out
+    """Connected bodies: faces joined through shared (welded) vertices, not only shared edges, so the
+    meshes of one building (a material split, tiers that touch) make one body."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    f = mesh.faces
+    n = len(mesh.vertices)
+    rows = np.concatenate([f[:, 0], f[:, 1]])
+    cols = np.concatenate([f[:, 1], f[:, 2]])
+    _, label = connected_components(coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n)), directed=False)
+    face_label = label[f[:, 0]]
+    order = np.argsort(face_label, kind="stable")
+    groups = np.split(order, np.flatnonzero(np.diff(face_label[order])) + 1)
+    return [mesh.submesh([g], append=True) for g in groups]
+
+
+def _tiers(body, name: str) -> list[Part]:  # noqa: ANN001 - a trimesh.Trimesh
+    """A body's roof tiers as parts (see the module docstring)."""
+    tri = body.triangles  # [F, 3, 3]
+    base = float(body.vertices[:, 2].min())
+    normals = body.face_normals
+    up = normals[:, 2] > UP_NORMAL_Z
+    polys = shapely.polygons(tri[:, :, :2])
+    area = shapely.area(polys)
+    roof = up & (area > MIN_AREA_M2)
+    if not roof.any():
+        footprint = shapely.union_all(polys[area > MIN_AREA_M2])
+        return [Part(footprint=footprint, base_z_m=base, roof_z_m=float(body.vertices[:, 2].max()))]
+    z = tri[roof][:, :, 2].max(axis=1)
+    order = np.argsort(z)
+    starts, low = [0], z[order[0]]
+    for i, zi in enumerate(z[order]):  # a new tier once a roof is more than TIER_TOL_M above its tier's lowest
+        if zi > low + TIER_TOL_M:
+            starts.append(i)
+            low = zi
+    parts = []
+    roof_polys = polys[roof]
+    for group in np.split(order, starts[1:]):
+        footprint = shapely.make_valid(shapely.union_all(roof_polys[group]))
+        footprint = shapely.union_all([g for g in shapely.get_parts(footprint) if g.geom_type == "Polygon"])
+        if footprint.area > MIN_AREA_M2:
+            parts.append(Part(footprint=footprint, base_z_m=base, roof_z_m=float(z[group].max())))
+    return parts
+
+
+def read_mitsuba(
+    path: str | Path, display: str | None = None, crop: tuple[float, float, float, float] | None = None
+) -> SceneGeometry:
+    """Buildings of a Mitsuba XML scene: one per connected body, its roof tiers as parts."""
+    import trimesh  # heavy: only for mesh sources
+
+    path = Path(path)
+    name = display or str(path)
+    shapes, rejected = _scene_shapes(path, name)
+    if not shapes:
+        raise InputError(name, "the scene has no mesh shape (ply or obj)", field="shape")
+    meshes = []
+    for sid, mesh_path in shapes:
+        try:
+            mesh = trimesh.load(str(mesh_path), force="mesh", process=False)
+        except Exception as exc:  # trimesh raises many types on malformed files
+            raise InputError(mesh_path, f"unreadable mesh of shape '{sid}' ({type(exc).__name__}: {exc})") from None
+        if len(mesh.faces) == 0:
+            rejected.append(Rejection(file=name, field=sid, reason="mesh has no faces"))
+            continue
+        if not np.isfinite(mesh.vertices).all():
+            raise InputError(mesh_path, f"shape '{sid}' has vertices that are not finite", field="vertices")
+        meshes.append(mesh)
+    merged = trimesh.util.concatenate(meshes)
+    merged.merge_vertices()  # one building split over material meshes shares its vertices
+    bodies = _bodies(merged)
+    records = []
+    for i, body in enumerate(bodies):
+        zmin, zmax = float(body.vertices[:, 2].min()), float(body.vertices[:, 2].max())
+        if zmax - zmin < FLAT_M:
+            rejected.append(Rejection(file=name, field=f"body[{i}]", reason=f"flat body ({zmax - zmin:.2f} m tall): ground"))
+            continue
+        records.append(
+            BuildingRecord(name=f"body{i}", source_file=f"{name}#body[{i}]", source_line=None, parts=_tiers(body, name))
+        )
+    cropped = 0
+    if crop is not None:
+        records, cropped = crop_records(records, crop)
+    return SceneGeometry(records, rejected, num_shapes=len(shapes), num_bodies=len(bodies), num_cropped=cropped)
