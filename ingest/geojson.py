@@ -1,15 +1,26 @@
-"""GeoJSON building footprints with a height property.
+"""GeoJSON building footprints with heights, as OpenStreetMap tools export them.
 
 A FeatureCollection of Polygon / MultiPolygon features in a projected, metric
-local frame (the same frame as the receiver exports). Each feature needs a
-height [m] in ``properties``: ``height_m`` or ``height``; the base is
-``base_m`` or ``min_height`` (default 0). Features of other geometry types
-are rejected and counted.
+local frame (the same frame as the receiver exports). Heights come from
+``properties``, first found wins:
+
+- top: ``height_m`` (the building's own height above its base, uavplace's
+  convention), else ``height`` (OSM: the top above the ground; a number, or
+  a string with a unit as OSM writes it: ``"12"``, ``"12 m"``, ``"40 ft"``,
+  ``"40'"``), else ``building:levels`` x ``LEVEL_HEIGHT_M``;
+- base: ``base_m``, ``min_height``, else ``building:min_level`` x
+  ``LEVEL_HEIGHT_M``, else 0.
+
+A feature with no usable height (none given, or text that is not a length)
+is rejected and counted with its reason, never silently dropped; a number
+outside the physical range is an error. Features of other geometry types are
+rejected and counted.
 """
 
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -22,27 +33,83 @@ from schemas.tables import BUILDINGS
 
 HEIGHT_KEYS = ("height_m", "height")
 BASE_KEYS = ("base_m", "min_height")
+#: OSM level counts, turned into metres at ``LEVEL_HEIGHT_M`` a level.
+LEVELS_KEY = "building:levels"
+MIN_LEVEL_KEY = "building:min_level"
+#: Height of one storey [m] (OSM's usual assumption).
+LEVEL_HEIGHT_M = 3.0
+#: ``"12"``, ``"12.5 m"``, ``"40 ft"``, ``"40'"``, ``"3 metres"``: a number and an optional unit.
+_LENGTH = re.compile(r"\s*([-+]?(?:\d+\.?\d*|\.\d+))\s*(m|meters?|metres?|ft|feet|foot|')?\s*", re.IGNORECASE)
+_FEET_M = 0.3048
 
 
-def _number(props: dict, keys: tuple[str, ...], where: str, index: int, column: str, required: bool) -> float | None:
-    """The first of ``keys`` in ``props`` as a number in the BUILDINGS ``column``'s physical range."""
-    for key in keys:
-        if key in props and props[key] is not None:
-            field = f"features[{index}].properties.{key}"
-            value = props[key]
-            try:
-                number = float(value) if not isinstance(value, bool) else float("nan")
-            except (TypeError, ValueError, OverflowError):
-                raise InputError(where, f"feature {index}: {str(value)[:40]!r} is not a number", field=field) from None
-            col = BUILDINGS.column(column)
-            if col.first_out_of_range(np.array([number])) is not None:
-                raise InputError(
-                    where, f"feature {index}: {str(value)[:40]} is outside the physical range {col.range_text()}", field=field
-                )
-            return number
-    if required:
-        raise InputError(where, f"feature {index} has no height ({' or '.join(keys)})", field=f"features[{index}].properties")
-    return None
+def _length_m(value: object) -> float | None:
+    """A length in metres from a GeoJSON property, or None if it is not one (text, a list, a bool)."""
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, int | float):
+        return float(value)
+    if not isinstance(value, str):
+        return None
+    try:
+        return float(value)  # also "nan" and "1e400": numbers, refused below as not physical
+    except ValueError:
+        pass
+    m = _LENGTH.fullmatch(value)
+    if m is None:
+        return None
+    unit = (m.group(2) or "m").lower()
+    return float(m.group(1)) * (_FEET_M if unit in ("ft", "feet", "foot", "'") else 1.0)
+
+
+def _checked(number: float, value: object, where: str, index: int, key: str, column: str) -> float:
+    col = BUILDINGS.column(column)
+    if col.first_out_of_range(np.array([number])) is not None:
+        raise InputError(
+            where,
+            f"feature {index}: {str(value)[:40]} is outside the physical range {col.range_text()}",
+            field=f"features[{index}].properties.{key}",
+        )
+    return number
+
+
+def _levels_m(props: dict, key: str, where: str, index: int) -> float | None:
+    """``key`` (a level count) in metres, or None when absent or not a number."""
+    value = props.get(key)
+    levels = _length_m(value) if value is not None else None
+    return None if levels is None else _checked(levels, value, where, index, key, "height_m") * LEVEL_HEIGHT_M
+
+
+def _top(props: dict, base: float, where: str, index: int) -> tuple[float | None, str]:
+    """(roof z [m], how it was found), or (None, why there is none).
+
+    ``height_m`` is the building's own height above its base; OSM's ``height`` and
+    ``building:levels`` measure the top from the ground.
+    """
+    for key in HEIGHT_KEYS:
+        if props.get(key) is not None:
+            number = _length_m(props[key])
+            if number is None:
+                return None, f"{key} {str(props[key])[:40]!r} is not a length"
+            number = _checked(number, props[key], where, index, key, "height_m")
+            return (base + number if key == "height_m" else number), key
+    levels = _levels_m(props, LEVELS_KEY, where, index)
+    if levels is not None:
+        return levels, f"{LEVELS_KEY} x {LEVEL_HEIGHT_M:g} m"
+    if props.get(LEVELS_KEY) is not None:
+        return None, f"{LEVELS_KEY} {str(props[LEVELS_KEY])[:40]!r} is not a number"
+    return None, f"no height ({', '.join(HEIGHT_KEYS)} or {LEVELS_KEY})"
+
+
+def _base(props: dict, where: str, index: int) -> float:
+    for key in BASE_KEYS:
+        if props.get(key) is not None:
+            number = _length_m(props[key])
+            if number is None:
+                field = f"features[{index}].properties.{key}"
+                raise InputError(where, f"feature {index}: {str(props[key])[:40]!r} is not a length", field=field)
+            return _checked(number, props[key], where, index, key, "base_z_m")
+    return _levels_m(props, MIN_LEVEL_KEY, where, index) or 0.0
 
 
 def _load(path: Path, name: str) -> object:
@@ -98,16 +165,22 @@ def read_geojson(path: str | Path, display: str | None = None) -> tuple[list[Bui
         props = feature.get("properties") or {}
         if not isinstance(props, dict):
             raise InputError(name, f"feature {i}: properties is a JSON {type(props).__name__}", field=f"{field}.properties")
-        height = _number(props, HEIGHT_KEYS, name, i, "height_m", required=True)
-        base = _number(props, BASE_KEYS, name, i, "base_z_m", required=False) or 0.0
-        assert height is not None
+        base = _base(props, name, i)
+        roof, found = _top(props, base, name, i)
+        if roof is None:
+            rejected.append(Rejection(file=name, field=f"{field}.properties", reason=f"no usable height: {found}"))
+            continue
+        if roof < base:
+            raise InputError(
+                name, f"feature {i}: top {roof:g} m below its base {base:g} m ({found})", field=f"{field}.properties"
+            )
         fid = feature.get("id", props.get("name"))
         records.append(
             BuildingRecord(
                 name=None if fid is None else str(fid)[:200],
                 source_file=f"{name}#features[{i}]",
                 source_line=None,
-                parts=[Part(footprint=footprint, base_z_m=base, roof_z_m=base + height)],
+                parts=[Part(footprint=footprint, base_z_m=base, roof_z_m=roof)],
             )
         )
     minx, miny, maxx, maxy = (

@@ -104,7 +104,8 @@ def load_geometry(
             path, "no such file: expected procedural[:preset], sionna:<scene>, a .city, .geojson or Mitsuba .xml", field="source"
         )
     suffix = path.suffix.lower()
-    cropped = 0
+    cropped = left_out = 0
+    rejected = []
     if suffix == ".city":
         from ingest.wireless_insite.city import read_city
 
@@ -113,10 +114,7 @@ def load_geometry(
         from ingest.geojson import read_geojson
 
         records, rejected = read_geojson(path)
-        if rejected:
-            raise InputError(
-                path, f"{sum(r.count for r in rejected)} feature(s) rejected: {rejected[0].reason}", field="geometry"
-            )
+        left_out = sum(r.count for r in rejected)
     elif suffix == ".xml":
         from ingest.mitsuba import read_mitsuba
 
@@ -143,6 +141,8 @@ def load_geometry(
     b = crop if crop is not None else tuple(shapely.total_bounds([blk.footprint for blk in blocks]))
     tiers = len(blocks)
     described = f"{source if source.startswith('sionna:') else path.name}: {len(records)} buildings in {tiers} roof tiers"
+    if left_out:
+        described += f", {left_out} feature(s) left out ({rejected[0].field}: {rejected[0].reason}, ...)"
     if crop is not None:
         described += f", cropped to x {crop[0]:g}..{crop[2]:g}, y {crop[1]:g}..{crop[3]:g} m ({cropped} buildings outside)"
     return blocks, (float(b[0]), float(b[1]), float(b[2]), float(b[3])), described

@@ -205,16 +205,39 @@ def test_geojson(tmp_path):
     recs, rejected = read_geojson(path)
     b, _, _ = buildings_tables(recs)
     rows = b.to_pylist()
-    assert [(r["base_z_m"], r["roof_z_m"]) for r in rows] == [(0.0, 12.5), (2.0, 10.0)]
+    # height_m is the building's own height; OSM's height is the top above the ground, min_height its bottom
+    assert [(r["base_z_m"], r["roof_z_m"]) for r in rows] == [(0.0, 12.5), (2.0, 8.0)]
     assert len(rejected) == 1 and rejected[0].field == "features[2].geometry" and "Point" in rejected[0].reason
+
+
+def test_geojson_as_openstreetmap_exports_it(tmp_path):
+    """Heights with units, building:levels x 3 m, min_height and building:min_level; no usable height is counted."""
+    square = [[0, 0], [10, 0], [10, 10], [0, 10], [0, 0]]
+    props = [
+        {"height": "12 m"},
+        {"height": "40 ft"},
+        {"height": "15'", "min_height": "3 m"},
+        {"building:levels": "4"},
+        {"building:levels": 6, "building:min_level": 2},
+        {"building": "yes"},
+        {"height": "tall"},
+        {"building:levels": "several"},
+    ]
+    doc = {"type": "FeatureCollection", "features": [_feature(square, **p) for p in props]}
+    (tmp_path / "osm.geojson").write_text(json.dumps(doc))
+    recs, rejected = read_geojson(tmp_path / "osm.geojson")
+    got = [(p.base_z_m, round(p.roof_z_m, 3)) for r in recs for p in r.parts]
+    assert got == [(0.0, 12.0), (0.0, 12.192), (3.0, 4.572), (0.0, 12.0), (6.0, 18.0)]
+    assert [r.field for r in rejected] == [f"features[{i}].properties" for i in (5, 6, 7)]
+    assert "no height" in rejected[0].reason and "'tall' is not a length" in rejected[1].reason
+    assert "'several' is not a number" in rejected[2].reason
 
 
 @pytest.mark.parametrize(
     "feature,words",
     [
-        (_feature([[0, 0], [10, 0], [10, 10], [0, 10], [0, 0]]), "has no height"),
         (_feature([[0, 0], [10, 10], [10, 0], [0, 10], [0, 0]], height=3), "invalid polygon"),
-        (_feature([[0, 0], [10, 0], [10, 10], [0, 10], [0, 0]], height="tall"), "'tall' is not a number"),
+        (_feature([[0, 0], [10, 0], [10, 10], [0, 10], [0, 0]], height=3, min_height="low"), "'low' is not a length"),
         (_feature([[2.35, 48.85], [2.351, 48.85], [2.351, 48.851], [2.35, 48.85]], height=3), "longitude/latitude"),
     ],
 )

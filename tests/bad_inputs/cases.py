@@ -492,10 +492,10 @@ CASES: list[Case] = [
         "features[0].properties.height: feature 0: inf is outside",
     ),
     Case(
-        "geojson height text",
+        "geojson top below its base",
         "uavdata",
-        lambda w: w.geojson(_fc(_feature({"height": "tall"}))),
-        "features[0].properties.height: feature 0: 'tall' is not a number",
+        lambda w: w.geojson(_fc(_feature({"height": "5 m", "min_height": 9}))),
+        "features[0].properties: feature 0: top 5 m below its base 9 m (height)",
     ),
     Case(
         "geojson negative height",
@@ -504,10 +504,10 @@ CASES: list[Case] = [
         "features[0].properties.height: feature 0: -5 is outside the physical range",
     ),
     Case(
-        "geojson no height",
+        "geojson a million levels",
         "uavdata",
-        lambda w: w.geojson(_fc(_feature({"name": "x"}))),
-        "b.geojson: features[0].properties: feature 0 has no height",
+        lambda w: w.geojson(_fc(_feature({"building:levels": 1e6}))),
+        "features[0].properties.building:levels: feature 0: 1000000.0 is outside the physical range",
     ),
     Case(
         "geojson self-intersecting",
