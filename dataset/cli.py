@@ -511,6 +511,14 @@ class Point(click.ParamType):
     help="Coarser maps (cell x factor, same samples) whose cells fill Monte Carlo gaps of the grid; "
     "'none' to keep gaps as unreached.",
 )
+@click.option(
+    "--gap-fill-method",
+    type=click.Choice(["smooth", "parent"]),
+    default="smooth",
+    show_default=True,
+    help="smooth: a gap takes the mean of its known neighbours, relative to free space, spread from the hit cells "
+    "through open cells (never across a building); parent: the coarse cell's mean, copied (4 x 4 and 16 x 16 mosaics).",
+)
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the city generator, the users and the ray sampler.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def simulate(
@@ -529,6 +537,7 @@ def simulate(
     depth: int,
     no_diffraction: bool,
     gap_fill: str,
+    gap_fill_method: str,
     seed: int,
     quiet: bool,
 ) -> None:
@@ -570,6 +579,7 @@ def simulate(
         diffraction=not no_diffraction,
         seed=seed,
         gap_fill_factors=factors,
+        gap_fill_method=gap_fill_method,
     )
     try:
         with Progress(TextColumn("[bold]simulate[/] {task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),

@@ -34,7 +34,7 @@ from schemas.base import uavplace_version
 from schemas.files import atomic_directory, check_name, check_replaceable
 from simulate.insite import UNREACHED_POWER_DBM, ReceiverGrid, write_city, write_p2m, write_setup, write_txrx
 from simulate.procedural import PRESETS, USER_HEIGHT_M, generate_city, sample_users
-from simulate.raytrace import RadioMapJob, RayTraceConfig, path_gain_maps_isolated, sionna_versions
+from simulate.raytrace import RadioMapJob, RayTraceConfig, constant_patch_share, fill, path_gain_maps_isolated, sionna_versions
 from simulate.scene import Block, write_scene
 
 USER_SET = (1, "User")
@@ -148,6 +148,32 @@ def load_geometry(
     return blocks, (float(b[0]), float(b[1]), float(b[2]), float(b[3])), described
 
 
+#: How simulation.json describes each gap-fill method.
+GAP_FILL_TEXT = {
+    "smooth": "a cell no ray hit, whose parent in the maps of {factors} x coarser cells got rays, takes the mean of its "
+    "known 4-neighbours, spread outward from the hit cells through cells without a building at or above the plane",
+    "parent": "a cell no ray hit takes the mean path gain of its parent cell in the maps of {factors} x coarser cells "
+    "(same samples per user), finest first",
+}
+
+
+def open_cells(blocks: list[Block], grid: ReceiverGrid) -> np.ndarray:
+    """[num_y, num_x] True where no building reaches the receiver plane at the cell centre."""
+    tall = [b.footprint for b in blocks if b.roof_z_m >= grid.z_m]
+    if not tall:
+        return np.ones((grid.num_y, grid.num_x), bool)
+    pts = grid.points()
+    inside = shapely.contains_xy(shapely.union_all(tall), pts[:, 0], pts[:, 1])
+    return ~inside.reshape(grid.num_y, grid.num_x)
+
+
+def squared_distances(users: np.ndarray, grid: ReceiverGrid) -> np.ndarray:
+    """[num_users, num_y, num_x] squared distance [m^2] from each user to each cell centre (at least 1 m^2)."""
+    pts = grid.points()
+    d2 = ((pts[None, :, :] - np.asarray(users, float)[:, None, :]) ** 2).sum(axis=-1)
+    return np.maximum(d2, 1.0).reshape(len(users), grid.num_y, grid.num_x)
+
+
 def buildings_of(blocks: list[Block]) -> list[list[tuple[shapely.Polygon, float, float]]]:
     """Blocks grouped by building, as ``write_city`` takes them: per building its parts (footprint, base, roof)."""
     grouped: dict[int, list[tuple[shapely.Polygon, float, float]]] = {}
@@ -225,9 +251,10 @@ def simulate_city(
         )
         t_rt = time.perf_counter()
         job = RadioMapJob(str(xml), tuple(map(tuple, users.tolist())), center, size, spec.grid_m)
-        gain, filled = path_gain_maps_isolated(job, rt_config, on_batch=lambda d, t: progress("ray tracing", d, t))
+        maps = path_gain_maps_isolated(job, rt_config, on_batch=lambda d, t: progress("ray tracing", d, t))
         rt_seconds = time.perf_counter() - t_rt
     pos = grid.points()  # [ny * nx, 3], x fastest: the same order as gain[u].ravel()
+    gain, filled = fill(maps, rt_config, open_cells(blocks, grid), squared_distances(users, grid))
     with atomic_directory(Path(out_root) / spec.name, marker=PROVENANCE, what="simulated city") as out:
         write_txrx(out / f"{spec.name}.txrx", users, grid, tx_power_dbm=spec.tx_dbm, user_set=USER_SET, grid_set=GRID_SET)
         write_setup(out / f"{spec.name}.setup", spec.name, frequency_hz=rt_config.frequency_hz, features=[f"{spec.name}.city"])
@@ -270,8 +297,8 @@ def simulate_city(
                 "hit_by_rays": int((reached & ~filled).sum()),
                 "monte_carlo_gaps_filled": int(filled.sum()),
                 "unreached": int((~reached).sum()),
-                "gap_fill": f"a cell no ray hit takes the mean path gain of its parent cell in the maps of "
-                f"{rt_config.gap_fill_factors} x coarser cells (same samples per user), finest first",
+                "gap_fill": GAP_FILL_TEXT[rt_config.gap_fill_method].format(factors=rt_config.gap_fill_factors),
+                "constant_4x4_patch_share": constant_patch_share(gain, gain > 0),
             },
             "unreached_cell_share": float(1 - reached.mean()),
             "gap_filled_cell_share": float(filled.mean()),

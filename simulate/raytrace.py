@@ -39,6 +39,15 @@ class RayTraceConfig:
     #: Carlo gaps; () for none. Each costs about one more solver call (measured: fewer samples for the
     #: coarse maps saved only ~20 % of the time and left 1.7 x more cells unreached).
     gap_fill_factors: tuple[int, ...] = (4, 16)
+    #: How a cell no ray hit is filled when a coarser map got rays there: "smooth" (spread from hit cells
+    #: through open cells, see ``fill_smooth``) or "parent" (the coarse cell's mean, copied: a mosaic).
+    gap_fill_method: str = "smooth"
+
+
+def _expand(coarse: np.ndarray, factor: int, shape: tuple[int, int]) -> np.ndarray:
+    """A coarse map [..., cy, cx] repeated onto the fine grid [..., ny, nx] (same corner)."""
+    ny, nx = shape
+    return np.repeat(np.repeat(coarse, factor, axis=-2), factor, axis=-1)[..., :ny, :nx]
 
 
 def fill_gaps(fine: np.ndarray, coarse: np.ndarray, factor: int) -> np.ndarray:
@@ -48,9 +57,108 @@ def fill_gaps(fine: np.ndarray, coarse: np.ndarray, factor: int) -> np.ndarray:
     no ray hit in a map whose cells hold ``factor**2`` times more rays is a Monte Carlo gap
     there only if its parent got rays; cells whose parent got none stay at 0 (unreached).
     """
-    ny, nx = fine.shape[-2:]
-    parent = np.repeat(np.repeat(coarse, factor, axis=-2), factor, axis=-1)[..., :ny, :nx]
-    return np.where(fine > 0, fine, parent)
+    return np.where(fine > 0, fine, _expand(coarse, factor, fine.shape[-2:]))
+
+
+def fill_smooth(
+    fine: np.ndarray, coarse: list[np.ndarray], factors: tuple[int, ...], open_cells: np.ndarray, d2: np.ndarray
+) -> np.ndarray:
+    """Fill Monte Carlo gaps from the nearest hit cells, in linear power, never across buildings.
+
+    A cell no ray hit is live when a coarser map (``coarse[k]`` at ``factors[k]``) got rays in
+    its parent cell; otherwise it stays 0 (unreached, as InSite leaves it). The fill works on
+    the gain relative to free space, ``gain * d2`` (``d2`` [U, ny, nx]: squared distance from the
+    user to the cell centre [m^2]), so a filled cell keeps the spreading loss of its own
+    distance and no two cells are copies. Live gaps take the mean of their already-known
+    4-neighbours, front by front outward from the hit cells, and values spread only through
+    ``open_cells`` [ny, nx] (no building at or above the plane), so a shadow behind a building
+    is not filled from its lit side. Gaps the front cannot reach (an enclosed court with no
+    hit) take their finest live parent's relative gain. ``fine`` [U, ny, nx]; returns the
+    filled map of the same shape.
+    """
+    shape = fine.shape[-2:]
+    live = fine > 0
+    for c, f in zip(coarse, factors, strict=True):
+        live |= _expand(c, f, shape) > 0
+    value = fine * d2  # gain relative to free space
+    known = fine > 0
+    gap = live & ~known
+    spread = np.broadcast_to(open_cells, fine.shape)
+    for _ in range(sum(shape)):
+        src = known & spread
+        total = np.zeros_like(value)
+        count = np.zeros(fine.shape, np.int32)
+        for axis, step in ((-1, 1), (-1, -1), (-2, 1), (-2, -1)):
+            total += _shifted(np.where(src, value, 0.0), step, axis)
+            count += _shifted(src.astype(np.int32), step, axis)
+        new = gap & ~known & (count > 0)
+        if not new.any():
+            break
+        value[new] = total[new] / count[new]
+        known |= new
+    for c, f in zip(coarse, factors, strict=True):  # the rest: the finest coarse cell that saw rays
+        parent = _expand(c * _block_mean(d2, f), f, shape)
+        value = np.where(known, value, parent)
+        known |= value > 0
+    return np.where(live, value / d2, 0.0)
+
+
+def _block_mean(a: np.ndarray, f: int) -> np.ndarray:
+    """Mean of ``a`` [..., ny, nx] over blocks of ``f`` x ``f`` cells (the last ones may be partial)."""
+    ny, nx = a.shape[-2:]
+    cy, cx = -(-ny // f), -(-nx // f)
+    pad = np.pad(a, [(0, 0)] * (a.ndim - 2) + [(0, cy * f - ny), (0, cx * f - nx)], constant_values=np.nan)
+    return np.nanmean(pad.reshape(*a.shape[:-2], cy, f, cx, f), axis=(-3, -1))
+
+
+def _shifted(a: np.ndarray, step: int, axis: int) -> np.ndarray:
+    """``a`` moved by ``step`` cells along ``axis``, zeros shifted in (no wrap-around)."""
+    out = np.zeros_like(a)
+    src = [slice(None)] * a.ndim
+    dst = [slice(None)] * a.ndim
+    if step > 0:
+        src[axis], dst[axis] = slice(None, -step), slice(step, None)
+    else:
+        src[axis], dst[axis] = slice(-step, None), slice(None, step)
+    out[tuple(dst)] = a[tuple(src)]
+    return out
+
+
+def fill(
+    maps: dict[int, np.ndarray], config: RayTraceConfig, open_cells: np.ndarray, d2: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The raw maps of ``path_gain_maps`` (by cell factor) filled by ``config.gap_fill_method``: (gain, filled mask).
+
+    ``open_cells`` [ny, nx]: no building at or above the plane; ``d2`` [U, ny, nx]: squared user-to-cell distances [m^2].
+    """
+    fine = maps[1]
+    factors = tuple(config.gap_fill_factors)
+    coarse = [maps[f] for f in factors]
+    if config.gap_fill_method == "smooth":
+        gain = fill_smooth(fine, coarse, factors, open_cells, d2)
+    elif config.gap_fill_method == "parent":
+        gain = fine
+        for f, c in zip(factors, coarse, strict=True):
+            gain = fill_gaps(gain, c, f)
+    else:
+        raise ValueError(f"unknown gap fill method {config.gap_fill_method!r} (smooth or parent)")
+    return gain, (fine == 0) & (gain > 0)
+
+
+def constant_patch_share(gain: np.ndarray, live: np.ndarray, size: int = 4) -> float:
+    """Share of ``live`` cells [U, ny, nx] inside a ``size`` x ``size`` patch of exactly equal value (a mosaic)."""
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    if gain.shape[-1] < size or gain.shape[-2] < size:
+        return 0.0
+    win = sliding_window_view(gain, (size, size), axis=(-2, -1))
+    lw = sliding_window_view(live, (size, size), axis=(-2, -1))
+    flat = (win == win[..., :1, :1]).all(axis=(-2, -1)) & lw.all(axis=(-2, -1))  # [U, ny-s+1, nx-s+1]
+    marked = np.zeros(gain.shape, bool)
+    for dy in range(size):
+        for dx in range(size):
+            marked[..., dy : dy + flat.shape[-2], dx : dx + flat.shape[-1]] |= flat
+    return float((marked & live).sum() / max(live.sum(), 1))
 
 
 @dataclass(frozen=True)
@@ -88,33 +196,39 @@ def import_sionna():
     return mi, rt
 
 
-def path_gain_maps(
-    job: RadioMapJob, config: RayTraceConfig, on_batch: Callable[[int, int], None] | None = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """Path gain (linear) ``[num_users, num_y, num_x]`` of the job's plane.
-
-    Cell ``(iy, ix)`` is centred at ``center - size / 2 + (i + 0.5) * cell``. A cell no ray reached holds 0.
-    With ``config.gap_fill_factors``, each factor traces one more map of coarser cells over the same corner
-    and fills the gaps (``fill_gaps``), finest first; the second array returned marks the filled cells.
-    ``on_batch(done, total)`` reports progress in users.
-    """
+def _scene(job: RadioMapJob, config: RayTraceConfig):  # noqa: ANN202 - (mitsuba, sionna.rt, Scene)
     mi, rt = import_sionna()
     scene = rt.load_scene(job.scene_xml)
     scene.frequency = config.frequency_hz
     scene.tx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern=config.antenna, polarization="V")
     scene.rx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern=config.antenna, polarization="V")
+    return mi, rt, scene
+
+
+def _set_users(mi, rt, scene, users: np.ndarray, start: int) -> None:  # noqa: ANN001
+    for name in list(scene.transmitters):
+        scene.remove(name)
+    for k, (x, y, z) in enumerate(users):
+        scene.add(rt.Transmitter(name=f"user{start + k}", position=mi.Point3f(float(x), float(y), float(z)), power_dbm=0.0))
+
+
+def path_gain_maps(
+    job: RadioMapJob, config: RayTraceConfig, on_batch: Callable[[int, int], None] | None = None
+) -> dict[int, np.ndarray]:
+    """Raw path gain maps (linear), by cell factor: ``{1: [num_users, num_y, num_x], f: [num_users, cy, cx], ...}``.
+
+    Cell ``(iy, ix)`` is centred at ``center - size / 2 + (i + 0.5) * cell``. A cell no ray reached holds 0.
+    Besides the grid (factor 1), each of ``config.gap_fill_factors`` traces a map of cells that many times
+    larger over the same corner (``fill`` uses them). ``on_batch(done, total)`` reports progress in users.
+    """
+    mi, rt, scene = _scene(job, config)
     solver = rt.RadioMapSolver()
     users = np.asarray(job.users_m, dtype=float)
     center_m, size_m, cell_m = job.center_m, job.size_m, job.cell_m
-    out, filled = [], []
+    out: dict[int, list[np.ndarray]] = {}
     for start in range(0, len(users), config.users_per_call):
-        for name in list(scene.transmitters):
-            scene.remove(name)
-        batch = users[start : start + config.users_per_call]
-        for k, (x, y, z) in enumerate(batch):
-            scene.add(rt.Transmitter(name=f"user{start + k}", position=mi.Point3f(float(x), float(y), float(z)), power_dbm=0.0))
+        _set_users(mi, rt, scene, users[start : start + config.users_per_call], start)
         corner = (center_m[0] - size_m[0] / 2, center_m[1] - size_m[1] / 2)
-        maps = []
         for factor in (1, *config.gap_fill_factors):
             cell = cell_m * factor
             # A whole number of coarse cells from the same corner (the last row/column may overhang).
@@ -131,21 +245,43 @@ def path_gain_maps(
                 refraction=config.refraction,
                 seed=config.seed + start + 7919 * factor,
             )
-            maps.append(np.asarray(rm.path_gain.numpy(), dtype=np.float64))
-        gain = maps[0]
-        for factor, coarse in zip(config.gap_fill_factors, maps[1:], strict=True):
-            gain = fill_gaps(gain, coarse, factor)
-        out.append(gain)
-        filled.append((maps[0] == 0) & (gain > 0))
+            out.setdefault(factor, []).append(np.asarray(rm.path_gain.numpy(), dtype=np.float64))
         if on_batch is not None:
             on_batch(min(start + config.users_per_call, len(users)), len(users))
-    return np.concatenate(out, axis=0), np.concatenate(filled, axis=0)
+    return {f: np.concatenate(v, axis=0) for f, v in out.items()}
 
 
-def path_gain_maps_isolated(
-    job: RadioMapJob, config: RayTraceConfig, on_batch: Callable[[int, int], None] | None = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """``path_gain_maps`` in a child Python process.
+def point_path_gains(
+    job: RadioMapJob, points_m: np.ndarray, config: RayTraceConfig, on_batch: Callable[[int, int], None] | None = None
+) -> np.ndarray:
+    """Exact path gain (linear) from every user to every point [num_users, num_points], with Sionna's
+    ``PathSolver`` (a receiver per point, every path found, as InSite computes them): the incoherent sum
+    of the paths' powers, which is what a radio map estimates. 0 where no path was found."""
+    mi, rt, scene = _scene(job, config)
+    solver = rt.PathSolver()
+    users = np.asarray(job.users_m, dtype=float)
+    for k, (x, y, z) in enumerate(np.asarray(points_m, dtype=float)):
+        scene.add(rt.Receiver(name=f"rx{k}", position=mi.Point3f(float(x), float(y), float(z))))
+    out = np.zeros((len(users), len(points_m)))
+    for u in range(len(users)):
+        _set_users(mi, rt, scene, users[u : u + 1], u)
+        paths = solver(
+            scene,
+            max_depth=config.max_depth,
+            samples_per_src=int(config.samples_per_tx),
+            diffraction=config.diffraction,
+            refraction=config.refraction,
+            seed=config.seed,
+        )
+        re, im = (np.asarray(x.numpy()) for x in paths.a)  # [num_rx, rx_ant, num_tx, tx_ant, num_paths]
+        out[u] = (re**2 + im**2).reshape(len(points_m), -1).sum(axis=1)
+        if on_batch is not None:
+            on_batch(u + 1, len(users))
+    return out
+
+
+def _isolated(kind: str, payload: dict, on_batch: Callable[[int, int], None] | None) -> dict[str, np.ndarray]:
+    """Run ``kind`` (``maps`` or ``points``) in a child Python process; its arrays by name.
 
     Dr.Jit/Mitsuba can crash while the interpreter shuts down (heap errors at exit after a
     correct run, seen here intermittently on the LLVM backend); running the solver in a child
@@ -155,7 +291,7 @@ def path_gain_maps_isolated(
     with tempfile.TemporaryDirectory(prefix="uavplace-rt-") as tmp:
         job_file = Path(tmp) / "job.json"
         result = Path(tmp) / "result.npz"
-        job_file.write_text(json.dumps({"job": asdict(job), "config": asdict(config), "result": str(result)}))
+        job_file.write_text(json.dumps(payload | {"kind": kind, "result": str(result)}))
         proc = subprocess.Popen(
             [sys.executable, "-m", "simulate.raytrace", str(job_file)],
             stdout=subprocess.PIPE,
@@ -174,7 +310,23 @@ def path_gain_maps_isolated(
         if not result.is_file():
             raise RuntimeError(f"Sionna RT child process failed (exit {proc.returncode}):\n{''.join(log[-30:])}")
         with np.load(result) as npz:
-            return npz["gain"], npz["filled"]
+            return {k: npz[k] for k in npz.files}
+
+
+def path_gain_maps_isolated(
+    job: RadioMapJob, config: RayTraceConfig, on_batch: Callable[[int, int], None] | None = None
+) -> dict[int, np.ndarray]:
+    """``path_gain_maps`` in a child Python process (see ``_isolated``)."""
+    arrays = _isolated("maps", {"job": asdict(job), "config": asdict(config)}, on_batch)
+    return {int(k.removeprefix("f")): v for k, v in arrays.items()}
+
+
+def point_path_gains_isolated(
+    job: RadioMapJob, points_m: np.ndarray, config: RayTraceConfig, on_batch: Callable[[int, int], None] | None = None
+) -> np.ndarray:
+    """``point_path_gains`` in a child Python process (see ``_isolated``)."""
+    payload = {"job": asdict(job), "config": asdict(config), "points_m": np.asarray(points_m, float).tolist()}
+    return _isolated("points", payload, on_batch)["gain"]
 
 
 def _child(job_path: str) -> None:
@@ -182,9 +334,16 @@ def _child(job_path: str) -> None:
     j = doc["job"]
     job = RadioMapJob(j["scene_xml"], tuple(map(tuple, j["users_m"])), tuple(j["center_m"]), tuple(j["size_m"]), j["cell_m"])
     config = RayTraceConfig(**doc["config"] | {"gap_fill_factors": tuple(doc["config"]["gap_fill_factors"])})
-    gain, filled = path_gain_maps(job, config, on_batch=lambda d, t: print(f"progress {d} {t}", flush=True))
+
+    def report(d: int, t: int) -> None:
+        print(f"progress {d} {t}", flush=True)
+
+    if doc["kind"] == "maps":
+        arrays = {f"f{k}": v for k, v in path_gain_maps(job, config, on_batch=report).items()}
+    else:
+        arrays = {"gain": point_path_gains(job, np.asarray(doc["points_m"]), config, on_batch=report)}
     tmp = Path(doc["result"]).with_suffix(".tmp.npz")
-    np.savez(tmp, gain=gain, filled=filled)
+    np.savez(tmp, **arrays)
     os.replace(tmp, doc["result"])
     sys.stdout.flush()
     # Skip interpreter teardown: the result is on disk, and Dr.Jit's shutdown is what can crash.

@@ -70,6 +70,26 @@ def test_fill_gaps_takes_the_parent_cell():
     assert out[0, 0, 0] == 2.0 and out[0, 1, 1] == 1.0 and out[0, 0, 5] == 0.0 and out[0, 4, 5] == 4.0
 
 
+def test_smooth_fill_varies_from_cell_to_cell_and_never_crosses_a_building():
+    from simulate.raytrace import constant_patch_share, fill_smooth
+
+    fine = np.zeros((1, 8, 8))
+    fine[0, 0, 0], fine[0, 0, 7] = 4.0, 1.0  # two hits, left and right of a wall
+    coarse = np.full((1, 2, 2), 0.5)  # factor 4: every parent saw rays, so every cell is live
+    open_cells = np.ones((8, 8), bool)
+    open_cells[:7, 4] = False  # a wall down column 4, open at the bottom row
+    iy, ix = np.mgrid[0:8, 0:8]
+    d2 = ((iy * 4.0 - 14.0) ** 2 + (ix * 4.0 - 14.0) ** 2 + 8.5**2)[None]  # a user below the middle, 8.5 m lower
+    out = fill_smooth(fine, [coarse], (4,), open_cells, d2)
+    assert (out > 0).all() and out[0, 0, 0] == 4.0 and out[0, 0, 7] == 1.0
+    rel = out * d2  # relative to free space, each side is filled from its own hit, never across the wall
+    assert rel[0, 0, 3] == pytest.approx(4.0 * d2[0, 0, 0]) and rel[0, 0, 5] == pytest.approx(1.0 * d2[0, 0, 7])
+    assert constant_patch_share(out, out > 0) == 0.0  # no mosaic, where the parent copy is one
+    assert constant_patch_share(np.repeat(np.repeat(coarse, 4, 1), 4, 2), out > 0) == 1.0
+    dead = fill_smooth(np.zeros((1, 8, 8)), [np.zeros((1, 2, 2))], (4,), open_cells, d2)
+    assert not dead.any()  # no ray at any scale: unreached stays unreached
+
+
 def test_city_file_round_trips_through_ingest(tmp_path):
     from simulate.insite import write_city
 
@@ -153,7 +173,9 @@ def test_open_scene_follows_friis_plus_ground_reflection(tmp_path):
 @needs_sionna
 def test_simulate_ingest_build_round_trip(tmp_path):
     """The tiny city through the real commands; the bundle's SINR equals the radio map's, computed here again."""
-    from simulate.raytrace import RadioMapJob, RayTraceConfig, path_gain_maps_isolated
+    from simulate.insite import ReceiverGrid
+    from simulate.pipeline import open_cells, squared_distances
+    from simulate.raytrace import RadioMapJob, RayTraceConfig, fill, path_gain_maps_isolated
     from simulate.scene import write_scene
 
     _simulate(tmp_path, "procedural:tiny", "--name", "tiny", "--users", "3", "--samples", "2e5", "--seed", "4")
@@ -169,7 +191,8 @@ def test_simulate_ingest_build_round_trip(tmp_path):
     users = np.array(record["users_m"])
     cfg = RayTraceConfig(samples_per_tx=200_000, seed=4)
     job = RadioMapJob(str(xml), tuple(map(tuple, users.tolist())), (48.0, 40.0, 10.0), (96.0, 80.0), 4.0)
-    gain, _ = path_gain_maps_isolated(job, cfg)
+    grid = ReceiverGrid(x0_m=2.0, y0_m=2.0, z_m=10.0, num_x=24, num_y=20, spacing_m=4.0)
+    gain, _ = fill(path_gain_maps_isolated(job, cfg), cfg, open_cells(blocks, grid), squared_distances(users, grid))
     live = gain > 0
     expected = 20.0 + 10 * np.log10(np.where(live, gain, 1.0)) + 104.0
     cells = [(0, 3, 4), (1, 10, 12), (2, 17, 20), (0, 0, 0)]
