@@ -9,7 +9,7 @@ Printed per city and method:
 
 - the median and p90 absolute error [dB] over the (user, cell) pairs that both call live;
 - dead/live agreement over all sampled pairs;
-- the share of live cells of the whole maps inside a 4 x 4-cell patch of exactly equal gain.
+- the share of live cells of the whole maps (outside buildings) inside a 4 x 4-cell patch of exactly equal gain.
 
 Targets: median <= 3 dB, agreement >= 90 %, patches <= 1 %.
 
@@ -87,7 +87,7 @@ def measure(source: str, crop, users: int, cells: int, samples: float, seed: int
                 "median_abs_err_db": float(np.median(err)) if err.size else float("nan"),
                 "p90_abs_err_db": float(np.percentile(err, 90)) if err.size else float("nan"),
                 "dead_live_agreement": float(((est > 0) == (ref > 0)).mean()),
-                "patch_share": constant_patch_share(gain, gain > 0),
+                "patch_share": constant_patch_share(gain, (gain > 0) & opened),
             }
         )
     return rows

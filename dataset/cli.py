@@ -13,7 +13,7 @@ from typing import NoReturn
 import click
 from rich.console import Console
 from rich.markup import escape
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 from rich.text import Text
 
@@ -463,8 +463,31 @@ class Point(click.ParamType):
 
 
 @main.command()
-@click.argument("source")
-@click.option("--name", required=True, help="City name: the exports go to OUT/<name>/.")
+@click.argument("sources", metavar="SOURCE...", nargs=-1, required=True)
+@click.option(
+    "--name",
+    required=True,
+    help="City name: the exports go to OUT/<name>/; with several cities, OUT/<name>-000/, OUT/<name>-001/, ...",
+)
+@click.option(
+    "--count",
+    type=click.IntRange(min=1),
+    default=1,
+    show_default=True,
+    help="Cities to draw from one procedural SOURCE, seeds SEED, SEED+1, ... (a corpus).",
+)
+@click.option(
+    "--ray-address",
+    default=None,
+    help="Ray cluster to run a corpus on (e.g. ray://head:10001, or auto); default: a local Ray on this machine.",
+)
+@click.option(
+    "--cpus-per-city",
+    type=click.FloatRange(min=0.5),
+    default=2.0,
+    show_default=True,
+    help="CPUs each city's Ray task reserves (the ray tracer uses all it is given).",
+)
 @click.option(
     "--out",
     "out_root",
@@ -522,8 +545,11 @@ class Point(click.ParamType):
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the city generator, the users and the ray sampler.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def simulate(
-    source: str,
+    sources: tuple[str, ...],
     name: str,
+    count: int,
+    ray_address: str | None,
+    cpus_per_city: float,
     out_root: Path,
     num_users: int,
     users_m: tuple,
@@ -541,22 +567,25 @@ def simulate(
     seed: int,
     quiet: bool,
 ) -> None:
-    """Ray-trace a city with Sionna RT and write it as Wireless InSite exports in OUT/<name>/.
+    """Ray-trace cities with Sionna RT and write each as Wireless InSite exports in OUT/<name>/.
 
     \b
-    SOURCE is procedural[:train|test|tiny] (a seeded generated city: train
-    552 x 500 m, test 400 x 500 m, tiny 96 x 80 m), an InSite .city file, a
-    GeoJSON file of footprints with heights, a Mitsuba .xml scene with its
-    PLY/OBJ meshes, or sionna:<scene> for a scene Sionna RT ships
-    (sionna:etoile, sionna:florence); from meshes, a building is a connected
-    body, the ground is left out and roofs are split into height tiers.
-    Writes <name>.txrx (users and
-    the receiver grid), <name>.setup, <name>.city, one
-    <name>.power.tNNN_01.r002.p2m.gz per user and simulation.json (every
-    parameter, package versions, materials, wall time). Then:
-    uavdata ingest OUT/<name>/ && uavdata build.
+    SOURCE is one of:
+      procedural:train|test|tiny   the original generator (552 x 500, 400 x 500, 96 x 80 m)
+      procedural:STYLE[:WxH]       generator v2: grid, rotated, perimeter, towers, organic,
+                                   plazas, or mixed (a style drawn from the seed); 400 x 400 m
+      an InSite .city, a GeoJSON of footprints (OpenStreetMap heights and levels understood)
+      a Mitsuba .xml scene with its PLY/OBJ meshes, or sionna:etoile, sionna:florence (the
+      scenes Sionna RT ships): a building per connected body, no ground, roofs in height tiers
+    Several SOURCEs, or --count N, make a corpus (OUT/<name>-000/, ...), traced as Ray
+    tasks on a local Ray (or --ray-address); cities already done with the same settings
+    are skipped, so running the command again resumes it.
+    Each city gets <name>.txrx (users and the receiver grid), <name>.setup, <name>.city,
+    one <name>.power.tNNN_01.r002.p2m.gz per user and simulation.json (every parameter,
+    package versions, materials, wall time). Then: uavdata ingest OUT/<name>/ && uavdata build.
     Needs the raytrace extra: pip install -e '.[raytrace]' (CPU: libllvm19).
     """
+    from simulate.corpus import corpus_specs
     from simulate.pipeline import SimulationSpec, simulate_city
     from simulate.raytrace import RayTraceConfig
 
@@ -564,8 +593,9 @@ def simulate(
     for value, hint in ((extent, "--extent"), (crop, "--crop")):
         if isinstance(value, str):
             raise click.BadParameter("expected XMIN,YMIN,XMAX,YMAX", param_hint=hint)
-    spec = SimulationSpec(source=source, name=name, num_users=len(users_m) or num_users, grid_m=grid_m, altitude_m=altitude_m,
+    base = SimulationSpec(source=sources[0], name=name, num_users=len(users_m) or num_users, grid_m=grid_m, altitude_m=altitude_m,
                           tx_dbm=tx_dbm, seed=seed, extent_m=extent, users_m=tuple(users_m), crop_m=crop)  # fmt: skip
+    specs = corpus_specs(list(sources), name, count, base)
     try:
         factors = () if gap_fill == "none" else tuple(int(f) for f in gap_fill.split(","))
     except ValueError:
@@ -581,6 +611,9 @@ def simulate(
         gap_fill_factors=factors,
         gap_fill_method=gap_fill_method,
     )
+    if len(specs) > 1 or ray_address is not None:
+        _simulate_corpus(specs, rt, out_root, ray_address, cpus_per_city, quiet)
+        return
     try:
         with Progress(TextColumn("[bold]simulate[/] {task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                       console=console, disable=quiet, transient=True) as progress:  # fmt: skip
@@ -589,13 +622,9 @@ def simulate(
             def on_progress(stage: str, done: int, total: int) -> None:
                 progress.update(task, description=f"{name}: {stage}", completed=done, total=total)
 
-            folder, record = simulate_city(spec, rt, out_root, command=command_line(), on_progress=on_progress)
-    except InputError as err:
-        fail(err)
-        return
+            folder, record = simulate_city(specs[0], rt, out_root, command=command_line(), on_progress=on_progress)
     except RuntimeError as err:  # Sionna RT missing or its child process failed
         fail(err)
-        return
     g = record["grid"]
     stdout().print(
         f"simulated {name}: {record['geometry']}, {len(record['users_m'])} users, "
@@ -603,6 +632,41 @@ def simulate(
         f"{100 * record['unreached_cell_share']:.1f} % of user-cells unreached "
         f"({100 * record['gap_filled_cell_share']:.1f} % Monte Carlo gaps filled), ray tracing {record['raytrace_seconds']:.1f} s "
         f"(wall {record['wall_seconds']:.1f} s) -> {folder}",
+        highlight=False,
+        soft_wrap=True,
+    )
+
+
+def _simulate_corpus(specs, rt, out_root: Path, address: str | None, cpus_per_city: float, quiet: bool) -> None:  # noqa: ANN001
+    """Several cities as Ray tasks, one progress bar (a line per city when not on a terminal), resumable."""
+    from simulate.corpus import simulate_corpus
+
+    out = stdout()
+    lines = quiet or not console.is_terminal
+    columns = (
+        TextColumn("[bold]simulate[/] corpus"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+    )
+    with Progress(*columns, console=console, disable=lines, transient=True) as progress:
+        bar = progress.add_task("corpus", total=len(specs))
+
+        def on_city(summary: dict, done: int, total: int) -> None:
+            progress.update(bar, completed=len(specs) - total + done)
+            if lines and not quiet:
+                out.print(f"[{done}/{total}] simulated {summary['name']}: {summary['geometry']} ({summary['seconds']:.0f} s) "
+                          f"-> {summary['folder']}", highlight=False, soft_wrap=True, markup=False)  # fmt: skip
+
+        try:
+            done, skipped = simulate_corpus(specs, rt, out_root, command=command_line(), address=address,
+                                            cpus_per_city=cpus_per_city, on_city=on_city)  # fmt: skip
+        except RuntimeError as err:
+            fail(err)
+    out.print(
+        f"simulated {len(done)} of {len(specs)} cities into {out_root}"
+        + (f"; {len(skipped)} already done with the same settings: {', '.join(skipped)}" if skipped else ""),
         highlight=False,
         soft_wrap=True,
     )

@@ -36,6 +36,7 @@ from simulate.insite import UNREACHED_POWER_DBM, ReceiverGrid, write_city, write
 from simulate.procedural import PRESETS, USER_HEIGHT_M, generate_city, sample_users
 from simulate.raytrace import RadioMapJob, RayTraceConfig, constant_patch_share, fill, path_gain_maps_isolated, sionna_versions
 from simulate.scene import Block, write_scene
+from simulate.styles import STYLE_SIZE_M, STYLES, styled_city
 
 USER_SET = (1, "User")
 GRID_SET = (2, "Drone_grid")
@@ -74,12 +75,24 @@ def _sionna_scene(name: str) -> Path:
     return Path(path)
 
 
+def _size(text: str, source: str) -> tuple[float, float]:
+    try:
+        w, h = (float(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise InputError(source, f"size '{text}': expected WIDTHxHEIGHT in metres, e.g. 400x500", field="source") from None
+    if not (48 <= w <= 5000 and 48 <= h <= 5000):
+        raise InputError(source, f"size {w:g} x {h:g} m: each side must be 48 to 5000 m", field="source")
+    return (w, h)
+
+
 def load_geometry(
     source: str, seed: int, crop: tuple[float, float, float, float] | None = None
 ) -> tuple[list[Block], tuple[float, float, float, float], str]:
     """(building parts, city bounds, description) of a source; ``crop`` keeps the buildings in that box (clipped).
 
-    Sources: ``procedural:<preset>``; an InSite ``.city``; a GeoJSON file; a Mitsuba
+    Sources: ``procedural:<preset>`` (train, test, tiny, open: the original generator),
+    ``procedural:<style>[:WxH]`` (generator v2, ``simulate.styles``: grid, rotated,
+    perimeter, towers, organic, plazas, or mixed to draw one from the seed); an InSite ``.city``; a GeoJSON file; a Mitsuba
     ``.xml`` scene with its PLY/OBJ meshes, or ``sionna:<scene>`` for one that Sionna
     RT ships (``sionna:etoile``, ``sionna:florence``): buildings per connected body, the
     ground left out, roofs split into height tiers (``ingest.mitsuba``).
@@ -87,9 +100,15 @@ def load_geometry(
     if source.startswith("procedural"):
         if crop is not None:
             raise InputError(source, "--crop applies to real geometry; a procedural city takes --extent", field="crop")
-        preset = source.partition(":")[2] or "train"
+        preset, _, size_text = (source.partition(":")[2] or "train").partition(":")
+        if preset in STYLES or preset == "mixed":
+            size = _size(size_text, source) if size_text else STYLE_SIZE_M
+            used, parts = styled_city(preset, size, seed)
+            blocks = [Block(f, 0.0, h, k) for f, h, k in parts]
+            return blocks, (0.0, 0.0, *size), f"procedural style {used} ({size[0]:g} x {size[1]:g} m), seed {seed}"
         if preset not in PRESETS:
-            raise InputError(source, f"unknown procedural preset '{preset}' (known: {', '.join(PRESETS)})", field="source")
+            known = ", ".join([*PRESETS, *sorted(STYLES), "mixed"])
+            raise InputError(source, f"unknown procedural preset or style '{preset}' (known: {known})", field="source")
         size = PRESETS[preset]
         city = generate_city(size, 0, seed)
         blocks = (
@@ -254,7 +273,8 @@ def simulate_city(
         maps = path_gain_maps_isolated(job, rt_config, on_batch=lambda d, t: progress("ray tracing", d, t))
         rt_seconds = time.perf_counter() - t_rt
     pos = grid.points()  # [ny * nx, 3], x fastest: the same order as gain[u].ravel()
-    gain, filled = fill(maps, rt_config, open_cells(blocks, grid), squared_distances(users, grid))
+    opened = open_cells(blocks, grid)
+    gain, filled = fill(maps, rt_config, opened, squared_distances(users, grid))
     with atomic_directory(Path(out_root) / spec.name, marker=PROVENANCE, what="simulated city") as out:
         write_txrx(out / f"{spec.name}.txrx", users, grid, tx_power_dbm=spec.tx_dbm, user_set=USER_SET, grid_set=GRID_SET)
         write_setup(out / f"{spec.name}.setup", spec.name, frequency_hz=rt_config.frequency_hz, features=[f"{spec.name}.city"])
@@ -298,7 +318,7 @@ def simulate_city(
                 "monte_carlo_gaps_filled": int(filled.sum()),
                 "unreached": int((~reached).sum()),
                 "gap_fill": GAP_FILL_TEXT[rt_config.gap_fill_method].format(factors=rt_config.gap_fill_factors),
-                "constant_4x4_patch_share": constant_patch_share(gain, gain > 0),
+                "constant_4x4_patch_share": constant_patch_share(gain, (gain > 0) & opened),
             },
             "unreached_cell_share": float(1 - reached.mean()),
             "gap_filled_cell_share": float(filled.mean()),

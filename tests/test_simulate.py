@@ -122,7 +122,7 @@ def test_bad_simulation_inputs(tmp_path):
     )
     with pytest.raises(InputError, match="bad.geojson"):
         load_geometry(str(gj), 0)
-    with pytest.raises(InputError, match="unknown procedural preset 'huge'"):
+    with pytest.raises(InputError, match="unknown procedural preset or style 'huge'"):
         load_geometry("procedural:huge", 0)
     res = CliRunner().invoke(
         uavdata, ["simulate", "procedural:tiny", "--name", "t", "--out", str(tmp_path), "--user", f"{inside.x},{inside.y}"]
@@ -202,3 +202,31 @@ def test_simulate_ingest_build_round_trip(tmp_path):
         else:
             assert b.dead[u, iy, ix]
     np.testing.assert_array_equal(b.dead, ~live)
+
+
+@needs_sionna
+def test_a_corpus_runs_on_local_ray_and_resumes(tmp_path):
+    """Two tiny cities of generator v2 as Ray tasks; the same command again skips them; seeds make the cities."""
+    pytest.importorskip("ray")
+    args = ("procedural:mixed:96x96", "--count", "2", "--name", "c", "--users", "2", "--samples", "1e5", "--seed", "10")
+    res = _simulate(tmp_path, *args)
+    assert "simulated 2 of 2 cities" in res.stdout, res.stdout
+    records = [json.loads((tmp_path / "raw" / f"c-00{i}" / "simulation.json").read_text()) for i in (0, 1)]
+    assert [r["spec"]["seed"] for r in records] == [10, 11] and [r["raytrace"]["seed"] for r in records] == [10, 11]
+    assert records[0]["spec"]["source"] == "procedural:mixed:96x96" and "procedural style" in records[0]["geometry"]
+    res = _simulate(tmp_path, *args)
+    assert "simulated 0 of 2 cities" in res.stdout and "2 already done with the same settings: c-000, c-001" in res.stdout
+
+
+def test_styles_are_seeded_and_varied():
+    from simulate.styles import STYLES, styled_city
+
+    for name in STYLES:
+        used, a = styled_city(name, (200.0, 200.0), 3)
+        _, b = styled_city(name, (200.0, 200.0), 3)
+        assert used == name and len(a) > 3 and [p.wkt for p, *_ in a] == [p.wkt for p, *_ in b]
+        assert all(p.is_valid and 0 <= p.bounds[0] and p.bounds[2] <= 200 for p, *_ in a)
+    _, towers = styled_city("towers", (400.0, 400.0), 2)
+    assert len({k for *_, k in towers}) < len(towers)  # some buildings are a podium and a tower
+    picked = {styled_city("mixed", (100.0, 100.0), s)[0] for s in range(40)}
+    assert picked == set(STYLES)

@@ -735,7 +735,7 @@ CASES: list[Case] = [
         "simulate unknown preset",
         "uavdata",
         lambda w: ["simulate", "procedural:huge", "--name", "x", "--out", str(w.tmp / "raw")],
-        "unknown procedural preset 'huge'",
+        "unknown procedural preset or style 'huge'",
     ),
     Case(
         "simulate missing source file",
