@@ -67,7 +67,7 @@ def _clean(polys, area: shapely.Polygon, min_area: float = 16.0) -> list[shapely
 def _grid(size: tuple[float, float], rng: np.random.Generator) -> list[Part]:
     params = CityStyle(
         block_m=(rng.uniform(28, 40), rng.uniform(60, 90)),
-        street_m=(rng.uniform(8, 12), rng.uniform(14, 24)),
+        street_m=(rng.uniform(8, 14), rng.uniform(14, 36)),
         open_lot_share=rng.uniform(0.05, 0.25),
         low_share=rng.uniform(0.15, 0.45),
         high_height_m=(12.0, rng.uniform(30, 60)),
@@ -94,7 +94,7 @@ def _rotated(size: tuple[float, float], rng: np.random.Generator) -> list[Part]:
 @style("perimeter")
 def _perimeter(size: tuple[float, float], rng: np.random.Generator) -> list[Part]:
     block = (rng.uniform(50, 70), rng.uniform(80, 120))
-    street = (rng.uniform(10, 14), rng.uniform(16, 26))
+    street = (rng.uniform(6, 10), rng.uniform(12, 24))
     depth = rng.uniform(10, 22)  # building depth from the street
     params = CityStyle(block_m=block, street_m=street)
     from simulate.procedural import _cuts
@@ -147,7 +147,7 @@ def _organic(size: tuple[float, float], rng: np.random.Generator) -> list[Part]:
     n = int(size[0] * size[1] / spacing**2)
     seeds = shapely.MultiPoint(np.c_[rng.uniform(0, size[0], n), rng.uniform(0, size[1], n)])
     cells = shapely.get_parts(shapely.voronoi_polygons(seeds, extend_to=area))
-    street = rng.uniform(8, 16)
+    street = rng.uniform(5, 14)
     open_share = rng.uniform(0.08, 0.25)
     heights = _heights(rng, len(cells), low_share=rng.uniform(0.2, 0.5), low=(4.0, 9.5), high=(12.0, rng.uniform(25, 45)))
     out: list[Part] = []
