@@ -28,6 +28,7 @@ import numpy as np
 
 from simulate.pipeline import SimulationSpec, load_geometry, open_cells, place_users, receiver_grid, squared_distances
 from simulate.raytrace import (
+    FILL_METHODS,
     RadioMapJob,
     RayTraceConfig,
     constant_patch_share,
@@ -37,7 +38,7 @@ from simulate.raytrace import (
 )
 from simulate.scene import write_scene
 
-METHODS = ("none", "parent", "smooth")
+METHODS = ("none", *FILL_METHODS)
 
 
 def _city(arg: str) -> tuple[str, tuple[float, float, float, float] | None]:
@@ -45,7 +46,7 @@ def _city(arg: str) -> tuple[str, tuple[float, float, float, float] | None]:
     return source, (tuple(float(v) for v in crop.split(",")) if crop else None)  # type: ignore[return-value]
 
 
-def measure(source: str, crop, users: int, cells: int, samples: float, seed: int) -> list[dict]:  # noqa: ANN001
+def measure(source: str, crop, users: int, cells: int, samples: float, seed: int, cache: Path | None = None) -> list[dict]:  # noqa: ANN001
     spec = SimulationSpec(source=source, name="bench", num_users=users, seed=seed, crop_m=crop)
     blocks, bounds, described = load_geometry(source, seed, crop)
     grid = receiver_grid(bounds, spec)
@@ -58,15 +59,26 @@ def measure(source: str, crop, users: int, cells: int, samples: float, seed: int
     rng = np.random.default_rng(seed)
     flat = rng.choice(np.flatnonzero(opened.ravel()), size=min(cells, int(opened.sum())), replace=False)
     points = grid.points()[flat]
-    with tempfile.TemporaryDirectory() as tmp:
-        xml, _ = write_scene(tmp, blocks, (corner[0], corner[1], corner[0] + size[0], corner[1] + size[1]), config.frequency_hz)
-        job = RadioMapJob(str(xml), tuple(map(tuple, pos_users.tolist())), center, size, grid.spacing_m)
-        t = time.perf_counter()
-        maps = path_gain_maps_isolated(job, config)
-        t_maps = time.perf_counter() - t
-        t = time.perf_counter()
-        ref = point_path_gains_isolated(job, points, config)  # [users, cells]
-        t_ref = time.perf_counter() - t
+    key = f"{source}-{crop}-{users}-{cells}-{samples:g}-{seed}".replace("/", "_").replace(" ", "")
+    cached = cache / f"{key}.npz" if cache is not None else None
+    if cached is not None and cached.is_file():
+        with np.load(cached, allow_pickle=False) as z:
+            maps = {int(k[1:]): z[k] for k in z.files if k.startswith("f")}
+            ref, t_maps, t_ref = z["ref"], float(z["t_maps"]), float(z["t_ref"])
+    else:
+        with tempfile.TemporaryDirectory() as tmp:
+            bounds_box = (corner[0], corner[1], corner[0] + size[0], corner[1] + size[1])
+            xml, _ = write_scene(tmp, blocks, bounds_box, config.frequency_hz)
+            job = RadioMapJob(str(xml), tuple(map(tuple, pos_users.tolist())), center, size, grid.spacing_m)
+            t = time.perf_counter()
+            maps = path_gain_maps_isolated(job, config)
+            t_maps = time.perf_counter() - t
+            t = time.perf_counter()
+            ref = point_path_gains_isolated(job, points, config)  # [users, cells]
+            t_ref = time.perf_counter() - t
+        if cached is not None:
+            cache.mkdir(parents=True, exist_ok=True)
+            np.savez(cached, ref=ref, t_maps=t_maps, t_ref=t_ref, **{f"f{k}": v for k, v in maps.items()})
     print(f"{source}{'@' + ','.join(f'{c:g}' for c in crop) if crop else ''}: {described}; grid {grid.num_x} x {grid.num_y}, "
           f"{len(pos_users)} users, {len(flat)} cells; radio maps {t_maps:.0f} s, exact paths {t_ref:.0f} s")  # fmt: skip
     d2 = squared_distances(pos_users, grid)
@@ -101,12 +113,13 @@ def main() -> None:
     ap.add_argument("--samples", type=float, default=2e6, help="rays per user, for the maps and the exact paths")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=None, help="also write the table as CSV here")
+    ap.add_argument("--cache", type=Path, default=None, help="keep the traced maps and exact paths here, to compare fills again")
     args = ap.parse_args()
     cities = args.city or ["procedural:test", "sionna:etoile@-200,-200,200,200"]
     rows = []
     for arg in cities:
         source, crop = _city(arg)
-        rows += measure(source, crop, args.users, args.cells, args.samples, args.seed)
+        rows += measure(source, crop, args.users, args.cells, args.samples, args.seed, args.cache)
     header = "| city | gap fill | pairs both live | median abs err [dB] | p90 abs err [dB] | dead/live agreement | 4x4 patches |"
     print(header)
     print("|" + "---|" * 7)

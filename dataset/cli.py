@@ -539,8 +539,8 @@ class Point(click.ParamType):
     type=click.Choice(["smooth", "parent"]),
     default="smooth",
     show_default=True,
-    help="smooth: a gap takes the mean of its known neighbours, relative to free space, spread from the hit cells "
-    "through open cells (never across a building); parent: the coarse cell's mean, copied (4 x 4 and 16 x 16 mosaics).",
+    help="smooth: a gap takes the level of the coarse map and the variation of its nearest hit cells, never across "
+    "a building; parent: the coarse cell's mean, copied (the first version: 4 x 4 and 16 x 16 mosaics).",
 )
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the city generator, the users and the ray sampler.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")

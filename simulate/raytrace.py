@@ -39,8 +39,8 @@ class RayTraceConfig:
     #: Carlo gaps; () for none. Each costs about one more solver call (measured: fewer samples for the
     #: coarse maps saved only ~20 % of the time and left 1.7 x more cells unreached).
     gap_fill_factors: tuple[int, ...] = (4, 16)
-    #: How a cell no ray hit is filled when a coarser map got rays there: "smooth" (spread from hit cells
-    #: through open cells, see ``fill_smooth``) or "parent" (the coarse cell's mean, copied: a mosaic).
+    #: How a cell no ray hit is filled when a coarser map got rays there: "smooth" (the coarse level with the
+    #: variation of the nearest hit cells, see ``fill_smooth``) or "parent" (the coarse cell's mean, copied: a mosaic).
     gap_fill_method: str = "smooth"
 
 
@@ -63,25 +63,30 @@ def fill_gaps(fine: np.ndarray, coarse: np.ndarray, factor: int) -> np.ndarray:
 def fill_smooth(
     fine: np.ndarray, coarse: list[np.ndarray], factors: tuple[int, ...], open_cells: np.ndarray, d2: np.ndarray
 ) -> np.ndarray:
-    """Fill Monte Carlo gaps from the nearest hit cells, in linear power, never across buildings.
+    """Fill Monte Carlo gaps: the level of the coarse map, the variation of the nearest hit cells.
 
     A cell no ray hit is live when a coarser map (``coarse[k]`` at ``factors[k]``) got rays in
-    its parent cell; otherwise it stays 0 (unreached, as InSite leaves it). The fill works on
-    the gain relative to free space, ``gain * d2`` (``d2`` [U, ny, nx]: squared distance from the
-    user to the cell centre [m^2]), so a filled cell keeps the spreading loss of its own
-    distance and no two cells are copies. Live gaps take the mean of their already-known
-    4-neighbours, front by front outward from the hit cells, and values spread only through
-    ``open_cells`` [ny, nx] (no building at or above the plane), so a shadow behind a building
-    is not filled from its lit side. Gaps the front cannot reach (an enclosed court with no
-    hit) take their finest live parent's relative gain. ``fine`` [U, ny, nx]; returns the
-    filled map of the same shape.
+    its parent cell; otherwise it stays 0 (unreached, as InSite leaves it). Then:
+
+    1. shape: on the gain relative to free space, ``gain * d2`` (``d2`` [U, ny, nx]: squared
+       distance from the user to the cell centre [m^2]), each live gap takes the geometric mean
+       of its already known 4-neighbours, front by front outward from the hit cells; values
+       spread only through ``open_cells`` [ny, nx] (no building at or above the plane), so a
+       shadow is never filled from the lit side of a building. Gaps no front reaches (an
+       enclosed court) take their parent's relative gain.
+    2. level: the gaps of each parent cell are scaled together so that their mean is the
+       parent's mean gain (the finest coarse map that saw rays there; it counts ``factor**2``
+       times more rays than a fine cell). Hit cells stay exactly as traced.
+
+    No two cells are copies, so the maps hold no constant 4 x 4 patches. ``fine`` [U, ny, nx];
+    returns the filled map of the same shape.
     """
     shape = fine.shape[-2:]
     live = fine > 0
     for c, f in zip(coarse, factors, strict=True):
         live |= _expand(c, f, shape) > 0
-    value = fine * d2  # gain relative to free space
     known = fine > 0
+    value = np.where(known, np.log(np.where(known, fine * d2, 1.0)), 0.0)  # log of the gain relative to free space
     gap = live & ~known
     spread = np.broadcast_to(open_cells, fine.shape)
     for _ in range(sum(shape)):
@@ -96,19 +101,41 @@ def fill_smooth(
             break
         value[new] = total[new] / count[new]
         known |= new
-    for c, f in zip(coarse, factors, strict=True):  # the rest: the finest coarse cell that saw rays
-        parent = _expand(c * _block_mean(d2, f), f, shape)
-        value = np.where(known, value, parent)
-        known |= value > 0
-    return np.where(live, value / d2, 0.0)
+    relative = np.where(known, np.exp(value), 0.0)
+    for c, f in zip(coarse, factors, strict=True):  # gaps no front reached: the finest parent that saw rays
+        relative = np.where(known, relative, _expand(c * _block_mean(d2, f), f, shape))
+        known |= relative > 0
+    out = np.where(fine > 0, fine, np.where(live, relative / d2, 0.0))  # hit cells exactly as traced
+    return _to_parent_level(out, fine, coarse, factors)
+
+
+def _to_parent_level(filled: np.ndarray, fine: np.ndarray, coarse: list[np.ndarray], factors: tuple[int, ...]) -> np.ndarray:
+    """Scale the gaps of each parent cell together so that their mean is the parent's (finest parent with rays first)."""
+    shape = fine.shape[-2:]
+    gap = (fine == 0) & (filled > 0)
+    out = filled.copy()
+    done = ~gap
+    for c, f in zip(coarse, factors, strict=True):
+        todo = gap & ~done & (_expand(c, f, shape) > 0)
+        count = _block_sum(todo.astype(float), f)
+        total = _block_sum(np.where(todo, out, 0.0), f)
+        scale = np.where((total > 0) & (c > 0), c * count / np.maximum(total, 1e-300), 1.0)
+        out = np.where(todo, out * _expand(scale, f, shape), out)
+        done |= todo
+    return out
+
+
+def _block_sum(a: np.ndarray, f: int) -> np.ndarray:
+    """Sum of ``a`` [..., ny, nx] over blocks of ``f`` x ``f`` cells (the last ones may be partial)."""
+    ny, nx = a.shape[-2:]
+    cy, cx = -(-ny // f), -(-nx // f)
+    pad = np.pad(a, [(0, 0)] * (a.ndim - 2) + [(0, cy * f - ny), (0, cx * f - nx)])
+    return pad.reshape(*a.shape[:-2], cy, f, cx, f).sum(axis=(-3, -1))
 
 
 def _block_mean(a: np.ndarray, f: int) -> np.ndarray:
     """Mean of ``a`` [..., ny, nx] over blocks of ``f`` x ``f`` cells (the last ones may be partial)."""
-    ny, nx = a.shape[-2:]
-    cy, cx = -(-ny // f), -(-nx // f)
-    pad = np.pad(a, [(0, 0)] * (a.ndim - 2) + [(0, cy * f - ny), (0, cx * f - nx)], constant_values=np.nan)
-    return np.nanmean(pad.reshape(*a.shape[:-2], cy, f, cx, f), axis=(-3, -1))
+    return _block_sum(a, f) / _block_sum(np.ones(a.shape), f)
 
 
 def _shifted(a: np.ndarray, step: int, axis: int) -> np.ndarray:
@@ -122,6 +149,10 @@ def _shifted(a: np.ndarray, step: int, axis: int) -> np.ndarray:
         src[axis], dst[axis] = slice(-step, None), slice(None, step)
     out[tuple(dst)] = a[tuple(src)]
     return out
+
+
+#: Gap fills: ``smooth`` (``fill_smooth``, the default) and ``parent`` (``fill_gaps``: the coarse cell copied).
+FILL_METHODS = ("smooth", "parent")
 
 
 def fill(

@@ -74,20 +74,40 @@ def test_smooth_fill_varies_from_cell_to_cell_and_never_crosses_a_building():
     from simulate.raytrace import constant_patch_share, fill_smooth
 
     fine = np.zeros((1, 8, 8))
-    fine[0, 0, 0], fine[0, 0, 7] = 4.0, 1.0  # two hits, left and right of a wall
-    coarse = np.full((1, 2, 2), 0.5)  # factor 4: every parent saw rays, so every cell is live
+    fine[0, 0, 0], fine[0, 0, 7] = 1e-3, 1e-6  # a strong hit left of a wall, a weak one right of it
+    coarse = np.full((1, 1, 1), 1e-4)  # factor 8: one parent, which saw rays, so every cell is live
     open_cells = np.ones((8, 8), bool)
-    open_cells[:7, 4] = False  # a wall down column 4, open at the bottom row
+    open_cells[:7, 4] = False  # the wall down column 4, open at the bottom row
     iy, ix = np.mgrid[0:8, 0:8]
     d2 = ((iy * 4.0 - 14.0) ** 2 + (ix * 4.0 - 14.0) ** 2 + 8.5**2)[None]  # a user below the middle, 8.5 m lower
-    out = fill_smooth(fine, [coarse], (4,), open_cells, d2)
-    assert (out > 0).all() and out[0, 0, 0] == 4.0 and out[0, 0, 7] == 1.0
-    rel = out * d2  # relative to free space, each side is filled from its own hit, never across the wall
-    assert rel[0, 0, 3] == pytest.approx(4.0 * d2[0, 0, 0]) and rel[0, 0, 5] == pytest.approx(1.0 * d2[0, 0, 7])
+    out = fill_smooth(fine, [coarse], (8,), open_cells, d2)
+    assert (out > 0).all() and out[0, 0, 0] == 1e-3 and out[0, 0, 7] == 1e-6  # hits exactly as traced
+    rel = out * d2  # relative to free space: each side is filled from its own hit, never across the wall
+    assert rel[0, 0, 3] / rel[0, 0, 5] == pytest.approx((1e-3 * d2[0, 0, 0]) / (1e-6 * d2[0, 0, 7]))
+    gaps = fine == 0
+    assert out[gaps].mean() == pytest.approx(1e-4)  # the gaps at the level of the coarse map
     assert constant_patch_share(out, out > 0) == 0.0  # no mosaic, where the parent copy is one
-    assert constant_patch_share(np.repeat(np.repeat(coarse, 4, 1), 4, 2), out > 0) == 1.0
-    dead = fill_smooth(np.zeros((1, 8, 8)), [np.zeros((1, 2, 2))], (4,), open_cells, d2)
+    assert constant_patch_share(np.full((1, 8, 8), 1e-4), out > 0) == 1.0
+    dead = fill_smooth(np.zeros((1, 8, 8)), [np.zeros((1, 1, 1))], (8,), open_cells, d2)
     assert not dead.any()  # no ray at any scale: unreached stays unreached
+
+
+def test_smooth_fill_takes_each_parents_level():
+    """The gaps of each parent cell average to the coarse map's value there (more rays, less noise)."""
+    from simulate.raytrace import fill_smooth
+
+    rng = np.random.default_rng(0)
+    fine = np.where(rng.random((1, 8, 8)) < 0.5, rng.uniform(1, 2, (1, 8, 8)), 0.0)
+    coarse = np.array([[[3.0, 1.5], [1.0, 0.0]]])  # the last parent saw no ray
+    fine[0, 4:, 4:] = 0.0
+    d2 = np.full((1, 8, 8), 100.0)
+    out = fill_smooth(fine, [coarse], (4,), np.ones((8, 8), bool), d2)
+    for py, px in ((0, 0), (0, 1), (1, 0)):
+        block = (slice(4 * py, 4 * py + 4), slice(4 * px, 4 * px + 4))
+        gaps = fine[0][block] == 0
+        assert out[0][block][gaps].mean() == pytest.approx(coarse[0, py, px])
+    assert not out[0, 4:, 4:].any()  # unreached at every scale
+    assert (out[fine > 0] == fine[fine > 0]).all()
 
 
 def test_city_file_round_trips_through_ingest(tmp_path):
