@@ -16,7 +16,8 @@ heights 8-30 m, courtyards in the perimeter style).
 - ``organic``: Voronoi blocks of irregular shape, some left open as plazas and parks.
 - ``plazas``: a grid with large open squares and parks.
 
-``mixed`` picks one of these per city from the seed.
+``mixed`` takes the styles in turn by seed (seed modulo the number of styles), so
+that a corpus of consecutive seeds covers them evenly.
 """
 
 from __future__ import annotations
@@ -170,10 +171,10 @@ def _plazas(size: tuple[float, float], rng: np.random.Generator) -> list[Part]:
 
 
 def styled_city(name: str, size: tuple[float, float], seed: int) -> tuple[str, list[Part]]:
-    """(the style used, its parts) of a seeded city; ``mixed`` picks the style from the seed."""
+    """(the style used, its parts) of a seeded city; ``mixed`` takes the styles in turn by seed."""
     rng = np.random.default_rng([seed, 7])
-    if name == "mixed":
-        name = sorted(STYLES)[int(rng.integers(len(STYLES)))]
+    if name == "mixed":  # styles in turn, so that any run of seeds covers them evenly
+        name = sorted(STYLES)[seed % len(STYLES)]
     if name not in STYLES:
         raise KeyError(name)
     return name, STYLES[name](size, rng)
