@@ -400,8 +400,8 @@ def rasterise(
 def _split(num_users: int, config: BuildConfig) -> list[str | None]:
     if config.role is None:
         return [None] * num_users
-    if config.role == "test":
-        return ["test"] * num_users
+    if config.role in ("val", "test"):
+        return [config.role] * num_users
     if config.val_users >= num_users:
         raise InputError(None, f"--val-users {config.val_users} leaves no training user of {num_users}", field="val_users")
     split = np.array(["train"] * num_users, dtype=object)

@@ -241,8 +241,8 @@ def _splits(values: tuple[str, ...]) -> dict[str, str]:
     out = {}
     for v in values:
         city, sep, role = v.partition("=")
-        if not sep or role not in ("train", "test"):
-            raise click.BadParameter(f"{v!r}: expected CITY=train or CITY=test", param_hint="--split")
+        if not sep or role not in ("train", "val", "test"):
+            raise click.BadParameter(f"{v!r}: expected CITY=train, CITY=val or CITY=test", param_hint="--split")
         out[city] = role
     return out
 
@@ -309,7 +309,8 @@ def _splits(values: tuple[str, ...]) -> dict[str, str]:
     "splits",
     multiple=True,
     metavar="CITY=ROLE",
-    help="Declare a city's role: train or test (repeatable). Recorded in the bundle.",
+    help="Declare a city's role: train, val (a validation city: all its users select checkpoints) or test "
+    "(repeatable). Recorded in the bundle.",
 )
 @click.option(
     "--val-users",

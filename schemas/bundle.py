@@ -24,7 +24,7 @@ from pydantic import Field, field_validator, model_validator
 from schemas.base import NAME_PATTERN, SCHEMA_VERSION, Contract
 from schemas.tables import FREQUENCY_RANGE_HZ, POWER_RANGE_DBM, RATIO_RANGE_DB, XY_RANGE_M, Z_RANGE_M, Column, TableSpec
 
-SplitRole = Literal["train", "test"]
+SplitRole = Literal["train", "val", "test"]
 UserSplit = Literal["train", "val", "test"]
 BoundsMode = Literal["auto", "receivers", "buildings"]
 SinrSource = Literal["export_sinr", "power", "path_gain", "path_loss"]
@@ -83,8 +83,8 @@ class BuildConfig(Contract):
 
     @model_validator(mode="after")
     def _val_only_in_train(self) -> BuildConfig:
-        if self.val_users and self.role == "test":
-            raise ValueError("val_users is for train cities; a test city's users are all test users")
+        if self.val_users and self.role in ("val", "test"):
+            raise ValueError(f"val_users is for train cities; a {self.role} city's users are all {self.role} users")
         return self
 
 

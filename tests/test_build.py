@@ -319,6 +319,8 @@ def test_splits(tmp_path):
     assert b.manifest.split == {"train": 3, "val": 2, "test": 0} and len(b.user_indices("val")) == 2
     t = load_bundle(build_city("city", cfg(role="test"), root).path)
     assert t.manifest.split == {"train": 0, "val": 0, "test": 5}
+    v = load_bundle(build_city("city", cfg(role="val"), root).path)  # a validation city: all its users
+    assert v.manifest.split == {"train": 0, "val": 5, "test": 0} and len(v.user_indices("val")) == 5
     with pytest.raises(ValueError, match="val_users is for train cities"):
         cfg(role="test", val_users=1)
 

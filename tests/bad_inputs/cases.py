@@ -604,7 +604,7 @@ CASES: list[Case] = [
         "build bad --split",
         "uavdata",
         lambda w: ["build", "--root", str(w.root()), "--split", "city=maybe"],
-        "expected CITY=train or CITY=test",
+        "expected CITY=train, CITY=val or CITY=test",
     ),
     Case(
         "build --grid four",
