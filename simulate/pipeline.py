@@ -169,8 +169,9 @@ def load_geometry(
 
 #: How simulation.json describes each gap-fill method.
 GAP_FILL_TEXT = {
-    "smooth": "a cell no ray hit, whose parent in the maps of {factors} x coarser cells got rays, takes the mean of its "
-    "known 4-neighbours, spread outward from the hit cells through cells without a building at or above the plane",
+    "smooth": "a cell no ray hit, whose parent in the maps of {factors} x coarser cells got rays, takes the geometric "
+    "mean of its known 4-neighbours' gain relative to free space, spread outward from the hit cells through cells "
+    "without a building at or above the plane; then each parent's gaps are scaled to the parent's mean gain",
     "parent": "a cell no ray hit takes the mean path gain of its parent cell in the maps of {factors} x coarser cells "
     "(same samples per user), finest first",
 }
