@@ -4,7 +4,8 @@ For every built city (its ``latest`` bundle) and its raw folder's
 ``simulation.json``: the source, size, buildings, users, role, the blocked
 share, the share of legal cells at the target, the dead share, the genie's
 median steps, the share of start cells excluded (no target reachable), and
-the share of live cells outside buildings in constant 4 x 4 patches.
+the share of live cells outside buildings and above the SINR floor in constant
+4 x 4 patches (cells raised to the floor are equal by design, not a mosaic).
 
     python benchmarks/corpus_table.py [--root data/processed] [--raw data/raw]
 """
@@ -44,7 +45,8 @@ def main() -> None:
         tiers = record.get("num_building_parts", "-")
         d = b.manifest.difficulty
         g = b.manifest.grid
-        live = ~b.dead & ~b.blocked[None]
+        # live cells outside buildings and above the SINR floor (cells raised to the floor are equal by design)
+        live = ~b.dead & ~b.blocked[None] & (b.sinr_db > b.sinr_floor_db)
         patches = constant_patch_share(b.sinr_db, live)
         print(
             f"| {c.name} | {source} | {g.num_x * g.spacing_m:g} x {g.num_y * g.spacing_m:g} | "
