@@ -615,13 +615,16 @@ def simulate(
     if len(specs) > 1 or ray_address is not None:
         _simulate_corpus(specs, rt, out_root, ray_address, cpus_per_city, quiet)
         return
+    lines = not quiet and not console.is_terminal  # a log: a line per step instead of a bar
     try:
         with Progress(TextColumn("[bold]simulate[/] {task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                      console=console, disable=quiet, transient=True) as progress:  # fmt: skip
+                      console=console, disable=quiet or lines, transient=True) as progress:  # fmt: skip
             task = progress.add_task(name, total=None)
 
             def on_progress(stage: str, done: int, total: int) -> None:
                 progress.update(task, description=f"{name}: {stage}", completed=done, total=total)
+                if lines and done:
+                    console.print(f"simulate {name}: {stage} {done}/{total}", highlight=False, markup=False)
 
             folder, record = simulate_city(specs[0], rt, out_root, command=command_line(), on_progress=on_progress)
     except RuntimeError as err:  # Sionna RT missing or its child process failed

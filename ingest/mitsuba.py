@@ -101,7 +101,7 @@ def _bodies(mesh):  # noqa: ANN001, ANN202 - trimesh.Trimesh in, a list of them 
     return [mesh.submesh([g], append=True) for g in groups]
 
 
-def _tiers(body, name: str) -> list[Part]:  # noqa: ANN001 - a trimesh.Trimesh
+def _tiers(body) -> list[Part]:  # noqa: ANN001 - a trimesh.Trimesh
     """A body's roof tiers as parts (see the module docstring)."""
     tri = body.triangles  # [F, 3, 3]
     base = float(body.vertices[:, 2].min())
@@ -162,9 +162,7 @@ def read_mitsuba(
         if zmax - zmin < FLAT_M:
             rejected.append(Rejection(file=name, field=f"body[{i}]", reason=f"flat body ({zmax - zmin:.2f} m tall): ground"))
             continue
-        records.append(
-            BuildingRecord(name=f"body{i}", source_file=f"{name}#body[{i}]", source_line=None, parts=_tiers(body, name))
-        )
+        records.append(BuildingRecord(name=f"body{i}", source_file=f"{name}#body[{i}]", source_line=None, parts=_tiers(body)))
     cropped = 0
     if crop is not None:
         records, cropped = crop_records(records, crop)

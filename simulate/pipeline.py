@@ -92,7 +92,7 @@ def load_geometry(
 
     Sources: ``procedural:<preset>`` (train, test, tiny, open: the original generator),
     ``procedural:<style>[:WxH]`` (generator v2, ``simulate.styles``: grid, rotated,
-    perimeter, towers, organic, plazas, or mixed to draw one from the seed); an InSite ``.city``; a GeoJSON file; a Mitsuba
+    perimeter, towers, organic, plazas, or mixed: the styles in turn by seed); an InSite ``.city``; a GeoJSON file; a Mitsuba
     ``.xml`` scene with its PLY/OBJ meshes, or ``sionna:<scene>`` for one that Sionna
     RT ships (``sionna:etoile``, ``sionna:florence``): buildings per connected body, the
     ground left out, roofs split into height tiers (``ingest.mitsuba``).

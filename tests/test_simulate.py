@@ -153,8 +153,17 @@ def test_bad_simulation_inputs(tmp_path):
     assert res.exit_code == 2 and "factors must be >= 2" in res.output
 
 
-def _simulate(tmp_path, *args: str) -> subprocess.CompletedProcess:
-    cmd = [sys.executable, "-m", "dataset.cli", "simulate", *args, "--out", str(tmp_path / "raw"), "--quiet"]
+def _simulate(tmp_path, *args: str, quiet: bool = True) -> subprocess.CompletedProcess:
+    cmd = [
+        sys.executable,
+        "-m",
+        "dataset.cli",
+        "simulate",
+        *args,
+        "--out",
+        str(tmp_path / "raw"),
+        *(["--quiet"] if quiet else []),
+    ]
     env = os.environ | {"PYTHONPATH": str(REPO)}
     res = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, res.stdout + res.stderr
@@ -198,7 +207,8 @@ def test_simulate_ingest_build_round_trip(tmp_path):
     from simulate.raytrace import RadioMapJob, RayTraceConfig, fill, path_gain_maps_isolated
     from simulate.scene import write_scene
 
-    _simulate(tmp_path, "procedural:tiny", "--name", "tiny", "--users", "3", "--samples", "2e5", "--seed", "4")
+    res = _simulate(tmp_path, "procedural:tiny", "--name", "tiny", "--users", "3", "--samples", "2e5", "--seed", "4", quiet=False)
+    assert "simulate tiny: ray tracing 3/3" in res.stderr  # not a terminal: a line per step, for logs
     record = json.loads((tmp_path / "raw" / "tiny" / "simulation.json").read_text())
     assert record["cells"]["user_cells"] == 3 * 24 * 20 and record["packages"]["sionna-rt"] != "not installed"
     root = tmp_path / "p"
