@@ -70,6 +70,16 @@ def _garbage_manifest(w: Workspace):  # noqa: ANN202 - a Path
     return root
 
 
+def _scene_escape(w: Workspace) -> list[str]:
+    scene = w.tmp / "scene"
+    scene.mkdir()
+    (w.tmp / "outside.ply").write_bytes(b"ply\n")
+    (scene / "s.xml").write_text(
+        '<scene version="2.1.0"><shape type="ply" id="x"><string name="filename" value="../outside.ply"/></shape></scene>'
+    )
+    return ["simulate", str(scene / "s.xml"), "--name", "x", "--out", str(w.tmp / "raw")]
+
+
 def _quantity_twice(w: Workspace) -> list[str]:
     city = w.city()
     (city / "other.pl.t001_01.r002.p2m").write_text((city / PL1).read_text())
@@ -743,6 +753,37 @@ CASES: list[Case] = [
         lambda w: ["simulate", str(w.tmp / "none.city"), "--name", "x", "--out", str(w.tmp / "raw")],
         "none.city: source: no such file",
     ),
+    Case(
+        "simulate a bad style size",
+        "uavdata",
+        lambda w: ["simulate", "procedural:perimeter:abc", "--name", "x", "--out", str(w.tmp / "raw")],
+        "size 'abc': expected WIDTHxHEIGHT in metres",
+    ),
+    Case(
+        "simulate a tiny style size",
+        "uavdata",
+        lambda w: ["simulate", "procedural:grid:10x10", "--name", "x", "--out", str(w.tmp / "raw")],
+        "size 10 x 10 m: each side must be 48 to 5000 m",
+    ),
+    Case(
+        "simulate sources and --count",
+        "uavdata",
+        lambda w: ["simulate", "procedural:tiny", "procedural:test", "--count", "2", "--name", "x", "--out", str(w.tmp / "raw")],
+        "count: give several SOURCES or --count N, not both",
+    ),
+    Case(
+        "simulate --crop on a procedural city",
+        "uavdata",
+        lambda w: ["simulate", "procedural:tiny", "--crop", "0,0,50,50", "--name", "x", "--out", str(w.tmp / "raw")],
+        "crop: --crop applies to real geometry",
+    ),
+    Case(
+        "simulate an unknown Sionna scene",
+        "uavdata",
+        lambda w: ["simulate", "sionna:atlantis", "--name", "x", "--out", str(w.tmp / "raw")],
+        "sionna:atlantis: source: ",
+    ),
+    Case("simulate a scene outside its folder", "uavdata", _scene_escape, "points outside the scene's folder"),
     # -- report ------------------------------------------------------------------------------------
     Case(
         "report unknown dataset",
