@@ -32,7 +32,7 @@ from dataset.difficulty import valid_starts
 from eval.metrics import STATS, bootstrap_table, ecdf, format_stat
 from rl.agent.checkpoint import load_tensors
 from rl.agent.dqn import DQNConfig
-from rl.agent.train import RUN_JSON, RunRecord, policy_from_checkpoint, read_run_json, with_running_means
+from rl.agent.train import RUN_JSON, RunRecord, policy_from_checkpoint, read_run_json
 from rl.config import EnvConfig
 from rl.maps import MapSet
 from rl.policies import GeniePolicy, GreedyPolicy, Policy, RandomWalkPolicy
@@ -47,7 +47,9 @@ PAPER = {
     "blind": {"label": "blind (SINR only)", "success": 0.66, "median_steps": 69.0},
     "genie": {"label": "genie", "success": 1.00, "median_steps": 14.0},
 }
-BASELINES = ("genie", "random_walk", "greedy")
+BASELINES = (GeniePolicy.name, RandomWalkPolicy.name, GreedyPolicy.name)
+#: Episodes in the training curves' running mean (the paper's 100).
+RUNNING_WINDOW = 100
 #: A report folder's marker: only a folder holding it is ever replaced.
 REPORT_JSON = "report.json"
 
@@ -146,11 +148,7 @@ def evaluate(
         if key not in maps:
             maps[key] = MapSet([bundle], env)
         methods.append((a.name, a.policy, maps[key]))
-    methods += [
-        ("genie", GeniePolicy(), maps[""]),
-        ("random_walk", RandomWalkPolicy(seed=config.seed), maps[""]),
-        ("greedy", GreedyPolicy(base.p_h_db, seed=config.seed), maps[""]),
-    ]
+    methods += [(p.name, p, maps[""]) for p in baseline_policies(config, base)]
     names = [m[0] for m in methods]
     if len(set(names)) != len(names):
         raise ValueError(f"two methods share a name: {names}")
@@ -159,6 +157,11 @@ def evaluate(
         report = None if on_progress is None else (lambda done, total, name=name: on_progress(name, done, total))
         results[name] = run_episodes(mapset, policy, episodes, on_step=report, record=record if name == shown else None)
     return results
+
+
+def baseline_policies(config: ReportConfig, env: EnvConfig) -> list[Policy]:
+    """The genie, the steered random walk and greedy hill-climbing, seeded as the report is (their names are the table's)."""
+    return [GeniePolicy(), RandomWalkPolicy(seed=config.seed), GreedyPolicy(env.p_h_db, seed=config.seed)]
 
 
 def results_table(results: dict[str, pd.DataFrame], config: ReportConfig) -> pd.DataFrame:
@@ -235,22 +238,29 @@ def plot_cdf(results: dict[str, pd.DataFrame], t_max: int, out: Path) -> Path:
     return out
 
 
-def plot_training(agents: list[Agent], bounds: dict[str, float], out: Path) -> Path | None:
+def plot_training(agents: list[Agent], bounds: dict[str, float], out: Path, notes: dict[str, str] | None = None) -> Path | None:
     curves = []
     for a in agents:
         if a.metrics is not None and len(a.metrics):
-            curves.append((a.name, with_running_means(a.metrics)))
+            curves.append((a.name, a.metrics))
     if not curves:
         return None
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 4.5), constrained_layout=True)
     for name, df in curves:
-        ax.plot(df["step"], df["sinr_gain_mean100_db"], label=name)
-    for label, bound in bounds.items():
-        ax.axhline(bound, color="black", linestyle="--", linewidth=1, label=f"upper bound, {label} ({bound:.1f} dB)")
+        # The running mean in full only once its window is full: before, a mean of a few episodes (which can
+        # overshoot any bound) is drawn faint.
+        rolling = df["sinr_gain_db"].rolling(RUNNING_WINDOW, min_periods=1).mean()
+        full = np.arange(len(df)) >= RUNNING_WINDOW - 1
+        line = ax.plot(df["step"][full], rolling[full], label=name)[0]
+        ax.plot(df["step"][:RUNNING_WINDOW], rolling[:RUNNING_WINDOW], color=line.get_color(), alpha=0.3, linewidth=1)
+    for key, bound in bounds.items():
+        note = (notes or {}).get(key, "")
+        where = note.split(" (")[0] if note.startswith("computed on") else key  # the bundles it was computed on
+        ax.axhline(bound, color="black", linestyle="--", linewidth=1, label=f"upper bound, {where} ({bound:.1f} dB)")
     ax.set_xlabel("training step")
     ax.set_ylabel("mean SINR gain over the last 100 episodes [dB]")
-    ax.set_title("Training curves")
+    ax.set_title(f"Training curves (faint: the first {RUNNING_WINDOW} episodes, a partial window)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.savefig(out, dpi=110)
@@ -410,7 +420,7 @@ def make_report(
     episodes = pd.concat([_plain(df.assign(method=name)) for name, df in results.items()], ignore_index=True)
     with atomic_directory(out, marker=REPORT_JSON, what="report") as tmp:
         figures: dict[str, Path | None] = {"cdf": plot_cdf(results, config.t_max, tmp / "cdf.png")}
-        figures["training"] = plot_training(agents, bounds, tmp / "training.png")
+        figures["training"] = plot_training(agents, bounds, tmp / "training.png", bound_notes)
         shown = shown_method(agents)
         picked = pick_trajectories(results, shown, config.trajectories)
         figures["trajectories"] = plot_trajectories(bundle, results, shown, picked, tmp / "trajectories.png")

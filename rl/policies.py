@@ -49,7 +49,7 @@ class GeniePolicy:
 class RandomWalkPolicy:
     """The paper's steered random walk: repeat the last move w.p. ``p_repeat`` (if legal), else a random legal move."""
 
-    name = "random_walk"
+    name = "steered random walk"
 
     def __init__(self, seed: int = 0, p_repeat: float = 0.4) -> None:
         self.rng = np.random.default_rng(seed)
@@ -82,7 +82,7 @@ class GreedyPolicy:
     memory shows as P_H.
     """
 
-    name = "greedy"
+    name = "greedy hill-climbing"
 
     def __init__(self, p_h_db: float, seed: int = 0) -> None:
         self.rng = np.random.default_rng(seed)

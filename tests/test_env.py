@@ -225,7 +225,12 @@ def test_uavrl_baselines_cli(root):
 
     res = CliRunner().invoke(uavrl, ["baselines", "--dataset", "tiny", "--root", str(root), "--episodes", "40", "--t-max", "60"])
     assert res.exit_code == 0, res.output
-    assert "genie" in res.output and "100.0 %" in res.output and "random_walk" in res.output and "greedy" in res.output
+    assert (
+        "genie" in res.output
+        and "100.0 %" in res.output
+        and "steered random walk" in res.output
+        and "greedy hill-climbing" in res.output
+    )
     res = CliRunner().invoke(uavrl, ["datasets", "--root", str(root)])
     assert res.exit_code == 0 and "tiny" in res.output
 

@@ -108,10 +108,10 @@ def test_report_end_to_end(tmp_path, two_cities):
     assert "report.html" in res.output and "genie" in res.output
     page = (out / "report.html").read_text()
     assert page.count('src="data:image/png;base64,') == 3  # CDF, training curves, trajectories
-    for text in ("DQN (best)", "genie", "random_walk", "greedy", "paper: success", "cityb", "citya"):
+    for text in ("DQN (best)", "genie", "steered random walk", "greedy hill-climbing", "paper: success", "cityb", "citya"):
         assert text in page
     table = pd.read_csv(out / "results.csv")
-    assert list(table["method"]) == ["DQN (best)", "genie", "random_walk", "greedy"]
+    assert list(table["method"]) == ["DQN (best)", "genie", "steered random walk", "greedy hill-climbing"]
     assert table.loc[table.method == "genie", "success"].item() == 1.0
     assert (table["success_lo"] <= table["success"]).all() and (table["success"] <= table["success_hi"]).all()
     eps = pd.read_parquet(out / "episodes.parquet")
