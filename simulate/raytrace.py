@@ -301,6 +301,7 @@ def point_path_gains(
             max_depth=config.max_depth,
             samples_per_src=int(config.samples_per_tx),
             diffraction=config.diffraction,
+            edge_diffraction=config.diffraction,  # free edges too (a screen's top): every path, as InSite finds them
             refraction=config.refraction,
             seed=config.seed,
         )
