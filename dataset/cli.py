@@ -139,25 +139,21 @@ def ingest(folders: tuple[Path, ...], out_root: Path, name: str | None, quiet: b
 def _ingest_one(folder: Path, out_root: Path, name: str | None, quiet: bool) -> None:
     from ingest.pipeline import ingest_city
 
-    try:
-        with Progress(
-            TextColumn("[bold]ingest[/] {task.description}"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeElapsedColumn(),
-            console=console,
-            disable=quiet,
-            transient=True,
-        ) as progress:
-            task = progress.add_task(str(folder), total=None)
+    with Progress(
+        TextColumn("[bold]ingest[/] {task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=console,
+        disable=quiet,
+        transient=True,
+    ) as progress:
+        task = progress.add_task(str(folder), total=None)
 
-            def on_file(rel: str, total: int) -> None:
-                progress.update(task, description=rel, total=total, advance=1)
+        def on_file(rel: str, total: int) -> None:
+            progress.update(task, description=rel, total=total, advance=1)
 
-            out_dir, manifest, report = ingest_city(folder, out_root, name=name, command=command_line(), on_file=on_file)
-    except InputError as err:
-        fail(err)
-        return
+        out_dir, manifest, report = ingest_city(folder, out_root, name=name, command=command_line(), on_file=on_file)
     out = stdout()
     if not quiet:
         table = plain_table("file", "kind", "status", "rows", "rejected", "note", title=f"{manifest.name}: files")
@@ -683,11 +679,7 @@ def list_(root: Path) -> None:
     from dataset.bundle import list_versions, read_latest
 
     out = stdout()
-    try:
-        cities = list_cities(root)
-    except InputError as err:
-        fail(err)
-        return
+    cities = list_cities(root)  # bad input: one error line from UavGroup
     if not cities:
         out.print(f"no ingested city under {root} (run `uavdata ingest data/raw/<city>/`)")
         return
@@ -759,11 +751,7 @@ def show(city: str, version: str | None, user: int, out_path: Path | None, root:
     from dataset.bundle import load_bundle
     from dataset.preview import render_bundle
 
-    try:
-        bundle = load_bundle(city, version, root)
-    except InputError as err:
-        fail(err)
-        return
+    bundle = load_bundle(city, version, root)
     if user >= bundle.num_users:
         raise click.BadParameter(f"the bundle has {bundle.num_users} users (0..{bundle.num_users - 1})", param_hint="--user")
     out_path = out_path or Path("reports") / "show" / f"{bundle.city}-{bundle.version}-user{user}.png"

@@ -11,7 +11,6 @@ from dataset.bundle import list_versions, read_latest
 from dataset.catalog import list_cities
 from dataset.cli import UavGroup, fail, plain_table, root_option, stdout
 from rl.rollout import summarise
-from schemas import InputError
 
 
 @click.group(cls=UavGroup, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
@@ -25,10 +24,7 @@ def main() -> None:
 def datasets(root: Path) -> None:
     """List the built cities under ROOT that agents can be given (`--dataset NAME`), from their latest bundle."""
     out = stdout()
-    try:
-        cities = list_cities(root)
-    except InputError as err:
-        raise click.ClickException(str(err)) from None
+    cities = list_cities(root)
     table = plain_table("dataset", "version", "grid [m]", "alt [m]", "cells", "users", "role", "train / val / test users")
     unbuilt = []
     for c in cities:
@@ -85,10 +81,7 @@ def baselines(
     from rl.rollout import run_episodes
 
     config = EnvConfig(t_max=t_max, p_t_db=p_t_db, split=split, rotate=False)
-    try:
-        maps = MapSet.load(list(datasets), config, root=str(root))
-    except InputError as err:
-        raise click.ClickException(str(err)) from None
+    maps = MapSet.load(list(datasets), config, root=str(root))
     eps = maps.sample_episodes(episodes, np.random.default_rng(seed))
     table = Table("method", "success", "median steps", "mean steps (successes)", "p90 steps", "median steps / genie")
     with Progress(console=stdout(), transient=True) as progress:

@@ -271,7 +271,7 @@ class P2MStream:
         self.threshold = DEFAULT_POWER_THRESHOLD_DBM if power_threshold_dbm is None else power_threshold_dbm
         self.max_power_dbm = max_power_dbm
         self._raw: bytes | None = None  # the whole (converted) file, when it had to be read whole
-        probe = self._probe()
+        probe = self._read(_HEADER_PROBE)
         conversion = _text_conversion(probe)
         if _NUL in probe and conversion != "utf-16":
             raise InputError(
@@ -280,10 +280,10 @@ class P2MStream:
                 "byte-order mark; a .p2m is ASCII text",
             )
         if conversion is not None:
-            self._raw = _converted(self.name, self._read_all(), conversion)
+            self._raw = _converted(self.name, self._read(None), conversion)
             probe = self._raw
         elif len(probe) == _HEADER_PROBE and probe.count(b"\n#") + 1 >= probe.count(b"\n"):
-            self._raw = self._read_all()  # an unusually long header
+            self._raw = self._read(None)  # an unusually long header
             probe = self._raw
         self.conversion = conversion
         header = _split_header(probe)
@@ -323,16 +323,10 @@ class P2MStream:
         except OSError as exc:
             raise InputError(self.name, f"not a readable gzip file ({exc})" if self.gz else f"unreadable ({exc})") from None
 
-    def _probe(self) -> bytes:
-        return self._read(_HEADER_PROBE)
-
-    def _read_all(self) -> bytes:
-        return self._read(None)
-
     def _whole(self) -> bytes:
         """The whole (converted) file: read only when an error has to name its line."""
         if self._raw is None:
-            self._raw = self._read_all()
+            self._raw = self._read(None)
         return self._raw
 
     def _body(self) -> pa.NativeFile:
