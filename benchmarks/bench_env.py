@@ -5,8 +5,12 @@ config, seeded alike, for --steps vector steps each, at N = 1, 16 and 256 parall
 episodes. Targets: batched >= 10 x SyncVectorEnv at N = 256, and >= 50 k steps/s.
 
     python benchmarks/bench_env.py [--dataset train --root data/processed] [--steps 300]
+    python benchmarks/bench_env.py --dataset train --corpus corpus      # one city against many
 
 Without --dataset it ingests and builds the embedded training city into a temporary root.
+``--corpus NAME`` adds the batched env over the corpus's cities and the dataset together
+(the training set of the `best` preset), with the training levers on (8 symmetries, the
+visited channel, far starts), at N = 64: its steps/s against the one city's, measured in the same run.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import numpy as np
 import pandas as pd
 
 from dataset.build import build_city
+from dataset.catalog import expand_datasets
 from ingest.pipeline import ingest_city
 from rl.config import EnvConfig
 from rl.env import UavPlacementEnv
@@ -64,6 +69,7 @@ def main() -> None:
     ap.add_argument("--root", default="data/processed")
     ap.add_argument("--steps", type=int, default=300, help="vector steps per measurement")
     ap.add_argument("--noise-dbm", type=float, default=-68.0, help="build setting when building the embedded city")
+    ap.add_argument("--corpus", default=None, help="corpus name (built cities NAME-NNN) to compare with the one city")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         root, name = args.root, args.dataset
@@ -82,6 +88,18 @@ def main() -> None:
         )
         print(pd.DataFrame(rows).to_string(index=False, float_format=lambda v: f"{v:,.1f}"))
         print("targets: ratio >= 10 at N = 256; batched >= 50,000 steps/s")
+        if args.corpus:
+            levers = EnvConfig(rotate=True, symmetries=8, visited_channel=True, far_starts=0.5)
+            names = [*expand_datasets([args.corpus], root), name]
+            many = MapSet.load(names, levers, root=root)
+            one = MapSet.load(name, levers, root=root)
+            single = np.median([bench_batched(one, 64, args.steps, seed) for seed in range(3)])
+            corpus = np.median([bench_batched(many, 64, args.steps, seed) for seed in range(3)])
+            print(
+                f"N = 64, training levers on: {name} alone {single:,.0f} steps/s; {len(names)} cities "
+                f"({len(many.scenarios)} users, {many.num_views} views) {corpus:,.0f} steps/s; ratio {corpus / single:.2f} "
+                "(target: >= 0.9, no slowdown with many cities)"
+            )
 
 
 if __name__ == "__main__":

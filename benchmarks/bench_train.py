@@ -17,6 +17,7 @@ and reports the run's peak RSS.
     uavdata ingest data/raw/train/ && uavdata build --grid 4m --alt 10 --noise-dbm -68 --split train=train
     python benchmarks/bench_train.py [--steps 20000] [--preset best]
     python benchmarks/bench_train.py --memory
+    python benchmarks/bench_train.py --corpus corpus      # the train city alone against the corpus and it
 """
 
 from __future__ import annotations
@@ -30,14 +31,15 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from dataset.catalog import expand_datasets
 from rl.agent.dqn import DQNConfig, make_network, preset_config
 from rl.agent.train import Trainer
 from rl.config import EnvConfig
 
 
-def bench_ours(config: DQNConfig, dataset: str, root: str, steps: int, warmup: int) -> dict:
+def bench_ours(config: DQNConfig, dataset: str | list[str], root: str, steps: int, warmup: int) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
-        trainer = Trainer(config, [dataset], root, Path(tmp) / "run")
+        trainer = Trainer(config, [dataset] if isinstance(dataset, str) else dataset, root, Path(tmp) / "run")
         marks: dict[str, float] = {}
 
         def on_progress(p) -> None:
@@ -148,6 +150,22 @@ def bench_memory(dataset: str, root: str, extra_steps: int) -> None:
     print(f"peak RSS {peak:.2f} GiB (target <= 6 GiB): {'OK' if peak <= 6 else 'OVER'}")
 
 
+def bench_corpus(args: argparse.Namespace) -> None:
+    """Our trainer (the preset, its levers on) on one city and on the corpus plus that city, in one run:
+    env steps/s and updates/s, and their ratio (many cities must not slow training down)."""
+    config = preset_config(
+        args.preset, total_steps=10 * args.steps, buffer_size=args.steps, learning_starts=min(2_000, args.warmup),
+        eval_every=10 * args.steps, eval_episodes=50,
+    )  # fmt: skip
+    cities = [*expand_datasets([args.corpus], args.root), args.dataset]
+    one = bench_ours(config, args.dataset, args.root, args.steps, args.warmup)
+    many = bench_ours(config, cities, args.root, args.steps, args.warmup)
+    for label, r in ((args.dataset, one), (f"{len(cities)} cities", many)):
+        print(f"  {label:>10}: {r['env_steps_per_s']:8.0f} env steps/s  {r['updates_per_s']:6.1f} updates/s")
+    ratio = many["env_steps_per_s"] / one["env_steps_per_s"]
+    print(f"  ratio (corpus / one city), env steps/s: {ratio:.2f}x (target: >= 0.9)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--dataset", default="train", help="built city (default: the embedded train city)")
@@ -156,9 +174,13 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=20_000, help="env steps per trainer (after which the clock stops)")
     ap.add_argument("--warmup", type=int, default=4_000, help="env steps before the clock starts (updates already on)")
     ap.add_argument("--memory", action="store_true", help="peak RSS of a paper-preset run with a full replay instead")
+    ap.add_argument("--corpus", default=None, help="instead: ours on --dataset alone against the corpus NAME-NNN and it")
     args = ap.parse_args()
     if args.memory:
         bench_memory(args.dataset, args.root, extra_steps=3_000)
+        return
+    if args.corpus:
+        bench_corpus(args)
         return
     # Both loops stop at --steps, before total_steps: no evaluation or checkpoint is timed.
     config = preset_config(

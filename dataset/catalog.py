@@ -9,6 +9,7 @@ from pydantic import ValidationError
 
 from schemas import CityManifest, InputError
 from schemas.base import validation_message
+from schemas.files import check_name
 
 #: Default root of ingested cities and bundles.
 DEFAULT_ROOT = Path("data/processed")
@@ -44,3 +45,29 @@ def list_cities(root: str | Path = DEFAULT_ROOT) -> list[CityEntry]:
         CityEntry(name=p.parent.parent.name, path=p.parent.parent, manifest=read_city_manifest(p))
         for p in sorted(root.glob(f"*/{INGESTED_MANIFEST.as_posix()}"))
     ]
+
+
+def expand_datasets(names: list[str] | tuple[str, ...], root: str | Path = DEFAULT_ROOT) -> list[str]:
+    """City names, with a corpus name replaced by its cities: ``corpus`` -> ``corpus-000``, ``corpus-001``...
+
+    A name (or ``city@version``) is kept when a city of that name is ingested under ``root``; otherwise it must be the
+    ``NAME`` of cities ``NAME-NNN`` (as ``uavdata simulate --count`` names them), else ``InputError``.
+    Duplicates are dropped, the order kept.
+    """
+    cities = [c.name for c in list_cities(root)]
+    out: list[str] = []
+    for name in names:
+        city, _, version = name.partition("@")
+        check_name(city, "city name")
+        if version:
+            check_name(version, "bundle version")
+        if city in cities:
+            members = [name]
+        else:
+            members = [c for c in cities if c.startswith(f"{name}-") and c[len(name) + 1 :].isdigit()]
+            if not members:
+                raise InputError(
+                    Path(root) / name, "no ingested city or corpus of that name (see `uavrl datasets`)", field="dataset"
+                )
+        out += [m for m in members if m not in out]
+    return out

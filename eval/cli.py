@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 from rich.table import Table
 
-from dataset.cli import command_line, root_option, stdout
+from dataset.cli import command_line, plain_table, root_option, stdout
 from rl.cli import episode_options, main
 
 __all__ = ["main"]
@@ -22,13 +22,20 @@ __all__ = ["main"]
     help="Agent to evaluate: a run folder of `uavrl train` or a shipped agent (repeatable). "
     "Default: every agent under data/agents/.",
 )
-@click.option("--dataset", default="test", show_default=True, help="Test city: a built dataset never used in training.")
+@click.option(
+    "--dataset",
+    "datasets",
+    multiple=True,
+    default=("test",),
+    show_default=True,
+    help="Test city: a built dataset never used in training or checkpoint selection (repeatable: one report per city).",
+)
 @click.option(
     "--out",
     type=click.Path(file_okay=False, path_type=Path),
     default=None,
-    help="Report folder; an existing one is replaced only if it is a report (holds report.json), "
-    "anything else is refused.  [default: reports/<dataset>]",
+    help="Report folder (with several --dataset: the folder that holds one per city); an existing report folder "
+    "is replaced only if it is a report (holds report.json), anything else is refused.  [default: reports/<dataset>]",
 )
 @episode_options
 @click.option(
@@ -54,37 +61,55 @@ __all__ = ["main"]
 @root_option
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def report(
-    runs: tuple[Path, ...], dataset: str, out: Path | None, episodes: int, t_max: int, p_t_db: float, test_epsilon: float,
+    runs: tuple[Path, ...], datasets: tuple[str, ...], out: Path | None, episodes: int, t_max: int, p_t_db: float, test_epsilon: float,
     n_boot: int, trajectories: int, split: str | None, seed: int, agents_dir: Path, root: Path, quiet: bool,
 ) -> None:  # fmt: skip
     """Evaluate agents and baselines on the same episodes of a test city; write an HTML report, PNGs, CSV and Parquet.
 
     Methods: every agent, the genie (shortest path, full knowledge), the steered random walk and greedy
-    hill-climbing. Prints the results table (95 % bootstrap intervals in brackets) and the report's path.
+    hill-climbing. Prints the results table (95 % bootstrap intervals in brackets) and the report's path;
+    with several cities, one report each, then a summary of success and median steps per method and city.
     """
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-    from eval.report import ReportConfig, default_agents, make_report, table_rows
+    from eval.report import ReportConfig, default_agents, table_rows
 
     chosen = list(runs) or default_agents(agents_dir)
-    config = ReportConfig(
-        dataset=dataset, runs=[str(r) for r in chosen], episodes=episodes, t_max=t_max, p_t_db=p_t_db,
-        test_epsilon=test_epsilon, seed=seed, n_boot=n_boot, trajectories=trajectories, split=split,
-    )  # fmt: skip
-    out = out or Path("reports") / dataset.split("@")[0]
+    summary: dict[str, dict[str, str]] = {}
+    for dataset in datasets:
+        config = ReportConfig(
+            dataset=dataset, runs=[str(r) for r in chosen], episodes=episodes, t_max=t_max, p_t_db=p_t_db,
+            test_epsilon=test_epsilon, seed=seed, n_boot=n_boot, trajectories=trajectories, split=split,
+        )  # fmt: skip
+        city = dataset.split("@")[0]
+        folder = out if out and len(datasets) == 1 else (out or Path("reports")) / city
+        result = _one_report(config, folder, root, quiet)
+        rows = table_rows(result.table, t_max)
+        table = Table(*rows[0], title=f"{episodes} episodes in {dataset} (t_max {t_max}, P_T {p_t_db:g} dB)")
+        for r in rows[1:]:
+            table.add_row(*r)
+            summary.setdefault(r[0], {})[city] = f"{r[1].split(' [')[0]} / {r[2].split(' [')[0]}"
+        stdout().print(table)
+        stdout().print(f"report: {result.out / 'report.html'}", highlight=False, soft_wrap=True)
+    if len(datasets) > 1:
+        cities = [d.split("@")[0] for d in datasets]
+        table = plain_table("method", *(f"{c}: success / median steps" for c in cities))
+        for method, cells in summary.items():
+            table.add_row(method, *(cells.get(c, "-") for c in cities))
+        stdout().print(table)
+
+
+def _one_report(config, out: Path, root: Path, quiet: bool):
+    """``make_report`` with a progress bar per method."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from eval.report import make_report
+
     tasks: dict[str, int] = {}
     columns = (TextColumn("[bold]report[/] {task.description:<20}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     with Progress(*columns, console=stdout(), disable=quiet) as bar:
 
         def on_progress(method: str, done: int, total: int) -> None:
             if method not in tasks:
-                tasks[method] = bar.add_task(method, total=total)
+                tasks[method] = bar.add_task(f"{config.dataset} {method}", total=total)
             bar.update(tasks[method], completed=done)
 
-        result = make_report(config, out, root=root, command=command_line(), on_progress=on_progress)
-    rows = table_rows(result.table, t_max)
-    table = Table(*rows[0], title=f"{episodes} episodes in {dataset} (t_max {t_max}, P_T {p_t_db:g} dB)")
-    for r in rows[1:]:
-        table.add_row(*r)
-    stdout().print(table)
-    stdout().print(f"report: {result.out / 'report.html'}", highlight=False, soft_wrap=True)
+        return make_report(config, out, root=root, command=command_line(), on_progress=on_progress)

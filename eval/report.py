@@ -32,7 +32,7 @@ from dataset.difficulty import valid_starts
 from eval.metrics import STATS, bootstrap_table, ecdf, format_stat
 from rl.agent.checkpoint import load_tensors
 from rl.agent.dqn import DQNConfig
-from rl.agent.train import RUN_JSON, RunRecord, policy_from_checkpoint, read_run_json
+from rl.agent.train import RUN_JSON, RunRecord, policy_from_checkpoint, read_run_json, training_users
 from rl.config import EnvConfig
 from rl.maps import MapSet
 from rl.policies import GeniePolicy, GreedyPolicy, Policy, RandomWalkPolicy
@@ -85,6 +85,11 @@ class Agent:
     def trained_on(self) -> dict[str, str]:
         """Training city -> bundle version (empty when unknown)."""
         return dict(self.run.datasets) if self.run is not None else {}
+
+    @property
+    def selected_on(self) -> dict[str, str]:
+        """Validation city -> bundle version: where best.pt was chosen (empty when unknown or none)."""
+        return dict(self.run.val_datasets) if self.run is not None else {}
 
 
 @dataclass
@@ -188,15 +193,15 @@ def shown_method(agents: list[Agent]) -> str:
     return agents[0].name if agents else "genie"
 
 
-def upper_bound_db(bundles: list[Bundle], split: str | None, p_t_db: float) -> float:
+def upper_bound_db(bundles: list[Bundle], p_t_db: float) -> float:
     """The paper's training bound on the mean SINR gain: mean over users, then start cells, of P_T - start SINR.
 
-    Users and starts as training draws them: the users of ``split`` (all if None) with at least one
+    Users and starts as training draws them (``rl.agent.train.training_users``) with at least one
     valid start (``dataset.difficulty.valid_starts``).
     """
     per_user = []
     for b in bundles:
-        for u in b.user_indices(split) if split else b.user_indices():
+        for u in training_users(b):
             starts = valid_starts(b.blocked, b.dead[u], b.sinr_db[u], p_t_db)
             if starts.any():
                 per_user.append(float(np.mean(p_t_db - b.sinr_db[u][starts])))
@@ -409,6 +414,11 @@ def make_report(
             raise InputError(
                 a.folder, f"was trained in {bundle.city}, the test city: not an unseen-city evaluation", field="datasets"
             )
+        if bundle.city in a.selected_on:
+            raise InputError(
+                a.folder, f"selected its checkpoint in {bundle.city}, the test city: not an unseen-city evaluation",
+                field="val_datasets",
+            )  # fmt: skip
     names = [a.name for a in agents]
     for a in agents:  # same agent and preset twice: tell them apart by folder
         if names.count(a.name) > 1:
@@ -479,7 +489,7 @@ def training_bounds(agents: list[Agent], root: str | Path, p_t_db: float) -> tup
                 notes[key] = f"no bound: {err}"
                 continue
             notes[key] = "computed on " + ", ".join(f"{b.city}@{b.version}" for b in bundles) + f" (latest; {err})"
-        bounds[key] = upper_bound_db(bundles, a.run.train_split if a.run else None, p_t_db)
+        bounds[key] = upper_bound_db(bundles, p_t_db)
     return bounds, notes
 
 

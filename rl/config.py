@@ -30,7 +30,32 @@ class EnvConfig(Contract):
     blind: bool = Field(
         default=False, description="Blind variant: no height channel; blocked cells shown as P_H in the SINR memory"
     )
-    rotate: bool = Field(default=False, description="Rotate each episode's maps by a random multiple of 90 degrees (training)")
+    rotate: bool = Field(
+        default=False, description="Turn each episode's maps by a random symmetry of the square (training; see symmetries)"
+    )
+    symmetries: Literal[4, 8] = Field(
+        default=4, description="Symmetries drawn when rotating: 4 (the quarter turns) or 8 (the quarter turns and their mirrors)"
+    )
+    step_cost: float = Field(default=0.0, ge=0, description="Subtracted from the reward on every move [dB]")
+    shaping: float = Field(
+        default=0.0,
+        ge=0,
+        description="Potential-based shaping (training only): adds shaping * (gamma * phi' - phi), phi = -(genie moves "
+        "to a target); the policy still acts on the observation alone",
+    )
+    shaping_gamma: float = Field(default=1.0, gt=0, le=1, description="The gamma of the shaping term (the learner's discount)")
+    reward_scale: float = Field(default=1.0, gt=0, description="Every reward (all terms) is multiplied by this")
+    visited_channel: bool = Field(
+        default=False,
+        description="Add a channel of the visited cells (value p_h_db where visited, 0 elsewhere) before the SINR memory, "
+        "so that pooling keeps the route visible",
+    )
+    far_starts: float = Field(
+        default=0.0,
+        ge=0,
+        le=1,
+        description="Curriculum: share of starts drawn as the farther (genie moves) of two uniform draws",
+    )
     edge_height_m: float = Field(
         default=100.0, description="Height channel value beyond the map edge (blocked) [m above the UAV]"
     )
@@ -44,4 +69,4 @@ class EnvConfig(Contract):
 
     @property
     def num_channels(self) -> int:
-        return 1 if self.blind else 2
+        return (1 if self.blind else 2) + int(self.visited_channel)

@@ -1,8 +1,9 @@
-"""Bundles laid out for fast batched episodes: every (user, rotation) map on one padded canvas.
+"""Bundles laid out for fast batched episodes: every (user, symmetry) map on one padded canvas.
 
-A *scenario* is one user of one bundle; a *view* is a scenario under one of 4
-rotations (``view = 4 * scenario + k``, ``k`` quarter turns counter-clockwise,
-``np.rot90``). Every map is placed at offset ``pad = window // 2`` on a square
+A *scenario* is one user of one bundle; a *view* is a scenario under one of the
+``S = config.symmetries`` symmetries of the square (``view = S * scenario + k``;
+``transform(a, k)``: ``k % 4`` quarter turns counter-clockwise, ``np.rot90``, of the
+map, or of its transpose for ``k >= 4``). Every map is placed at offset ``pad = window // 2`` on a square
 canvas of side ``L = max(num_x, num_y over bundles) + 2 * pad``; the canvas
 outside the map is beyond the edge: blocked, height ``edge_height_m``, SINR
 memory ``P_L``. A window of side ``window`` centred on any map cell is then a
@@ -23,6 +24,12 @@ from rl.config import EnvConfig
 MOVES = np.array([[1, 0], [0, 1], [-1, 0], [0, -1]], dtype=np.int64)
 
 
+def transform(a: np.ndarray, k: int) -> np.ndarray:
+    """Symmetry ``k`` (0-7) of the square applied to the last two axes of ``a``: ``k % 4`` quarter turns
+    counter-clockwise, of ``a`` (``k < 4``) or of its transpose (``k >= 4``)."""
+    return np.rot90(np.swapaxes(a, -1, -2) if k >= 4 else a, k % 4, axes=(-2, -1))
+
+
 @dataclass(frozen=True)
 class Scenario:
     bundle: int  # index in MapSet.bundles
@@ -33,12 +40,13 @@ class Scenario:
 class MapSet:
     """The maps of one or more bundles, for one ``EnvConfig``. Arrays are indexed by view (or view-of-map).
 
-    ``height`` [num_bundles * 4, L, L] float32, ``blocked`` [num_bundles * 4, L, L] bool,
+    ``height`` [num_bundles * S, L, L] float32, ``blocked`` [num_bundles * S, L, L] bool,
     ``sinr`` / ``steps`` [num_views, L, L] float32 / int32 (``steps``: genie's BFS moves to a target),
     ``memory0`` [num_views, L, L] float32 (the SINR memory channel at the start of an episode).
     """
 
-    def __init__(self, bundles: list[Bundle], config: EnvConfig) -> None:
+    def __init__(self, bundles: list[Bundle], config: EnvConfig, users: list[np.ndarray] | None = None) -> None:
+        """``users``: the user indices to play in each bundle (default: ``config.split``'s, or all)."""
         if not bundles:
             raise ValueError("a MapSet needs at least one bundle")
         if config.window % 2 != 1:
@@ -50,40 +58,43 @@ class MapSet:
         self.side = side + 2 * self.pad
         L, p = self.side, self.pad
         scenarios = []
+        if users is not None and len(users) != len(bundles):
+            raise ValueError(f"users: {len(users)} lists for {len(bundles)} bundles")
         for i, b in enumerate(bundles):
-            users = b.user_indices(config.split) if config.split else b.user_indices()
-            scenarios += [Scenario(i, b.city, int(u)) for u in users]
+            picked = users[i] if users is not None else b.user_indices(config.split)
+            scenarios += [Scenario(i, b.city, int(u)) for u in picked]
         if not scenarios:
             raise ValueError(f"no user of split {config.split!r} in bundles {[b.city for b in bundles]}")
         self.scenarios = scenarios
-        nb, nv = len(bundles), 4 * len(scenarios)
-        self.height = np.full((4 * nb, L, L), config.edge_height_m, np.float32)
-        self.blocked = np.ones((4 * nb, L, L), bool)
+        S = self.symmetries = config.symmetries
+        nb, nv = len(bundles), S * len(scenarios)
+        self.height = np.full((S * nb, L, L), config.edge_height_m, np.float32)
+        self.blocked = np.ones((S * nb, L, L), bool)
         self.sinr = np.full((nv, L, L), config.p_l_db, np.float32)
         self.dead = np.ones((nv, L, L), bool)
         self.steps = np.full((nv, L, L), UNREACHABLE, np.int32)
-        self.shapes = np.zeros((4 * nb, 2), np.int64)  # rotated (num_y, num_x) per bundle-rotation
-        on_map = np.zeros((4 * nb, L, L), bool)  # False beyond the edge
+        self.shapes = np.zeros((S * nb, 2), np.int64)  # transformed (num_y, num_x) per bundle-symmetry
+        on_map = np.zeros((S * nb, L, L), bool)  # False beyond the edge
         for i, b in enumerate(bundles):
-            for k in range(4):
-                h = np.rot90(np.clip(b.height_rel_m, -config.height_clip_m, config.height_clip_m), k)
+            for k in range(S):
+                h = transform(np.clip(b.height_rel_m, -config.height_clip_m, config.height_clip_m), k)
                 ny, nx = h.shape
-                self.height[4 * i + k, p : p + ny, p : p + nx] = h
-                self.blocked[4 * i + k, p : p + ny, p : p + nx] = np.rot90(b.blocked, k)
-                on_map[4 * i + k, p : p + ny, p : p + nx] = True
-                self.shapes[4 * i + k] = (ny, nx)
+                self.height[S * i + k, p : p + ny, p : p + nx] = h
+                self.blocked[S * i + k, p : p + ny, p : p + nx] = transform(b.blocked, k)
+                on_map[S * i + k, p : p + ny, p : p + nx] = True
+                self.shapes[S * i + k] = (ny, nx)
         for s, sc in enumerate(scenarios):
             b = bundles[sc.bundle]
             legal = ~b.blocked
             target = legal & ~b.dead[sc.user] & (b.sinr_db[sc.user] >= config.p_t_db)
             steps = steps_to_target(legal, target)
-            for k in range(4):
-                v = 4 * s + k
-                ny, nx = self.shapes[4 * sc.bundle + k]
-                self.sinr[v, p : p + ny, p : p + nx] = np.rot90(b.sinr_db[sc.user], k)
-                self.dead[v, p : p + ny, p : p + nx] = np.rot90(b.dead[sc.user], k)
-                self.steps[v, p : p + ny, p : p + nx] = np.rot90(steps, k)
-        self.view_map = np.repeat(4 * np.array([sc.bundle for sc in scenarios]), 4) + np.tile(np.arange(4), len(scenarios))
+            for k in range(S):
+                v = S * s + k
+                ny, nx = self.shapes[S * sc.bundle + k]
+                self.sinr[v, p : p + ny, p : p + nx] = transform(b.sinr_db[sc.user], k)
+                self.dead[v, p : p + ny, p : p + nx] = transform(b.dead[sc.user], k)
+                self.steps[v, p : p + ny, p : p + nx] = transform(steps, k)
+        self.view_map = np.repeat(S * np.array([sc.bundle for sc in scenarios]), S) + np.tile(np.arange(S), len(scenarios))
         blocked_v = self.blocked[self.view_map]
         # Blind: buildings unknown, so blocked map cells look unvisited; beyond the edge stays P_L.
         hidden = ~on_map[self.view_map] if config.blind else blocked_v
@@ -94,7 +105,7 @@ class MapSet:
         self.start_count = np.array([len(f) for f in flat], np.int64)
         self.start_offset = np.r_[0, np.cumsum(self.start_count)[:-1]]
         self.start_cells = np.concatenate(flat) if flat else np.zeros(0, np.int64)
-        self.startable = np.flatnonzero(self.start_count[::4] > 0)  # scenarios with at least one valid start
+        self.startable = np.flatnonzero(self.start_count[::S] > 0)  # scenarios with at least one valid start
 
     @classmethod
     def load(cls, datasets: list[str] | str, config: EnvConfig, root: str = "data/processed") -> MapSet:
@@ -105,22 +116,37 @@ class MapSet:
     def num_views(self) -> int:
         return len(self.view_map)
 
+    def scenario_of(self, view: np.ndarray) -> np.ndarray:
+        return np.asarray(view) // self.symmetries
+
+    def symmetry_of(self, view: np.ndarray) -> np.ndarray:
+        return np.asarray(view) % self.symmetries
+
     def sample_episodes(self, n: int, rng: np.random.Generator, rotate: bool | None = None) -> np.ndarray:
         """``[n, 3]`` int64 episode specs ``(view, y, x)``: a uniformly drawn startable scenario,
-        rotation (if ``rotate``, default ``config.rotate``) and start cell."""
+        symmetry (if ``rotate``, default ``config.rotate``; else the identity) and start cell (with
+        ``config.far_starts``, that share of the starts is the farther from a target of two draws)."""
         if len(self.startable) == 0:
             raise ValueError("no scenario has a valid start cell (every legal, live cell is at or above P_T)")
         rotate = self.config.rotate if rotate is None else rotate
         scen = self.startable[rng.integers(0, len(self.startable), n)]
-        k = rng.integers(0, 4, n) if rotate else np.zeros(n, np.int64)
-        view = 4 * scen + k
+        S = self.symmetries
+        k = rng.integers(0, S, n) if rotate else np.zeros(n, np.int64)
+        view = S * scen + k
         pick = self.start_offset[view] + np.floor(rng.random(n) * self.start_count[view]).astype(np.int64)
+        if self.config.far_starts > 0:
+            other = self.start_offset[view] + np.floor(rng.random(n) * self.start_count[view]).astype(np.int64)
+            far = rng.random(n) < self.config.far_starts
+            flat_steps = self.steps.reshape(len(self.steps), -1)
+            farther = flat_steps[view, self.start_cells[other]] > flat_steps[view, self.start_cells[pick]]
+            pick = np.where(far & farther, other, pick)
         y, x = np.divmod(self.start_cells[pick], self.side)
         return np.stack([view, y, x], axis=1)
 
     def unrotate(self, view: np.ndarray, y: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Map cells ``(iy, ix)`` (bundle indices) of canvas positions in a view, undoing its rotation."""
-        k = np.asarray(view) % 4
+        """Map cells ``(iy, ix)`` (bundle indices) of canvas positions in a view, undoing its symmetry."""
+        sym = self.symmetry_of(view)
+        k = sym % 4
         m = self.view_map[np.asarray(view)]
         ny, nx = self.shapes[m, 0], self.shapes[m, 1]
         r, c = np.asarray(y) - self.pad, np.asarray(x) - self.pad
@@ -131,4 +157,5 @@ class MapSet:
             r, c = np.where(turn, c, r), np.where(turn, ny - 1 - r, c)
             ny, nx = np.where(turn, nx, ny), np.where(turn, ny, nx)
             k = np.where(turn, k - 1, k)
-        return r, c
+        mirrored = sym >= 4  # (r, c) are now cells of the transpose
+        return np.where(mirrored, c, r), np.where(mirrored, r, c)

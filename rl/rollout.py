@@ -23,7 +23,7 @@ def run_episodes(
 ) -> pd.DataFrame:
     """Play ``episodes`` (``[K, 3]`` specs from ``MapSet.sample_episodes``) to their end with ``policy``.
 
-    Returns one row per episode: ``episode, view, city, user, rotation, start_y, start_x,
+    Returns one row per episode: ``episode, view, city, user, rotation`` (the view's symmetry, 0-7), ``start_y, start_x,
     genie_steps`` (shortest possible), ``steps`` (moves played), ``success`` (P_T reached
     within ``t_max``) and ``return_`` (sum of rewards). ``on_step(done, total)`` reports progress.
     ``record``: episode numbers whose cells, start included, go to ``df.attrs["paths"]``
@@ -81,14 +81,14 @@ def run_episodes(
             if on_step is not None:
                 on_step(finished, k)
     view = episodes[:, 0]
-    scen = [maps.scenarios[v // 4] for v in view]
+    scen = [maps.scenarios[v] for v in maps.scenario_of(view)]
     df = pd.DataFrame(
         {
             "episode": np.arange(k),
             "view": view,
             "city": [s.city for s in scen],
             "user": [s.user for s in scen],
-            "rotation": view % 4,
+            "rotation": maps.symmetry_of(view),
             "start_y": episodes[:, 1],
             "start_x": episodes[:, 2],
             "genie_steps": genie,

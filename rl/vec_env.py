@@ -1,14 +1,17 @@
 """N episodes stepped together in numpy: the environment every trainer and evaluator uses.
 
 Observation ``[N, C, window, window]`` (C = 2: height channel, then SINR memory;
-blind: the SINR memory only), float32, or uint8 with ``compact=True``
+blind: the SINR memory only; with ``visited_channel`` a channel of the visited cells
+before the SINR memory, which stays last), float32, or uint8 with ``compact=True``
 (``encode_obs``: 1 dB / 1 m per step, offset 150; two 61 x 61 uint8 channels are
 7.4 kB, so 5e5 transitions that store each observation once take 3.5 GiB).
 
 Step semantics (docs/method.md): a legal action moves the UAV one cell; an illegal
 one (into a blocked cell or off the map, never taken by a masked policy)
 leaves it in place. Reward ``SINR_{t+1} - SINR_t + c_E * [new cell never
-visited]``. ``terminated`` when ``SINR >= P_T``; ``truncated`` when ``t_max``
+visited]``, less ``step_cost``, plus the potential-based shaping term
+``shaping * (shaping_gamma * phi' - phi)`` with ``phi = -(genie moves to a target)``
+(0 unless configured: a training aid), all times ``reward_scale``. ``terminated`` when ``SINR >= P_T``; ``truncated`` when ``t_max``
 moves are spent without it. Finished episodes restart at once (same step):
 the returned observation is the new episode's first; ``info["final_obs"]`` and
 ``info["final_mask"]`` hold the last observation and legal moves of the
@@ -70,6 +73,7 @@ class BatchedEnv:
         # [n or M, L - w + 1, L - w + 1, w, w] views: window (y0, x0) is [.., y0, x0] (no copy until indexed).
         self._memory_windows = np.lib.stride_tricks.sliding_window_view(self.memory, (w, w), axis=(1, 2))
         self._height_windows = np.lib.stride_tricks.sliding_window_view(maps.height, (w, w), axis=(1, 2))
+        self._visited_windows = np.lib.stride_tricks.sliding_window_view(self.visited, (w, w), axis=(1, 2))
 
     # -- episodes -----------------------------------------------------------------------------
     def _next_specs(self, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -139,20 +143,22 @@ class BatchedEnv:
         idx = self._rows if idx is None else idx
         y0 = self.pos[idx, 0] - self.config.window // 2
         x0 = self.pos[idx, 1] - self.config.window // 2
+        cfg = self.config
         mem = self._memory_windows[idx, y0, x0]
-        if self.config.blind:
-            obs = mem[:, None]
-        else:
-            obs = np.empty((len(idx), 2, *mem.shape[1:]), np.float32)
+        obs = np.empty((len(idx), cfg.num_channels, *mem.shape[1:]), np.float32)
+        if not cfg.blind:
             obs[:, 0] = self._height_windows[self.maps.view_map[self.view[idx]], y0, x0]
-            obs[:, 1] = mem
+        if cfg.visited_channel:
+            obs[:, -2] = self._visited_windows[idx, y0, x0] * np.float32(cfg.p_h_db)
+        obs[:, -1] = mem
         return encode_obs(obs) if self.compact else obs
 
     # -- dynamics -------------------------------------------------------------------------------
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
         actions = np.asarray(actions, np.int64)
-        rows, view = self._rows, self.view
+        rows, view, cfg = self._rows, self.view, self.config
         old = self.sinr_here()
+        old_steps = self.genie_steps()
         target = self.pos + MOVES[actions]
         legal = ~self.maps.blocked[self.maps.view_map[view], target[:, 0], target[:, 1]]
         self.pos = np.where(legal[:, None], target, self.pos)
@@ -162,9 +168,14 @@ class BatchedEnv:
         self.visited[rows, y, x] = True
         self.memory[rows, y, x] = new
         self.t += 1
-        terminated = new >= self.config.p_t_db
-        reward = (new - old + self.config.c_e * fresh + self.config.success_bonus * terminated).astype(np.float32)
-        truncated = (self.t >= self.config.t_max) & ~terminated
+        terminated = new >= cfg.p_t_db
+        reward = new - old + cfg.c_e * fresh + cfg.success_bonus * terminated - cfg.step_cost
+        if cfg.shaping:
+            # phi = -steps; the terminal state's potential is 0 (a target is 0 moves from itself).
+            new_steps = np.where(terminated, 0, self.maps.steps[view, y, x])
+            reward = reward + cfg.shaping * (old_steps - cfg.shaping_gamma * new_steps)
+        reward = (reward * cfg.reward_scale).astype(np.float32)
+        truncated = (self.t >= cfg.t_max) & ~terminated
         info = {"illegal": ~legal, "steps": self.t.copy(), "sinr": new, "episode_id": self.episode_id.copy()}
         done = (terminated | truncated) & self.autoreset
         if done.any():

@@ -116,17 +116,91 @@ def test_masks_and_illegal_moves(maps):
         assert not maps.blocked[maps.view_map[env.view], env.pos[:, 0], env.pos[:, 1]].any()
 
 
-def test_rotation_consistency(root):
-    maps = MapSet.load("tiny", EnvConfig(rotate=True), root=str(root))
+@pytest.mark.parametrize("symmetries", [4, 8])
+def test_rotation_consistency(root, symmetries):
+    maps = MapSet.load("tiny", EnvConfig(rotate=True, symmetries=symmetries), root=str(root))
     b = maps.bundles[0]
-    eps = maps.sample_episodes(400, np.random.default_rng(3))
+    eps = maps.sample_episodes(800, np.random.default_rng(3))
     v, y, x = eps.T
-    assert set(v % 4) == {0, 1, 2, 3}
+    assert set(maps.symmetry_of(v)) == set(range(symmetries))
     r, c = maps.unrotate(v, y, x)
-    users = np.array([maps.scenarios[i // 4].user for i in v])
+    users = np.array([maps.scenarios[i].user for i in maps.scenario_of(v)])
     np.testing.assert_allclose(maps.sinr[v, y, x], b.sinr_db[users, r, c])
-    unrotated = maps.steps[v - v % 4, r + maps.pad, c + maps.pad]
+    unrotated = maps.steps[v - maps.symmetry_of(v), r + maps.pad, c + maps.pad]
     np.testing.assert_array_equal(maps.steps[v, y, x], unrotated)
+    if symmetries == 8:  # the mirrors are new views: a transposed map, not a turn of the original
+        ny, nx = b.shape
+        assert tuple(maps.shapes[4]) == (nx, ny) and not np.array_equal(maps.blocked[4], maps.blocked[1])
+
+
+def test_symmetry_moves_map_to_moves(root):
+    """A move in any view is a move to a neighbouring cell of the untransformed map (legal moves are preserved)."""
+    maps = MapSet.load("tiny", EnvConfig(rotate=True, symmetries=8), root=str(root))
+    v, y, x = maps.sample_episodes(300, np.random.default_rng(4)).T
+    r0, c0 = maps.unrotate(v, y, x)
+    for move in MOVES:
+        ny, nx = y + move[0], x + move[1]
+        inside = ~maps.blocked[maps.view_map[v], ny, nx]
+        r1, c1 = maps.unrotate(v[inside], ny[inside], nx[inside])
+        assert (np.abs(r1 - r0[inside]) + np.abs(c1 - c0[inside]) == 1).all()
+
+
+def test_shaping_is_potential_based(root):
+    """The shaping term is k * (gamma * phi' - phi), phi = -genie moves: it telescopes over an episode."""
+    plain = MapSet.load("tiny", EnvConfig(t_max=60), root=str(root))
+    k, gamma = 0.7, 1.0
+    shaped = MapSet(plain.bundles, plain.config.model_copy(update={"shaping": k, "shaping_gamma": gamma}))
+    a, b = BatchedEnv(plain, 16, autoreset=False), BatchedEnv(shaped, 16, autoreset=False)
+    a.reset(seed=5), b.reset(seed=5)
+    start = b.genie_steps().astype(float)
+    done = np.zeros(16, bool)
+    extra = np.zeros(16)
+    genie = GeniePolicy()
+    for _ in range(40):
+        actions = genie.act(a.observe(), a.action_mask(), a)
+        before = b.genie_steps()
+        _, ra, ta, _, _ = a.step(actions)
+        _, rb, tb, _, _ = b.step(actions)
+        np.testing.assert_array_equal(ta, tb)
+        after = np.where(tb, 0, b.genie_steps())
+        np.testing.assert_allclose(rb - ra, k * (before - gamma * after), atol=1e-4)
+        extra += np.where(done, 0, rb - ra)
+        done |= tb
+    assert done.all()  # the genie reaches a target in every episode; the shaping summed to k * (its start distance)
+    np.testing.assert_allclose(extra, k * start, atol=1e-3)
+
+
+def test_step_cost_reward_scale_and_visited_channel(root):
+    plain = MapSet.load("tiny", EnvConfig(t_max=60), root=str(root))
+    cfg = plain.config.model_copy(update={"step_cost": 0.5, "reward_scale": 0.1, "visited_channel": True})
+    other = MapSet(plain.bundles, cfg)
+    a, b = BatchedEnv(plain, 8), BatchedEnv(other, 8)
+    oa, _ = a.reset(seed=2)
+    ob, _ = b.reset(seed=2)
+    assert ob.shape[1] == 3 and cfg.num_channels == 3
+    np.testing.assert_array_equal(ob[:, 0], oa[:, 0])  # height first, SINR memory last, as without the channel
+    np.testing.assert_array_equal(ob[:, -1], oa[:, -1])
+    c = cfg.window // 2
+    assert (ob[:, 1, c, c] == cfg.p_h_db).all() and ob[:, 1].sum() == 8 * cfg.p_h_db  # only the start is visited
+    actions = GreedyPolicy(cfg.p_h_db, seed=0).act(oa, a.action_mask(), a)
+    _, ra, *_ = a.step(actions)
+    ob, rb, *_ = b.step(actions)
+    np.testing.assert_allclose(rb, 0.1 * (ra - 0.5), atol=1e-5)
+    assert (ob[:, 1, c, c] == cfg.p_h_db).all()  # the cell the UAV is on (the window's centre) is visited
+
+
+def test_far_starts_oversample_distant_starts(root):
+    base = MapSet.load("tiny", EnvConfig(), root=str(root))
+    far = MapSet(base.bundles, base.config.model_copy(update={"far_starts": 1.0}))
+    rng = np.random.default_rng
+
+    def mean_steps(maps):
+        v, y, x = maps.sample_episodes(4000, rng(0)).T
+        return maps.steps[v, y, x].mean()
+
+    assert mean_steps(far) > mean_steps(base) + 0.2
+    v, y, x = far.sample_episodes(4000, rng(1)).T  # still valid starts: below P_T, reachable
+    assert (far.sinr[v, y, x] < far.config.p_t_db).all() and (far.steps[v, y, x] < UNREACHABLE).all()
 
 
 def test_blind_variant(root):

@@ -84,7 +84,7 @@ def two_cities(tmp_path_factory):
     """A training city and a test city (different seeds), built; an agent trained a few hundred steps in the first."""
     tmp = tmp_path_factory.mktemp("eval")
     root = tmp / "p"
-    for name, seed, role in (("citya", 5, "train"), ("cityb", 6, "test")):
+    for name, seed, role in (("citya", 5, "train"), ("cityb", 6, "test"), ("cityc", 7, "test")):
         ingest_city(write_grid_city(tmp / "raw" / name, nx=14, ny=12, n_tx=3, outputs=("power",), seed=seed), root, name=name)
         build_city(
             name,
@@ -129,6 +129,20 @@ def test_report_end_to_end(tmp_path, two_cities):
     # The same command again gives the same table (seeded episodes, agent moves and bootstrap).
     res = CliRunner().invoke(uavrl, [*args, "--episodes", "60", "--t-max", "40", "--bootstrap", "200", "--quiet"])
     pd.testing.assert_frame_equal(table, pd.read_csv(out / "results.csv"))
+
+
+def test_report_on_several_cities(tmp_path, two_cities):
+    """One report folder per test city under --out, then one summary line per method across the cities."""
+    root, run = two_cities
+    args = ["report", "--run", str(run), "--dataset", "cityb", "--dataset", "cityc", "--root", str(root)]
+    res = CliRunner().invoke(uavrl, [*args, "--out", str(tmp_path / "r"), "--episodes", "20", "--t-max", "30", "--quiet"])
+    assert res.exit_code == 0, res.output
+    for city in ("cityb", "cityc"):
+        doc = json.loads((tmp_path / "r" / city / "report.json").read_text())
+        assert doc["report_config"]["dataset"] == city
+    assert "cityb: success / median steps" in res.output and "cityc: success / median steps" in res.output
+    summary = res.output[res.output.index("cityb: success / median steps") :]
+    assert "genie" in summary and "100.0 %" in summary
 
 
 def test_report_refuses_the_training_city(tmp_path, two_cities):

@@ -119,13 +119,22 @@ class ReplayBuffer:
     # -- persistence (resume) -----------------------------------------------------------------------
     _ARRAYS = ("obs", "mask", "action", "reward", "terminated", "truncated", "side_index", "side_obs", "side_mask")
 
+    _SLOTS = ("obs", "mask", "action", "reward", "terminated", "truncated", "side_index")
+
     def save(self, path: str | Path) -> None:
-        np.savez(path, **{k: getattr(self, k) for k in self._ARRAYS}, counters=np.array([self.pos, self.size, self.side_pos]))
+        """The written slots only: until the buffer is full they are the first ``size`` (a paper-preset
+        replay is 3.7 GB full, a fraction of that early in a run)."""
+        n = self.size
+        arrays = {k: getattr(self, k)[:n] if k in self._SLOTS else getattr(self, k) for k in self._ARRAYS}
+        np.savez(path, **arrays, counters=np.array([self.pos, self.size, self.side_pos]))
 
     def load(self, path: str | Path) -> None:
         with np.load(path, allow_pickle=False) as z:
+            pos, size, side_pos = (int(v) for v in z["counters"])
             for k in self._ARRAYS:
-                if z[k].shape != getattr(self, k).shape:
-                    raise ValueError(f"replay {path}: {k} has shape {z[k].shape}, this run's is {getattr(self, k).shape}")
-                getattr(self, k)[...] = z[k]
-            self.pos, self.size, self.side_pos = (int(v) for v in z["counters"])
+                mine = getattr(self, k)
+                want = (size, *mine.shape[1:]) if k in self._SLOTS else mine.shape
+                if z[k].shape != want or size > self.capacity:
+                    raise ValueError(f"replay {path}: {k} has shape {z[k].shape}, this run's is {want}")
+                mine[: len(z[k])] = z[k]
+            self.pos, self.size, self.side_pos = pos, size, side_pos

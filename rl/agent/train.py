@@ -50,6 +50,9 @@ class RunRecord(Contract):
 
     config: DQNConfig
     datasets: dict[str, str] = Field(description="Training city -> bundle version")
+    val_datasets: dict[str, str] = Field(
+        default_factory=dict, description="Validation city -> bundle version: the cities best.pt was selected on"
+    )
     train_split: str | None = Field(description="Users episodes were drawn from (None: all users)")
     eval_split: str | None = Field(description="Users the periodic evaluation (and best.pt) used")
     command: str
@@ -103,11 +106,54 @@ def linear(start: float, end: float, frac: float) -> float:
     return start + (end - start) * min(max(frac, 0.0), 1.0)
 
 
-def _split_or_none(bundles: list[Bundle], wanted: str | None) -> str | None:
-    """``wanted`` if some bundle user is in that split, else None (all users)."""
-    if wanted is None:
-        return None
-    return wanted if any(len(b.user_indices(wanted)) for b in bundles) else None
+def role(bundle: Bundle) -> str | None:
+    """The city's role given at build time (``--split CITY=ROLE``): train, val, test, or None."""
+    return bundle.manifest.config.role
+
+
+def training_users(bundle: Bundle) -> np.ndarray:
+    """The users a run trains on in a city: a ``train`` city's training users, every user of a city without a role."""
+    return bundle.user_indices("train") if role(bundle) == "train" else bundle.user_indices()
+
+
+@dataclass
+class Cities:
+    """The bundles a run trains on and selects on, and the users of each it plays."""
+
+    train: list[Bundle]
+    train_users: list[np.ndarray]
+    train_split: str | None
+    val: list[Bundle]
+    val_users: list[np.ndarray]
+    val_split: str | None
+
+
+def plan_cities(bundles: list[Bundle], val_bundles: list[Bundle], eval_split: str | None) -> Cities:
+    """Split the given cities into training and validation ones; refuse a test city.
+
+    A city built as ``val`` goes to validation; one built as ``test`` is refused (never trained or
+    selected on). Training users: a ``train`` city's training users, every user of a city without a
+    role. Validation: every user of the validation cities; without any, the ``eval_split`` users of
+    the training cities (all of them if none has that split).
+    """
+    for b in [*bundles, *val_bundles]:
+        if role(b) == "test":
+            raise InputError(
+                None, f"{b.city} is a test city (built with --split {b.city}=test): never trained or selected on", field="dataset"
+            )
+    val = list(val_bundles) + [b for b in bundles if role(b) == "val"]
+    train = [b for b in bundles if role(b) != "val"]
+    if not train:
+        raise InputError(None, "no training city: every --dataset given is a validation city", field="dataset")
+    if set(b.city for b in train) & set(b.city for b in val):
+        raise InputError(None, "a city cannot be both trained and validated on", field="val_dataset")
+    train_users = [training_users(b) for b in train]
+    train_split = "train" if any(role(b) == "train" for b in train) else None
+    if val:
+        return Cities(train, train_users, train_split, val, [b.user_indices() for b in val], None)
+    has_split = eval_split is not None and any(len(b.user_indices(eval_split)) for b in train)
+    split = eval_split if has_split else None
+    return Cities(train, train_users, train_split, train, [b.user_indices(split) for b in train], split)
 
 
 def _atomic_torch_save(obj: dict, path: Path) -> None:
@@ -125,17 +171,25 @@ def _atomic_parquet(df: pd.DataFrame, path: Path) -> None:
 class Trainer:
     """One training run over built cities; ``run()`` trains to ``config.total_steps`` (or resumes)."""
 
-    def __init__(self, config: DQNConfig, datasets: list[str], root: str | Path, run_dir: Path, command: str = "") -> None:
+    def __init__(
+        self,
+        config: DQNConfig,
+        datasets: list[str],
+        root: str | Path,
+        run_dir: Path,
+        command: str = "",
+        val_datasets: list[str] | None = None,
+    ) -> None:
         self.config, self.datasets, self.root, self.run_dir = config, list(datasets), str(root), Path(run_dir)
         torch.manual_seed(config.seed)
         if "OMP_NUM_THREADS" not in os.environ:  # both cores of the reference machine, unless told otherwise
             torch.set_num_threads(max(1, min(2, os.cpu_count() or 1)))
         bundles = [load_bundle(name, root=self.root) for name in self.datasets]
-        train_split = _split_or_none(bundles, "train")
-        self.maps = MapSet(bundles, config.env_config().model_copy(update={"split": train_split}))
-        eval_cfg = config.env_config(evaluation=True)
-        self.eval_split = _split_or_none(bundles, config.eval_split)
-        self.eval_maps = MapSet(bundles, eval_cfg.model_copy(update={"split": self.eval_split}))
+        cities = plan_cities(bundles, [load_bundle(n, root=self.root) for n in val_datasets or []], config.eval_split)
+        self.maps = MapSet(cities.train, config.env_config().model_copy(update={"split": cities.train_split}), cities.train_users)
+        self.eval_split = cities.val_split
+        eval_cfg = config.env_config(evaluation=True).model_copy(update={"split": cities.val_split})
+        self.eval_maps = MapSet(cities.val, eval_cfg, cities.val_users)
         self.eval_episodes = self.eval_maps.sample_episodes(config.eval_episodes, np.random.default_rng([config.seed, 2]))
         self.env = BatchedEnv(self.maps, config.num_envs, compact=True)
         c, w = self.maps.config.num_channels, self.maps.config.window
@@ -152,9 +206,11 @@ class Trainer:
         return self.run_dir / "checkpoints"
 
     def write_run_json(self) -> None:
+        trained = {b.city: b.version for b in self.maps.bundles}
         record = RunRecord(
             config=self.config,
-            datasets={b.city: b.version for b in self.maps.bundles},
+            datasets=trained,
+            val_datasets={b.city: b.version for b in self.eval_maps.bundles if b.city not in trained},
             train_split=self.maps.config.split,
             eval_split=self.eval_split,
             command=self.command,

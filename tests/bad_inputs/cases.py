@@ -874,7 +874,7 @@ CASES: list[Case] = [
         "train unknown dataset",
         "uavrl",
         lambda w: ["train", "--dataset", "nowhere", "--root", str(w.root()), "--out", str(w.tmp / "runs")],
-        "no bundle of city 'nowhere'",
+        "nowhere: dataset: no ingested city or corpus of that name",
     ),
     Case(
         "train --name ../x",

@@ -1,0 +1,84 @@
+"""The lever table: each training run's validation score and its success in unseen cities.
+
+For every run folder: the settings that differ from the ``best`` preset, the evaluation that chose
+``best.pt`` (on the validation cities), then ``best.pt`` on ``--episodes`` episodes of each test
+city (t_max 500, epsilon 0.096, the episodes ``uavrl report --seed`` draws): success, median steps
+and their ratio to the genie's median on the same episodes, and the wall time the lever script
+logged (``wall.txt`` beside the runs). Test cities are only reported here, never used to choose.
+
+    python benchmarks/lever_table.py runs/levers/R* [--city test --city etoile] [--episodes 1000]
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from dataset.bundle import load_bundle
+from eval.report import load_agent
+from rl.agent.dqn import preset_config
+from rl.config import EnvConfig
+from rl.maps import MapSet
+from rl.policies import GeniePolicy
+from rl.rollout import run_episodes, summarise
+
+
+def changed_settings(config) -> str:
+    """The fields of ``config`` (and its env) that differ from its preset, as ``--set`` would write them."""
+    base = preset_config(config.preset, agent=config.agent, seed=config.seed).model_dump()
+    mine = config.model_dump()
+    out = [f"{k}={v}" for k, v in mine.items() if k not in ("env", "total_steps", "eval_every", "seed") and v != base[k]]
+    out += [f"env.{k}={v}" for k, v in mine["env"].items() if v != base["env"][k]]
+    return ", ".join(out) or "(preset)"
+
+
+def wall_times(folders: list[Path]) -> dict[str, str]:
+    times: dict[str, str] = {}
+    for log in {f.parent / "wall.txt" for f in folders}:
+        if log.is_file():
+            for line in log.read_text().splitlines():
+                name, _, seconds = line.partition(": ")
+                times[name] = seconds
+    return times
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("runs", nargs="+", type=Path)
+    ap.add_argument("--city", action="append", default=None, help="Test city (repeatable; default: test)")
+    ap.add_argument("--episodes", type=int, default=1000)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--root", default="data/processed")
+    args = ap.parse_args()
+    cities = args.city or ["test"]
+    walls = wall_times(args.runs)
+    tests = {}
+    for city in cities:
+        bundle = load_bundle(city, root=args.root)
+        base = MapSet([bundle], EnvConfig(t_max=500, rotate=False))
+        episodes = base.sample_episodes(args.episodes, np.random.default_rng(args.seed))
+        genie = summarise(run_episodes(base, GeniePolicy(), episodes))["median_steps"]
+        tests[city] = (bundle, episodes, genie)
+    head = ["run", "settings", "steps", "val success", "val median"]
+    head += [f"{c} {x}" for c in cities for x in ("success", "median", "x genie")] + ["wall"]
+    print("| " + " | ".join(head) + " |")
+    print("|" + "---|" * len(head))
+    for folder in args.runs:
+        agent = load_agent(folder, 0.096, args.seed)
+        evals = pd.read_parquet(folder / "eval.parquet")
+        chosen = evals[evals["best"]].iloc[-1]
+        row = [folder.name, changed_settings(agent.config), f"{int(evals.step.max()):,}"]
+        row += [f"{100 * chosen.success:.1f} %", f"{chosen.median_steps:g}"]
+        for bundle, episodes, genie in tests.values():
+            env = agent.config.env_config(evaluation=True).model_copy(update={"t_max": 500, "split": None})
+            s = summarise(run_episodes(MapSet([bundle], env), agent.policy, episodes))
+            row += [f"{100 * s['success']:.1f} %", f"{s['median_steps']:g}", f"{s['median_steps'] / genie:.2f}"]
+        row.append(walls.get(folder.name, "-"))
+        print("| " + " | ".join(row) + " |", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,22 @@
+# Sourced by benchmarks/levers.sh and benchmarks/train_agents.sh: `one NAME ARGS...` trains the run
+# OUT/NAME with `uavrl train "${COMMON[@]}" --name NAME ARGS...` (one torch thread), continues it with
+# `--resume` when its folder holds a checkpoint, skips it once its last evaluation reached total_steps,
+# and appends its wall time to OUT/wall.txt.
+one() {
+  local name=$1; shift
+  if [[ -f "$OUT/$name/eval.parquet" ]] && python - "$OUT/$name" <<'PY'
+import json, sys, pandas as pd
+total = json.load(open(f"{sys.argv[1]}/run.json"))["config"]["total_steps"]
+ev = pd.read_parquet(f"{sys.argv[1]}/eval.parquet")
+sys.exit(0 if len(ev) and ev.step.max() >= total else 1)
+PY
+  then echo "$name: done"; return; fi
+  local t0=$SECONDS
+  if [[ -d "$OUT/$name/checkpoints/last" ]]; then
+    OMP_NUM_THREADS=1 uavrl train --resume "$OUT/$name" --quiet
+  else
+    rm -rf "${OUT:?}/$name"
+    OMP_NUM_THREADS=1 uavrl train "${COMMON[@]}" --name "$name" "$@"
+  fi
+  echo "$name: $((SECONDS - t0)) s" | tee -a "$OUT/wall.txt"
+}

@@ -1,0 +1,31 @@
+#!/usr/bin/env bash
+# The shipped agents (data/agents/), trained on the corpus and the train city, best.pt selected on the
+# val cities (corpus-016, corpus-017; 1000 fixed episodes each evaluation), never on a test city:
+#   best-s0, best-s1, best-s2   the `best` preset, 3 seeds (the median seed by validation is shipped as
+#                               data/agents/best); LONG=1: on a 500 k-step schedule instead (best-long-sN)
+#   proposed, blind             the paper's preset (docs/method.md), with and without the height map,
+#                               on one shortened schedule (epsilon annealed over all of it)
+# Resumable: a run whose folder exists continues from its last checkpoint; a finished one is skipped.
+#
+#   bash benchmarks/train_agents.sh best|paper [OUT]     # OUT defaults to runs/agents
+set -euo pipefail
+WHICH=${1:?best or paper}
+OUT=${2:-runs/agents}
+PAPER_STEPS=${PAPER_STEPS:-100000}
+mkdir -p "$OUT"
+COMMON=(--dataset corpus --dataset train --out "$OUT" --quiet)
+
+source "$(dirname "$0")/one_run.sh"
+
+if [[ $WHICH == paper ]]; then
+  PAPER=(--preset paper --steps "$PAPER_STEPS" --eval-every 20000 --set eval_episodes=1000)
+  one proposed "${PAPER[@]}" --agent dqn &
+  one blind "${PAPER[@]}" --agent blind &
+else
+  if [[ ${LONG:-0} == 1 ]]; then
+    for seed in 0 1 2; do one "best-long-s$seed" --preset best --steps 500000 --seed "$seed" & done
+  else
+    for seed in 0 1 2; do one "best-s$seed" --preset best --seed "$seed" & done
+  fi
+fi
+wait
