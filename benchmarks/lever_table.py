@@ -5,6 +5,8 @@ For every run folder: the settings that differ from the ``best`` preset, the eva
 city (t_max 500, epsilon 0.096, the episodes ``uavrl report --seed`` draws): success, median steps
 and their ratio to the genie's median on the same episodes, and the wall time the lever script
 logged (``wall.txt`` beside the runs). Test cities are only reported here, never used to choose.
+Each agent is loaded once: its random moves (epsilon) run on from one city to the next, so a city
+after the first differs from ``uavrl report`` (a fresh agent per city) by that noise alone.
 
     python benchmarks/lever_table.py runs/levers/R* [--city test --city etoile] [--episodes 1000]
 """

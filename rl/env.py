@@ -10,7 +10,8 @@ the building height minus the altitude [m] (clipped to +/- 100; beyond the map
 edge ``edge_height_m``), channel 1 the SINR memory [dB] (measured SINR at
 visited cells, P_H = +50 at unvisited ones, P_L = -150 at blocked cells and
 beyond the edge). Blind variant: only the SINR memory, with blocked map cells
-shown as P_H.
+shown as P_H. With ``visited_channel`` a channel of the visited cells (P_H where
+visited, 0 elsewhere) comes before the SINR memory, which stays last.
 
 ## Action space
 ``Discrete(4)``: 0 north (+y), 1 east (+x), 2 south (-y), 3 west (-x).
@@ -18,7 +19,9 @@ shown as P_H.
 illegal action leaves the UAV in place.
 
 ## Rewards
-``SINR_{t+1} - SINR_t + c_E * [the new cell was never visited]``.
+``SINR_{t+1} - SINR_t + c_E * [the new cell was never visited]`` (the paper's), and the
+training levers of ``EnvConfig`` when set: less ``step_cost``, plus potential-based
+shaping from the genie's distance, times ``reward_scale``.
 
 ## Episode end
 ``terminated`` when SINR >= P_T; ``truncated`` after ``t_max`` moves.
