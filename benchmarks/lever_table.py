@@ -2,7 +2,8 @@
 
 For every run folder: the settings that differ from the ``best`` preset, the evaluation that chose
 ``best.pt`` (on the validation cities), then ``best.pt`` on ``--episodes`` episodes of each test
-city (t_max 500, epsilon 0.096, the episodes ``uavrl report --seed`` draws): success, median steps
+city (t_max 500, epsilon 0.096, the episodes ``uavrl report --seed`` draws; ``eval.report.evaluate``
+with the genie as the only baseline): success, median steps
 and their ratio to the genie's median on the same episodes, and the wall time the lever script
 logged (``wall.txt`` beside the runs). Test cities are only reported here, never used to choose.
 Each agent is loaded once: its random moves (epsilon) run on from one city to the next, so a city
@@ -16,16 +17,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
 from dataset.bundle import load_bundle
-from eval.report import load_agent
+from eval.report import ReportConfig, evaluate, load_agent
 from rl.agent.dqn import preset_config
-from rl.config import EnvConfig
-from rl.maps import MapSet
 from rl.policies import GeniePolicy
-from rl.rollout import run_episodes, summarise
+from rl.rollout import summarise
 
 
 def changed_settings(config) -> str:
@@ -57,29 +55,28 @@ def main() -> None:
     args = ap.parse_args()
     cities = args.city or ["test"]
     walls = wall_times(args.runs)
-    tests = {}
+    agents = [load_agent(folder, 0.096, args.seed) for folder in args.runs]
+    for a in agents:  # the runs' folder names tell agents of one preset apart
+        a.name = a.policy.name = a.folder.name
+    tests: dict[str, dict[str, dict[str, float]]] = {}
     for city in cities:
-        bundle = load_bundle(city, root=args.root)
-        base = MapSet([bundle], EnvConfig(t_max=500, rotate=False))
-        episodes = base.sample_episodes(args.episodes, np.random.default_rng(args.seed))
-        genie = summarise(run_episodes(base, GeniePolicy(), episodes))["median_steps"]
-        tests[city] = (bundle, episodes, genie)
+        config = ReportConfig(dataset=city, episodes=args.episodes, t_max=500, seed=args.seed, trajectories=0)
+        results = evaluate(config, load_bundle(city, root=args.root), agents, baselines=[GeniePolicy()])
+        tests[city] = {name: summarise(df) for name, df in results.items()}
     head = ["run", "settings", "steps", "val success", "val median"]
     head += [f"{c} {x}" for c in cities for x in ("success", "median", "x genie")] + ["wall"]
     print("| " + " | ".join(head) + " |")
     print("|" + "---|" * len(head))
-    for folder in args.runs:
-        agent = load_agent(folder, 0.096, args.seed)
-        evals = pd.read_parquet(folder / "eval.parquet")
+    for a in agents:
+        evals = pd.read_parquet(a.folder / "eval.parquet")
         chosen = evals[evals["best"]].iloc[-1]
-        row = [folder.name, changed_settings(agent.config), f"{int(evals.step.max()):,}"]
+        row = [a.name, changed_settings(a.config), f"{int(evals.step.max()):,}"]
         row += [f"{100 * chosen.success:.1f} %", f"{chosen.median_steps:g}"]
-        for bundle, episodes, genie in tests.values():
-            env = agent.config.env_config(evaluation=True).model_copy(update={"t_max": 500, "split": None})
-            s = summarise(run_episodes(MapSet([bundle], env), agent.policy, episodes))
+        for summaries in tests.values():
+            s, genie = summaries[a.name], summaries[GeniePolicy.name]["median_steps"]
             row += [f"{100 * s['success']:.1f} %", f"{s['median_steps']:g}", f"{s['median_steps'] / genie:.2f}"]
-        row.append(walls.get(folder.name, "-"))
-        print("| " + " | ".join(row) + " |", flush=True)
+        row.append(walls.get(a.name, "-"))
+        print("| " + " | ".join(row) + " |")
 
 
 if __name__ == "__main__":

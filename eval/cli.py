@@ -70,6 +70,7 @@ def report(
     hill-climbing. Prints the results table (95 % bootstrap intervals in brackets) and the report's path;
     with several cities, one report each, then a summary of success and median steps per method and city.
     """
+    from eval.metrics import format_stat
     from eval.report import ReportConfig, default_agents, table_rows
 
     chosen = list(runs) or default_agents(agents_dir)
@@ -86,7 +87,9 @@ def report(
         table = Table(*rows[0], title=f"{episodes} episodes in {dataset} (t_max {t_max}, P_T {p_t_db:g} dB)")
         for r in rows[1:]:
             table.add_row(*r)
-            summary.setdefault(r[0], {})[city] = f"{r[1].split(' [')[0]} / {r[2].split(' [')[0]}"
+        for r in result.table.to_dict("records"):
+            cell = " / ".join(format_stat(s, r[s]) for s in ("success", "median_steps"))
+            summary.setdefault(r["method"], {})[city] = cell.replace("> t_max", f"> {t_max}")
         stdout().print(table)
         stdout().print(f"report: {result.out / 'report.html'}", highlight=False, soft_wrap=True)
     if len(datasets) > 1:

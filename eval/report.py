@@ -133,11 +133,13 @@ def evaluate(
     bundle: Bundle,
     agents: list[Agent],
     on_progress: Callable[[str, int, int], None] | None = None,
+    baselines: list[Policy] | None = None,
 ) -> dict[str, pd.DataFrame]:
     """Play the same ``config.episodes`` episodes with every method; ``{method: run_episodes frame}``.
 
     Each agent plays in the environment it was trained for (its window, channels, memory values)
     with the report's ``t_max`` and ``P_T``; the episodes are drawn once from the users of the city.
+    ``baselines``: the policies played beside the agents (default: ``baseline_policies``).
     """
     base = EnvConfig(t_max=config.t_max, p_t_db=config.p_t_db, split=config.split, rotate=False)
     maps = {"": MapSet([bundle], base)}
@@ -153,7 +155,7 @@ def evaluate(
         if key not in maps:
             maps[key] = MapSet([bundle], env)
         methods.append((a.name, a.policy, maps[key]))
-    methods += [(p.name, p, maps[""]) for p in baseline_policies(config, base)]
+    methods += [(p.name, p, maps[""]) for p in (baseline_policies(config, base) if baselines is None else baselines)]
     names = [m[0] for m in methods]
     if len(set(names)) != len(names):
         raise ValueError(f"two methods share a name: {names}")

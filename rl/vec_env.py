@@ -158,7 +158,7 @@ class BatchedEnv:
         actions = np.asarray(actions, np.int64)
         rows, view, cfg = self._rows, self.view, self.config
         old = self.sinr_here()
-        old_steps = self.genie_steps()
+        old_steps = self.genie_steps() if cfg.shaping else None
         target = self.pos + MOVES[actions]
         legal = ~self.maps.blocked[self.maps.view_map[view], target[:, 0], target[:, 1]]
         self.pos = np.where(legal[:, None], target, self.pos)
