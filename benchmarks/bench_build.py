@@ -24,10 +24,10 @@ import pandas as pd
 import pyarrow.parquet as pq
 import shapely
 
-from dataset.build import build_city
-from ingest.pipeline import ingest_city
-from schemas.bundle import BuildConfig
-from simulate.insite import ReceiverGrid, write_p2m, write_setup, write_txrx
+from uavplace.dataset.build import build_city
+from uavplace.ingest.pipeline import ingest_city
+from uavplace.schemas.bundle import BuildConfig
+from uavplace.simulate.insite import ReceiverGrid, write_p2m, write_setup, write_txrx
 
 
 def write_city(folder: Path, users: int, seed: int = 0) -> ReceiverGrid:

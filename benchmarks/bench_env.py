@@ -24,15 +24,15 @@ import gymnasium as gym
 import numpy as np
 import pandas as pd
 
-from dataset.build import build_city
-from dataset.catalog import expand_datasets
-from ingest.pipeline import ingest_city
-from rl.config import EnvConfig
-from rl.env import UavPlacementEnv
-from rl.maps import MapSet
-from rl.policies import random_legal
-from rl.vec_env import BatchedEnv
-from schemas.bundle import BuildConfig
+from uavplace.dataset.build import build_city
+from uavplace.dataset.catalog import expand_datasets
+from uavplace.ingest.pipeline import ingest_city
+from uavplace.rl.config import EnvConfig
+from uavplace.rl.env import UavPlacementEnv
+from uavplace.rl.maps import MapSet
+from uavplace.rl.policies import random_legal
+from uavplace.rl.vec_env import BatchedEnv
+from uavplace.schemas.bundle import BuildConfig
 
 REPO = Path(__file__).resolve().parents[1]
 

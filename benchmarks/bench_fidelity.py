@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from simulate.pipeline import SimulationSpec, load_geometry, open_cells, place_users, receiver_grid, squared_distances
-from simulate.raytrace import (
+from uavplace.simulate.pipeline import SimulationSpec, load_geometry, open_cells, place_users, receiver_grid, squared_distances
+from uavplace.simulate.raytrace import (
     FILL_METHODS,
     RadioMapJob,
     RayTraceConfig,
@@ -36,7 +36,7 @@ from simulate.raytrace import (
     path_gain_maps_isolated,
     point_path_gains_isolated,
 )
-from simulate.scene import write_scene
+from uavplace.simulate.scene import write_scene
 
 METHODS = ("none", *FILL_METHODS)
 

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow.csv as pacsv
 
-from ingest.wireless_insite.p2m import P2MStream, read_p2m
+from uavplace.ingest.wireless_insite.p2m import P2MStream, read_p2m
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -148,9 +148,9 @@ def memory(rows: int, repeat: int) -> None:
             assert sum(b.num_rows for b in P2MStream(path, batch_bytes=path.stat().st_size + 1)) == rows
 
         t_stream, t_whole = best(streamed, repeat), best(whole, repeat)
-        imports = _peak_rss_mb("-", imports="dataset.cli, ingest.pipeline")
+        imports = _peak_rss_mb("-", imports="uavplace.ingest.cli, uavplace.ingest.pipeline")
         t = time.perf_counter()
-        peak = _peak_rss_mb("dataset.cli", "ingest", str(city), "--out", str(Path(tmp) / "proc"), "--quiet")
+        peak = _peak_rss_mb("uavplace.schemas.cli", "uavdata", "ingest", str(city), "--out", str(Path(tmp) / "proc"), "--quiet")
         wall = time.perf_counter() - t
     print(f"uavdata ingest of {rows:,} rows: peak RSS {peak:.0f} MB (imports alone: {imports:.0f} MB), {wall:.1f} s")
     print(f"  streamed reader      {rows / t_stream:>12,.0f} rows/s")

@@ -31,10 +31,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from dataset.catalog import expand_datasets
-from rl.agent.dqn import DQNConfig, make_network, preset_config
-from rl.agent.train import Trainer
-from rl.config import EnvConfig
+from uavplace.dataset.catalog import expand_datasets
+from uavplace.rl.agent.dqn import DQNConfig, make_network, preset_config
+from uavplace.rl.agent.train import Trainer
+from uavplace.rl.config import EnvConfig
 
 
 def bench_ours(config: DQNConfig, dataset: str | list[str], root: str, steps: int, warmup: int) -> dict:
@@ -64,7 +64,7 @@ def bench_tianshou(config: DQNConfig, dataset: str, root: str, steps: int, warmu
     from tianshou.env import DummyVectorEnv
     from tianshou.utils.torch_utils import policy_within_training_step
 
-    import rl  # noqa: F401  (registers the environments)
+    import uavplace.rl  # noqa: F401  (registers the environments)
 
     env_cfg = config.env_config()
 

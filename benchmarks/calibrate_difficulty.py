@@ -14,9 +14,9 @@ import argparse
 
 import pandas as pd
 
-from dataset.build import rasterise, read_ingested
-from dataset.difficulty import difficulty
-from schemas.bundle import BuildConfig
+from uavplace.dataset.build import rasterise, read_ingested
+from uavplace.dataset.difficulty import difficulty
+from uavplace.schemas.bundle import BuildConfig
 
 
 def main() -> None:

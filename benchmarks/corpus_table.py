@@ -16,9 +16,9 @@ import argparse
 import json
 from pathlib import Path
 
-from dataset.bundle import load_bundle, read_latest
-from dataset.catalog import list_cities
-from simulate.raytrace import constant_patch_share
+from uavplace.dataset.bundle import load_bundle, read_latest
+from uavplace.dataset.catalog import list_cities
+from uavplace.simulate.raytrace import constant_patch_share
 
 
 def _pct(v: float | None) -> str:

@@ -21,9 +21,9 @@ import numpy as np
 import shapely
 from scipy import ndimage
 
-from simulate.pipeline import load_geometry
-from simulate.scene import Block
-from simulate.styles import STYLES
+from uavplace.simulate.pipeline import load_geometry
+from uavplace.simulate.scene import Block
+from uavplace.simulate.styles import STYLES
 
 GRID_M = 4.0
 ALTITUDE_M = 10.0

@@ -19,11 +19,11 @@ from pathlib import Path
 
 import pandas as pd
 
-from dataset.bundle import load_bundle
-from eval.report import ReportConfig, evaluate, load_agent
-from rl.agent.dqn import preset_config
-from rl.policies import GeniePolicy
-from rl.rollout import summarise
+from uavplace.dataset.bundle import load_bundle
+from uavplace.eval.report import ReportConfig, evaluate, load_agent
+from uavplace.rl.agent.dqn import preset_config
+from uavplace.rl.policies import GeniePolicy
+from uavplace.rl.rollout import summarise
 
 
 def changed_settings(config) -> str:

@@ -24,9 +24,13 @@ R3=("${R2[@]}" --set env.visited_channel=true)
 S1=(--set env.shaping=1)
 S2=(--set env.visited_channel=true)
 S3=(--set env.symmetries=8 --set env.far_starts=0.5)
+B1=("${S2[@]}" --set env.success_bonus=100)
+B2=("${B1[@]}" --set env.c_e=0.3)
+B3=("${S2[@]}" --set env.success_bonus=300)
+B4=("${B1[@]}" --set env.far_starts=0.5)
 
 source "$(dirname "$0")/one_run.sh"
 
-(one R0 "${R0[@]}"; one R2 "${R2[@]}"; one S1 "${S1[@]}"; one S3 "${S3[@]}"; one S2-s1 "${S2[@]}" --seed 1) &
-(one R1 "${R1[@]}"; one R3 "${R3[@]}"; one S2 "${S2[@]}"; one S2-s2 "${S2[@]}" --seed 2) &
+(one R0 "${R0[@]}"; one R2 "${R2[@]}"; one S1 "${S1[@]}"; one S3 "${S3[@]}"; one S2-s1 "${S2[@]}" --seed 1; one B1 "${B1[@]}"; one B3 "${B3[@]}"; one B3-s1 "${B3[@]}" --seed 1; one B1-s1 "${B1[@]}" --seed 1) &
+(one R1 "${R1[@]}"; one R3 "${R3[@]}"; one S2 "${S2[@]}"; one S2-s2 "${S2[@]}" --seed 2; one B2 "${B2[@]}"; one B4 "${B4[@]}"; one B3-s2 "${B3[@]}" --seed 2; one B1-s2 "${B1[@]}" --seed 2) &
 wait

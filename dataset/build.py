@@ -29,15 +29,15 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from dataset.bundle import load_bundle, read_latest, write_latest
-from dataset.catalog import DEFAULT_ROOT, INGESTED_MANIFEST, read_city_manifest
-from dataset.difficulty import difficulty
-from dataset.raster import cell_centres, cell_index, grid_over, ground_z, height_map
-from schemas import SCHEMA_VERSION, CityManifest, InputError
-from schemas.base import uavplace_version
-from schemas.bundle import BUNDLE_MANIFEST, CELLS, USERS, BuildConfig, BundleManifest, GridSpec, SinrInfo, SinrSource
-from schemas.files import atomic_directory, sha256_file, write_model_json
-from schemas.tables import BUILDING_PARTS, BUILDINGS, RECEIVERS, TRANSMITTERS
+from uavplace.dataset.bundle import load_bundle, read_latest, write_latest
+from uavplace.dataset.catalog import DEFAULT_ROOT, INGESTED_MANIFEST, read_city_manifest
+from uavplace.dataset.difficulty import difficulty
+from uavplace.dataset.raster import cell_centres, cell_index, grid_over, ground_z, height_map
+from uavplace.schemas import SCHEMA_VERSION, CityManifest, InputError
+from uavplace.schemas.base import uavplace_version
+from uavplace.schemas.bundle import BUNDLE_MANIFEST, CELLS, USERS, BuildConfig, BundleManifest, GridSpec, SinrInfo, SinrSource
+from uavplace.schemas.files import atomic_directory, sha256_file, write_model_json
+from uavplace.schemas.tables import BUILDING_PARTS, BUILDINGS, RECEIVERS, TRANSMITTERS
 
 #: How many distinct receiver heights an altitude error lists.
 _HEIGHTS_SHOWN = 8

@@ -10,8 +10,6 @@ This module needs only numpy, pandas, pyarrow and the contracts.
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,11 +19,11 @@ import pandas as pd
 import pyarrow.parquet as pq
 from pydantic import ValidationError
 
-from dataset.catalog import DEFAULT_ROOT
-from schemas import SCHEMA_VERSION, InputError
-from schemas.base import validation_message
-from schemas.bundle import BUNDLE_FILES, BUNDLE_MANIFEST, MAP_ARRAYS, USERS, BundleManifest
-from schemas.files import check_name, sha256_file
+from uavplace.dataset.catalog import DEFAULT_ROOT
+from uavplace.schemas import SCHEMA_VERSION, InputError
+from uavplace.schemas.base import validation_message
+from uavplace.schemas.bundle import BUNDLE_FILES, BUNDLE_MANIFEST, MAP_ARRAYS, USERS, BundleManifest
+from uavplace.schemas.files import atomic_write_text, check_name, sha256_file
 
 #: Name of the per-city file holding the version ``load_bundle`` picks by default.
 LATEST = "latest"
@@ -97,11 +95,7 @@ def read_latest(city: str, root: str | Path = DEFAULT_ROOT) -> str | None:
 
 def write_latest(city: str, version: str, root: str | Path = DEFAULT_ROOT) -> None:
     """Point ``latest`` at ``version`` (written to a temporary file, then renamed)."""
-    folder = city_dir(city, root)
-    fd, tmp = tempfile.mkstemp(prefix=f".{LATEST}.", dir=folder)
-    with os.fdopen(fd, "w", encoding="utf-8") as f:
-        f.write(version + "\n")
-    os.replace(tmp, folder / LATEST)
+    atomic_write_text(city_dir(city, root) / LATEST, version + "\n")
 
 
 def list_versions(city: str, root: str | Path = DEFAULT_ROOT) -> list[BundleManifest]:

@@ -7,12 +7,10 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
-from schemas import CityManifest, InputError
-from schemas.base import validation_message
-from schemas.files import check_name
+from uavplace.schemas import CityManifest, InputError
+from uavplace.schemas.base import validation_message
+from uavplace.schemas.files import DEFAULT_ROOT, check_name
 
-#: Default root of ingested cities and bundles.
-DEFAULT_ROOT = Path("data/processed")
 INGESTED_MANIFEST = Path("ingested") / "manifest.json"
 
 

@@ -1,236 +1,19 @@
-"""``uavdata``: ingest raw ray-tracer exports, build versioned map bundles, list and show them."""
+"""``uavdata build``, ``list`` and ``show``: versioned map bundles from ingested cities (registered in ``schemas.cli``)."""
 
 from __future__ import annotations
 
 import contextlib
-import json
-import os
-import shlex
 import sys
 from pathlib import Path
-from typing import NoReturn
 
 import click
-from rich.console import Console
 from rich.markup import escape
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-from rich.table import Table
-from rich.text import Text
 
-from dataset.catalog import DEFAULT_ROOT, list_cities
-from schemas import InputError
-from schemas.bundle import BuildConfig
-from schemas.export import SCHEMA_MODELS, json_schemas
-from schemas.files import check_name, describe_os_error
-
-console = Console(stderr=True)
-
-
-def stdout() -> Console:
-    """Console for results: the terminal's width, or 160 columns when piped (names stay whole)."""
-    return Console(width=None if sys.stdout.isatty() else 160)
-
-
-def command_line() -> str:
-    return " ".join(shlex.quote(a) for a in [Path(sys.argv[0]).name, *sys.argv[1:]])
-
-
-#: ``--root``: where ingested cities and bundles live (shared by uavdata and uavrl commands).
-root_option = click.option(
-    "--root",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=DEFAULT_ROOT,
-    show_default=True,
-    help="Root of processed data.",
-)
-
-
-def fail(err: Exception | str) -> NoReturn:
-    """Print one error line and exit with status 2."""
-    text = describe_os_error(err) if isinstance(err, OSError) and not isinstance(err, InputError) else str(err)
-    text = " ".join(text.split()) or type(err).__name__  # one line, whatever the message held
-    console.print(f"[bold red]error:[/] {escape(text)}", highlight=False, soft_wrap=True)
-    sys.exit(2)
-
-
-class UavGroup(click.Group):
-    """A click group whose every failure is one ``error: ...`` line and exit status 2, never a traceback.
-
-    Bad input (``InputError``), usage errors, operating-system errors (a full
-    disk, a permission) and, as a last resort, any other exception are caught
-    here. ``UAVPLACE_DEBUG=1`` lets an unexpected exception through with its
-    traceback, for bug reports.
-    """
-
-    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):  # noqa: ANN001, ANN201
-        try:
-            rv = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
-        except click.exceptions.Abort:
-            fail("aborted")
-        except click.UsageError as err:
-            hint = f" (see '{err.ctx.command_path} --help')" if err.ctx is not None else ""
-            fail(f"{err.format_message()}{hint}")
-        except click.ClickException as err:
-            fail(err.format_message())
-        except InputError as err:
-            fail(err)
-        except OSError as err:
-            fail(describe_os_error(err))
-        except Exception as err:
-            if os.environ.get("UAVPLACE_DEBUG"):
-                raise
-            fail(f"internal error ({type(err).__name__}: {err}); run again with UAVPLACE_DEBUG=1 for the traceback")
-        if not standalone_mode:
-            return rv
-        sys.exit(rv if isinstance(rv, int) else 0)
-
-
-def plain_table(*headers: str, **kwargs) -> Table:  # noqa: ANN003 - rich.table.Table's options
-    """A rich table whose headers are text, not markup: units such as ``[m]`` stay visible."""
-    table = Table(**kwargs)
-    for header in headers:
-        table.add_column(Text(header))
-    return table
-
-
-@click.group(cls=UavGroup, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
-@click.version_option(package_name="uavplace", prog_name="uavdata")
-def main() -> None:
-    """uavplace data pipeline: raw ray-tracer exports -> validated tables -> map bundles.
-
-    \b
-    Typical use on a new city:
-      uavdata ingest data/raw/cityA/
-      uavdata build --grid 4m --alt 10 --noise-dbm -68
-    (-68 dBm of noise plus interference is the level the embedded cities and
-    the shipped agents are calibrated at; see the README.)
-    """
-
-
-@main.command()
-@click.argument("folders", nargs=-1, required=True, type=click.Path(file_okay=False, path_type=Path))
-@click.option(
-    "--out",
-    "out_root",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=DEFAULT_ROOT,
-    show_default=True,
-    help="Root of processed data; tables go to OUT/<city>/ingested/.",
-)
-@click.option("--name", default=None, help="City name (default: the folder's name; only with one FOLDER).")
-@click.option("--quiet", is_flag=True, help="No progress bar and no per-file table; only the summary line.")
-def ingest(folders: tuple[Path, ...], out_root: Path, name: str | None, quiet: bool) -> None:
-    """Read every export in each city FOLDER, validate it and write tables (e.g. `uavdata ingest data/raw/*/`).
-
-    Understands Wireless InSite receiver outputs (.p2m, .p2m.gz: power, pl,
-    pg, txloss, spread, noise), .txrx, .setup, .city, .ter, GeoJSON footprints
-    (.geojson) and meshes (.obj .ply .stl .glb .gltf). Per-path outputs
-    (paths, doa, dod, cir, ...) are recognised and skipped; unknown files are
-    listed as warnings. On any error nothing is written for that city and the exit status is 2.
-    """
-    if name is not None and len(folders) > 1:
-        raise click.BadParameter("--name names one city: give one FOLDER", param_hint="--name")
-    if name is not None:
-        check_name(name, "city name")
-    for folder in folders:
-        _ingest_one(folder, out_root, name, quiet)
-
-
-def _ingest_one(folder: Path, out_root: Path, name: str | None, quiet: bool) -> None:
-    from ingest.pipeline import ingest_city
-
-    with Progress(
-        TextColumn("[bold]ingest[/] {task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        console=console,
-        disable=quiet,
-        transient=True,
-    ) as progress:
-        task = progress.add_task(str(folder), total=None)
-
-        def on_file(rel: str, total: int) -> None:
-            progress.update(task, description=rel, total=total, advance=1)
-
-        out_dir, manifest, report = ingest_city(folder, out_root, name=name, command=command_line(), on_file=on_file)
-    out = stdout()
-    if not quiet:
-        table = plain_table("file", "kind", "status", "rows", "rejected", "note", title=f"{manifest.name}: files")
-        for f in report.files:  # file names and notes are the user's text, not markup
-            table.add_row(*map(Text, (f.path, f.kind, f.status, str(f.rows_read), str(f.rows_rejected), f.message or "")))
-        out.print(table)
-        for w in report.warnings:
-            console.print(f"[yellow]warning:[/] {w}", highlight=False, soft_wrap=True)
-    c = manifest.counts
-    out.print(
-        f"ingested {manifest.name}: {c['files']} files ({c['files_parsed']} parsed, {c['files_skipped']} skipped, "
-        f"{c['files_unknown']} unknown), {c['transmitters']} users, {c['receiver_rows']} receiver rows "
-        f"({c['receiver_rows_reached']} reached), {c['buildings']} buildings, {c['rows_rejected']} rows rejected "
-        f"-> {out_dir}",
-        highlight=False,
-        soft_wrap=True,
-    )
-
-
-@main.command()
-@click.argument("model", required=False, type=click.Choice(sorted(SCHEMA_MODELS)))
-@click.option(
-    "--out",
-    "out_dir",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=None,
-    help="Write one <name>.schema.json per contract into this folder instead of printing.",
-)
-def schema(model: str | None, out_dir: Path | None) -> None:
-    """Print the JSON schema of the contracts (all, or MODEL), so other tools can validate our outputs.
-
-    Table contracts (receivers, transmitters, buildings, building_parts) come
-    as the JSON schema of one row, with units and descriptions per column.
-    """
-    out = stdout()
-    schemas = json_schemas()
-    if model:
-        schemas = {model: schemas[model]}
-    if out_dir is None:
-        out.print_json(json.dumps(schemas if not model else schemas[model]))
-        return
-    out_dir.mkdir(parents=True, exist_ok=True)
-    for name, s in schemas.items():
-        (out_dir / f"{name}.schema.json").write_text(json.dumps(s, indent=2) + "\n", encoding="utf-8")
-    out.print(f"wrote {len(schemas)} schema(s) to {out_dir}")
-
-
-class Metres(click.ParamType):
-    """A length in metres: ``4``, ``4m`` or ``2.5 m``."""
-
-    name = "metres"
-
-    def convert(self, value, param, ctx):  # noqa: ANN001, ANN201 - click's signature
-        if isinstance(value, float | int):
-            return float(value)
-        text = str(value).strip().lower().removesuffix("m").strip()
-        try:
-            return float(text)
-        except ValueError:
-            self.fail(f"{value!r} is not a length in metres (e.g. 4m, 2.5)", param, ctx)
-
-
-class Bounds(click.ParamType):
-    """``auto``, ``receivers``, ``buildings`` or ``XMIN,YMIN,XMAX,YMAX`` in metres."""
-
-    name = "bounds"
-
-    def convert(self, value, param, ctx):  # noqa: ANN001, ANN201 - click's signature
-        if value in ("auto", "receivers", "buildings") or isinstance(value, tuple):
-            return value
-        try:
-            box = tuple(float(v) for v in str(value).split(","))
-        except ValueError:
-            box = ()
-        if len(box) != 4:
-            self.fail(f"{value!r}: expected auto, receivers, buildings or XMIN,YMIN,XMAX,YMAX", param, ctx)
-        return box
+from uavplace.dataset.catalog import list_cities
+from uavplace.schemas import InputError
+from uavplace.schemas.bundle import BuildConfig
+from uavplace.schemas.cli import Bounds, Metres, command_line, console, fail, plain_table, root_option, stdout
+from uavplace.schemas.files import check_name
 
 
 def _splits(values: tuple[str, ...]) -> dict[str, str]:
@@ -243,7 +26,7 @@ def _splits(values: tuple[str, ...]) -> dict[str, str]:
     return out
 
 
-@main.command()
+@click.command()
 @click.option("--grid", "grid_m", type=Metres(), default="4m", show_default=True, help="Grid spacing of the maps (e.g. 4m).")
 @click.option(
     "--alt",
@@ -356,7 +139,7 @@ def build(
     SINR = received power - (noise + interference), averaged over receivers in
     the linear domain; the export's own SINR is used when it has one.
     """
-    from dataset.build import build_city
+    from uavplace.dataset.build import build_city
 
     role = _splits(splits)
     for city in cities:
@@ -444,239 +227,11 @@ def _size(path: Path) -> str:
     return f"{total / 1e6:.1f} MB"
 
 
-class Point(click.ParamType):
-    """``X,Y`` in metres."""
-
-    name = "x,y"
-
-    def convert(self, value, param, ctx):  # noqa: ANN001, ANN201 - click's signature
-        if isinstance(value, tuple):
-            return value
-        try:
-            x, y = (float(v) for v in str(value).split(","))
-        except ValueError:
-            self.fail(f"{value!r}: expected X,Y in metres", param, ctx)
-        return (x, y)
-
-
-@main.command()
-@click.argument("sources", metavar="SOURCE...", nargs=-1, required=True)
-@click.option(
-    "--name",
-    required=True,
-    help="City name: the exports go to OUT/<name>/; with several cities, OUT/<name>-000/, OUT/<name>-001/, ...",
-)
-@click.option(
-    "--count",
-    type=click.IntRange(min=1),
-    default=1,
-    show_default=True,
-    help="Cities to draw from one procedural SOURCE, seeds SEED, SEED+1, ... (a corpus).",
-)
-@click.option(
-    "--ray-address",
-    default=None,
-    help="Ray cluster to run a corpus on (e.g. ray://head:10001, or auto); default: a local Ray on this machine.",
-)
-@click.option(
-    "--cpus-per-city",
-    type=click.FloatRange(min=0.5),
-    default=2.0,
-    show_default=True,
-    help="CPUs each city's Ray task reserves (the ray tracer uses all it is given).",
-)
-@click.option(
-    "--out",
-    "out_root",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=Path("data/raw"),
-    show_default=True,
-    help="Folder of raw city exports.",
-)
-@click.option(
-    "--users",
-    "num_users",
-    type=click.IntRange(min=1),
-    default=27,
-    show_default=True,
-    help="Users (ground transmitters at 1.5 m) sampled uniformly over open ground.",
-)
-@click.option(
-    "--user",
-    "users_m",
-    type=Point(),
-    multiple=True,
-    help="Place a user at X,Y instead of sampling (repeatable; overrides --users).",
-)
-@click.option("--grid", "grid_m", type=Metres(), default="4m", show_default=True, help="Receiver grid spacing.")
-@click.option(
-    "--alt", "altitude_m", type=Metres(), default="10m", show_default=True, help="Receiver grid height (the UAV altitude)."
-)
-@click.option("--extent", type=Bounds(), default=None, help="Grid extent XMIN,YMIN,XMAX,YMAX [m] (default: the city's bounds).")
-@click.option(
-    "--crop",
-    type=Bounds(),
-    default=None,
-    help="Real geometry only: keep the buildings inside XMIN,YMIN,XMAX,YMAX [m] (clipped; counted) and make that the city.",
-)
-@click.option("--freq", "frequency_hz", type=float, default=800e6, show_default=True, help="Carrier frequency [Hz].")
-@click.option("--tx-dbm", type=float, default=20.0, show_default=True, help="User transmit power [dBm].")
-@click.option("--samples", type=float, default=1e6, show_default=True, help="Rays per user (Sionna samples_per_tx).")
-@click.option("--depth", type=click.IntRange(min=0), default=5, show_default=True, help="Maximum interactions per path.")
-@click.option("--no-diffraction", is_flag=True, help="Switch edge diffraction off (faster, more dead cells).")
-@click.option(
-    "--gap-fill",
-    default="4,16",
-    show_default=True,
-    help="Coarser maps (cell x factor, same samples) whose cells fill Monte Carlo gaps of the grid; "
-    "'none' to keep gaps as unreached.",
-)
-@click.option(
-    "--gap-fill-method",
-    type=click.Choice(["smooth", "parent"]),
-    default="smooth",
-    show_default=True,
-    help="smooth: a gap takes the level of the coarse map and the variation of its nearest hit cells, never across "
-    "a building; parent: the coarse cell's mean, copied (the first version: 4 x 4 and 16 x 16 mosaics).",
-)
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the city generator, the users and the ray sampler.")
-@click.option("--quiet", is_flag=True, help="No progress bar.")
-def simulate(
-    sources: tuple[str, ...],
-    name: str,
-    count: int,
-    ray_address: str | None,
-    cpus_per_city: float,
-    out_root: Path,
-    num_users: int,
-    users_m: tuple,
-    grid_m: float,
-    altitude_m: float,
-    extent,
-    crop,
-    frequency_hz: float,
-    tx_dbm: float,
-    samples: float,
-    depth: int,
-    no_diffraction: bool,
-    gap_fill: str,
-    gap_fill_method: str,
-    seed: int,
-    quiet: bool,
-) -> None:
-    """Ray-trace cities with Sionna RT and write each as Wireless InSite exports in OUT/<name>/.
-
-    \b
-    SOURCE is one of:
-      procedural:train|test|tiny   the original generator (552 x 500, 400 x 500, 96 x 80 m)
-      procedural:STYLE[:WxH]       generator v2: grid, rotated, perimeter, towers, organic,
-                                   plazas, or mixed (a style drawn from the seed); 400 x 400 m
-      an InSite .city, a GeoJSON of footprints (OpenStreetMap heights and levels understood)
-      a Mitsuba .xml scene with its PLY/OBJ meshes, or sionna:etoile, sionna:florence (the
-      scenes Sionna RT ships): a building per connected body, no ground, roofs in height tiers
-    Several SOURCEs, or --count N, make a corpus (OUT/<name>-000/, ...), traced as Ray
-    tasks on a local Ray (or --ray-address); cities already done with the same settings
-    are skipped, so running the command again resumes it.
-    Each city gets <name>.txrx (users and the receiver grid), <name>.setup, <name>.city,
-    one <name>.power.tNNN_01.r002.p2m.gz per user and simulation.json (every parameter,
-    package versions, materials, wall time). Then: uavdata ingest OUT/<name>/ && uavdata build.
-    Needs the raytrace extra: pip install -e '.[raytrace]' (CPU: libllvm19).
-    """
-    from simulate.corpus import corpus_specs
-    from simulate.pipeline import SimulationSpec, simulate_city
-    from simulate.raytrace import RayTraceConfig
-
-    check_name(name, "city name")
-    for value, hint in ((extent, "--extent"), (crop, "--crop")):
-        if isinstance(value, str):
-            raise click.BadParameter("expected XMIN,YMIN,XMAX,YMAX", param_hint=hint)
-    base = SimulationSpec(source=sources[0], name=name, num_users=len(users_m) or num_users, grid_m=grid_m, altitude_m=altitude_m,
-                          tx_dbm=tx_dbm, seed=seed, extent_m=extent, users_m=tuple(users_m), crop_m=crop)  # fmt: skip
-    specs = corpus_specs(list(sources), name, count, base)
-    try:
-        factors = () if gap_fill == "none" else tuple(int(f) for f in gap_fill.split(","))
-    except ValueError:
-        raise click.BadParameter(f"{gap_fill!r}: expected factors like 4,16, or none", param_hint="--gap-fill") from None
-    if any(f < 2 for f in factors):
-        raise click.BadParameter("factors must be >= 2", param_hint="--gap-fill")
-    rt = RayTraceConfig(
-        frequency_hz=frequency_hz,
-        samples_per_tx=int(samples),
-        max_depth=depth,
-        diffraction=not no_diffraction,
-        seed=seed,
-        gap_fill_factors=factors,
-        gap_fill_method=gap_fill_method,
-    )
-    if len(specs) > 1 or ray_address is not None:
-        _simulate_corpus(specs, rt, out_root, ray_address, cpus_per_city, quiet)
-        return
-    lines = not quiet and not console.is_terminal  # a log: a line per step instead of a bar
-    try:
-        with Progress(TextColumn("[bold]simulate[/] {task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                      console=console, disable=quiet or lines, transient=True) as progress:  # fmt: skip
-            task = progress.add_task(name, total=None)
-
-            def on_progress(stage: str, done: int, total: int) -> None:
-                progress.update(task, description=f"{name}: {stage}", completed=done, total=total)
-                if lines and done:
-                    console.print(f"simulate {name}: {stage} {done}/{total}", highlight=False, markup=False)
-
-            folder, record = simulate_city(specs[0], rt, out_root, command=command_line(), on_progress=on_progress)
-    except RuntimeError as err:  # Sionna RT missing or its child process failed
-        fail(err)
-    g = record["grid"]
-    stdout().print(
-        f"simulated {name}: {record['geometry']}, {len(record['users_m'])} users, "
-        f"grid {g['num_x']} x {g['num_y']} at {g['spacing_m']:g} m and {g['altitude_m']:g} m, "
-        f"{100 * record['unreached_cell_share']:.1f} % of user-cells unreached "
-        f"({100 * record['gap_filled_cell_share']:.1f} % Monte Carlo gaps filled), ray tracing {record['raytrace_seconds']:.1f} s "
-        f"(wall {record['wall_seconds']:.1f} s) -> {folder}",
-        highlight=False,
-        soft_wrap=True,
-    )
-
-
-def _simulate_corpus(specs, rt, out_root: Path, address: str | None, cpus_per_city: float, quiet: bool) -> None:  # noqa: ANN001
-    """Several cities as Ray tasks, one progress bar (a line per city when not on a terminal), resumable."""
-    from simulate.corpus import simulate_corpus
-
-    out = stdout()
-    lines = quiet or not console.is_terminal
-    columns = (
-        TextColumn("[bold]simulate[/] corpus"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        TimeRemainingColumn(),
-    )
-    with Progress(*columns, console=console, disable=lines, transient=True) as progress:
-        bar = progress.add_task("corpus", total=len(specs))
-
-        def on_city(summary: dict, done: int, total: int) -> None:
-            progress.update(bar, completed=len(specs) - total + done)
-            if lines and not quiet:
-                out.print(f"[{done}/{total}] simulated {summary['name']}: {summary['geometry']} ({summary['seconds']:.0f} s) "
-                          f"-> {summary['folder']}", highlight=False, soft_wrap=True, markup=False)  # fmt: skip
-
-        try:
-            done, skipped = simulate_corpus(specs, rt, out_root, command=command_line(), address=address,
-                                            cpus_per_city=cpus_per_city, on_city=on_city)  # fmt: skip
-        except RuntimeError as err:
-            fail(err)
-    out.print(
-        f"simulated {len(done)} of {len(specs)} cities into {out_root}"
-        + (f"; {len(skipped)} already done with the same settings: {', '.join(skipped)}" if skipped else ""),
-        highlight=False,
-        soft_wrap=True,
-    )
-
-
-@main.command(name="list")
+@click.command(name="list")
 @root_option
 def list_(root: Path) -> None:
     """List ingested cities and their bundles (versions, grid, altitude, users, size) under ROOT."""
-    from dataset.bundle import list_versions, read_latest
+    from uavplace.dataset.bundle import list_versions, read_latest
 
     out = stdout()
     cities = list_cities(root)  # bad input: one error line from UavGroup
@@ -734,7 +289,7 @@ def list_(root: Path) -> None:
         out.print("no bundle yet: run `uavdata build --grid 4m --alt 10`")
 
 
-@main.command()
+@click.command()
 @click.argument("city")
 @click.option("--version", default=None, help="Bundle version (default: the city's latest). CITY@VERSION works too.")
 @click.option("--user", type=click.IntRange(min=0), default=0, show_default=True, help="User whose SINR map is drawn.")
@@ -748,8 +303,8 @@ def list_(root: Path) -> None:
 @root_option
 def show(city: str, version: str | None, user: int, out_path: Path | None, root: Path) -> None:
     """Render a bundle's height map and one user's SINR map to a PNG."""
-    from dataset.bundle import load_bundle
-    from dataset.preview import render_bundle
+    from uavplace.dataset.bundle import load_bundle
+    from uavplace.dataset.preview import render_bundle
 
     bundle = load_bundle(city, version, root)
     if user >= bundle.num_users:
@@ -757,7 +312,3 @@ def show(city: str, version: str | None, user: int, out_path: Path | None, root:
     out_path = out_path or Path("reports") / "show" / f"{bundle.city}-{bundle.version}-user{user}.png"
     path = render_bundle(bundle, user, out_path)
     stdout().print(f"wrote {path}", highlight=False, soft_wrap=True)
-
-
-if __name__ == "__main__":
-    main()

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dataset.bundle import Bundle
+from uavplace.dataset.bundle import Bundle
 
 
 def render_bundle(bundle: Bundle, user: int, out: str | Path) -> Path:

@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 import shapely
 
-from schemas.bundle import GridSpec
+from uavplace.schemas.bundle import GridSpec
 
 #: Relative slack when counting cells over an extent (a 100 m extent at 4 m is 25 cells, not 26).
 _EPS = 1e-6

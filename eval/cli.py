@@ -1,19 +1,16 @@
-"""``uavrl report``: added here to the ``uavrl`` command group of ``rl.cli`` (eval imports rl, never the reverse)."""
+"""``uavrl report``: the evaluation protocol and its HTML report (registered in ``schemas.cli``)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import click
-from rich.table import Table
 
-from dataset.cli import command_line, plain_table, root_option, stdout
-from rl.cli import episode_options, main
-
-__all__ = ["main"]
+from uavplace.rl.cli import episode_options
+from uavplace.schemas.cli import command_line, plain_table, root_option, stdout
 
 
-@main.command()
+@click.command()
 @click.option(
     "--run",
     "runs",
@@ -28,7 +25,8 @@ __all__ = ["main"]
     multiple=True,
     default=("test",),
     show_default=True,
-    help="Test city: a built dataset never used in training or checkpoint selection (repeatable: one report per city).",
+    help="Test city: a built dataset never used in training or checkpoint selection (repeatable: a report folder per "
+    "city, and OUT/report.html with a summary table and a section per city).",
 )
 @click.option(
     "--out",
@@ -54,7 +52,12 @@ __all__ = ["main"]
     help="Bootstrap resamples of the 95 % intervals.",
 )
 @click.option(
-    "--trajectories", type=click.IntRange(min=0), default=3, show_default=True, help="Successful episodes drawn (first agent)."
+    "--trajectories",
+    type=click.IntRange(0, 3),
+    default=3,
+    show_default=True,
+    help="Episodes of the first agent drawn on the maps, by rule: the success closest to its median steps, the success at "
+    "the 90th percentile of its successes, its first failure (0: no trajectory figure).",
 )
 @click.option("--agents-dir", type=click.Path(file_okay=False, path_type=Path), default=Path("data/agents"), show_default=True,
               help="Where the default agents are looked for.")  # fmt: skip
@@ -68,13 +71,15 @@ def report(
 
     Methods: every agent, the genie (shortest path, full knowledge), the steered random walk and greedy
     hill-climbing. Prints the results table (95 % bootstrap intervals in brackets) and the report's path;
-    with several cities, one report each, then a summary of success and median steps per method and city.
+    with several cities, one report folder each, then a summary of success and median steps per method and city, and
+    one page with every city (OUT/report.html, OUT/summary.csv; OUT defaults to reports/).
     """
-    from eval.metrics import format_stat
-    from eval.report import ReportConfig, default_agents, table_rows
+    from uavplace.eval.report import ReportConfig, check_summary_page, default_agents, summary_rows, write_summary_page
 
     chosen = list(runs) or default_agents(agents_dir)
-    summary: dict[str, dict[str, str]] = {}
+    if len(datasets) > 1:
+        check_summary_page(out or Path("reports"))
+    reports = []
     for dataset in datasets:
         config = ReportConfig(
             dataset=dataset, runs=[str(r) for r in chosen], episodes=episodes, t_max=t_max, p_t_db=p_t_db,
@@ -83,28 +88,27 @@ def report(
         city = dataset.split("@")[0]
         folder = out if out and len(datasets) == 1 else (out or Path("reports")) / city
         result = _one_report(config, folder, root, quiet)
-        rows = table_rows(result.table, t_max)
-        table = Table(*rows[0], title=f"{episodes} episodes in {dataset} (t_max {t_max}, P_T {p_t_db:g} dB)")
-        for r in rows[1:]:
+        reports.append(result)
+        table = plain_table(*result.rows[0], title=f"{episodes} episodes in {dataset} (t_max {t_max}, P_T {p_t_db:g} dB)")
+        for r in result.rows[1:]:
             table.add_row(*r)
-        for r in result.table.to_dict("records"):
-            cell = " / ".join(format_stat(s, r[s]) for s in ("success", "median_steps"))
-            summary.setdefault(r["method"], {})[city] = cell.replace("> t_max", f"> {t_max}")
         stdout().print(table)
         stdout().print(f"report: {result.out / 'report.html'}", highlight=False, soft_wrap=True)
     if len(datasets) > 1:
-        cities = [d.split("@")[0] for d in datasets]
-        table = plain_table("method", *(f"{c}: success / median steps" for c in cities))
-        for method, cells in summary.items():
-            table.add_row(method, *(cells.get(c, "-") for c in cities))
+        rows = summary_rows(reports, t_max)
+        table = plain_table(*rows[0], title="success / median steps per method and city")
+        for r in rows[1:]:
+            table.add_row(*r)
         stdout().print(table)
+        page = write_summary_page(reports, out or Path("reports"), t_max)
+        stdout().print(f"report (every city): {page}", highlight=False, soft_wrap=True)
 
 
 def _one_report(config, out: Path, root: Path, quiet: bool):
     """``make_report`` with a progress bar per method."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from eval.report import make_report
+    from uavplace.eval.report import make_report
 
     tasks: dict[str, int] = {}
     columns = (TextColumn("[bold]report[/] {task.description:<20}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())

@@ -10,16 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from rl.rollout import episode_stats
+from uavplace.rl.rollout import STATS, episode_stats, format_stat
 
-#: The statistics of ``rl.rollout.episode_stats``, in table order, with their labels.
-STATS = {
-    "success": "success",
-    "median_steps": "median steps",
-    "mean_steps_success": "mean steps (successes)",
-    "p90_steps": "p90 steps",
-    "steps_over_genie": "median steps / genie",
-}
+__all__ = ["STATS", "bootstrap_table", "ecdf", "format_stat"]
 
 
 def bootstrap_table(results: dict[str, pd.DataFrame], *, n_boot: int = 2000, level: float = 0.95, seed: int = 0) -> pd.DataFrame:
@@ -60,21 +53,3 @@ def ecdf(df: pd.DataFrame, t_max: int) -> tuple[np.ndarray, np.ndarray]:
     reached = np.where(df["success"].to_numpy(), df["steps"].to_numpy(), t_max + 1)
     counts = np.bincount(np.minimum(reached, t_max + 1), minlength=t_max + 2)[: t_max + 1]
     return s, np.cumsum(counts) / max(len(df), 1)
-
-
-def format_stat(stat: str, value: float, lo: float | None = None, hi: float | None = None) -> str:
-    """A table cell: percentages for the success rate, ``> t_max`` for infinite steps, ``[lo, hi]`` when given."""
-
-    def one(v: float) -> str:
-        if stat == "success":
-            return f"{100 * v:.1f} %"
-        if np.isinf(v):
-            return "> t_max"
-        if np.isnan(v):
-            return "-"
-        return f"{v:.2f}" if stat == "steps_over_genie" else f"{v:.1f}" if stat == "mean_steps_success" else f"{v:g}"
-
-    text = one(value)
-    if lo is not None and hi is not None:
-        text += f" [{one(lo).removesuffix(' %')}, {one(hi)}]" if stat == "success" else f" [{one(lo)}, {one(hi)}]"
-    return text

@@ -27,25 +27,25 @@ import numpy as np
 import pandas as pd
 from pydantic import Field
 
-from dataset.bundle import Bundle, load_bundle
-from dataset.difficulty import valid_starts
-from eval.metrics import STATS, bootstrap_table, ecdf, format_stat
-from rl.agent.checkpoint import load_tensors
-from rl.agent.dqn import DQNConfig
-from rl.agent.train import RUN_JSON, RunRecord, policy_from_checkpoint, read_run_json, training_users
-from rl.config import EnvConfig
-from rl.maps import MapSet
-from rl.policies import GeniePolicy, GreedyPolicy, Policy, RandomWalkPolicy
-from rl.rollout import run_episodes
-from schemas import InputError
-from schemas.base import Contract, uavplace_version
-from schemas.files import atomic_directory, check_replaceable
+from uavplace.dataset.bundle import Bundle, load_bundle
+from uavplace.dataset.difficulty import valid_starts
+from uavplace.eval.metrics import STATS, bootstrap_table, ecdf, format_stat
+from uavplace.rl.agent.checkpoint import load_tensors
+from uavplace.rl.agent.dqn import DQNConfig
+from uavplace.rl.agent.train import RUN_JSON, RunRecord, policy_from_checkpoint, read_run_json, training_users
+from uavplace.rl.config import EnvConfig
+from uavplace.rl.maps import MapSet
+from uavplace.rl.policies import GeniePolicy, GreedyPolicy, Policy, RandomWalkPolicy
+from uavplace.rl.rollout import run_episodes, summarise
+from uavplace.schemas import InputError
+from uavplace.schemas.base import Contract, uavplace_version
+from uavplace.schemas.files import atomic_directory, atomic_write_text, check_replaceable
 
 #: The paper's test-city results (docs/method.md, "The paper's results"): success within t_max = 500, median steps.
 PAPER = {
-    "dqn": {"label": "proposed (topology + SINR)", "success": 0.90, "median_steps": 44.0},
-    "blind": {"label": "blind (SINR only)", "success": 0.66, "median_steps": 69.0},
-    "genie": {"label": "genie", "success": 1.00, "median_steps": 14.0},
+    "dqn": {"label": "proposed (topology + SINR)", "row": "proposed", "success": 0.90, "median_steps": 44.0},
+    "blind": {"label": "blind (SINR only)", "row": "blind", "success": 0.66, "median_steps": 69.0},
+    "genie": {"label": "genie", "row": "genie", "success": 1.00, "median_steps": 14.0},
 }
 BASELINES = (GeniePolicy.name, RandomWalkPolicy.name, GreedyPolicy.name)
 #: Episodes in the training curves' running mean (the paper's 100).
@@ -65,7 +65,9 @@ class ReportConfig(Contract):
     test_epsilon: float = Field(default=0.096, ge=0, le=1, description="Random legal move rate of the agents (paper: 0.096)")
     seed: int = Field(default=0, description="Seed of the episodes, the agents' random moves and the baselines")
     n_boot: int = Field(default=2000, ge=100, description="Bootstrap resamples for the 95 % intervals")
-    trajectories: int = Field(default=3, ge=0, description="Successful episodes drawn per agent")
+    trajectories: int = Field(
+        default=3, ge=0, le=3, description="Episodes drawn for the first agent, by TRAJECTORY_RULES in order (0: none)"
+    )
     split: str | None = Field(default=None, description="Users of this split only (None: all users of the city)")
 
 
@@ -97,6 +99,10 @@ class Report:
     out: Path
     table: pd.DataFrame  # bootstrap_table + paper columns
     episodes: pd.DataFrame  # every method's episodes, with a "method" column
+    config: ReportConfig
+    rows: list[list[str]]  # the table as text (table_rows)
+    figures: dict[str, Figure | None]  # in the report folder
+    provenance: dict  # report.json
 
 
 def agent_name(config: DQNConfig) -> str:
@@ -145,7 +151,7 @@ def evaluate(
     maps = {"": MapSet([bundle], base)}
     episodes = maps[""].sample_episodes(config.episodes, np.random.default_rng(config.seed))  # as `uavrl baselines`
     shown = shown_method(agents)
-    record = np.arange(config.episodes)[: max(50, 10 * config.trajectories)] if config.trajectories else None
+    record = np.arange(config.episodes) if config.trajectories else None  # the rule picks among all episodes
     methods: list[tuple[str, Policy, MapSet]] = []
     for a in agents:
         env = a.config.env_config(evaluation=True).model_copy(
@@ -220,122 +226,194 @@ def _pyplot():
     return plt
 
 
-def plot_cdf(results: dict[str, pd.DataFrame], t_max: int, out: Path) -> Path:
+def plot_cdf(results: dict[str, pd.DataFrame], t_max: int, out: Path) -> Figure:
     plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(7.5, 4.8), constrained_layout=True)
+    fig, ax = plt.subplots(figsize=(9.5, 4.8), constrained_layout=True)
     for name, df in results.items():
         s, f = ecdf(df, t_max)
-        ax.step(
-            s,
-            f,
-            where="post",
-            label=f"{name} ({100 * f[-1]:.0f} %)",
-            linewidth=1.3 if name in BASELINES else 2.0,
-        )
+        ax.step(s, f, where="post", label=f"{name} ({100 * f[-1]:.0f} %)", linewidth=1.3 if name in BASELINES else 2.0)
     ax.set_xscale("symlog", linthresh=10)
     ax.set_xlim(0, t_max)
     ax.set_ylim(0, 1.01)
-    ax.set_xlabel("steps to reach P_T")
-    ax.set_ylabel("share of episodes")
-    ax.set_title(f"CDF of steps to P_T ({len(next(iter(results.values())))} episodes, t_max {t_max})")
+    ax.set_xlabel("steps to reach P_T (linear to 10, logarithmic above)")
+    ax.set_ylabel("share of episodes that reached P_T")
+    n = len(next(iter(results.values())))
+    ax.set_title(f"CDF of steps to P_T ({n} episodes, t_max {t_max})")
     ax.grid(alpha=0.3)
-    ax.legend(loc="lower right", fontsize=8)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, title="method (success within t_max)", title_fontsize=8)
     fig.savefig(out, dpi=110)
     plt.close(fig)
-    return out
+    caption = (
+        f"Share of the {n} episodes that reached P_T within a given number of steps, one curve per method, all "
+        f"methods on the same episodes (users drawn uniformly, then start cells uniformly among the legal live cells "
+        f"below P_T). A curve ends at t_max = {t_max}; its height there is the method's success rate (in the legend)."
+    )
+    return Figure(out, caption)
 
 
-def plot_training(agents: list[Agent], bounds: dict[str, float], out: Path, notes: dict[str, str] | None = None) -> Path | None:
-    curves = []
-    for a in agents:
-        if a.metrics is not None and len(a.metrics):
-            curves.append((a.name, a.metrics))
+def plot_training(agents: list[Agent], bounds: dict[str, float], out: Path, notes: dict[str, str] | None = None) -> Figure | None:
+    """One row per agent, on its own step axis: the success rate and the mean SINR gain of its last 100 training episodes."""
+    curves = [a for a in agents if a.metrics is not None and len(a.metrics)]
     if not curves:
         return None
     plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(7.5, 4.5), constrained_layout=True)
-    for name, df in curves:
-        # The running mean in full only once its window is full: before, a mean of a few episodes (which can
-        # overshoot any bound) is drawn faint.
-        rolling = df["sinr_gain_db"].rolling(RUNNING_WINDOW, min_periods=1).mean()
-        full = np.arange(len(df)) >= RUNNING_WINDOW - 1
-        line = ax.plot(df["step"][full], rolling[full], label=name)[0]
-        ax.plot(df["step"][:RUNNING_WINDOW], rolling[:RUNNING_WINDOW], color=line.get_color(), alpha=0.3, linewidth=1)
-    for key, bound in bounds.items():
-        note = (notes or {}).get(key, "")
-        where = note.split(" (")[0] if note.startswith("computed on") else key  # the bundles it was computed on
-        ax.axhline(bound, color="black", linestyle="--", linewidth=1, label=f"upper bound, {where} ({bound:.1f} dB)")
-    ax.set_xlabel("training step")
-    ax.set_ylabel("mean SINR gain over the last 100 episodes [dB]")
-    ax.set_title(f"Training curves (faint: the first {RUNNING_WINDOW} episodes, a partial window)")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.savefig(out, dpi=110)
+    fig, axes = plt.subplots(len(curves), 2, figsize=(11, 2.9 * len(curves)), constrained_layout=True, squeeze=False)
+    for (ax_ok, ax_gain), a in zip(axes, curves, strict=True):
+        df = a.metrics
+        full = np.arange(len(df)) >= RUNNING_WINDOW - 1  # the window holds 100 episodes from here on
+        for ax, column, scale in ((ax_ok, "success", 100.0), (ax_gain, "sinr_gain_db", 1.0)):
+            rolling = scale * df[column].astype(float).rolling(RUNNING_WINDOW, min_periods=1).mean()
+            line = ax.plot(df["step"][full], rolling[full], linewidth=1.6)[0]
+            ax.plot(df["step"][:RUNNING_WINDOW], rolling[:RUNNING_WINDOW], color=line.get_color(), alpha=0.3, linewidth=1)
+            ax.grid(alpha=0.3)
+            ax.set_xlabel("training step")
+        key = ", ".join(f"{c}@{v}" for c, v in a.trained_on.items())
+        if key in bounds:
+            ax_gain.axhline(bounds[key], color="black", linestyle="--", linewidth=1,
+                            label=f"every episode ends exactly at P_T ({bounds[key]:.1f} dB)")  # fmt: skip
+            ax_gain.legend(fontsize=7, loc="lower right")
+        env = a.config.env
+        ax_ok.set_ylim(0, 100)
+        ax_ok.set_ylabel("success, last 100 [%]")
+        ax_gain.set_ylabel("SINR gain, last 100 [dB]")
+        ax_ok.set_title(
+            f"{a.name}: t_max {env.t_max}, {a.config.total_steps:,} steps, epsilon {a.config.eps_start:g} -> {a.config.eps_end:g}",
+            fontsize=9,
+        )
+        ax_gain.set_title(f"{a.name}: SINR at the end - SINR at the start", fontsize=9)
+    fig.savefig(out, dpi=100)
     plt.close(fig)
-    return out
+    where = "; ".join(f"{k}: {v}" for k, v in (notes or {}).items())
+    caption = (
+        f"Training curves, one row per agent on its own step axis: the share of successful training episodes (left) "
+        f"and the mean SINR gain (final minus start SINR; right), each over the last {RUNNING_WINDOW} training episodes "
+        f"(faint: the first {RUNNING_WINDOW - 1} episodes, a partial window). Training episodes explore (epsilon in the "
+        f"title) and stop at the training t_max. Dashed: the paper's training bound, the mean over training users and "
+        f"start cells of P_T - start SINR, i.e. the gain if every episode ended exactly at P_T; a successful episode "
+        f"ends on the first cell at or above P_T, so the curve can pass it." + (f" Bound computed on: {where}." if where else "")
+    )
+    return Figure(out, caption)
 
 
-def pick_trajectories(results: dict[str, pd.DataFrame], agent: str, count: int) -> list[int]:
-    """Up to ``count`` recorded successful episodes of ``agent``, the longest genie paths first, distinct users."""
+#: How the trajectories figure picks the shown agent's episodes, in order (``ReportConfig.trajectories`` of them).
+TRAJECTORY_RULES = (
+    "median: the success whose steps are closest to the agent's median steps to P_T",
+    "p90: the success at the 90th percentile of the successes' steps",
+    "failure: the first failed episode (none: the longest success)",
+)
+
+
+def pick_trajectories(results: dict[str, pd.DataFrame], agent: str, count: int) -> list[tuple[int, str]]:
+    """``(episode, rule name)`` for the first ``count`` of ``TRAJECTORY_RULES``, distinct episodes (ties: the lowest number)."""
     df = results[agent]
-    paths = df.attrs.get("paths", {})
-    ok = df[df["success"] & df["episode"].isin(list(paths))].sort_values(["genie_steps", "episode"], ascending=[False, True])
-    return ok.drop_duplicates("user")["episode"].head(count).tolist()
+    ok = df[df["success"]].sort_values(["steps", "episode"])
+    if ok.empty or count == 0:
+        return []
+    stats = summarise(df)
+    median = stats["median_steps"] if np.isfinite(stats["median_steps"]) else float(ok["steps"].max())
+    picks: list[tuple[int, str]] = []
+
+    def add(episode: int, rule: str) -> None:
+        if episode not in [e for e, _ in picks]:
+            picks.append((int(episode), rule))
+
+    by_median = ok.assign(d=(ok["steps"] - median).abs()).sort_values(["d", "episode"])
+    add(by_median["episode"].iloc[0], "median")
+    p90 = np.quantile(ok["steps"].to_numpy(), 0.9, method="inverted_cdf")
+    add(ok[ok["steps"] == p90]["episode"].iloc[0], "p90")
+    failed = df[~df["success"]].sort_values("episode")
+    add(failed["episode"].iloc[0] if len(failed) else ok["episode"].iloc[-1], "failure" if len(failed) else "longest success")
+    return picks[:count]
 
 
 def plot_trajectories(
-    bundle: Bundle, results: dict[str, pd.DataFrame], agent: str, episodes: list[int], out: Path
-) -> Path | None:
-    if not episodes:
+    bundle: Bundle, results: dict[str, pd.DataFrame], agent: str, picks: list[tuple[int, str]], p_t_db: float, out: Path
+) -> Figure | None:
+    if not picks:
         return None
     plt = _pyplot()
     import matplotlib
+    from matplotlib.lines import Line2D
 
     df = results[agent].set_index("episode")
     g = bundle.manifest.grid
     extent = (g.x_min_m, g.x_max_m, g.y_min_m, g.y_max_m)
-    fig, axes = plt.subplots(2, len(episodes), figsize=(4.2 * len(episodes), 7.6), constrained_layout=True, squeeze=False)
-    for j, ep in enumerate(episodes):
+    fig, axes = plt.subplots(2, len(picks), figsize=(4.2 * len(picks), 8.2), constrained_layout=True, squeeze=False)
+    for j, (ep, rule) in enumerate(picks):
         row = df.loc[ep]
         user = int(row["user"])
         cells = results[agent].attrs["paths"][ep]  # [T + 1, 2] (iy, ix) map cells
         px = g.x_min_m + (cells[:, 1] + 0.5) * g.spacing_m
         py = g.y_min_m + (cells[:, 0] + 0.5) * g.spacing_m
         urow = bundle.users.iloc[user]
+        outcome = f"{int(row['steps'])} steps" if row["success"] else f"P_T not reached in {int(row['steps'])} steps"
         for i, ax in enumerate(axes[:, j]):
             if i == 0:
                 im = ax.imshow(bundle.height_rel_m, origin="lower", extent=extent, cmap="viridis")
-                ax.set_title(
-                    f"episode {ep}: user {user}, {int(row['steps'])} steps (genie {int(row['genie_steps'])})", fontsize=9
-                )
+                ax.set_title(f"{rule}: episode {ep}, user {user}\n{outcome} (genie {int(row['genie_steps'])})", fontsize=9)
                 label = "building height - altitude [m]"
             else:
                 sinr = np.ma.masked_array(bundle.sinr_db[user], mask=bundle.dead[user])
                 im = ax.imshow(sinr, origin="lower", extent=extent, cmap=matplotlib.colormaps["magma"].with_extremes(bad="0.75"))
+                target = (bundle.sinr_db[user] >= p_t_db) & ~bundle.dead[user] & ~bundle.blocked
+                ax.contour(target, levels=[0.5], origin="lower", extent=extent, colors="cyan", linewidths=0.8)
                 label = "SINR [dB]"
             ax.contour(bundle.blocked, levels=[0.5], origin="lower", extent=extent, colors="white", linewidths=0.4)
             ax.plot(px, py, color="red", linewidth=1.4)
-            ax.plot(px[0], py[0], "o", color="lime", markeredgecolor="black", label="start")
-            ax.plot(px[-1], py[-1], "s", color="red", markeredgecolor="black", label="end (P_T reached)")
+            ax.plot(px[0], py[0], "o", color="lime", markeredgecolor="black")
+            ax.plot(px[-1], py[-1], "s", color="red", markeredgecolor="black")
             if np.isfinite(urow["x_m"]) and np.isfinite(urow["y_m"]):
-                ax.plot(urow["x_m"], urow["y_m"], "*", color="cyan", markersize=13, markeredgecolor="black", label="user")
+                ax.plot(urow["x_m"], urow["y_m"], "*", color="cyan", markersize=13, markeredgecolor="black")
             ax.set_xlabel("x [m]", fontsize=8)
             ax.set_ylabel("y [m]", fontsize=8)
             ax.tick_params(labelsize=7)
             fig.colorbar(im, ax=ax, shrink=0.8).set_label(label, fontsize=7)
-    axes[0, 0].legend(fontsize=7, loc="upper left")
-    fig.suptitle(f"{agent}: successful episodes in {bundle.city}", fontsize=10)
+    handles = [
+        Line2D([], [], color="red", linewidth=1.4, label="UAV path"),
+        Line2D([], [], marker="o", color="lime", markeredgecolor="black", linestyle="", label="start"),
+        Line2D([], [], marker="s", color="red", markeredgecolor="black", linestyle="", label="end"),
+        Line2D([], [], marker="*", color="cyan", markersize=11, markeredgecolor="black", linestyle="", label="user"),
+        Line2D([], [], color="white", linewidth=1, label="building edge (blocked)"),
+        Line2D([], [], color="cyan", linewidth=1, label=f"P_T = {p_t_db:g} dB contour"),
+    ]
+    legend = fig.legend(handles=handles, loc="outside lower center", ncol=6, fontsize=8, facecolor="0.85")
+    legend.get_frame().set_edgecolor("0.5")
+    fig.suptitle(f"{agent} in {bundle.city}", fontsize=10)
     fig.savefig(out, dpi=100)
     plt.close(fig)
-    return out
+    n = len(df)
+    caption = (
+        f"{agent}: {len(picks)} of its {n} episodes in {bundle.city}, chosen by rule, not by eye: "
+        + "; ".join(r for r in TRAJECTORY_RULES[: len(picks)])
+        + ". Top: building height minus the flight altitude (blocked cells, where buildings rise above the UAV, inside "
+        "the white edges). Bottom: the user's SINR map; grey: dead cells (no ray reached them); cyan contour: the "
+        f"cells at or above P_T = {p_t_db:g} dB. Red: the UAV's path; green circle: start; red square: end; star: the user."
+    )
+    return Figure(out, caption)
 
 
 # -- the report -----------------------------------------------------------------------------------
-def _img(path: Path | None, alt: str) -> str:
-    if path is None:
-        return f"<p><em>{html.escape(alt)}: nothing to draw.</em></p>"
-    data = base64.b64encode(path.read_bytes()).decode("ascii")
-    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{data}">'
+@dataclass
+class Figure:
+    path: Path
+    caption: str
+
+
+#: Where the paper columns come from: the paper's table of 1000 test episodes in its unseen city (docs/method.md).
+PAPER_SOURCE = (
+    "Paper columns: the row of the paper's test-city table named in brackets (proposed: topology + SINR; blind: SINR "
+    "only; genie), 1000 episodes in its unseen city, t_max 500 (docs/method.md)"
+)
+
+
+def _figure(fig: Figure | None, number: int, alt: str) -> str:
+    if fig is None:
+        return f"<p><em>Figure {number} ({html.escape(alt)}): nothing to draw.</em></p>"
+    data = base64.b64encode(fig.path.read_bytes()).decode("ascii")
+    return (
+        f'<figure><img alt="{html.escape(alt)}" src="data:image/png;base64,{data}">'
+        f"<figcaption><b>Figure {number}.</b> {html.escape(fig.caption)}</figcaption></figure>"
+    )
 
 
 def table_rows(table: pd.DataFrame, t_max: int) -> list[list[str]]:
@@ -345,8 +423,9 @@ def table_rows(table: pd.DataFrame, t_max: int) -> list[list[str]]:
     for r in table.to_dict("records"):
         cells = [r["method"]]
         cells += [format_stat(s, r[s], r[f"{s}_lo"], r[f"{s}_hi"]).replace("> t_max", f"> {t_max}") for s in STATS]
-        cells += ["-" if np.isnan(r["paper_success"]) else f"{100 * r['paper_success']:.0f} %"]
-        cells += ["-" if np.isnan(r["paper_median_steps"]) else f"{r['paper_median_steps']:g}"]
+        key = _paper_key(r["method"])
+        cells += ["-" if np.isnan(r["paper_success"]) else f"{100 * r['paper_success']:.0f} % ({PAPER[key]['row']})"]
+        cells += ["-" if np.isnan(r["paper_median_steps"]) else f"{r['paper_median_steps']:g} ({PAPER[key]['row']})"]
         rows.append(cells)
     return rows
 
@@ -360,34 +439,83 @@ def _html_table(rows: list[list[str]]) -> str:
 _CSS = """body{font-family:system-ui,sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;color:#222}
 table{border-collapse:collapse;margin:1em 0;font-size:14px}td,th{border:1px solid #ccc;padding:4px 8px;text-align:right}
 td:first-child,th:first-child{text-align:left}th{background:#f3f3f3}img{max-width:100%}
-pre{background:#f7f7f7;padding:8px;overflow-x:auto;font-size:12px}"""
+figure{margin:1.5em 0}figcaption{font-size:14px;color:#333;max-width:1000px}
+pre{background:#f7f7f7;padding:8px;overflow-x:auto;font-size:12px}.prov td{text-align:left;vertical-align:top}"""
 
 
-def render_html(config: ReportConfig, rows: list[list[str]], figures: dict[str, Path | None], provenance: dict) -> str:
+def render_section(config: ReportConfig, rows: list[list[str]], figures: dict[str, Figure | None], provenance: dict,
+                   first_figure: int = 1) -> str:  # fmt: skip
+    """One city's results: how the episodes were drawn, the table, then its captioned figures (those in ``figures``:
+    the CDF, the training curves, the trajectories, numbered from ``first_figure``)."""
     p = provenance
+    city = html.escape(p["test_city"])
     notes = (
-        f"{config.episodes} episodes in <b>{html.escape(p['test_city'])}</b> (bundle {html.escape(p['test_bundle'])}), "
+        f"{config.episodes} episodes in <b>{city}</b> (bundle {html.escape(p['test_bundle'])}), "
         f"users drawn uniformly, then a start cell uniformly among the legal, live cells below P_T; "
         f"the same episodes for every method. t_max {config.t_max}, P_T {config.p_t_db:g} dB; the agents take the "
         f"legal move of highest Q, or a random legal move with probability {config.test_epsilon:g}. Steps to P_T of a "
-        f"failed episode count as &gt; t_max. Brackets: paired bootstrap 95 % intervals ({config.n_boot} resamples)."
+        f"failed episode count as &gt; t_max, so the median and p75 include failures; the mean steps are over each "
+        f"method's own successes (different episodes per method). Brackets: paired bootstrap 95 % intervals "
+        f"({config.n_boot} resamples). {html.escape(PAPER_SOURCE)}."
     )
-    return f"""<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>uavplace report: {html.escape(p["test_city"])}</title>
-<style>{_CSS}</style></head><body>
-<h1>uavplace: UAV placement for a user of unknown location</h1>
-<p>Made {html.escape(p["created_utc"])} by <code>{html.escape(p["command"])}</code> (uavplace {html.escape(p["uavplace_version"])}).</p>
-<h2>1. Results in the test city</h2>
+    alt = {"cdf": "CDF of steps to P_T in " + p["test_city"], "training": "training curves"}
+    alt["trajectories"] = "trajectories in " + p["test_city"]
+    shown = [_figure(figures[key], first_figure + i, alt[key]) for i, key in enumerate(k for k in alt if k in figures)]
+    return f"""<section id="{city}">
+<h2>{city}</h2>
 <p>{notes}</p>
 {_html_table(rows)}
-<h2>2. Steps to reach P_T</h2>
-{_img(figures.get("cdf"), "CDF of steps to P_T")}
-<h2>3. Training curves</h2>
-{_img(figures.get("training"), "training curves")}
-<h2>4. Trajectories</h2>
-{_img(figures.get("trajectories"), "trajectories")}
-<h2>5. Provenance</h2>
-<pre>{html.escape(json.dumps(p, indent=2))}</pre>
+{"".join(shown)}
+</section>"""
+
+
+def provenance_table(provenances: list[dict]) -> str:
+    """What made the report, readable: the command, the bundles tested on and every agent (runs, cities, commands)."""
+    first = provenances[0]
+    rows = [["what", "value"]]
+    rows.append(["report command", first["command"]])
+    rows.append(["made", f"{first['created_utc']}, uavplace {first['uavplace_version']}"])
+    for p in provenances:
+        c = p["test_bundle_config"]
+        rows.append([f"test city {p['test_city']}", f"bundle {p['test_bundle']}: grid {c.get('grid_m')} m, altitude "
+                     f"{c.get('altitude_m')} m, noise + interference {c.get('noise_dbm')} dBm, role {c.get('role')}"])  # fmt: skip
+    for name, a in first["agents"].items():
+        trained = ", ".join(f"{k}@{v}" for k, v in (a["trained_on"] or {}).items()) or "unknown"
+        selected = ", ".join(f"{k}@{v}" for k, v in (a.get("selected_on") or {}).items()) or "its training cities' held-out users"
+        best = a["best_eval"] or {}
+        chosen = f"best.pt from step {best.get('step')}" if best else "best.pt"
+        rows.append([f"agent {name}", f"{a['folder']}; {a['config']['total_steps']:,} steps; trained on {trained}; "
+                     f"selected on {selected}; {chosen}"])  # fmt: skip
+        for i, cmd in enumerate(a["commands"] or ["(not recorded)"]):
+            rows.append([f"agent {name}: command {i + 1}", cmd])
+    return _html_table(rows).replace("<table>", '<table class="prov">', 1)
+
+
+def render_page(
+    sections: list[str], provenances: list[dict], summary: list[list[str]] | None = None, training: Figure | None = None
+) -> str:
+    """The whole report: with several cities a summary table and the training curves (Figure 1) first, then a
+    section per city, then the provenance."""
+    cities = ", ".join(p["test_city"] for p in provenances)
+    summary_html = ""
+    if summary is not None:
+        summary_html = (
+            f"<h2>Summary: success / median steps per method and city</h2>{_html_table(summary)}"
+            f"<h2>Training</h2>{_figure(training, 1, 'training curves')}"
+        )
+    raw = provenances[0] if len(provenances) == 1 else provenances
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><meta name="generator" content="{GENERATOR}">
+<title>uavplace report: {html.escape(cities)}</title>
+<style>{_CSS}</style></head><body>
+<h1>uavplace: UAV placement for a user of unknown location</h1>
+<p>Unseen-city evaluation in {html.escape(cities)}. Made {html.escape(provenances[0]["created_utc"])} by
+<code>{html.escape(provenances[0]["command"])}</code>.</p>
+{summary_html}
+{"".join(sections)}
+<h2>Provenance</h2>
+{provenance_table(provenances)}
+<details><summary>report.json (raw)</summary><pre>{html.escape(json.dumps(raw, indent=2))}</pre></details>
 </body></html>
 """
 
@@ -431,11 +559,11 @@ def make_report(
     table = results_table(results, config)
     episodes = pd.concat([_plain(df.assign(method=name)) for name, df in results.items()], ignore_index=True)
     with atomic_directory(out, marker=REPORT_JSON, what="report") as tmp:
-        figures: dict[str, Path | None] = {"cdf": plot_cdf(results, config.t_max, tmp / "cdf.png")}
+        figures: dict[str, Figure | None] = {"cdf": plot_cdf(results, config.t_max, tmp / "cdf.png")}
         figures["training"] = plot_training(agents, bounds, tmp / "training.png", bound_notes)
         shown = shown_method(agents)
         picked = pick_trajectories(results, shown, config.trajectories)
-        figures["trajectories"] = plot_trajectories(bundle, results, shown, picked, tmp / "trajectories.png")
+        figures["trajectories"] = plot_trajectories(bundle, results, shown, picked, config.p_t_db, tmp / "trajectories.png")
         table.to_csv(tmp / "results.csv", index=False)
         table.to_parquet(tmp / "results.parquet", index=False)
         episodes.to_parquet(tmp / "episodes.parquet", index=False)
@@ -449,12 +577,14 @@ def make_report(
             "test_bundle_config": json.loads(bundle.manifest.config.model_dump_json()),
             "upper_bounds_db": bounds,
             "upper_bounds_notes": bound_notes,
-            "trajectories": {"agent": shown, "episodes": picked},
+            "trajectories": {"agent": shown, "episodes": [e for e, _ in picked], "rules": [r for _, r in picked]},
+            "figures": {k: v.caption for k, v in figures.items() if v is not None},
             "agents": {
                 a.name: {
                     "folder": str(a.folder),
                     "trained_on": a.trained_on or None,
-                    "command": a.run.command if a.run is not None else None,
+                    "selected_on": a.selected_on or None,
+                    "commands": a.run.commands if a.run is not None else None,
                     "best_eval": a.best_eval,
                     "config": json.loads(a.config.model_dump_json()),
                 }
@@ -462,9 +592,59 @@ def make_report(
             },
         }
         rows = table_rows(table, config.t_max)
-        (tmp / "report.html").write_text(render_html(config, rows, figures, provenance), encoding="utf-8")
+        section = render_section(config, rows, figures, provenance)
+        (tmp / "report.html").write_text(render_page([section], [provenance]), encoding="utf-8")
         (tmp / REPORT_JSON).write_text(json.dumps(provenance, indent=2) + "\n", encoding="utf-8")
-    return Report(out, table, episodes)
+    figures = {k: None if v is None else Figure(out / v.path.name, v.caption) for k, v in figures.items()}
+    return Report(out, table, episodes, config, rows, figures, provenance)
+
+
+#: The marker of a report page: ``write_summary_page`` replaces only a page that carries it.
+GENERATOR = "uavplace report"
+
+
+def check_summary_page(out: str | Path) -> None:
+    """``InputError`` unless ``out/report.html`` and ``out/summary.csv`` are absent or a report's own (checked before any
+    episode is played, so a refusal costs nothing)."""
+    page, table = Path(out) / "report.html", Path(out) / "summary.csv"
+    if page.is_symlink() or table.is_symlink():
+        raise InputError(page, "is a symbolic link: not replaced")
+    if page.exists() and f'<meta name="generator" content="{GENERATOR}">' not in page.read_text(
+        encoding="utf-8", errors="replace"
+    ):
+        raise InputError(page, "exists and is not a uavplace report: not replaced (choose another --out)")
+    if table.exists() and not page.exists():
+        raise InputError(table, "exists without a report page beside it: not replaced (choose another --out)")
+
+
+def write_summary_page(reports: list[Report], out: str | Path, t_max: int) -> Path:
+    """``out/report.html``: the summary table (method x city), then each city's section, then the provenance;
+    ``out/summary.csv`` the same table. Written to temporary files renamed into place."""
+    out = Path(out)
+    cities = [r.provenance["test_city"] for r in reports]
+    summary = summary_rows(reports, t_max)
+    sections = []
+    for i, r in enumerate(reports):  # the training curves once, above the cities (Figure 1); each city: CDF, trajectories
+        figures = {k: v for k, v in r.figures.items() if k != "training"}
+        sections.append(render_section(r.config, r.rows, figures, r.provenance, first_figure=2 + 2 * i))
+    page = render_page(sections, [r.provenance for r in reports], summary, reports[0].figures.get("training"))
+    frame = pd.DataFrame(summary[1:], columns=["method", *cities])
+    for name, text in (("report.html", page), ("summary.csv", frame.to_csv(index=False))):
+        atomic_write_text(out / name, text)
+    return out / "report.html"
+
+
+def summary_rows(reports: list[Report], t_max: int) -> list[list[str]]:
+    """Header then one row per method: ``success / median steps`` in each report's city (``-`` where not played)."""
+    cities = [r.provenance["test_city"] for r in reports]
+    cells: dict[str, dict[str, str]] = {}
+    for city, r in zip(cities, reports, strict=True):
+        for rec in r.table.to_dict("records"):
+            cell = " / ".join(format_stat(s, rec[s]) for s in ("success", "median_steps"))
+            cells.setdefault(rec["method"], {})[city] = cell.replace("> t_max", f"> {t_max}")
+    return [["method", *(f"{c}: success / median steps" for c in cities)]] + [
+        [m, *(c.get(city, "-") for city in cities)] for m, c in cells.items()
+    ]
 
 
 def training_bounds(agents: list[Agent], root: str | Path, p_t_db: float) -> tuple[dict[str, float], dict[str, str]]:

@@ -15,8 +15,8 @@ import shapely
 from pydantic import ValidationError
 from shapely.geometry.base import BaseGeometry
 
-from schemas import BUILDING_PARTS, BUILDINGS, Building, InputError, Rejection
-from schemas.base import validation_message
+from uavplace.schemas import BUILDING_PARTS, BUILDINGS, Building, InputError, Rejection
+from uavplace.schemas.base import validation_message
 
 #: Footprints smaller than this [m^2] are degenerate (a wall seen from above).
 MIN_AREA_M2 = 1e-6

@@ -27,9 +27,9 @@ import numpy as np
 import shapely
 from shapely.geometry import shape
 
-from ingest.buildings import BuildingRecord, Part
-from schemas import InputError, Rejection
-from schemas.tables import BUILDINGS
+from uavplace.ingest.buildings import BuildingRecord, Part
+from uavplace.schemas import InputError, Rejection
+from uavplace.schemas.tables import BUILDINGS
 
 HEIGHT_KEYS = ("height_m", "height")
 BASE_KEYS = ("base_m", "min_height")

@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import shapely
 
-from ingest.buildings import MIN_AREA_M2, BuildingRecord, Part
-from schemas import InputError, Rejection
+from uavplace.ingest.buildings import MIN_AREA_M2, BuildingRecord, Part
+from uavplace.schemas import InputError, Rejection
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")
 #: Bodies thinner than this [m] are ground or road surfaces, not buildings.

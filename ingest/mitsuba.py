@@ -28,9 +28,9 @@ from pathlib import Path
 import numpy as np
 import shapely
 
-from ingest.buildings import MIN_AREA_M2, BuildingRecord, Part, crop_records
-from ingest.mesh import FLAT_M
-from schemas import InputError, Rejection
+from uavplace.ingest.buildings import MIN_AREA_M2, BuildingRecord, Part, crop_records
+from uavplace.ingest.mesh import FLAT_M
+from uavplace.schemas import InputError, Rejection
 
 #: Shape types whose geometry is a mesh file.
 MESH_SHAPES = ("ply", "obj")

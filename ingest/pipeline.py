@@ -22,14 +22,14 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from ingest.buildings import BuildingRecord, buildings_tables
-from ingest.geojson import read_geojson
-from ingest.mesh import MESH_SUFFIXES, read_mesh
-from ingest.wireless_insite.city import read_city, read_terrain
-from ingest.wireless_insite.p2m import MAX_ANTENNA_GAINS_DB, POSITION_COLUMNS, P2MStream, parse_filename
-from ingest.wireless_insite.setup import read_setup
-from ingest.wireless_insite.txrx import read_txrx
-from schemas import (
+from uavplace.ingest.buildings import BuildingRecord, buildings_tables
+from uavplace.ingest.geojson import read_geojson
+from uavplace.ingest.mesh import MESH_SUFFIXES, read_mesh
+from uavplace.ingest.wireless_insite.city import read_city, read_terrain
+from uavplace.ingest.wireless_insite.p2m import MAX_ANTENNA_GAINS_DB, POSITION_COLUMNS, P2MStream, parse_filename
+from uavplace.ingest.wireless_insite.setup import read_setup
+from uavplace.ingest.wireless_insite.txrx import read_txrx
+from uavplace.schemas import (
     BUILDING_PARTS,
     BUILDINGS,
     RECEIVERS,
@@ -46,8 +46,8 @@ from schemas import (
     TerrainInfo,
     TxRxSet,
 )
-from schemas.base import uavplace_version
-from schemas.files import atomic_directory, check_name, sha256_file, write_model_json
+from uavplace.schemas.base import uavplace_version
+from uavplace.schemas.files import atomic_directory, check_name, sha256_file, write_model_json
 
 if TYPE_CHECKING:
     import pandas as pd

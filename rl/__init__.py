@@ -8,4 +8,4 @@ from gymnasium.envs.registration import register, registry
 
 for _id, _kwargs in (("uavplace/UavPlacement-v0", {}), ("uavplace/BlindUavPlacement-v0", {"blind": True})):
     if _id not in registry:
-        register(id=_id, entry_point="rl.env:UavPlacementEnv", kwargs=_kwargs)
+        register(id=_id, entry_point="uavplace.rl.env:UavPlacementEnv", kwargs=_kwargs)

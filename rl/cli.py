@@ -1,4 +1,4 @@
-"""``uavrl``: train and evaluate UAV placement agents on map bundles built by ``uavdata``."""
+"""``uavrl datasets``, ``baselines`` and ``train``: agents on map bundles built by ``uavdata`` (registered in ``schemas.cli``)."""
 
 from __future__ import annotations
 
@@ -7,19 +7,13 @@ from pathlib import Path
 import click
 from rich.table import Table
 
-from dataset.bundle import list_versions, read_latest
-from dataset.catalog import list_cities
-from dataset.cli import UavGroup, fail, plain_table, root_option, stdout
-from rl.rollout import summarise
+from uavplace.dataset.bundle import list_versions, read_latest
+from uavplace.dataset.catalog import list_cities
+from uavplace.rl.rollout import STATS, format_stat, summarise
+from uavplace.schemas.cli import fail, plain_table, root_option, stdout
 
 
-@click.group(cls=UavGroup, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
-@click.version_option(package_name="uavplace", prog_name="uavrl")
-def main() -> None:
-    """UAV placement agents: the datasets they can use, training and reports."""
-
-
-@main.command()
+@click.command()
 @root_option
 def datasets(root: Path) -> None:
     """List the built cities under ROOT that agents can be given (`--dataset NAME`), from their latest bundle."""
@@ -46,10 +40,6 @@ def datasets(root: Path) -> None:
         out.print(f"ingested but not built (run `uavdata build`): {', '.join(unbuilt)}")
 
 
-def _steps(v: float) -> str:
-    return "> t_max" if v == float("inf") else f"{v:g}"
-
-
 def episode_options(command):
     """The evaluation protocol's options, shared by ``baselines`` and ``report``."""
     options = (
@@ -64,7 +54,7 @@ def episode_options(command):
     return command
 
 
-@main.command()
+@click.command()
 @click.option("--dataset", "datasets", multiple=True, required=True, help="Built city to play in (repeatable).")
 @episode_options
 @root_option
@@ -75,26 +65,25 @@ def baselines(
     import numpy as np
     from rich.progress import Progress
 
-    from rl.config import EnvConfig
-    from rl.maps import MapSet
-    from rl.policies import GeniePolicy, GreedyPolicy, RandomWalkPolicy
-    from rl.rollout import run_episodes
+    from uavplace.rl.config import EnvConfig
+    from uavplace.rl.maps import MapSet
+    from uavplace.rl.policies import GeniePolicy, GreedyPolicy, RandomWalkPolicy
+    from uavplace.rl.rollout import run_episodes
 
     config = EnvConfig(t_max=t_max, p_t_db=p_t_db, split=split, rotate=False)
     maps = MapSet.load(list(datasets), config, root=str(root))
     eps = maps.sample_episodes(episodes, np.random.default_rng(seed))
-    table = Table("method", "success", "median steps", "mean steps (successes)", "p90 steps", "median steps / genie")
+    table = Table("method", *STATS.values())
     with Progress(console=stdout(), transient=True) as progress:
         for policy in (GeniePolicy(), RandomWalkPolicy(seed=seed), GreedyPolicy(config.p_h_db, seed=seed)):
             task = progress.add_task(policy.name, total=episodes)
             df = run_episodes(maps, policy, eps, on_step=lambda d, t, task=task: progress.update(task, completed=d))
             s = summarise(df)
-            table.add_row(policy.name, f"{100 * s['success']:.1f} %", _steps(s["median_steps"]), f"{s['mean_steps_success']:.1f}",
-                          _steps(s["p90_steps"]), "> t_max" if s["steps_over_genie"] == float("inf") else f"{s['steps_over_genie']:.2f}")  # fmt: skip
+            table.add_row(policy.name, *(format_stat(k, s[k]).replace("> t_max", f"> {t_max}") for k in STATS))
     stdout().print(table)
 
 
-@main.command()
+@click.command()
 @click.option(
     "--dataset",
     "datasets",
@@ -171,11 +160,11 @@ def train(
     """Train the DQN agent (or its blind twin) on built cities; write config, metrics and checkpoints to a run folder."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-    from dataset.catalog import expand_datasets
-    from dataset.cli import command_line
-    from rl.agent.dqn import parse_settings, preset_config
-    from rl.agent.train import Trainer, new_run_dir, read_run_json
-    from schemas.files import check_name
+    from uavplace.dataset.catalog import expand_datasets
+    from uavplace.rl.agent.dqn import parse_settings, preset_config
+    from uavplace.rl.agent.train import Trainer, new_run_dir, read_run_json
+    from uavplace.schemas.cli import command_line
+    from uavplace.schemas.files import check_name
 
     if resume is not None:
         doc = read_run_json(resume)

@@ -40,9 +40,9 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from rl.config import EnvConfig
-from rl.maps import MapSet
-from rl.vec_env import BatchedEnv
+from uavplace.rl.config import EnvConfig
+from uavplace.rl.maps import MapSet
+from uavplace.rl.vec_env import BatchedEnv
 
 
 class UavPlacementEnv(gym.Env):

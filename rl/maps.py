@@ -16,9 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dataset.bundle import Bundle, load_bundle
-from dataset.difficulty import UNREACHABLE, steps_to_target, valid_starts
-from rl.config import EnvConfig
+from uavplace.dataset.bundle import Bundle, load_bundle
+from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target, valid_starts
+from uavplace.rl.config import EnvConfig
 
 #: Moves of the 4 actions in canvas coordinates (dy, dx): 0 north (+y), 1 east (+x), 2 south (-y), 3 west (-x).
 MOVES = np.array([[1, 0], [0, 1], [-1, 0], [0, -1]], dtype=np.int64)

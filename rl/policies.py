@@ -13,8 +13,8 @@ from typing import Protocol
 
 import numpy as np
 
-from rl.maps import MOVES
-from rl.vec_env import BatchedEnv, decode_obs
+from uavplace.rl.maps import MOVES
+from uavplace.rl.vec_env import BatchedEnv, decode_obs
 
 
 class Policy(Protocol):

@@ -7,9 +7,9 @@ from collections.abc import Callable
 import numpy as np
 import pandas as pd
 
-from rl.maps import MOVES, MapSet
-from rl.policies import Policy
-from rl.vec_env import BatchedEnv
+from uavplace.rl.maps import MOVES, MapSet
+from uavplace.rl.policies import Policy
+from uavplace.rl.vec_env import BatchedEnv
 
 
 def run_episodes(
@@ -111,13 +111,27 @@ def summarise(df: pd.DataFrame) -> dict[str, float]:
     return {name: float(v) for name, v in stats.items()}
 
 
+#: The statistics of ``episode_stats``, in table order, with their labels (one wording in every table).
+STATS = {
+    "success": "success",
+    "median_steps": "median steps",
+    "p75_steps": "p75 steps",
+    "within_100": "solved within 100 steps",
+    "steps_over_genie": "median steps / genie",
+    "mean_steps_success": "mean steps of its own successes (unpaired)",
+}
+#: ``within_100``'s step budget.
+WITHIN = 100
+
+
 def episode_stats(steps: np.ndarray, success: np.ndarray, genie_steps: np.ndarray) -> dict[str, np.ndarray]:
     """The evaluation's statistics over the last axis (episodes); leading axes are kept (bootstrap resamples).
 
-    ``success`` rate; ``median_steps`` and ``p90_steps`` of steps to P_T with failures infinite;
-    ``mean_steps_success`` (nan without successes); ``steps_over_genie``: median of steps / genie
-    steps per episode (infinite for failures). Quantiles are order statistics (``inverted_cdf``), so a
-    quantile that falls on a failure is inf.
+    ``success`` rate; ``median_steps`` and ``p75_steps`` of steps to P_T with failures infinite;
+    ``within_100``: share of episodes solved within 100 steps; ``steps_over_genie``: median of steps /
+    genie steps per episode (infinite for failures); ``mean_steps_success``: the mean over the method's
+    own successes (nan without any), so two methods' values average different episodes. Quantiles are
+    order statistics (``inverted_cdf``), so a quantile that falls on a failure is inf.
     """
     ok = np.asarray(success, bool)
     to_target = np.where(ok, steps, np.inf)
@@ -128,7 +142,27 @@ def episode_stats(steps: np.ndarray, success: np.ndarray, genie_steps: np.ndarra
     return {
         "success": ok.mean(axis=-1),
         "median_steps": np.quantile(to_target, 0.5, axis=-1, method="inverted_cdf"),
-        "mean_steps_success": mean_ok,
-        "p90_steps": np.quantile(to_target, 0.9, axis=-1, method="inverted_cdf"),
+        "p75_steps": np.quantile(to_target, 0.75, axis=-1, method="inverted_cdf"),
+        "within_100": (to_target <= WITHIN).mean(axis=-1),
         "steps_over_genie": np.quantile(ratio, 0.5, axis=-1, method="inverted_cdf"),
+        "mean_steps_success": mean_ok,
     }
+
+
+def format_stat(stat: str, value: float, lo: float | None = None, hi: float | None = None) -> str:
+    """A table cell: percentages for shares, ``> t_max`` for infinite steps, ``[lo, hi]`` when given."""
+    share = stat in ("success", "within_100")
+
+    def one(v: float) -> str:
+        if share:
+            return f"{100 * v:.1f} %"
+        if np.isinf(v):
+            return "> t_max"
+        if np.isnan(v):
+            return "-"
+        return f"{v:.2f}" if stat == "steps_over_genie" else f"{v:.1f}" if stat == "mean_steps_success" else f"{v:g}"
+
+    text = one(value)
+    if lo is not None and hi is not None:
+        text += f" [{one(lo).removesuffix(' %')}, {one(hi)}]" if share else f" [{one(lo)}, {one(hi)}]"
+    return text

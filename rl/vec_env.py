@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from rl.config import EnvConfig
-from rl.maps import MOVES, MapSet
+from uavplace.rl.config import EnvConfig
+from uavplace.rl.maps import MOVES, MapSet
 
 #: ``encode_obs``: uint8 = round(value) + OBS_OFFSET, clipped to [0, 255]: values -150 .. +105 (dB or m).
 OBS_OFFSET = 150

@@ -4,9 +4,9 @@ Everything that crosses a stage boundary (ingest -> dataset -> rl -> eval) is
 declared here once. Nothing in this package imports another uavplace package.
 """
 
-from schemas.base import SCHEMA_VERSION, Contract, InputError
-from schemas.bundle import CELLS, USERS, BuildConfig, BundleManifest, GridSpec, SinrInfo
-from schemas.city import (
+from uavplace.schemas.base import SCHEMA_VERSION, Contract, InputError
+from uavplace.schemas.bundle import CELLS, USERS, BuildConfig, BundleManifest, GridSpec, SinrInfo
+from uavplace.schemas.city import (
     CityManifest,
     FileReport,
     IngestReport,
@@ -14,10 +14,10 @@ from schemas.city import (
     Rejection,
     SourceFile,
 )
-from schemas.geometry import Building, TerrainInfo
-from schemas.receivers import QUANTITIES, Quantity, ReceiverSet
-from schemas.tables import BUILDING_PARTS, BUILDINGS, RECEIVERS, TRANSMITTERS, TableSpec
-from schemas.txrx import AntennaInfo, CommSystemInfo, SetupInfo, Transmitter, TxRxSet, WaveformInfo
+from uavplace.schemas.geometry import Building, TerrainInfo
+from uavplace.schemas.receivers import QUANTITIES, Quantity, ReceiverSet
+from uavplace.schemas.tables import BUILDING_PARTS, BUILDINGS, RECEIVERS, TRANSMITTERS, TableSpec
+from uavplace.schemas.txrx import AntennaInfo, CommSystemInfo, SetupInfo, Transmitter, TxRxSet, WaveformInfo
 
 __all__ = [
     "SCHEMA_VERSION",

@@ -21,8 +21,8 @@ from typing import Literal
 import pyarrow as pa
 from pydantic import Field, field_validator, model_validator
 
-from schemas.base import NAME_PATTERN, SCHEMA_VERSION, Contract
-from schemas.tables import FREQUENCY_RANGE_HZ, POWER_RANGE_DBM, RATIO_RANGE_DB, XY_RANGE_M, Z_RANGE_M, Column, TableSpec
+from uavplace.schemas.base import NAME_PATTERN, SCHEMA_VERSION, Contract
+from uavplace.schemas.tables import FREQUENCY_RANGE_HZ, POWER_RANGE_DBM, RATIO_RANGE_DB, XY_RANGE_M, Z_RANGE_M, Column, TableSpec
 
 SplitRole = Literal["train", "val", "test"]
 UserSplit = Literal["train", "val", "test"]

@@ -6,10 +6,10 @@ from typing import Literal
 
 from pydantic import Field
 
-from schemas.base import NAME_PATTERN, SCHEMA_VERSION, Contract
-from schemas.geometry import TerrainInfo
-from schemas.receivers import ReceiverSet
-from schemas.txrx import SetupInfo, TxRxSet
+from uavplace.schemas.base import NAME_PATTERN, SCHEMA_VERSION, Contract
+from uavplace.schemas.geometry import TerrainInfo
+from uavplace.schemas.receivers import ReceiverSet
+from uavplace.schemas.txrx import SetupInfo, TxRxSet
 
 FileStatus = Literal["parsed", "skipped", "unknown"]
 

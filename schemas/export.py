@@ -6,13 +6,13 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from schemas.base import SCHEMA_VERSION
-from schemas.bundle import CELLS, USERS, BuildConfig, BundleManifest
-from schemas.city import CityManifest, IngestReport
-from schemas.geometry import Building, TerrainInfo
-from schemas.receivers import ReceiverSet
-from schemas.tables import ALL_TABLES, TableSpec
-from schemas.txrx import SetupInfo, Transmitter, TxRxSet
+from uavplace.schemas.base import SCHEMA_VERSION
+from uavplace.schemas.bundle import CELLS, USERS, BuildConfig, BundleManifest
+from uavplace.schemas.city import CityManifest, IngestReport
+from uavplace.schemas.geometry import Building, TerrainInfo
+from uavplace.schemas.receivers import ReceiverSet
+from uavplace.schemas.tables import ALL_TABLES, TableSpec
+from uavplace.schemas.txrx import SetupInfo, Transmitter, TxRxSet
 
 SCHEMA_MODELS: dict[str, type[BaseModel] | TableSpec] = {
     "city_manifest": CityManifest,

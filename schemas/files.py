@@ -25,7 +25,10 @@ from pathlib import Path
 
 from pydantic import BaseModel
 
-from schemas.base import NAME_PATTERN, InputError
+from uavplace.schemas.base import NAME_PATTERN, InputError
+
+#: Default root of ingested cities and bundles (relative to the working folder).
+DEFAULT_ROOT = Path("data/processed")
 
 _CHUNK = 1 << 20
 _NAME_RE = re.compile(NAME_PATTERN)
@@ -64,6 +67,20 @@ def write_model_json(model: BaseModel, path: str | Path) -> None:
 
 def write_json(obj: object, path: str | Path) -> None:
     Path(path).write_text(json.dumps(obj, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+
+
+def atomic_write_text(path: str | Path, text: str) -> None:
+    """Write ``text`` to a temporary file beside ``path``, then rename it into place (never half-written)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 
 @contextlib.contextmanager

@@ -6,8 +6,8 @@ import numpy as np
 import shapely
 from pydantic import Field, field_validator, model_validator
 
-from schemas.base import Contract
-from schemas.tables import BUILDINGS
+from uavplace.schemas.base import Contract
+from uavplace.schemas.tables import BUILDINGS
 
 
 class Building(Contract):

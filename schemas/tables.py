@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import pyarrow as pa
 
-from schemas.base import SCHEMA_VERSION, InputError
+from uavplace.schemas.base import SCHEMA_VERSION, InputError
 
 
 @dataclass(frozen=True)

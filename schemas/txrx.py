@@ -7,7 +7,7 @@ from typing import Literal
 
 from pydantic import Field, model_validator
 
-from schemas.base import Contract
+from uavplace.schemas.base import Contract
 
 Vec3 = tuple[float, float, float]
 

@@ -14,9 +14,9 @@ from collections.abc import Callable
 from dataclasses import asdict, replace
 from pathlib import Path
 
-from schemas import InputError
-from simulate.pipeline import PROVENANCE, SimulationSpec, simulate_city
-from simulate.raytrace import RayTraceConfig
+from uavplace.schemas import InputError
+from uavplace.simulate.pipeline import PROVENANCE, SimulationSpec, simulate_city
+from uavplace.simulate.raytrace import RayTraceConfig
 
 
 def corpus_specs(sources: list[str], name: str, count: int, base: SimulationSpec) -> list[SimulationSpec]:

@@ -29,14 +29,21 @@ from pathlib import Path
 import numpy as np
 import shapely
 
-from schemas import InputError
-from schemas.base import uavplace_version
-from schemas.files import atomic_directory, check_name, check_replaceable
-from simulate.insite import UNREACHED_POWER_DBM, ReceiverGrid, write_city, write_p2m, write_setup, write_txrx
-from simulate.procedural import PRESETS, USER_HEIGHT_M, generate_city, sample_users
-from simulate.raytrace import RadioMapJob, RayTraceConfig, constant_patch_share, fill, path_gain_maps_isolated, sionna_versions
-from simulate.scene import Block, write_scene
-from simulate.styles import STYLE_SIZE_M, STYLES, styled_city
+from uavplace.schemas import InputError
+from uavplace.schemas.base import uavplace_version
+from uavplace.schemas.files import atomic_directory, check_name, check_replaceable
+from uavplace.simulate.insite import UNREACHED_POWER_DBM, ReceiverGrid, write_city, write_p2m, write_setup, write_txrx
+from uavplace.simulate.procedural import PRESETS, USER_HEIGHT_M, generate_city, sample_users
+from uavplace.simulate.raytrace import (
+    RadioMapJob,
+    RayTraceConfig,
+    constant_patch_share,
+    fill,
+    path_gain_maps_isolated,
+    sionna_versions,
+)
+from uavplace.simulate.scene import Block, write_scene
+from uavplace.simulate.styles import STYLE_SIZE_M, STYLES, styled_city
 
 USER_SET = (1, "User")
 GRID_SET = (2, "Drone_grid")
@@ -92,7 +99,7 @@ def load_geometry(
 
     Sources: ``procedural:<preset>`` (train, test, tiny, open: the original generator),
     ``procedural:<style>[:WxH]`` (generator v2, ``simulate.styles``: grid, rotated,
-    perimeter, towers, organic, plazas, or mixed: the styles in turn by seed); an InSite ``.city``; a GeoJSON file; a Mitsuba
+    perimeter, towers, organic, plazas, oldtown, or mixed: the first six styles in turn by seed); an InSite ``.city``; a GeoJSON file; a Mitsuba
     ``.xml`` scene with its PLY/OBJ meshes, or ``sionna:<scene>`` for one that Sionna
     RT ships (``sionna:etoile``, ``sionna:florence``): buildings per connected body, the
     ground left out, roofs split into height tiers (``ingest.mitsuba``).
@@ -126,23 +133,23 @@ def load_geometry(
     cropped = left_out = 0
     rejected = []
     if suffix == ".city":
-        from ingest.wireless_insite.city import read_city
+        from uavplace.ingest.wireless_insite.city import read_city
 
         records = read_city(path)
     elif suffix in (".geojson", ".json"):
-        from ingest.geojson import read_geojson
+        from uavplace.ingest.geojson import read_geojson
 
         records, rejected = read_geojson(path)
         left_out = sum(r.count for r in rejected)
     elif suffix == ".xml":
-        from ingest.mitsuba import read_mitsuba
+        from uavplace.ingest.mitsuba import read_mitsuba
 
         scene = read_mitsuba(path, crop=crop)
         records, cropped = scene.buildings, scene.num_cropped
     else:
         raise InputError(path, f"unknown geometry format '{path.suffix}' (expected .city, .geojson or .xml)", field="source")
     if crop is not None and suffix != ".xml":
-        from ingest.buildings import crop_records
+        from uavplace.ingest.buildings import crop_records
 
         records, cropped = crop_records(records, crop)
     blocks = []

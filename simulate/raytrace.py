@@ -325,7 +325,7 @@ def _isolated(kind: str, payload: dict, on_batch: Callable[[int, int], None] | N
         result = Path(tmp) / "result.npz"
         job_file.write_text(json.dumps(payload | {"kind": kind, "result": str(result)}))
         proc = subprocess.Popen(
-            [sys.executable, "-m", "simulate.raytrace", str(job_file)],
+            [sys.executable, "-m", "uavplace.simulate.raytrace", str(job_file)],
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             text=True,

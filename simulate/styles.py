@@ -15,9 +15,11 @@ heights 8-30 m, courtyards in the perimeter style).
 - ``towers``: towers on podiums, among lower buildings.
 - ``organic``: Voronoi blocks of irregular shape, some left open as plazas and parks.
 - ``plazas``: a grid with large open squares and parks.
+- ``oldtown``: a historic centre: small irregular blocks between narrow lanes (3-9 m), a few
+  piazzas, mid-rise buildings of similar height, each block split into several buildings.
 
-``mixed`` takes the styles in turn by seed (seed modulo the number of styles), so
-that a corpus of consecutive seeds covers them evenly.
+``mixed`` takes the first six styles in turn by seed (seed modulo 6; ``MIXED``), so that a
+corpus of consecutive seeds covers them evenly; a style added later never changes a mixed city.
 """
 
 from __future__ import annotations
@@ -26,8 +28,9 @@ from collections.abc import Callable
 
 import numpy as np
 import shapely
+import shapely.ops
 
-from simulate.procedural import CityStyle, generate_city
+from uavplace.simulate.procedural import CityStyle, generate_city
 
 Part = tuple[shapely.Polygon, float, int]  # footprint, roof height [m], building index
 STYLES: dict[str, Callable[[tuple[float, float], np.random.Generator], list[Part]]] = {}
@@ -98,7 +101,7 @@ def _perimeter(size: tuple[float, float], rng: np.random.Generator) -> list[Part
     street = (rng.uniform(6, 10), rng.uniform(12, 24))
     depth = rng.uniform(10, 22)  # building depth from the street
     params = CityStyle(block_m=block, street_m=street)
-    from simulate.procedural import _cuts
+    from uavplace.simulate.procedural import _cuts
 
     out: list[Part] = []
     k = 0
@@ -170,11 +173,49 @@ def _plazas(size: tuple[float, float], rng: np.random.Generator) -> list[Part]:
     return [(p, h, k) for poly, h, k in base for p in _clean([poly.difference(squares)], _inside(size))]
 
 
+@style("oldtown")
+def _oldtown(size: tuple[float, float], rng: np.random.Generator) -> list[Part]:
+    area = _inside(size)
+    spacing = rng.uniform(24, 40)  # small blocks
+    n = max(2, int(size[0] * size[1] / spacing**2))
+    seeds = shapely.MultiPoint(np.c_[rng.uniform(0, size[0], n), rng.uniform(0, size[1], n)])
+    cells = shapely.get_parts(shapely.voronoi_polygons(seeds, extend_to=area))
+    open_share = rng.uniform(0.03, 0.12)
+    top = rng.uniform(18, 28)
+    out: list[Part] = []
+    k = 0
+    for cell in cells:
+        if rng.random() < open_share:
+            continue  # a piazza
+        lane = rng.uniform(3, 9)  # each block has its own lanes: alleys and streets
+        block = cell.buffer(-lane / 2, join_style="mitre")
+        if block.is_empty:
+            continue
+        # Split the block into buildings by a few random cuts through it, each with its own height.
+        pieces = [block]
+        for _ in range(int(rng.integers(1, 4))):
+            c = block.centroid
+            angle = rng.uniform(0, np.pi)
+            dx, dy = np.cos(angle) * 200, np.sin(angle) * 200
+            cut = shapely.LineString([(c.x - dx + rng.normal(0, 4), c.y - dy), (c.x + dx, c.y + dy + rng.normal(0, 4))])
+            pieces = [g for p in pieces for g in shapely.get_parts(shapely.ops.split(p, cut))]
+        heights = _heights(rng, len(pieces), low_share=0.15, low=(6.0, 9.5), high=(11.0, top))
+        for piece, h in zip(pieces, heights, strict=True):
+            for p in _clean([piece], area):
+                out.append((p, float(h), k))
+                k += 1
+    return out
+
+
+#: The styles ``mixed`` takes in turn by seed (frozen: the corpus's recipe names its cities by seed).
+MIXED = ("grid", "organic", "perimeter", "plazas", "rotated", "towers")
+
+
 def styled_city(name: str, size: tuple[float, float], seed: int) -> tuple[str, list[Part]]:
-    """(the style used, its parts) of a seeded city; ``mixed`` takes the styles in turn by seed."""
+    """(the style used, its parts) of a seeded city; ``mixed`` takes the ``MIXED`` styles in turn by seed."""
     rng = np.random.default_rng([seed, 7])
     if name == "mixed":  # styles in turn, so that any run of seeds covers them evenly
-        name = sorted(STYLES)[seed % len(STYLES)]
+        name = MIXED[seed % len(MIXED)]
     if name not in STYLES:
         raise KeyError(name)
     return name, STYLES[name](size, rng)

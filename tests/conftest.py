@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from simulate.insite import ReceiverGrid, write_p2m, write_setup, write_txrx
+from uavplace.simulate.insite import ReceiverGrid, write_p2m, write_setup, write_txrx
 
 REPO = Path(__file__).resolve().parents[1]
+#: ``uavdata`` in a child process of this interpreter (the console script without depending on PATH).
+UAVDATA = [sys.executable, "-m", "uavplace.schemas.cli", "uavdata"]
 FIXTURES = Path(os.environ.get("UAVPLACE_FIXTURES", REPO.parent / "shared" / "fixtures" / "wireless-insite"))
 
 

@@ -8,14 +8,13 @@ import pytest
 import torch
 from click.testing import CliRunner
 
-from dataset.build import build_city
-from dataset.cli import main as uavdata
-from eval.cli import main as uavrl
-from ingest.pipeline import ingest_city
-from schemas.bundle import BuildConfig
 from tests.bad_inputs.cases import CASES
 from tests.bad_inputs.workspace import Workspace
 from tests.conftest import write_grid_city
+from uavplace.dataset.build import build_city
+from uavplace.ingest.pipeline import ingest_city
+from uavplace.schemas.bundle import BuildConfig
+from uavplace.schemas.cli import uavdata, uavrl
 
 CLIS = {"uavdata": uavdata, "uavrl": uavrl}
 
@@ -23,8 +22,8 @@ CLIS = {"uavdata": uavdata, "uavrl": uavrl}
 @pytest.fixture(scope="module")
 def shared(tmp_path_factory):
     """Built once: a root with the small city ingested and built, and an agent folder (untrained fast-preset weights)."""
-    from rl.agent.dqn import make_network, preset_config
-    from rl.agent.train import RunRecord
+    from uavplace.rl.agent.dqn import make_network, preset_config
+    from uavplace.rl.agent.train import RunRecord
 
     base = tmp_path_factory.mktemp("shared")
     ingest_city(write_grid_city(base / "raw" / "city"), base / "root")

@@ -7,7 +7,6 @@ import os
 import shutil
 import signal
 import subprocess
-import sys
 import time
 
 import duckdb
@@ -17,13 +16,13 @@ import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner
 
-from dataset.build import build_city
-from dataset.bundle import load_bundle, read_latest
-from dataset.cli import main as uavdata
-from ingest.pipeline import ingest_city
-from schemas import InputError
-from schemas.bundle import BuildConfig
-from tests.conftest import REPO, write_grid_city
+from tests.conftest import REPO, UAVDATA, write_grid_city
+from uavplace.dataset.build import build_city
+from uavplace.dataset.bundle import load_bundle, read_latest
+from uavplace.ingest.pipeline import ingest_city
+from uavplace.schemas import InputError
+from uavplace.schemas.bundle import BuildConfig
+from uavplace.schemas.cli import uavdata
 
 NOISE = -104.0
 FLOOR = -40.0
@@ -214,7 +213,15 @@ def test_kill_9_during_build_leaves_a_loadable_latest(tmp_path):
     env = os.environ | {"PYTHONPATH": str(REPO)}
     killed = 0
     for k, delay in enumerate(np.linspace(0.3, 1.6, 8)):
-        cmd = [sys.executable, "-m", "dataset.cli", "build", "--root", str(root), "--quiet", "--noise-dbm", str(-90 - k)]
+        cmd = [
+            *UAVDATA,
+            "build",
+            "--root",
+            str(root),
+            "--quiet",
+            "--noise-dbm",
+            str(-90 - k),
+        ]
         proc = subprocess.Popen(cmd, env=env, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         time.sleep(delay)
         proc.send_signal(signal.SIGKILL)
@@ -230,7 +237,7 @@ def test_kill_9_during_build_leaves_a_loadable_latest(tmp_path):
 
 def _points_city(folder, shift_second: float):
     """Two users measured on point receivers; the second user's points shifted by ``shift_second`` metres."""
-    from simulate.insite import write_p2m, write_setup
+    from uavplace.simulate.insite import write_p2m, write_setup
 
     folder.mkdir(parents=True)
     write_setup(folder / "c.setup", "c")

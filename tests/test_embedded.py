@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-import rl  # noqa: F401  (registers the environments)
-from dataset.build import build_city
-from dataset.bundle import load_bundle
-from ingest.pipeline import ingest_city
-from schemas.bundle import BuildConfig
+import uavplace.rl  # noqa: F401  (registers the environments)
 from tests.conftest import REPO
+from uavplace.dataset.build import build_city
+from uavplace.dataset.bundle import load_bundle
+from uavplace.ingest.pipeline import ingest_city
+from uavplace.schemas.bundle import BuildConfig
 
 RAW = REPO / "data" / "raw"
 #: Every embedded city: a folder of data/raw made by the commands in the README.
@@ -34,11 +34,11 @@ def test_embedded_data_is_small_and_complete():
 def test_embedded_city_ingests_builds_and_is_faithful(tmp_path, city):
     """As documented: the users and grid of its simulation.json, no mosaic above the SINR floor, a genie that
     always succeeds, a valid Gymnasium environment."""
-    from rl.config import EnvConfig
-    from rl.maps import MapSet
-    from rl.policies import GeniePolicy
-    from rl.rollout import run_episodes
-    from simulate.raytrace import constant_patch_share
+    from uavplace.rl.config import EnvConfig
+    from uavplace.rl.maps import MapSet
+    from uavplace.rl.policies import GeniePolicy
+    from uavplace.rl.rollout import run_episodes
+    from uavplace.simulate.raytrace import constant_patch_share
 
     record = json.loads((RAW / city / "simulation.json").read_text())
     assert record["spec"]["name"] == city

@@ -9,15 +9,15 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
-from dataset.build import build_city
-from eval.cli import main as uavrl
-from eval.metrics import bootstrap_table, ecdf, format_stat
-from ingest.pipeline import ingest_city
-from rl.agent.dqn import preset_config
-from rl.agent.train import Trainer
-from rl.rollout import summarise
-from schemas.bundle import BuildConfig
 from tests.conftest import write_grid_city
+from uavplace.dataset.build import build_city
+from uavplace.eval.metrics import bootstrap_table, ecdf, format_stat
+from uavplace.ingest.pipeline import ingest_city
+from uavplace.rl.agent.dqn import preset_config
+from uavplace.rl.agent.train import Trainer
+from uavplace.rl.rollout import summarise
+from uavplace.schemas.bundle import BuildConfig
+from uavplace.schemas.cli import uavrl
 
 
 def episodes(steps, success, genie=None) -> pd.DataFrame:
@@ -43,7 +43,8 @@ def test_median_counts_failures_as_beyond_t_max():
     assert row["success"] == pytest.approx(0.6)
     assert row["median_steps"] == 6  # order statistic 3 of 5: the failures sit above every success
     assert row["mean_steps_success"] == pytest.approx(4.0)
-    assert row["p90_steps"] == np.inf
+    assert row["p75_steps"] == np.inf  # order statistic 4 of 5: a failure
+    assert row["within_100"] == pytest.approx(0.6)
     assert row["steps_over_genie"] == 3.0  # ratios 2, 2, 3, inf, inf
     assert summarise(df) == pytest.approx({k: row[k] for k in summarise(df)})
     # With failures in the majority the median is past t_max (at exactly half, it is the last success).
@@ -51,6 +52,9 @@ def test_median_counts_failures_as_beyond_t_max():
     worse = episodes([2, 4, 6, 10, 10, 10, 10], [1, 1, 1, 0, 0, 0, 0])
     assert bootstrap_table({"m": worse}, n_boot=200).iloc[0]["median_steps"] == np.inf
     assert format_stat("median_steps", np.inf) == "> t_max" and format_stat("success", 0.6, 0.2, 1.0) == "60.0 % [20.0, 100.0 %]"
+    long = episodes([50, 100, 101, 300, 500], [1, 1, 1, 1, 0], genie=[5] * 5)
+    row = bootstrap_table({"m": long}, n_boot=200).iloc[0]
+    assert row["within_100"] == pytest.approx(0.4) and row["p75_steps"] == 300 and format_stat("within_100", 0.4) == "40.0 %"
 
 
 def test_ecdf_of_known_steps():
@@ -108,6 +112,8 @@ def test_report_end_to_end(tmp_path, two_cities):
     assert "report.html" in res.output and "genie" in res.output
     page = (out / "report.html").read_text()
     assert page.count('src="data:image/png;base64,') == 3  # CDF, training curves, trajectories
+    assert page.count("<figcaption>") == 3 and "<details>" in page and "Provenance" in page
+    assert "median steps" in page and "p75 steps" in page and "90 % (proposed)" in page
     for text in ("DQN (best)", "genie", "steered random walk", "greedy hill-climbing", "paper: success", "cityb", "citya"):
         assert text in page
     table = pd.read_csv(out / "results.csv")
@@ -126,6 +132,16 @@ def test_report_end_to_end(tmp_path, two_cities):
     doc = json.loads((out / "report.json").read_text())
     assert doc["test_bundle"] and set(doc["agents"]["DQN (best)"]["trained_on"]) == {"citya"}
     assert doc["report_config"]["episodes"] == 60 and "upper_bounds_db" in doc
+    # The trajectories follow the stated rule: the success nearest the median, the successes' p90, a failure.
+    shown = eps[eps.method == "DQN (best)"].set_index("episode")
+    picks = dict(zip(doc["trajectories"]["rules"], doc["trajectories"]["episodes"], strict=True))
+    ok = shown[shown.success]
+    median = np.quantile(np.where(shown.success, shown.steps, np.inf), 0.5, method="inverted_cdf")
+    median = median if np.isfinite(median) else ok.steps.max()
+    assert abs(shown.steps[picks["median"]] - median) == (ok.steps - median).abs().min()
+    if "failure" in picks:
+        assert not shown.success[picks["failure"]]
+    assert doc["agents"]["DQN (best)"]["commands"] == [json.loads((run / "run.json").read_text())["command"]]
     # The same command again gives the same table (seeded episodes, agent moves and bootstrap).
     res = CliRunner().invoke(uavrl, [*args, "--episodes", "60", "--t-max", "40", "--bootstrap", "200", "--quiet"])
     pd.testing.assert_frame_equal(table, pd.read_csv(out / "results.csv"))
@@ -143,6 +159,17 @@ def test_report_on_several_cities(tmp_path, two_cities):
     assert "cityb: success / median steps" in res.output and "cityc: success / median steps" in res.output
     summary = res.output[res.output.index("cityb: success / median steps") :]
     assert "genie" in summary and "100.0 %" in summary
+    page = (tmp_path / "r" / "report.html").read_text()  # one page: the summary, then a section per city
+    assert page.index("Summary") < page.index('<section id="cityb">') < page.index('<section id="cityc">')
+    assert page.count("<figcaption>") == 5 and "Figure 5." in page  # training once, then CDF and trajectories per city
+    assert list(pd.read_csv(tmp_path / "r" / "summary.csv").columns) == ["method", "cityb", "cityc"]
+    # A page of the user's own under --out is never replaced, and the refusal comes before any episode.
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "report.html").write_text("my notes")
+    res = CliRunner().invoke(uavrl, [*args, "--out", str(mine), "--episodes", "20", "--quiet"])
+    assert res.exit_code == 2 and "not a uavplace report" in res.output
+    assert sorted(p.name for p in mine.iterdir()) == ["report.html"] and (mine / "report.html").read_text() == "my notes"
 
 
 def test_report_refuses_the_training_city(tmp_path, two_cities):

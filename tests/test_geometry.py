@@ -9,14 +9,14 @@ import pytest
 import shapely
 import trimesh
 
-from ingest.buildings import buildings_tables
-from ingest.geojson import read_geojson
-from ingest.mesh import read_mesh
-from ingest.wireless_insite.city import read_city, read_terrain
-from ingest.wireless_insite.keyword import parse_keyword_file
-from ingest.wireless_insite.setup import read_setup
-from ingest.wireless_insite.txrx import read_txrx
-from schemas import InputError
+from uavplace.ingest.buildings import buildings_tables
+from uavplace.ingest.geojson import read_geojson
+from uavplace.ingest.mesh import read_mesh
+from uavplace.ingest.wireless_insite.city import read_city, read_terrain
+from uavplace.ingest.wireless_insite.keyword import parse_keyword_file
+from uavplace.ingest.wireless_insite.setup import read_setup
+from uavplace.ingest.wireless_insite.txrx import read_txrx
+from uavplace.schemas import InputError
 
 
 def test_rosslyn_buildings(rosslyn):

@@ -11,12 +11,11 @@ import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner
 
-from dataset.cli import main as uavdata
-from ingest.pipeline import ingest_city
-from rl.cli import main as uavrl
-from schemas import CityManifest, IngestReport
-from schemas.files import sha256_file
 from tests.conftest import write_grid_city
+from uavplace.ingest.pipeline import ingest_city
+from uavplace.schemas import CityManifest, IngestReport
+from uavplace.schemas.cli import uavdata, uavrl
+from uavplace.schemas.files import sha256_file
 
 
 def run(*args: str):
@@ -225,9 +224,9 @@ def _ingest_peak_mb(city, out) -> float:
     code = (
         "import sys\n"
         "def hwm(): return int(next(l for l in open('/proc/self/status') if l.startswith('VmHWM')).split()[1]) / 1024\n"
-        "import dataset.cli, ingest.pipeline\n"
+        "import uavplace.ingest.cli, uavplace.ingest.pipeline\n"
         "base = hwm()\n"
-        "ingest.pipeline.ingest_city(sys.argv[1], sys.argv[2])\n"
+        "uavplace.ingest.pipeline.ingest_city(sys.argv[1], sys.argv[2])\n"
         "print(hwm() - base)\n"
     )
     proc = subprocess.run([sys.executable, "-c", code, str(city), str(out)], cwd=REPO, capture_output=True, text=True, check=True)
@@ -238,7 +237,7 @@ def test_ingest_memory_stays_flat(tmp_path):
     """A .p2m ten times larger costs the ingest little more memory: it is read and written in batches."""
     import numpy as np
 
-    from simulate.insite import write_p2m
+    from uavplace.simulate.insite import write_p2m
 
     peaks = {}
     for rows in (100_000, 1_000_000):

@@ -9,8 +9,8 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from ingest.wireless_insite.p2m import parse_filename, read_p2m
-from schemas import InputError
+from uavplace.ingest.wireless_insite.p2m import parse_filename, read_p2m
+from uavplace.schemas import InputError
 
 
 def test_deepmimo_full_grid(deepmimo):
@@ -189,7 +189,7 @@ def test_encodings_are_detected(tmp_path, deepmimo, encoding):
 
 def test_batches_stream_and_errors_still_name_their_line(tmp_path, deepmimo):
     """Small batches give the same table; a duplicate across batches, or a bad row after the fallback, names its line."""
-    from ingest.wireless_insite.p2m import P2MStream
+    from uavplace.ingest.wireless_insite.p2m import P2MStream
 
     src = deepmimo / "insite.pl.t001_01.r004.p2m"
     _, ref = read_p2m(src)

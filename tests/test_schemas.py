@@ -6,8 +6,8 @@ import pyarrow as pa
 import pytest
 from pydantic import ValidationError
 
-from schemas import RECEIVERS, SCHEMA_VERSION, Building, CityManifest, InputError, TxRxSet
-from schemas.export import SCHEMA_MODELS, json_schemas
+from uavplace.schemas import RECEIVERS, SCHEMA_VERSION, Building, CityManifest, InputError, TxRxSet
+from uavplace.schemas.export import SCHEMA_MODELS, json_schemas
 
 
 def test_building_contract():

@@ -4,18 +4,16 @@ from __future__ import annotations
 
 import os
 import subprocess
-import sys
 
 import pytest
 from click.testing import CliRunner
 
-from dataset.cli import main as uavdata
-from eval.cli import main as uavrl
-from eval.report import ReportConfig, make_report
-from schemas import InputError
 from tests.bad_inputs.workspace import Workspace
-from tests.conftest import REPO, write_grid_city
+from tests.conftest import REPO, UAVDATA, write_grid_city
 from tests.test_bad_inputs import shared  # noqa: F401 - the module-scoped fixture of built data
+from uavplace.eval.report import ReportConfig, make_report
+from uavplace.schemas import InputError
+from uavplace.schemas.cli import uavdata, uavrl
 
 
 def invoke(cli, *args: str):
@@ -105,13 +103,27 @@ def test_concurrent_ingests_of_one_city_take_turns(tmp_path):
     """Three `uavdata ingest`, then three `uavdata build`, of one city at once: all succeed (a per-folder lock)."""
     city = write_grid_city(tmp_path / "city", nx=150, ny=120, n_tx=8, spacing=2.0, outputs=("pl", "power"))
     env = os.environ | {"PYTHONPATH": str(REPO)}
-    cmd = [sys.executable, "-m", "dataset.cli", "ingest", str(city), "--out", str(tmp_path / "proc"), "--quiet"]
+    cmd = [
+        *UAVDATA,
+        "ingest",
+        str(city),
+        "--out",
+        str(tmp_path / "proc"),
+        "--quiet",
+    ]
     procs = [subprocess.Popen(cmd, env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT) for _ in range(3)]
     outputs = [p.communicate(timeout=120)[0].decode() for p in procs]
     assert [p.returncode for p in procs] == [0, 0, 0], outputs
     leftovers = sorted(p.name for p in (tmp_path / "proc" / "city").iterdir())
     assert leftovers == [".ingested.lock", "ingested"]
-    build = [sys.executable, "-m", "dataset.cli", "build", "--root", str(tmp_path / "proc"), "--quiet", "--force"]
+    build = [
+        *UAVDATA,
+        "build",
+        "--root",
+        str(tmp_path / "proc"),
+        "--quiet",
+        "--force",
+    ]
     procs = [subprocess.Popen(build, env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT) for _ in range(3)]
     outputs = [p.communicate(timeout=120)[0].decode() for p in procs]
     assert [p.returncode for p in procs] == [0, 0, 0], outputs

@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import shapely
 
-from ingest.buildings import BuildingRecord, Part
-from ingest.wireless_insite.keyword import N_VERTICES, Block, parse_keyword_file
-from schemas import InputError
+from uavplace.ingest.buildings import BuildingRecord, Part
+from uavplace.ingest.wireless_insite.keyword import N_VERTICES, Block, parse_keyword_file
+from uavplace.schemas import InputError
 
 
 def _faces(block: Block) -> list[tuple[int, np.ndarray]]:

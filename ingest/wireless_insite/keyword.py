@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from schemas import InputError
-from schemas.tables import XY_RANGE_M, Z_RANGE_M, Column
+from uavplace.schemas import InputError
+from uavplace.schemas.tables import XY_RANGE_M, Z_RANGE_M, Column
 
 _BEGIN = re.compile(r"^begin_<([^>]*)>\s*(.*)$")
 _END = re.compile(r"^end_<([^>]*)>\s*$")

@@ -29,9 +29,9 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pacsv
 
-from schemas import InputError, ReceiverSet
-from schemas.receivers import QUANTITIES, RECEIVER_OUTPUTS, SKIPPED_OUTPUTS
-from schemas.tables import RECEIVERS, Column
+from uavplace.schemas import InputError, ReceiverSet
+from uavplace.schemas.receivers import QUANTITIES, RECEIVER_OUTPUTS, SKIPPED_OUTPUTS
+from uavplace.schemas.tables import RECEIVERS, Column
 
 #: ``model.pl.t001_01.r002.p2m`` -> project "model", output "pl", tx point 1, tx set 1, rx set 2.
 FILENAME_RE = re.compile(

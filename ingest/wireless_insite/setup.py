@@ -12,10 +12,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ingest.wireless_insite.keyword import Block, parse_keyword_file
-from schemas import AntennaInfo, CommSystemInfo, InputError, SetupInfo, WaveformInfo
-from schemas.tables import RECEIVERS, TRANSMITTERS, Column
-from schemas.txrx import FeatureFile
+from uavplace.ingest.wireless_insite.keyword import Block, parse_keyword_file
+from uavplace.schemas import AntennaInfo, CommSystemInfo, InputError, SetupInfo, WaveformInfo
+from uavplace.schemas.tables import RECEIVERS, TRANSMITTERS, Column
+from uavplace.schemas.txrx import FeatureFile
 
 _FEATURE_KINDS = {"city": "city", "terrain": "terrain", "object": "object", "floorplan": "floorplan", "foliage": "foliage"}
 

@@ -14,10 +14,10 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
-from ingest.wireless_insite.keyword import Block, parse_keyword_file
-from schemas import InputError, TxRxSet
-from schemas.base import validation_message
-from schemas.tables import TRANSMITTERS, XY_RANGE_M
+from uavplace.ingest.wireless_insite.keyword import Block, parse_keyword_file
+from uavplace.schemas import InputError, TxRxSet
+from uavplace.schemas.base import validation_message
+from uavplace.schemas.tables import TRANSMITTERS, XY_RANGE_M
 
 #: Block kinds that define transmitter/receiver sets.
 SET_KINDS = ("points", "grid", "polygon", "route", "trajectory", "arc", "cylinder", "sphere", "xyzgrid", "areagrid")

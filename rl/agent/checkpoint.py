@@ -28,7 +28,7 @@ from pathlib import Path
 
 import torch
 
-from schemas import InputError
+from uavplace.schemas import InputError
 
 #: The reason inside ``torch.load(weights_only=True)``'s refusal ("Unsupported global: GLOBAL os.system ...").
 _UNPICKLER_ERROR = re.compile(r"WeightsUnpickler error:\s*(\S[^\n]*)")

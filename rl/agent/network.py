@@ -3,6 +3,8 @@ and a cheaper foveated one (a full-resolution centre and a pooled surround, full
 
 from __future__ import annotations
 
+import copy
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -47,6 +49,23 @@ class QNetwork(nn.Module):
         self.fc = nn.Sequential(nn.Linear(n_flat, hidden), nn.ReLU(), nn.Dropout(dropout))
         self.value = nn.Linear(hidden, 1)
         self.advantage = nn.Linear(hidden, n_actions)
+
+    def fused(self) -> QNetwork:
+        """An evaluation-mode copy for acting, never for training: each batch norm folded into the convolution
+        before it and the weights in channels-last order (the same Q values; together about half the time
+        on a CPU, ``benchmarks/bench_report.py --legacy``)."""
+        from torch.nn.utils.fusion import fuse_conv_bn_eval
+
+        net = copy.deepcopy(self).eval()
+        layers = list(net.features)
+        folded: list[nn.Module] = []
+        for layer in layers:
+            if isinstance(layer, nn.BatchNorm2d) and folded and isinstance(folded[-1], nn.Conv2d):
+                folded[-1] = fuse_conv_bn_eval(folded[-1], layer)
+            else:
+                folded.append(layer)
+        net.features = nn.Sequential(*folded)
+        return net.to(memory_format=torch.channels_last)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         x = self.fc(self.features(obs / INPUT_SCALE))  # [B, hidden]

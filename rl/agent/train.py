@@ -24,16 +24,16 @@ import pandas as pd
 import torch
 from pydantic import Field, ValidationError
 
-from dataset.bundle import Bundle, load_bundle
-from rl.agent.checkpoint import CHECKPOINT_JSON, load_tensors, require, save_tensors
-from rl.agent.dqn import DQN, DQNConfig, DQNPolicy, make_network
-from rl.agent.replay import ReplayBuffer
-from rl.maps import MapSet
-from rl.rollout import run_episodes, summarise
-from rl.vec_env import BatchedEnv
-from schemas import InputError
-from schemas.base import Contract, uavplace_version, validation_message
-from schemas.files import atomic_directory, recover_directory, write_model_json
+from uavplace.dataset.bundle import Bundle, load_bundle
+from uavplace.rl.agent.checkpoint import CHECKPOINT_JSON, load_tensors, require, save_tensors
+from uavplace.rl.agent.dqn import DQN, DQNConfig, DQNPolicy, make_network
+from uavplace.rl.agent.replay import ReplayBuffer
+from uavplace.rl.maps import MapSet
+from uavplace.rl.rollout import run_episodes, summarise
+from uavplace.rl.vec_env import BatchedEnv
+from uavplace.schemas import InputError
+from uavplace.schemas.base import Contract, uavplace_version, validation_message
+from uavplace.schemas.files import atomic_directory, atomic_write_text, recover_directory, write_model_json
 
 #: The environment's arrays a checkpoint keeps (with its counter and random state).
 _ENV_ARRAYS = ("view", "pos", "t", "episode_id", "memory", "visited")
@@ -56,9 +56,17 @@ class RunRecord(Contract):
     train_split: str | None = Field(description="Users episodes were drawn from (None: all users)")
     eval_split: str | None = Field(description="Users the periodic evaluation (and best.pt) used")
     command: str
+    resumed: list[str] = Field(
+        default_factory=list, description="Each later command that continued the run (`--resume`), with the step it resumed from"
+    )
     uavplace_version: str
     torch_version: str
     created_utc: str
+
+    @property
+    def commands(self) -> list[str]:
+        """Every command that trained the run, in order: the first, then each ``--resume``."""
+        return [self.command, *self.resumed]
 
 
 def read_run_json(folder: str | Path) -> RunRecord:
@@ -221,6 +229,12 @@ class Trainer:
         self.run_dir.mkdir(parents=True, exist_ok=True)
         write_model_json(record, self.run_dir / RUN_JSON)
 
+    def record_resume(self) -> None:
+        """Append this command to ``run.json``'s ``resumed`` (written to a temporary file, then renamed)."""
+        record = read_run_json(self.run_dir)
+        record.resumed.append(f"{self.command} (from step {self.state.step})")
+        atomic_write_text(self.run_dir / RUN_JSON, record.model_dump_json(indent=2) + "\n")
+
     def save(self) -> None:
         """Write ``checkpoints/last/`` as one unit (a folder renamed into place), then publish the metrics."""
         s = self.state
@@ -332,6 +346,7 @@ class Trainer:
         if resume:
             if not self.loaded:
                 self.load()
+            self.record_resume()
             obs, mask = env.observe(), env.action_mask()
         else:
             self.write_run_json()

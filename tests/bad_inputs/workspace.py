@@ -128,8 +128,8 @@ class Workspace:
 
     def run_folder(self, *, networks: bytes | None = None, payload: bool = False, old_last: bool = False) -> Path:
         """A training run folder to resume: run.json of the fast preset on the built city, and a checkpoint."""
-        from rl.agent.dqn import preset_config
-        from rl.agent.train import RunRecord
+        from uavplace.rl.agent.dqn import preset_config
+        from uavplace.rl.agent.train import RunRecord
 
         run = self.tmp / "run"
         (run / "checkpoints" / "last").mkdir(parents=True)

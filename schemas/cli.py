@@ -1,0 +1,220 @@
+"""The command-line contract every stage shares: the ``uavdata`` and ``uavrl`` groups, one error style, output helpers.
+
+Each stage keeps its commands in its own package (``ingest/cli.py``, ``simulate/cli.py``,
+``dataset/cli.py``, ``rl/cli.py``, ``eval/cli.py``). The groups here name them by import path and
+load a command's module only when that command (or ``--help``) needs it, so that no stage imports
+another for its command line, and ``uavdata ingest`` never loads the ray tracer.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import os
+import shlex
+import sys
+from pathlib import Path
+from typing import NoReturn
+
+import click
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+from rich.text import Text
+
+from uavplace.schemas import InputError
+from uavplace.schemas.export import SCHEMA_MODELS, json_schemas
+from uavplace.schemas.files import DEFAULT_ROOT, describe_os_error
+
+console = Console(stderr=True)
+
+
+def stdout() -> Console:
+    """Console for results: the terminal's width, or 160 columns when piped (names stay whole)."""
+    return Console(width=None if sys.stdout.isatty() else 160)
+
+
+def command_line() -> str:
+    return " ".join(shlex.quote(a) for a in [Path(sys.argv[0]).name, *sys.argv[1:]])
+
+
+#: ``--root``: where ingested cities and bundles live (shared by uavdata and uavrl commands).
+root_option = click.option(
+    "--root",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=DEFAULT_ROOT,
+    show_default=True,
+    help="Root of processed data.",
+)
+
+
+def fail(err: Exception | str) -> NoReturn:
+    """Print one error line and exit with status 2."""
+    text = describe_os_error(err) if isinstance(err, OSError) and not isinstance(err, InputError) else str(err)
+    text = " ".join(text.split()) or type(err).__name__  # one line, whatever the message held
+    console.print(f"[bold red]error:[/] {escape(text)}", highlight=False, soft_wrap=True)
+    sys.exit(2)
+
+
+def plain_table(*headers: str, **kwargs) -> Table:  # noqa: ANN003 - rich.table.Table's options
+    """A rich table whose headers are text, not markup: units such as ``[m]`` stay visible."""
+    table = Table(**kwargs)
+    for header in headers:
+        table.add_column(Text(header))
+    return table
+
+
+class UavGroup(click.Group):
+    """A click group whose every failure is one ``error: ...`` line and exit status 2, never a traceback.
+
+    Bad input (``InputError``), usage errors, operating-system errors (a full
+    disk, a permission) and, as a last resort, any other exception are caught
+    here. ``UAVPLACE_DEBUG=1`` lets an unexpected exception through with its
+    traceback, for bug reports. ``lazy`` maps a command name to ``"module:attribute"``,
+    imported when the command is first asked for.
+    """
+
+    def __init__(self, *args, lazy: dict[str, str] | None = None, **kwargs) -> None:  # noqa: ANN002, ANN003 - click.Group's
+        super().__init__(*args, **kwargs)
+        self.lazy = dict(lazy or {})
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted({*super().list_commands(ctx), *self.lazy})
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        if cmd_name in self.lazy and cmd_name not in self.commands:
+            module, _, attribute = self.lazy[cmd_name].partition(":")
+            self.add_command(getattr(importlib.import_module(module), attribute), cmd_name)
+        return super().get_command(ctx, cmd_name)
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):  # noqa: ANN001, ANN201
+        try:
+            rv = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        except click.exceptions.Abort:
+            fail("aborted")
+        except click.UsageError as err:
+            hint = f" (see '{err.ctx.command_path} --help')" if err.ctx is not None else ""
+            fail(f"{err.format_message()}{hint}")
+        except click.ClickException as err:
+            fail(err.format_message())
+        except InputError as err:
+            fail(err)
+        except OSError as err:
+            fail(describe_os_error(err))
+        except Exception as err:
+            if os.environ.get("UAVPLACE_DEBUG"):
+                raise
+            fail(f"internal error ({type(err).__name__}: {err}); run again with UAVPLACE_DEBUG=1 for the traceback")
+        if not standalone_mode:
+            return rv
+        sys.exit(rv if isinstance(rv, int) else 0)
+
+
+class Metres(click.ParamType):
+    """A length in metres: ``4``, ``4m`` or ``2.5 m``."""
+
+    name = "metres"
+
+    def convert(self, value, param, ctx):  # noqa: ANN001, ANN201 - click's signature
+        if isinstance(value, float | int):
+            return float(value)
+        text = str(value).strip().lower().removesuffix("m").strip()
+        try:
+            return float(text)
+        except ValueError:
+            self.fail(f"{value!r} is not a length in metres (e.g. 4m, 2.5)", param, ctx)
+
+
+class Bounds(click.ParamType):
+    """``auto``, ``receivers``, ``buildings`` or ``XMIN,YMIN,XMAX,YMAX`` in metres."""
+
+    name = "bounds"
+
+    def convert(self, value, param, ctx):  # noqa: ANN001, ANN201 - click's signature
+        if value in ("auto", "receivers", "buildings") or isinstance(value, tuple):
+            return value
+        try:
+            box = tuple(float(v) for v in str(value).split(","))
+        except ValueError:
+            box = ()
+        if len(box) != 4:
+            self.fail(f"{value!r}: expected auto, receivers, buildings or XMIN,YMIN,XMAX,YMAX", param, ctx)
+        return box
+
+
+_CONTEXT = {"help_option_names": ["-h", "--help"], "max_content_width": 100}
+
+
+@click.group(
+    cls=UavGroup,
+    context_settings=_CONTEXT,
+    lazy={
+        "ingest": "uavplace.ingest.cli:ingest",
+        "simulate": "uavplace.simulate.cli:simulate",
+        "build": "uavplace.dataset.cli:build",
+        "list": "uavplace.dataset.cli:list_",
+        "show": "uavplace.dataset.cli:show",
+    },
+)
+@click.version_option(package_name="uavplace", prog_name="uavdata")
+def uavdata() -> None:
+    """uavplace data pipeline: raw ray-tracer exports -> validated tables -> map bundles.
+
+    \b
+    Typical use on a new city:
+      uavdata ingest data/raw/cityA/
+      uavdata build --grid 4m --alt 10 --noise-dbm -68
+    (-68 dBm of noise plus interference is the level the embedded cities and
+    the shipped agents are calibrated at; see the README.)
+    """
+
+
+@click.group(
+    cls=UavGroup,
+    context_settings=_CONTEXT,
+    lazy={
+        "datasets": "uavplace.rl.cli:datasets",
+        "baselines": "uavplace.rl.cli:baselines",
+        "train": "uavplace.rl.cli:train",
+        "report": "uavplace.eval.cli:report",
+    },
+)
+@click.version_option(package_name="uavplace", prog_name="uavrl")
+def uavrl() -> None:
+    """UAV placement agents: the datasets they can use, training and reports."""
+
+
+@uavdata.command()
+@click.argument("model", required=False, type=click.Choice(sorted(SCHEMA_MODELS)))
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Write one <name>.schema.json per contract into this folder instead of printing.",
+)
+def schema(model: str | None, out_dir: Path | None) -> None:
+    """Print the JSON schema of the contracts (all, or MODEL), so other tools can validate our outputs.
+
+    Table contracts (receivers, transmitters, buildings, building_parts) come
+    as the JSON schema of one row, with units and descriptions per column.
+    """
+    out = stdout()
+    schemas = json_schemas()
+    if model:
+        schemas = {model: schemas[model]}
+    if out_dir is None:
+        out.print_json(json.dumps(schemas if not model else schemas[model]))
+        return
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for name, s in schemas.items():
+        (out_dir / f"{name}.schema.json").write_text(json.dumps(s, indent=2) + "\n", encoding="utf-8")
+    out.print(f"wrote {len(schemas)} schema(s) to {out_dir}")
+
+
+if __name__ == "__main__":  # python -m uavplace.schemas.cli uavdata|uavrl ...: the console scripts without them
+    group = {"uavdata": uavdata, "uavrl": uavrl}.get(sys.argv[1] if len(sys.argv) > 1 else "")
+    if group is None:
+        fail("usage: python -m uavplace.schemas.cli uavdata|uavrl COMMAND ...")
+    sys.argv = [sys.argv[1], *sys.argv[2:]]
+    group()

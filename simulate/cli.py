@@ -1,0 +1,240 @@
+"""``uavdata simulate``: ray-trace procedural or open cities into Wireless InSite exports (registered in ``schemas.cli``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+from uavplace.schemas.cli import Bounds, Metres, command_line, console, fail, stdout
+from uavplace.schemas.files import check_name
+
+
+class Point(click.ParamType):
+    """``X,Y`` in metres."""
+
+    name = "x,y"
+
+    def convert(self, value, param, ctx):  # noqa: ANN001, ANN201 - click's signature
+        if isinstance(value, tuple):
+            return value
+        try:
+            x, y = (float(v) for v in str(value).split(","))
+        except ValueError:
+            self.fail(f"{value!r}: expected X,Y in metres", param, ctx)
+        return (x, y)
+
+
+@click.command()
+@click.argument("sources", metavar="SOURCE...", nargs=-1, required=True)
+@click.option(
+    "--name",
+    required=True,
+    help="City name: the exports go to OUT/<name>/; with several cities, OUT/<name>-000/, OUT/<name>-001/, ...",
+)
+@click.option(
+    "--count",
+    type=click.IntRange(min=1),
+    default=1,
+    show_default=True,
+    help="Cities to draw from one procedural SOURCE, seeds SEED, SEED+1, ... (a corpus).",
+)
+@click.option(
+    "--ray-address",
+    default=None,
+    help="Ray cluster to run a corpus on (e.g. ray://head:10001, or auto); default: a local Ray on this machine.",
+)
+@click.option(
+    "--cpus-per-city",
+    type=click.FloatRange(min=0.5),
+    default=2.0,
+    show_default=True,
+    help="CPUs each city's Ray task reserves (the ray tracer uses all it is given).",
+)
+@click.option(
+    "--out",
+    "out_root",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("data/raw"),
+    show_default=True,
+    help="Folder of raw city exports.",
+)
+@click.option(
+    "--users",
+    "num_users",
+    type=click.IntRange(min=1),
+    default=27,
+    show_default=True,
+    help="Users (ground transmitters at 1.5 m) sampled uniformly over open ground.",
+)
+@click.option(
+    "--user",
+    "users_m",
+    type=Point(),
+    multiple=True,
+    help="Place a user at X,Y instead of sampling (repeatable; overrides --users).",
+)
+@click.option("--grid", "grid_m", type=Metres(), default="4m", show_default=True, help="Receiver grid spacing.")
+@click.option(
+    "--alt", "altitude_m", type=Metres(), default="10m", show_default=True, help="Receiver grid height (the UAV altitude)."
+)
+@click.option("--extent", type=Bounds(), default=None, help="Grid extent XMIN,YMIN,XMAX,YMAX [m] (default: the city's bounds).")
+@click.option(
+    "--crop",
+    type=Bounds(),
+    default=None,
+    help="Real geometry only: keep the buildings inside XMIN,YMIN,XMAX,YMAX [m] (clipped; counted) and make that the city.",
+)
+@click.option("--freq", "frequency_hz", type=float, default=800e6, show_default=True, help="Carrier frequency [Hz].")
+@click.option("--tx-dbm", type=float, default=20.0, show_default=True, help="User transmit power [dBm].")
+@click.option("--samples", type=float, default=1e6, show_default=True, help="Rays per user (Sionna samples_per_tx).")
+@click.option("--depth", type=click.IntRange(min=0), default=5, show_default=True, help="Maximum interactions per path.")
+@click.option("--no-diffraction", is_flag=True, help="Switch edge diffraction off (faster, more dead cells).")
+@click.option(
+    "--gap-fill",
+    default="4,16",
+    show_default=True,
+    help="Coarser maps (cell x factor, same samples) whose cells fill Monte Carlo gaps of the grid; "
+    "'none' to keep gaps as unreached.",
+)
+@click.option(
+    "--gap-fill-method",
+    type=click.Choice(["smooth", "parent"]),
+    default="smooth",
+    show_default=True,
+    help="smooth: a gap takes the level of the coarse map and the variation of its nearest hit cells, never across "
+    "a building; parent: the coarse cell's mean, copied (the first version: 4 x 4 and 16 x 16 mosaics).",
+)
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the city generator, the users and the ray sampler.")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+def simulate(
+    sources: tuple[str, ...],
+    name: str,
+    count: int,
+    ray_address: str | None,
+    cpus_per_city: float,
+    out_root: Path,
+    num_users: int,
+    users_m: tuple,
+    grid_m: float,
+    altitude_m: float,
+    extent,
+    crop,
+    frequency_hz: float,
+    tx_dbm: float,
+    samples: float,
+    depth: int,
+    no_diffraction: bool,
+    gap_fill: str,
+    gap_fill_method: str,
+    seed: int,
+    quiet: bool,
+) -> None:
+    """Ray-trace cities with Sionna RT and write each as Wireless InSite exports in OUT/<name>/.
+
+    \b
+    SOURCE is one of:
+      procedural:train|test|tiny   the original generator (552 x 500, 400 x 500, 96 x 80 m)
+      procedural:STYLE[:WxH]       generator v2: grid, rotated, perimeter, towers, organic,
+                                   plazas, oldtown (narrow lanes), or mixed (the first six
+                                   styles in turn by seed); 400 x 400 m
+      an InSite .city, a GeoJSON of footprints (OpenStreetMap heights and levels understood)
+      a Mitsuba .xml scene with its PLY/OBJ meshes, or sionna:etoile, sionna:florence (the
+      scenes Sionna RT ships): a building per connected body, no ground, roofs in height tiers
+    Several SOURCEs, or --count N, make a corpus (OUT/<name>-000/, ...), traced as Ray
+    tasks on a local Ray (or --ray-address); cities already done with the same settings
+    are skipped, so running the command again resumes it.
+    Each city gets <name>.txrx (users and the receiver grid), <name>.setup, <name>.city,
+    one <name>.power.tNNN_01.r002.p2m.gz per user and simulation.json (every parameter,
+    package versions, materials, wall time). Then: uavdata ingest OUT/<name>/ && uavdata build.
+    Needs the raytrace extra: pip install -e '.[raytrace]' (CPU: libllvm19).
+    """
+    from uavplace.simulate.corpus import corpus_specs
+    from uavplace.simulate.pipeline import SimulationSpec, simulate_city
+    from uavplace.simulate.raytrace import RayTraceConfig
+
+    check_name(name, "city name")
+    for value, hint in ((extent, "--extent"), (crop, "--crop")):
+        if isinstance(value, str):
+            raise click.BadParameter("expected XMIN,YMIN,XMAX,YMAX", param_hint=hint)
+    base = SimulationSpec(source=sources[0], name=name, num_users=len(users_m) or num_users, grid_m=grid_m, altitude_m=altitude_m,
+                          tx_dbm=tx_dbm, seed=seed, extent_m=extent, users_m=tuple(users_m), crop_m=crop)  # fmt: skip
+    specs = corpus_specs(list(sources), name, count, base)
+    try:
+        factors = () if gap_fill == "none" else tuple(int(f) for f in gap_fill.split(","))
+    except ValueError:
+        raise click.BadParameter(f"{gap_fill!r}: expected factors like 4,16, or none", param_hint="--gap-fill") from None
+    if any(f < 2 for f in factors):
+        raise click.BadParameter("factors must be >= 2", param_hint="--gap-fill")
+    rt = RayTraceConfig(
+        frequency_hz=frequency_hz,
+        samples_per_tx=int(samples),
+        max_depth=depth,
+        diffraction=not no_diffraction,
+        seed=seed,
+        gap_fill_factors=factors,
+        gap_fill_method=gap_fill_method,
+    )
+    if len(specs) > 1 or ray_address is not None:
+        _simulate_corpus(specs, rt, out_root, ray_address, cpus_per_city, quiet)
+        return
+    lines = not quiet and not console.is_terminal  # a log: a line per step instead of a bar
+    try:
+        with Progress(TextColumn("[bold]simulate[/] {task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                      console=console, disable=quiet or lines, transient=True) as progress:  # fmt: skip
+            task = progress.add_task(name, total=None)
+
+            def on_progress(stage: str, done: int, total: int) -> None:
+                progress.update(task, description=f"{name}: {stage}", completed=done, total=total)
+                if lines and done:
+                    console.print(f"simulate {name}: {stage} {done}/{total}", highlight=False, markup=False)
+
+            folder, record = simulate_city(specs[0], rt, out_root, command=command_line(), on_progress=on_progress)
+    except RuntimeError as err:  # Sionna RT missing or its child process failed
+        fail(err)
+    g = record["grid"]
+    stdout().print(
+        f"simulated {name}: {record['geometry']}, {len(record['users_m'])} users, "
+        f"grid {g['num_x']} x {g['num_y']} at {g['spacing_m']:g} m and {g['altitude_m']:g} m, "
+        f"{100 * record['unreached_cell_share']:.1f} % of user-cells unreached "
+        f"({100 * record['gap_filled_cell_share']:.1f} % Monte Carlo gaps filled), ray tracing {record['raytrace_seconds']:.1f} s "
+        f"(wall {record['wall_seconds']:.1f} s) -> {folder}",
+        highlight=False,
+        soft_wrap=True,
+    )
+
+
+def _simulate_corpus(specs, rt, out_root: Path, address: str | None, cpus_per_city: float, quiet: bool) -> None:  # noqa: ANN001
+    """Several cities as Ray tasks, one progress bar (a line per city when not on a terminal), resumable."""
+    from uavplace.simulate.corpus import simulate_corpus
+
+    out = stdout()
+    lines = quiet or not console.is_terminal
+    columns = (
+        TextColumn("[bold]simulate[/] corpus"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+    )
+    with Progress(*columns, console=console, disable=lines, transient=True) as progress:
+        bar = progress.add_task("corpus", total=len(specs))
+
+        def on_city(summary: dict, done: int, total: int) -> None:
+            progress.update(bar, completed=len(specs) - total + done)
+            if lines and not quiet:
+                out.print(f"[{done}/{total}] simulated {summary['name']}: {summary['geometry']} ({summary['seconds']:.0f} s) "
+                          f"-> {summary['folder']}", highlight=False, soft_wrap=True, markup=False)  # fmt: skip
+
+        try:
+            done, skipped = simulate_corpus(specs, rt, out_root, command=command_line(), address=address,
+                                            cpus_per_city=cpus_per_city, on_city=on_city)  # fmt: skip
+        except RuntimeError as err:
+            fail(err)
+    out.print(
+        f"simulated {len(done)} of {len(specs)} cities into {out_root}"
+        + (f"; {len(skipped)} already done with the same settings: {', '.join(skipped)}" if skipped else ""),
+        highlight=False,
+        soft_wrap=True,
+    )

@@ -1,0 +1,64 @@
+"""uavplace installs under one import namespace, beside distributions that took its folders' names on PyPI."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+from tests.conftest import REPO
+
+STAGES = ("schemas", "ingest", "simulate", "dataset", "rl", "eval")
+
+
+def _python(code: str, cwd: Path) -> str:
+    """Run ``code`` in a fresh interpreter outside the repository (its top-level folders are then not on sys.path)."""
+    proc = subprocess.run([sys.executable, "-c", code], cwd=cwd, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    return proc.stdout
+
+
+def test_beside_the_dataset_distribution(tmp_path):
+    """``dataset`` 2.0.0 (a database toolkit; the test extra installs it) and ``uavplace.dataset`` import together,
+    each is itself, and ``uavdata --help`` still works."""
+    out = _python(
+        "import importlib.metadata as m, dataset, uavplace.dataset.bundle as ours\n"
+        "db = dataset.connect('sqlite:///:memory:')\n"  # the toolkit's own API: the real distribution, not our folder
+        "db['t'].insert({'x': 1})\n"
+        "print(m.version('dataset'), db['t'].count(), dataset.__file__, ours.__file__)\n",
+        tmp_path,
+    )
+    version, rows, theirs, ours = out.split()
+    assert version == "2.0.0" and rows == "1"
+    assert not Path(theirs).is_relative_to(REPO / "dataset") and Path(ours) == REPO / "dataset" / "bundle.py"
+    proc = subprocess.run([str(Path(sys.executable).parent / "uavdata"), "--help"], cwd=tmp_path, capture_output=True, text=True)
+    assert proc.returncode == 0 and "ingest" in proc.stdout and "simulate" in proc.stdout
+
+
+def test_no_stage_is_a_top_level_module(tmp_path):
+    """Outside the repository, no stage folder is importable by its bare name (only other distributions' modules are)."""
+    out = _python(
+        "import importlib.util, json\n"
+        f"print(json.dumps({{n: getattr(importlib.util.find_spec(n), 'origin', None) for n in {STAGES!r}}}))\n",
+        tmp_path,
+    )
+    import json
+
+    for name, origin in json.loads(out).items():
+        assert origin is None or not Path(origin).is_relative_to(REPO / name), (name, origin)  # e.g. PyPI's dataset
+
+
+def test_a_command_loads_only_its_own_stage(tmp_path):
+    """``uavdata ingest --help`` loads the ingest stage's command, not the ray tracer, the bundles or the agents."""
+    out = _python(
+        "import sys\n"
+        "from uavplace.schemas.cli import uavdata\n"
+        "try:\n"
+        "    uavdata.main(['ingest', '--help'], standalone_mode=False)\n"
+        "finally:\n"
+        "    print(' '.join(sorted(m for m in sys.modules if m.startswith('uavplace.') or m in ('torch', 'ray'))))\n",
+        tmp_path,
+    )
+    loaded = set(out.splitlines()[-1].split())
+    assert "uavplace.ingest.cli" in loaded
+    assert not loaded & {"uavplace.simulate.cli", "uavplace.dataset.cli", "uavplace.rl.cli", "uavplace.eval.cli", "torch", "ray"}
