@@ -106,12 +106,15 @@ def report(
 
 def _one_report(config, out: Path, root: Path, quiet: bool):
     """``make_report`` with a progress bar per method."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     from uavplace.eval.report import make_report
 
     tasks: dict[str, int] = {}
-    columns = (TextColumn("[bold]report[/] {task.description:<20}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    columns = (
+        TextColumn("[bold]report[/] {task.description:<20}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+        TextColumn("eta"), TimeRemainingColumn(),
+    )  # fmt: skip
     with Progress(*columns, console=stdout(), disable=quiet) as bar:
 
         def on_progress(method: str, done: int, total: int) -> None:

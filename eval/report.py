@@ -303,26 +303,34 @@ TRAJECTORY_RULES = (
 )
 
 
+def _rule_text(rule: str) -> str:
+    """The ``TRAJECTORY_RULES`` entry of a pick's rule name (``longest success`` is the failure rule's fallback)."""
+    name = "failure" if rule == "longest success" else rule
+    return next(r for r in TRAJECTORY_RULES if r.startswith(name + ":"))
+
+
 def pick_trajectories(results: dict[str, pd.DataFrame], agent: str, count: int) -> list[tuple[int, str]]:
-    """``(episode, rule name)`` for the first ``count`` of ``TRAJECTORY_RULES``, distinct episodes (ties: the lowest number)."""
+    """``(episode, rule name)`` for the first ``count`` of ``TRAJECTORY_RULES``, distinct episodes (ties: the lowest
+    number); a rule with no episode to show (no success, no failure) is skipped."""
     df = results[agent]
     ok = df[df["success"]].sort_values(["steps", "episode"])
-    if ok.empty or count == 0:
-        return []
-    stats = summarise(df)
-    median = stats["median_steps"] if np.isfinite(stats["median_steps"]) else float(ok["steps"].max())
+    failed = df[~df["success"]].sort_values("episode")
     picks: list[tuple[int, str]] = []
 
     def add(episode: int, rule: str) -> None:
         if episode not in [e for e, _ in picks]:
             picks.append((int(episode), rule))
 
-    by_median = ok.assign(d=(ok["steps"] - median).abs()).sort_values(["d", "episode"])
-    add(by_median["episode"].iloc[0], "median")
-    p90 = np.quantile(ok["steps"].to_numpy(), 0.9, method="inverted_cdf")
-    add(ok[ok["steps"] == p90]["episode"].iloc[0], "p90")
-    failed = df[~df["success"]].sort_values("episode")
-    add(failed["episode"].iloc[0] if len(failed) else ok["episode"].iloc[-1], "failure" if len(failed) else "longest success")
+    if len(ok):
+        median = summarise(df)["median_steps"]
+        median = median if np.isfinite(median) else float(ok["steps"].max())
+        add(ok.assign(d=(ok["steps"] - median).abs()).sort_values(["d", "episode"])["episode"].iloc[0], "median")
+        p90 = np.quantile(ok["steps"].to_numpy(), 0.9, method="inverted_cdf")
+        add(ok[ok["steps"] == p90]["episode"].iloc[0], "p90")
+    if len(failed):
+        add(failed["episode"].iloc[0], "failure")
+    elif len(ok):
+        add(ok["episode"].iloc[-1], "longest success")
     return picks[:count]
 
 
@@ -384,7 +392,7 @@ def plot_trajectories(
     n = len(df)
     caption = (
         f"{agent}: {len(picks)} of its {n} episodes in {bundle.city}, chosen by rule, not by eye: "
-        + "; ".join(r for r in TRAJECTORY_RULES[: len(picks)])
+        + "; ".join(dict.fromkeys(_rule_text(rule) for _, rule in picks))
         + ". Top: building height minus the flight altitude (blocked cells, where buildings rise above the UAV, inside "
         "the white edges). Bottom: the user's SINR map; grey: dead cells (no ray reached them); cyan contour: the "
         f"cells at or above P_T = {p_t_db:g} dB. Red: the UAV's path; green circle: start; red square: end; star: the user."

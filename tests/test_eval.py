@@ -177,3 +177,19 @@ def test_report_refuses_the_training_city(tmp_path, two_cities):
     res = CliRunner().invoke(uavrl, ["report", "--run", str(run), "--dataset", "citya", "--root", str(root), "--out", str(tmp_path / "r"),
                                      "--episodes", "5", "--quiet"])  # fmt: skip
     assert res.exit_code == 2 and "trained in citya" in res.output and not (tmp_path / "r").exists()
+
+
+def test_trajectories_are_picked_by_the_stated_rule():
+    from uavplace.eval.report import pick_trajectories
+
+    # 10 episodes: successes in 5, 9, 12, 20, 30, 40, 60 steps and 3 failures; median steps to P_T (failures
+    # infinite) is the 5th order statistic, 30; the successes' 90th percentile is their 7th, 60.
+    df = episodes([5, 9, 12, 20, 30, 40, 60, 500, 500, 500], [1, 1, 1, 1, 1, 1, 1, 0, 0, 0])
+    df = df.assign(success=df["success"].astype(bool))
+    assert pick_trajectories({"a": df}, "a", 3) == [(4, "median"), (6, "p90"), (7, "failure")]
+    assert pick_trajectories({"a": df}, "a", 1) == [(4, "median")]
+    never = df.assign(success=False)
+    assert pick_trajectories({"a": never}, "a", 3) == [(0, "failure")]
+    always = df.assign(success=True, steps=[5, 9, 12, 20, 30, 40, 60, 70, 80, 90])
+    # median 30 (episode 4), p90 80 (episode 8), no failure: the longest success (episode 9).
+    assert pick_trajectories({"a": always}, "a", 3) == [(4, "median"), (8, "p90"), (9, "longest success")]
