@@ -448,7 +448,7 @@ _CSS = """body{font-family:system-ui,sans-serif;max-width:1200px;margin:2em auto
 table{border-collapse:collapse;margin:1em 0;font-size:14px}td,th{border:1px solid #ccc;padding:4px 8px;text-align:right}
 td:first-child,th:first-child{text-align:left}th{background:#f3f3f3}img{max-width:100%}
 figure{margin:1.5em 0}figcaption{font-size:14px;color:#333;max-width:1000px}
-pre{background:#f7f7f7;padding:8px;overflow-x:auto;font-size:12px}.prov td{text-align:left;vertical-align:top}"""
+pre{background:#f7f7f7;padding:8px;overflow-x:auto;font-size:12px}.prov td,.prov th{text-align:left;vertical-align:top}"""
 
 
 def render_section(config: ReportConfig, rows: list[list[str]], figures: dict[str, Figure | None], provenance: dict,
