@@ -89,17 +89,12 @@ def report(
         folder = out if out and len(datasets) == 1 else (out or Path("reports")) / city
         result = _one_report(config, folder, root, quiet)
         reports.append(result)
-        table = plain_table(*result.rows[0], title=f"{episodes} episodes in {dataset} (t_max {t_max}, P_T {p_t_db:g} dB)")
-        for r in result.rows[1:]:
-            table.add_row(*r)
-        stdout().print(table)
+        title = f"{episodes} episodes in {dataset} (t_max {t_max}, P_T {p_t_db:g} dB)"
+        stdout().print(plain_table(*result.rows[0], rows=result.rows[1:], title=title))
         stdout().print(f"report: {result.out / 'report.html'}", highlight=False, soft_wrap=True)
     if len(datasets) > 1:
         rows = summary_rows(reports, t_max)
-        table = plain_table(*rows[0], title="success / median steps per method and city")
-        for r in rows[1:]:
-            table.add_row(*r)
-        stdout().print(table)
+        stdout().print(plain_table(*rows[0], rows=rows[1:], title="success / median steps per method and city"))
         page = write_summary_page(reports, out or Path("reports"), t_max)
         stdout().print(f"report (every city): {page}", highlight=False, soft_wrap=True)
 

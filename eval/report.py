@@ -43,9 +43,9 @@ from uavplace.schemas.files import atomic_directory, atomic_write_text, check_re
 
 #: The paper's test-city results (docs/method.md, "The paper's results"): success within t_max = 500, median steps.
 PAPER = {
-    "dqn": {"label": "proposed (topology + SINR)", "row": "proposed", "success": 0.90, "median_steps": 44.0},
-    "blind": {"label": "blind (SINR only)", "row": "blind", "success": 0.66, "median_steps": 69.0},
-    "genie": {"label": "genie", "row": "genie", "success": 1.00, "median_steps": 14.0},
+    "dqn": {"row": "proposed", "success": 0.90, "median_steps": 44.0},
+    "blind": {"row": "blind", "success": 0.66, "median_steps": 69.0},
+    "genie": {"row": "genie", "success": 1.00, "median_steps": 14.0},
 }
 BASELINES = (GeniePolicy.name, RandomWalkPolicy.name, GreedyPolicy.name)
 #: Episodes in the training curves' running mean (the paper's 100).
@@ -295,18 +295,14 @@ def plot_training(agents: list[Agent], bounds: dict[str, float], out: Path, note
     return Figure(out, caption)
 
 
-#: How the trajectories figure picks the shown agent's episodes, in order (``ReportConfig.trajectories`` of them).
-TRAJECTORY_RULES = (
-    "median: the success whose steps are closest to the agent's median steps to P_T",
-    "p90: the success at the 90th percentile of the successes' steps",
-    "failure: the first failed episode (none: the longest success)",
-)
-
-
-def _rule_text(rule: str) -> str:
-    """The ``TRAJECTORY_RULES`` entry of a pick's rule name (``longest success`` is the failure rule's fallback)."""
-    name = "failure" if rule == "longest success" else rule
-    return next(r for r in TRAJECTORY_RULES if r.startswith(name + ":"))
+#: How the trajectories figure picks the shown agent's episodes, in order (``ReportConfig.trajectories`` of them):
+#: rule name -> what it picks (``longest success`` stands in for ``failure`` when the agent never fails).
+TRAJECTORY_RULES = {
+    "median": "median: the success whose steps are closest to the agent's median steps to P_T",
+    "p90": "p90: the success at the 90th percentile of the successes' steps",
+    "failure": "failure: the first failed episode (none: the longest success)",
+}
+TRAJECTORY_RULES["longest success"] = TRAJECTORY_RULES["failure"]
 
 
 def pick_trajectories(results: dict[str, pd.DataFrame], agent: str, count: int) -> list[tuple[int, str]]:
@@ -392,7 +388,7 @@ def plot_trajectories(
     n = len(df)
     caption = (
         f"{agent}: {len(picks)} of its {n} episodes in {bundle.city}, chosen by rule, not by eye: "
-        + "; ".join(dict.fromkeys(_rule_text(rule) for _, rule in picks))
+        + "; ".join(dict.fromkeys(TRAJECTORY_RULES[rule] for _, rule in picks))
         + ". Top: building height minus the flight altitude (blocked cells, where buildings rise above the UAV, inside "
         "the white edges). Bottom: the user's SINR map; grey: dead cells (no ray reached them); cyan contour: the "
         f"cells at or above P_T = {p_t_db:g} dB. Red: the UAV's path; green circle: start; red square: end; star: the user."
@@ -430,7 +426,7 @@ def table_rows(table: pd.DataFrame, t_max: int) -> list[list[str]]:
     rows = [header]
     for r in table.to_dict("records"):
         cells = [r["method"]]
-        cells += [format_stat(s, r[s], r[f"{s}_lo"], r[f"{s}_hi"]).replace("> t_max", f"> {t_max}") for s in STATS]
+        cells += [format_stat(s, r[s], r[f"{s}_lo"], r[f"{s}_hi"], t_max) for s in STATS]
         key = _paper_key(r["method"])
         cells += ["-" if np.isnan(r["paper_success"]) else f"{100 * r['paper_success']:.0f} % ({PAPER[key]['row']})"]
         cells += ["-" if np.isnan(r["paper_median_steps"]) else f"{r['paper_median_steps']:g} ({PAPER[key]['row']})"]
@@ -438,10 +434,11 @@ def table_rows(table: pd.DataFrame, t_max: int) -> list[list[str]]:
     return rows
 
 
-def _html_table(rows: list[list[str]]) -> str:
+def _html_table(rows: list[list[str]], css_class: str | None = None) -> str:
     head = "".join(f"<th>{html.escape(c)}</th>" for c in rows[0])
     body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows[1:])
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+    opening = "<table>" if css_class is None else f'<table class="{css_class}">'
+    return f"{opening}<thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
 _CSS = """body{font-family:system-ui,sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;color:#222}
@@ -496,7 +493,7 @@ def provenance_table(provenances: list[dict]) -> str:
                      f"selected on {selected}; {chosen}"])  # fmt: skip
         for i, cmd in enumerate(a["commands"] or ["(not recorded)"]):
             rows.append([f"agent {name}: command {i + 1}", cmd])
-    return _html_table(rows).replace("<table>", '<table class="prov">', 1)
+    return _html_table(rows, "prov")
 
 
 def render_page(
@@ -648,8 +645,9 @@ def summary_rows(reports: list[Report], t_max: int) -> list[list[str]]:
     cells: dict[str, dict[str, str]] = {}
     for city, r in zip(cities, reports, strict=True):
         for rec in r.table.to_dict("records"):
-            cell = " / ".join(format_stat(s, rec[s]) for s in ("success", "median_steps"))
-            cells.setdefault(rec["method"], {})[city] = cell.replace("> t_max", f"> {t_max}")
+            cells.setdefault(rec["method"], {})[city] = " / ".join(
+                format_stat(s, rec[s], t_max=t_max) for s in ("success", "median_steps")
+            )
     return [["method", *(f"{c}: success / median steps" for c in cities)]] + [
         [m, *(c.get(city, "-") for city in cities)] for m, c in cells.items()
     ]

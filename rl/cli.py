@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
-from rich.table import Table
 
 from uavplace.dataset.bundle import list_versions, read_latest
 from uavplace.dataset.catalog import list_cities
@@ -73,13 +72,13 @@ def baselines(
     config = EnvConfig(t_max=t_max, p_t_db=p_t_db, split=split, rotate=False)
     maps = MapSet.load(list(datasets), config, root=str(root))
     eps = maps.sample_episodes(episodes, np.random.default_rng(seed))
-    table = Table("method", *STATS.values())
+    table = plain_table("method", *STATS.values())
     with Progress(console=stdout(), transient=True) as progress:
         for policy in (GeniePolicy(), RandomWalkPolicy(seed=seed), GreedyPolicy(config.p_h_db, seed=seed)):
             task = progress.add_task(policy.name, total=episodes)
             df = run_episodes(maps, policy, eps, on_step=lambda d, t, task=task: progress.update(task, completed=d))
             s = summarise(df)
-            table.add_row(policy.name, *(format_stat(k, s[k]).replace("> t_max", f"> {t_max}") for k in STATS))
+            table.add_row(policy.name, *(format_stat(k, s[k], t_max=t_max) for k in STATS))
     stdout().print(table)
 
 

@@ -149,15 +149,17 @@ def episode_stats(steps: np.ndarray, success: np.ndarray, genie_steps: np.ndarra
     }
 
 
-def format_stat(stat: str, value: float, lo: float | None = None, hi: float | None = None) -> str:
-    """A table cell: percentages for shares, ``> t_max`` for infinite steps, ``[lo, hi]`` when given."""
+def format_stat(stat: str, value: float, lo: float | None = None, hi: float | None = None, t_max: int | None = None) -> str:
+    """A table cell: percentages for shares, ``> t_max`` (``> 500`` with ``t_max``) for infinite steps, ``[lo, hi]``
+    when given."""
     share = stat in ("success", "within_100")
+    beyond = "> t_max" if t_max is None else f"> {t_max}"
 
     def one(v: float) -> str:
         if share:
             return f"{100 * v:.1f} %"
         if np.isinf(v):
-            return "> t_max"
+            return beyond
         if np.isnan(v):
             return "-"
         return f"{v:.2f}" if stat == "steps_over_genie" else f"{v:.1f}" if stat == "mean_steps_success" else f"{v:g}"

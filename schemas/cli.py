@@ -56,11 +56,13 @@ def fail(err: Exception | str) -> NoReturn:
     sys.exit(2)
 
 
-def plain_table(*headers: str, **kwargs) -> Table:  # noqa: ANN003 - rich.table.Table's options
-    """A rich table whose headers are text, not markup: units such as ``[m]`` stay visible."""
+def plain_table(*headers: str, rows: list[list[str]] = (), **kwargs) -> Table:  # noqa: ANN003 - rich.table.Table's options
+    """A rich table whose headers are text, not markup: units such as ``[m]`` stay visible; ``rows`` are added."""
     table = Table(**kwargs)
     for header in headers:
         table.add_column(Text(header))
+    for row in rows:
+        table.add_row(*row)
     return table
 
 
