@@ -4,7 +4,9 @@ For each city, users are placed as `simulate` places them, the radio maps are
 traced once (the grid and the coarser gap-fill maps), and every gap-fill
 method is applied to the same maps. The reference is Sionna's ``PathSolver``
 with one receiver per sampled cell centre (every path found, as InSite
-computes them; the paths' powers summed, which is what a radio map estimates).
+computes them; the paths' powers summed, which is what a radio map estimates; a path buffer of
+``PATHS_PER_POINT`` candidates per cell, so that no cell loses paths to the others; an isotropic
+receiver, as the radio map's).
 Printed per city and method:
 
 - the median and p90 absolute error [dB] over the (user, cell) pairs that both call live;
@@ -29,6 +31,7 @@ import numpy as np
 from uavplace.simulate.pipeline import SimulationSpec, load_geometry, open_cells, place_users, receiver_grid, squared_distances
 from uavplace.simulate.raytrace import (
     FILL_METHODS,
+    PATHS_PER_POINT,
     RadioMapJob,
     RayTraceConfig,
     constant_patch_share,
@@ -59,7 +62,7 @@ def measure(source: str, crop, users: int, cells: int, samples: float, seed: int
     rng = np.random.default_rng(seed)
     flat = rng.choice(np.flatnonzero(opened.ravel()), size=min(cells, int(opened.sum())), replace=False)
     points = grid.points()[flat]
-    key = f"{source}-{crop}-{users}-{cells}-{samples:g}-{seed}".replace("/", "_").replace(" ", "")
+    key = f"{source}-{crop}-{users}-{cells}-{samples:g}-{seed}-{PATHS_PER_POINT}-isorx".replace("/", "_").replace(" ", "")
     cached = cache / f"{key}.npz" if cache is not None else None
     if cached is not None and cached.is_file():
         with np.load(cached, allow_pickle=False) as z:

@@ -11,13 +11,17 @@ samples every ``train_every`` env steps), on the embedded train city:
 
 It prints env steps/s and gradient updates/s of each, measured in the same run after the same
 warm-up, and the ratio. ``--memory`` instead fills a paper-preset replay buffer (5e5 transitions)
-and reports the run's peak RSS.
+and reports the run's peak RSS. ``--to-target`` trains both to a validation success (the
+preset's schedule of epsilon and learning rate, both evaluated every ``--eval-every`` env steps
+by the same function on the same episodes) and prints the wall time each took to reach it,
+evaluations included.
 
     pip install -e '.[bench]'      # adds tianshou
     uavdata ingest data/raw/train/ && uavdata build --grid 4m --alt 10 --noise-dbm -68 --split train=train
     python benchmarks/bench_train.py [--steps 20000] [--preset best]
     python benchmarks/bench_train.py --memory
     python benchmarks/bench_train.py --corpus corpus      # the train city alone against the corpus and it
+    python benchmarks/bench_train.py --to-target 0.9 [--budget 150000] [--eval-every 10000]
 """
 
 from __future__ import annotations
@@ -55,14 +59,15 @@ def bench_ours(config: DQNConfig, dataset: str | list[str], root: str, steps: in
         }
 
 
-def bench_tianshou(config: DQNConfig, dataset: str, root: str, steps: int, warmup: int) -> dict:
+def tianshou_dqn(config: DQNConfig, dataset: str, root: str):  # noqa: ANN201 - (algorithm, policy, collector, our network)
+    """Tianshou's double DQN over a ``DummyVectorEnv`` of our Gymnasium env, on our Q-network, with the
+    preset's learning rate annealed linearly over the updates of ``config.total_steps``."""
     import gymnasium as gym
     from tianshou.algorithm import DQN
     from tianshou.algorithm.modelfree.dqn import DiscreteQLearningPolicy
-    from tianshou.algorithm.optim import AdamOptimizerFactory
+    from tianshou.algorithm.optim import AdamOptimizerFactory, LRSchedulerFactory
     from tianshou.data import Collector, VectorReplayBuffer
     from tianshou.env import DummyVectorEnv
-    from tianshou.utils.torch_utils import policy_within_training_step
 
     import uavplace.rl  # noqa: F401  (registers the environments)
 
@@ -88,6 +93,14 @@ def bench_tianshou(config: DQNConfig, dataset: str, root: str, steps: int, warmu
         def forward(self, obs, state=None, info=None):
             return self.net(torch.as_tensor(obs, dtype=torch.float32)), state
 
+    class LinearLR(LRSchedulerFactory):
+        """lr_start -> lr_end over the run's updates, as our trainer anneals it over its env steps."""
+
+        def create_scheduler(self, optim: torch.optim.Optimizer) -> torch.optim.lr_scheduler.LRScheduler:
+            total = max(1, (config.total_steps - config.learning_starts) // config.train_every)
+            end = config.lr_end / config.lr_start
+            return torch.optim.lr_scheduler.LambdaLR(optim, lambda u: 1.0 + (end - 1.0) * min(u / total, 1.0))
+
     def make_env() -> gym.Env:
         return MaskedObs(gym.make("uavplace/UavPlacement-v0", dataset=dataset, root=root, config=env_cfg))
 
@@ -95,20 +108,28 @@ def bench_tianshou(config: DQNConfig, dataset: str, root: str, steps: int, warmu
     envs = DummyVectorEnv([make_env for _ in range(n)])
     envs.seed(config.seed)
     probe = make_env()
-    policy = DiscreteQLearningPolicy(model=Net(), action_space=probe.action_space, observation_space=probe.observation_space)
+    model = Net()
+    policy = DiscreteQLearningPolicy(model=model, action_space=probe.action_space, observation_space=probe.observation_space)
     algo = DQN(
         policy=policy,
-        optim=AdamOptimizerFactory(lr=config.lr_start),
+        optim=AdamOptimizerFactory(lr=config.lr_start).with_lr_scheduler_factory(LinearLR()),
         gamma=config.gamma,
         n_step_return_horizon=config.n_step,
         target_update_freq=max(1, config.target_update // config.train_every),
         is_double=True,
         huber_loss_delta=1.0,
     )
-    buffer = VectorReplayBuffer(config.buffer_size, n)
-    collector = Collector(algo, envs, buffer, exploration_noise=True)
+    collector = Collector(algo, envs, VectorReplayBuffer(config.buffer_size, n), exploration_noise=True)
     collector.reset()
+    return algo, policy, collector, model.net
+
+
+def bench_tianshou(config: DQNConfig, dataset: str, root: str, steps: int, warmup: int) -> dict:
+    from tianshou.utils.torch_utils import policy_within_training_step
+
+    algo, policy, collector, _ = tianshou_dqn(config, dataset, root)
     policy.set_eps_training(0.1)
+    n = config.num_envs
     updates_per_collect = max(1, n // config.train_every)
     done = updates = 0
     t0 = s0 = u0 = None
@@ -118,12 +139,85 @@ def bench_tianshou(config: DQNConfig, dataset: str, root: str, steps: int, warmu
             done += n
             if done >= config.learning_starts:
                 for _ in range(updates_per_collect):
-                    algo.update(buffer, config.batch_size)
+                    algo.update(collector.buffer, config.batch_size)
                     updates += 1
             if t0 is None and done >= warmup:
                 t0, s0, u0 = time.perf_counter(), done, updates
     dt = time.perf_counter() - t0
     return {"env_steps_per_s": (done - s0) / dt, "updates_per_s": (updates - u0) / dt, "updates": updates}
+
+
+class _Reached(Exception):
+    """Raised from the progress callback to stop our trainer once an evaluation reached the target."""
+
+
+def time_to_target(args: argparse.Namespace) -> None:
+    """Ours and Tianshou's DQN, the preset's schedules on ``--budget`` env steps, each evaluated every
+    ``--eval-every`` steps on the same validation episodes with the same acting rule (``DQNPolicy``:
+    the preset's test epsilon and revisit penalty): the wall time to the first evaluation at or above
+    ``--to-target``, evaluations (and our checkpoints) included."""
+    from tianshou.utils.torch_utils import policy_within_training_step
+
+    from uavplace.rl.agent.dqn import DQNPolicy
+    from uavplace.rl.rollout import run_episodes, summarise
+
+    config = preset_config(
+        args.preset, total_steps=args.budget, eval_every=args.eval_every, seed=args.seed, buffer_size=args.buffer
+    )
+    rows: dict[str, list[tuple[int, float, float]]] = {"uavplace": [], "tianshou": []}  # (step, seconds, success)
+    with tempfile.TemporaryDirectory() as tmp:
+        trainer = Trainer(config, [args.dataset], args.root, Path(tmp) / "run")
+        t0 = time.perf_counter()
+
+        def on_progress(p) -> None:
+            ev = trainer.state.evals
+            if ev and (not rows["uavplace"] or rows["uavplace"][-1][0] != ev[-1]["step"]):
+                rows["uavplace"].append((ev[-1]["step"], time.perf_counter() - t0, ev[-1]["success"]))
+                print(
+                    f"  uavplace  {ev[-1]['step']:>7,} steps  {rows['uavplace'][-1][1]:6.0f} s  {100 * ev[-1]['success']:.1f} %"
+                )
+                if ev[-1]["success"] >= args.to_target:
+                    raise _Reached
+
+        try:
+            trainer.run(on_progress=on_progress)
+        except _Reached:
+            pass
+        eval_maps, episodes = trainer.eval_maps, trainer.eval_episodes
+    algo, policy, collector, net = tianshou_dqn(config, args.dataset, args.root)
+    n = config.num_envs
+    updates_per_collect = max(1, n // config.train_every)
+    done, next_eval, t0 = 0, config.eval_every, time.perf_counter()
+    with policy_within_training_step(policy):
+        while done < config.total_steps:
+            span = config.eps_fraction * config.total_steps
+            policy.set_eps_training(config.eps_start + (config.eps_end - config.eps_start) * min(done / span, 1.0))
+            collector.collect(n_step=n)
+            done += n
+            if done >= config.learning_starts:
+                for _ in range(updates_per_collect):
+                    algo.update(collector.buffer, config.batch_size)
+            if done >= next_eval:
+                next_eval += config.eval_every
+                acting = DQNPolicy(net, config.test_epsilon, seed=config.seed, revisit_penalty=config.test_revisit_penalty)
+                success = summarise(run_episodes(eval_maps, acting, episodes, num_envs=min(256, len(episodes))))["success"]
+                net.train()
+                rows["tianshou"].append((done, time.perf_counter() - t0, success))
+                print(f"  tianshou  {done:>7,} steps  {rows['tianshou'][-1][1]:6.0f} s  {100 * success:.1f} %")
+                if success >= args.to_target:
+                    break
+    print(f"time to {100 * args.to_target:g} % validation success ({args.preset} preset, {args.dataset}, replay "
+          f"{config.buffer_size:,}, {len(episodes)} episodes per evaluation, every {config.eval_every:,} env steps, "
+          f"budget {config.total_steps:,}):")  # fmt: skip
+    reached = {}
+    for name, r in rows.items():
+        hit = next(((step, sec) for step, sec, success in r if success >= args.to_target), None)
+        best = max((success for _, _, success in r), default=float("nan"))
+        reached[name] = hit
+        text = f"{hit[1]:.0f} s at {hit[0]:,} env steps" if hit else f"not reached (best {100 * best:.1f} %)"
+        print(f"  {name:>9}: {text}")
+    if reached["uavplace"] and reached["tianshou"]:
+        print(f"  ratio (tianshou / ours), wall time: {reached['tianshou'][1] / reached['uavplace'][1]:.2f}x")
 
 
 def bench_memory(dataset: str, root: str, extra_steps: int) -> None:
@@ -175,12 +269,26 @@ def main() -> None:
     ap.add_argument("--warmup", type=int, default=4_000, help="env steps before the clock starts (updates already on)")
     ap.add_argument("--memory", action="store_true", help="peak RSS of a paper-preset run with a full replay instead")
     ap.add_argument("--corpus", default=None, help="instead: ours on --dataset alone against the corpus NAME-NNN and it")
+    ap.add_argument("--to-target", type=float, default=None, help="instead: wall time of both to this validation success")
+    ap.add_argument("--budget", type=int, default=150_000, help="--to-target: env steps at most (the preset's schedule)")
+    ap.add_argument("--eval-every", type=int, default=10_000, help="--to-target: env steps between evaluations")
+    ap.add_argument("--seed", type=int, default=0, help="--to-target: seed of both runs")
+    ap.add_argument(
+        "--buffer",
+        type=int,
+        default=50_000,
+        help="--to-target: replay capacity of both (Tianshou keeps float32 observations and next observations, "
+        "88 KB a transition: the best preset's 2e5 took 19.6 GB and was killed for memory)",
+    )
     args = ap.parse_args()
     if args.memory:
         bench_memory(args.dataset, args.root, extra_steps=3_000)
         return
     if args.corpus:
         bench_corpus(args)
+        return
+    if args.to_target is not None:
+        time_to_target(args)
         return
     # Both loops stop at --steps, before total_steps: no evaluation or checkpoint is timed.
     config = preset_config(

@@ -8,8 +8,8 @@
 # Two lanes run side by side, one torch thread each (the 2 cores). Resumable: a run whose folder
 # exists continues from its last checkpoint (`uavrl train --resume`); a finished one is skipped.
 #
-# B1-B4 add a success bonus to S2. With V2=1 it trains instead the rows on top of N1 (the `best` preset now:
-# S2 + success bonus 100, trained with the old-town cities too) into runs/levers-v2: F1, F2, G1 (3 seeds),
+# B1-B4 add a success bonus to S2. With V2=1 it trains instead the rows on top of N1 (S2 + success bonus 100,
+# trained with the old-town cities too; the `best` preset less its revisit penalty) into runs/levers-v2: F1, F2, G1 (3 seeds),
 # G2, C1 (2 seeds); README, "The success bonus and the old-town corpus".
 #
 #   bash benchmarks/levers.sh [STEPS] [OUT]      # defaults: 150000, runs/levers
@@ -19,7 +19,7 @@ source "$(dirname "$0")/one_run.sh"
 if [[ ${V2:-0} == 1 ]]; then
   OUT=runs/levers-v2
   mkdir -p "$OUT"
-  COMMON=(--dataset corpus --dataset oldtown --dataset train --preset best --out "$OUT" --quiet)
+  COMMON=(--dataset corpus --dataset oldtown --dataset train --preset best --set test_revisit_penalty=0 --out "$OUT" --quiet)
   CONV=(--set network=paper --set "conv_channels=[16,32,32]" --set dropout=0)
   (one F1 --seed 0 --set fovea=21; one G1 --seed 0 --set gamma=0.97; one G1-s1 --seed 1 --set gamma=0.97
    one C1-s0 --seed 0 "${CONV[@]}") &
@@ -31,10 +31,10 @@ fi
 STEPS=${1:-150000}
 OUT=${2:-runs/levers}
 mkdir -p "$OUT"
-# The rows start from the `best` preset as it was before this table (no visited channel, no success bonus, 1 M-step
-# schedule shortened to STEPS).
+# The rows start from the `best` preset as it was before this table (no visited channel, no success bonus, no revisit
+# penalty, 1 M-step schedule shortened to STEPS).
 COMMON=(--dataset corpus --dataset train --preset best --steps "$STEPS" --eval-every 50000 --set eval_episodes=1000
-        --set env.visited_channel=false --set env.success_bonus=0 --out "$OUT" --quiet)
+        --set env.visited_channel=false --set env.success_bonus=0 --set test_revisit_penalty=0 --out "$OUT" --quiet)
 R0=()
 R1=(--set env.c_e=0.3 --set env.step_cost=0.5)
 R2=("${R1[@]}" --set env.shaping=1)

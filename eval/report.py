@@ -454,11 +454,16 @@ def render_section(config: ReportConfig, rows: list[list[str]], figures: dict[st
     the CDF, the training curves, the trajectories, numbered from ``first_figure``)."""
     p = provenance
     city = html.escape(p["test_city"])
+    penalised = {n: a["config"].get("test_revisit_penalty", 0.0) for n, a in p["agents"].items()}
+    penalties = "; ".join(f"{html.escape(n)} {v:g}" for n, v in penalised.items() if v)
+    revisit = (
+        f" ({penalties}: less that penalty per earlier visit of the episode to the cell the move leads to)" if penalties else ""
+    )
     notes = (
         f"{config.episodes} episodes in <b>{city}</b> (bundle {html.escape(p['test_bundle'])}), "
         f"users drawn uniformly, then a start cell uniformly among the legal, live cells below P_T; "
         f"the same episodes for every method. t_max {config.t_max}, P_T {config.p_t_db:g} dB; the agents take the "
-        f"legal move of highest Q, or a random legal move with probability {config.test_epsilon:g}. Steps to P_T of a "
+        f"legal move of highest Q{revisit}, or a random legal move with probability {config.test_epsilon:g}. Steps to P_T of a "
         f"failed episode count as &gt; t_max, so the median and p75 include failures; the mean steps are over each "
         f"method's own successes (different episodes per method). Brackets: paired bootstrap 95 % intervals "
         f"({config.n_boot} resamples). {html.escape(PAPER_SOURCE)}."

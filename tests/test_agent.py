@@ -323,3 +323,42 @@ def test_report_refuses_a_city_an_agent_was_selected_on(tmp_path, corpus_root):
             ReportConfig(dataset="c-002", runs=[str(tmp_path / "run")], episodes=8), tmp_path / "report", root=corpus_root
         )
     assert not (tmp_path / "report").exists()
+
+
+class BackToVisitedNet(torch.nn.Module):
+    """Q of a move = 1 + the visited channel at the cell it leads to: a network that prefers cells it has been in,
+    so that its plain argmax shuttles between two cells for ever."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.unused = torch.nn.Parameter(torch.zeros(1))  # DQNPolicy reads the device from the parameters
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        from uavplace.rl.maps import MOVES
+
+        c = obs.shape[-1] // 2
+        return torch.stack([1.0 + obs[:, -2, c + dy, c + dx] for dy, dx in MOVES.tolist()], dim=1)
+
+
+def test_revisit_penalty_breaks_a_loop(city_root):
+    """With the penalty, the greedy move leaves cells it has been in: the looping network's episodes cover more
+    cells and succeed more often than its plain argmax, which never leaves its first two cells."""
+    from uavplace.rl.agent.dqn import DQNPolicy
+    from uavplace.rl.config import EnvConfig
+    from uavplace.rl.maps import MapSet
+    from uavplace.rl.rollout import run_episodes, summarise
+
+    maps = MapSet.load(["tiny"], EnvConfig(t_max=60, window=21, visited_channel=True, rotate=False), root=str(city_root))
+    episodes = maps.sample_episodes(64, np.random.default_rng(3))
+    cells, success = {}, {}
+    for penalty in (0.0, 10.0):
+        policy = DQNPolicy(BackToVisitedNet(), epsilon=0.0, revisit_penalty=penalty)
+        df = run_episodes(maps, policy, episodes, num_envs=16, record=np.arange(len(episodes)))
+        paths = df.attrs["paths"]  # {episode: cells}
+        cells[penalty] = np.array([len({tuple(c) for c in paths[e].tolist()}) for e in df.episode])
+        success[penalty] = summarise(df)["success"]
+        if penalty == 0:
+            failed = ~df.success.to_numpy()
+            assert failed.any() and (cells[0.0][failed] <= 2).all()
+    assert cells[10.0].mean() > 3 * cells[0.0].mean(), (cells[10.0].mean(), cells[0.0].mean())
+    assert success[10.0] > success[0.0] + 0.2, success

@@ -200,30 +200,15 @@ def test_open_scene_follows_friis_plus_ground_reflection(tmp_path):
 def test_exact_paths_behind_a_knife_edge_follow_itu_r_p526(tmp_path):
     """The fidelity benchmark's reference (``point_path_gains``, Sionna's PathSolver): behind a conducting screen
     12 m tall in free space, the path gain is free space minus P.526's single knife-edge loss J(v), within 3 dB."""
-    import trimesh
+    from uavplace.simulate.knife_edge import RX_HEIGHT_M, p526_path_gain_db, write_knife_edge_scene
+    from uavplace.simulate.raytrace import RayTraceConfig, point_path_gains_isolated
 
-    from uavplace.simulate.raytrace import RadioMapJob, RayTraceConfig, point_path_gains_isolated
-
-    height, d1, f = 12.0, 50.0, 800e6
-    (tmp_path / "meshes").mkdir()
-    corners = [[0, -400, -500], [0, 400, -500], [0, 400, height], [0, -400, height]]  # no bottom edge to diffract
-    trimesh.Trimesh(corners, [[0, 1, 2], [0, 2, 3], [0, 2, 1], [0, 3, 2]], process=False).export(tmp_path / "meshes" / "s.ply")
-    (tmp_path / "scene.xml").write_text(
-        '<scene version="2.1.0"><bsdf type="radio-material" id="uav-screen"><float name="relative_permittivity" '
-        'value="1.0"/><float name="conductivity" value="1e7"/><float name="thickness" value="0.01"/></bsdf>'
-        '<shape type="ply" id="screen"><string name="filename" value="meshes/s.ply"/>'
-        '<boolean name="face_normals" value="true"/><ref id="uav-screen" name="bsdf"/></shape></scene>'
-    )
-    job = RadioMapJob(str(tmp_path / "scene.xml"), ((-d1, 0.0, 1.5),), (100.0, 0.0, 10.0), (200.0, 40.0), 4.0)
-    d2 = np.array([12.0, 44.0, 92.0, 156.0])
-    points = np.c_[d2, np.zeros(4), np.full(4, 10.0)]
+    job = write_knife_edge_scene(tmp_path)
+    behind = np.array([12.0, 44.0, 92.0, 156.0])
+    points = np.c_[behind, np.zeros(4), np.full(4, RX_HEIGHT_M)]
     config = RayTraceConfig(antenna="iso", max_depth=2, refraction=False, samples_per_tx=1_000_000, seed=1)
     gain_db = 10 * np.log10(point_path_gains_isolated(job, points, config)[0])
-    lam = 3e8 / f
-    h = height - (1.5 + (10 - 1.5) * d1 / (d1 + d2))  # edge height above the line of sight
-    v = h * np.sqrt(2 / lam * (1 / d1 + 1 / d2))
-    j_db = 6.9 + 20 * np.log10(np.sqrt((v - 0.1) ** 2 + 1) + v - 0.1)  # ITU-R P.526, eq. (31), v > -0.78
-    expected_db = 20 * np.log10(lam / (4 * np.pi * np.hypot(d1 + d2, 10 - 1.5))) - j_db
+    expected_db = p526_path_gain_db(behind, config.frequency_hz)
     assert np.abs(gain_db - expected_db).max() < 3.0, (gain_db, expected_db)
 
 

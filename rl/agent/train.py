@@ -312,7 +312,9 @@ class Trainer:
 
     # -- evaluation ---------------------------------------------------------------------------------
     def evaluate(self) -> dict:
-        policy = DQNPolicy(self.agent.online, self.config.test_epsilon, seed=self.config.seed)
+        policy = DQNPolicy(
+            self.agent.online, self.config.test_epsilon, seed=self.config.seed, revisit_penalty=self.config.test_revisit_penalty
+        )
         df = run_episodes(self.eval_maps, policy, self.eval_episodes, num_envs=min(256, len(self.eval_episodes)))
         summary = summarise(df)
         row = {
@@ -454,7 +456,7 @@ def policy_from_checkpoint(ck: dict, path: str | Path, epsilon: float = 0.096, s
         raise InputError(
             path, f"weights do not fit the network its config describes ({str(exc)[:200]})", field="online"
         ) from None
-    return DQNPolicy(net, epsilon, seed, config.agent), config
+    return DQNPolicy(net, epsilon, seed, config.agent, config.test_revisit_penalty), config
 
 
 def load_policy(path: str | Path, epsilon: float = 0.096, seed: int = 0) -> tuple[DQNPolicy, DQNConfig]:
