@@ -1,10 +1,10 @@
 """A physics check: a single conducting knife edge in free space, against ITU-R P.526.
 
 ``write_knife_edge_scene`` writes the scene (a conducting screen, its only free edge on top, no
-ground), ``p526_path_gain_db`` gives what P.526's single knife-edge loss predicts behind it, and
-``KNIFE_EDGE_JOB`` is the geometry both share: the user 50 m in front of the screen at 1.5 m, the
-receivers at 10 m behind it. Used by ``tests/test_simulate.py`` (exact paths) and
-``benchmarks/knife_edge.py`` (exact paths and the radio map).
+ground) and returns its job: the user 50 m in front of the screen at 1.5 m, the receivers' plane
+at 10 m behind it; ``p526_path_gain_db`` gives what P.526's single knife-edge loss predicts there.
+Used by ``tests/test_simulate.py`` (exact paths) and ``benchmarks/knife_edge.py`` (exact paths
+and the radio map).
 """
 
 from __future__ import annotations
