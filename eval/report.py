@@ -455,10 +455,12 @@ def render_section(config: ReportConfig, rows: list[list[str]], figures: dict[st
     p = provenance
     city = html.escape(p["test_city"])
     penalised = {n: a["config"].get("test_revisit_penalty", 0.0) for n, a in p["agents"].items()}
-    penalties = "; ".join(f"{html.escape(n)} {v:g}" for n, v in penalised.items() if v)
-    revisit = (
-        f" ({penalties}: less that penalty per earlier visit of the episode to the cell the move leads to)" if penalties else ""
+    penalties = "; ".join(
+        f"{html.escape(n)}: less {v:g} per earlier visit of the episode to the cell the move leads to"
+        for n, v in penalised.items()
+        if v
     )
+    revisit = f" ({penalties})" if penalties else ""
     notes = (
         f"{config.episodes} episodes in <b>{city}</b> (bundle {html.escape(p['test_bundle'])}), "
         f"users drawn uniformly, then a start cell uniformly among the legal, live cells below P_T; "
