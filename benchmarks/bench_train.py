@@ -30,6 +30,7 @@ import argparse
 import resource
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -37,7 +38,7 @@ import torch
 
 from uavplace.dataset.catalog import expand_datasets
 from uavplace.rl.agent.dqn import DQNConfig, make_network, preset_config
-from uavplace.rl.agent.train import Trainer
+from uavplace.rl.agent.train import Trainer, linear
 from uavplace.rl.config import EnvConfig
 
 
@@ -98,8 +99,7 @@ def tianshou_dqn(config: DQNConfig, dataset: str, root: str):  # noqa: ANN201 - 
 
         def create_scheduler(self, optim: torch.optim.Optimizer) -> torch.optim.lr_scheduler.LRScheduler:
             total = max(1, (config.total_steps - config.learning_starts) // config.train_every)
-            end = config.lr_end / config.lr_start
-            return torch.optim.lr_scheduler.LambdaLR(optim, lambda u: 1.0 + (end - 1.0) * min(u / total, 1.0))
+            return torch.optim.lr_scheduler.LambdaLR(optim, lambda u: linear(1.0, config.lr_end / config.lr_start, u / total))
 
     def make_env() -> gym.Env:
         return MaskedObs(gym.make("uavplace/UavPlacement-v0", dataset=dataset, root=root, config=env_cfg))
@@ -124,25 +124,34 @@ def tianshou_dqn(config: DQNConfig, dataset: str, root: str):  # noqa: ANN201 - 
     return algo, policy, collector, model.net
 
 
-def bench_tianshou(config: DQNConfig, dataset: str, root: str, steps: int, warmup: int) -> dict:
+def tianshou_training(config: DQNConfig, algo, policy, collector, epsilon: Callable[[int], float]):  # noqa: ANN001, ANN201
+    """Tianshou's training loop at our replay ratio: collect ``num_envs`` env steps at ``epsilon(done)``, then (once
+    ``learning_starts`` is past) ``num_envs // train_every`` updates; yields ``(env steps, updates)`` after each round."""
     from tianshou.utils.torch_utils import policy_within_training_step
 
-    algo, policy, collector, _ = tianshou_dqn(config, dataset, root)
-    policy.set_eps_training(0.1)
     n = config.num_envs
     updates_per_collect = max(1, n // config.train_every)
     done = updates = 0
-    t0 = s0 = u0 = None
     with policy_within_training_step(policy):
-        while done < steps:
+        while True:
+            policy.set_eps_training(epsilon(done))
             collector.collect(n_step=n)
             done += n
             if done >= config.learning_starts:
                 for _ in range(updates_per_collect):
                     algo.update(collector.buffer, config.batch_size)
                     updates += 1
-            if t0 is None and done >= warmup:
-                t0, s0, u0 = time.perf_counter(), done, updates
+            yield done, updates
+
+
+def bench_tianshou(config: DQNConfig, dataset: str, root: str, steps: int, warmup: int) -> dict:
+    algo, policy, collector, _ = tianshou_dqn(config, dataset, root)
+    t0 = s0 = u0 = None
+    for done, updates in tianshou_training(config, algo, policy, collector, lambda _: 0.1):
+        if t0 is None and done >= warmup:
+            t0, s0, u0 = time.perf_counter(), done, updates
+        if done >= steps:
+            break
     dt = time.perf_counter() - t0
     return {"env_steps_per_s": (done - s0) / dt, "updates_per_s": (updates - u0) / dt, "updates": updates}
 
@@ -156,8 +165,6 @@ def time_to_target(args: argparse.Namespace) -> None:
     ``--eval-every`` steps on the same validation episodes with the same acting rule (``DQNPolicy``:
     the preset's test epsilon and revisit penalty): the wall time to the first evaluation at or above
     ``--to-target``, evaluations (and our checkpoints) included."""
-    from tianshou.utils.torch_utils import policy_within_training_step
-
     from uavplace.rl.agent.dqn import DQNPolicy
     from uavplace.rl.rollout import run_episodes, summarise
 
@@ -185,27 +192,22 @@ def time_to_target(args: argparse.Namespace) -> None:
             pass
         eval_maps, episodes = trainer.eval_maps, trainer.eval_episodes
     algo, policy, collector, net = tianshou_dqn(config, args.dataset, args.root)
-    n = config.num_envs
-    updates_per_collect = max(1, n // config.train_every)
-    done, next_eval, t0 = 0, config.eval_every, time.perf_counter()
-    with policy_within_training_step(policy):
-        while done < config.total_steps:
-            span = config.eps_fraction * config.total_steps
-            policy.set_eps_training(config.eps_start + (config.eps_end - config.eps_start) * min(done / span, 1.0))
-            collector.collect(n_step=n)
-            done += n
-            if done >= config.learning_starts:
-                for _ in range(updates_per_collect):
-                    algo.update(collector.buffer, config.batch_size)
-            if done >= next_eval:
-                next_eval += config.eval_every
-                acting = DQNPolicy(net, config.test_epsilon, seed=config.seed, revisit_penalty=config.test_revisit_penalty)
-                success = summarise(run_episodes(eval_maps, acting, episodes, num_envs=min(256, len(episodes))))["success"]
-                net.train()
-                rows["tianshou"].append((done, time.perf_counter() - t0, success))
-                print(f"  tianshou  {done:>7,} steps  {rows['tianshou'][-1][1]:6.0f} s  {100 * success:.1f} %")
-                if success >= args.to_target:
-                    break
+    span = config.eps_fraction * config.total_steps
+    next_eval, t0 = config.eval_every, time.perf_counter()
+    for done, _ in tianshou_training(
+        config, algo, policy, collector, lambda d: linear(config.eps_start, config.eps_end, d / span)
+    ):
+        if done >= next_eval:
+            next_eval += config.eval_every
+            acting = DQNPolicy(net, config.test_epsilon, seed=config.seed, revisit_penalty=config.test_revisit_penalty)
+            success = summarise(run_episodes(eval_maps, acting, episodes, num_envs=min(256, len(episodes))))["success"]
+            net.train()
+            rows["tianshou"].append((done, time.perf_counter() - t0, success))
+            print(f"  tianshou  {done:>7,} steps  {rows['tianshou'][-1][1]:6.0f} s  {100 * success:.1f} %")
+            if success >= args.to_target:
+                break
+        if done >= config.total_steps:
+            break
     print(f"time to {100 * args.to_target:g} % validation success ({args.preset} preset, {args.dataset}, replay "
           f"{config.buffer_size:,}, {len(episodes)} episodes per evaluation, every {config.eval_every:,} env steps, "
           f"budget {config.total_steps:,}):")  # fmt: skip

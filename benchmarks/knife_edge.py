@@ -12,33 +12,29 @@ from __future__ import annotations
 
 import argparse
 import tempfile
+from dataclasses import replace
 
 import numpy as np
 
-from uavplace.simulate.knife_edge import RX_HEIGHT_M, p526_path_gain_db, write_knife_edge_scene
-from uavplace.simulate.raytrace import RayTraceConfig, path_gain_maps_isolated, point_path_gains_isolated
+from uavplace.simulate.knife_edge import BEHIND_M, EXACT_CONFIG, p526_path_gain_db, points, write_knife_edge_scene
+from uavplace.simulate.raytrace import path_gain_maps_isolated, point_path_gains_isolated
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--samples", type=float, default=2e7, help="rays of the radio map (the exact paths take 1e6)")
     args = ap.parse_args()
-    behind = np.array([12.0, 44.0, 92.0, 156.0])
     with tempfile.TemporaryDirectory() as tmp:
         job = write_knife_edge_scene(tmp)
-        exact_cfg = RayTraceConfig(antenna="iso", max_depth=2, refraction=False, samples_per_tx=1_000_000, seed=1)
-        points = np.c_[behind, np.zeros(4), np.full(4, RX_HEIGHT_M)]
-        exact = point_path_gains_isolated(job, points, exact_cfg)[0]
-        map_cfg = RayTraceConfig(
-            antenna="iso", max_depth=2, refraction=False, samples_per_tx=int(args.samples), seed=1, gap_fill_factors=()
-        )
+        exact = point_path_gains_isolated(job, points(), EXACT_CONFIG)[0]
+        map_cfg = replace(EXACT_CONFIG, samples_per_tx=int(args.samples), gap_fill_factors=())
         raw = path_gain_maps_isolated(job, map_cfg, edge_diffraction=True)[1][0]
-    cells = raw[job_rows(job)][:, (behind // job.cell_m).astype(int)].mean(axis=0)  # the two rows around y = 0
+    cells = raw[job_rows(job)][:, (BEHIND_M // job.cell_m).astype(int)].mean(axis=0)  # the two rows around y = 0
     with np.errstate(divide="ignore"):
-        rows = {"ITU-R P.526": p526_path_gain_db(behind, exact_cfg.frequency_hz), "exact paths": 10 * np.log10(exact),
+        rows = {"ITU-R P.526": p526_path_gain_db(BEHIND_M, EXACT_CONFIG.frequency_hz), "exact paths": 10 * np.log10(exact),
                 "radio map": 10 * np.log10(cells)}  # fmt: skip
-    print("| behind the screen [m] | " + " | ".join(f"{d:g}" for d in behind) + " |")
-    print("|---|" + "---|" * len(behind))
+    print("| behind the screen [m] | " + " | ".join(f"{d:g}" for d in BEHIND_M) + " |")
+    print("|---|" + "---|" * len(BEHIND_M))
     for name, v in rows.items():
         print(f"| {name} [dB] | " + " | ".join(f"{x:.1f}" for x in v) + " |")
 

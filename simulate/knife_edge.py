@@ -2,7 +2,9 @@
 
 ``write_knife_edge_scene`` writes the scene (a conducting screen, its only free edge on top, no
 ground) and returns its job: the user 50 m in front of the screen at 1.5 m, the receivers' plane
-at 10 m behind it; ``p526_path_gain_db`` gives what P.526's single knife-edge loss predicts there.
+at 10 m behind it; ``BEHIND_M`` are the checked distances behind the screen (``points`` places
+receivers there), ``EXACT_CONFIG`` the exact-path settings, and ``p526_path_gain_db`` gives what
+P.526's single knife-edge loss predicts there.
 Used by ``tests/test_simulate.py`` (exact paths) and ``benchmarks/knife_edge.py`` (exact paths
 and the radio map).
 """
@@ -13,12 +15,21 @@ from pathlib import Path
 
 import numpy as np
 
-from uavplace.simulate.raytrace import RadioMapJob
+from uavplace.simulate.raytrace import RadioMapJob, RayTraceConfig
 
 SCREEN_HEIGHT_M = 12.0
 USER_DISTANCE_M = 50.0
 USER_HEIGHT_M = 1.5
 RX_HEIGHT_M = 10.0
+BEHIND_M = np.array([12.0, 44.0, 92.0, 156.0])
+#: Isotropic antennas (P.526's assumption), the screen's edge needs no more than two interactions, no refraction.
+EXACT_CONFIG = RayTraceConfig(antenna="iso", max_depth=2, refraction=False, samples_per_tx=1_000_000, seed=1)
+
+
+def points(behind_m: np.ndarray = BEHIND_M) -> np.ndarray:
+    """Receiver positions ``[len(behind_m), 3]`` on the line through the user, ``behind_m`` behind the screen."""
+    behind_m = np.asarray(behind_m, float)
+    return np.c_[behind_m, np.zeros(len(behind_m)), np.full(len(behind_m), RX_HEIGHT_M)]
 
 
 def write_knife_edge_scene(folder: str | Path) -> RadioMapJob:

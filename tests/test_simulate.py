@@ -200,15 +200,12 @@ def test_open_scene_follows_friis_plus_ground_reflection(tmp_path):
 def test_exact_paths_behind_a_knife_edge_follow_itu_r_p526(tmp_path):
     """The fidelity benchmark's reference (``point_path_gains``, Sionna's PathSolver): behind a conducting screen
     12 m tall in free space, the path gain is free space minus P.526's single knife-edge loss J(v), within 3 dB."""
-    from uavplace.simulate.knife_edge import RX_HEIGHT_M, p526_path_gain_db, write_knife_edge_scene
-    from uavplace.simulate.raytrace import RayTraceConfig, point_path_gains_isolated
+    from uavplace.simulate.knife_edge import BEHIND_M, EXACT_CONFIG, p526_path_gain_db, points, write_knife_edge_scene
+    from uavplace.simulate.raytrace import point_path_gains_isolated
 
     job = write_knife_edge_scene(tmp_path)
-    behind = np.array([12.0, 44.0, 92.0, 156.0])
-    points = np.c_[behind, np.zeros(4), np.full(4, RX_HEIGHT_M)]
-    config = RayTraceConfig(antenna="iso", max_depth=2, refraction=False, samples_per_tx=1_000_000, seed=1)
-    gain_db = 10 * np.log10(point_path_gains_isolated(job, points, config)[0])
-    expected_db = p526_path_gain_db(behind, config.frequency_hz)
+    gain_db = 10 * np.log10(point_path_gains_isolated(job, points(), EXACT_CONFIG)[0])
+    expected_db = p526_path_gain_db(BEHIND_M, EXACT_CONFIG.frequency_hz)
     assert np.abs(gain_db - expected_db).max() < 3.0, (gain_db, expected_db)
 
 
