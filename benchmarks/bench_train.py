@@ -21,7 +21,7 @@ evaluations included.
     python benchmarks/bench_train.py [--steps 20000] [--preset best]
     python benchmarks/bench_train.py --memory
     python benchmarks/bench_train.py --corpus corpus      # the train city alone against the corpus and it
-    python benchmarks/bench_train.py --to-target 0.9 [--budget 150000] [--eval-every 10000]
+    python benchmarks/bench_train.py --to-target 0.9 [--budget 300000] [--eval-every 10000]
 """
 
 from __future__ import annotations
@@ -272,7 +272,7 @@ def main() -> None:
     ap.add_argument("--memory", action="store_true", help="peak RSS of a paper-preset run with a full replay instead")
     ap.add_argument("--corpus", default=None, help="instead: ours on --dataset alone against the corpus NAME-NNN and it")
     ap.add_argument("--to-target", type=float, default=None, help="instead: wall time of both to this validation success")
-    ap.add_argument("--budget", type=int, default=150_000, help="--to-target: env steps at most (the preset's schedule)")
+    ap.add_argument("--budget", type=int, default=300_000, help="--to-target: env steps at most (the preset's schedule)")
     ap.add_argument("--eval-every", type=int, default=10_000, help="--to-target: env steps between evaluations")
     ap.add_argument("--seed", type=int, default=0, help="--to-target: seed of both runs")
     ap.add_argument(

@@ -12,14 +12,32 @@
 # trained with the old-town cities too; the `best` preset less its revisit penalty) into runs/levers-v2: F1, F2, G1 (3 seeds),
 # G2, C1 (2 seeds); README, "The success bonus and the old-town corpus".
 #
+# With AUX=1 it trains the rows of the genie-move head into runs/aux (README, "The genie-move head"): A1 (N2 +
+# aux_genie 1, 3 seeds), A03 and A3 (head weights 0.3 and 3), A1L (A1 on a 300 k schedule, the `best` preset now,
+# 3 seeds) and W91 (A1 with a 91-cell window).
+#
 #   bash benchmarks/levers.sh [STEPS] [OUT]      # defaults: 150000, runs/levers
 #   V2=1 bash benchmarks/levers.sh               # the N1 rows, runs/levers-v2
+#   AUX=1 bash benchmarks/levers.sh              # the A rows, runs/aux
 set -euo pipefail
 source "$(dirname "$0")/one_run.sh"
+if [[ ${AUX:-0} == 1 ]]; then
+  OUT=runs/aux
+  mkdir -p "$OUT"
+  COMMON=(--dataset corpus --dataset oldtown --dataset train --preset best --out "$OUT" --quiet)
+  A1=(--set aux_genie=1.0 --steps 150000)
+  (one A1-s0 --seed 0 "${A1[@]}"; one A1-s1 --seed 1 "${A1[@]}"; one A3-s0 --seed 0 --set aux_genie=3.0 --steps 150000
+   one A1L-s1 --seed 1 --set aux_genie=1.0 --steps 300000; one W91-s0 --seed 0 "${A1[@]}" --set env.window=91) &
+  (one A1-s2 --seed 2 "${A1[@]}"; one A03-s0 --seed 0 --set aux_genie=0.3 --steps 150000
+   one A1L-s0 --seed 0 --set aux_genie=1.0 --steps 300000; one A1L-s2 --seed 2 --set aux_genie=1.0 --steps 300000) &
+  wait
+  exit 0
+fi
 if [[ ${V2:-0} == 1 ]]; then
   OUT=runs/levers-v2
   mkdir -p "$OUT"
-  COMMON=(--dataset corpus --dataset oldtown --dataset train --preset best --set test_revisit_penalty=0 --out "$OUT" --quiet)
+  COMMON=(--dataset corpus --dataset oldtown --dataset train --preset best --steps 150000 --set test_revisit_penalty=0 --set aux_genie=0
+          --out "$OUT" --quiet)
   CONV=(--set network=paper --set "conv_channels=[16,32,32]" --set dropout=0)
   (one F1 --seed 0 --set fovea=21; one G1 --seed 0 --set gamma=0.97; one G1-s1 --seed 1 --set gamma=0.97
    one C1-s0 --seed 0 "${CONV[@]}") &
@@ -32,9 +50,10 @@ STEPS=${1:-150000}
 OUT=${2:-runs/levers}
 mkdir -p "$OUT"
 # The rows start from the `best` preset as it was before this table (no visited channel, no success bonus, no revisit
-# penalty, 1 M-step schedule shortened to STEPS).
+# penalty, no genie-move head, 1 M-step schedule shortened to STEPS).
 COMMON=(--dataset corpus --dataset train --preset best --steps "$STEPS" --eval-every 50000 --set eval_episodes=1000
-        --set env.visited_channel=false --set env.success_bonus=0 --set test_revisit_penalty=0 --out "$OUT" --quiet)
+        --set env.visited_channel=false --set env.success_bonus=0 --set test_revisit_penalty=0 --set aux_genie=0
+        --out "$OUT" --quiet)
 R0=()
 R1=(--set env.c_e=0.3 --set env.step_cost=0.5)
 R2=("${R1[@]}" --set env.shaping=1)

@@ -168,7 +168,8 @@ def evaluate(
     results = {}
     for name, policy, mapset in methods:
         report = None if on_progress is None else (lambda done, total, name=name: on_progress(name, done, total))
-        results[name] = run_episodes(mapset, policy, episodes, on_step=report, record=record if name == shown else None)
+        specs = mapset.episodes_from(episodes, maps[""])  # an agent's window pads its canvas by another margin
+        results[name] = run_episodes(mapset, policy, specs, on_step=report, record=record if name == shown else None)
     return results
 
 

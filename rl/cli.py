@@ -110,8 +110,8 @@ def baselines(
     type=click.Choice(["paper", "fast", "best"]),
     default="best",
     show_default=True,
-    help="Hyperparameters: best (ours, 150 k steps: 6-8 min on 2 CPU cores for the 17 training cities of the "
-    "embedded corpus), paper (docs/method.md, ~7 M steps: days on a CPU), fast (minutes, for checks).",
+    help="Hyperparameters: best (ours, 300 k steps: about 8 min on one of 2 CPU cores for the 22 training cities of "
+    "the embedded corpora), paper (docs/method.md, ~7 M steps: days on a CPU), fast (minutes, for checks).",
 )
 @click.option("--steps", type=click.IntRange(min=1), default=None, help="Environment steps (default: the preset's).")
 @click.option(

@@ -143,6 +143,17 @@ class MapSet:
         y, x = np.divmod(self.start_cells[pick], self.side)
         return np.stack([view, y, x], axis=1)
 
+    def episodes_from(self, episodes: np.ndarray, other: MapSet) -> np.ndarray:
+        """Episode specs drawn on ``other`` as specs of this MapSet: the same views and start cells. Canvas
+        coordinates include the pad of half a window, so two windows put one cell at different ``(y, x)``;
+        the two must hold the same scenarios under the same symmetries."""
+        same = [(s.city, s.user) for s in self.scenarios] == [(s.city, s.user) for s in other.scenarios]
+        if not same or self.symmetries != other.symmetries:
+            raise ValueError("episodes_from: the two MapSets hold different scenarios or symmetries")
+        out = np.array(episodes, np.int64, copy=True)
+        out[:, 1:] += self.pad - other.pad
+        return out
+
     def unrotate(self, view: np.ndarray, y: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Map cells ``(iy, ix)`` (bundle indices) of canvas positions in a view, undoing its symmetry."""
         sym = self.symmetry_of(view)

@@ -23,8 +23,8 @@ def run_episodes(
 ) -> pd.DataFrame:
     """Play ``episodes`` (``[K, 3]`` specs from ``MapSet.sample_episodes``) to their end with ``policy``.
 
-    Returns one row per episode: ``episode, view, city, user, rotation`` (the view's symmetry, 0-7), ``start_y, start_x,
-    genie_steps`` (shortest possible), ``steps`` (moves played), ``success`` (P_T reached
+    Returns one row per episode: ``episode, view, city, user, rotation`` (the view's symmetry, 0-7), ``start_y, start_x``
+    (the start's cell of the bundle's map, the view's symmetry undone, whatever the window), ``genie_steps`` (shortest possible), ``steps`` (moves played), ``success`` (P_T reached
     within ``t_max``) and ``return_`` (sum of rewards). ``on_step(done, total)`` reports progress.
     ``record``: episode numbers whose cells, start included, go to ``df.attrs["paths"]``
     (``{episode: [T + 1, 2] (iy, ix)}``, cells of the bundle's map, the view's rotation undone).
@@ -82,6 +82,7 @@ def run_episodes(
                 on_step(finished, k)
     view = episodes[:, 0]
     scen = [maps.scenarios[v] for v in maps.scenario_of(view)]
+    start_y, start_x = maps.unrotate(view, episodes[:, 1], episodes[:, 2])
     df = pd.DataFrame(
         {
             "episode": np.arange(k),
@@ -89,8 +90,8 @@ def run_episodes(
             "city": [s.city for s in scen],
             "user": [s.user for s in scen],
             "rotation": maps.symmetry_of(view),
-            "start_y": episodes[:, 1],
-            "start_x": episodes[:, 2],
+            "start_y": start_y,
+            "start_x": start_x,
             "genie_steps": genie,
             "steps": steps,
             "success": success,

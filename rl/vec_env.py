@@ -131,6 +131,13 @@ class BatchedEnv:
         """Shortest number of legal moves from each UAV position to a target cell, ``[N]``."""
         return self.maps.steps[self.view, self.pos[:, 0], self.pos[:, 1]]
 
+    def genie_moves(self) -> np.ndarray:
+        """``[N, 4]`` bool: the moves that start a shortest legal path to a target (privileged: the genie's
+        choice, for training aids only; never part of an observation)."""
+        ny, nx = self.neighbours()
+        here = self.genie_steps()[:, None]
+        return self.action_mask() & (self.maps.steps[self.view[:, None], ny, nx] < here)
+
     def info(self) -> dict:
         return {"action_mask": self.action_mask(), "episode_id": self.episode_id.copy(), "view": self.view.copy()}
 

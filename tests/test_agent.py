@@ -12,7 +12,8 @@ import torch
 from tests.conftest import write_grid_city
 from uavplace.dataset.build import build_city
 from uavplace.ingest.pipeline import ingest_city
-from uavplace.rl.agent.dqn import DQN, DQNConfig, masked_argmax, preset_config
+from uavplace.rl.agent.dqn import DQN, DQNConfig, DQNPolicy, genie_move_loss, masked_argmax, preset_config
+from uavplace.rl.agent.network import FoveaQNetwork
 from uavplace.rl.agent.replay import Batch, ReplayBuffer
 from uavplace.rl.agent.train import Trainer, load_policy, read_run_json
 from uavplace.schemas import InputError
@@ -211,7 +212,6 @@ def test_folded_batch_norm_gives_the_same_q_values():
 
 
 def test_fovea_network_sees_a_centred_fovea_and_surround():
-    from uavplace.rl.agent.network import FoveaQNetwork
 
     for window, fovea in ((61, 15), (21, 7), (15, 15)):
         net = FoveaQNetwork(2, window, hidden=8, fovea=fovea)
@@ -343,7 +343,6 @@ class BackToVisitedNet(torch.nn.Module):
 def test_revisit_penalty_breaks_a_loop(city_root):
     """With the penalty, the greedy move leaves cells it has been in: the looping network's episodes cover more
     cells and succeed more often than its plain argmax, which never leaves its first two cells."""
-    from uavplace.rl.agent.dqn import DQNPolicy
     from uavplace.rl.config import EnvConfig
     from uavplace.rl.maps import MapSet
     from uavplace.rl.rollout import run_episodes, summarise
@@ -362,3 +361,46 @@ def test_revisit_penalty_breaks_a_loop(city_root):
             assert failed.any() and (cells[0.0][failed] <= 2).all()
     assert cells[10.0].mean() > 3 * cells[0.0].mean(), (cells[10.0].mean(), cells[0.0].mean())
     assert success[10.0] > success[0.0] + 0.2, success
+
+
+def test_genie_move_loss_by_hand():
+    """-log of the probability the logits give the genie's set of moves; rows without a genie move do not count."""
+    logits = torch.tensor([[0.0, 0.0, 0.0, 0.0], [2.0, 0.0, 0.0, 0.0], [5.0, 1.0, 1.0, 1.0]])
+    genie = torch.tensor([[True, True, False, False], [True, False, False, False], [False, False, False, False]])
+    p_second = np.exp(2.0) / (np.exp(2.0) + 3.0)
+    expected = (-np.log(0.5) - np.log(p_second)) / 2
+    assert genie_move_loss(logits, genie).item() == pytest.approx(expected, rel=1e-6)
+    assert genie_move_loss(logits, torch.zeros_like(genie)).item() == 0.0
+
+
+def test_aux_genie_head_learns_the_genie_moves(tmp_path, city_root):
+    """With ``aux_genie`` the replay stores the genie's moves and the auxiliary head learns them (its top move is a
+    genie move far more often than a uniform guess's share); the checkpoint holds the head and loads as a policy."""
+    config = preset_config(
+        "fast", total_steps=3_000, eval_every=3_000, eval_episodes=20, learning_starts=500, train_every=2,
+        network="fovea", fovea=7, aux_genie=1.0, env={"t_max": 60, "window": 21},
+    )  # fmt: skip
+    trainer = Trainer(config, ["tiny"], city_root, tmp_path / "run")
+    trainer.run()
+    replay = trainer.replay
+    idx = np.random.default_rng(0).choice(len(replay), 512, replace=False)
+    genie, legal = replay.genie[idx], replay.mask[idx]
+    assert genie.any(axis=1).mean() > 0.99
+    net = trainer.agent.online.eval()
+    with torch.no_grad():
+        top = net.aux(net.embed(torch.from_numpy(replay.obs[idx]).float() - 150)).argmax(dim=1).numpy()
+    hit = genie[np.arange(len(idx)), top].mean()
+    chance = (genie.sum(axis=1) / legal.sum(axis=1)).mean()  # a uniformly random legal move's
+    assert hit > chance + 0.15, (hit, chance)
+    policy, cfg = load_policy(tmp_path / "run" / "checkpoints" / "best.pt")
+    assert cfg.aux_genie == 1.0 and policy.net.aux is not None
+    # Acting with a large head weight follows the head's top legal move.
+    env = trainer.env
+    obs, legal = env.observe(), env.action_mask()
+    follower = DQNPolicy(policy.net, epsilon=0.0, aux_weight=1e6)
+    with torch.no_grad():
+        logits = policy.net.aux(policy.net.embed(torch.from_numpy(obs).float() - 150))
+    expected = logits.masked_fill(~torch.from_numpy(legal), float("-inf")).argmax(dim=1).numpy()
+    np.testing.assert_array_equal(follower.act(obs, legal, env), expected)
+    with pytest.raises(ValueError, match="genie-move head"):
+        DQNPolicy(FoveaQNetwork(2, 21, hidden=8, fovea=7), aux_weight=1.0)  # no head

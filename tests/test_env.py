@@ -170,6 +170,29 @@ def test_shaping_is_potential_based(root):
     np.testing.assert_allclose(extra, k * start, atol=1e-3)
 
 
+def test_genie_moves_start_shortest_paths(root):
+    """Every move ``genie_moves`` marks is legal and brings the genie's distance down by one, the genie's own move is
+    among them, and a move not marked never does (rotated views included)."""
+    maps = MapSet.load("tiny", EnvConfig(t_max=60, rotate=True), root=str(root))
+    env = BatchedEnv(maps, 32, autoreset=False)
+    env.reset(seed=3)
+    genie = GeniePolicy()
+    playing = np.ones(32, bool)  # a finished episode stays on its target, where no move shortens anything
+    for _ in range(10):
+        marked = env.genie_moves()
+        assert (marked <= env.action_mask()).all() and marked[playing].any(axis=1).all()
+        ny, nx = env.neighbours()
+        after = maps.steps[env.view[:, None], ny, nx]
+        here = env.genie_steps()[:, None]
+        np.testing.assert_array_equal(marked, env.action_mask() & (after == here - 1))
+        actions = genie.act(env.observe(), env.action_mask(), env)
+        assert marked[playing, actions[playing]].all()
+        _, _, term, _, _ = env.step(actions)
+        playing &= ~term
+        if not playing.any():
+            break
+
+
 def test_step_cost_reward_scale_and_visited_channel(root):
     plain = MapSet.load("tiny", EnvConfig(t_max=60), root=str(root))
     cfg = plain.config.model_copy(update={"step_cost": 0.5, "reward_scale": 0.1, "visited_channel": True})

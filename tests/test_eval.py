@@ -172,6 +172,27 @@ def test_report_on_several_cities(tmp_path, two_cities):
     assert sorted(p.name for p in mine.iterdir()) == ["report.html"] and (mine / "report.html").read_text() == "my notes"
 
 
+def test_an_agent_of_another_window_plays_the_same_episodes(tmp_path, two_cities):
+    """Canvas coordinates depend on the window (its pad); an agent trained with a 21-cell window starts each
+    episode on the very cells the genie and a 61-cell agent start on (same map cell, same genie distance)."""
+    from uavplace.dataset.bundle import load_bundle
+    from uavplace.eval.report import ReportConfig, evaluate, load_agent
+
+    root, run = two_cities
+    config = preset_config(
+        "best", total_steps=128, num_envs=8, buffer_size=256, batch_size=16, train_every=4, learning_starts=64,
+        eval_every=128, eval_episodes=8, hidden=16, fovea=7, env={"t_max": 30, "rotate": True, "window": 21},
+    )  # fmt: skip
+    Trainer(config, ["citya"], root, tmp_path / "narrow").run()
+    agents = [load_agent(run, 0.096, 0), load_agent(tmp_path / "narrow", 0.096, 0)]
+    agents[1].name = agents[1].policy.name = "narrow"
+    results = evaluate(ReportConfig(dataset="cityb", episodes=40, t_max=30), load_bundle("cityb", root=root), agents)
+    key = ["episode", "view", "start_y", "start_x", "genie_steps"]
+    genie = results["genie"][key].to_numpy()
+    for name in ("DQN (best)", "narrow"):
+        np.testing.assert_array_equal(results[name][key].to_numpy(), genie, err_msg=name)
+
+
 def test_report_refuses_the_training_city(tmp_path, two_cities):
     root, run = two_cities
     res = CliRunner().invoke(uavrl, ["report", "--run", str(run), "--dataset", "citya", "--root", str(root), "--out", str(tmp_path / "r"),

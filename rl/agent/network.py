@@ -13,12 +13,34 @@ from torch import nn
 INPUT_SCALE = 50.0
 
 
-class QNetwork(nn.Module):
+class DuelingQ(nn.Module):
+    """Features (``embed``, the subclass's) then the dueling head ``Q = V + A - mean(A)`` (``value``, ``advantage``);
+    ``aux``, when the subclass builds it, reads the same features."""
+
+    value: nn.Linear
+    advantage: nn.Linear
+    aux: nn.Linear | None
+
+    def embed(self, obs: torch.Tensor) -> torch.Tensor:
+        raise NotImplementedError
+
+    def head(self, z: torch.Tensor) -> torch.Tensor:
+        """Q values ``[B, n_actions]`` of features ``z`` ``[B, hidden]``."""
+        a = self.advantage(z)
+        return self.value(z) + a - a.mean(dim=1, keepdim=True)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        """Q values ``[B, n_actions]`` of observations ``[B, C, w, w]``."""
+        return self.head(self.embed(obs))
+
+
+class QNetwork(DuelingQ):
     """``[B, C, w, w]`` observations (float, or uint8 decoded by the caller) -> ``[B, 4]`` Q values.
 
     conv 5x5/2 (c1) -> conv 3x3/2 (c2) -> conv 3x3/2 (c3), each with batch norm and ReLU;
     fc (hidden) with ReLU and dropout; dueling head Q = V + A - mean(A). ``channels`` = (c1, c2, c3),
-    by default (32, 64, 64).
+    by default (32, 64, 64). ``aux``: a second head on the same features, logits of the genie's move
+    (trained as an auxiliary task, ``DQNConfig.aux_genie``; it never acts).
     """
 
     def __init__(
@@ -29,6 +51,7 @@ class QNetwork(nn.Module):
         dropout: float = 0.4,
         n_actions: int = 4,
         channels: tuple[int, int, int] = (32, 64, 64),
+        aux: bool = False,
     ) -> None:
         super().__init__()
         c1, c2, c3 = channels
@@ -49,6 +72,7 @@ class QNetwork(nn.Module):
         self.fc = nn.Sequential(nn.Linear(n_flat, hidden), nn.ReLU(), nn.Dropout(dropout))
         self.value = nn.Linear(hidden, 1)
         self.advantage = nn.Linear(hidden, n_actions)
+        self.aux = nn.Linear(hidden, n_actions) if aux else None
 
     def fused(self) -> QNetwork:
         """An evaluation-mode copy for acting, never for training: each batch norm folded into the convolution
@@ -67,23 +91,29 @@ class QNetwork(nn.Module):
         net.features = nn.Sequential(*folded)
         return net.to(memory_format=torch.channels_last)
 
-    def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        x = self.fc(self.features(obs / INPUT_SCALE))  # [B, hidden]
-        a = self.advantage(x)  # [B, n_actions]
-        return self.value(x) + a - a.mean(dim=1, keepdim=True)
+    def embed(self, obs: torch.Tensor) -> torch.Tensor:
+        """``[B, hidden]``: the features both heads read."""
+        return self.fc(self.features(obs / INPUT_SCALE))
 
 
-class FoveaQNetwork(nn.Module):
+class FoveaQNetwork(DuelingQ):
     """``[B, C, w, w]`` observations -> ``[B, 4]`` Q values, at a fraction of ``QNetwork``'s cost on a CPU.
 
     The window is seen twice at ``fovea x fovea``: its centre at full resolution (the cells next to
     the UAV, where the next move is decided) and the whole window average-pooled (where the
     explored area and the buildings lie). Both go through 2 fully connected layers with ReLU and
-    dropout, then the dueling head.
+    dropout, then the dueling head (and, with ``aux``, the genie-move head, as in ``QNetwork``).
     """
 
     def __init__(
-        self, in_channels: int, window: int = 61, hidden: int = 256, dropout: float = 0.0, n_actions: int = 4, fovea: int = 15
+        self,
+        in_channels: int,
+        window: int = 61,
+        hidden: int = 256,
+        dropout: float = 0.0,
+        n_actions: int = 4,
+        fovea: int = 15,
+        aux: bool = False,
     ) -> None:
         super().__init__()
         if fovea % 2 != 1 or not 3 <= fovea <= window:
@@ -102,12 +132,12 @@ class FoveaQNetwork(nn.Module):
         )
         self.value = nn.Linear(hidden, 1)
         self.advantage = nn.Linear(hidden, n_actions)
+        self.aux = nn.Linear(hidden, n_actions) if aux else None
 
-    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+    def embed(self, obs: torch.Tensor) -> torch.Tensor:
+        """``[B, hidden]``: the features both heads read."""
         x = obs / INPUT_SCALE
         c, h = x.shape[-1] // 2, self.fovea // 2
         centre = x[..., c - h : c + h + 1, c - h : c + h + 1]  # [B, C, f, f]
         surround = F.avg_pool2d(x, self.kernel, self.stride)  # [B, C, f, f]
-        z = self.fc(torch.cat([centre, surround], dim=1))  # [B, hidden]
-        a = self.advantage(z)  # [B, n_actions]
-        return self.value(z) + a - a.mean(dim=1, keepdim=True)
+        return self.fc(torch.cat([centre, surround], dim=1))

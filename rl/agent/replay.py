@@ -6,7 +6,7 @@ episode's next step), unless the episode ended at ``i``: a terminated transition
 observation, and a truncated one keeps its final observation in a small side store (at most
 one truncation per ``t_max`` transitions of an env, so ``capacity // t_max + 2 * num_envs``
 side slots suffice). Memory: ``capacity * C * w * w`` bytes for the observations (5e5 x 2 x
-61 x 61 = 3.5 GiB) plus 11 bytes per slot.
+61 x 61 = 3.5 GiB) plus 19 bytes per slot.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ class Batch(NamedTuple):
     discount: np.ndarray  # [B] float32, gamma**m, 0 where the episode terminated within the n steps
     next_obs: np.ndarray  # [B, C, w, w] uint8
     next_mask: np.ndarray  # [B, 4] bool, legal actions at next_obs
+    genie: np.ndarray | None = None  # [B, 4] bool, the genie's moves at obs (the replay's: all False if it stores none)
 
 
 class ReplayBuffer:
@@ -36,6 +37,7 @@ class ReplayBuffer:
         c = self.capacity
         self.obs = np.zeros((c, *obs_shape), np.uint8)
         self.mask = np.zeros((c, 4), bool)
+        self.genie = np.zeros((c, 4), bool)
         self.action = np.zeros(c, np.int8)
         self.reward = np.zeros(c, np.float32)
         self.terminated = np.zeros(c, bool)
@@ -61,12 +63,15 @@ class ReplayBuffer:
         truncated: np.ndarray,
         final_obs: np.ndarray,
         final_mask: np.ndarray,
+        genie: np.ndarray | None = None,
     ) -> None:
         """One vector step: ``[N, ...]`` arrays; ``final_obs``/``final_mask`` hold the truncated rows' last
-        observation and mask (in row order of ``np.flatnonzero(truncated)``)."""
+        observation and mask (in row order of ``np.flatnonzero(truncated)``); ``genie`` the genie's moves at
+        ``obs`` (``BatchedEnv.genie_moves``) for a run that learns them."""
         n = self.num_envs
         s = slice(self.pos, self.pos + n)
         self.obs[s], self.mask[s], self.action[s] = obs, mask, action
+        self.genie[s] = False if genie is None else genie
         self.reward[s], self.terminated[s], self.truncated[s] = reward, terminated, truncated
         self.side_index[s] = -1
         rows = np.flatnonzero(truncated)
@@ -114,12 +119,13 @@ class ReplayBuffer:
             discount=np.where(term, 0.0, disc).astype(np.float32),
             next_obs=next_obs,
             next_mask=next_mask,
+            genie=self.genie[idx],
         )
 
     # -- persistence (resume) -----------------------------------------------------------------------
-    _ARRAYS = ("obs", "mask", "action", "reward", "terminated", "truncated", "side_index", "side_obs", "side_mask")
+    _ARRAYS = ("obs", "mask", "genie", "action", "reward", "terminated", "truncated", "side_index", "side_obs", "side_mask")
 
-    _SLOTS = ("obs", "mask", "action", "reward", "terminated", "truncated", "side_index")
+    _SLOTS = ("obs", "mask", "genie", "action", "reward", "terminated", "truncated", "side_index")
 
     def save(self, path: str | Path) -> None:
         """The written slots only: until the buffer is full they are the first ``size`` (a paper-preset
@@ -133,6 +139,9 @@ class ReplayBuffer:
             pos, size, side_pos = (int(v) for v in z["counters"])
             for k in self._ARRAYS:
                 mine = getattr(self, k)
+                if k == "genie" and k not in z.files:  # a replay saved before runs could store the genie's moves
+                    mine[:] = False
+                    continue
                 want = (size, *mine.shape[1:]) if k in self._SLOTS else mine.shape
                 if z[k].shape != want or size > self.capacity:
                     raise ValueError(f"replay {path}: {k} has shape {z[k].shape}, this run's is {want}")

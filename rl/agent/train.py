@@ -312,8 +312,13 @@ class Trainer:
 
     # -- evaluation ---------------------------------------------------------------------------------
     def evaluate(self) -> dict:
+        cfg = self.config
         policy = DQNPolicy(
-            self.agent.online, self.config.test_epsilon, seed=self.config.seed, revisit_penalty=self.config.test_revisit_penalty
+            self.agent.online,
+            cfg.test_epsilon,
+            seed=cfg.seed,
+            revisit_penalty=cfg.test_revisit_penalty,
+            aux_weight=cfg.test_aux_weight,
         )
         df = run_episodes(self.eval_maps, policy, self.eval_episodes, num_envs=min(256, len(self.eval_episodes)))
         summary = summarise(df)
@@ -360,13 +365,14 @@ class Trainer:
         while s.step < cfg.total_steps and (stop_at is None or s.step < stop_at):
             frac = s.step / cfg.total_steps
             eps = linear(cfg.eps_start, cfg.eps_end, s.step / (cfg.eps_fraction * cfg.total_steps))
+            genie = env.genie_moves() if cfg.aux_genie > 0 else None
             actions = self.agent.act(obs, mask, eps, s.last_action, self.rng)
             next_obs, reward, term, trunc, info = env.step(actions)
             final_obs = final_mask = np.zeros((0,))
             if trunc.any():
                 pick = np.isin(info["final_index"], np.flatnonzero(trunc))
                 final_obs, final_mask = info["final_obs"][pick], info["final_mask"][pick]
-            self.replay.add(obs, mask, actions, reward, term, trunc, final_obs, final_mask)
+            self.replay.add(obs, mask, actions, reward, term, trunc, final_obs, final_mask, genie)
             s.step += n
             done = term | trunc
             s.last_action = np.where(done, -1, actions)
@@ -456,7 +462,7 @@ def policy_from_checkpoint(ck: dict, path: str | Path, epsilon: float = 0.096, s
         raise InputError(
             path, f"weights do not fit the network its config describes ({str(exc)[:200]})", field="online"
         ) from None
-    return DQNPolicy(net, epsilon, seed, config.agent, config.test_revisit_penalty), config
+    return DQNPolicy(net, epsilon, seed, config.agent, config.test_revisit_penalty, config.test_aux_weight), config
 
 
 def load_policy(path: str | Path, epsilon: float = 0.096, seed: int = 0) -> tuple[DQNPolicy, DQNConfig]:
