@@ -61,7 +61,7 @@ def _cached(path: Path | None, make):  # noqa: ANN001, ANN202
     return out
 
 
-def measure(  # noqa: PLR0913
+def measure(
     source: str,
     crop: tuple[float, float, float, float] | None,
     users: int,

@@ -199,7 +199,7 @@ def time_to_target(args: argparse.Namespace) -> None:
     ):
         if done >= next_eval:
             next_eval += config.eval_every
-            acting = DQNPolicy(net, config.test_epsilon, seed=config.seed, revisit_penalty=config.test_revisit_penalty)
+            acting = DQNPolicy.from_config(net, config)
             success = summarise(run_episodes(eval_maps, acting, episodes, num_envs=min(256, len(episodes))))["success"]
             net.train()
             rows["tianshou"].append((done, time.perf_counter() - t0, success))

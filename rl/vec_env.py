@@ -135,8 +135,8 @@ class BatchedEnv:
         """``[N, 4]`` bool: the moves that start a shortest legal path to a target (privileged: the genie's
         choice, for training aids only; never part of an observation)."""
         ny, nx = self.neighbours()
-        here = self.genie_steps()[:, None]
-        return self.action_mask() & (self.maps.steps[self.view[:, None], ny, nx] < here)
+        # Blocked and off-map cells hold UNREACHABLE, never below a reachable cell's distance: no legality mask needed.
+        return self.maps.steps[self.view[:, None], ny, nx] < self.genie_steps()[:, None]
 
     def info(self) -> dict:
         return {"action_mask": self.action_mask(), "episode_id": self.episode_id.copy(), "view": self.view.copy()}

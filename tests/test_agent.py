@@ -12,7 +12,15 @@ import torch
 from tests.conftest import write_grid_city
 from uavplace.dataset.build import build_city
 from uavplace.ingest.pipeline import ingest_city
-from uavplace.rl.agent.dqn import DQN, DQNConfig, DQNPolicy, genie_move_loss, masked_argmax, preset_config
+from uavplace.rl.agent.dqn import (
+    DQN,
+    DQNConfig,
+    DQNPolicy,
+    genie_move_loss,
+    masked_argmax,
+    preset_config,
+    to_tensor,
+)
 from uavplace.rl.agent.network import FoveaQNetwork
 from uavplace.rl.agent.replay import Batch, ReplayBuffer
 from uavplace.rl.agent.train import Trainer, load_policy, read_run_json
@@ -388,7 +396,7 @@ def test_aux_genie_head_learns_the_genie_moves(tmp_path, city_root):
     assert genie.any(axis=1).mean() > 0.99
     net = trainer.agent.online.eval()
     with torch.no_grad():
-        top = net.aux(net.embed(torch.from_numpy(replay.obs[idx]).float() - 150)).argmax(dim=1).numpy()
+        top = net.aux(net.embed(to_tensor(replay.obs[idx]))).argmax(dim=1).numpy()
     hit = genie[np.arange(len(idx)), top].mean()
     chance = (genie.sum(axis=1) / legal.sum(axis=1)).mean()  # a uniformly random legal move's
     assert hit > chance + 0.15, (hit, chance)
@@ -399,7 +407,7 @@ def test_aux_genie_head_learns_the_genie_moves(tmp_path, city_root):
     obs, legal = env.observe(), env.action_mask()
     follower = DQNPolicy(policy.net, epsilon=0.0, aux_weight=1e6)
     with torch.no_grad():
-        logits = policy.net.aux(policy.net.embed(torch.from_numpy(obs).float() - 150))
+        logits = policy.net.aux(policy.net.embed(to_tensor(obs)))
     expected = logits.masked_fill(~torch.from_numpy(legal), float("-inf")).argmax(dim=1).numpy()
     np.testing.assert_array_equal(follower.act(obs, legal, env), expected)
     with pytest.raises(ValueError, match="genie-move head"):

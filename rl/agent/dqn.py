@@ -328,6 +328,18 @@ class DQNPolicy:
         self.name = name
         self.visits: np.ndarray | None = None  # [num_envs, side, side] visits of each canvas cell this episode
 
+    @classmethod
+    def from_config(cls, net: nn.Module, config: DQNConfig, epsilon: float | None = None, seed: int | None = None) -> DQNPolicy:
+        """``net`` acting by ``config``'s test rule (its epsilon, revisit penalty and head weight, unless given)."""
+        return cls(
+            net,
+            config.test_epsilon if epsilon is None else epsilon,
+            config.seed if seed is None else seed,
+            config.agent,
+            config.test_revisit_penalty,
+            config.test_aux_weight,
+        )
+
     def reset(self, rows: np.ndarray, num_envs: int) -> None:
         if self.visits is not None and len(self.visits) == num_envs:
             self.visits[rows] = 0

@@ -21,6 +21,12 @@ class DuelingQ(nn.Module):
     advantage: nn.Linear
     aux: nn.Linear | None
 
+    def _build_heads(self, hidden: int, n_actions: int, aux: bool) -> None:
+        """The dueling head's two layers and, with ``aux``, the genie-move head, all on ``hidden`` features."""
+        self.value = nn.Linear(hidden, 1)
+        self.advantage = nn.Linear(hidden, n_actions)
+        self.aux = nn.Linear(hidden, n_actions) if aux else None
+
     def embed(self, obs: torch.Tensor) -> torch.Tensor:
         raise NotImplementedError
 
@@ -70,9 +76,7 @@ class QNetwork(DuelingQ):
         with torch.no_grad():
             n_flat = self.features(torch.zeros(2, in_channels, window, window)).shape[1]
         self.fc = nn.Sequential(nn.Linear(n_flat, hidden), nn.ReLU(), nn.Dropout(dropout))
-        self.value = nn.Linear(hidden, 1)
-        self.advantage = nn.Linear(hidden, n_actions)
-        self.aux = nn.Linear(hidden, n_actions) if aux else None
+        self._build_heads(hidden, n_actions, aux)
 
     def fused(self) -> QNetwork:
         """An evaluation-mode copy for acting, never for training: each batch norm folded into the convolution
@@ -130,9 +134,7 @@ class FoveaQNetwork(DuelingQ):
             nn.ReLU(),
             nn.Dropout(dropout),
         )
-        self.value = nn.Linear(hidden, 1)
-        self.advantage = nn.Linear(hidden, n_actions)
-        self.aux = nn.Linear(hidden, n_actions) if aux else None
+        self._build_heads(hidden, n_actions, aux)
 
     def embed(self, obs: torch.Tensor) -> torch.Tensor:
         """``[B, hidden]``: the features both heads read."""

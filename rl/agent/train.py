@@ -312,14 +312,7 @@ class Trainer:
 
     # -- evaluation ---------------------------------------------------------------------------------
     def evaluate(self) -> dict:
-        cfg = self.config
-        policy = DQNPolicy(
-            self.agent.online,
-            cfg.test_epsilon,
-            seed=cfg.seed,
-            revisit_penalty=cfg.test_revisit_penalty,
-            aux_weight=cfg.test_aux_weight,
-        )
+        policy = DQNPolicy.from_config(self.agent.online, self.config)
         df = run_episodes(self.eval_maps, policy, self.eval_episodes, num_envs=min(256, len(self.eval_episodes)))
         summary = summarise(df)
         row = {
@@ -462,7 +455,7 @@ def policy_from_checkpoint(ck: dict, path: str | Path, epsilon: float = 0.096, s
         raise InputError(
             path, f"weights do not fit the network its config describes ({str(exc)[:200]})", field="online"
         ) from None
-    return DQNPolicy(net, epsilon, seed, config.agent, config.test_revisit_penalty, config.test_aux_weight), config
+    return DQNPolicy.from_config(net, config, epsilon, seed), config
 
 
 def load_policy(path: str | Path, epsilon: float = 0.096, seed: int = 0) -> tuple[DQNPolicy, DQNConfig]:
