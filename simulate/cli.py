@@ -150,7 +150,7 @@ def simulate(
     package versions, materials, wall time). Then: uavdata ingest OUT/<name>/ && uavdata build.
     Needs the raytrace extra: pip install -e '.[raytrace]' (CPU: libllvm19).
     """
-    from uavplace.simulate.corpus import corpus_specs
+    from uavplace.simulate.corpus import city_config, corpus_specs, is_done
     from uavplace.simulate.pipeline import SimulationSpec, simulate_city
     from uavplace.simulate.raytrace import RayTraceConfig
 
@@ -178,6 +178,9 @@ def simulate(
     )
     if len(specs) > 1 or ray_address is not None:
         _simulate_corpus(specs, rt, out_root, ray_address, cpus_per_city, quiet)
+        return
+    if is_done(specs[0], city_config(rt, specs[0]), out_root):
+        stdout().print(f"{name}: already done with the same settings in {out_root / name}", highlight=False, soft_wrap=True)
         return
     lines = not quiet and not console.is_terminal  # a log: a line per step instead of a bar
     try:

@@ -221,6 +221,9 @@ def test_simulate_ingest_build_round_trip(tmp_path):
     assert "simulate tiny: ray tracing 3/3" in res.stderr  # not a terminal: a line per step, for logs
     record = json.loads((tmp_path / "raw" / "tiny" / "simulation.json").read_text())
     assert record["cells"]["user_cells"] == 3 * 24 * 20 and record["packages"]["sionna-rt"] != "not installed"
+    again = _simulate(tmp_path, "procedural:tiny", "--name", "tiny", "--users", "3", "--samples", "2e5", "--seed", "4")
+    assert "tiny: already done with the same settings" in again.stdout, again.stdout  # one city resumes too
+    assert json.loads((tmp_path / "raw" / "tiny" / "simulation.json").read_text()) == record
     root = tmp_path / "p"
     ingest_city(tmp_path / "raw" / "tiny", root)
     b = load_bundle(build_city("tiny", BuildConfig(grid_m=4.0, altitude_m=10.0), root).path)
