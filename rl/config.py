@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from uavplace.schemas.base import Contract
 
@@ -50,6 +50,14 @@ class EnvConfig(Contract):
         description="Add a channel of the visited cells (value p_h_db where visited, 0 elsewhere) before the SINR memory, "
         "so that pooling keeps the route visible",
     )
+    context_zoom: int = Field(
+        default=0,
+        ge=0,
+        description="Context channels (0: none): the whole window again at 1/context_zoom resolution (blocks of "
+        "context_zoom x context_zoom cells, so it covers context_zoom times the span): the blocks' mean height and the "
+        "best SINR measured in each block (P_H where none is visited, P_L where the block is all blocked or beyond the "
+        "edge); blind: the SINR one only. They sit after the height channel, before the visited and SINR memory channels",
+    )
     far_starts: float = Field(
         default=0.0,
         ge=0,
@@ -67,6 +75,18 @@ class EnvConfig(Contract):
     )
     split: Split | None = Field(default=None, description="Users of this split only (bundles' users.parquet); None: all users")
 
+    @field_validator("context_zoom")
+    @classmethod
+    def _zoom_is_a_block(cls, zoom: int) -> int:
+        if zoom == 1:
+            raise ValueError("context_zoom 1 repeats the window; use 0 (no context) or a block side >= 2")
+        return zoom
+
+    @property
+    def num_context(self) -> int:
+        """How many context channels (``context_zoom``) the observation has."""
+        return 0 if self.context_zoom == 0 else 1 if self.blind else 2
+
     @property
     def num_channels(self) -> int:
-        return (1 if self.blind else 2) + int(self.visited_channel)
+        return (1 if self.blind else 2) + self.num_context + int(self.visited_channel)

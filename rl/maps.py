@@ -43,6 +43,8 @@ class MapSet:
     ``height`` [num_bundles * S, L, L] float32, ``blocked`` [num_bundles * S, L, L] bool,
     ``sinr`` / ``steps`` [num_views, L, L] float32 / int32 (``steps``: genie's BFS moves to a target),
     ``memory0`` [num_views, L, L] float32 (the SINR memory channel at the start of an episode).
+    With ``config.context_zoom`` = z: ``context_height`` [num_bundles * S, Lc, Lc] float32 (mean height of each
+    z x z block) and ``context_open`` [num_views, Lc, Lc] bool (a block with a cell the memory shows as P_H).
     """
 
     def __init__(self, bundles: list[Bundle], config: EnvConfig, users: list[np.ndarray] | None = None) -> None:
@@ -99,6 +101,13 @@ class MapSet:
         # Blind: buildings unknown, so blocked map cells look unvisited; beyond the edge stays P_L.
         hidden = ~on_map[self.view_map] if config.blind else blocked_v
         self.memory0 = np.where(hidden, config.p_l_db, config.p_h_db).astype(np.float32)
+        # Context channels: the canvas in z x z blocks, padded by half a window of blocks, so that a window of
+        # blocks centred on the block of any map cell is a plain slice too.
+        self.context_pad = config.window // 2
+        if config.context_zoom:
+            z, edge = config.context_zoom, config.edge_height_m
+            self.context_height = self._blocks(self.height, z, edge, np.mean)  # [S * nb, Lc, Lc]
+            self.context_open = self._blocks(~hidden, z, False, np.any)  # [nv, Lc, Lc]: a cell that can be visited
         # Valid starts per view, concatenated: flat canvas indices, with offset and count per view.
         valid = valid_starts(blocked_v, self.dead, self.sinr, config.p_t_db, self.steps)
         flat = [np.flatnonzero(valid[v]) for v in range(nv)]
@@ -106,6 +115,23 @@ class MapSet:
         self.start_offset = np.r_[0, np.cumsum(self.start_count)[:-1]]
         self.start_cells = np.concatenate(flat) if flat else np.zeros(0, np.int64)
         self.startable = np.flatnonzero(self.start_count[::S] > 0)  # scenarios with at least one valid start
+
+    def _blocks(self, a: np.ndarray, z: int, fill: float | bool, reduce) -> np.ndarray:  # noqa: ANN001
+        """``reduce`` over the ``z x z`` blocks of canvases ``a`` ``[K, L, L]`` (the last blocks filled with ``fill``),
+        padded with ``fill`` by ``context_pad`` blocks on every side: ``[K, Lc, Lc]``."""
+        k, side = len(a), -(-self.side // z)
+        full = np.full((k, side * z, side * z), fill, a.dtype)
+        full[:, : self.side, : self.side] = a
+        blocks = reduce(full.reshape(k, side, z, side, z), axis=(2, 4))
+        p = self.context_pad
+        out = np.full((k, side + 2 * p, side + 2 * p), fill, a.dtype)
+        out[:, p : p + side, p : p + side] = blocks
+        return out
+
+    def context_cell(self, y: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The context block ``(cy, cx)`` of canvas cells ``(y, x)`` (``config.context_zoom`` > 0)."""
+        z, p = self.config.context_zoom, self.context_pad
+        return y // z + p, x // z + p
 
     @classmethod
     def load(cls, datasets: list[str] | str, config: EnvConfig, root: str = "data/processed") -> MapSet:

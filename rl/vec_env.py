@@ -1,8 +1,10 @@
 """N episodes stepped together in numpy: the environment every trainer and evaluator uses.
 
 Observation ``[N, C, window, window]`` (C = 2: height channel, then SINR memory;
-blind: the SINR memory only; with ``visited_channel`` a channel of the visited cells
-before the SINR memory, which stays last), float32, or uint8 with ``compact=True``
+blind: the SINR memory only; with ``context_zoom`` the context channels after the
+height channel, the window again in blocks of ``context_zoom`` cells; with
+``visited_channel`` a channel of the visited cells before the SINR memory, which
+stays last), float32, or uint8 with ``compact=True``
 (``encode_obs``: 1 dB / 1 m per step, offset 150; two 61 x 61 uint8 channels are
 7.4 kB, so 5e5 transitions that store each observation once take 3.5 GiB).
 
@@ -74,6 +76,12 @@ class BatchedEnv:
         self._memory_windows = np.lib.stride_tricks.sliding_window_view(self.memory, (w, w), axis=(1, 2))
         self._height_windows = np.lib.stride_tricks.sliding_window_view(maps.height, (w, w), axis=(1, 2))
         self._visited_windows = np.lib.stride_tricks.sliding_window_view(self.visited, (w, w), axis=(1, 2))
+        if self.config.context_zoom:
+            # Best SINR measured so far in each context block, -inf where none is visited.
+            self.context_best = np.full((n, *maps.context_open.shape[1:]), -np.inf, np.float32)
+            self._context_best_windows = np.lib.stride_tricks.sliding_window_view(self.context_best, (w, w), axis=(1, 2))
+            self._context_height_windows = np.lib.stride_tricks.sliding_window_view(maps.context_height, (w, w), axis=(1, 2))
+            self._context_open_windows = np.lib.stride_tricks.sliding_window_view(maps.context_open, (w, w), axis=(1, 2))
 
     # -- episodes -----------------------------------------------------------------------------
     def _next_specs(self, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -102,6 +110,14 @@ class BatchedEnv:
         self.visited[idx] = False
         self.visited[idx, y, x] = True
         self.memory[idx, y, x] = self.maps.sinr[view, y, x]
+        if self.config.context_zoom:
+            self.context_best[idx] = -np.inf
+            self._remember_context(idx, y, x, self.maps.sinr[view, y, x])
+
+    def _remember_context(self, idx: np.ndarray, y: np.ndarray, x: np.ndarray, sinr: np.ndarray) -> None:
+        """Envs ``idx`` measured ``sinr`` at canvas cells ``(y, x)``: their context blocks keep the best."""
+        cy, cx = self.maps.context_cell(y, x)
+        self.context_best[idx, cy, cx] = np.maximum(self.context_best[idx, cy, cx], sinr)
 
     def reset(self, seed: int | None = None) -> tuple[np.ndarray, dict]:
         if seed is not None:
@@ -155,6 +171,15 @@ class BatchedEnv:
         obs = np.empty((len(idx), cfg.num_channels, *mem.shape[1:]), np.float32)
         if not cfg.blind:
             obs[:, 0] = self._height_windows[self.maps.view_map[self.view[idx]], y0, x0]
+        if cfg.context_zoom:
+            cy, cx = self.maps.context_cell(self.pos[idx, 0], self.pos[idx, 1])
+            cy0, cx0 = cy - cfg.window // 2, cx - cfg.window // 2
+            c = 0 if cfg.blind else 1
+            if not cfg.blind:
+                obs[:, c] = self._context_height_windows[self.maps.view_map[self.view[idx]], cy0, cx0]
+            best = self._context_best_windows[idx, cy0, cx0]
+            unvisited = np.where(self._context_open_windows[self.view[idx], cy0, cx0], cfg.p_h_db, cfg.p_l_db)
+            obs[:, c + cfg.num_context - 1] = np.where(best > -np.inf, best, unvisited)
         if cfg.visited_channel:
             obs[:, -2] = self._visited_windows[idx, y0, x0] * np.float32(cfg.p_h_db)
         obs[:, -1] = mem
@@ -174,6 +199,8 @@ class BatchedEnv:
         fresh = ~self.visited[rows, y, x]
         self.visited[rows, y, x] = True
         self.memory[rows, y, x] = new
+        if cfg.context_zoom:
+            self._remember_context(rows, y, x, new)
         self.t += 1
         terminated = new >= cfg.p_t_db
         reward = new - old + cfg.c_e * fresh + cfg.success_bonus * terminated - cfg.step_cost

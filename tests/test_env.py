@@ -212,6 +212,62 @@ def test_step_cost_reward_scale_and_visited_channel(root):
     assert (ob[:, 1, c, c] == cfg.p_h_db).all()  # the cell the UAV is on (the window's centre) is visited
 
 
+def _context_by_hand(env: BatchedEnv, i: int) -> tuple[np.ndarray, np.ndarray]:
+    """Env ``i``'s context channels (mean height, best SINR) computed cell by cell from the fine canvases."""
+    maps, cfg = env.maps, env.config
+    z, w, L = cfg.context_zoom, cfg.window, maps.side
+    view = env.view[i]
+    height, memory0 = maps.height[maps.view_map[view]], maps.memory0[view]
+    cy, cx = env.pos[i] // z  # block of the UAV, counted from the canvas origin
+    out_h, out_m = np.empty((w, w)), np.empty((w, w))
+    for r in range(w):
+        for c in range(w):
+            by, bx = cy + r - w // 2, cx + c - w // 2
+            ys, xs = np.arange(by * z, by * z + z), np.arange(bx * z, bx * z + z)
+            on = (ys[:, None] >= 0) & (ys[:, None] < L) & (xs[None] >= 0) & (xs[None] < L)
+            yy, xx = np.clip(ys, 0, L - 1)[:, None], np.clip(xs, 0, L - 1)[None]
+            out_h[r, c] = np.where(on, height[yy, xx], cfg.edge_height_m).mean()
+            seen = on & env.visited[i][yy, xx]
+            if seen.any():
+                out_m[r, c] = env.memory[i][yy, xx][seen].max()
+            else:
+                out_m[r, c] = cfg.p_h_db if (on & (memory0[yy, xx] == cfg.p_h_db)).any() else cfg.p_l_db
+    return out_h, out_m
+
+
+@pytest.mark.parametrize("blind", [False, True])
+def test_context_channels_hold_the_window_in_blocks(root, blind):
+    """context_zoom 3: blocks of 3 x 3 cells (mean height; best SINR measured, else P_H or P_L), the other channels
+    as without them, through steps and restarts."""
+    base = EnvConfig(t_max=12, window=21, visited_channel=True, blind=blind, rotate=True)
+    plain = MapSet.load("tiny", base, root=str(root))
+    cfg = base.model_copy(update={"context_zoom": 3})
+    assert cfg.num_channels == base.num_channels + (1 if blind else 2)
+    a, b = BatchedEnv(plain, 6), BatchedEnv(MapSet(plain.bundles, cfg), 6)
+    oa, _ = a.reset(seed=5)
+    ob, _ = b.reset(seed=5)
+    rng = np.random.default_rng(0)
+    for t in range(30):  # t_max 12: every env restarts at least twice
+        first = 0 if blind else 1
+        np.testing.assert_array_equal(ob[:, :first], oa[:, :first])  # height first
+        np.testing.assert_array_equal(ob[:, -2:], oa[:, -2:])  # visited, then SINR memory last
+        for i in range(6):
+            h, m = _context_by_hand(b, i)
+            if not blind:
+                np.testing.assert_allclose(ob[i, 1], h, atol=1e-4)
+            np.testing.assert_allclose(ob[i, -3], m, atol=1e-4)
+        if t == 0:
+            w = cfg.window // 2
+            assert (
+                (ob[:, -3, w, w] == b.sinr_here()).all() and (ob[:, -3] == cfg.p_h_db).any() and (ob[:, -3] == cfg.p_l_db).any()
+            )
+        actions = np.array([rng.choice(np.flatnonzero(m)) for m in a.action_mask()])
+        oa, *_ = a.step(actions)
+        ob, *_ = b.step(actions)
+    with pytest.raises(ValueError, match="context_zoom 1"):
+        EnvConfig(context_zoom=1)
+
+
 def test_far_starts_oversample_distant_starts(root):
     base = MapSet.load("tiny", EnvConfig(), root=str(root))
     far = MapSet(base.bundles, base.config.model_copy(update={"far_starts": 1.0}))
