@@ -83,6 +83,12 @@ class BatchedEnv:
             self._context_height_windows = np.lib.stride_tricks.sliding_window_view(maps.context_height, (w, w), axis=(1, 2))
             self._context_open_windows = np.lib.stride_tricks.sliding_window_view(maps.context_open, (w, w), axis=(1, 2))
 
+    @property
+    def state_arrays(self) -> tuple[str, ...]:
+        """Names of the arrays that hold the episodes' state: with the episode counter and the generator, what a
+        checkpoint keeps to continue exactly."""
+        return ("view", "pos", "t", "episode_id", "memory", "visited") + (("context_best",) if self.config.context_zoom else ())
+
     # -- episodes -----------------------------------------------------------------------------
     def _next_specs(self, k: int) -> tuple[np.ndarray, np.ndarray]:
         """``k`` episode specs and their episode ids (-1 where a queue has run out)."""

@@ -127,25 +127,27 @@ def city_root(tmp_path_factory):
     return tmp / "p"
 
 
-def _tiny_config() -> DQNConfig:
+def _tiny_config(**env: object) -> DQNConfig:
     return preset_config(
         "fast", total_steps=256, num_envs=8, buffer_size=512, batch_size=16, train_every=4, learning_starts=64,
-        eval_every=128, eval_episodes=16, hidden=16, conv_channels=(4, 8, 8), env={"t_max": 30, "rotate": True},
+        eval_every=128, eval_episodes=16, hidden=16, conv_channels=(4, 8, 8), env={"t_max": 30, "rotate": True} | env,
     )  # fmt: skip
 
 
-def test_resume_continues_exactly(tmp_path, city_root):
-    """Train 256 steps straight, or stop at 96 and 200 and resume each time: identical networks and next actions."""
-    straight = Trainer(_tiny_config(), ["tiny"], city_root, tmp_path / "a")
+@pytest.mark.parametrize("env", [{}, {"context_zoom": 3}], ids=["plain", "context"])
+def test_resume_continues_exactly(tmp_path, city_root, env):
+    """Train 256 steps straight, or stop at 96 and 200 and resume each time: identical networks and next actions
+    (with context channels too, whose memory of blocks the checkpoint keeps)."""
+    straight = Trainer(_tiny_config(**env), ["tiny"], city_root, tmp_path / "a")
     straight.run()
-    half = Trainer(_tiny_config(), ["tiny"], city_root, tmp_path / "b", command="uavrl train --until 96")
+    half = Trainer(_tiny_config(**env), ["tiny"], city_root, tmp_path / "b", command="uavrl train --until 96")
     half.run(stop_at=96)  # a planned stop between evaluations (`--until 96`) checkpoints there
     doc = json.loads((tmp_path / "b" / "run.json").read_text())
     assert doc["train_split"] == "train" and doc["eval_split"] == "val" and doc["datasets"]["tiny"]
-    Trainer(_tiny_config(), ["tiny"], city_root, tmp_path / "b", command="uavrl train --resume b --until 200").run(
+    Trainer(_tiny_config(**env), ["tiny"], city_root, tmp_path / "b", command="uavrl train --resume b --until 200").run(
         resume=True, stop_at=200
     )
-    resumed = Trainer(_tiny_config(), ["tiny"], city_root, tmp_path / "b", command="uavrl train --resume b")
+    resumed = Trainer(_tiny_config(**env), ["tiny"], city_root, tmp_path / "b", command="uavrl train --resume b")
     resumed.run(resume=True)
     assert read_run_json(tmp_path / "b").commands == [  # every command that trained it, in order
         "uavrl train --until 96",
@@ -162,6 +164,8 @@ def test_resume_continues_exactly(tmp_path, city_root):
     np.testing.assert_array_equal(straight.agent.act(obs, mask, 0.0, last, rng_a), resumed.agent.act(obs, mask, 0.0, last, rng_b))
     policy, cfg = load_policy(tmp_path / "a" / "checkpoints" / "best.pt")
     assert cfg == straight.config and policy.act(obs, mask, straight.env).shape == (8,)
+    if env:
+        np.testing.assert_array_equal(straight.env.context_best, resumed.env.context_best)
     metrics = tmp_path / "a" / "metrics.parquet"
 
     df = pd.read_parquet(metrics)

@@ -35,8 +35,6 @@ from uavplace.schemas import InputError
 from uavplace.schemas.base import Contract, uavplace_version, validation_message
 from uavplace.schemas.files import atomic_directory, atomic_write_text, recover_directory, write_model_json
 
-#: The environment's arrays a checkpoint keeps (with its counter and random state).
-_ENV_ARRAYS = ("view", "pos", "t", "episode_id", "memory", "visited")
 #: The resumable checkpoint folder under ``checkpoints/``.
 LAST = "last"
 
@@ -250,7 +248,7 @@ class Trainer:
             if self.agent.device.type == "cuda":
                 networks["cuda_rng"] = torch.cuda.get_rng_state_all()
             save_tensors(networks, tmp / "networks.pt")
-            arrays = {k: getattr(self.env, k) for k in _ENV_ARRAYS}
+            arrays = {k: getattr(self.env, k) for k in self.env.state_arrays}
             np.savez(tmp / "env.npz", **arrays, last_action=s.last_action, start_sinr=s.start_sinr)
             self.replay.save(tmp / "replay.npz")
             metrics.to_parquet(tmp / "metrics.parquet", index=False)
@@ -287,7 +285,7 @@ class Trainer:
             if ck.get("cuda_rng") is not None and self.agent.device.type == "cuda":
                 torch.cuda.set_rng_state_all([t.cpu() for t in ck["cuda_rng"]])
             with np.load(last / "env.npz", allow_pickle=False) as z:
-                for k in _ENV_ARRAYS:
+                for k in self.env.state_arrays:
                     getattr(self.env, k)[...] = z[k]
                 self.state.last_action, self.state.start_sinr = z["last_action"], z["start_sinr"]
             self.agent.updates = int(doc["updates"])
