@@ -44,7 +44,8 @@ class MapSet:
     ``sinr`` / ``steps`` [num_views, L, L] float32 / int32 (``steps``: genie's BFS moves to a target),
     ``memory0`` [num_views, L, L] float32 (the SINR memory channel at the start of an episode).
     With ``config.context_zoom`` = z: ``context_height`` [num_bundles * S, Lc, Lc] float32 (mean height of each
-    z x z block) and ``context_open`` [num_views, Lc, Lc] bool (a block with a cell the memory shows as P_H).
+    z x z block) and ``context_memory0`` [num_views, Lc, Lc] float32 (the context SINR channel at the start of an
+    episode: P_H for a block with a cell ``memory0`` shows as P_H, else P_L).
     """
 
     def __init__(self, bundles: list[Bundle], config: EnvConfig, users: list[np.ndarray] | None = None) -> None:
@@ -107,7 +108,8 @@ class MapSet:
         if config.context_zoom:
             z, edge = config.context_zoom, config.edge_height_m
             self.context_height = self._blocks(self.height, z, edge, np.mean)  # [S * nb, Lc, Lc]
-            self.context_open = self._blocks(~hidden, z, False, np.any)  # [nv, Lc, Lc]: a cell that can be visited
+            # [nv, Lc, Lc]: P_H where the block has a cell the memory shows as P_H (one that can be visited), else P_L.
+            self.context_memory0 = self._blocks(self.memory0, z, np.float32(config.p_l_db), np.max)
         # Valid starts per view, concatenated: flat canvas indices, with offset and count per view.
         valid = valid_starts(blocked_v, self.dead, self.sinr, config.p_t_db, self.steps)
         flat = [np.flatnonzero(valid[v]) for v in range(nv)]
@@ -116,7 +118,7 @@ class MapSet:
         self.start_cells = np.concatenate(flat) if flat else np.zeros(0, np.int64)
         self.startable = np.flatnonzero(self.start_count[::S] > 0)  # scenarios with at least one valid start
 
-    def _blocks(self, a: np.ndarray, z: int, fill: float | bool, reduce) -> np.ndarray:  # noqa: ANN001
+    def _blocks(self, a: np.ndarray, z: int, fill: float, reduce) -> np.ndarray:  # noqa: ANN001
         """``reduce`` over the ``z x z`` blocks of canvases ``a`` ``[K, L, L]`` (the last blocks filled with ``fill``),
         padded with ``fill`` by ``context_pad`` blocks on every side: ``[K, Lc, Lc]``."""
         k, side = len(a), -(-self.side // z)

@@ -77,17 +77,20 @@ class BatchedEnv:
         self._height_windows = np.lib.stride_tricks.sliding_window_view(maps.height, (w, w), axis=(1, 2))
         self._visited_windows = np.lib.stride_tricks.sliding_window_view(self.visited, (w, w), axis=(1, 2))
         if self.config.context_zoom:
-            # Best SINR measured so far in each context block, -inf where none is visited.
-            self.context_best = np.full((n, *maps.context_open.shape[1:]), -np.inf, np.float32)
-            self._context_best_windows = np.lib.stride_tricks.sliding_window_view(self.context_best, (w, w), axis=(1, 2))
+            # The context SINR channel's canvas (the best SINR measured in each block once one of its cells is
+            # visited, ``context_seen``) and its windows, as for the fine channels.
+            self.context_memory = np.zeros((n, *maps.context_memory0.shape[1:]), np.float32)
+            self.context_seen = np.zeros(self.context_memory.shape, bool)
+            self._context_memory_windows = np.lib.stride_tricks.sliding_window_view(self.context_memory, (w, w), axis=(1, 2))
             self._context_height_windows = np.lib.stride_tricks.sliding_window_view(maps.context_height, (w, w), axis=(1, 2))
-            self._context_open_windows = np.lib.stride_tricks.sliding_window_view(maps.context_open, (w, w), axis=(1, 2))
 
     @property
     def state_arrays(self) -> tuple[str, ...]:
         """Names of the arrays that hold the episodes' state: with the episode counter and the generator, what a
         checkpoint keeps to continue exactly."""
-        return ("view", "pos", "t", "episode_id", "memory", "visited") + (("context_best",) if self.config.context_zoom else ())
+        return ("view", "pos", "t", "episode_id", "memory", "visited") + (
+            ("context_memory", "context_seen") if self.config.context_zoom else ()
+        )
 
     # -- episodes -----------------------------------------------------------------------------
     def _next_specs(self, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -117,13 +120,16 @@ class BatchedEnv:
         self.visited[idx, y, x] = True
         self.memory[idx, y, x] = self.maps.sinr[view, y, x]
         if self.config.context_zoom:
-            self.context_best[idx] = -np.inf
+            self.context_memory[idx] = self.maps.context_memory0[view]
+            self.context_seen[idx] = False
             self._remember_context(idx, y, x, self.maps.sinr[view, y, x])
 
     def _remember_context(self, idx: np.ndarray, y: np.ndarray, x: np.ndarray, sinr: np.ndarray) -> None:
         """Envs ``idx`` measured ``sinr`` at canvas cells ``(y, x)``: their context blocks keep the best."""
         cy, cx = self.maps.context_cell(y, x)
-        self.context_best[idx, cy, cx] = np.maximum(self.context_best[idx, cy, cx], sinr)
+        seen = self.context_seen[idx, cy, cx]
+        self.context_memory[idx, cy, cx] = np.where(seen, np.maximum(self.context_memory[idx, cy, cx], sinr), sinr)
+        self.context_seen[idx, cy, cx] = True
 
     def reset(self, seed: int | None = None) -> tuple[np.ndarray, dict]:
         if seed is not None:
@@ -183,9 +189,7 @@ class BatchedEnv:
             c = 0 if cfg.blind else 1
             if not cfg.blind:
                 obs[:, c] = self._context_height_windows[self.maps.view_map[self.view[idx]], cy0, cx0]
-            best = self._context_best_windows[idx, cy0, cx0]
-            unvisited = np.where(self._context_open_windows[self.view[idx], cy0, cx0], cfg.p_h_db, cfg.p_l_db)
-            obs[:, c + cfg.num_context - 1] = np.where(best > -np.inf, best, unvisited)
+            obs[:, c + cfg.num_context - 1] = self._context_memory_windows[idx, cy0, cx0]
         if cfg.visited_channel:
             obs[:, -2] = self._visited_windows[idx, y0, x0] * np.float32(cfg.p_h_db)
         obs[:, -1] = mem

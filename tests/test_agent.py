@@ -165,7 +165,7 @@ def test_resume_continues_exactly(tmp_path, city_root, env):
     policy, cfg = load_policy(tmp_path / "a" / "checkpoints" / "best.pt")
     assert cfg == straight.config and policy.act(obs, mask, straight.env).shape == (8,)
     if env:
-        np.testing.assert_array_equal(straight.env.context_best, resumed.env.context_best)
+        np.testing.assert_array_equal(straight.env.context_memory, resumed.env.context_memory)
     metrics = tmp_path / "a" / "metrics.parquet"
 
     df = pd.read_parquet(metrics)
