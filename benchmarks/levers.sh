@@ -14,7 +14,8 @@
 #
 # With AUX=1 it trains the rows of the genie-move head into runs/aux (README, "The genie-move head"): A1 (N2 +
 # aux_genie 1, 3 seeds), A03 and A3 (head weights 0.3 and 3), A1L (A1 on a 300 k schedule, the `best` preset now,
-# 3 seeds), W91 (A1 with a 91-cell window), Y8 (A1L with the 8 symmetries) and FS (A1L with far starts 0.5, 3 seeds).
+# 3 seeds), W91 (A1 with a 91-cell window), Y8 (A1L with the 8 symmetries), FS (A1L with far starts 0.5, 3 seeds),
+# A1XL (A1L on 600 k steps) and CZ4 (A1L with the context channels in blocks of 4 x 4 cells).
 #
 #   bash benchmarks/levers.sh [STEPS] [OUT]      # defaults: 150000, runs/levers
 #   V2=1 bash benchmarks/levers.sh               # the N1 rows, runs/levers-v2
@@ -34,6 +35,9 @@ if [[ ${AUX:-0} == 1 ]]; then
   A1L=(--set aux_genie=1.0 --steps 300000)
   (one Y8-s0 --seed 0 "${A1L[@]}" --set env.symmetries=8; one FS-s1 --seed 1 "${A1L[@]}" --set env.far_starts=0.5) &
   (one FS-s0 --seed 0 "${A1L[@]}" --set env.far_starts=0.5; one FS-s2 --seed 2 "${A1L[@]}" --set env.far_starts=0.5) &
+  wait
+  (one A1XL-s0 --seed 0 --set aux_genie=1.0 --steps 600000) &
+  (one CZ4-s0 --seed 0 "${A1L[@]}" --set env.context_zoom=4) &
   wait
   exit 0
 fi
