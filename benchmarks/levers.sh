@@ -14,7 +14,7 @@
 #
 # With AUX=1 it trains the rows of the genie-move head into runs/aux (README, "The genie-move head"): A1 (N2 +
 # aux_genie 1, 3 seeds), A03 and A3 (head weights 0.3 and 3), A1L (A1 on a 300 k schedule, the `best` preset now,
-# 3 seeds), W91 (A1 with a 91-cell window), Y8 (A1L with the 8 symmetries), FS (A1L with far starts 0.5, 3 seeds),
+# 3 seeds), W91 (A1 with a 91-cell window), Y8 (A1L with the 8 symmetries, 3 seeds), FS (A1L with far starts 0.5, 3 seeds),
 # A1XL (A1L on 600 k steps) and CZ4 (A1L with the context channels in blocks of 4 x 4 cells).
 #
 #   bash benchmarks/levers.sh [STEPS] [OUT]      # defaults: 150000, runs/levers
@@ -38,6 +38,9 @@ if [[ ${AUX:-0} == 1 ]]; then
   wait
   (one A1XL-s0 --seed 0 --set aux_genie=1.0 --steps 600000) &
   (one CZ4-s0 --seed 0 "${A1L[@]}" --set env.context_zoom=4) &
+  wait
+  (one Y8-s1 --seed 1 "${A1L[@]}" --set env.symmetries=8) &
+  (one Y8-s2 --seed 2 "${A1L[@]}" --set env.symmetries=8) &
   wait
   exit 0
 fi
