@@ -12,6 +12,7 @@ plain slice of the canvas. Positions are canvas coordinates ``(y, x)``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -118,7 +119,7 @@ class MapSet:
         self.start_cells = np.concatenate(flat) if flat else np.zeros(0, np.int64)
         self.startable = np.flatnonzero(self.start_count[::S] > 0)  # scenarios with at least one valid start
 
-    def _blocks(self, a: np.ndarray, z: int, fill: float, reduce) -> np.ndarray:  # noqa: ANN001
+    def _blocks(self, a: np.ndarray, z: int, fill: float, reduce: Callable[..., np.ndarray]) -> np.ndarray:
         """``reduce`` over the ``z x z`` blocks of canvases ``a`` ``[K, L, L]`` (the last blocks filled with ``fill``),
         padded with ``fill`` by ``context_pad`` blocks on every side: ``[K, Lc, Lc]``."""
         k, side = len(a), -(-self.side // z)

@@ -118,11 +118,11 @@ class BatchedEnv:
         self.memory[idx] = self.maps.memory0[view]
         self.visited[idx] = False
         self.visited[idx, y, x] = True
-        self.memory[idx, y, x] = self.maps.sinr[view, y, x]
+        first = self.memory[idx, y, x] = self.maps.sinr[view, y, x]
         if self.config.context_zoom:
             self.context_memory[idx] = self.maps.context_memory0[view]
             self.context_seen[idx] = False
-            self._remember_context(idx, y, x, self.maps.sinr[view, y, x])
+            self._remember_context(idx, y, x, first)
 
     def _remember_context(self, idx: np.ndarray, y: np.ndarray, x: np.ndarray, sinr: np.ndarray) -> None:
         """Envs ``idx`` measured ``sinr`` at canvas cells ``(y, x)``: their context blocks keep the best."""
@@ -181,15 +181,15 @@ class BatchedEnv:
         cfg = self.config
         mem = self._memory_windows[idx, y0, x0]
         obs = np.empty((len(idx), cfg.num_channels, *mem.shape[1:]), np.float32)
+        m = self.maps.view_map[self.view[idx]]
         if not cfg.blind:
-            obs[:, 0] = self._height_windows[self.maps.view_map[self.view[idx]], y0, x0]
-        if cfg.context_zoom:
+            obs[:, 0] = self._height_windows[m, y0, x0]
+        if cfg.context_zoom:  # the context channels follow the height channel: height (not blind), then SINR
             cy, cx = self.maps.context_cell(self.pos[idx, 0], self.pos[idx, 1])
             cy0, cx0 = cy - cfg.window // 2, cx - cfg.window // 2
-            c = 0 if cfg.blind else 1
             if not cfg.blind:
-                obs[:, c] = self._context_height_windows[self.maps.view_map[self.view[idx]], cy0, cx0]
-            obs[:, c + cfg.num_context - 1] = self._context_memory_windows[idx, cy0, cx0]
+                obs[:, 1] = self._context_height_windows[m, cy0, cx0]
+            obs[:, 0 if cfg.blind else 2] = self._context_memory_windows[idx, cy0, cx0]
         if cfg.visited_channel:
             obs[:, -2] = self._visited_windows[idx, y0, x0] * np.float32(cfg.p_h_db)
         obs[:, -1] = mem
