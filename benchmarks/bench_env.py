@@ -68,7 +68,7 @@ def main() -> None:
     ap.add_argument("--dataset", default=None, help="built city (default: the embedded train city, built here)")
     ap.add_argument("--root", default="data/processed")
     ap.add_argument("--steps", type=int, default=300, help="vector steps per measurement")
-    ap.add_argument("--noise-dbm", type=float, default=-68.0, help="build setting when building the embedded city")
+    ap.add_argument("--noise-dbm", type=float, default=-75.0, help="build setting when building the embedded city")
     ap.add_argument("--corpus", default=None, help="corpus name (built cities NAME-NNN) to compare with the one city")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:

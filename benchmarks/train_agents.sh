@@ -4,11 +4,12 @@
 # on a test city:
 #   best-s0, best-s1, best-s2   the `best` preset, 3 seeds (the median seed by validation is shipped as
 #                               data/agents/best); LONG=1: on a 500 k-step schedule instead (best-long-sN)
-#   proposed, blind             the paper's preset (docs/method.md), with and without the height map,
-#                               on one shortened schedule (epsilon annealed over all of it)
+#   proposed-sN, blind-sN       the paper's preset (docs/method.md), with and without the height map,
+#                               on one shortened schedule (epsilon annealed over all of it), seed SEED
 # Resumable: a run whose folder exists continues from its last checkpoint; a finished one is skipped.
 #
 #   bash benchmarks/train_agents.sh best|paper [OUT]     # OUT defaults to runs/agents
+#   SEED=1 PAPER_STEPS=300000 bash benchmarks/train_agents.sh paper runs/agents-v4
 set -euo pipefail
 WHICH=${1:?best or paper}
 OUT=${2:-runs/agents}
@@ -20,8 +21,10 @@ source "$(dirname "$0")/one_run.sh"
 
 if [[ $WHICH == paper ]]; then
   PAPER=(--preset paper --steps "$PAPER_STEPS" --eval-every 20000 --set eval_episodes=1000)
-  one proposed "${PAPER[@]}" --agent dqn &
-  one blind "${PAPER[@]}" --agent blind &
+  # One seed per call (SEED, default 0): proposed-sN and blind-sN side by side, one per core.
+  SEED=${SEED:-0}
+  one "proposed-s$SEED" "${PAPER[@]}" --seed "$SEED" --agent dqn &
+  one "blind-s$SEED" "${PAPER[@]}" --seed "$SEED" --agent blind &
 else
   if [[ ${LONG:-0} == 1 ]]; then
     for seed in 0 1 2; do one "best-long-s$seed" --preset best --steps 500000 --seed "$seed" & done

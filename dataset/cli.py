@@ -51,7 +51,7 @@ def _splits(values: tuple[str, ...]) -> dict[str, str]:
     default=-104.0,
     show_default=True,
     help="Noise plus background interference power [dBm] (the paper's combined -104 dBm; the embedded "
-    "cities are calibrated at -68 dBm, see the README).",
+    "cities are calibrated at -75 dBm, see the README).",
 )
 @click.option(
     "--interference-std-db",

@@ -165,8 +165,8 @@ def uavdata() -> None:
     \b
     Typical use on a new city:
       uavdata ingest data/raw/cityA/
-      uavdata build --grid 4m --alt 10 --noise-dbm -68
-    (-68 dBm of noise plus interference is the level the embedded cities and
+      uavdata build --grid 4m --alt 10 --noise-dbm -75
+    (-75 dBm of noise plus interference is the level the embedded cities and
     the shipped agents are calibrated at; see the README.)
     """
 

@@ -257,7 +257,7 @@ def test_versions_units_and_bracketed_names_are_shown(tmp_path):
     for cli, name in ((uavdata, "uavdata"), (uavrl, "uavrl")):
         res = CliRunner().invoke(cli, ["--version"])
         assert res.exit_code == 0 and res.output.strip() == f"{name}, version {version('uavplace')}"
-    assert "--noise-dbm -68" in run("--help").output
+    assert "--noise-dbm -75" in run("--help").output
     city = write_grid_city(tmp_path / "city")
     (city / "notes [draft].txt").write_text("x")
     res = run("ingest", str(city), "--out", str(tmp_path / "proc"))
