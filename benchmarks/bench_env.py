@@ -32,7 +32,7 @@ from uavplace.rl.env import UavPlacementEnv
 from uavplace.rl.maps import MapSet
 from uavplace.rl.policies import random_legal
 from uavplace.rl.vec_env import BatchedEnv
-from uavplace.schemas.bundle import BuildConfig
+from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM, BuildConfig
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -68,7 +68,7 @@ def main() -> None:
     ap.add_argument("--dataset", default=None, help="built city (default: the embedded train city, built here)")
     ap.add_argument("--root", default="data/processed")
     ap.add_argument("--steps", type=int, default=300, help="vector steps per measurement")
-    ap.add_argument("--noise-dbm", type=float, default=-75.0, help="build setting when building the embedded city")
+    ap.add_argument("--noise-dbm", type=float, default=EMBEDDED_NOISE_DBM, help="build setting when building the embedded city")
     ap.add_argument("--corpus", default=None, help="corpus name (built cities NAME-NNN) to compare with the one city")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:

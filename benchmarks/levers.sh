@@ -52,13 +52,13 @@ fi
 if [[ ${V5:-0} == 1 ]]; then
   OUT=runs/levers-v5
   mkdir -p "$OUT"
-  COMMON=(--dataset corpus --dataset oldtown --dataset train --preset best --seed 0 --out "$OUT" --quiet)
-  (one T5-s0 --set env.t_max=500; one RR2-s0 --set train_every=8) &
-  (one G995-s0 --set gamma=0.995; one H512-s0 --set hidden=512) &
+  COMMON=(--dataset corpus --dataset oldtown --dataset train --preset best --out "$OUT" --quiet)
+  (one T5-s0 --seed 0 --set env.t_max=500; one RR2-s0 --seed 0 --set train_every=8) &
+  (one G995-s0 --seed 0 --set gamma=0.995; one H512-s0 --seed 0 --set hidden=512) &
   wait
-  # T5 tied A1L on seed 0: seeds 1 and 2 (COMMON's --seed 0 is overridden by the later one).
-  (one T5-s1 --set env.t_max=500 --seed 1) &
-  (one T5-s2 --set env.t_max=500 --seed 2) &
+  # T5 tied A1L on seed 0: seeds 1 and 2.
+  (one T5-s1 --seed 1 --set env.t_max=500) &
+  (one T5-s2 --seed 2 --set env.t_max=500) &
   wait
   exit 0
 fi

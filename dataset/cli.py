@@ -11,7 +11,7 @@ from rich.markup import escape
 
 from uavplace.dataset.catalog import list_cities
 from uavplace.schemas import InputError
-from uavplace.schemas.bundle import BuildConfig
+from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM, BuildConfig
 from uavplace.schemas.cli import Bounds, Metres, command_line, console, fail, plain_table, root_option, stdout
 from uavplace.schemas.files import check_name
 
@@ -51,7 +51,7 @@ def _splits(values: tuple[str, ...]) -> dict[str, str]:
     default=-104.0,
     show_default=True,
     help="Noise plus background interference power [dBm] (the paper's combined -104 dBm; the embedded "
-    "cities are calibrated at -75 dBm, see the README).",
+    f"cities are calibrated at {EMBEDDED_NOISE_DBM:g} dBm, see the README).",
 )
 @click.option(
     "--interference-std-db",

@@ -181,13 +181,13 @@ class BatchedEnv:
         cfg = self.config
         mem = self._memory_windows[idx, y0, x0]
         obs = np.empty((len(idx), cfg.num_channels, *mem.shape[1:]), np.float32)
-        m = self.maps.view_map[self.view[idx]]
-        if not cfg.blind:
+        m = None if cfg.blind else self.maps.view_map[self.view[idx]]  # the height canvases' rows (blind: none read)
+        if m is not None:
             obs[:, 0] = self._height_windows[m, y0, x0]
         if cfg.context_zoom:  # the context channels follow the height channel: height (not blind), then SINR
             cy, cx = self.maps.context_cell(self.pos[idx, 0], self.pos[idx, 1])
             cy0, cx0 = cy - cfg.window // 2, cx - cfg.window // 2
-            if not cfg.blind:
+            if m is not None:
                 obs[:, 1] = self._context_height_windows[m, cy0, cx0]
             obs[:, 0 if cfg.blind else 2] = self._context_memory_windows[idx, cy0, cx0]
         if cfg.visited_channel:

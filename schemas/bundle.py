@@ -45,6 +45,10 @@ MAP_ARRAYS: dict[str, tuple[str, str]] = {
     "num_rx": ("uint16", "[num_users, num_y, num_x] receivers of the export averaged into the cell"),
 }
 
+#: The noise-plus-interference level [dBm] the embedded cities (data/raw/) and the shipped agents are calibrated at:
+#: where the embedded test city's genie needs the paper's 14 moves (README, benchmarks/calibrate_difficulty.py).
+EMBEDDED_NOISE_DBM = -75.0
+
 
 class BuildConfig(Contract):
     """Every parameter of `uavdata build` for one city (saved in the bundle's manifest)."""

@@ -23,6 +23,7 @@ from rich.table import Table
 from rich.text import Text
 
 from uavplace.schemas import InputError
+from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM
 from uavplace.schemas.export import SCHEMA_MODELS, json_schemas
 from uavplace.schemas.files import DEFAULT_ROOT, describe_os_error
 
@@ -165,10 +166,13 @@ def uavdata() -> None:
     \b
     Typical use on a new city:
       uavdata ingest data/raw/cityA/
-      uavdata build --grid 4m --alt 10 --noise-dbm -75
-    (-75 dBm of noise plus interference is the level the embedded cities and
-    the shipped agents are calibrated at; see the README.)
+      uavdata build --grid 4m --alt 10 --noise-dbm {noise:g}
+    ({noise:g} dBm of noise plus interference is the level the embedded cities
+    and the shipped agents are calibrated at; see the README.)
     """
+
+
+uavdata.help = uavdata.help.format(noise=EMBEDDED_NOISE_DBM)
 
 
 @click.group(

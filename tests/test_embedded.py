@@ -14,13 +14,11 @@ from tests.conftest import REPO
 from uavplace.dataset.build import build_city
 from uavplace.dataset.bundle import load_bundle
 from uavplace.ingest.pipeline import ingest_city
-from uavplace.schemas.bundle import BuildConfig
+from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM, BuildConfig
 
 RAW = REPO / "data" / "raw"
 #: Every embedded city: a folder of data/raw made by the commands in the README.
 CITIES = sorted(p.name for p in RAW.iterdir() if (p / "simulation.json").is_file())
-#: The noise-plus-interference level the README's main job builds them with [dBm].
-CALIBRATED_NOISE_DBM = -75.0
 
 
 def test_embedded_data_is_small_and_complete():
@@ -43,7 +41,7 @@ def test_embedded_city_ingests_builds_and_is_faithful(tmp_path, city):
     record = json.loads((RAW / city / "simulation.json").read_text())
     assert record["spec"]["name"] == city
     ingest_city(RAW / city, tmp_path)
-    b = load_bundle(build_city(city, BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=CALIBRATED_NOISE_DBM), tmp_path).path)
+    b = load_bundle(build_city(city, BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=EMBEDDED_NOISE_DBM), tmp_path).path)
     assert b.num_users == len(record["users_m"]) and b.shape == (record["grid"]["num_y"], record["grid"]["num_x"])
     assert b.manifest.counts["buildings"] == record.get("num_buildings")
     d = b.manifest.difficulty
