@@ -23,6 +23,8 @@
 #
 #   bash benchmarks/levers.sh [STEPS] [OUT]      # defaults: 150000, runs/levers
 #   V5=1 bash benchmarks/levers.sh               # the rows on the 1.6e7-ray maps, runs/levers-v5
+#   H5=1 bash benchmarks/levers.sh               # H512 (V5) with 3 seeds, runs/levers-v5
+#   OT=1 bash benchmarks/levers.sh               # the old-town cities drawn 3 times as often, runs/levers-v5
 #   V2=1 bash benchmarks/levers.sh               # the N1 rows, runs/levers-v2
 #   AUX=1 bash benchmarks/levers.sh              # the A rows, runs/aux
 set -euo pipefail
@@ -60,6 +62,24 @@ if [[ ${V5:-0} == 1 ]]; then
   (one T5-s1 --seed 1 --set env.t_max=500) &
   (one T5-s2 --seed 2 --set env.t_max=500) &
   wait
+  exit 0
+fi
+if [[ ${H5:-0} == 1 ]]; then
+  # H512 took fewer steps than A1L on every validation city (seed 0): seeds 1 and 2, one lane (the paper pair holds
+  # the cores). Same OUT as V5, so that the three seeds sit side by side.
+  OUT=runs/levers-v5
+  mkdir -p "$OUT"
+  COMMON=(--dataset corpus --dataset oldtown --dataset train --preset best --out "$OUT" --quiet)
+  for seed in 0 1 2; do one "H512-s$seed" --seed "$seed" --set hidden=512; done
+  exit 0
+fi
+if [[ ${OT:-0} == 1 ]]; then
+  # The old-town cities (the densest style, the hardest validation city) drawn 3 times as often as the others
+  # (env.city_weights; 46 % of the training episodes instead of 22 %), seed 0.
+  OUT=runs/levers-v5
+  mkdir -p "$OUT"
+  COMMON=(--dataset corpus --dataset oldtown --dataset train --preset best --out "$OUT" --quiet)
+  one OT3-s0 --seed 0 --set 'env.city_weights={"oldtown": 3}'
   exit 0
 fi
 if [[ ${V2:-0} == 1 ]]; then

@@ -9,7 +9,7 @@ from pydantic import ValidationError
 
 from uavplace.schemas import CityManifest, InputError
 from uavplace.schemas.base import validation_message
-from uavplace.schemas.files import DEFAULT_ROOT, check_name
+from uavplace.schemas.files import DEFAULT_ROOT, check_name, in_corpus
 
 INGESTED_MANIFEST = Path("ingested") / "manifest.json"
 
@@ -62,7 +62,7 @@ def expand_datasets(names: list[str] | tuple[str, ...], root: str | Path = DEFAU
         if city in cities:
             members = [name]
         else:
-            members = [c for c in cities if c.startswith(f"{name}-") and c[len(name) + 1 :].isdigit()]
+            members = [c for c in cities if in_corpus(c, name)]
             if not members:
                 raise InputError(
                     Path(root) / name, "no ingested city or corpus of that name (see `uavrl datasets`)", field="dataset"

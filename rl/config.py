@@ -64,6 +64,12 @@ class EnvConfig(Contract):
         le=1,
         description="Curriculum: share of starts drawn as the farther (genie moves) of two uniform draws",
     )
+    city_weights: dict[str, float] = Field(
+        default_factory=dict,
+        description="Training only: how often each city's users are drawn, relative to the others, by city or corpus "
+        "name (oldtown: every oldtown-NNN); an exact city name wins over its corpus, unnamed cities weigh 1 ({}: every "
+        "user alike, the paper's)",
+    )
     edge_height_m: float = Field(
         default=100.0, description="Height channel value beyond the map edge (blocked) [m above the UAV]"
     )
@@ -81,6 +87,14 @@ class EnvConfig(Contract):
         if zoom == 1:
             raise ValueError("context_zoom 1 repeats the window; use 0 (no context) or a block side >= 2")
         return zoom
+
+    @field_validator("city_weights")
+    @classmethod
+    def _weights_are_positive(cls, weights: dict[str, float]) -> dict[str, float]:
+        bad = {name: w for name, w in weights.items() if not w > 0 or w == float("inf")}
+        if bad:
+            raise ValueError(f"city weights must be positive and finite: {bad}")
+        return weights
 
     @property
     def num_context(self) -> int:

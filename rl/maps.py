@@ -20,6 +20,7 @@ import numpy as np
 from uavplace.dataset.bundle import Bundle, load_bundle
 from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target, valid_starts
 from uavplace.rl.config import EnvConfig
+from uavplace.schemas.files import in_corpus
 
 #: Moves of the 4 actions in canvas coordinates (dy, dx): 0 north (+y), 1 east (+x), 2 south (-y), 3 west (-x).
 MOVES = np.array([[1, 0], [0, 1], [-1, 0], [0, -1]], dtype=np.int64)
@@ -29,6 +30,13 @@ def transform(a: np.ndarray, k: int) -> np.ndarray:
     """Symmetry ``k`` (0-7) of the square applied to the last two axes of ``a``: ``k % 4`` quarter turns
     counter-clockwise, of ``a`` (``k < 4``) or of its transpose (``k >= 4``)."""
     return np.rot90(np.swapaxes(a, -1, -2) if k >= 4 else a, k % 4, axes=(-2, -1))
+
+
+def city_weight(weights: dict[str, float], city: str) -> float:
+    """``city``'s weight in ``EnvConfig.city_weights``: its own name's, else its corpus's, else 1."""
+    if city in weights:
+        return weights[city]
+    return next((w for name, w in weights.items() if in_corpus(city, name)), 1.0)
 
 
 @dataclass(frozen=True)
@@ -118,6 +126,11 @@ class MapSet:
         self.start_offset = np.r_[0, np.cumsum(self.start_count)[:-1]]
         self.start_cells = np.concatenate(flat) if flat else np.zeros(0, np.int64)
         self.startable = np.flatnonzero(self.start_count[::S] > 0)  # scenarios with at least one valid start
+        # config.city_weights: the chance of each startable scenario (None: uniform, drawn as before the weights).
+        self.start_p = None
+        if config.city_weights and len(self.startable):
+            weight = np.array([city_weight(config.city_weights, scenarios[s].city) for s in self.startable])
+            self.start_p = weight / weight.sum()
 
     def _blocks(self, a: np.ndarray, z: int, fill: float, reduce: Callable[..., np.ndarray]) -> np.ndarray:
         """``reduce`` over the ``z x z`` blocks of canvases ``a`` ``[K, L, L]`` (the last blocks filled with ``fill``),
@@ -152,13 +165,16 @@ class MapSet:
         return np.asarray(view) % self.symmetries
 
     def sample_episodes(self, n: int, rng: np.random.Generator, rotate: bool | None = None) -> np.ndarray:
-        """``[n, 3]`` int64 episode specs ``(view, y, x)``: a uniformly drawn startable scenario,
+        """``[n, 3]`` int64 episode specs ``(view, y, x)``: a startable scenario (uniform, or by ``config.city_weights``),
         symmetry (if ``rotate``, default ``config.rotate``; else the identity) and start cell (with
         ``config.far_starts``, that share of the starts is the farther from a target of two draws)."""
         if len(self.startable) == 0:
             raise ValueError("no scenario has a valid start cell (every legal, live cell is at or above P_T)")
         rotate = self.config.rotate if rotate is None else rotate
-        scen = self.startable[rng.integers(0, len(self.startable), n)]
+        if self.start_p is None:
+            scen = self.startable[rng.integers(0, len(self.startable), n)]
+        else:
+            scen = rng.choice(self.startable, n, p=self.start_p)
         S = self.symmetries
         k = rng.integers(0, S, n) if rotate else np.zeros(n, np.int64)
         view = S * scen + k

@@ -51,6 +51,12 @@ def check_name(name: str, what: str = "name") -> str:
     )
 
 
+def in_corpus(city: str, name: str) -> bool:
+    """True when ``city`` is ``name`` or a member ``NAME-NNN`` of the corpus ``name`` (as ``uavdata simulate --count``
+    names them)."""
+    return city == name or (city.startswith(f"{name}-") and city[len(name) + 1 :].isdigit())
+
+
 def sha256_file(path: str | Path) -> str:
     """Hex sha256 of a file's bytes."""
     h = hashlib.sha256()

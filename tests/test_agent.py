@@ -8,6 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
+from pydantic import ValidationError
 
 from tests.conftest import write_grid_city
 from uavplace.dataset.build import build_city
@@ -24,6 +25,8 @@ from uavplace.rl.agent.dqn import (
 from uavplace.rl.agent.network import FoveaQNetwork
 from uavplace.rl.agent.replay import Batch, ReplayBuffer
 from uavplace.rl.agent.train import Trainer, load_policy, read_run_json
+from uavplace.rl.config import EnvConfig
+from uavplace.rl.maps import MapSet
 from uavplace.schemas import InputError
 from uavplace.schemas.bundle import BuildConfig
 
@@ -323,6 +326,24 @@ def test_train_on_a_corpus_selects_on_val_cities_and_refuses_test_cities(tmp_pat
     assert res.exit_code == 2 and "shaping" in res.output and not (tmp_path / "bad").exists()
     res = run(uavrl, [*base, "--dataset", "c-000", "--set", "gama=0.5", "--name", "bad"])
     assert res.exit_code == 2 and "'gama=0.5'" in res.output
+    res = run(uavrl, [*base, "--dataset", "c", "--set", 'env.city_weights={"oldtown": 3}', "--name", "bad"])
+    assert res.exit_code != 0 and "env.city_weights" in res.output and "oldtown" in res.output
+    assert not (tmp_path / "bad").exists()
+
+
+@pytest.mark.parametrize(("weights", "share"), [({}, 0.5), ({"c-001": 3.0}, 0.75), ({"c": 2.0, "c-000": 6.0}, 0.25)])
+def test_city_weights_draw_cities_in_proportion(corpus_root, weights, share):
+    """c-001's share of the drawn episodes: 1/2 unweighted, 3/4 weighted 3 against 1, and an exact name (c-000: 6)
+    wins over its corpus (c: 2); the evaluation protocol draws every user alike."""
+    config = preset_config("fast", env={"city_weights": weights})
+    maps = MapSet.load(["c-000", "c-001"], config.env_config(), root=str(corpus_root))
+    assert len(maps.startable) == 6  # 3 users each: equal weights give equal shares
+    v = maps.sample_episodes(20_000, np.random.default_rng(0))[:, 0]
+    drawn = np.mean([maps.scenarios[s].city == "c-001" for s in maps.scenario_of(v)])
+    assert abs(drawn - share) < 0.015
+    assert config.env_config(evaluation=True).city_weights == {}
+    with pytest.raises(ValidationError, match="positive"):
+        EnvConfig(city_weights={"c": 0.0})
 
 
 def test_report_refuses_a_city_an_agent_was_selected_on(tmp_path, corpus_root):

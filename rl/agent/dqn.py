@@ -95,11 +95,11 @@ class DQNConfig(Contract):
     def env_config(self, *, evaluation: bool = False) -> EnvConfig:
         """The training environment, or (``evaluation``) the test protocol's: no symmetry (views numbered as in
         any other unrotated ``MapSet``), the evaluation step budget and split, no training aid (shaping,
-        far-start curriculum)."""
+        far-start curriculum, city weights)."""
         blind = self.agent == "blind"
         if evaluation:
             update = {"rotate": False, "symmetries": 4, "t_max": self.eval_t_max, "split": self.eval_split}
-            update |= {"shaping": 0.0, "far_starts": 0.0}
+            update |= {"shaping": 0.0, "far_starts": 0.0, "city_weights": {}}
             return self.env.model_copy(update={"blind": blind} | update)
         return self.env.model_copy(update={"blind": blind, "shaping_gamma": self.gamma})
 

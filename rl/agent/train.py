@@ -33,7 +33,7 @@ from uavplace.rl.rollout import run_episodes, summarise
 from uavplace.rl.vec_env import BatchedEnv
 from uavplace.schemas import InputError
 from uavplace.schemas.base import Contract, uavplace_version, validation_message
-from uavplace.schemas.files import atomic_directory, atomic_write_text, recover_directory, write_model_json
+from uavplace.schemas.files import atomic_directory, atomic_write_text, in_corpus, recover_directory, write_model_json
 
 #: The resumable checkpoint folder under ``checkpoints/``.
 LAST = "last"
@@ -192,6 +192,12 @@ class Trainer:
             torch.set_num_threads(max(1, min(2, os.cpu_count() or 1)))
         bundles = [load_bundle(name, root=self.root) for name in self.datasets]
         cities = plan_cities(bundles, [load_bundle(n, root=self.root) for n in val_datasets or []], config.eval_split)
+        unmatched = [n for n in config.env.city_weights if not any(in_corpus(b.city, n) for b in cities.train)]
+        if unmatched:
+            raise InputError(
+                None, f"{unmatched} name no training city or corpus ({', '.join(b.city for b in cities.train)})",
+                field="env.city_weights",
+            )  # fmt: skip
         self.maps = MapSet(cities.train, config.env_config().model_copy(update={"split": cities.train_split}), cities.train_users)
         self.eval_split = cities.val_split
         eval_cfg = config.env_config(evaluation=True).model_copy(update={"split": cities.val_split})
