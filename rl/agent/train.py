@@ -195,7 +195,8 @@ class Trainer:
         unmatched = [n for n in config.env.city_weights if not any(in_corpus(b.city, n) for b in cities.train)]
         if unmatched:
             raise InputError(
-                None, f"{unmatched} name no training city or corpus ({', '.join(b.city for b in cities.train)})",
+                None, f"{', '.join(unmatched)}: no training city or corpus of that name (training cities: "
+                f"{', '.join(b.city for b in cities.train)})",
                 field="env.city_weights",
             )  # fmt: skip
         self.maps = MapSet(cities.train, config.env_config().model_copy(update={"split": cities.train_split}), cities.train_users)
