@@ -25,7 +25,7 @@
 #   V5=1 bash benchmarks/levers.sh               # the rows on the 1.6e7-ray maps, runs/levers-v5
 #   H5=1 bash benchmarks/levers.sh               # H512 (V5) with 3 seeds, runs/levers-v5
 #   OT=1 bash benchmarks/levers.sh               # the old-town cities drawn 3 times as often, runs/levers-v5
-#   HALF=1 bash benchmarks/levers.sh             # A1L on half the training cities (2 seeds), runs/levers-v5
+#   HALF=1 bash benchmarks/levers.sh             # A1L on half the training cities (3 seeds), runs/levers-v5
 #   V2=1 bash benchmarks/levers.sh               # the N1 rows, runs/levers-v2
 #   AUX=1 bash benchmarks/levers.sh              # the A rows, runs/aux
 set -euo pipefail
@@ -76,7 +76,7 @@ if [[ ${H5:-0} == 1 ]]; then
 fi
 if [[ ${HALF:-0} == 1 ]]; then
   # Does validation grow with the number of training cities? A1L on half of them (8 corpus, 3 old-town and the train
-  # city: 12 of 22), selected on the same validation cities, seeds 0 and 1, one lane each.
+  # city: 12 of 22), selected on the same validation cities, seeds 0 and 1 side by side, then seed 2.
   OUT=runs/levers-v5
   mkdir -p "$OUT"
   HALF_CITIES=()
@@ -86,6 +86,7 @@ if [[ ${HALF:-0} == 1 ]]; then
   one HALF-s0 --seed 0 &
   one HALF-s1 --seed 1 &
   wait
+  one HALF-s2 --seed 2
   exit 0
 fi
 if [[ ${OT:-0} == 1 ]]; then
