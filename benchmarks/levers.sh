@@ -52,50 +52,42 @@ if [[ ${AUX:-0} == 1 ]]; then
   wait
   exit 0
 fi
-if [[ ${V5:-0} == 1 ]]; then
+if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 ]]; then
+  # The rows on this release's maps, side by side in one OUT: the `best` preset (A1L) with one change each.
   OUT=runs/levers-v5
   mkdir -p "$OUT"
-  COMMON=(--dataset corpus --dataset oldtown --dataset train --preset best --out "$OUT" --quiet)
-  (one T5-s0 --seed 0 --set env.t_max=500; one RR2-s0 --seed 0 --set train_every=8) &
-  (one G995-s0 --seed 0 --set gamma=0.995; one H512-s0 --seed 0 --set hidden=512) &
-  wait
-  # T5 tied A1L on seed 0: seeds 1 and 2.
-  (one T5-s1 --seed 1 --set env.t_max=500) &
-  (one T5-s2 --seed 2 --set env.t_max=500) &
-  wait
-  exit 0
-fi
-if [[ ${H5:-0} == 1 ]]; then
-  # H512 took fewer steps than A1L on every validation city (seed 0): seeds 1 and 2, one lane (the paper pair holds
-  # the cores). Same OUT as V5, so that the three seeds sit side by side.
-  OUT=runs/levers-v5
-  mkdir -p "$OUT"
-  COMMON=(--dataset corpus --dataset oldtown --dataset train --preset best --out "$OUT" --quiet)
-  for seed in 0 1 2; do one "H512-s$seed" --seed "$seed" --set hidden=512; done
-  exit 0
-fi
-if [[ ${HALF:-0} == 1 ]]; then
-  # Does validation grow with the number of training cities? A1L on half of them (8 corpus, 3 old-town and the train
-  # city: 12 of 22), selected on the same validation cities, seeds 0 and 1 side by side, then seed 2.
-  OUT=runs/levers-v5
-  mkdir -p "$OUT"
-  HALF_CITIES=()
-  for c in corpus-00{0..7} oldtown-00{0..2} train; do HALF_CITIES+=(--dataset "$c"); done
-  COMMON=("${HALF_CITIES[@]}" --val-dataset corpus-016 --val-dataset corpus-017 --val-dataset oldtown-005 --preset best
-          --out "$OUT" --quiet)
-  one HALF-s0 --seed 0 &
-  one HALF-s1 --seed 1 &
-  wait
-  one HALF-s2 --seed 2
-  exit 0
-fi
-if [[ ${OT:-0} == 1 ]]; then
-  # The old-town cities (the densest style, the hardest validation city) drawn 3 times as often as the others
-  # (env.city_weights; 46 % of the training episodes instead of 22 %), seed 0.
-  OUT=runs/levers-v5
-  mkdir -p "$OUT"
-  COMMON=(--dataset corpus --dataset oldtown --dataset train --preset best --out "$OUT" --quiet)
-  one OT3-s0 --seed 0 --set 'env.city_weights={"oldtown": 3}'
+  TAIL=(--preset best --out "$OUT" --quiet)
+  COMMON=(--dataset corpus --dataset oldtown --dataset train "${TAIL[@]}")
+  if [[ ${V5:-0} == 1 ]]; then
+    (one T5-s0 --seed 0 --set env.t_max=500; one RR2-s0 --seed 0 --set train_every=8) &
+    (one G995-s0 --seed 0 --set gamma=0.995; one H512-s0 --seed 0 --set hidden=512) &
+    wait
+    # T5 tied A1L on seed 0: seeds 1 and 2.
+    (one T5-s1 --seed 1 --set env.t_max=500) &
+    (one T5-s2 --seed 2 --set env.t_max=500) &
+    wait
+  fi
+  if [[ ${H5:-0} == 1 ]]; then
+    # H512 took fewer steps than A1L on every validation city (seed 0): seeds 1 and 2, one lane (the paper pair held
+    # the cores).
+    for seed in 0 1 2; do one "H512-s$seed" --seed "$seed" --set hidden=512; done
+  fi
+  if [[ ${OT:-0} == 1 ]]; then
+    # The old-town cities (the densest style, the hardest validation city) drawn 3 times as often as the others
+    # (env.city_weights; 46 % of the training episodes instead of 22 %), seed 0.
+    one OT3-s0 --seed 0 --set 'env.city_weights={"oldtown": 3}'
+  fi
+  if [[ ${HALF:-0} == 1 ]]; then
+    # Does validation grow with the number of training cities? A1L on half of them (8 corpus, 3 old-town and the train
+    # city: 12 of 22), selected on the same validation cities, seeds 0 and 1 side by side, then seed 2.
+    COMMON=()
+    for c in corpus-00{0..7} oldtown-00{0..2} train; do COMMON+=(--dataset "$c"); done
+    COMMON+=(--val-dataset corpus-016 --val-dataset corpus-017 --val-dataset oldtown-005 "${TAIL[@]}")
+    one HALF-s0 --seed 0 &
+    one HALF-s1 --seed 1 &
+    wait
+    one HALF-s2 --seed 2
+  fi
   exit 0
 fi
 if [[ ${V2:-0} == 1 ]]; then
