@@ -18,7 +18,7 @@ evaluations included.
 
     pip install -e '.[bench]'      # adds tianshou
     uavdata ingest data/raw/train/ && uavdata build --grid 4m --alt 10 --noise-dbm -75 --split train=train
-    python benchmarks/bench_train.py [--steps 20000] [--preset best]
+    python benchmarks/bench_train.py [--steps 20000] [--preset best-dqn]
     python benchmarks/bench_train.py --memory
     python benchmarks/bench_train.py --corpus corpus      # the train city alone against the corpus and it
     python benchmarks/bench_train.py --to-target 0.9 [--budget 300000] [--eval-every 10000]
@@ -266,7 +266,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--dataset", default="train", help="built city (default: the embedded train city)")
     ap.add_argument("--root", default="data/processed")
-    ap.add_argument("--preset", default="best", choices=["paper", "fast", "best"], help="network and learning rates")
+    ap.add_argument(
+        "--preset", default="best-dqn", choices=["paper", "fast", "best-dqn"], help="network and learning rates (a replay DQN)"
+    )
     ap.add_argument("--steps", type=int, default=20_000, help="env steps per trainer (after which the clock stops)")
     ap.add_argument("--warmup", type=int, default=4_000, help="env steps before the clock starts (updates already on)")
     ap.add_argument("--memory", action="store_true", help="peak RSS of a paper-preset run with a full replay instead")

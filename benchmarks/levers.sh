@@ -26,6 +26,8 @@
 #   H5=1 bash benchmarks/levers.sh               # H512 (V5) with 3 seeds, runs/levers-v5
 #   OT=1 bash benchmarks/levers.sh               # the old-town cities drawn 3 times as often, runs/levers-v5
 #   HALF=1 bash benchmarks/levers.sh             # A1L on half the training cities (3 seeds), runs/levers-v5
+#   PQN=1 [PQN_SEEDS="0 1 2"] bash benchmarks/levers.sh   # A1L learnt by PQN instead of replay DQN, runs/levers-v5
+#   PQNV=1 bash benchmarks/levers.sh             # PQN with the convolutional network, and with lambda 0.9
 #   V2=1 bash benchmarks/levers.sh               # the N1 rows, runs/levers-v2
 #   AUX=1 bash benchmarks/levers.sh              # the A rows, runs/aux
 set -euo pipefail
@@ -52,7 +54,7 @@ if [[ ${AUX:-0} == 1 ]]; then
   wait
   exit 0
 fi
-if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 ]]; then
+if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 || ${PQN:-0} == 1 || ${PQNV:-0} == 1 ]]; then
   # The rows on this release's maps, side by side in one OUT: the `best` preset (A1L) with one change each.
   OUT=runs/levers-v5
   mkdir -p "$OUT"
@@ -87,6 +89,18 @@ if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 ]]; the
     one HALF-s1 --seed 1 &
     wait
     one HALF-s2 --seed 2
+  fi
+  PQN=(--set learner=pqn --set num_envs=128 --set rollout_steps=16 --set epochs=4 --set layer_norm=true)
+  if [[ ${PQN:-0} == 1 ]]; then
+    # The learner instead of the levers around it: PQN (rl/agent/pqn.py; Q(lambda) on rollouts of 128 envs x 16 moves,
+    # 4 epochs of batches of 128, layer norm, no replay, no target network) on A1L's network, reward and schedule.
+    for seed in ${PQN_SEEDS:-0}; do one "PQN-s$seed" --seed "$seed" "${PQN[@]}"; done
+  fi
+  if [[ ${PQNV:-0} == 1 ]]; then
+    # Two changes PQN's cheaper updates afford (seed 0): the paper's convolutional network on the full window (fc
+    # without dropout) instead of the foveated one, and lambda 0.9 (longer returns).
+    one PQN-CNN-s0 --seed 0 "${PQN[@]}" --set network=paper --set dropout=0
+    one PQN-L9-s0 --seed 0 "${PQN[@]}" --set q_lambda=0.9
   fi
   exit 0
 fi

@@ -107,11 +107,12 @@ def baselines(
 )
 @click.option(
     "--preset",
-    type=click.Choice(["paper", "fast", "best"]),
+    type=click.Choice(["paper", "fast", "best", "best-dqn"]),
     default="best",
     show_default=True,
-    help="Hyperparameters: best (ours, 300 k steps: about 8 min on one of 2 CPU cores for the 22 training cities of "
-    "the embedded corpora), paper (docs/method.md, ~7 M steps: days on a CPU), fast (minutes, for checks).",
+    help="Hyperparameters: best (ours, learnt by PQN, 300 k steps: about 5 min on one of 2 CPU cores for the 22 "
+    "training cities of the embedded corpora), best-dqn (the same agent learnt by replay DQN: about 8 min), paper "
+    "(docs/method.md, ~7 M steps: days on a CPU), fast (minutes, for checks). Presets: rl/agent/dqn.py, PRESETS.",
 )
 @click.option("--steps", type=click.IntRange(min=1), default=None, help="Environment steps (default: the preset's).")
 @click.option(

@@ -23,6 +23,7 @@ from uavplace.rl.agent.dqn import (
     to_tensor,
 )
 from uavplace.rl.agent.network import FoveaQNetwork
+from uavplace.rl.agent.pqn import q_lambda_returns
 from uavplace.rl.agent.replay import Batch, ReplayBuffer
 from uavplace.rl.agent.train import Trainer, load_policy, read_run_json
 from uavplace.rl.config import EnvConfig
@@ -110,8 +111,29 @@ def test_replay_n_step_returns_and_truncation():
     assert {int(o) for o in batch.obs[:, 0, 0, 0]} >= {0, 1, 100, 101, 102}
 
 
+def test_q_lambda_returns_by_hand():
+    """Two envs over 3 moves: env 0 runs on (a blend of the return ahead and the next bootstrap, then the bootstrap
+    where the envs stand); env 1 terminates at move 0 and is truncated at move 2 (its final observation's Q)."""
+    g, lam = 0.5, 0.25
+    reward = np.array([[1.0, 10.0], [2.0, 20.0], [3.0, 30.0]], np.float32)
+    term = np.array([[False, True], [False, False], [False, False]])
+    trunc = np.array([[False, False], [False, False], [False, True]])
+    q_next = np.array([[4.0, 99.0], [5.0, 7.0], [6.0, 99.0]], np.float32)  # 99: read nowhere (after an end)
+    q_final = np.array([[0.0, 0.0], [0.0, 0.0], [0.0, 8.0]], np.float32)
+    out = q_lambda_returns(reward, term, trunc, q_next, q_final, g, lam)
+    g2 = 3 + g * 6  # env 0, last move: one-step from where it stands
+    g1 = 2 + g * (lam * g2 + (1 - lam) * 5)
+    g0 = 1 + g * (lam * g1 + (1 - lam) * 4)
+    h2 = 30 + g * 8  # env 1: truncated, bootstrap from its final observation (not from the next slot's episode)
+    h1 = 20 + g * (lam * h2 + (1 - lam) * 7)
+    np.testing.assert_allclose(out, [[g0, 10.0], [g1, h1], [g2, h2]], rtol=1e-6)
+    # lambda 0 is the one-step target everywhere, lambda 1 the discounted return to the rollout's end
+    np.testing.assert_allclose(q_lambda_returns(reward, term, trunc, q_next, q_final, g, 0.0)[:2, 0], [1 + g * 4, 2 + g * 5])
+    np.testing.assert_allclose(q_lambda_returns(reward, term, trunc, q_next, q_final, g, 1.0)[0, 0], 1 + g * 2 + g * g * g2)
+
+
 def test_config_round_trip_and_presets():
-    for name in ("paper", "fast", "best"):
+    for name in ("paper", "fast", "best", "best-dqn"):
         cfg = preset_config(name, seed=3)
         again = DQNConfig.model_validate_json(cfg.model_dump_json())
         assert again == cfg and again.preset == name
@@ -137,20 +159,27 @@ def _tiny_config(**env: object) -> DQNConfig:
     )  # fmt: skip
 
 
-@pytest.mark.parametrize("env", [{}, {"context_zoom": 3}], ids=["plain", "context"])
-def test_resume_continues_exactly(tmp_path, city_root, env):
+PQN = {"learner": "pqn", "rollout_steps": 5, "epochs": 2, "layer_norm": True, "aux_genie": 1.0}
+
+
+@pytest.mark.parametrize(("env", "learner"), [({}, {}), ({"context_zoom": 3}, {}), ({}, PQN)], ids=["plain", "context", "pqn"])
+def test_resume_continues_exactly(tmp_path, city_root, env, learner):
     """Train 256 steps straight, or stop at 96 and 200 and resume each time: identical networks and next actions
-    (with context channels too, whose memory of blocks the checkpoint keeps)."""
-    straight = Trainer(_tiny_config(**env), ["tiny"], city_root, tmp_path / "a")
+    (with context channels too, whose memory of blocks the checkpoint keeps; and with PQN, stopped mid-rollout)."""
+
+    def config() -> DQNConfig:
+        return _tiny_config(**env).model_copy(update=learner)
+
+    straight = Trainer(config(), ["tiny"], city_root, tmp_path / "a")
     straight.run()
-    half = Trainer(_tiny_config(**env), ["tiny"], city_root, tmp_path / "b", command="uavrl train --until 96")
+    half = Trainer(config(), ["tiny"], city_root, tmp_path / "b", command="uavrl train --until 96")
     half.run(stop_at=96)  # a planned stop between evaluations (`--until 96`) checkpoints there
     doc = json.loads((tmp_path / "b" / "run.json").read_text())
     assert doc["train_split"] == "train" and doc["eval_split"] == "val" and doc["datasets"]["tiny"]
-    Trainer(_tiny_config(**env), ["tiny"], city_root, tmp_path / "b", command="uavrl train --resume b --until 200").run(
+    Trainer(config(), ["tiny"], city_root, tmp_path / "b", command="uavrl train --resume b --until 200").run(
         resume=True, stop_at=200
     )
-    resumed = Trainer(_tiny_config(**env), ["tiny"], city_root, tmp_path / "b", command="uavrl train --resume b")
+    resumed = Trainer(config(), ["tiny"], city_root, tmp_path / "b", command="uavrl train --resume b")
     resumed.run(resume=True)
     assert read_run_json(tmp_path / "b").commands == [  # every command that trained it, in order
         "uavrl train --until 96",
@@ -158,6 +187,7 @@ def test_resume_continues_exactly(tmp_path, city_root, env):
         "uavrl train --resume b (from step 200)",
     ]
     assert resumed.state.step == straight.state.step == 256
+    assert straight.agent.updates == (24 if learner else 48)  # PQN: 6 rollouts of 8 x 5 moves, 2 epochs of 2 batches of 16
     for a, b in zip(straight.agent.online.state_dict().values(), resumed.agent.online.state_dict().values(), strict=True):
         torch.testing.assert_close(a, b)
     obs, mask = straight.env.observe(), straight.env.action_mask()
@@ -236,9 +266,10 @@ def test_fovea_network_sees_a_centred_fovea_and_surround():
         FoveaQNetwork(2, 21, fovea=8)
 
 
-def test_short_training_run_learns(tmp_path):
+@pytest.mark.parametrize("learner", [{"learner": "replay"}, {}], ids=["replay", "pqn"])
+def test_short_training_run_learns(tmp_path, learner):
     """On the embedded tiny city (noisier, so that few cells reach P_T), 15 k steps beat the random walk
-    clearly on held-out episodes (drawn with another seed than training's)."""
+    clearly on held-out episodes (drawn with another seed than training's), with either learner."""
     from pathlib import Path
 
     from uavplace.rl.policies import RandomWalkPolicy
@@ -251,7 +282,7 @@ def test_short_training_run_learns(tmp_path):
         "best", total_steps=15_000, num_envs=16, buffer_size=15_000, batch_size=32, train_every=2, learning_starts=500,
         target_update=1_000, eval_every=5_000, eval_episodes=50, eval_t_max=40, eps_fraction=0.6, lr_start=1e-3,
         lr_end=1e-4, fovea=7, hidden=64,
-        env={"t_max": 40, "rotate": True, "window": 21, "visited_channel": False, "success_bonus": 0.0},
+        env={"t_max": 40, "rotate": True, "window": 21, "visited_channel": False, "success_bonus": 0.0}, **learner,
     )  # fmt: skip
     # The learner on the paper's two channels and reward: with the visited channel this 15 k-step run on the tiny
     # city reached 27.8 % against the walk's 22.8 %, with the success bonus 32.5 % against 22.8 % (both below the

@@ -40,13 +40,19 @@ class DuelingQ(nn.Module):
         return self.head(self.embed(obs))
 
 
+def dense(n_in: int, n_out: int, dropout: float, layer_norm: bool) -> list[nn.Module]:
+    """A fully connected layer, [layer norm,] ReLU, dropout (without layer norm, the modules of older checkpoints)."""
+    return [nn.Linear(n_in, n_out), *([nn.LayerNorm(n_out)] if layer_norm else []), nn.ReLU(), nn.Dropout(dropout)]
+
+
 class QNetwork(DuelingQ):
     """``[B, C, w, w]`` observations (float, or uint8 decoded by the caller) -> ``[B, 4]`` Q values.
 
     conv 5x5/2 (c1) -> conv 3x3/2 (c2) -> conv 3x3/2 (c3), each with batch norm and ReLU;
     fc (hidden) with ReLU and dropout; dueling head Q = V + A - mean(A). ``channels`` = (c1, c2, c3),
     by default (32, 64, 64). ``aux``: a second head on the same features, logits of the genie's move
-    (trained as an auxiliary task, ``DQNConfig.aux_genie``; it never acts).
+    (trained as an auxiliary task, ``DQNConfig.aux_genie``; it never acts). ``layer_norm``: after the fully
+    connected layer.
     """
 
     def __init__(
@@ -58,6 +64,7 @@ class QNetwork(DuelingQ):
         n_actions: int = 4,
         channels: tuple[int, int, int] = (32, 64, 64),
         aux: bool = False,
+        layer_norm: bool = False,
     ) -> None:
         super().__init__()
         c1, c2, c3 = channels
@@ -75,7 +82,7 @@ class QNetwork(DuelingQ):
         )
         with torch.no_grad():
             n_flat = self.features(torch.zeros(2, in_channels, window, window)).shape[1]
-        self.fc = nn.Sequential(nn.Linear(n_flat, hidden), nn.ReLU(), nn.Dropout(dropout))
+        self.fc = nn.Sequential(*dense(n_flat, hidden, dropout, layer_norm))
         self._build_heads(hidden, n_actions, aux)
 
     def fused(self) -> QNetwork:
@@ -106,7 +113,8 @@ class FoveaQNetwork(DuelingQ):
     The window is seen twice at ``fovea x fovea``: its centre at full resolution (the cells next to
     the UAV, where the next move is decided) and the whole window average-pooled (where the
     explored area and the buildings lie). Both go through 2 fully connected layers with ReLU and
-    dropout, then the dueling head (and, with ``aux``, the genie-move head, as in ``QNetwork``).
+    dropout (``layer_norm``: layer norm after each), then the dueling head (and, with ``aux``, the genie-move
+    head, as in ``QNetwork``).
     """
 
     def __init__(
@@ -118,6 +126,7 @@ class FoveaQNetwork(DuelingQ):
         n_actions: int = 4,
         fovea: int = 15,
         aux: bool = False,
+        layer_norm: bool = False,
     ) -> None:
         super().__init__()
         if fovea % 2 != 1 or not 3 <= fovea <= window:
@@ -127,12 +136,8 @@ class FoveaQNetwork(DuelingQ):
         self.kernel = window - self.stride * (fovea - 1)  # pooled output is fovea x fovea, centred
         self.fc = nn.Sequential(
             nn.Flatten(),
-            nn.Linear(2 * in_channels * fovea * fovea, hidden),
-            nn.ReLU(),
-            nn.Dropout(dropout),
-            nn.Linear(hidden, hidden),
-            nn.ReLU(),
-            nn.Dropout(dropout),
+            *dense(2 * in_channels * fovea * fovea, hidden, dropout, layer_norm),
+            *dense(hidden, hidden, dropout, layer_norm),
         )
         self._build_heads(hidden, n_actions, aux)
 

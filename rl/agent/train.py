@@ -3,7 +3,7 @@
 ``runs/<run-id>/``: ``run.json`` (the ``DQNConfig``, datasets and bundle versions, the command),
 ``metrics.parquet`` (one row per finished training episode), ``eval.parquet`` (one row per
 evaluation), ``checkpoints/last/`` (everything needed to continue exactly: networks, optimiser,
-step counters, every random state, the environments' state, the replay, the metrics up to its
+step counters, every random state, the environments' state, the replay (or PQN's rollout), the metrics up to its
 step; one folder renamed into place, see ``rl.agent.checkpoint``), and ``checkpoints/best.pt``
 (the network of the best evaluation). No checkpoint is a pickle of Python objects: they load
 with ``weights_only=True``.
@@ -27,6 +27,7 @@ from pydantic import Field, ValidationError
 from uavplace.dataset.bundle import Bundle, load_bundle
 from uavplace.rl.agent.checkpoint import CHECKPOINT_JSON, load_tensors, require, save_tensors
 from uavplace.rl.agent.dqn import DQN, DQNConfig, DQNPolicy, make_network
+from uavplace.rl.agent.pqn import Rollout, pqn_round
 from uavplace.rl.agent.replay import ReplayBuffer
 from uavplace.rl.maps import MapSet
 from uavplace.rl.rollout import run_episodes, summarise
@@ -207,7 +208,14 @@ class Trainer:
         self.env = BatchedEnv(self.maps, config.num_envs, compact=True)
         c, w = self.maps.config.num_channels, self.maps.config.window
         self.agent = DQN(config, c, w)
-        self.replay = ReplayBuffer(config.buffer_size, config.num_envs, (c, w, w), config.env.t_max, config.n_step, config.gamma)
+        self.replay: ReplayBuffer | None = None
+        self.rollout: Rollout | None = None
+        if config.learner == "pqn":
+            self.rollout = Rollout(config.rollout_steps, config.num_envs, (c, w, w))
+        else:
+            self.replay = ReplayBuffer(
+                config.buffer_size, config.num_envs, (c, w, w), config.env.t_max, config.n_step, config.gamma
+            )
         self.rng = np.random.default_rng([config.seed, 1])
         self.state = RunState()
         self.command = command
@@ -240,6 +248,15 @@ class Trainer:
         record.resumed.append(f"{self.command} (from step {self.state.step})")
         atomic_write_text(self.run_dir / RUN_JSON, record.model_dump_json(indent=2) + "\n")
 
+    @property
+    def memory(self) -> ReplayBuffer | Rollout:
+        """What the learner learns from: the replay, or PQN's rollout so far (saved with every checkpoint)."""
+        return self.rollout if self.rollout is not None else self.replay  # type: ignore[return-value]
+
+    @property
+    def memory_file(self) -> str:
+        return "rollout.npz" if self.rollout is not None else "replay.npz"
+
     def save(self) -> None:
         """Write ``checkpoints/last/`` as one unit (a folder renamed into place), then publish the metrics."""
         s = self.state
@@ -257,7 +274,7 @@ class Trainer:
             save_tensors(networks, tmp / "networks.pt")
             arrays = {k: getattr(self.env, k) for k in self.env.state_arrays}
             np.savez(tmp / "env.npz", **arrays, last_action=s.last_action, start_sinr=s.start_sinr)
-            self.replay.save(tmp / "replay.npz")
+            self.memory.save(tmp / self.memory_file)
             metrics.to_parquet(tmp / "metrics.parquet", index=False)
             evals.to_parquet(tmp / "eval.parquet", index=False)
             doc = {
@@ -302,7 +319,7 @@ class Trainer:
             self.env._episodes_started = int(doc["episodes_started"])
             self.rng.bit_generator.state = doc["rng"]
             self.env.rng.bit_generator.state = doc["env_rng"]
-            self.replay.load(last / "replay.npz")
+            self.memory.load(last / self.memory_file)
             metrics = pd.read_parquet(last / "metrics.parquet")
             evals = pd.read_parquet(last / "eval.parquet")
         except InputError:
@@ -370,7 +387,7 @@ class Trainer:
             if trunc.any():
                 pick = np.isin(info["final_index"], np.flatnonzero(trunc))
                 final_obs, final_mask = info["final_obs"][pick], info["final_mask"][pick]
-            self.replay.add(obs, mask, actions, reward, term, trunc, final_obs, final_mask, genie)
+            self.memory.add(obs, mask, actions, reward, term, trunc, final_obs, final_mask, genie)
             s.step += n
             done = term | trunc
             s.last_action = np.where(done, -1, actions)
@@ -391,14 +408,20 @@ class Trainer:
                     )
                 s.start_sinr[rows] = env.sinr_here()[rows]
             obs, mask = next_obs, info["action_mask"]
-            if s.step >= cfg.learning_starts and self.replay.can_sample():
+            lr = linear(cfg.lr_start, cfg.lr_end, frac)
+            if self.rollout is not None:
+                if self.rollout.full:  # PQN: fit this rollout's Q(lambda) returns, then collect the next
+                    s.losses.extend(pqn_round(self.agent, self.rollout, obs, mask, lr, self.rng))
+                    self.rollout.t = 0
+                    s.losses = s.losses[-200:]
+            elif s.step >= cfg.learning_starts and self.replay.can_sample():
                 # One gradient step per train_every env steps since learning started.
                 owed = (s.step - cfg.learning_starts) // cfg.train_every - self.agent.updates
                 for _ in range(max(0, owed)):
                     batch = self.replay.sample(cfg.batch_size, self.rng)
-                    s.losses.append(self.agent.update(batch, linear(cfg.lr_start, cfg.lr_end, frac)))
+                    s.losses.append(self.agent.update(batch, lr))
                 s.losses = s.losses[-200:]
-            if s.step - s.synced_at >= cfg.target_update:
+            if self.replay is not None and s.step - s.synced_at >= cfg.target_update:
                 self.agent.sync_target()
                 s.synced_at = s.step
             if s.step >= next_eval or s.step >= cfg.total_steps:
