@@ -5,7 +5,8 @@
 # one reward or observation change each to the row before; the step cost (R1) lost 30 points, so
 # S1-S3 each add one lever to R0 alone; S2 (the visited channel) also runs with seeds 1 and 2
 # (S2-s1, S2-s2), to compare its 3 seeds with the 3 seeds of the 500 k schedule (benchmarks/train_agents.sh).
-# Two lanes run side by side, one torch thread each (the 2 cores). Resumable: a run whose folder
+# `best-dqn` is the `best` preset before PQN (A1L; the runs before PQN were trained as `--preset best` when it was
+# A1L or, earlier, less). Two lanes run side by side, one torch thread each (the 2 cores). Resumable: a run whose folder
 # exists continues from its last checkpoint (`uavrl train --resume`); a finished one is skipped.
 #
 # B1-B4 add a success bonus to S2. With V2=1 it trains instead the rows on top of N1 (S2 + success bonus 100,
@@ -13,12 +14,12 @@
 # G2, C1 (2 seeds); README, "The success bonus and the old-town corpus".
 #
 # With AUX=1 it trains the rows of the genie-move head into runs/aux (README, "The genie-move head"): A1 (N2 +
-# aux_genie 1, 3 seeds), A03 and A3 (head weights 0.3 and 3), A1L (A1 on a 300 k schedule, the `best` preset now,
+# aux_genie 1, 3 seeds), A03 and A3 (head weights 0.3 and 3), A1L (A1 on a 300 k schedule, the `best-dqn` preset now,
 # 3 seeds), W91 (A1 with a 91-cell window), Y8 (A1L with the 8 symmetries, 3 seeds), FS (A1L with far starts 0.5, 3 seeds),
 # A1XL (A1L on 600 k steps) and CZ4 (A1L with the context channels in blocks of 4 x 4 cells).
 #
 # With V5=1 it trains the rows on this release's maps (1.6e7 rays per user, -75 dBm) into runs/levers-v5, each the
-# `best` preset (A1L) with one change, seed 0: T5 (training t_max 500, the test's), G995 (gamma 0.995), RR2 (an update
+# `best-dqn` preset (A1L) with one change, seed 0: T5 (training t_max 500, the test's), G995 (gamma 0.995), RR2 (an update
 # every 8 env steps instead of 16: twice the replay ratio) and H512 (fully connected layers of 512).
 #
 #   bash benchmarks/levers.sh [STEPS] [OUT]      # defaults: 150000, runs/levers
@@ -35,7 +36,7 @@ source "$(dirname "$0")/one_run.sh"
 if [[ ${AUX:-0} == 1 ]]; then
   OUT=runs/aux
   mkdir -p "$OUT"
-  COMMON=(--dataset corpus --dataset oldtown --dataset train --preset best --out "$OUT" --quiet)
+  COMMON=(--dataset corpus --dataset oldtown --dataset train --preset best-dqn --out "$OUT" --quiet)
   A1=(--set aux_genie=1.0 --steps 150000)
   (one A1-s0 --seed 0 "${A1[@]}"; one A1-s1 --seed 1 "${A1[@]}"; one A3-s0 --seed 0 --set aux_genie=3.0 --steps 150000
    one A1L-s1 --seed 1 --set aux_genie=1.0 --steps 300000; one W91-s0 --seed 0 "${A1[@]}" --set env.window=91) &
@@ -55,10 +56,10 @@ if [[ ${AUX:-0} == 1 ]]; then
   exit 0
 fi
 if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 || ${PQN:-0} == 1 || ${PQNV:-0} == 1 ]]; then
-  # The rows on this release's maps, side by side in one OUT: the `best` preset (A1L) with one change each.
+  # The rows on this release's maps, side by side in one OUT: the `best-dqn` preset (A1L) with one change each.
   OUT=runs/levers-v5
   mkdir -p "$OUT"
-  TAIL=(--preset best --out "$OUT" --quiet)
+  TAIL=(--preset best-dqn --out "$OUT" --quiet)
   COMMON=(--dataset corpus --dataset oldtown --dataset train "${TAIL[@]}")
   if [[ ${V5:-0} == 1 ]]; then
     (one T5-s0 --seed 0 --set env.t_max=500; one RR2-s0 --seed 0 --set train_every=8) &
@@ -90,6 +91,8 @@ if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 || ${PQ
     wait
     one HALF-s2 --seed 2
   fi
+  # PQN's runs were trained as `--preset best` (A1L then) with these settings, which are the `best` preset now.
+  COMMON=(--dataset corpus --dataset oldtown --dataset train --preset best --out "$OUT" --quiet)
   PQN=(--set learner=pqn --set num_envs=128 --set rollout_steps=16 --set epochs=4 --set layer_norm=true)
   if [[ ${PQN:-0} == 1 ]]; then
     # The learner instead of the levers around it: PQN (rl/agent/pqn.py; Q(lambda) on rollouts of 128 envs x 16 moves,
@@ -107,7 +110,7 @@ fi
 if [[ ${V2:-0} == 1 ]]; then
   OUT=runs/levers-v2
   mkdir -p "$OUT"
-  COMMON=(--dataset corpus --dataset oldtown --dataset train --preset best --steps 150000 --set test_revisit_penalty=0 --set aux_genie=0
+  COMMON=(--dataset corpus --dataset oldtown --dataset train --preset best-dqn --steps 150000 --set test_revisit_penalty=0 --set aux_genie=0
           --out "$OUT" --quiet)
   CONV=(--set network=paper --set "conv_channels=[16,32,32]" --set dropout=0)
   (one F1 --seed 0 --set fovea=21; one G1 --seed 0 --set gamma=0.97; one G1-s1 --seed 1 --set gamma=0.97
@@ -122,7 +125,7 @@ OUT=${2:-runs/levers}
 mkdir -p "$OUT"
 # The rows start from the `best` preset as it was before this table (no visited channel, no success bonus, no revisit
 # penalty, no genie-move head, 1 M-step schedule shortened to STEPS).
-COMMON=(--dataset corpus --dataset train --preset best --steps "$STEPS" --eval-every 50000 --set eval_episodes=1000
+COMMON=(--dataset corpus --dataset train --preset best-dqn --steps "$STEPS" --eval-every 50000 --set eval_episodes=1000
         --set env.visited_channel=false --set env.success_bonus=0 --set test_revisit_penalty=0 --set aux_genie=0
         --out "$OUT" --quiet)
 R0=()
