@@ -4,8 +4,8 @@
 ``metrics.parquet`` (one row per finished training episode), ``eval.parquet`` (one row per
 evaluation), ``checkpoints/last/`` (everything needed to continue exactly: networks, optimiser,
 step counters, every random state, the environments' state, the replay or PQN's rollout so far,
-the metrics up to its step; one folder renamed into place, see ``rl.agent.checkpoint``), and ``checkpoints/best.pt``
-(the network of the best evaluation). No checkpoint is a pickle of Python objects: they load
+the metrics up to its step; one folder renamed into place, see ``rl.agent.checkpoint``), and
+``checkpoints/best.pt`` (the network of the best evaluation). No checkpoint is a pickle of Python objects: they load
 with ``weights_only=True``.
 """
 
@@ -208,14 +208,17 @@ class Trainer:
         self.env = BatchedEnv(self.maps, config.num_envs, compact=True)
         c, w = self.maps.config.num_channels, self.maps.config.window
         self.agent = DQN(config, c, w)
+        # What the learner learns from, saved with every checkpoint: the replay, or PQN's rollout so far.
         self.replay: ReplayBuffer | None = None
         self.rollout: Rollout | None = None
         if config.learner == "pqn":
-            self.rollout = Rollout(config.rollout_steps, config.num_envs, (c, w, w))
+            self.rollout = self.memory = Rollout(config.rollout_steps, config.num_envs, (c, w, w))
+            self.memory_file = "rollout.npz"
         else:
-            self.replay = ReplayBuffer(
+            self.replay = self.memory = ReplayBuffer(
                 config.buffer_size, config.num_envs, (c, w, w), config.env.t_max, config.n_step, config.gamma
             )
+            self.memory_file = "replay.npz"
         self.rng = np.random.default_rng([config.seed, 1])
         self.state = RunState()
         self.command = command
@@ -247,15 +250,6 @@ class Trainer:
         record = read_run_json(self.run_dir)
         record.resumed.append(f"{self.command} (from step {self.state.step})")
         atomic_write_text(self.run_dir / RUN_JSON, record.model_dump_json(indent=2) + "\n")
-
-    @property
-    def memory(self) -> ReplayBuffer | Rollout:
-        """What the learner learns from: the replay, or PQN's rollout so far (saved with every checkpoint)."""
-        return self.rollout if self.rollout is not None else self.replay  # type: ignore[return-value]
-
-    @property
-    def memory_file(self) -> str:
-        return "rollout.npz" if self.rollout is not None else "replay.npz"
 
     def save(self) -> None:
         """Write ``checkpoints/last/`` as one unit (a folder renamed into place), then publish the metrics."""
