@@ -5,8 +5,8 @@
 evaluation), ``checkpoints/last/`` (everything needed to continue exactly: networks, optimiser,
 step counters, every random state, the environments' state, the replay or PQN's rollout so far,
 the metrics up to its step; one folder renamed into place, see ``rl.agent.checkpoint``), and
-``checkpoints/best.pt`` (the network of the best evaluation). No checkpoint is a pickle of Python objects: they load
-with ``weights_only=True``.
+``checkpoints/best.pt`` (the network of the best evaluation). No checkpoint is a pickle of Python
+objects: they load with ``weights_only=True``.
 """
 
 from __future__ import annotations
