@@ -29,6 +29,7 @@
 #   HALF=1 bash benchmarks/levers.sh             # A1L on half the training cities (3 seeds), runs/levers-v5
 #   PQN=1 [PQN_SEEDS="0 1 2"] bash benchmarks/levers.sh   # A1L learnt by PQN instead of replay DQN, runs/levers-v5
 #   PQNV=1 bash benchmarks/levers.sh             # PQN with the convolutional network, and with lambda 0.9
+#   GRU=1 [GRU_SEEDS="0 1 2"] bash benchmarks/levers.sh   # PQN with a recurrent core (a GRU cell before the heads)
 #   V2=1 bash benchmarks/levers.sh               # the N1 rows, runs/levers-v2
 #   AUX=1 bash benchmarks/levers.sh              # the A rows, runs/aux
 set -euo pipefail
@@ -55,7 +56,7 @@ if [[ ${AUX:-0} == 1 ]]; then
   wait
   exit 0
 fi
-if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 || ${PQN:-0} == 1 || ${PQNV:-0} == 1 ]]; then
+if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 || ${PQN:-0} == 1 || ${PQNV:-0} == 1 || ${GRU:-0} == 1 ]]; then
   # The rows on this release's maps, side by side in one OUT: the `best-dqn` preset (A1L) with one change each.
   OUT=runs/levers-v5
   mkdir -p "$OUT"
@@ -104,6 +105,11 @@ if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 || ${PQ
     # without dropout) instead of the foveated one, and lambda 0.9 (longer returns).
     one PQN-CNN-s0 --seed 0 "${PQN[@]}" --set network=paper --set dropout=0
     one PQN-L9-s0 --seed 0 "${PQN[@]}" --set q_lambda=0.9
+  fi
+  if [[ ${GRU:-0} == 1 ]]; then
+    # A memory of the whole search, beyond the window: a GRU cell between the features and the heads, its state reset
+    # at each episode's start, learnt on whole env rollouts from the state each began with (rl/agent/pqn.py).
+    for seed in ${GRU_SEEDS:-0}; do one "PQN-GRU-s$seed" --seed "$seed" "${PQN[@]}" --set recurrent=true; done
   fi
   exit 0
 fi

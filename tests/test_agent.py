@@ -12,6 +12,7 @@ from pydantic import ValidationError
 
 from tests.conftest import write_grid_city
 from uavplace.dataset.build import build_city
+from uavplace.dataset.bundle import load_bundle
 from uavplace.ingest.pipeline import ingest_city
 from uavplace.rl.agent.dqn import (
     DQN,
@@ -28,6 +29,7 @@ from uavplace.rl.agent.replay import Batch, ReplayBuffer
 from uavplace.rl.agent.train import Trainer, load_policy, read_run_json
 from uavplace.rl.config import EnvConfig
 from uavplace.rl.maps import MapSet
+from uavplace.rl.vec_env import BatchedEnv
 from uavplace.schemas import InputError
 from uavplace.schemas.bundle import BuildConfig
 
@@ -160,12 +162,16 @@ def _tiny_config(**env: object) -> DQNConfig:
 
 
 PQN = {"learner": "pqn", "rollout_steps": 5, "epochs": 2, "layer_norm": True, "aux_genie": 1.0}
+GRU = PQN | {"recurrent": True}
 
 
-@pytest.mark.parametrize(("env", "learner"), [({}, {}), ({"context_zoom": 3}, {}), ({}, PQN)], ids=["plain", "context", "pqn"])
+@pytest.mark.parametrize(
+    ("env", "learner"), [({}, {}), ({"context_zoom": 3}, {}), ({}, PQN), ({}, GRU)], ids=["plain", "context", "pqn", "gru"]
+)
 def test_resume_continues_exactly(tmp_path, city_root, env, learner):
     """Train 256 steps straight, or stop at 96 and 200 and resume each time: identical networks and next actions
-    (with context channels too, whose memory of blocks the checkpoint keeps; and with PQN, stopped mid-rollout)."""
+    (with context channels too, whose memory of blocks the checkpoint keeps; with PQN, stopped mid-rollout; and with
+    a recurrent PQN network, whose state in each env the checkpoint keeps)."""
 
     def config() -> DQNConfig:
         return _tiny_config(**env).model_copy(update=learner)
@@ -187,7 +193,11 @@ def test_resume_continues_exactly(tmp_path, city_root, env, learner):
         "uavrl train --resume b (from step 200)",
     ]
     assert resumed.state.step == straight.state.step == 256
-    assert straight.agent.updates == (24 if learner else 48)  # PQN: 6 rollouts of 8 x 5 moves, 2 epochs of 2 batches of 16
+    # PQN: 6 rollouts of 8 x 5 moves, 2 epochs of 2 batches of 16 moves (recurrent: of 3 env rollouts, 15 moves)
+    assert straight.agent.updates == (24 if learner else 48)
+    if learner.get("recurrent"):
+        assert straight.agent.hidden.abs().sum() > 0
+        torch.testing.assert_close(straight.agent.hidden, resumed.agent.hidden)
     for a, b in zip(straight.agent.online.state_dict().values(), resumed.agent.online.state_dict().values(), strict=True):
         torch.testing.assert_close(a, b)
     obs, mask = straight.env.observe(), straight.env.action_mask()
@@ -266,10 +276,57 @@ def test_fovea_network_sees_a_centred_fovea_and_surround():
         FoveaQNetwork(2, 21, fovea=8)
 
 
-@pytest.mark.parametrize("learner", [{"learner": "replay"}, {}], ids=["replay", "pqn"])
+def test_recurrent_network_unrolls_as_it_steps():
+    """The learner's view (``unroll`` over a rollout) gives the states the actor's (``step`` by step) gave, the state
+    restarting from zeros where an episode starts; a recurrent network has no Q without its state."""
+    torch.manual_seed(0)
+    net = FoveaQNetwork(2, 21, hidden=8, fovea=7, recurrent=True, layer_norm=True).eval()
+    steps, n = 6, 3
+    obs = torch.randn(steps, n, 2, 21, 21) * 40
+    first = torch.zeros(steps, n, dtype=torch.bool)
+    first[3, 1] = True  # row 1 starts an episode at move 3
+    h0 = torch.randn(n, 8)
+    with torch.no_grad():
+        states = net.unroll(obs, h0, first)
+        h = h0
+        for t in range(steps):
+            q, h = net.step(obs[t], torch.where(first[t, :, None], net.initial_state(n), h))
+            torch.testing.assert_close(states[t], h)
+            torch.testing.assert_close(net.head(states[t]), q)
+        other = net.unroll(obs, torch.randn(n, 8), first)  # another past: row 1 forgets it once its episode restarts
+    assert not torch.allclose(other[2], states[2])
+    torch.testing.assert_close(other[3:, 1], states[3:, 1])
+    assert not torch.allclose(other[3:, 0], states[3:, 0])
+    with pytest.raises(TypeError, match="state"):
+        net(obs[0])
+    with pytest.raises(InputError, match="learner=pqn"):
+        preset_config("best-dqn", recurrent=True)
+
+
+def test_recurrent_policy_keeps_a_state_per_row(city_root):
+    """A recurrent ``DQNPolicy`` carries each row's state from move to move (the same observation, another history,
+    other Q values) and restarts it in the rows ``reset`` names only."""
+    torch.manual_seed(0)
+    cfg = EnvConfig(window=21)
+    env = BatchedEnv(MapSet([load_bundle("tiny", root=city_root)], cfg), 4)
+    obs, info = env.reset(seed=0)
+    policy = DQNPolicy(FoveaQNetwork(cfg.num_channels, 21, hidden=8, fovea=7, recurrent=True), epsilon=0.0)
+    policy.reset(np.arange(4), 4)
+    assert policy.hidden.abs().sum() == 0
+    policy.act(obs, info["action_mask"], env)
+    after_one = policy.hidden.clone()
+    assert (after_one.abs().sum(dim=1) > 0).all()
+    policy.act(obs, info["action_mask"], env)  # the same observations again: the state moves on
+    assert not torch.allclose(policy.hidden, after_one)
+    policy.reset(np.array([2]), 4)
+    assert policy.hidden[2].abs().sum() == 0 and (policy.hidden[[0, 1, 3]].abs().sum(dim=1) > 0).all()
+
+
+@pytest.mark.parametrize("learner", [{"learner": "replay"}, {}, {"recurrent": True}], ids=["replay", "pqn", "pqn-gru"])
 def test_short_training_run_learns(tmp_path, learner):
     """On the embedded tiny city (noisier, so that few cells reach P_T), 15 k steps beat the random walk
-    clearly on held-out episodes (drawn with another seed than training's), with either learner."""
+    clearly on held-out episodes (drawn with another seed than training's), with either learner (and PQN with a
+    recurrent network)."""
     from pathlib import Path
 
     from uavplace.rl.policies import RandomWalkPolicy

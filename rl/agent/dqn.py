@@ -48,6 +48,11 @@ class DQNConfig(Contract):
     q_lambda: float = Field(default=0.65, ge=0, le=1, description="PQN: lambda of the Q(lambda) returns (0: one-step)")
     epochs: int = Field(default=4, ge=1, description="PQN: passes over each rollout, in shuffled minibatches of batch_size")
     layer_norm: bool = Field(default=False, description="Layer norm after each fully connected layer (PQN's stabiliser)")
+    recurrent: bool = Field(
+        default=False,
+        description="A GRU cell between the network's features and its heads: a memory of the episode beyond the window, "
+        "reset at each episode's start (PQN only: it learns on whole rollouts, from the state each began with)",
+    )
     buffer_size: int = Field(default=500_000, ge=1, description="Replay capacity in transitions (FIFO)")
     batch_size: int = Field(default=20, ge=1, description="Transitions per gradient step")
     train_every: int = Field(default=3, ge=1, description="Environment steps per gradient step (replay learner)")
@@ -111,7 +116,14 @@ class DQNConfig(Contract):
                 f"batch_size {self.batch_size} exceeds a PQN rollout (num_envs x rollout_steps = "
                 f"{self.num_envs * self.rollout_steps} samples)"
             )
+        if self.recurrent and self.learner != "pqn":
+            raise ValueError("recurrent needs learner=pqn (the replay learner samples single transitions, not sequences)")
         return self
+
+    @property
+    def sequences_per_batch(self) -> int:
+        """Recurrent PQN: the whole env rollouts in a minibatch (``batch_size`` samples, at least one rollout)."""
+        return max(1, self.batch_size // self.rollout_steps)
 
     def env_config(self, *, evaluation: bool = False) -> EnvConfig:
         """The training environment, or (``evaluation``) the test protocol's: no symmetry (views numbered as in
@@ -234,6 +246,7 @@ def preset_config(name: str, **overrides: object) -> DQNConfig:
 def make_network(config: DQNConfig, in_channels: int, window: int) -> nn.Module:
     """The Q-network ``config.network`` names, with the config's sizes."""
     sizes = {"hidden": config.hidden, "dropout": config.dropout, "aux": config.aux_genie > 0, "layer_norm": config.layer_norm}
+    sizes["recurrent"] = config.recurrent
     if config.network == "fovea":
         return FoveaQNetwork(in_channels, window, fovea=config.fovea, **sizes)
     return QNetwork(in_channels, window, channels=config.conv_channels, **sizes)
@@ -268,7 +281,8 @@ def genie_move_loss(logits: torch.Tensor, genie: torch.Tensor) -> torch.Tensor:
 
 
 class DQN:
-    """The online and target networks, the optimiser and the action rule."""
+    """The online and target networks, the optimiser and the action rule (with a recurrent network, its state in
+    each of the ``num_envs`` training envs, ``hidden``)."""
 
     def __init__(self, config: DQNConfig, in_channels: int, window: int) -> None:
         self.config = config
@@ -278,11 +292,28 @@ class DQN:
         self.target.eval()
         self.optimizer = torch.optim.Adam(self.online.parameters(), lr=config.lr_start)
         self.updates = 0
+        self.hidden = self.online.initial_state(config.num_envs) if config.recurrent else None
+
+    def reset_state(self, rows: np.ndarray) -> None:
+        """A new episode in these training envs: their recurrent state restarts from zeros (none to reset without one)."""
+        if self.hidden is not None:
+            self.hidden[torch.from_numpy(np.asarray(rows, np.int64)).to(self.device)] = 0.0
+
+    def state(self) -> np.ndarray:
+        """The training envs' recurrent state ``[num_envs, hidden]`` (``[num_envs, 0]`` without one)."""
+        if self.hidden is None:
+            return np.zeros((self.config.num_envs, 0), np.float32)
+        return self.hidden.cpu().numpy()
 
     def q_values(self, obs: np.ndarray) -> torch.Tensor:
+        """Q ``[N, 4]`` of the training envs' observations (a recurrent network's state moves on with them)."""
         self.online.eval()
         with torch.no_grad():
-            return self.online(to_tensor(obs, self.device))
+            x = to_tensor(obs, self.device)
+            if self.hidden is None:
+                return self.online(x)
+            q, self.hidden = self.online.step(x, self.hidden)
+            return q
 
     def act(self, obs: np.ndarray, mask: np.ndarray, eps: float, last: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """The paper's rule: w.p. ``p_repeat * eps`` repeat ``last`` (if legal), w.p. ``(1 - p_repeat) * eps``
@@ -311,17 +342,36 @@ class DQN:
         """One gradient step towards the double-Q target; returns the TD loss."""
         return self.fit(batch.obs, batch.action, self.td_target(batch), batch.genie, lr)
 
-    def fit(self, obs: np.ndarray, action: np.ndarray, target: torch.Tensor, genie: np.ndarray | None, lr: float) -> float:
+    def fit(
+        self,
+        obs: np.ndarray,
+        action: np.ndarray,
+        target: torch.Tensor,
+        genie: np.ndarray | None,
+        lr: float,
+        h0: np.ndarray | None = None,
+        first: np.ndarray | None = None,
+    ) -> float:
         """One gradient step of ``Q(obs, action)`` towards ``target`` ``[B]`` (Huber); returns that TD loss. With
-        ``aux_genie`` > 0 the genie-move head's loss on ``genie`` ``[B, 4]`` is added to what is minimised."""
+        ``aux_genie`` > 0 the genie-move head's loss on ``genie`` ``[B, 4]`` is added to what is minimised.
+
+        A recurrent network learns on sequences: ``obs`` ``[T, B, ...]`` unrolled from the states ``h0``
+        ``[B, hidden]``, restarting where ``first`` ``[T, B]`` marks an episode's start; ``action``, ``target`` and
+        ``genie`` are then ``[T, B]`` (``[T, B, 4]``), and every step of every sequence counts alike."""
         self.online.train()
-        action_t = torch.from_numpy(np.asarray(action, np.int64)).to(self.device)
-        z = self.online.embed(to_tensor(obs, self.device))
-        q = self.online.head(z).gather(1, action_t[:, None]).squeeze(1)  # [B]
-        td_loss = torch.nn.functional.smooth_l1_loss(q, target.to(self.device))
+        x = to_tensor(obs, self.device)
+        if h0 is None:
+            z = self.online.embed(x)
+        else:
+            first_t = torch.from_numpy(np.asarray(first, bool)).to(self.device)
+            z = self.online.unroll(x, torch.from_numpy(h0).to(self.device), first_t).flatten(0, 1)
+        action_t = torch.from_numpy(np.asarray(action, np.int64).reshape(-1)).to(self.device)
+        q = self.online.head(z).gather(1, action_t[:, None]).squeeze(1)  # [B] (or [T * B])
+        td_loss = torch.nn.functional.smooth_l1_loss(q, target.reshape(-1).to(self.device))
         loss = td_loss
         if self.config.aux_genie > 0:
-            loss = loss + self.config.aux_genie * genie_move_loss(self.online.aux(z), torch.from_numpy(genie).to(self.device))
+            genie_t = torch.from_numpy(genie.reshape(-1, genie.shape[-1])).to(self.device)
+            loss = loss + self.config.aux_genie * genie_move_loss(self.online.aux(z), genie_t)
         for group in self.optimizer.param_groups:
             group["lr"] = lr
         self.optimizer.zero_grad(set_to_none=True)
@@ -342,6 +392,7 @@ class DQNPolicy:
     episode has already been in the cell the move leads to (the agent's own route, nothing it could not know), so that
     an agent circling a few cells is pushed out of the loop; 0 is the paper's plain argmax. ``aux_weight`` > 0 adds
     ``aux_weight * log p(move)``, ``p`` the genie-move head's softmax over the legal moves (a network with that head).
+    A recurrent network keeps its state per row, from zeros at each episode's start (``reset``).
     """
 
     def __init__(
@@ -363,6 +414,7 @@ class DQNPolicy:
         self.rng = np.random.default_rng(seed)
         self.name = name
         self.visits: np.ndarray | None = None  # [num_envs, side, side] visits of each canvas cell this episode
+        self.hidden: torch.Tensor | None = None  # [num_envs, hidden]: a recurrent network's state in each row
 
     @classmethod
     def from_config(cls, net: nn.Module, config: DQNConfig, epsilon: float | None = None, seed: int | None = None) -> DQNPolicy:
@@ -381,6 +433,10 @@ class DQNPolicy:
             self.visits[rows] = 0
         else:
             self.visits = None  # allocated at the next act, when the canvas size is known
+        if getattr(self.net, "recurrent", False):
+            if self.hidden is None or len(self.hidden) != num_envs:
+                self.hidden = self.net.initial_state(num_envs)
+            self.hidden[torch.from_numpy(np.asarray(rows, np.int64)).to(self.device)] = 0.0
 
     def _penalty(self, env: BatchedEnv) -> torch.Tensor:
         """``[N, 4]`` ``revisit_penalty`` times the earlier visits of the cell each move leads to (the current cell counted)."""
@@ -402,14 +458,20 @@ class DQNPolicy:
         if len(live):
             rows = slice(None) if len(live) == len(mask) else live
             legal = torch.from_numpy(mask[rows]).to(self.device)
+            recurrent = getattr(self.net, "recurrent", False)
+            if recurrent and (self.hidden is None or len(self.hidden) != len(mask)):
+                self.reset(np.arange(len(mask)), len(mask))  # (outside inference mode: the state is updated in place)
             with torch.inference_mode():
                 x = to_tensor(obs[rows], self.device)
-                if self.aux_weight > 0:
+                z = None  # the features the heads read, where the policy needs them
+                if recurrent:
+                    z = self.net.encode(x, self.hidden[rows])
+                    self.hidden[rows] = z
+                elif self.aux_weight > 0:
                     z = self.net.embed(x)
-                    aux = torch.log_softmax(self.net.aux(z).masked_fill(~legal, float("-inf")), dim=1)
-                    q = self.net.head(z) + self.aux_weight * aux
-                else:
-                    q = self.net(x)
+                q = self.net(x) if z is None else self.net.head(z)
+                if self.aux_weight > 0:
+                    q = q + self.aux_weight * torch.log_softmax(self.net.aux(z).masked_fill(~legal, float("-inf")), dim=1)
                 if penalty is not None:
                     q = q - penalty[rows]
                 greedy[rows] = masked_argmax(q, legal).cpu().numpy()

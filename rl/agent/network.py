@@ -15,20 +15,57 @@ INPUT_SCALE = 50.0
 
 class DuelingQ(nn.Module):
     """Features (``embed``, the subclass's) then the dueling head ``Q = V + A - mean(A)`` (``value``, ``advantage``);
-    ``aux``, when the subclass builds it, reads the same features."""
+    ``aux``, when the subclass builds it, reads the same features.
+
+    A recurrent network (``core``, a GRU cell) carries a state ``h`` ``[B, hidden]`` along an episode (zeros at its
+    start): its features are ``h' = core(embed(obs), h)``, which both heads read. It acts by ``step(obs, h)`` and
+    learns by ``unroll`` over a rollout; ``forward`` (one observation, no history) is for feedforward networks only.
+    """
 
     value: nn.Linear
     advantage: nn.Linear
     aux: nn.Linear | None
+    core: nn.GRUCell | None
 
-    def _build_heads(self, hidden: int, n_actions: int, aux: bool) -> None:
-        """The dueling head's two layers and, with ``aux``, the genie-move head, all on ``hidden`` features."""
+    def _build_heads(self, hidden: int, n_actions: int, aux: bool, recurrent: bool = False) -> None:
+        """The dueling head's two layers and, with ``aux``, the genie-move head, all on ``hidden`` features; with
+        ``recurrent``, the GRU cell before them (without it, the modules of older checkpoints)."""
         self.value = nn.Linear(hidden, 1)
         self.advantage = nn.Linear(hidden, n_actions)
         self.aux = nn.Linear(hidden, n_actions) if aux else None
+        self.core = nn.GRUCell(hidden, hidden) if recurrent else None
+
+    @property
+    def recurrent(self) -> bool:
+        return self.core is not None
+
+    def initial_state(self, n: int) -> torch.Tensor:
+        """The recurrent state of ``n`` episodes at their start: zeros ``[n, hidden]``."""
+        return torch.zeros(n, self.value.in_features, device=self.value.weight.device)
 
     def embed(self, obs: torch.Tensor) -> torch.Tensor:
         raise NotImplementedError
+
+    def encode(self, obs: torch.Tensor, h: torch.Tensor | None = None) -> torch.Tensor:
+        """``[B, hidden]``, what both heads read: ``embed(obs)``, or for a recurrent network the next state from ``h``."""
+        z = self.embed(obs)
+        return z if self.core is None else self.core(z, h)
+
+    def step(self, obs: torch.Tensor, h: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """A recurrent network's move: Q values ``[B, n_actions]`` of ``obs`` and the state after it ``[B, hidden]``."""
+        h = self.encode(obs, h)
+        return self.head(h), h
+
+    def unroll(self, obs: torch.Tensor, h0: torch.Tensor, first: torch.Tensor) -> torch.Tensor:
+        """A recurrent network's states ``[T, B, hidden]`` along ``obs`` ``[T, B, C, w, w]`` from ``h0`` ``[B, hidden]``;
+        the state restarts from zeros where ``first`` ``[T, B]`` (bool) marks an episode's first observation."""
+        steps, n = obs.shape[:2]
+        z = self.embed(obs.flatten(0, 1)).view(steps, n, -1)  # the feedforward part in one batch
+        h, out = h0, []
+        for t in range(steps):
+            h = self.core(z[t], h.masked_fill(first[t, :, None], 0.0))
+            out.append(h)
+        return torch.stack(out)
 
     def head(self, z: torch.Tensor) -> torch.Tensor:
         """Q values ``[B, n_actions]`` of features ``z`` ``[B, hidden]``."""
@@ -36,7 +73,9 @@ class DuelingQ(nn.Module):
         return self.value(z) + a - a.mean(dim=1, keepdim=True)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        """Q values ``[B, n_actions]`` of observations ``[B, C, w, w]``."""
+        """Q values ``[B, n_actions]`` of observations ``[B, C, w, w]`` (a feedforward network)."""
+        if self.core is not None:
+            raise TypeError("a recurrent network needs its state: step(obs, h) or unroll(obs, h0, first)")
         return self.head(self.embed(obs))
 
 
@@ -52,7 +91,7 @@ class QNetwork(DuelingQ):
     fc (hidden) with ReLU and dropout; dueling head Q = V + A - mean(A). ``channels`` = (c1, c2, c3),
     by default (32, 64, 64). ``aux``: a second head on the same features, logits of the genie's move
     (trained as an auxiliary task, ``DQNConfig.aux_genie``; it never acts). ``layer_norm``: after the fully
-    connected layer.
+    connected layer. ``recurrent``: a GRU cell between the features and the heads (``DuelingQ``).
     """
 
     def __init__(
@@ -65,6 +104,7 @@ class QNetwork(DuelingQ):
         channels: tuple[int, int, int] = (32, 64, 64),
         aux: bool = False,
         layer_norm: bool = False,
+        recurrent: bool = False,
     ) -> None:
         super().__init__()
         c1, c2, c3 = channels
@@ -83,7 +123,7 @@ class QNetwork(DuelingQ):
         with torch.no_grad():
             n_flat = self.features(torch.zeros(2, in_channels, window, window)).shape[1]
         self.fc = nn.Sequential(*dense(n_flat, hidden, dropout, layer_norm))
-        self._build_heads(hidden, n_actions, aux)
+        self._build_heads(hidden, n_actions, aux, recurrent)
 
     def fused(self) -> QNetwork:
         """An evaluation-mode copy for acting, never for training: each batch norm folded into the convolution
@@ -103,7 +143,7 @@ class QNetwork(DuelingQ):
         return net.to(memory_format=torch.channels_last)
 
     def embed(self, obs: torch.Tensor) -> torch.Tensor:
-        """``[B, hidden]``: the features both heads read."""
+        """``[B, hidden]``: the features both heads read (a recurrent network's GRU input)."""
         return self.fc(self.features(obs / INPUT_SCALE))
 
 
@@ -114,7 +154,7 @@ class FoveaQNetwork(DuelingQ):
     the UAV, where the next move is decided) and the whole window average-pooled (where the
     explored area and the buildings lie). Both go through 2 fully connected layers with ReLU and
     dropout (``layer_norm``: layer norm after each), then the dueling head (and, with ``aux``, the genie-move
-    head, as in ``QNetwork``).
+    head, and with ``recurrent`` the GRU cell before the heads, as in ``QNetwork``).
     """
 
     def __init__(
@@ -127,6 +167,7 @@ class FoveaQNetwork(DuelingQ):
         fovea: int = 15,
         aux: bool = False,
         layer_norm: bool = False,
+        recurrent: bool = False,
     ) -> None:
         super().__init__()
         if fovea % 2 != 1 or not 3 <= fovea <= window:
@@ -139,10 +180,10 @@ class FoveaQNetwork(DuelingQ):
             *dense(2 * in_channels * fovea * fovea, hidden, dropout, layer_norm),
             *dense(hidden, hidden, dropout, layer_norm),
         )
-        self._build_heads(hidden, n_actions, aux)
+        self._build_heads(hidden, n_actions, aux, recurrent)
 
     def embed(self, obs: torch.Tensor) -> torch.Tensor:
-        """``[B, hidden]``: the features both heads read."""
+        """``[B, hidden]``: the features both heads read (a recurrent network's GRU input)."""
         x = obs / INPUT_SCALE
         c, h = x.shape[-1] // 2, self.fovea // 2
         centre = x[..., c - h : c + h + 1, c - h : c + h + 1]  # [B, C, f, f]

@@ -12,6 +12,10 @@ Q-network to Q(lambda) returns computed backward over the rollout, with the netw
 (max over the legal moves), in ``epochs`` passes of shuffled minibatches of ``batch_size`` (the Huber loss,
 the genie-move head's loss added when ``aux_genie`` > 0). ``layer_norm`` keeps the bootstrap stable
 without a target network.
+
+A recurrent network (``DQNConfig.recurrent``) learns on whole env rollouts instead of shuffled moves: each
+rollout keeps the state its env began it with (``Rollout.h0``), and the network is unrolled from it (the state
+restarting at each episode's start), ``batch_size // rollout_steps`` envs a minibatch.
 """
 
 from __future__ import annotations
@@ -26,10 +30,12 @@ from uavplace.rl.agent.dqn import DQN, masked_argmax, to_tensor
 
 class Rollout:
     """``steps`` vector steps of ``num_envs`` envs: compact observations, masks, moves, rewards, ends, and the
-    final observation of each truncated row (``[steps, num_envs, ...]`` arrays)."""
+    final observation of each truncated row (``[steps, num_envs, ...]`` arrays); ``h0`` ``[num_envs, hidden]``, a
+    recurrent network's state in each env when the rollout began (``hidden`` 0: none)."""
 
-    def __init__(self, steps: int, num_envs: int, obs_shape: tuple[int, ...]) -> None:
+    def __init__(self, steps: int, num_envs: int, obs_shape: tuple[int, ...], hidden: int = 0) -> None:
         self.steps = steps
+        self.h0 = np.zeros((num_envs, hidden), np.float32)
         self.obs = np.zeros((steps, num_envs, *obs_shape), np.uint8)
         self.mask = np.zeros((steps, num_envs, 4), bool)
         self.genie = np.zeros((steps, num_envs, 4), bool)
@@ -44,6 +50,13 @@ class Rollout:
     @property
     def full(self) -> bool:
         return self.t == self.steps
+
+    @property
+    def first(self) -> np.ndarray:
+        """``[steps, num_envs]``: the moves that start an episode after the rollout began (a recurrent state restarts)."""
+        out = np.zeros_like(self.terminated)
+        out[1:] = self.terminated[:-1] | self.truncated[:-1]
+        return out
 
     def add(
         self,
@@ -67,7 +80,7 @@ class Rollout:
             self.final_obs[t, rows], self.final_mask[t, rows] = final_obs, final_mask
         self.t += 1
 
-    _ARRAYS = ("obs", "mask", "genie", "action", "reward", "terminated", "truncated", "final_obs", "final_mask")
+    _ARRAYS = ("obs", "mask", "genie", "action", "reward", "terminated", "truncated", "final_obs", "final_mask", "h0")
 
     def save(self, path: Path) -> None:
         np.savez(path, t=np.int64(self.t), **{k: getattr(self, k) for k in self._ARRAYS})
@@ -75,6 +88,8 @@ class Rollout:
     def load(self, path: Path) -> None:
         with np.load(path, allow_pickle=False) as z:
             for k in self._ARRAYS:
+                if k == "h0" and k not in z and not self.h0.size:
+                    continue  # a feedforward rollout saved before recurrent networks: it has no state
                 getattr(self, k)[...] = z[k]
             self.t = int(z["t"])
 
@@ -101,15 +116,21 @@ def q_lambda_returns(
     return out
 
 
+def legal_max(q: torch.Tensor, mask: np.ndarray) -> np.ndarray:
+    """Max over the legal moves of Q ``[..., 4]`` (``mask`` the same shape): ``[...]``."""
+    legal = torch.from_numpy(mask).to(q.device)
+    flat = q.reshape(-1, q.shape[-1])
+    best = flat.gather(1, masked_argmax(flat, legal.reshape(flat.shape))[:, None])
+    return best.reshape(q.shape[:-1]).cpu().numpy()
+
+
 def max_q(agent: DQN, obs: np.ndarray, mask: np.ndarray, chunk: int = 4096) -> np.ndarray:
     """Max over the legal moves of the online network's Q ``[B]`` (evaluation mode, no gradient)."""
     out = np.zeros(len(obs), np.float32)
     agent.online.eval()
     with torch.no_grad():
         for i in range(0, len(obs), chunk):
-            q = agent.online(to_tensor(obs[i : i + chunk], agent.device))
-            legal = torch.from_numpy(mask[i : i + chunk]).to(agent.device)
-            out[i : i + chunk] = q.gather(1, masked_argmax(q, legal)[:, None]).squeeze(1).cpu().numpy()
+            out[i : i + chunk] = legal_max(agent.online(to_tensor(obs[i : i + chunk], agent.device)), mask[i : i + chunk])
     return out
 
 
@@ -118,6 +139,8 @@ def pqn_round(
 ) -> list[float]:
     """Fit ``agent.online`` to the full ``rollout``'s Q(lambda) targets (``obs``/``mask``: where the envs stand
     now); returns the TD loss of each minibatch."""
+    if agent.hidden is not None:
+        return recurrent_round(agent, rollout, obs, mask, lr, rng)
     cfg = agent.config
     steps, n = rollout.action.shape
     flat = steps * n
@@ -137,4 +160,48 @@ def pqn_round(
         for i in range(0, flat - cfg.batch_size + 1, cfg.batch_size):
             idx = np.sort(order[i : i + cfg.batch_size])
             losses.append(agent.fit(obs_flat[idx], action[idx], torch.from_numpy(target[idx]), genie[idx], lr))
+    return losses
+
+
+def recurrent_round(
+    agent: DQN, rollout: Rollout, obs: np.ndarray, mask: np.ndarray, lr: float, rng: np.random.Generator
+) -> list[float]:
+    """``pqn_round`` for a recurrent network: the targets from the network unrolled over the rollout from
+    ``rollout.h0`` (where the envs stand now and each truncated row's final observation: one step more from the
+    state before it), then ``epochs`` passes over shuffled groups of whole env rollouts."""
+    cfg, net, device = agent.config, agent.online, agent.device
+    steps, n = rollout.action.shape
+    first = rollout.first
+    net.eval()
+    with torch.no_grad():
+        states = net.unroll(
+            to_tensor(rollout.obs, device), torch.from_numpy(rollout.h0).to(device), torch.from_numpy(first).to(device)
+        )  # [T, N, hidden]: the state after each move's observation
+        q_acted = legal_max(net.head(states), rollout.mask)  # [T, N]
+        q_now = legal_max(net.step(to_tensor(obs, device), states[-1])[0], mask)  # [N]
+        q_final = np.zeros((steps, n), np.float32)
+        cut = rollout.truncated
+        if cut.any():
+            t, row = np.nonzero(cut)
+            q_cut, _ = net.step(to_tensor(rollout.final_obs[t, row], device), states[t, row])
+            q_final[t, row] = legal_max(q_cut, rollout.final_mask[t, row])
+    q_next = np.concatenate([q_acted[1:], q_now[None]])
+    target = q_lambda_returns(rollout.reward, rollout.terminated, cut, q_next, q_final, cfg.gamma, cfg.q_lambda)
+    per = cfg.sequences_per_batch
+    losses = []
+    for _ in range(cfg.epochs):
+        order = rng.permutation(n)
+        for i in range(0, n - per + 1, per):
+            envs = np.sort(order[i : i + per])
+            losses.append(
+                agent.fit(
+                    rollout.obs[:, envs],
+                    rollout.action[:, envs],
+                    torch.from_numpy(target[:, envs]),
+                    rollout.genie[:, envs],
+                    lr,
+                    h0=rollout.h0[envs],
+                    first=first[:, envs],
+                )
+            )
     return losses

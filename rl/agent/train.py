@@ -212,7 +212,8 @@ class Trainer:
         self.replay: ReplayBuffer | None = None
         self.rollout: Rollout | None = None
         if config.learner == "pqn":
-            self.rollout = self.memory = Rollout(config.rollout_steps, config.num_envs, (c, w, w))
+            hidden = config.hidden if config.recurrent else 0
+            self.rollout = self.memory = Rollout(config.rollout_steps, config.num_envs, (c, w, w), hidden)
             self.memory_file = "rollout.npz"
         else:
             self.replay = self.memory = ReplayBuffer(
@@ -265,6 +266,8 @@ class Trainer:
             }
             if self.agent.device.type == "cuda":
                 networks["cuda_rng"] = torch.cuda.get_rng_state_all()
+            if self.agent.hidden is not None:
+                networks["hidden"] = self.agent.hidden
             save_tensors(networks, tmp / "networks.pt")
             arrays = {k: getattr(self.env, k) for k in self.env.state_arrays}
             np.savez(tmp / "env.npz", **arrays, last_action=s.last_action, start_sinr=s.start_sinr)
@@ -300,6 +303,9 @@ class Trainer:
             self.agent.target.load_state_dict(ck["target"])
             self.agent.optimizer.load_state_dict(ck["optimizer"])
             torch.set_rng_state(ck["torch_rng"].cpu())
+            if self.agent.hidden is not None:
+                require(ck, last / "networks.pt", "hidden")
+                self.agent.hidden.copy_(ck["hidden"])
             if ck.get("cuda_rng") is not None and self.agent.device.type == "cuda":
                 torch.cuda.set_rng_state_all([t.cpu() for t in ck["cuda_rng"]])
             with np.load(last / "env.npz", allow_pickle=False) as z:
@@ -375,6 +381,8 @@ class Trainer:
             frac = s.step / cfg.total_steps
             eps = linear(cfg.eps_start, cfg.eps_end, s.step / (cfg.eps_fraction * cfg.total_steps))
             genie = env.genie_moves() if cfg.aux_genie > 0 else None
+            if self.rollout is not None and self.rollout.t == 0:
+                self.rollout.h0[...] = self.agent.state()  # a recurrent network learns from the state it began with
             actions = self.agent.act(obs, mask, eps, s.last_action, self.rng)
             next_obs, reward, term, trunc, info = env.step(actions)
             final_obs = final_mask = np.zeros((0,))
@@ -387,6 +395,7 @@ class Trainer:
             s.last_action = np.where(done, -1, actions)
             if done.any():
                 rows = np.flatnonzero(done)
+                self.agent.reset_state(rows)
                 for r in rows:
                     s.episodes.append(
                         {
