@@ -29,7 +29,7 @@
 #   HALF=1 bash benchmarks/levers.sh             # A1L on half the training cities (3 seeds), runs/levers-v5
 #   PQN=1 [PQN_SEEDS="0 1 2"] bash benchmarks/levers.sh   # A1L learnt by PQN instead of replay DQN, runs/levers-v5
 #   PQNV=1 bash benchmarks/levers.sh             # PQN with the convolutional network, and with lambda 0.9
-#   GRU=1 [GRU_SEEDS="0 1 2"] bash benchmarks/levers.sh   # PQN with a recurrent core (a GRU cell before the heads)
+#   GRU=1 [GRU_SEEDS="0 1 2"] bash benchmarks/levers.sh   # PQN with a recurrent core (the `best` preset now)
 #   V2=1 bash benchmarks/levers.sh               # the N1 rows, runs/levers-v2
 #   AUX=1 bash benchmarks/levers.sh              # the A rows, runs/aux
 set -euo pipefail
@@ -92,8 +92,9 @@ if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 || ${PQ
     wait
     one HALF-s2 --seed 2
   fi
-  # PQN's runs were trained as `--preset best` (A1L then) with these settings, which are the `best` preset now.
-  COMMON=(--dataset corpus --dataset oldtown --dataset train --preset best --out "$OUT" --quiet)
+  # PQN's runs were trained as `--preset best` (A1L then) with these settings, which are the `best-pqn` preset now; the
+  # GRU rows as `--preset best` (best-pqn then) with these settings and recurrent=true: the `best` preset now.
+  COMMON=(--dataset corpus --dataset oldtown --dataset train --preset best-pqn --out "$OUT" --quiet)
   PQN=(--set learner=pqn --set num_envs=128 --set rollout_steps=16 --set epochs=4 --set layer_norm=true)
   if [[ ${PQN:-0} == 1 ]]; then
     # The learner instead of the levers around it: PQN (rl/agent/pqn.py; Q(lambda) on rollouts of 128 envs x 16 moves,

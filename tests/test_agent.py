@@ -135,13 +135,15 @@ def test_q_lambda_returns_by_hand():
 
 
 def test_config_round_trip_and_presets():
-    for name in ("paper", "fast", "best", "best-dqn"):
+    for name in ("paper", "fast", "best", "best-pqn", "best-dqn"):
         cfg = preset_config(name, seed=3)
         again = DQNConfig.model_validate_json(cfg.model_dump_json())
         assert again == cfg and again.preset == name
     paper = preset_config("paper")
     assert (paper.batch_size, paper.train_every, paper.buffer_size, paper.gamma, paper.dropout) == (20, 3, 500_000, 0.99, 0.4)
     assert paper.env.t_max == 800 and paper.env.rotate and paper.eps_end == 0.0 and paper.test_epsilon == 0.096
+    assert preset_config("best").recurrent and preset_config("best-pqn").learner == "pqn"
+    assert preset_config("best").model_copy(update={"recurrent": False, "preset": "best-pqn"}) == preset_config("best-pqn")
     with pytest.raises(ValueError, match="unknown preset"):
         preset_config("huge")
 
@@ -322,7 +324,9 @@ def test_recurrent_policy_keeps_a_state_per_row(city_root):
     assert policy.hidden[2].abs().sum() == 0 and (policy.hidden[[0, 1, 3]].abs().sum(dim=1) > 0).all()
 
 
-@pytest.mark.parametrize("learner", [{"learner": "replay"}, {}, {"recurrent": True}], ids=["replay", "pqn", "pqn-gru"])
+@pytest.mark.parametrize(
+    "learner", [{"learner": "replay", "recurrent": False}, {"recurrent": False}, {}], ids=["replay", "pqn", "pqn-gru"]
+)
 def test_short_training_run_learns(tmp_path, learner):
     """On the embedded tiny city (noisier, so that few cells reach P_T), 15 k steps beat the random walk
     clearly on held-out episodes (drawn with another seed than training's), with either learner (and PQN with a
