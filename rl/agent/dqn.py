@@ -249,8 +249,13 @@ def preset_config(name: str, **overrides: object) -> DQNConfig:
 
 def make_network(config: DQNConfig, in_channels: int, window: int) -> nn.Module:
     """The Q-network ``config.network`` names, with the config's sizes."""
-    sizes = {"hidden": config.hidden, "dropout": config.dropout, "aux": config.aux_genie > 0, "layer_norm": config.layer_norm}
-    sizes["recurrent"] = config.recurrent
+    sizes = {
+        "hidden": config.hidden,
+        "dropout": config.dropout,
+        "aux": config.aux_genie > 0,
+        "layer_norm": config.layer_norm,
+        "recurrent": config.recurrent,
+    }
     if config.network == "fovea":
         return FoveaQNetwork(in_channels, window, fovea=config.fovea, **sizes)
     return QNetwork(in_channels, window, channels=config.conv_channels, **sizes)
