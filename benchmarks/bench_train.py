@@ -21,6 +21,7 @@ evaluations included.
     python benchmarks/bench_train.py [--steps 20000] [--preset best-dqn]
     python benchmarks/bench_train.py --memory
     python benchmarks/bench_train.py --corpus corpus      # the train city alone against the corpus and it
+    python benchmarks/bench_train.py --learners --corpus corpus   # replay DQN, PQN and PQN + GRU on the corpus
     python benchmarks/bench_train.py --to-target 0.9 [--budget 300000] [--eval-every 10000]
 """
 
@@ -262,6 +263,26 @@ def bench_corpus(args: argparse.Namespace) -> None:
     print(f"  ratio (corpus / one city), env steps/s: {ratio:.2f}x (target: >= 0.9)")
 
 
+def bench_learners(args: argparse.Namespace) -> None:
+    """Our presets' three learners on the same cities, one after the other in one run: best-dqn (replay DQN),
+    best-pqn (PQN) and best (PQN with the recurrent core). Env steps/s (acting and learning together) and each
+    one's ratio to best-dqn's; updates/s counts each learner's own gradient steps (not the same batch)."""
+    cities = [*expand_datasets([args.corpus], args.root), args.dataset] if args.corpus else [args.dataset]
+    base = None
+    for name in ("best-dqn", "best-pqn", "best"):
+        config = preset_config(
+            name, total_steps=10 * args.steps, buffer_size=args.steps, learning_starts=min(2_000, args.warmup),
+            eval_every=10 * args.steps, eval_episodes=50,
+        )  # fmt: skip
+        r = bench_ours(config, cities, args.root, args.steps, args.warmup)
+        base = base or r["env_steps_per_s"]
+        label = f"{name} ({config.learner}{', recurrent' if config.recurrent else ''})"
+        print(
+            f"  {label:>24}: {r['env_steps_per_s']:6.0f} env steps/s  {r['updates_per_s']:6.1f} updates/s  "
+            f"ratio to best-dqn {r['env_steps_per_s'] / base:.2f}x"
+        )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--dataset", default="train", help="built city (default: the embedded train city)")
@@ -274,6 +295,9 @@ def main() -> None:
     ap.add_argument("--memory", action="store_true", help="peak RSS of a paper-preset run with a full replay instead")
     ap.add_argument("--corpus", default=None, help="instead: ours on --dataset alone against the corpus NAME-NNN and it")
     ap.add_argument("--to-target", type=float, default=None, help="instead: wall time of both to this validation success")
+    ap.add_argument(
+        "--learners", action="store_true", help="instead: env steps/s of best-dqn, best-pqn and best (with --corpus: on it)"
+    )
     ap.add_argument("--budget", type=int, default=300_000, help="--to-target: env steps at most (the preset's schedule)")
     ap.add_argument("--eval-every", type=int, default=10_000, help="--to-target: env steps between evaluations")
     ap.add_argument("--seed", type=int, default=0, help="--to-target: seed of both runs")
@@ -287,6 +311,9 @@ def main() -> None:
     args = ap.parse_args()
     if args.memory:
         bench_memory(args.dataset, args.root, extra_steps=3_000)
+        return
+    if args.learners:
+        bench_learners(args)
         return
     if args.corpus:
         bench_corpus(args)
