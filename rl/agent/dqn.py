@@ -423,6 +423,7 @@ class DQNPolicy:
         self.rng = np.random.default_rng(seed)
         self.name = name
         self.visits: np.ndarray | None = None  # [num_envs, side, side] visits of each canvas cell this episode
+        self.recurrent = getattr(net, "recurrent", False)
         self.hidden: torch.Tensor | None = None  # [num_envs, hidden]: a recurrent network's state in each row
 
     @classmethod
@@ -442,7 +443,7 @@ class DQNPolicy:
             self.visits[rows] = 0
         else:
             self.visits = None  # allocated at the next act, when the canvas size is known
-        if getattr(self.net, "recurrent", False):
+        if self.recurrent:
             if self.hidden is None or len(self.hidden) != num_envs:
                 self.hidden = self.net.initial_state(num_envs)
             self.hidden[torch.from_numpy(np.asarray(rows, np.int64)).to(self.device)] = 0.0
@@ -467,13 +468,12 @@ class DQNPolicy:
         if len(live):
             rows = slice(None) if len(live) == len(mask) else live
             legal = torch.from_numpy(mask[rows]).to(self.device)
-            recurrent = getattr(self.net, "recurrent", False)
-            if recurrent and (self.hidden is None or len(self.hidden) != len(mask)):
+            if self.recurrent and (self.hidden is None or len(self.hidden) != len(mask)):
                 self.reset(np.arange(len(mask)), len(mask))  # (outside inference mode: the state is updated in place)
             with torch.inference_mode():
                 x = to_tensor(obs[rows], self.device)
                 z = None  # the features the heads read, where the policy needs them
-                if recurrent:
+                if self.recurrent:
                     z = self.net.encode(x, self.hidden[rows])
                     self.hidden[rows] = z
                 elif self.aux_weight > 0:

@@ -20,6 +20,7 @@ restarting at each episode's start), ``batch_size // rollout_steps`` envs a mini
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -134,6 +135,15 @@ def max_q(agent: DQN, obs: np.ndarray, mask: np.ndarray, chunk: int = 4096) -> n
     return out
 
 
+def minibatches(n: int, size: int, epochs: int, rng: np.random.Generator) -> Iterator[np.ndarray]:
+    """``epochs`` passes over ``range(n)`` in a fresh shuffled order each, as sorted index arrays of ``size`` (a
+    remainder short of ``size`` is left out of that pass)."""
+    for _ in range(epochs):
+        order = rng.permutation(n)
+        for i in range(0, n - size + 1, size):
+            yield np.sort(order[i : i + size])
+
+
 def pqn_round(
     agent: DQN, rollout: Rollout, obs: np.ndarray, mask: np.ndarray, lr: float, rng: np.random.Generator
 ) -> list[float]:
@@ -154,13 +164,10 @@ def pqn_round(
     target = q_lambda_returns(rollout.reward, rollout.terminated, cut, q_next, q_final, cfg.gamma, cfg.q_lambda).reshape(flat)
     obs_flat = rollout.obs.reshape(flat, *obs.shape[1:])
     action, genie = rollout.action.reshape(flat), rollout.genie.reshape(flat, 4)
-    losses = []
-    for _ in range(cfg.epochs):
-        order = rng.permutation(flat)
-        for i in range(0, flat - cfg.batch_size + 1, cfg.batch_size):
-            idx = np.sort(order[i : i + cfg.batch_size])
-            losses.append(agent.fit(obs_flat[idx], action[idx], torch.from_numpy(target[idx]), genie[idx], lr))
-    return losses
+    return [
+        agent.fit(obs_flat[idx], action[idx], torch.from_numpy(target[idx]), genie[idx], lr)
+        for idx in minibatches(flat, cfg.batch_size, cfg.epochs, rng)
+    ]
 
 
 def recurrent_round(
@@ -187,21 +194,15 @@ def recurrent_round(
             q_final[t, row] = legal_max(q_cut, rollout.final_mask[t, row])
     q_next = np.concatenate([q_acted[1:], q_now[None]])
     target = q_lambda_returns(rollout.reward, rollout.terminated, cut, q_next, q_final, cfg.gamma, cfg.q_lambda)
-    per = cfg.sequences_per_batch
-    losses = []
-    for _ in range(cfg.epochs):
-        order = rng.permutation(n)
-        for i in range(0, n - per + 1, per):
-            envs = np.sort(order[i : i + per])
-            losses.append(
-                agent.fit(
-                    rollout.obs[:, envs],
-                    rollout.action[:, envs],
-                    torch.from_numpy(target[:, envs]),
-                    rollout.genie[:, envs],
-                    lr,
-                    h0=rollout.h0[envs],
-                    first=first[:, envs],
-                )
-            )
-    return losses
+    return [
+        agent.fit(
+            rollout.obs[:, envs],
+            rollout.action[:, envs],
+            torch.from_numpy(target[:, envs]),
+            rollout.genie[:, envs],
+            lr,
+            h0=rollout.h0[envs],
+            first=first[:, envs],
+        )
+        for envs in minibatches(n, cfg.sequences_per_batch, cfg.epochs, rng)
+    ]
