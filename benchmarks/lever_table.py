@@ -5,7 +5,7 @@ For every run folder: the settings that differ from the ``best`` preset, the eva
 city (t_max 500, epsilon 0.096, the episodes ``uavrl report --seed`` draws; ``eval.report.evaluate``
 with the genie as the only baseline): success, median steps
 and their ratio to the genie's median on the same episodes, and the wall time the lever script
-logged (``wall.txt`` beside the runs). Test cities are only reported here, never used to choose.
+logged (``wall.txt`` beside the runs; a resumed run's parts added up, a part that was killed is not there). Test cities are only reported here, never used to choose.
 Each agent is loaded once: its random moves (epsilon) run on from one city to the next, so a city
 after the first differs from ``uavrl report`` (a fresh agent per city) by that noise alone.
 
@@ -36,13 +36,14 @@ def changed_settings(config) -> str:
 
 
 def wall_times(folders: list[Path]) -> dict[str, str]:
-    times: dict[str, str] = {}
+    """Each run's wall time from its OUT/wall.txt: the sum of its lines, one per start or resume (``one_run.sh``)."""
+    seconds: dict[str, int] = {}
     for log in {f.parent / "wall.txt" for f in folders}:
         if log.is_file():
             for line in log.read_text().splitlines():
-                name, _, seconds = line.partition(": ")
-                times[name] = seconds
-    return times
+                name, _, text = line.partition(": ")
+                seconds[name] = seconds.get(name, 0) + int(text.removesuffix(" s"))
+    return {name: f"{s} s" for name, s in seconds.items()}
 
 
 def main() -> None:

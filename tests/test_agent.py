@@ -26,7 +26,7 @@ from uavplace.rl.agent.dqn import (
 from uavplace.rl.agent.network import FoveaQNetwork
 from uavplace.rl.agent.pqn import q_lambda_returns
 from uavplace.rl.agent.replay import Batch, ReplayBuffer
-from uavplace.rl.agent.train import Trainer, load_policy, read_run_json
+from uavplace.rl.agent.train import Trainer, load_policy, plan_cities, read_run_json
 from uavplace.rl.config import EnvConfig
 from uavplace.rl.maps import MapSet
 from uavplace.rl.vec_env import BatchedEnv
@@ -410,6 +410,11 @@ def test_train_on_a_corpus_selects_on_val_cities_and_refuses_test_cities(tmp_pat
     assert list(doc["datasets"]) == ["c-000", "c-001"] and list(doc["val_datasets"]) == ["c-002"]
     assert doc["config"]["num_envs"] == 4 and doc["config"]["env"]["t_max"] == 20 and doc["config"]["env"]["rotate"]
     assert doc["train_split"] is None and doc["eval_split"] is None
+    # c-002 named twice (a val city of the corpus and --val-dataset) is validated on once, not weighted double
+    val = plan_cities(
+        [load_bundle(c, root=corpus_root) for c in ("c-000", "c-002")], [load_bundle("c-002", root=corpus_root)], None
+    ).val
+    assert [b.city for b in val] == ["c-002"]
     for given in (["--dataset", "held"], ["--dataset", "c-000", "--val-dataset", "held"]):
         res = run(uavrl, [*base, *given, "--name", "refused"])
         assert res.exit_code != 0 and "held is a test city" in res.output and "never trained or selected on" in res.output

@@ -140,7 +140,8 @@ def plan_cities(bundles: list[Bundle], val_bundles: list[Bundle], eval_split: st
 
     A city built as ``val`` goes to validation; one built as ``test`` is refused (never trained or
     selected on). Training users: a ``train`` city's training users, every user of a city without a
-    role. Validation: every user of the validation cities; without any, the ``eval_split`` users of
+    role. Validation: every user of the validation cities, each city once however often it is named
+    (``--val-dataset`` and a val city of ``--dataset``); without any, the ``eval_split`` users of
     the training cities (all of them if none has that split).
     """
     for b in [*bundles, *val_bundles]:
@@ -148,7 +149,7 @@ def plan_cities(bundles: list[Bundle], val_bundles: list[Bundle], eval_split: st
             raise InputError(
                 None, f"{b.city} is a test city (built with --split {b.city}=test): never trained or selected on", field="dataset"
             )
-    val = list(val_bundles) + [b for b in bundles if role(b) == "val"]
+    val = list({b.city: b for b in [*val_bundles, *(b for b in bundles if role(b) == "val")]}.values())
     train = [b for b in bundles if role(b) != "val"]
     if not train:
         raise InputError(None, "no training city: every --dataset given is a validation city", field="dataset")
