@@ -30,6 +30,8 @@
 #   PQN=1 [PQN_SEEDS="0 1 2"] bash benchmarks/levers.sh   # A1L learnt by PQN instead of replay DQN, runs/levers-v5
 #   PQNV=1 bash benchmarks/levers.sh             # PQN with the convolutional network, and with lambda 0.9
 #   GRU=1 [GRU_SEEDS="0 1 2"] bash benchmarks/levers.sh   # PQN with a recurrent core (the `best` preset now)
+#   GRUV=1 [GRUV_SEEDS="0 1 2"] bash benchmarks/levers.sh # `best` with rollouts of 32 moves (the core's stretch)
+#   OT10=1 bash benchmarks/levers.sh             # GRU-R32 with 3 more old-town training cities (3 seeds)
 #   V2=1 bash benchmarks/levers.sh               # the N1 rows, runs/levers-v2
 #   AUX=1 bash benchmarks/levers.sh              # the A rows, runs/aux
 set -euo pipefail
@@ -56,7 +58,7 @@ if [[ ${AUX:-0} == 1 ]]; then
   wait
   exit 0
 fi
-if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 || ${PQN:-0} == 1 || ${PQNV:-0} == 1 || ${GRU:-0} == 1 ]]; then
+if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 || ${PQN:-0} == 1 || ${PQNV:-0} == 1 || ${GRU:-0} == 1 || ${GRUV:-0} == 1 || ${OT10:-0} == 1 ]]; then
   # The rows on this release's maps, side by side in one OUT: the `best-dqn` preset (A1L) with one change each.
   OUT=runs/levers-v5
   mkdir -p "$OUT"
@@ -111,6 +113,22 @@ if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 || ${PQ
     # A memory of the whole search, beyond the window: a GRU cell between the features and the heads, its state reset
     # at each episode's start, learnt on whole env rollouts from the state each began with (rl/agent/pqn.py).
     for seed in ${GRU_SEEDS:-0}; do one "PQN-GRU-s$seed" --seed "$seed" "${PQN[@]}" --set recurrent=true; done
+  fi
+  if [[ ${GRUV:-0} == 1 ]]; then
+    # The core learnt over longer stretches of each search: rollouts of 32 moves in 64 envs (the same 2048 env steps
+    # and 64 minibatches of 128 samples a round; 4 envs x 32 moves each), the `best` preset otherwise.
+    for seed in ${GRUV_SEEDS:-0}; do
+      one "GRU-R32-s$seed" --preset best --seed "$seed" --set num_envs=64 --set rollout_steps=32
+    done
+  fi
+  if [[ ${OT10:-0} == 1 ]]; then
+    # More historic centres: GRU-R32 trained with oldtown-006 to -008 too (8 old-town cities instead of 5) and
+    # selected with oldtown-009 too (built as val: 4 validation cities). Two lanes: seeds 0 and 2 in one, seed 1 in
+    # the other. Needs oldtown-006 to -009 traced and built first (README, "More old-town cities").
+    OT10=(--preset best --set num_envs=64 --set rollout_steps=32)
+    (one GRU-R32-OT8-s0 --seed 0 "${OT10[@]}"; one GRU-R32-OT8-s2 --seed 2 "${OT10[@]}") &
+    one GRU-R32-OT8-s1 --seed 1 "${OT10[@]}" &
+    wait
   fi
   exit 0
 fi

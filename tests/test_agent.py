@@ -143,7 +143,8 @@ def test_config_round_trip_and_presets():
     assert (paper.batch_size, paper.train_every, paper.buffer_size, paper.gamma, paper.dropout) == (20, 3, 500_000, 0.99, 0.4)
     assert paper.env.t_max == 800 and paper.env.rotate and paper.eps_end == 0.0 and paper.test_epsilon == 0.096
     assert preset_config("best").recurrent and preset_config("best-pqn").learner == "pqn"
-    assert preset_config("best").model_copy(update={"recurrent": False, "preset": "best-pqn"}) == preset_config("best-pqn")
+    gru = {"recurrent": False, "num_envs": 128, "rollout_steps": 16, "preset": "best-pqn"}
+    assert preset_config("best").model_copy(update=gru) == preset_config("best-pqn")
     with pytest.raises(ValueError, match="unknown preset"):
         preset_config("huge")
 
