@@ -29,8 +29,8 @@
 #   HALF=1 bash benchmarks/levers.sh             # A1L on half the training cities (3 seeds), runs/levers-v5
 #   PQN=1 [PQN_SEEDS="0 1 2"] bash benchmarks/levers.sh   # A1L learnt by PQN instead of replay DQN, runs/levers-v5
 #   PQNV=1 bash benchmarks/levers.sh             # PQN with the convolutional network, and with lambda 0.9
-#   GRU=1 [GRU_SEEDS="0 1 2"] bash benchmarks/levers.sh   # PQN with a recurrent core (the `best` preset now)
-#   GRUV=1 [GRUV_SEEDS="0 1 2"] bash benchmarks/levers.sh # `best` with rollouts of 32 moves (the core's stretch)
+#   GRU=1 [GRU_SEEDS="0 1 2"] bash benchmarks/levers.sh   # PQN with a recurrent core, 16-move rollouts
+#   GRUV=1 [GRUV_SEEDS="0 1 2"] bash benchmarks/levers.sh # the core on 32-move rollouts (the `best` preset now)
 #   OT10=1 bash benchmarks/levers.sh             # GRU-R32 with 3 more old-town training cities (3 seeds)
 #   V2=1 bash benchmarks/levers.sh               # the N1 rows, runs/levers-v2
 #   AUX=1 bash benchmarks/levers.sh              # the A rows, runs/aux
@@ -95,7 +95,7 @@ if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 || ${PQ
     one HALF-s2 --seed 2
   fi
   # PQN's runs were trained as `--preset best` (A1L then) with these settings, which are the `best-pqn` preset now; the
-  # GRU rows as `--preset best` (best-pqn then) with these settings and recurrent=true: the `best` preset now.
+  # GRU rows as `--preset best` (best-pqn then) with these settings and recurrent=true: the `best` preset until GRUV.
   COMMON=(--dataset corpus --dataset oldtown --dataset train --preset best-pqn --out "$OUT" --quiet)
   PQN=(--set learner=pqn --set num_envs=128 --set rollout_steps=16 --set epochs=4 --set layer_norm=true)
   if [[ ${PQN:-0} == 1 ]]; then
@@ -116,7 +116,7 @@ if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 || ${PQ
   fi
   if [[ ${GRUV:-0} == 1 ]]; then
     # The core learnt over longer stretches of each search: rollouts of 32 moves in 64 envs (the same 2048 env steps
-    # and 64 minibatches of 128 samples a round; 4 envs x 32 moves each), the `best` preset otherwise.
+    # and 64 minibatches of 128 samples a round; 4 envs x 32 moves each): the `best` preset now (these --sets are its).
     for seed in ${GRUV_SEEDS:-0}; do
       one "GRU-R32-s$seed" --preset best --seed "$seed" --set num_envs=64 --set rollout_steps=32
     done
