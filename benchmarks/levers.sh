@@ -30,7 +30,8 @@
 #   PQN=1 [PQN_SEEDS="0 1 2"] bash benchmarks/levers.sh   # A1L learnt by PQN instead of replay DQN, runs/levers-v5
 #   PQNV=1 bash benchmarks/levers.sh             # PQN with the convolutional network, and with lambda 0.9
 #   GRU=1 [GRU_SEEDS="0 1 2"] bash benchmarks/levers.sh   # PQN with a recurrent core, 16-move rollouts
-#   GRUV=1 [GRUV_SEEDS="0 1 2"] bash benchmarks/levers.sh # the core on 32-move rollouts (the `best` preset now)
+#   GRUV=1 [GRUV_SEEDS="0 1 2"] [GRUV_ROLLOUT=64] bash benchmarks/levers.sh # the core on 32-move rollouts (the
+#                                                `best` preset now), or on 64-move ones; the seeds side by side
 #   OT10=1 bash benchmarks/levers.sh             # GRU-R32 with 3 more old-town training cities (3 seeds)
 #   V2=1 bash benchmarks/levers.sh               # the N1 rows, runs/levers-v2
 #   AUX=1 bash benchmarks/levers.sh              # the A rows, runs/aux
@@ -117,9 +118,12 @@ if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 || ${PQ
   if [[ ${GRUV:-0} == 1 ]]; then
     # The core learnt over longer stretches of each search: rollouts of 32 moves in 64 envs (the same 2048 env steps
     # and 64 minibatches of 128 samples a round; 4 envs x 32 moves each): the `best` preset now (these --sets are its).
+    # GRUV_ROLLOUT=64: rollouts of 64 moves in 32 envs (2 envs a minibatch), runs GRU-R64-sN.
+    R=${GRUV_ROLLOUT:-32}
     for seed in ${GRUV_SEEDS:-0}; do
-      one "GRU-R32-s$seed" --preset best --seed "$seed" --set num_envs=64 --set rollout_steps=32
+      one "GRU-R$R-s$seed" --preset best --seed "$seed" --set num_envs=$((2048 / R)) --set rollout_steps="$R" &
     done
+    wait
   fi
   if [[ ${OT10:-0} == 1 ]]; then
     # More historic centres: GRU-R32 trained with oldtown-006 to -008 too (8 old-town cities instead of 5) and
