@@ -126,12 +126,11 @@ if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 || ${PQ
     wait
   fi
   if [[ ${OT10:-0} == 1 ]]; then
-    # More historic centres: GRU-R32 trained with oldtown-006 to -008 too (8 old-town cities instead of 5) and
-    # selected with oldtown-009 too (built as val: 4 validation cities). Two lanes: seeds 0 and 2 in one, seed 1 in
-    # the other. Needs oldtown-006 to -009 traced and built first (README, "More old-town cities").
-    OT10=(--preset best --set num_envs=64 --set rollout_steps=32)
-    (one GRU-R32-OT8-s0 --seed 0 "${OT10[@]}"; one GRU-R32-OT8-s2 --seed 2 "${OT10[@]}") &
-    one GRU-R32-OT8-s1 --seed 1 "${OT10[@]}" &
+    # More historic centres: the `best` preset (GRU-R32) trained with oldtown-006 to -008 too (8 old-town cities
+    # instead of 5) and selected with oldtown-009 too (built as val: 4 validation cities). Two lanes: seeds 0 and 2 in
+    # one, seed 1 in the other. Needs oldtown-006 to -009 traced and built first (README, "More old-town cities").
+    (one GRU-R32-OT8-s0 --seed 0 --preset best; one GRU-R32-OT8-s2 --seed 2 --preset best) &
+    one GRU-R32-OT8-s1 --seed 1 --preset best &
     wait
   fi
   exit 0
