@@ -4,8 +4,10 @@ For every run folder: the settings that differ from the ``best`` preset, the eva
 ``best.pt`` (on the validation cities), then ``best.pt`` on ``--episodes`` episodes of each test
 city (t_max 500, epsilon 0.096, the episodes ``uavrl report --seed`` draws; ``eval.report.evaluate``
 with the genie as the only baseline): success, median steps
-and their ratio to the genie's median on the same episodes, and the wall time the lever script
-logged (``wall.txt`` beside the runs; a resumed run's parts added up, a part that was killed is not there). Test cities are only reported here, never used to choose.
+and their ratio to the genie's median on the same episodes, and the wall time: the run's own
+(``wall_s`` of its last evaluation, over its starts and resumes), or for a run trained before the
+trainer kept time, what the lever script logged (``wall.txt`` beside the runs; a resumed run's
+parts added up, a part that was killed is not there). Test cities are only reported here, never used to choose.
 Each agent is loaded once: its random moves (epsilon) run on from one city to the next, so a city
 after the first differs from ``uavrl report`` (a fresh agent per city) by that noise alone.
 
@@ -76,7 +78,8 @@ def main() -> None:
         for summaries in tests.values():
             s, genie = summaries[a.name], summaries[GeniePolicy.name]["median_steps"]
             row += [f"{100 * s['success']:.1f} %", f"{s['median_steps']:g}", f"{s['median_steps'] / genie:.2f}"]
-        row.append(walls.get(a.name, "-"))
+        own = evals["wall_s"].iloc[-1] if "wall_s" in evals else float("nan")
+        row.append(f"{own:.0f} s" if pd.notna(own) else walls.get(a.name, "-"))
         print("| " + " | ".join(row) + " |")
 
 

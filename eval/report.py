@@ -106,7 +106,11 @@ class Report:
 
 
 def agent_name(config: DQNConfig) -> str:
-    return f"{'DQN' if config.agent == 'dqn' else 'blind DQN'} ({config.preset})"
+    """The method's name in tables: the paper's ``DQN`` and ``blind DQN``, or the learner that trained it (``PQN``,
+    ``+ GRU`` for a recurrent core), then the preset: ``DQN (paper)``, ``PQN + GRU (best)``."""
+    learner = "PQN" if config.learner == "pqn" else "DQN"
+    core = " + GRU" if config.recurrent else ""
+    return f"{'' if config.agent == 'dqn' else 'blind '}{learner}{core} ({config.preset})"
 
 
 def load_agent(folder: str | Path, epsilon: float, seed: int) -> Agent:
@@ -190,9 +194,9 @@ def results_table(results: dict[str, pd.DataFrame], config: ReportConfig) -> pd.
 def _paper_key(method: str) -> str | None:
     if method == "genie":
         return "genie"
-    if method.startswith("blind DQN"):
+    if method.startswith(("blind DQN", "blind PQN")):
         return "blind"
-    if method.startswith("DQN"):
+    if method.startswith(("DQN", "PQN")):  # the paper's proposed agent, or ours trained by another learner
         return "dqn"
     return None
 

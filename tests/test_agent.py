@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
 import pandas as pd
@@ -185,6 +186,11 @@ def test_resume_continues_exactly(tmp_path, city_root, env, learner):
     half.run(stop_at=96)  # a planned stop between evaluations (`--until 96`) checkpoints there
     doc = json.loads((tmp_path / "b" / "run.json").read_text())
     assert doc["train_split"] == "train" and doc["eval_split"] == "val" and doc["datasets"]["tiny"]
+    checkpoint = tmp_path / "b" / "checkpoints" / "last" / "checkpoint.json"
+    doc = json.loads(checkpoint.read_text())
+    assert doc["wall_s"] > 0
+    checkpoint.write_text(json.dumps(doc | {"wall_s": 1000.0}))  # as if the first part had taken 1000 s
+    t0 = time.perf_counter()
     Trainer(config(), ["tiny"], city_root, tmp_path / "b", command="uavrl train --resume b --until 200").run(
         resume=True, stop_at=200
     )
@@ -196,6 +202,10 @@ def test_resume_continues_exactly(tmp_path, city_root, env, learner):
         "uavrl train --resume b (from step 200)",
     ]
     assert resumed.state.step == straight.state.step == 256
+    # The run's own clock goes on from the checkpoint's: the evaluations after the stop count the 1000 s before it.
+    evals = pd.read_parquet(tmp_path / "b" / "eval.parquet")
+    assert evals.wall_s.is_monotonic_increasing and 1000 < evals.wall_s.min() < evals.wall_s.max() < 1000 + time.perf_counter() - t0
+    assert 0 < pd.read_parquet(tmp_path / "a" / "eval.parquet").wall_s.max() < 1000
     # PQN: 6 rollouts of 8 x 5 moves, 2 epochs of 2 batches of 16 moves (recurrent: of 3 env rollouts, 15 moves)
     assert straight.agent.updates == (24 if learner else 48)
     if learner.get("recurrent"):

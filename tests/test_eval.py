@@ -114,10 +114,10 @@ def test_report_end_to_end(tmp_path, two_cities):
     assert page.count('src="data:image/png;base64,') == 3  # CDF, training curves, trajectories
     assert page.count("<figcaption>") == 3 and "<details>" in page and "Provenance" in page
     assert "median steps" in page and "p75 steps" in page and "90 % (proposed)" in page
-    for text in ("DQN (best)", "genie", "steered random walk", "greedy hill-climbing", "paper: success", "cityb", "citya"):
+    for text in ("PQN + GRU (best)", "genie", "steered random walk", "greedy hill-climbing", "paper: success", "cityb", "citya"):
         assert text in page
     table = pd.read_csv(out / "results.csv")
-    assert list(table["method"]) == ["DQN (best)", "genie", "steered random walk", "greedy hill-climbing"]
+    assert list(table["method"]) == ["PQN + GRU (best)", "genie", "steered random walk", "greedy hill-climbing"]
     assert table.loc[table.method == "genie", "success"].item() == 1.0
     assert (table["success_lo"] <= table["success"]).all() and (table["success"] <= table["success_hi"]).all()
     eps = pd.read_parquet(out / "episodes.parquet")
@@ -130,10 +130,10 @@ def test_report_end_to_end(tmp_path, two_cities):
     for m in wide.columns:  # the genie is never slower than any method on any episode it finished
         assert (wide["genie"][ok[m]] <= wide[m][ok[m]]).all(), m
     doc = json.loads((out / "report.json").read_text())
-    assert doc["test_bundle"] and set(doc["agents"]["DQN (best)"]["trained_on"]) == {"citya"}
+    assert doc["test_bundle"] and set(doc["agents"]["PQN + GRU (best)"]["trained_on"]) == {"citya"}
     assert doc["report_config"]["episodes"] == 60 and "upper_bounds_db" in doc
     # The trajectories follow the stated rule: the success nearest the median, the successes' p90, a failure.
-    shown = eps[eps.method == "DQN (best)"].set_index("episode")
+    shown = eps[eps.method == "PQN + GRU (best)"].set_index("episode")
     picks = dict(zip(doc["trajectories"]["rules"], doc["trajectories"]["episodes"], strict=True))
     ok = shown[shown.success]
     median = np.quantile(np.where(shown.success, shown.steps, np.inf), 0.5, method="inverted_cdf")
@@ -141,7 +141,7 @@ def test_report_end_to_end(tmp_path, two_cities):
     assert abs(shown.steps[picks["median"]] - median) == (ok.steps - median).abs().min()
     if "failure" in picks:
         assert not shown.success[picks["failure"]]
-    assert doc["agents"]["DQN (best)"]["commands"] == [json.loads((run / "run.json").read_text())["command"]]
+    assert doc["agents"]["PQN + GRU (best)"]["commands"] == [json.loads((run / "run.json").read_text())["command"]]
     # The same command again gives the same table (seeded episodes, agent moves and bootstrap).
     res = CliRunner().invoke(uavrl, [*args, "--episodes", "60", "--t-max", "40", "--bootstrap", "200", "--quiet"])
     pd.testing.assert_frame_equal(table, pd.read_csv(out / "results.csv"))
@@ -189,7 +189,7 @@ def test_an_agent_of_another_window_plays_the_same_episodes(tmp_path, two_cities
     results = evaluate(ReportConfig(dataset="cityb", episodes=40, t_max=30), load_bundle("cityb", root=root), agents)
     key = ["episode", "view", "start_y", "start_x", "genie_steps"]
     genie = results["genie"][key].to_numpy()
-    for name in ("DQN (best)", "narrow"):
+    for name in ("PQN + GRU (best)", "narrow"):
         np.testing.assert_array_equal(results[name][key].to_numpy(), genie, err_msg=name)
 
 

@@ -2,7 +2,8 @@
 
 ``runs/<run-id>/``: ``run.json`` (the ``DQNConfig``, datasets and bundle versions, the command),
 ``metrics.parquet`` (one row per finished training episode), ``eval.parquet`` (one row per
-evaluation), ``checkpoints/last/`` (everything needed to continue exactly: networks, optimiser,
+evaluation, with ``wall_s``: the seconds of training and evaluation up to it, summed over the
+run's starts and resumes; the time since the last checkpoint of a killed part is lost with it), ``checkpoints/last/`` (everything needed to continue exactly: networks, optimiser,
 step counters, every random state, the environments' state, the replay or PQN's rollout so far,
 the metrics up to its step; one folder renamed into place, see ``rl.agent.checkpoint``), and
 ``checkpoints/best.pt`` (the network of the best evaluation). No checkpoint is a pickle of Python
@@ -107,6 +108,7 @@ class RunState:
     best_score: tuple[float, float] | None = None
     synced_at: int = 0
     losses: list[float] = field(default_factory=list)
+    wall_s: float | None = 0.0  # seconds up to the last checkpoint; None: resumed from one that did not count them
 
 
 def linear(start: float, end: float, frac: float) -> float:
@@ -225,6 +227,7 @@ class Trainer:
         self.state = RunState()
         self.command = command
         self.loaded = False  # True once ``load()`` restored a checkpoint
+        self._clock = (time.perf_counter(), 0.0)  # (when this start began, the run's seconds before it)
 
     # -- run folder ---------------------------------------------------------------------------------
     @property
@@ -253,9 +256,15 @@ class Trainer:
         record.resumed.append(f"{self.command} (from step {self.state.step})")
         atomic_write_text(self.run_dir / RUN_JSON, record.model_dump_json(indent=2) + "\n")
 
+    def wall_s(self) -> float | None:
+        """Seconds this run has trained and evaluated, over all its starts (``None`` if a checkpoint lacked them)."""
+        began, before = self._clock
+        return None if self.state.wall_s is None else before + time.perf_counter() - began
+
     def save(self) -> None:
         """Write ``checkpoints/last/`` as one unit (a folder renamed into place), then publish the metrics."""
         s = self.state
+        s.wall_s = self.wall_s()
         metrics = with_running_means(pd.DataFrame(s.episodes))
         evals = pd.DataFrame(s.evals)
         with atomic_directory(self.checkpoints / LAST, marker=CHECKPOINT_JSON, what="training checkpoint") as tmp:
@@ -284,6 +293,7 @@ class Trainer:
                 "episodes_started": self.env._episodes_started,
                 "rng": self.rng.bit_generator.state,
                 "env_rng": self.env.rng.bit_generator.state,
+                "wall_s": s.wall_s,
             }
             (tmp / CHECKPOINT_JSON).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
         _atomic_parquet(metrics, self.run_dir / "metrics.parquet")
@@ -320,6 +330,7 @@ class Trainer:
             self.env._episodes_started = int(doc["episodes_started"])
             self.rng.bit_generator.state = doc["rng"]
             self.env.rng.bit_generator.state = doc["env_rng"]
+            self.state.wall_s = doc.get("wall_s")  # checkpoints before the trainer kept time have none
             self.memory.load(last / self.memory_file)
             metrics = pd.read_parquet(last / "metrics.parquet")
             evals = pd.read_parquet(last / "eval.parquet")
@@ -343,6 +354,7 @@ class Trainer:
             "success": summary["success"],
             "median_steps": summary["median_steps"],
             "mean_return": float(df.return_.mean()),
+            "wall_s": self.wall_s(),
         }
         score = (row["success"], -row["median_steps"])
         if self.state.best_score is None or score > tuple(self.state.best_score):
@@ -377,6 +389,7 @@ class Trainer:
             mask = info["action_mask"]
             s.last_action = np.full(n, -1, np.int64)
             s.start_sinr = env.sinr_here().copy()
+        self._clock = (time.perf_counter(), s.wall_s or 0.0)
         next_eval = (s.step // cfg.eval_every + 1) * cfg.eval_every
         while s.step < cfg.total_steps and (stop_at is None or s.step < stop_at):
             frac = s.step / cfg.total_steps
