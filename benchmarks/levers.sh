@@ -35,6 +35,8 @@
 #   OT10=1 bash benchmarks/levers.sh             # GRU-R32 with 3 more old-town training cities (3 seeds)
 #   LONG=1 [LONG_SEEDS="0 1 2"] [LONG_STEPS=600000] bash benchmarks/levers.sh  # the `best` preset on a longer
 #                                                schedule (runs GRU-R32-L600-sN), the seeds side by side
+#   GRUT5=1 [GRUT5_SEEDS="0 1 2"] bash benchmarks/levers.sh  # the `best` preset on training episodes of 500 moves
+#                                                (the test's t_max; runs GRU-R32-T5-sN), the seeds side by side
 #   V2=1 bash benchmarks/levers.sh               # the N1 rows, runs/levers-v2
 #   AUX=1 bash benchmarks/levers.sh              # the A rows, runs/aux
 set -euo pipefail
@@ -61,7 +63,7 @@ if [[ ${AUX:-0} == 1 ]]; then
   wait
   exit 0
 fi
-if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 || ${PQN:-0} == 1 || ${PQNV:-0} == 1 || ${GRU:-0} == 1 || ${GRUV:-0} == 1 || ${OT10:-0} == 1 || ${LONG:-0} == 1 ]]; then
+if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 || ${PQN:-0} == 1 || ${PQNV:-0} == 1 || ${GRU:-0} == 1 || ${GRUV:-0} == 1 || ${OT10:-0} == 1 || ${LONG:-0} == 1 || ${GRUT5:-0} == 1 ]]; then
   # The rows on this release's maps, side by side in one OUT: the `best-dqn` preset (A1L) with one change each.
   OUT=runs/levers-v5
   mkdir -p "$OUT"
@@ -141,6 +143,14 @@ if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 || ${PQ
     N=${LONG_STEPS:-600000}
     for seed in ${LONG_SEEDS:-0}; do
       one "GRU-R32-L$((N / 1000))-s$seed" --preset best --seed "$seed" --steps "$N" &
+    done
+    wait
+  fi
+  if [[ ${GRUT5:-0} == 1 ]]; then
+    # The `best` preset with training episodes as long as the test's (500 moves instead of 300): the searches that
+    # fail in the old town run to the limit, so the core may learn more of a search's late part.
+    for seed in ${GRUT5_SEEDS:-0}; do
+      one "GRU-R32-T5-s$seed" --preset best --seed "$seed" --set env.t_max=500 &
     done
     wait
   fi
