@@ -37,6 +37,8 @@
 #                                                schedule (runs GRU-R32-L600-sN), the seeds side by side
 #   GRUT5=1 [GRUT5_SEEDS="0 1 2"] bash benchmarks/levers.sh  # the `best` preset on training episodes of 500 moves
 #                                                (the test's t_max; runs GRU-R32-T5-sN), the seeds side by side
+#   GRUH=1 [GRUH_SEEDS="0 1 2"] bash benchmarks/levers.sh   # the `best` preset with a core (and layers) of 512
+#                                                (runs GRU-R32-H512-sN), the seeds side by side
 #   V2=1 bash benchmarks/levers.sh               # the N1 rows, runs/levers-v2
 #   AUX=1 bash benchmarks/levers.sh              # the A rows, runs/aux
 set -euo pipefail
@@ -63,7 +65,7 @@ if [[ ${AUX:-0} == 1 ]]; then
   wait
   exit 0
 fi
-if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 || ${PQN:-0} == 1 || ${PQNV:-0} == 1 || ${GRU:-0} == 1 || ${GRUV:-0} == 1 || ${OT10:-0} == 1 || ${LONG:-0} == 1 || ${GRUT5:-0} == 1 ]]; then
+if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 || ${PQN:-0} == 1 || ${PQNV:-0} == 1 || ${GRU:-0} == 1 || ${GRUV:-0} == 1 || ${OT10:-0} == 1 || ${LONG:-0} == 1 || ${GRUT5:-0} == 1 || ${GRUH:-0} == 1 ]]; then
   # The rows on this release's maps, side by side in one OUT: the `best-dqn` preset (A1L) with one change each.
   OUT=runs/levers-v5
   mkdir -p "$OUT"
@@ -151,6 +153,14 @@ if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 || ${PQ
     # fail in the old town run to the limit, so the core may learn more of a search's late part.
     for seed in ${GRUT5_SEEDS:-0}; do
       one "GRU-R32-T5-s$seed" --preset best --seed "$seed" --set env.t_max=500 &
+    done
+    wait
+  fi
+  if [[ ${GRUH:-0} == 1 ]]; then
+    # The `best` preset twice as wide (hidden 512: the fully connected layers and the GRU state), for the old town,
+    # where the searches are long and the core must hold more of the route.
+    for seed in ${GRUH_SEEDS:-0}; do
+      one "GRU-R32-H512-s$seed" --preset best --seed "$seed" --set hidden=512 &
     done
     wait
   fi

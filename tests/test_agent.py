@@ -204,7 +204,9 @@ def test_resume_continues_exactly(tmp_path, city_root, env, learner):
     assert resumed.state.step == straight.state.step == 256
     # The run's own clock goes on from the checkpoint's: the evaluations after the stop count the 1000 s before it.
     evals = pd.read_parquet(tmp_path / "b" / "eval.parquet")
-    assert evals.wall_s.is_monotonic_increasing and 1000 < evals.wall_s.min() < evals.wall_s.max() < 1000 + time.perf_counter() - t0
+    assert (
+        evals.wall_s.is_monotonic_increasing and 1000 < evals.wall_s.min() < evals.wall_s.max() < 1000 + time.perf_counter() - t0
+    )
     assert 0 < pd.read_parquet(tmp_path / "a" / "eval.parquet").wall_s.max() < 1000
     # PQN: 6 rollouts of 8 x 5 moves, 2 epochs of 2 batches of 16 moves (recurrent: of 3 env rollouts, 15 moves)
     assert straight.agent.updates == (24 if learner else 48)
