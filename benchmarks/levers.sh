@@ -65,7 +65,9 @@ if [[ ${AUX:-0} == 1 ]]; then
   wait
   exit 0
 fi
-if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 || ${PQN:-0} == 1 || ${PQNV:-0} == 1 || ${GRU:-0} == 1 || ${GRUV:-0} == 1 || ${OT10:-0} == 1 || ${LONG:-0} == 1 || ${GRUT5:-0} == 1 || ${GRUH:-0} == 1 ]]; then
+V5_ROWS=0  # any of the switches whose rows train into runs/levers-v5
+for switch in V5 H5 HALF OT PQN PQNV GRU GRUV OT10 LONG GRUT5 GRUH; do [[ ${!switch:-0} == 1 ]] && V5_ROWS=1; done
+if [[ $V5_ROWS == 1 ]]; then
   # The rows on this release's maps, side by side in one OUT: the `best-dqn` preset (A1L) with one change each.
   OUT=runs/levers-v5
   mkdir -p "$OUT"
@@ -126,10 +128,7 @@ if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 || ${PQ
     # and 64 minibatches of 128 samples a round; 4 envs x 32 moves each): the `best` preset now (these --sets are its).
     # GRUV_ROLLOUT=64: rollouts of 64 moves in 32 envs (2 envs a minibatch), runs GRU-R64-sN.
     R=${GRUV_ROLLOUT:-32}
-    for seed in ${GRUV_SEEDS:-0}; do
-      one "GRU-R$R-s$seed" --preset best --seed "$seed" --set num_envs=$((2048 / R)) --set rollout_steps="$R" &
-    done
-    wait
+    side_by_side "GRU-R$R" "${GRUV_SEEDS:-0}" --preset best --set num_envs=$((2048 / R)) --set rollout_steps="$R"
   fi
   if [[ ${OT10:-0} == 1 ]]; then
     # More historic centres: the `best` preset (GRU-R32) trained with oldtown-006 to -008 too (8 old-town cities
@@ -143,26 +142,17 @@ if [[ ${V5:-0} == 1 || ${H5:-0} == 1 || ${HALF:-0} == 1 || ${OT:-0} == 1 || ${PQ
     # The `best` preset (GRU-R32) on a longer schedule: its validation success still rose at its last evaluation
     # (300 k steps) in each of its 3 seeds. Epsilon and the learning rate anneal over the longer schedule.
     N=${LONG_STEPS:-600000}
-    for seed in ${LONG_SEEDS:-0}; do
-      one "GRU-R32-L$((N / 1000))-s$seed" --preset best --seed "$seed" --steps "$N" &
-    done
-    wait
+    side_by_side "GRU-R32-L$((N / 1000))" "${LONG_SEEDS:-0}" --preset best --steps "$N"
   fi
   if [[ ${GRUT5:-0} == 1 ]]; then
     # The `best` preset with training episodes as long as the test's (500 moves instead of 300): the searches that
     # fail in the old town run to the limit, so the core may learn more of a search's late part.
-    for seed in ${GRUT5_SEEDS:-0}; do
-      one "GRU-R32-T5-s$seed" --preset best --seed "$seed" --set env.t_max=500 &
-    done
-    wait
+    side_by_side GRU-R32-T5 "${GRUT5_SEEDS:-0}" --preset best --set env.t_max=500
   fi
   if [[ ${GRUH:-0} == 1 ]]; then
     # The `best` preset twice as wide (hidden 512: the fully connected layers and the GRU state), for the old town,
     # where the searches are long and the core must hold more of the route.
-    for seed in ${GRUH_SEEDS:-0}; do
-      one "GRU-R32-H512-s$seed" --preset best --seed "$seed" --set hidden=512 &
-    done
-    wait
+    side_by_side GRU-R32-H512 "${GRUH_SEEDS:-0}" --preset best --set hidden=512
   fi
   exit 0
 fi

@@ -22,3 +22,11 @@ PY
   fi
   echo "$name: $((SECONDS - t0)) s" | tee -a "$OUT/wall.txt"
 }
+
+# `side_by_side NAME "SEEDS" ARGS...` trains NAME-sN with `--seed N ARGS...` for every seed N in SEEDS at once (each
+# a `one` run on one torch thread), and waits for them all.
+side_by_side() {
+  local name=$1 seeds=$2; shift 2
+  for seed in $seeds; do one "$name-s$seed" --seed "$seed" "$@" & done
+  wait
+}

@@ -108,7 +108,7 @@ class RunState:
     best_score: tuple[float, float] | None = None
     synced_at: int = 0
     losses: list[float] = field(default_factory=list)
-    wall_s: float | None = 0.0  # seconds up to the last checkpoint; None: resumed from one that did not count them
+    wall_s: float | None = 0.0  # seconds before this start (the checkpoint's); None: one that did not count them
 
 
 def linear(start: float, end: float, frac: float) -> float:
@@ -227,7 +227,7 @@ class Trainer:
         self.state = RunState()
         self.command = command
         self.loaded = False  # True once ``load()`` restored a checkpoint
-        self._clock = (time.perf_counter(), 0.0)  # (when this start began, the run's seconds before it)
+        self._began = time.perf_counter()  # when this start began (``run``)
 
     # -- run folder ---------------------------------------------------------------------------------
     @property
@@ -258,13 +258,12 @@ class Trainer:
 
     def wall_s(self) -> float | None:
         """Seconds this run has trained and evaluated, over all its starts (``None`` if a checkpoint lacked them)."""
-        began, before = self._clock
-        return None if self.state.wall_s is None else before + time.perf_counter() - began
+        before = self.state.wall_s
+        return None if before is None else before + time.perf_counter() - self._began
 
     def save(self) -> None:
         """Write ``checkpoints/last/`` as one unit (a folder renamed into place), then publish the metrics."""
         s = self.state
-        s.wall_s = self.wall_s()
         metrics = with_running_means(pd.DataFrame(s.episodes))
         evals = pd.DataFrame(s.evals)
         with atomic_directory(self.checkpoints / LAST, marker=CHECKPOINT_JSON, what="training checkpoint") as tmp:
@@ -293,7 +292,7 @@ class Trainer:
                 "episodes_started": self.env._episodes_started,
                 "rng": self.rng.bit_generator.state,
                 "env_rng": self.env.rng.bit_generator.state,
-                "wall_s": s.wall_s,
+                "wall_s": self.wall_s(),
             }
             (tmp / CHECKPOINT_JSON).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
         _atomic_parquet(metrics, self.run_dir / "metrics.parquet")
@@ -389,7 +388,7 @@ class Trainer:
             mask = info["action_mask"]
             s.last_action = np.full(n, -1, np.int64)
             s.start_sinr = env.sinr_here().copy()
-        self._clock = (time.perf_counter(), s.wall_s or 0.0)
+        self._began = time.perf_counter()
         next_eval = (s.step // cfg.eval_every + 1) * cfg.eval_every
         while s.step < cfg.total_steps and (stop_at is None or s.step < stop_at):
             frac = s.step / cfg.total_steps
@@ -461,6 +460,7 @@ class Trainer:
                 )
         if stop_at is not None and stop_at <= s.step < cfg.total_steps:
             self.save()  # a planned stop (`--until`): resumable from here
+        s.wall_s = self.wall_s()  # this start's seconds, for a later ``run`` of this trainer
         return self.run_dir
 
 
