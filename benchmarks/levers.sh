@@ -39,6 +39,10 @@
 #                                                (the test's t_max; runs GRU-R32-T5-sN), the seeds side by side
 #   GRUH=1 [GRUH_SEEDS="0 1 2"] bash benchmarks/levers.sh   # the `best` preset with a core (and layers) of 512
 #                                                (runs GRU-R32-H512-sN), the seeds side by side
+#   TRP=1 [TRP_SEEDS="0 1 2"] bash benchmarks/levers.sh     # the `best` preset acting in training by its test rule
+#                                                (train_revisit_penalty=1; runs GRU-R32-TRP-sN), the seeds side by side
+#   RVC=1 [RVC_SEEDS="0 1 2"] bash benchmarks/levers.sh     # the `best` preset with a revisit cost of 1 in its
+#                                                training reward (env.revisit_cost=1; runs GRU-R32-RVC-sN)
 #   V2=1 bash benchmarks/levers.sh               # the N1 rows, runs/levers-v2
 #   AUX=1 bash benchmarks/levers.sh              # the A rows, runs/aux
 set -euo pipefail
@@ -66,7 +70,7 @@ if [[ ${AUX:-0} == 1 ]]; then
   exit 0
 fi
 V5_ROWS=0  # any of the switches whose rows train into runs/levers-v5
-for switch in V5 H5 HALF OT PQN PQNV GRU GRUV OT10 LONG GRUT5 GRUH; do [[ ${!switch:-0} == 1 ]] && V5_ROWS=1; done
+for switch in V5 H5 HALF OT PQN PQNV GRU GRUV OT10 LONG GRUT5 GRUH TRP RVC; do [[ ${!switch:-0} == 1 ]] && V5_ROWS=1; done
 if [[ $V5_ROWS == 1 ]]; then
   # The rows on this release's maps, side by side in one OUT: the `best-dqn` preset (A1L) with one change each.
   OUT=runs/levers-v5
@@ -153,6 +157,17 @@ if [[ $V5_ROWS == 1 ]]; then
     # The `best` preset twice as wide (hidden 512: the fully connected layers and the GRU state), for the old town,
     # where the searches are long and the core must hold more of the route.
     side_by_side GRU-R32-H512 "${GRUH_SEEDS:-0}" --preset best --set hidden=512
+  fi
+  if [[ ${TRP:-0} == 1 ]]; then
+    # The `best` preset moving in training as it is tested: the greedy move less 1 per earlier visit of the cell it
+    # leads to (the test rule's revisit penalty, worth 6 points of validation at test time), so that the returns
+    # it learns are those of the policy it will act by.
+    side_by_side GRU-R32-TRP "${TRP_SEEDS:-0}" --preset best --set train_revisit_penalty=1
+  fi
+  if [[ ${RVC:-0} == 1 ]]; then
+    # The same penalty as a cost in the training reward (1 per earlier visit of the cell a move enters), so that
+    # the Q-values themselves learn to leave visited ground.
+    side_by_side GRU-R32-RVC "${RVC_SEEDS:-0}" --preset best --set env.revisit_cost=1
   fi
   exit 0
 fi

@@ -37,6 +37,12 @@ class EnvConfig(Contract):
         default=4, description="Symmetries drawn when rotating: 4 (the quarter turns) or 8 (the quarter turns and their mirrors)"
     )
     step_cost: float = Field(default=0.0, ge=0, description="Subtracted from the reward on every move [dB]")
+    revisit_cost: float = Field(
+        default=0.0,
+        ge=0,
+        description="Subtracted from the reward once per earlier visit of the cell a move leads to (0: the paper's "
+        "reward, where a revisit only forgoes c_E)",
+    )
     shaping: float = Field(
         default=0.0,
         ge=0,

@@ -11,7 +11,7 @@ stays last), float32, or uint8 with ``compact=True``
 Step semantics (docs/method.md): a legal action moves the UAV one cell; an illegal
 one (into a blocked cell or off the map, never taken by a masked policy)
 leaves it in place. Reward ``SINR_{t+1} - SINR_t + c_E * [new cell never
-visited]``, less ``step_cost``, plus the potential-based shaping term
+visited]``, less ``step_cost`` and ``revisit_cost`` times the earlier visits of the cell it stands in, plus the potential-based shaping term
 ``shaping * (shaping_gamma * phi' - phi)`` with ``phi = -(genie moves to a target)``
 (0 unless configured: a training aid), all times ``reward_scale``. ``terminated`` when ``SINR >= P_T``; ``truncated`` when ``t_max``
 moves are spent without it. Finished episodes restart at once (same step):
@@ -67,7 +67,7 @@ class BatchedEnv:
         self.episode_id = np.full(n, -1, np.int64)
         self.exhausted = np.zeros(n, bool)
         self.memory = np.zeros((n, L, L), np.float32)
-        self.visited = np.zeros((n, L, L), bool)
+        self.visits = np.zeros((n, L, L), np.uint16)  # times this episode stood in each canvas cell (the start counted)
         self.rng = np.random.default_rng()
         self._episodes_started = 0
         w = self.config.window
@@ -75,7 +75,7 @@ class BatchedEnv:
         # [n or M, L - w + 1, L - w + 1, w, w] views: window (y0, x0) is [.., y0, x0] (no copy until indexed).
         self._memory_windows = np.lib.stride_tricks.sliding_window_view(self.memory, (w, w), axis=(1, 2))
         self._height_windows = np.lib.stride_tricks.sliding_window_view(maps.height, (w, w), axis=(1, 2))
-        self._visited_windows = np.lib.stride_tricks.sliding_window_view(self.visited, (w, w), axis=(1, 2))
+        self._visits_windows = np.lib.stride_tricks.sliding_window_view(self.visits, (w, w), axis=(1, 2))
         if self.config.context_zoom:
             # The context SINR channel's canvas (the best SINR measured in each block once one of its cells is
             # visited, ``context_seen``) and its windows, as for the fine channels.
@@ -88,7 +88,7 @@ class BatchedEnv:
     def state_arrays(self) -> tuple[str, ...]:
         """Names of the arrays that hold the episodes' state: with the episode counter and the generator, what a
         checkpoint keeps to continue exactly."""
-        return ("view", "pos", "t", "episode_id", "memory", "visited") + (
+        return ("view", "pos", "t", "episode_id", "memory", "visits") + (
             ("context_memory", "context_seen") if self.config.context_zoom else ()
         )
 
@@ -116,8 +116,8 @@ class BatchedEnv:
         self.episode_id[idx] = ids
         self.exhausted[idx] = ids < 0
         self.memory[idx] = self.maps.memory0[view]
-        self.visited[idx] = False
-        self.visited[idx, y, x] = True
+        self.visits[idx] = 0
+        self.visits[idx, y, x] = 1
         first = self.memory[idx, y, x] = self.maps.sinr[view, y, x]
         if self.config.context_zoom:
             self.context_memory[idx] = self.maps.context_memory0[view]
@@ -155,6 +155,17 @@ class BatchedEnv:
         ny, nx = self.neighbours(idx)
         return ~self.maps.blocked[self.maps.view_map[self.view[idx]][:, None], ny, nx]
 
+    @property
+    def visited(self) -> np.ndarray:
+        """``[N, side, side]`` bool: the cells this episode has stood in."""
+        return self.visits > 0
+
+    def neighbour_visits(self) -> np.ndarray:
+        """``[N, 4]``: how often this episode has stood in the cell each move leads to (the agent's own route;
+        0 off the map, where no move leads)."""
+        ny, nx = self.neighbours()
+        return self.visits[self._rows[:, None], ny, nx]
+
     def genie_steps(self) -> np.ndarray:
         """Shortest number of legal moves from each UAV position to a target cell, ``[N]``."""
         return self.maps.steps[self.view, self.pos[:, 0], self.pos[:, 1]]
@@ -191,7 +202,7 @@ class BatchedEnv:
                 obs[:, 1] = self._context_height_windows[m, cy0, cx0]
             obs[:, 0 if cfg.blind else 2] = self._context_memory_windows[idx, cy0, cx0]
         if cfg.visited_channel:
-            obs[:, -2] = self._visited_windows[idx, y0, x0] * np.float32(cfg.p_h_db)
+            obs[:, -2] = (self._visits_windows[idx, y0, x0] > 0) * np.float32(cfg.p_h_db)
         obs[:, -1] = mem
         return encode_obs(obs) if self.compact else obs
 
@@ -206,14 +217,17 @@ class BatchedEnv:
         self.pos = np.where(legal[:, None], target, self.pos)
         y, x = self.pos[:, 0], self.pos[:, 1]
         new = self.maps.sinr[view, y, x]
-        fresh = ~self.visited[rows, y, x]
-        self.visited[rows, y, x] = True
+        before = self.visits[rows, y, x]  # earlier visits of the cell it now stands in
+        fresh = before == 0
+        self.visits[rows, y, x] = before + 1
         self.memory[rows, y, x] = new
         if cfg.context_zoom:
             self._remember_context(rows, y, x, new)
         self.t += 1
         terminated = new >= cfg.p_t_db
         reward = new - old + cfg.c_e * fresh + cfg.success_bonus * terminated - cfg.step_cost
+        if cfg.revisit_cost:
+            reward = reward - cfg.revisit_cost * before
         if cfg.shaping:
             # phi = -steps; the terminal state's potential is 0 (a target is 0 moves from itself).
             new_steps = np.where(terminated, 0, self.maps.steps[view, y, x])

@@ -190,6 +190,12 @@ def test_resume_continues_exactly(tmp_path, city_root, env, learner):
     doc = json.loads(checkpoint.read_text())
     assert doc["wall_s"] > 0
     checkpoint.write_text(json.dumps(doc | {"wall_s": 1000.0}))  # as if the first part had taken 1000 s
+    # A checkpoint from before the env counted visits kept the visited cells; it resumes (counts above 1 only
+    # matter to a revisit penalty or cost, which this run has not).
+    with np.load(checkpoint.with_name("env.npz")) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays["visited"] = arrays.pop("visits") > 0
+    np.savez(checkpoint.with_name("env.npz"), **arrays)
     t0 = time.perf_counter()
     Trainer(config(), ["tiny"], city_root, tmp_path / "b", command="uavrl train --resume b --until 200").run(
         resume=True, stop_at=200
@@ -504,6 +510,32 @@ def test_revisit_penalty_breaks_a_loop(city_root):
             assert failed.any() and (cells[0.0][failed] <= 2).all()
     assert cells[10.0].mean() > 3 * cells[0.0].mean(), (cells[10.0].mean(), cells[0.0].mean())
     assert success[10.0] > success[0.0] + 0.2, success
+
+
+class ConstantNet(torch.nn.Module):
+    """The same Q values for every observation."""
+
+    def __init__(self, q: list[float]) -> None:
+        super().__init__()
+        self.q = torch.tensor([q])
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.q.expand(len(obs), -1)
+
+
+def test_train_revisit_penalty_steers_the_training_moves():
+    """In training, ``train_revisit_penalty`` takes that many times each move's earlier visits off its Q before the
+    greedy choice: the test rule's penalty in the moves a run learns from (off, or without counts: plain argmax)."""
+    obs, mask = np.zeros((3, 2, 21, 21), np.uint8), np.ones((3, 4), bool)
+    visits = np.array([[0, 0, 0, 0], [1, 0, 0, 0], [1, 2, 0, 0]], np.uint16)
+    last, rng = np.full(3, -1), np.random.default_rng(0)
+    moves = {}
+    for penalty in (0.0, 1.0):
+        agent = DQN(_tiny_config().model_copy(update={"train_revisit_penalty": penalty}), 2, 21)
+        agent.online = ConstantNet([1.0, 0.5, 0.2, 0.0])
+        moves[penalty] = agent.act(obs, mask, 0.0, last, rng, visits).tolist()
+        assert agent.act(obs, mask, 0.0, last, rng).tolist() == [0, 0, 0]
+    assert moves == {0.0: [0, 0, 0], 1.0: [0, 1, 2]}
 
 
 def test_genie_move_loss_by_hand():

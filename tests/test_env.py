@@ -60,6 +60,29 @@ def test_check_env_and_registration(root):
         assert obs.shape == (channels, 61, 61) and info["action_mask"].shape == (4,)
 
 
+def test_visit_counts_and_revisit_cost(root):
+    """The env counts each cell's visits (the start once); ``revisit_cost`` takes that many times it off a move into
+    a cell already visited, on top of the forgone new-cell bonus; ``neighbour_visits`` reads the counts."""
+    maps = MapSet.load("tiny", EnvConfig(t_max=60, revisit_cost=2.0, rotate=False), root=str(root))
+    env = BatchedEnv(maps, 1, autoreset=False)
+    env.reset(seed=0)
+    start = tuple(env.pos[0])
+    a = int(np.flatnonzero(env.action_mask()[0])[0])
+    b = (a + 2) % 4  # its opposite
+    assert np.all(MOVES[a] == -MOVES[b])
+    rewards = []
+    for move in (a, b, a, b):
+        before = env.sinr_here()[0]
+        _, r, term, _, _ = env.step(np.array([move]))
+        if term[0]:
+            pytest.skip("the shuttle reached P_T")  # (not with this seed)
+        rewards.append(float(r[0] - (env.sinr_here()[0] - before)))
+    # Into the second cell (new: +c_E), back to the start (1 earlier visit), the second cell (1), the start (2).
+    assert rewards == pytest.approx([1.2, -2.0, -2.0, -4.0])
+    assert env.visits[0][start] == 3 and env.visits[0].sum() == 5 and env.visited[0].sum() == 2
+    assert env.neighbour_visits()[0, a] == 2 and env.neighbour_visits()[0, b] == 0
+
+
 def test_scenarios_have_starts_below_target(maps):
     assert len(maps.startable) == 3
     eps = maps.sample_episodes(500, np.random.default_rng(0))

@@ -96,6 +96,12 @@ class DQNConfig(Contract):
         description="When evaluating, subtracted from the Q-value of a move once per earlier visit of this episode to the "
         "cell it leads to, so that the greedy move breaks out of loops (0: the paper's argmax)",
     )
+    train_revisit_penalty: float = Field(
+        default=0.0,
+        ge=0,
+        description="When training, the greedy move maximises Q less this times the earlier visits of the cell it "
+        "leads to: the test rule's revisit penalty (test_revisit_penalty) in the moves it learns from (0: plain argmax)",
+    )
     test_aux_weight: float = Field(
         default=0.0,
         ge=0,
@@ -327,11 +333,23 @@ class DQN:
             q, self.hidden = self.online.step(x, self.hidden)
             return q
 
-    def act(self, obs: np.ndarray, mask: np.ndarray, eps: float, last: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    def act(
+        self,
+        obs: np.ndarray,
+        mask: np.ndarray,
+        eps: float,
+        last: np.ndarray,
+        rng: np.random.Generator,
+        visits: np.ndarray | None = None,
+    ) -> np.ndarray:
         """The paper's rule: w.p. ``p_repeat * eps`` repeat ``last`` (if legal), w.p. ``(1 - p_repeat) * eps``
-        a random legal move, else the legal move of highest Q."""
+        a random legal move, else the legal move of highest Q (less ``train_revisit_penalty`` times ``visits``
+        ``[N, 4]``, the earlier visits of the cell each move leads to, when both are given)."""
         n = len(mask)
-        greedy = masked_argmax(self.q_values(obs), torch.from_numpy(mask).to(self.device)).cpu().numpy()
+        q = self.q_values(obs)
+        if visits is not None and self.config.train_revisit_penalty > 0:
+            q = q - self.config.train_revisit_penalty * torch.from_numpy(visits.astype(np.float32)).to(self.device)
+        greedy = masked_argmax(q, torch.from_numpy(mask).to(self.device)).cpu().numpy()
         u = rng.random(n)
         explore_move = random_legal(mask, rng)
         can_repeat = (last >= 0) & mask[np.arange(n), np.maximum(last, 0)]
@@ -425,7 +443,6 @@ class DQNPolicy:
         self.aux_weight = aux_weight
         self.rng = np.random.default_rng(seed)
         self.name = name
-        self.visits: np.ndarray | None = None  # [num_envs, side, side] visits of each canvas cell this episode
         self.recurrent = getattr(net, "recurrent", False)
         self.hidden: torch.Tensor | None = None  # [num_envs, hidden]: a recurrent network's state in each row
 
@@ -442,10 +459,6 @@ class DQNPolicy:
         )
 
     def reset(self, rows: np.ndarray, num_envs: int) -> None:
-        if self.visits is not None and len(self.visits) == num_envs:
-            self.visits[rows] = 0
-        else:
-            self.visits = None  # allocated at the next act, when the canvas size is known
         if self.recurrent:
             if self.hidden is None or len(self.hidden) != num_envs:
                 self.hidden = self.net.initial_state(num_envs)
@@ -453,13 +466,7 @@ class DQNPolicy:
 
     def _penalty(self, env: BatchedEnv) -> torch.Tensor:
         """``[N, 4]`` ``revisit_penalty`` times the earlier visits of the cell each move leads to (the current cell counted)."""
-        if self.visits is None:
-            self.visits = np.zeros((env.num_envs, env.maps.side, env.maps.side), np.uint16)
-        rows = np.arange(env.num_envs)
-        y, x = env.pos[:, 0], env.pos[:, 1]
-        self.visits[rows, y, x] += 1
-        ny, nx = env.neighbours()
-        seen = self.visits[rows[:, None], ny, nx].astype(np.float32)
+        seen = env.neighbour_visits().astype(np.float32)
         return torch.from_numpy(seen * np.float32(self.revisit_penalty)).to(self.device)
 
     def act(self, obs: np.ndarray, mask: np.ndarray, env: BatchedEnv) -> np.ndarray:

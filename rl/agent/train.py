@@ -320,7 +320,8 @@ class Trainer:
                 torch.cuda.set_rng_state_all([t.cpu() for t in ck["cuda_rng"]])
             with np.load(last / "env.npz", allow_pickle=False) as z:
                 for k in self.env.state_arrays:
-                    getattr(self.env, k)[...] = z[k]
+                    # A checkpoint from before the env counted visits holds which cells were visited: once each.
+                    getattr(self.env, k)[...] = z["visited"] if k == "visits" and k not in z else z[k]
                 self.state.last_action, self.state.start_sinr = z["last_action"], z["start_sinr"]
             self.agent.updates = int(doc["updates"])
             self.state.step, self.state.synced_at = int(doc["step"]), int(doc["synced_at"])
@@ -396,7 +397,8 @@ class Trainer:
             genie = env.genie_moves() if cfg.aux_genie > 0 else None
             if self.rollout is not None and self.rollout.t == 0:
                 self.rollout.h0[...] = self.agent.state()  # a recurrent network learns from the state it began with
-            actions = self.agent.act(obs, mask, eps, s.last_action, self.rng)
+            visits = env.neighbour_visits() if cfg.train_revisit_penalty > 0 else None
+            actions = self.agent.act(obs, mask, eps, s.last_action, self.rng, visits)
             next_obs, reward, term, trunc, info = env.step(actions)
             final_obs = final_mask = np.zeros((0,))
             if trunc.any():
