@@ -43,6 +43,10 @@
 #                                                (train_revisit_penalty=1; runs GRU-R32-TRP-sN), the seeds side by side
 #   RVC=1 [RVC_SEEDS="0 1 2"] bash benchmarks/levers.sh     # the `best` preset with a revisit cost of 1 in its
 #                                                training reward (env.revisit_cost=1; runs GRU-R32-RVC-sN)
+#   EPS=1 [EPS_SEEDS="0 1 2"] bash benchmarks/levers.sh     # the `best` preset exploring to the end at the test's
+#                                                random-move rate (eps_end=0.096; runs GRU-R32-EPS-sN)
+#   Y8=1 [Y8_SEEDS="0 1 2"] bash benchmarks/levers.sh       # the `best` preset on the 8 symmetries of the square
+#                                                (env.symmetries=8; runs GRU-R32-Y8-sN)
 #   V2=1 bash benchmarks/levers.sh               # the N1 rows, runs/levers-v2
 #   AUX=1 bash benchmarks/levers.sh              # the A rows, runs/aux
 set -euo pipefail
@@ -70,7 +74,7 @@ if [[ ${AUX:-0} == 1 ]]; then
   exit 0
 fi
 V5_ROWS=0  # any of the switches whose rows train into runs/levers-v5
-for switch in V5 H5 HALF OT PQN PQNV GRU GRUV OT10 LONG GRUT5 GRUH TRP RVC; do [[ ${!switch:-0} == 1 ]] && V5_ROWS=1; done
+for switch in V5 H5 HALF OT PQN PQNV GRU GRUV OT10 LONG GRUT5 GRUH TRP RVC EPS Y8; do [[ ${!switch:-0} == 1 ]] && V5_ROWS=1; done
 if [[ $V5_ROWS == 1 ]]; then
   # The rows on this release's maps, side by side in one OUT: the `best-dqn` preset (A1L) with one change each.
   OUT=runs/levers-v5
@@ -168,6 +172,16 @@ if [[ $V5_ROWS == 1 ]]; then
     # The same penalty as a cost in the training reward (1 per earlier visit of the cell a move enters), so that
     # the Q-values themselves learn to leave visited ground.
     side_by_side GRU-R32-RVC "${RVC_SEEDS:-0}" --preset best --set env.revisit_cost=1
+  fi
+  if [[ ${EPS:-0} == 1 ]]; then
+    # The `best` preset ending its exploration at the test's rate of random moves (0.096, not 0.02): the returns it
+    # learns, and the recoveries its core learns, are those of the noisy policy it is tested as.
+    side_by_side GRU-R32-EPS "${EPS_SEEDS:-0}" --preset best --set eps_end=0.096
+  fi
+  if [[ ${Y8:-0} == 1 ]]; then
+    # The `best` preset on the 8 symmetries of the square (the mirrors too): twice the street layouts per city,
+    # for cities it never saw.
+    side_by_side GRU-R32-Y8 "${Y8_SEEDS:-0}" --preset best --set env.symmetries=8
   fi
   exit 0
 fi
