@@ -47,6 +47,8 @@
 #                                                random-move rate (eps_end=0.096; runs GRU-R32-EPS-sN)
 #   Y8=1 [Y8_SEEDS="0 1 2"] bash benchmarks/levers.sh       # the `best` preset on the 8 symmetries of the square
 #                                                (env.symmetries=8; runs GRU-R32-Y8-sN)
+#   PX=1 [PX_SEEDS="0 1 2"] bash benchmarks/levers.sh       # the `best` preset with the surround max- and min-pooled
+#                                                too (pool_extremes=true; runs GRU-R32-PX-sN)
 #   V2=1 bash benchmarks/levers.sh               # the N1 rows, runs/levers-v2
 #   AUX=1 bash benchmarks/levers.sh              # the A rows, runs/aux
 set -euo pipefail
@@ -74,7 +76,7 @@ if [[ ${AUX:-0} == 1 ]]; then
   exit 0
 fi
 V5_ROWS=0  # any of the switches whose rows train into runs/levers-v5
-for switch in V5 H5 HALF OT PQN PQNV GRU GRUV OT10 LONG GRUT5 GRUH TRP RVC EPS Y8; do [[ ${!switch:-0} == 1 ]] && V5_ROWS=1; done
+for switch in V5 H5 HALF OT PQN PQNV GRU GRUV OT10 LONG GRUT5 GRUH TRP RVC EPS Y8 PX; do [[ ${!switch:-0} == 1 ]] && V5_ROWS=1; done
 if [[ $V5_ROWS == 1 ]]; then
   # The rows on this release's maps, side by side in one OUT: the `best-dqn` preset (A1L) with one change each.
   OUT=runs/levers-v5
@@ -182,6 +184,11 @@ if [[ $V5_ROWS == 1 ]]; then
     # The `best` preset on the 8 symmetries of the square (the mirrors too): twice the street layouts per city,
     # for cities it never saw.
     side_by_side GRU-R32-Y8 "${Y8_SEEDS:-0}" --preset best --set env.symmetries=8
+  fi
+  if [[ ${PX:-0} == 1 ]]; then
+    # The `best` preset seeing its surround max- and min-pooled as well as averaged: in the old town's lanes of 2
+    # cells a 5 x 5 mean blurs an open lane among walls, and one unvisited cell among visited ones, into one number.
+    side_by_side GRU-R32-PX "${PX_SEEDS:-0}" --preset best --set pool_extremes=true
   fi
   exit 0
 fi

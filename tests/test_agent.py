@@ -297,6 +297,20 @@ def test_fovea_network_sees_a_centred_fovea_and_surround():
         FoveaQNetwork(2, 21, fovea=8)
 
 
+def test_pooled_extremes_keep_a_lone_cell_visible():
+    """A corner block of the surround holding +50 and -50 averages to what an empty one does: the mean-pooled network
+    cannot tell them apart, the one with max- and min-pooled views can."""
+    empty = torch.zeros(1, 2, 61, 61)
+    mixed = empty.clone()
+    mixed[0, 1, 0, 0], mixed[0, 1, 0, 1] = 50.0, -50.0  # both in the first pooled block only (kernel 5, stride 4)
+    for extremes in (False, True):
+        torch.manual_seed(0)
+        net = FoveaQNetwork(2, 61, hidden=8, fovea=15, extremes=extremes).eval()
+        with torch.no_grad():
+            same = torch.equal(net(empty), net(mixed))
+        assert same is not extremes
+
+
 def test_recurrent_network_unrolls_as_it_steps():
     """The learner's view (``unroll`` over a rollout) gives the states the actor's (``step`` by step) gave, the state
     restarting from zeros where an episode starts; a recurrent network has no Q without its state."""

@@ -74,6 +74,11 @@ class DQNConfig(Contract):
         description="paper: 3 convolutions + fully connected (QNetwork); fovea: centre + pooled surround, fully connected",
     )
     fovea: int = Field(default=15, ge=3, description="Fovea network: side of the centre crop and of the pooled surround [cells]")
+    pool_extremes: bool = Field(
+        default=False,
+        description="Fovea network: the surround max- and min-pooled as well as averaged (a lane of open cells, a "
+        "wall, an unvisited cell in a block stay visible)",
+    )
     hidden: int = Field(default=256, ge=1, description="Width of the fully connected layers")
     conv_channels: tuple[int, int, int] = Field(default=(32, 64, 64), description="Filters of the 3 convolutions")
     dropout: float = Field(default=0.4, ge=0, lt=1, description="Dropout after the fully connected layer")
@@ -266,7 +271,7 @@ def make_network(config: DQNConfig, in_channels: int, window: int) -> nn.Module:
         "recurrent": config.recurrent,
     }
     if config.network == "fovea":
-        return FoveaQNetwork(in_channels, window, fovea=config.fovea, **sizes)
+        return FoveaQNetwork(in_channels, window, fovea=config.fovea, extremes=config.pool_extremes, **sizes)
     return QNetwork(in_channels, window, channels=config.conv_channels, **sizes)
 
 

@@ -152,7 +152,8 @@ class FoveaQNetwork(DuelingQ):
 
     The window is seen twice at ``fovea x fovea``: its centre at full resolution (the cells next to
     the UAV, where the next move is decided) and the whole window average-pooled (where the
-    explored area and the buildings lie). Both go through 2 fully connected layers with ReLU and
+    explored area and the buildings lie; with ``extremes``, max- and min-pooled too, so that a lane of open
+    cells or one unvisited cell in a block stays visible). All go through 2 fully connected layers with ReLU and
     dropout (``layer_norm``: layer norm after each), then the dueling head (and, with ``aux``, the genie-move
     head, and with ``recurrent`` the GRU cell before the heads, as in ``QNetwork``).
     """
@@ -168,6 +169,7 @@ class FoveaQNetwork(DuelingQ):
         aux: bool = False,
         layer_norm: bool = False,
         recurrent: bool = False,
+        extremes: bool = False,
     ) -> None:
         super().__init__()
         if fovea % 2 != 1 or not 3 <= fovea <= window:
@@ -175,9 +177,11 @@ class FoveaQNetwork(DuelingQ):
         self.fovea = fovea
         self.stride = max(1, (window - 1) // (fovea - 1))
         self.kernel = window - self.stride * (fovea - 1)  # pooled output is fovea x fovea, centred
+        self.extremes = extremes
+        views = 4 if extremes else 2  # the centre, the mean surround [, its max and its min]
         self.fc = nn.Sequential(
             nn.Flatten(),
-            *dense(2 * in_channels * fovea * fovea, hidden, dropout, layer_norm),
+            *dense(views * in_channels * fovea * fovea, hidden, dropout, layer_norm),
             *dense(hidden, hidden, dropout, layer_norm),
         )
         self._build_heads(hidden, n_actions, aux, recurrent)
@@ -187,5 +191,7 @@ class FoveaQNetwork(DuelingQ):
         x = obs / INPUT_SCALE
         c, h = x.shape[-1] // 2, self.fovea // 2
         centre = x[..., c - h : c + h + 1, c - h : c + h + 1]  # [B, C, f, f]
-        surround = F.avg_pool2d(x, self.kernel, self.stride)  # [B, C, f, f]
-        return self.fc(torch.cat([centre, surround], dim=1))
+        views = [centre, F.avg_pool2d(x, self.kernel, self.stride)]  # [B, C, f, f] each
+        if self.extremes:
+            views += [F.max_pool2d(x, self.kernel, self.stride), -F.max_pool2d(-x, self.kernel, self.stride)]
+        return self.fc(torch.cat(views, dim=1))
