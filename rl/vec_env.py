@@ -11,7 +11,8 @@ stays last), float32, or uint8 with ``compact=True``
 Step semantics (docs/method.md): a legal action moves the UAV one cell; an illegal
 one (into a blocked cell or off the map, never taken by a masked policy)
 leaves it in place. Reward ``SINR_{t+1} - SINR_t + c_E * [new cell never
-visited]``, less ``step_cost`` and ``revisit_cost`` times the earlier visits of the cell it stands in, plus the potential-based shaping term
+visited]``, less ``step_cost`` and ``revisit_cost`` times the earlier visits of the
+cell it enters (``visits`` counts them), plus the potential-based shaping term
 ``shaping * (shaping_gamma * phi' - phi)`` with ``phi = -(genie moves to a target)``
 (0 unless configured: a training aid), all times ``reward_scale``. ``terminated`` when ``SINR >= P_T``; ``truncated`` when ``t_max``
 moves are spent without it. Finished episodes restart at once (same step):
