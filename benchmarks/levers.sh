@@ -156,48 +156,32 @@ if [[ $V5_ROWS == 1 ]]; then
     N=${LONG_STEPS:-600000}
     side_by_side "GRU-R32-L$((N / 1000))" "${LONG_SEEDS:-0}" --preset best --steps "$N"
   fi
-  if [[ ${GRUT5:-0} == 1 ]]; then
-    # The `best` preset with training episodes as long as the test's (500 moves instead of 300): the searches that
-    # fail in the old town run to the limit, so the core may learn more of a search's late part.
-    side_by_side GRU-R32-T5 "${GRUT5_SEEDS:-0}" --preset best --set env.t_max=500
-  fi
-  if [[ ${GRUH:-0} == 1 ]]; then
-    # The `best` preset twice as wide (hidden 512: the fully connected layers and the GRU state), for the old town,
-    # where the searches are long and the core must hold more of the route.
-    side_by_side GRU-R32-H512 "${GRUH_SEEDS:-0}" --preset best --set hidden=512
-  fi
-  if [[ ${TRP:-0} == 1 ]]; then
-    # The `best` preset moving in training as it is tested: the greedy move less 1 per earlier visit of the cell it
-    # leads to (the test rule's revisit penalty, worth 6 points of validation at test time), so that the returns
-    # it learns are those of the policy it will act by.
-    side_by_side GRU-R32-TRP "${TRP_SEEDS:-0}" --preset best --set train_revisit_penalty=1
-  fi
-  if [[ ${RVC:-0} == 1 ]]; then
-    # The same penalty as a cost in the training reward (1 per earlier visit of the cell a move enters), so that
-    # the Q-values themselves learn to leave visited ground.
-    side_by_side GRU-R32-RVC "${RVC_SEEDS:-0}" --preset best --set env.revisit_cost=1
-  fi
-  if [[ ${EPS:-0} == 1 ]]; then
-    # The `best` preset ending its exploration at the test's rate of random moves (0.096, not 0.02): the returns it
-    # learns, and the recoveries its core learns, are those of the noisy policy it is tested as.
-    side_by_side GRU-R32-EPS "${EPS_SEEDS:-0}" --preset best --set eps_end=0.096
-  fi
-  if [[ ${Y8:-0} == 1 ]]; then
-    # The `best` preset on the 8 symmetries of the square (the mirrors too): twice the street layouts per city,
-    # for cities it never saw.
-    side_by_side GRU-R32-Y8 "${Y8_SEEDS:-0}" --preset best --set env.symmetries=8
-  fi
-  if [[ ${PX:-0} == 1 ]]; then
-    # The `best` preset seeing its surround max- and min-pooled as well as averaged: in the old town's lanes of 2
-    # cells a 5 x 5 mean blurs an open lane among walls, and one unvisited cell among visited ones, into one number.
-    side_by_side GRU-R32-PX "${PX_SEEDS:-0}" --preset best --set pool_extremes=true
-  fi
-  if [[ ${SH:-0} == 1 ]]; then
-    # The `best` preset with potential-based shaping from the genie's distance (training only; the optimal policy is
-    # unchanged): in the old town the agent fails near its start, where the SINR gives no direction and the
-    # success bonus comes late; shaping credits each move towards a target at once.
-    side_by_side GRU-R32-SH "${SH_SEEDS:-0}" --preset best --set env.shaping=1
-  fi
+  # The `best` preset with training episodes as long as the test's (500 moves instead of 300): the searches that
+  # fail in the old town run to the limit, so the core may learn more of a search's late part.
+  lever GRUT5 GRU-R32-T5 --preset best --set env.t_max=500
+  # The `best` preset twice as wide (hidden 512: the fully connected layers and the GRU state), for the old town,
+  # where the searches are long and the core must hold more of the route.
+  lever GRUH GRU-R32-H512 --preset best --set hidden=512
+  # The `best` preset moving in training as it is tested: the greedy move less 1 per earlier visit of the cell it
+  # leads to (the test rule's revisit penalty, worth 6 points of validation at test time), so that the returns
+  # it learns are those of the policy it will act by.
+  lever TRP GRU-R32-TRP --preset best --set train_revisit_penalty=1
+  # The same penalty as a cost in the training reward (1 per earlier visit of the cell a move enters), so that
+  # the Q-values themselves learn to leave visited ground.
+  lever RVC GRU-R32-RVC --preset best --set env.revisit_cost=1
+  # The `best` preset ending its exploration at the test's rate of random moves (0.096, not 0.02): the returns it
+  # learns, and the recoveries its core learns, are those of the noisy policy it is tested as.
+  lever EPS GRU-R32-EPS --preset best --set eps_end=0.096
+  # The `best` preset on the 8 symmetries of the square (the mirrors too): twice the street layouts per city,
+  # for cities it never saw.
+  lever Y8 GRU-R32-Y8 --preset best --set env.symmetries=8
+  # The `best` preset seeing its surround max- and min-pooled as well as averaged: in the old town's lanes of 2
+  # cells a 5 x 5 mean blurs an open lane among walls, and one unvisited cell among visited ones, into one number.
+  lever PX GRU-R32-PX --preset best --set pool_extremes=true
+  # The `best` preset with potential-based shaping from the genie's distance (training only; the optimal policy is
+  # unchanged): in the old town the agent fails near its start, where the SINR gives no direction and the
+  # success bonus comes late; shaping credits each move towards a target at once.
+  lever SH GRU-R32-SH --preset best --set env.shaping=1
   exit 0
 fi
 if [[ ${V2:-0} == 1 ]]; then

@@ -30,3 +30,11 @@ side_by_side() {
   for seed in $seeds; do one "$name-s$seed" --seed "$seed" "$@" & done
   wait
 }
+
+# `lever SWITCH NAME ARGS...`: when SWITCH=1, `side_by_side NAME "$SWITCH_SEEDS" ARGS...` (seed 0 unless set).
+lever() {
+  local switch=$1 name=$2; shift 2
+  local seeds_var="${switch}_SEEDS"
+  [[ ${!switch:-0} == 1 ]] || return 0
+  side_by_side "$name" "${!seeds_var:-0}" "$@"
+}

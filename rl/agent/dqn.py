@@ -261,6 +261,12 @@ def preset_config(name: str, **overrides: object) -> DQNConfig:
         raise InputError(None, message, field=field) from None
 
 
+def revisit_penalty(visits: np.ndarray, weight: float, device: torch.device) -> torch.Tensor:
+    """``[N, 4]`` ``weight`` times ``visits``, the earlier visits of the cell each move leads to
+    (``BatchedEnv.neighbour_visits``): what the revisit rule takes off each move's Q."""
+    return torch.from_numpy(visits.astype(np.float32) * np.float32(weight)).to(device)
+
+
 def make_network(config: DQNConfig, in_channels: int, window: int) -> nn.Module:
     """The Q-network ``config.network`` names, with the config's sizes."""
     sizes = {
@@ -353,7 +359,7 @@ class DQN:
         n = len(mask)
         q = self.q_values(obs)
         if visits is not None and self.config.train_revisit_penalty > 0:
-            q = q - self.config.train_revisit_penalty * torch.from_numpy(visits.astype(np.float32)).to(self.device)
+            q = q - revisit_penalty(visits, self.config.train_revisit_penalty, self.device)
         greedy = masked_argmax(q, torch.from_numpy(mask).to(self.device)).cpu().numpy()
         u = rng.random(n)
         explore_move = random_legal(mask, rng)
@@ -469,17 +475,12 @@ class DQNPolicy:
                 self.hidden = self.net.initial_state(num_envs)
             self.hidden[torch.from_numpy(np.asarray(rows, np.int64)).to(self.device)] = 0.0
 
-    def _penalty(self, env: BatchedEnv) -> torch.Tensor:
-        """``[N, 4]`` ``revisit_penalty`` times the earlier visits of the cell each move leads to (the current cell counted)."""
-        seen = env.neighbour_visits().astype(np.float32)
-        return torch.from_numpy(seen * np.float32(self.revisit_penalty)).to(self.device)
-
     def act(self, obs: np.ndarray, mask: np.ndarray, env: BatchedEnv) -> np.ndarray:
         """The network runs on the rows that still play (``env.exhausted``: slots of an evaluation whose episodes
         are all handed out); the random draws cover every row, so the moves do not depend on which rows played."""
         live = np.flatnonzero(~env.exhausted)
         greedy = np.zeros(len(mask), np.int64)
-        penalty = self._penalty(env) if self.revisit_penalty > 0 else None
+        penalty = revisit_penalty(env.neighbour_visits(), self.revisit_penalty, self.device) if self.revisit_penalty > 0 else None
         if len(live):
             rows = slice(None) if len(live) == len(mask) else live
             legal = torch.from_numpy(mask[rows]).to(self.device)
