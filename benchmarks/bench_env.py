@@ -6,6 +6,7 @@ episodes. Targets: batched >= 10 x SyncVectorEnv at N = 256, and >= 50 k steps/s
 
     python benchmarks/bench_env.py [--dataset train --root data/processed] [--steps 300]
     python benchmarks/bench_env.py --dataset train --corpus corpus      # one city against many
+    python benchmarks/bench_env.py --homing                              # the homing channel's cost
 
 Without --dataset it ingests and builds the embedded training city into a temporary root.
 ``--corpus NAME`` adds the batched env over the corpus's cities and the dataset together
@@ -70,6 +71,9 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=300, help="vector steps per measurement")
     ap.add_argument("--noise-dbm", type=float, default=EMBEDDED_NOISE_DBM, help="build setting when building the embedded city")
     ap.add_argument("--corpus", default=None, help="corpus name (built cities NAME-NNN) to compare with the one city")
+    ap.add_argument(
+        "--homing", action="store_true", help="also time the `best` preset's channels with the homing channel against without"
+    )
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         root, name = args.root, args.dataset
@@ -99,6 +103,17 @@ def main() -> None:
                 f"N = 64, training levers on: {name} alone {single:,.0f} steps/s; {len(names)} cities "
                 f"({len(many.scenarios)} users, {many.num_views} views) {corpus:,.0f} steps/s; ratio {corpus / single:.2f} "
                 "(target: >= 0.9, no slowdown with many cities)"
+            )
+
+        if args.homing:
+            plain = EnvConfig(rotate=True, visited_channel=True)
+            rates = [
+                np.median([bench_batched(MapSet.load(name, cfg, root=root), 64, args.steps, seed) for seed in range(3)])
+                for cfg in (plain, plain.model_copy(update={"homing_channel": True}))
+            ]
+            print(
+                f"N = 64, {name}: visited channel {rates[0]:,.0f} steps/s; with the homing channel {rates[1]:,.0f} "
+                f"steps/s; ratio {rates[1] / rates[0]:.2f}"
             )
 
 

@@ -51,6 +51,14 @@
 #                                                too (pool_extremes=true; runs GRU-R32-PX-sN)
 #   SH=1 [SH_SEEDS="0 1 2"] bash benchmarks/levers.sh       # the `best` preset with potential-based shaping from the
 #                                                genie's distance in training (env.shaping=1; runs GRU-R32-SH-sN)
+#   HM=1 [HM_SEEDS="0 1 2"] bash benchmarks/levers.sh       # GRU-R32 with the homing channel (the best SINR
+#                                                measured so far as a cone around its cell; runs GRU-R32-HM-sN)
+#   PM=1 [PM_SEEDS="0 1 2"] bash benchmarks/levers.sh       # GRU-R32 with the fovea's middle view (the centre 31
+#                                                cells at half resolution; runs GRU-R32-PM-sN)
+#   HTRP=1 [HTRP_SEEDS="0 1 2"] bash benchmarks/levers.sh   # HM acting in training by its test rule
+#                                                (train_revisit_penalty=1): the `best` preset now (runs GRU-R32-HM-TRP-sN)
+#   HS2=1 [HS2_SEEDS="0 1 2"] bash benchmarks/levers.sh     # HM with a homing cone of 2 dB a cell
+#                                                (env.homing_slope_db=2; runs GRU-R32-HM-S2-sN)
 #   V2=1 bash benchmarks/levers.sh               # the N1 rows, runs/levers-v2
 #   AUX=1 bash benchmarks/levers.sh              # the A rows, runs/aux
 set -euo pipefail
@@ -78,7 +86,7 @@ if [[ ${AUX:-0} == 1 ]]; then
   exit 0
 fi
 V5_ROWS=0  # any of the switches whose rows train into runs/levers-v5
-for switch in V5 H5 HALF OT PQN PQNV GRU GRUV OT10 LONG GRUT5 GRUH TRP RVC EPS Y8 PX SH; do [[ ${!switch:-0} == 1 ]] && V5_ROWS=1; done
+for switch in V5 H5 HALF OT PQN PQNV GRU GRUV OT10 LONG GRUT5 GRUH TRP RVC EPS Y8 PX SH HM PM HTRP HS2; do [[ ${!switch:-0} == 1 ]] && V5_ROWS=1; done
 if [[ $V5_ROWS == 1 ]]; then
   # The rows on this release's maps, side by side in one OUT: the `best-dqn` preset (A1L) with one change each.
   OUT=runs/levers-v5
@@ -135,53 +143,69 @@ if [[ $V5_ROWS == 1 ]]; then
     # at each episode's start, learnt on whole env rollouts from the state each began with (rl/agent/pqn.py).
     for seed in ${GRU_SEEDS:-0}; do one "PQN-GRU-s$seed" --seed "$seed" "${PQN[@]}" --set recurrent=true; done
   fi
+  # The rows up to HM and PM were trained with the `best` preset before it had the homing channel and the revisit
+  # penalty in training (GRU-R32): R32 keeps them as they ran; HM is R32 with the homing channel.
+  R32=(--preset best --set env.homing_channel=false --set train_revisit_penalty=0)
+  HM=(--preset best --set train_revisit_penalty=0)
   if [[ ${GRUV:-0} == 1 ]]; then
     # The core learnt over longer stretches of each search: rollouts of 32 moves in 64 envs (the same 2048 env steps
     # and 64 minibatches of 128 samples a round; 4 envs x 32 moves each): the `best` preset now (these --sets are its).
     # GRUV_ROLLOUT=64: rollouts of 64 moves in 32 envs (2 envs a minibatch), runs GRU-R64-sN.
     R=${GRUV_ROLLOUT:-32}
-    side_by_side "GRU-R$R" "${GRUV_SEEDS:-0}" --preset best --set num_envs=$((2048 / R)) --set rollout_steps="$R"
+    side_by_side "GRU-R$R" "${GRUV_SEEDS:-0}" "${R32[@]}" --set num_envs=$((2048 / R)) --set rollout_steps="$R"
   fi
   if [[ ${OT10:-0} == 1 ]]; then
     # More historic centres: the `best` preset (GRU-R32) trained with oldtown-006 to -008 too (8 old-town cities
     # instead of 5) and selected with oldtown-009 too (built as val: 4 validation cities). Two lanes: seeds 0 and 2 in
     # one, seed 1 in the other. Needs oldtown-006 to -009 traced and built first (README, "More old-town cities").
-    (one GRU-R32-OT8-s0 --seed 0 --preset best; one GRU-R32-OT8-s2 --seed 2 --preset best) &
-    one GRU-R32-OT8-s1 --seed 1 --preset best &
+    (one GRU-R32-OT8-s0 --seed 0 "${R32[@]}"; one GRU-R32-OT8-s2 --seed 2 "${R32[@]}") &
+    one GRU-R32-OT8-s1 --seed 1 "${R32[@]}" &
     wait
   fi
   if [[ ${LONG:-0} == 1 ]]; then
     # The `best` preset (GRU-R32) on a longer schedule: its validation success still rose at its last evaluation
     # (300 k steps) in each of its 3 seeds. Epsilon and the learning rate anneal over the longer schedule.
     N=${LONG_STEPS:-600000}
-    side_by_side "GRU-R32-L$((N / 1000))" "${LONG_SEEDS:-0}" --preset best --steps "$N"
+    side_by_side "GRU-R32-L$((N / 1000))" "${LONG_SEEDS:-0}" "${R32[@]}" --steps "$N"
   fi
   # The `best` preset with training episodes as long as the test's (500 moves instead of 300): the searches that
   # fail in the old town run to the limit, so the core may learn more of a search's late part.
-  lever GRUT5 GRU-R32-T5 --preset best --set env.t_max=500
+  lever GRUT5 GRU-R32-T5 "${R32[@]}" --set env.t_max=500
   # The `best` preset twice as wide (hidden 512: the fully connected layers and the GRU state), for the old town,
   # where the searches are long and the core must hold more of the route.
-  lever GRUH GRU-R32-H512 --preset best --set hidden=512
+  lever GRUH GRU-R32-H512 "${R32[@]}" --set hidden=512
   # The `best` preset moving in training as it is tested: the greedy move less 1 per earlier visit of the cell it
   # leads to (the test rule's revisit penalty, worth 6 points of validation at test time), so that the returns
   # it learns are those of the policy it will act by.
-  lever TRP GRU-R32-TRP --preset best --set train_revisit_penalty=1
+  lever TRP GRU-R32-TRP "${R32[@]}" --set train_revisit_penalty=1
   # The same penalty as a cost in the training reward (1 per earlier visit of the cell a move enters), so that
   # the Q-values themselves learn to leave visited ground.
-  lever RVC GRU-R32-RVC --preset best --set env.revisit_cost=1
+  lever RVC GRU-R32-RVC "${R32[@]}" --set env.revisit_cost=1
   # The `best` preset ending its exploration at the test's rate of random moves (0.096, not 0.02): the returns it
   # learns, and the recoveries its core learns, are those of the noisy policy it is tested as.
-  lever EPS GRU-R32-EPS --preset best --set eps_end=0.096
+  lever EPS GRU-R32-EPS "${R32[@]}" --set eps_end=0.096
   # The `best` preset on the 8 symmetries of the square (the mirrors too): twice the street layouts per city,
   # for cities it never saw.
-  lever Y8 GRU-R32-Y8 --preset best --set env.symmetries=8
+  lever Y8 GRU-R32-Y8 "${R32[@]}" --set env.symmetries=8
   # The `best` preset seeing its surround max- and min-pooled as well as averaged: in the old town's lanes of 2
   # cells a 5 x 5 mean blurs an open lane among walls, and one unvisited cell among visited ones, into one number.
-  lever PX GRU-R32-PX --preset best --set pool_extremes=true
+  lever PX GRU-R32-PX "${R32[@]}" --set pool_extremes=true
   # The `best` preset with potential-based shaping from the genie's distance (training only; the optimal policy is
   # unchanged): in the old town the agent fails near its start, where the SINR gives no direction and the
   # success bonus comes late; shaping credits each move towards a target at once.
-  lever SH GRU-R32-SH --preset best --set env.shaping=1
+  lever SH GRU-R32-SH "${R32[@]}" --set env.shaping=1
+  # The `best` preset with the homing channel: in the old town a failed search leaves the live cells around the user
+  # (a median 133 moves in) and wanders the dead ones, where no SINR points back; the cone of the best SINR measured
+  # so far points back to where it was measured from anywhere in the window, however far that is.
+  lever HM GRU-R32-HM "${HM[@]}"
+  # The `best` preset with the fovea's middle view: the old town's searches fail near their start, with the target
+  # a few lanes away, beyond the 15-cell centre, where the surround's 5 x 5 means blur lanes of 1 to 2 cells.
+  lever PM GRU-R32-PM "${R32[@]}" --set pool_middle=true
+  # On top of HM: its moves in training by the test rule (the revisit penalty; TRP took fewer steps in the old town):
+  # the `best` preset now; and a cone twice as steep (2 dB a cell: more salient to the first layer, visible to 75
+  # cells instead of 150).
+  lever HTRP GRU-R32-HM-TRP --preset best
+  lever HS2 GRU-R32-HM-S2 "${HM[@]}" --set env.homing_slope_db=2
   exit 0
 fi
 if [[ ${V2:-0} == 1 ]]; then

@@ -56,6 +56,15 @@ class EnvConfig(Contract):
         description="Add a channel of the visited cells (value p_h_db where visited, 0 elsewhere) before the SINR memory, "
         "so that pooling keeps the route visible",
     )
+    homing_channel: bool = Field(
+        default=False,
+        description="Add a channel, before the SINR memory, of the best SINR measured so far in the episode less "
+        "homing_slope_db per cell of distance from the cell where it was measured (clipped at p_l_db): a cone whose "
+        "slope points back to the best cell even when that cell lies beyond the window",
+    )
+    homing_slope_db: float = Field(
+        default=1.0, gt=0, description="The homing channel's fall per cell of Euclidean distance [dB / cell]"
+    )
     context_zoom: int = Field(
         default=0,
         ge=0,
@@ -109,4 +118,4 @@ class EnvConfig(Contract):
 
     @property
     def num_channels(self) -> int:
-        return (1 if self.blind else 2) + self.num_context + int(self.visited_channel)
+        return (1 if self.blind else 2) + self.num_context + int(self.visited_channel) + int(self.homing_channel)

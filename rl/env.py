@@ -11,7 +11,10 @@ edge ``edge_height_m``), channel 1 the SINR memory [dB] (measured SINR at
 visited cells, P_H = +50 at unvisited ones, P_L = -150 at blocked cells and
 beyond the edge). Blind variant: only the SINR memory, with blocked map cells
 shown as P_H. With ``visited_channel`` a channel of the visited cells (P_H where
-visited, 0 elsewhere) comes before the SINR memory, which stays last. With
+visited, 0 elsewhere) comes before the SINR memory, which stays last; with
+``homing_channel`` the homing cone (the best SINR measured so far less
+``homing_slope_db`` per cell of distance from where it was measured, clipped at
+P_L) comes between them. With
 ``context_zoom`` z, context channels follow the height channel: the window again
 in blocks of z x z cells (z times the span), their mean height and the best SINR
 measured in each (P_H where none is visited, P_L where all blocked or beyond the

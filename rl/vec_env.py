@@ -3,8 +3,9 @@
 Observation ``[N, C, window, window]`` (C = 2: height channel, then SINR memory;
 blind: the SINR memory only; with ``context_zoom`` the context channels after the
 height channel, the window again in blocks of ``context_zoom`` cells; with
-``visited_channel`` a channel of the visited cells before the SINR memory, which
-stays last), float32, or uint8 with ``compact=True``
+``visited_channel`` a channel of the visited cells, then with ``homing_channel`` the
+homing cone (the best SINR measured so far less ``homing_slope_db`` per cell of
+distance from where it was measured), before the SINR memory, which stays last), float32, or uint8 with ``compact=True``
 (``encode_obs``: 1 dB / 1 m per step, offset 150; two 61 x 61 uint8 channels are
 7.4 kB, so 5e5 transitions that store each observation once take 3.5 GiB).
 
@@ -69,6 +70,8 @@ class BatchedEnv:
         self.exhausted = np.zeros(n, bool)
         self.memory = np.zeros((n, L, L), np.float32)
         self.visits = np.zeros((n, L, L), np.uint16)  # times this episode stood in each canvas cell (the start counted)
+        self.best_sinr = np.zeros(n, np.float32)  # the best SINR this episode measured, and where (canvas cell)
+        self.best_pos = np.zeros((n, 2), np.int64)
         self.rng = np.random.default_rng()
         self._episodes_started = 0
         w = self.config.window
@@ -77,6 +80,12 @@ class BatchedEnv:
         self._memory_windows = np.lib.stride_tricks.sliding_window_view(self.memory, (w, w), axis=(1, 2))
         self._height_windows = np.lib.stride_tricks.sliding_window_view(maps.height, (w, w), axis=(1, 2))
         self._visits_windows = np.lib.stride_tricks.sliding_window_view(self.visits, (w, w), axis=(1, 2))
+        if self.config.homing_channel:
+            # The cone's fall at every offset a window cell can have from the best cell (-L .. L + w in each axis): a
+            # window of it is the fall over that window, taken as a block copy like the canvases' windows.
+            offsets = np.arange(-L, L + w, dtype=np.float32)
+            fall = np.float32(self.config.homing_slope_db) * np.hypot(offsets[:, None], offsets[None, :])
+            self._fall_windows = np.lib.stride_tricks.sliding_window_view(fall, (w, w))
         if self.config.context_zoom:
             # The context SINR channel's canvas (the best SINR measured in each block once one of its cells is
             # visited, ``context_seen``) and its windows, as for the fine channels.
@@ -89,8 +98,10 @@ class BatchedEnv:
     def state_arrays(self) -> tuple[str, ...]:
         """Names of the arrays that hold the episodes' state: with the episode counter and the generator, what a
         checkpoint keeps to continue exactly."""
-        return ("view", "pos", "t", "episode_id", "memory", "visits") + (
-            ("context_memory", "context_seen") if self.config.context_zoom else ()
+        return (
+            ("view", "pos", "t", "episode_id", "memory", "visits")
+            + (("best_sinr", "best_pos") if self.config.homing_channel else ())
+            + (("context_memory", "context_seen") if self.config.context_zoom else ())
         )
 
     # -- episodes -----------------------------------------------------------------------------
@@ -120,6 +131,7 @@ class BatchedEnv:
         self.visits[idx] = 0
         self.visits[idx, y, x] = 1
         first = self.memory[idx, y, x] = self.maps.sinr[view, y, x]
+        self.best_sinr[idx], self.best_pos[idx] = first, self.pos[idx]
         if self.config.context_zoom:
             self.context_memory[idx] = self.maps.context_memory0[view]
             self.context_seen[idx] = False
@@ -203,9 +215,17 @@ class BatchedEnv:
                 obs[:, 1] = self._context_height_windows[m, cy0, cx0]
             obs[:, 0 if cfg.blind else 2] = self._context_memory_windows[idx, cy0, cx0]
         if cfg.visited_channel:
-            obs[:, -2] = (self._visits_windows[idx, y0, x0] > 0) * np.float32(cfg.p_h_db)
+            obs[:, -2 - cfg.homing_channel] = (self._visits_windows[idx, y0, x0] > 0) * np.float32(cfg.p_h_db)
+        if cfg.homing_channel:
+            obs[:, -2] = self._homing(idx, y0, x0)
         obs[:, -1] = mem
         return encode_obs(obs) if self.compact else obs
+
+    def _homing(self, idx: np.ndarray, y0: np.ndarray, x0: np.ndarray) -> np.ndarray:
+        """``[len(idx), w, w]``: the homing cone over the windows whose corners are canvas cells ``(y0, x0)``."""
+        side = self.maps.side  # the window's corner less the best cell, shifted to index the fall's windows
+        fall = self._fall_windows[y0 - self.best_pos[idx, 0] + side, x0 - self.best_pos[idx, 1] + side]
+        return np.maximum(self.best_sinr[idx, None, None] - fall, np.float32(self.config.p_l_db))
 
     # -- dynamics -------------------------------------------------------------------------------
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
@@ -224,6 +244,9 @@ class BatchedEnv:
         self.memory[rows, y, x] = new
         if cfg.context_zoom:
             self._remember_context(rows, y, x, new)
+        better = new > self.best_sinr  # the first cell of the best SINR stays the best
+        self.best_sinr = np.where(better, new, self.best_sinr)
+        self.best_pos = np.where(better[:, None], self.pos, self.best_pos)
         self.t += 1
         terminated = new >= cfg.p_t_db
         reward = new - old + cfg.c_e * fresh + cfg.success_bonus * terminated - cfg.step_cost

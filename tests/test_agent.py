@@ -144,8 +144,11 @@ def test_config_round_trip_and_presets():
     assert (paper.batch_size, paper.train_every, paper.buffer_size, paper.gamma, paper.dropout) == (20, 3, 500_000, 0.99, 0.4)
     assert paper.env.t_max == 800 and paper.env.rotate and paper.eps_end == 0.0 and paper.test_epsilon == 0.096
     assert preset_config("best").recurrent and preset_config("best-pqn").learner == "pqn"
-    gru = {"recurrent": False, "num_envs": 128, "rollout_steps": 16, "preset": "best-pqn"}
-    assert preset_config("best").model_copy(update=gru) == preset_config("best-pqn")
+    best = preset_config("best")
+    assert best.env.homing_channel and best.train_revisit_penalty == best.test_revisit_penalty == 1.0
+    gru = {"recurrent": False, "num_envs": 128, "rollout_steps": 16, "train_revisit_penalty": 0.0, "preset": "best-pqn"}
+    gru["env"] = best.env.model_copy(update={"homing_channel": False})
+    assert best.model_copy(update=gru) == preset_config("best-pqn")
     with pytest.raises(ValueError, match="unknown preset"):
         preset_config("huge")
 
@@ -170,11 +173,13 @@ GRU = PQN | {"recurrent": True}
 
 
 @pytest.mark.parametrize(
-    ("env", "learner"), [({}, {}), ({"context_zoom": 3}, {}), ({}, PQN), ({}, GRU)], ids=["plain", "context", "pqn", "gru"]
+    ("env", "learner"),
+    [({}, {}), ({"context_zoom": 3, "homing_channel": True}, {}), ({}, PQN), ({}, GRU)],
+    ids=["plain", "context-homing", "pqn", "gru"],
 )
 def test_resume_continues_exactly(tmp_path, city_root, env, learner):
     """Train 256 steps straight, or stop at 96 and 200 and resume each time: identical networks and next actions
-    (with context channels too, whose memory of blocks the checkpoint keeps; with PQN, stopped mid-rollout; and with
+    (with context and homing channels too, whose memory of blocks and of the best cell the checkpoint keeps; with PQN, stopped mid-rollout; and with
     a recurrent PQN network, whose state in each env the checkpoint keeps)."""
 
     def config() -> DQNConfig:
@@ -311,6 +316,23 @@ def test_pooled_extremes_keep_a_lone_cell_visible():
         assert same is not extremes
 
 
+def test_middle_view_sees_a_lane_the_surround_blurs():
+    """Two windows alike in the centre and in every surround block's mean (one cell of +50 moved within a block, 11
+    cells from the UAV: a lane beyond the centre) are one to the fovea network and two with its middle view; the middle
+    view needs a window of 2 * fovea + 1 cells."""
+    a = torch.zeros(1, 2, 61, 61)
+    b = a.clone()
+    a[0, 1, 30, 41], b[0, 1, 30, 42] = 50.0, 50.0  # both in (only) the surround block of columns 40-44; the centre: 23-37
+    for middle in (False, True):
+        torch.manual_seed(0)
+        net = FoveaQNetwork(2, 61, hidden=8, fovea=15, middle=middle).eval()
+        with torch.no_grad():
+            same = torch.equal(net(a), net(b))
+        assert same is not middle
+    with pytest.raises(ValueError, match="2 \\* fovea \\+ 1"):
+        FoveaQNetwork(2, 21, fovea=11, middle=True)
+
+
 def test_recurrent_network_unrolls_as_it_steps():
     """The learner's view (``unroll`` over a rollout) gives the states the actor's (``step`` by step) gave, the state
     restarting from zeros where an episode starts; a recurrent network has no Q without its state."""
@@ -375,8 +397,9 @@ def test_short_training_run_learns(tmp_path, learner):
     config = preset_config(
         "best", total_steps=15_000, num_envs=16, buffer_size=15_000, batch_size=32, train_every=2, learning_starts=500,
         target_update=1_000, eval_every=5_000, eval_episodes=50, eval_t_max=40, eps_fraction=0.6, lr_start=1e-3,
-        lr_end=1e-4, fovea=7, hidden=64,
-        env={"t_max": 40, "rotate": True, "window": 21, "visited_channel": False, "success_bonus": 0.0}, **learner,
+        lr_end=1e-4, fovea=7, hidden=64, train_revisit_penalty=0.0,
+        env={"t_max": 40, "rotate": True, "window": 21, "visited_channel": False, "homing_channel": False,
+             "success_bonus": 0.0}, **learner,
     )  # fmt: skip
     # The learner on the paper's two channels and reward: with the visited channel this 15 k-step run on the tiny
     # city reached 27.8 % against the walk's 22.8 %, with the success bonus 32.5 % against 22.8 % (both below the

@@ -235,6 +235,39 @@ def test_step_cost_reward_scale_and_visited_channel(root):
     assert (ob[:, 1, c, c] == cfg.p_h_db).all()  # the cell the UAV is on (the window's centre) is visited
 
 
+def test_homing_channel_is_a_cone_from_the_best_measured_cell(root):
+    """The homing channel (before the SINR memory; the other channels as without it) holds, at each window cell, the
+    best SINR measured so far less ``homing_slope_db`` per cell of distance from the first cell it was measured at,
+    clipped at P_L; in the views the symmetries turn too, and after the episodes restart."""
+    base = EnvConfig(t_max=15, window=21, visited_channel=True, rotate=True, symmetries=8)
+    cfg = base.model_copy(update={"homing_channel": True, "homing_slope_db": 2.5})
+    plain, homing = (
+        BatchedEnv(MapSet.load("tiny", base, root=str(root)), 6),
+        BatchedEnv(MapSet.load("tiny", cfg, root=str(root)), 6),
+    )
+    assert cfg.num_channels == base.num_channels + 1 == 4
+    op, info = plain.reset(seed=4)
+    oh, _ = homing.reset(seed=4)
+    walk = RandomWalkPolicy(p_repeat=0.0, seed=1)
+    measured = [[(homing.sinr_here()[i], tuple(homing.pos[i]))] for i in range(6)]  # each episode's route so far
+    half = cfg.window // 2
+    for _ in range(40):
+        np.testing.assert_array_equal(np.delete(oh, 2, axis=1), op)
+        for i in range(6):
+            best = max(v for v, _ in measured[i])
+            by, bx = next(cell for v, cell in measured[i] if v == best)  # the first cell where it was measured
+            y, x = np.mgrid[-half : half + 1, -half : half + 1] + homing.pos[i, :, None, None]
+            cone = np.maximum(best - 2.5 * np.hypot(y - by, x - bx), cfg.p_l_db)
+            np.testing.assert_allclose(oh[i, 2], cone, rtol=1e-6, atol=1e-4)
+        actions = walk.act(oh, info["action_mask"], homing)
+        op, *_ = plain.step(actions)
+        oh, _, term, trunc, info = homing.step(actions)
+        for i in range(6):
+            measured[i] = [] if term[i] or trunc[i] else measured[i]
+            measured[i].append((homing.sinr_here()[i], tuple(homing.pos[i])))
+    assert "best_sinr" in homing.state_arrays and "best_sinr" not in plain.state_arrays
+
+
 def _context_by_hand(env: BatchedEnv, i: int) -> tuple[np.ndarray, np.ndarray]:
     """Env ``i``'s context channels (mean height, best SINR) computed cell by cell from the fine canvases."""
     maps, cfg = env.maps, env.config

@@ -153,7 +153,9 @@ class FoveaQNetwork(DuelingQ):
     The window is seen twice at ``fovea x fovea``: its centre at full resolution (the cells next to
     the UAV, where the next move is decided) and the whole window average-pooled (where the
     explored area and the buildings lie; with ``extremes``, max- and min-pooled too, so that a lane of open
-    cells or one unvisited cell in a block stays visible). All go through 2 fully connected layers with ReLU and
+    cells or one unvisited cell in a block stays visible); with ``middle``, a third view between them, the
+    centre ``2 * fovea + 1`` cells at half resolution (3 x 3 means, stride 2), so that the lanes one to two fovea
+    radii away are not averaged over 5 x 5 blocks. All go through 2 fully connected layers with ReLU and
     dropout (``layer_norm``: layer norm after each), then the dueling head (and, with ``aux``, the genie-move
     head, and with ``recurrent`` the GRU cell before the heads, as in ``QNetwork``).
     """
@@ -170,15 +172,19 @@ class FoveaQNetwork(DuelingQ):
         layer_norm: bool = False,
         recurrent: bool = False,
         extremes: bool = False,
+        middle: bool = False,
     ) -> None:
         super().__init__()
         if fovea % 2 != 1 or not 3 <= fovea <= window:
             raise ValueError(f"fovea {fovea} must be odd and between 3 and the window {window}")
+        if middle and 2 * fovea + 1 > window:
+            raise ValueError(f"the middle view needs a window of at least 2 * fovea + 1 = {2 * fovea + 1} cells, not {window}")
         self.fovea = fovea
         self.stride = max(1, (window - 1) // (fovea - 1))
         self.kernel = window - self.stride * (fovea - 1)  # pooled output is fovea x fovea, centred
         self.extremes = extremes
-        views = 4 if extremes else 2  # the centre, the mean surround [, its max and its min]
+        self.middle = middle
+        views = 2 + 2 * extremes + middle  # the centre, the mean surround [, its max and its min] [, the middle]
         self.fc = nn.Sequential(
             nn.Flatten(),
             *dense(views * in_channels * fovea * fovea, hidden, dropout, layer_norm),
@@ -194,4 +200,7 @@ class FoveaQNetwork(DuelingQ):
         views = [centre, F.avg_pool2d(x, self.kernel, self.stride)]  # [B, C, f, f] each
         if self.extremes:
             views += [F.max_pool2d(x, self.kernel, self.stride), -F.max_pool2d(-x, self.kernel, self.stride)]
+        if self.middle:
+            m = self.fovea
+            views.append(F.avg_pool2d(x[..., c - m : c + m + 1, c - m : c + m + 1], 3, 2))  # [B, C, f, f]
         return self.fc(torch.cat(views, dim=1))
