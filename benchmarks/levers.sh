@@ -149,7 +149,7 @@ if [[ $V5_ROWS == 1 ]]; then
   HM=(--preset best --set train_revisit_penalty=0)
   if [[ ${GRUV:-0} == 1 ]]; then
     # The core learnt over longer stretches of each search: rollouts of 32 moves in 64 envs (the same 2048 env steps
-    # and 64 minibatches of 128 samples a round; 4 envs x 32 moves each): the `best` preset now (these --sets are its).
+    # and 64 minibatches of 128 samples a round; 4 envs x 32 moves each): GRU-R32, the `best` preset until the homing channel.
     # GRUV_ROLLOUT=64: rollouts of 64 moves in 32 envs (2 envs a minibatch), runs GRU-R64-sN.
     R=${GRUV_ROLLOUT:-32}
     side_by_side "GRU-R$R" "${GRUV_SEEDS:-0}" "${R32[@]}" --set num_envs=$((2048 / R)) --set rollout_steps="$R"
@@ -194,11 +194,11 @@ if [[ $V5_ROWS == 1 ]]; then
   # unchanged): in the old town the agent fails near its start, where the SINR gives no direction and the
   # success bonus comes late; shaping credits each move towards a target at once.
   lever SH GRU-R32-SH "${R32[@]}" --set env.shaping=1
-  # The `best` preset with the homing channel: in the old town a failed search leaves the live cells around the user
+  # GRU-R32 with the homing channel: in the old town a failed search leaves the live cells around the user
   # (a median 133 moves in) and wanders the dead ones, where no SINR points back; the cone of the best SINR measured
   # so far points back to where it was measured from anywhere in the window, however far that is.
   lever HM GRU-R32-HM "${HM[@]}"
-  # The `best` preset with the fovea's middle view: the old town's searches fail near their start, with the target
+  # GRU-R32 with the fovea's middle view: the old town's searches fail near their start, with the target
   # a few lanes away, beyond the 15-cell centre, where the surround's 5 x 5 means blur lanes of 1 to 2 cells.
   lever PM GRU-R32-PM "${R32[@]}" --set pool_middle=true
   # On top of HM: its moves in training by the test rule (the revisit penalty; TRP took fewer steps in the old town):

@@ -5,8 +5,8 @@ blind: the SINR memory only; with ``context_zoom`` the context channels after th
 height channel, the window again in blocks of ``context_zoom`` cells; with
 ``visited_channel`` a channel of the visited cells, then with ``homing_channel`` the
 homing cone (the best SINR measured so far less ``homing_slope_db`` per cell of
-distance from where it was measured), before the SINR memory, which stays last), float32, or uint8 with ``compact=True``
-(``encode_obs``: 1 dB / 1 m per step, offset 150; two 61 x 61 uint8 channels are
+distance from where it was measured), before the SINR memory, which stays last),
+float32, or uint8 with ``compact=True`` (``encode_obs``: 1 dB / 1 m per step, offset 150; two 61 x 61 uint8 channels are
 7.4 kB, so 5e5 transitions that store each observation once take 3.5 GiB).
 
 Step semantics (docs/method.md): a legal action moves the UAV one cell; an illegal
