@@ -59,6 +59,8 @@
 #                                                (train_revisit_penalty=1): the `best` preset now (runs GRU-R32-HM-TRP-sN)
 #   HS2=1 [HS2_SEEDS="0 1 2"] bash benchmarks/levers.sh     # HM with a homing cone of 2 dB a cell
 #                                                (env.homing_slope_db=2; runs GRU-R32-HM-S2-sN)
+#   HCE=1 [HCE_SEEDS="0 1 2"] bash benchmarks/levers.sh     # the `best` preset with a new-cell bonus of 0.6
+#                                                (env.c_e=0.6; runs GRU-R32-HM-TRP-CE6-sN)
 #   V2=1 bash benchmarks/levers.sh               # the N1 rows, runs/levers-v2
 #   AUX=1 bash benchmarks/levers.sh              # the A rows, runs/aux
 set -euo pipefail
@@ -86,7 +88,7 @@ if [[ ${AUX:-0} == 1 ]]; then
   exit 0
 fi
 V5_ROWS=0  # any of the switches whose rows train into runs/levers-v5
-for switch in V5 H5 HALF OT PQN PQNV GRU GRUV OT10 LONG GRUT5 GRUH TRP RVC EPS Y8 PX SH HM PM HTRP HS2; do [[ ${!switch:-0} == 1 ]] && V5_ROWS=1; done
+for switch in V5 H5 HALF OT PQN PQNV GRU GRUV OT10 LONG GRUT5 GRUH TRP RVC EPS Y8 PX SH HM PM HTRP HS2 HCE; do [[ ${!switch:-0} == 1 ]] && V5_ROWS=1; done
 if [[ $V5_ROWS == 1 ]]; then
   # The rows on this release's maps, side by side in one OUT: the `best-dqn` preset (A1L) with one change each.
   OUT=runs/levers-v5
@@ -206,6 +208,9 @@ if [[ $V5_ROWS == 1 ]]; then
   # cells instead of 150).
   lever HTRP GRU-R32-HM-TRP --preset best
   lever HS2 GRU-R32-HM-S2 "${HM[@]}" --set env.homing_slope_db=2
+  # The `best` preset (HTRP) with half the new-cell bonus (0.6): with a way home, wandering need not pay as much;
+  # for the steps the channel added in corpus-016.
+  lever HCE GRU-R32-HM-TRP-CE6 --preset best --set env.c_e=0.6
   exit 0
 fi
 if [[ ${V2:-0} == 1 ]]; then
