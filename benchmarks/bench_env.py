@@ -107,10 +107,10 @@ def main() -> None:
 
         if args.homing:
             plain = EnvConfig(rotate=True, visited_channel=True)
-            rates = [
-                np.median([bench_batched(MapSet.load(name, cfg, root=root), 64, args.steps, seed) for seed in range(3)])
-                for cfg in (plain, plain.model_copy(update={"homing_channel": True}))
-            ]
+            rates = []
+            for cfg in (plain, plain.model_copy(update={"homing_channel": True})):
+                maps = MapSet.load(name, cfg, root=root)
+                rates.append(np.median([bench_batched(maps, 64, args.steps, seed) for seed in range(3)]))
             print(
                 f"N = 64, {name}: visited channel {rates[0]:,.0f} steps/s; with the homing channel {rates[1]:,.0f} "
                 f"steps/s; ratio {rates[1] / rates[0]:.2f}"

@@ -6,8 +6,9 @@ height channel, the window again in blocks of ``context_zoom`` cells; with
 ``visited_channel`` a channel of the visited cells, then with ``homing_channel`` the
 homing cone (the best SINR measured so far less ``homing_slope_db`` per cell of
 distance from where it was measured), before the SINR memory, which stays last),
-float32, or uint8 with ``compact=True`` (``encode_obs``: 1 dB / 1 m per step, offset 150; two 61 x 61 uint8 channels are
-7.4 kB, so 5e5 transitions that store each observation once take 3.5 GiB).
+float32, or uint8 with ``compact=True`` (``encode_obs``: 1 dB / 1 m per step, offset
+150; two 61 x 61 uint8 channels are 7.4 kB, so 5e5 transitions that store each
+observation once take 3.5 GiB).
 
 Step semantics (docs/method.md): a legal action moves the UAV one cell; an illegal
 one (into a blocked cell or off the map, never taken by a masked policy)
@@ -131,7 +132,8 @@ class BatchedEnv:
         self.visits[idx] = 0
         self.visits[idx, y, x] = 1
         first = self.memory[idx, y, x] = self.maps.sinr[view, y, x]
-        self.best_sinr[idx], self.best_pos[idx] = first, self.pos[idx]
+        if self.config.homing_channel:
+            self.best_sinr[idx], self.best_pos[idx] = first, self.pos[idx]
         if self.config.context_zoom:
             self.context_memory[idx] = self.maps.context_memory0[view]
             self.context_seen[idx] = False
@@ -217,15 +219,17 @@ class BatchedEnv:
         if cfg.visited_channel:
             obs[:, -2 - cfg.homing_channel] = (self._visits_windows[idx, y0, x0] > 0) * np.float32(cfg.p_h_db)
         if cfg.homing_channel:
-            obs[:, -2] = self._homing(idx, y0, x0)
+            self._homing(idx, y0, x0, out=obs[:, -2])
         obs[:, -1] = mem
         return encode_obs(obs) if self.compact else obs
 
-    def _homing(self, idx: np.ndarray, y0: np.ndarray, x0: np.ndarray) -> np.ndarray:
-        """``[len(idx), w, w]``: the homing cone over the windows whose corners are canvas cells ``(y0, x0)``."""
+    def _homing(self, idx: np.ndarray, y0: np.ndarray, x0: np.ndarray, out: np.ndarray) -> None:
+        """Write into ``out`` ``[len(idx), w, w]`` the homing cone over the windows whose corners are canvas cells
+        ``(y0, x0)``."""
         side = self.maps.side  # the window's corner less the best cell, shifted to index the fall's windows
         fall = self._fall_windows[y0 - self.best_pos[idx, 0] + side, x0 - self.best_pos[idx, 1] + side]
-        return np.maximum(self.best_sinr[idx, None, None] - fall, np.float32(self.config.p_l_db))
+        np.subtract(self.best_sinr[idx, None, None], fall, out=out)
+        np.maximum(out, np.float32(self.config.p_l_db), out=out)
 
     # -- dynamics -------------------------------------------------------------------------------
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
@@ -244,9 +248,9 @@ class BatchedEnv:
         self.memory[rows, y, x] = new
         if cfg.context_zoom:
             self._remember_context(rows, y, x, new)
-        better = new > self.best_sinr  # the first cell of the best SINR stays the best
-        self.best_sinr = np.where(better, new, self.best_sinr)
-        self.best_pos = np.where(better[:, None], self.pos, self.best_pos)
+        if cfg.homing_channel:
+            better = new > self.best_sinr  # the first cell of the best SINR stays the best
+            self.best_sinr[better], self.best_pos[better] = new[better], self.pos[better]
         self.t += 1
         terminated = new >= cfg.p_t_db
         reward = new - old + cfg.c_e * fresh + cfg.success_bonus * terminated - cfg.step_cost

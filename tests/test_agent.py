@@ -179,8 +179,8 @@ GRU = PQN | {"recurrent": True}
 )
 def test_resume_continues_exactly(tmp_path, city_root, env, learner):
     """Train 256 steps straight, or stop at 96 and 200 and resume each time: identical networks and next actions
-    (with context and homing channels too, whose memory of blocks and of the best cell the checkpoint keeps; with PQN, stopped mid-rollout; and with
-    a recurrent PQN network, whose state in each env the checkpoint keeps)."""
+    (with context and homing channels too, whose memory of blocks and of the best cell the checkpoint keeps; with
+    PQN, stopped mid-rollout; and with a recurrent PQN network, whose state in each env the checkpoint keeps)."""
 
     def config() -> DQNConfig:
         return _tiny_config(**env).model_copy(update=learner)
@@ -302,6 +302,15 @@ def test_fovea_network_sees_a_centred_fovea_and_surround():
         FoveaQNetwork(2, 21, fovea=8)
 
 
+def _fovea_tells_apart(a: torch.Tensor, b: torch.Tensor, **views: bool) -> bool:
+    """Whether a fovea network (fovea 15 on a 61-cell window, with ``views``: extremes, middle) gives windows ``a`` and
+    ``b`` different Q values."""
+    torch.manual_seed(0)
+    net = FoveaQNetwork(2, 61, hidden=8, fovea=15, **views).eval()
+    with torch.no_grad():
+        return not torch.equal(net(a), net(b))
+
+
 def test_pooled_extremes_keep_a_lone_cell_visible():
     """A corner block of the surround holding +50 and -50 averages to what an empty one does: the mean-pooled network
     cannot tell them apart, the one with max- and min-pooled views can."""
@@ -309,11 +318,7 @@ def test_pooled_extremes_keep_a_lone_cell_visible():
     mixed = empty.clone()
     mixed[0, 1, 0, 0], mixed[0, 1, 0, 1] = 50.0, -50.0  # both in the first pooled block only (kernel 5, stride 4)
     for extremes in (False, True):
-        torch.manual_seed(0)
-        net = FoveaQNetwork(2, 61, hidden=8, fovea=15, extremes=extremes).eval()
-        with torch.no_grad():
-            same = torch.equal(net(empty), net(mixed))
-        assert same is not extremes
+        assert _fovea_tells_apart(empty, mixed, extremes=extremes) is extremes
 
 
 def test_middle_view_sees_a_lane_the_surround_blurs():
@@ -324,11 +329,7 @@ def test_middle_view_sees_a_lane_the_surround_blurs():
     b = a.clone()
     a[0, 1, 30, 41], b[0, 1, 30, 42] = 50.0, 50.0  # both in (only) the surround block of columns 40-44; the centre: 23-37
     for middle in (False, True):
-        torch.manual_seed(0)
-        net = FoveaQNetwork(2, 61, hidden=8, fovea=15, middle=middle).eval()
-        with torch.no_grad():
-            same = torch.equal(net(a), net(b))
-        assert same is not middle
+        assert _fovea_tells_apart(a, b, middle=middle) is middle
     with pytest.raises(ValueError, match="2 \\* fovea \\+ 1"):
         FoveaQNetwork(2, 21, fovea=11, middle=True)
 

@@ -229,10 +229,11 @@ PRESETS["best-pqn"] = PRESETS["best-dqn"] | {
 # minibatches of 128 samples a round). The core with best-pqn's 16-move rollouts, over 3 seeds against best-pqn's 3:
 # validation success 88.2 against 88.5 % (level), median steps 60 / 34 / 87 against 71 / 36 / 87 in the 3 validation
 # cities (README, "The recurrent core"). The 32-move rollouts, over 3 seeds against those 3: 89.5 against 88.2 %,
-# medians 55 / 31 / 81 against 60 / 34 / 87 (README, "Longer rollouts for the core"). The homing channel (the best SINR measured so far as a cone around its cell), over 3 seeds
-# against those 3: validation success 93.1 against 89.5 %, the old-town validation city 85.3 against 75.2 %; with the
-# test rule's revisit penalty in the training moves as well, 94.4 % and 87.4 %, with fewer median steps than the homing
-# channel alone in each validation city (README, "The homing channel").
+# medians 55 / 31 / 81 against 60 / 34 / 87 (README, "Longer rollouts for the core"). The homing channel (the best
+# SINR measured so far as a cone around its cell), over 3 seeds against those 3: validation success 93.1 against
+# 89.5 %, the old-town validation city 85.3 against 75.2 %; with the test rule's revisit penalty in the training moves
+# as well, 94.4 % and 87.4 %, with fewer median steps than the homing channel alone in each validation city (README,
+# "The homing channel").
 PRESETS["best"] = PRESETS["best-pqn"] | {
     "recurrent": True,
     "num_envs": 64,
