@@ -1,9 +1,11 @@
-"""Several seeds of one recurrent preset acting as one agent (the mean of their Q values), against each seed alone.
+"""Several seeds of one preset acting as one agent (the mean of their Q values), against each seed alone.
 
-Every seed keeps its own GRU state; the ensemble's greedy move maximises the mean of the seeds' Q values minus the
-test rule's revisit penalty (the first run's), with the report's epsilon 0.096. Each city is played by
+The ensemble is the one ``uavrl ensemble`` writes (``MeanQ``): every seed keeps its own GRU state; the ensemble's
+greedy move maximises the mean of the seeds' Q values minus the test rule's revisit penalty (the first run's), with
+the report's epsilon 0.096. Each city is played by
 ``eval.report.evaluate`` on the episodes ``uavrl report --seed`` draws (1000 by default), the genie beside. Measure it
-on validation cities only: it is a candidate lever, not a way to look at test cities.
+on validation cities only: it is a candidate lever, not a way to look at test cities. ``uavrl ensemble`` writes the
+ensemble chosen as an agent folder.
 
     python benchmarks/ensemble.py runs/levers-v5/GRU-R32-s0 runs/levers-v5/GRU-R32-s1 runs/levers-v5/GRU-R32-s2 \\
         --city corpus-016 --city corpus-017 --city oldtown-005
@@ -14,36 +16,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import torch
-from torch import nn
-
 from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.report import Agent, ReportConfig, evaluate, load_agent
 from uavplace.rl.agent.dqn import DQNPolicy
+from uavplace.rl.agent.network import MeanQ
 from uavplace.rl.policies import GeniePolicy
 from uavplace.rl.rollout import summarise
-
-
-class MeanQ(nn.Module):
-    """Recurrent networks side by side: the state is theirs concatenated, the Q values their mean."""
-
-    recurrent = True
-
-    def __init__(self, nets: list[nn.Module]) -> None:
-        super().__init__()
-        if not all(getattr(n, "recurrent", False) for n in nets):
-            raise ValueError("every member must be a recurrent network (trained with recurrent=true)")
-        self.nets = nn.ModuleList(nets)
-        self.width = nets[0].core.hidden_size
-
-    def initial_state(self, n: int) -> torch.Tensor:
-        return torch.zeros(n, self.width * len(self.nets), device=next(self.parameters()).device)
-
-    def encode(self, obs: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
-        return torch.cat([net.encode(obs, part) for net, part in zip(self.nets, h.split(self.width, dim=1), strict=True)], 1)
-
-    def head(self, z: torch.Tensor) -> torch.Tensor:
-        return torch.stack([net.head(part) for net, part in zip(self.nets, z.split(self.width, dim=1), strict=True)]).mean(0)
 
 
 def main() -> None:

@@ -73,7 +73,9 @@ def main() -> None:
     for a in agents:
         evals = pd.read_parquet(a.folder / "eval.parquet")
         chosen = evals[evals["best"]].iloc[-1]
-        row = [a.name, changed_settings(a.config), f"{int(evals.step.max()):,}"]
+        last = evals.step.max()  # an ensemble's one evaluation has no step: its members' schedule, times their number
+        steps = f"{int(last):,}" if pd.notna(last) else f"{a.config.ensemble} x {a.config.total_steps:,}"
+        row = [a.name, changed_settings(a.config), steps]
         row += [f"{100 * chosen.success:.1f} %", f"{chosen.median_steps:g}"]
         for summaries in tests.values():
             s, genie = summaries[a.name], summaries[GeniePolicy.name]["median_steps"]

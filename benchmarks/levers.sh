@@ -56,11 +56,15 @@
 #   PM=1 [PM_SEEDS="0 1 2"] bash benchmarks/levers.sh       # GRU-R32 with the fovea's middle view (the centre 31
 #                                                cells at half resolution; runs GRU-R32-PM-sN)
 #   HTRP=1 [HTRP_SEEDS="0 1 2"] bash benchmarks/levers.sh   # HM acting in training by its test rule
-#                                                (train_revisit_penalty=1): the `best` preset now (runs GRU-R32-HM-TRP-sN)
+#                                                (train_revisit_penalty=1): the `best` preset until HG98 (runs GRU-R32-HM-TRP-sN)
 #   HS2=1 [HS2_SEEDS="0 1 2"] bash benchmarks/levers.sh     # HM with a homing cone of 2 dB a cell
 #                                                (env.homing_slope_db=2; runs GRU-R32-HM-S2-sN)
-#   HCE=1 [HCE_SEEDS="0 1 2"] bash benchmarks/levers.sh     # the `best` preset with a new-cell bonus of 0.6
+#   HCE=1 [HCE_SEEDS="0 1 2"] bash benchmarks/levers.sh     # HTRP with a new-cell bonus of 0.6
 #                                                (env.c_e=0.6; runs GRU-R32-HM-TRP-CE6-sN)
+#   HG98=1 [HG98_SEEDS="0 1 2"] bash benchmarks/levers.sh   # HTRP with gamma 0.98: the `best` preset now
+#                                                (runs GRU-R32-HM-TRP-G98-sN)
+#   ENSEMBLE=ROW bash benchmarks/levers.sh       # `uavrl ensemble` of the row's seeds 0-2, 3-5 and 6-8 (those trained),
+#                                                into runs/ensembles/ROW-E012, -E345, -E678 (e.g. ROW=GRU-R32-HM-TRP-G98)
 #   V2=1 bash benchmarks/levers.sh               # the N1 rows, runs/levers-v2
 #   AUX=1 bash benchmarks/levers.sh              # the A rows, runs/aux
 set -euo pipefail
@@ -88,7 +92,8 @@ if [[ ${AUX:-0} == 1 ]]; then
   exit 0
 fi
 V5_ROWS=0  # any of the switches whose rows train into runs/levers-v5
-for switch in V5 H5 HALF OT PQN PQNV GRU GRUV OT10 LONG GRUT5 GRUH TRP RVC EPS Y8 PX SH HM PM HTRP HS2 HCE; do [[ ${!switch:-0} == 1 ]] && V5_ROWS=1; done
+for switch in V5 H5 HALF OT PQN PQNV GRU GRUV OT10 LONG GRUT5 GRUH TRP RVC EPS Y8 PX SH HM PM HTRP HS2 HCE HG98; do [[ ${!switch:-0} == 1 ]] && V5_ROWS=1; done
+[[ -n ${ENSEMBLE:-} ]] && V5_ROWS=1
 if [[ $V5_ROWS == 1 ]]; then
   # The rows on this release's maps, side by side in one OUT: the `best-dqn` preset (A1L) with one change each.
   OUT=runs/levers-v5
@@ -147,8 +152,9 @@ if [[ $V5_ROWS == 1 ]]; then
   fi
   # The rows up to HM and PM were trained with the `best` preset before it had the homing channel and the revisit
   # penalty in training (GRU-R32): R32 keeps them as they ran; HM is R32 with the homing channel.
-  R32=(--preset best --set env.homing_channel=false --set train_revisit_penalty=0)
-  HM=(--preset best --set train_revisit_penalty=0)
+  # The `best` preset discounts at 0.98 since HG98; the rows before it (up to HCE) ran at 0.99.
+  R32=(--preset best --set gamma=0.99 --set env.homing_channel=false --set train_revisit_penalty=0)
+  HM=(--preset best --set gamma=0.99 --set train_revisit_penalty=0)
   if [[ ${GRUV:-0} == 1 ]]; then
     # The core learnt over longer stretches of each search: rollouts of 32 moves in 64 envs (the same 2048 env steps
     # and 64 minibatches of 128 samples a round; 4 envs x 32 moves each): GRU-R32, the `best` preset until the homing channel.
@@ -206,11 +212,26 @@ if [[ $V5_ROWS == 1 ]]; then
   # On top of HM: its moves in training by the test rule (the revisit penalty; TRP took fewer steps in the old town):
   # the `best` preset now; and a cone twice as steep (2 dB a cell: more salient to the first layer, visible to 75
   # cells instead of 150).
-  lever HTRP GRU-R32-HM-TRP --preset best
+  lever HTRP GRU-R32-HM-TRP --preset best --set gamma=0.99
   lever HS2 GRU-R32-HM-S2 "${HM[@]}" --set env.homing_slope_db=2
   # The `best` preset (HTRP) with half the new-cell bonus (0.6): with a way home, wandering need not pay as much;
   # for the steps the channel added in corpus-016.
-  lever HCE GRU-R32-HM-TRP-CE6 --preset best --set env.c_e=0.6
+  lever HCE GRU-R32-HM-TRP-CE6 --preset best --set gamma=0.99 --set env.c_e=0.6
+  # HTRP discounting at 0.98 instead of 0.99 (the `best` preset now; `--set gamma=0.98` as the runs were trained): with the success bonus of 100, each move's delay
+  # costs about 1 (0.99) or 2 (0.98) of discounted bonus near a target, against the new-cell bonus of 1.2 it earns by
+  # wandering on; for the steps in the dense cities.
+  lever HG98 GRU-R32-HM-TRP-G98 --preset best --set gamma=0.98
+  if [[ -n ${ENSEMBLE:-} ]]; then
+    # Three seeds of one row as one agent (the mean of their Q values), for each trio of seeds trained; each is
+    # evaluated on the validation cities as a run is (rl/agent/ensemble.py). An existing ensemble is kept.
+    mkdir -p runs/ensembles
+    for trio in "0 1 2" "3 4 5" "6 7 8"; do
+      members=()
+      for seed in $trio; do [[ -f $OUT/$ENSEMBLE-s$seed/checkpoints/best.pt ]] && members+=("$OUT/$ENSEMBLE-s$seed"); done
+      folder=runs/ensembles/$ENSEMBLE-E${trio// /}
+      if [[ ${#members[@]} == 3 && ! -d $folder ]]; then OMP_NUM_THREADS=1 uavrl ensemble "${members[@]}" --out "$folder" --quiet; fi
+    done
+  fi
   exit 0
 fi
 if [[ ${V2:-0} == 1 ]]; then

@@ -2,8 +2,10 @@
 # The shipped agents (data/agents/), trained on the corpus, the old-town corpus and the train city, best.pt
 # selected on the val cities (corpus-016, corpus-017, oldtown-005; 1000 fixed episodes each evaluation), never
 # on a test city:
-#   best-s0, best-s1, best-s2   the `best` preset, 3 seeds (the median seed by validation is shipped as
-#                               data/agents/best); LONG=1: on a 500 k-step schedule instead (best-long-sN)
+#   best-s0 ... best-s8         the `best` preset, 9 seeds, three side by side at a time; then best-e012,
+#                               best-e345, best-e678, each three seeds as one agent (`uavrl ensemble`, evaluated on
+#                               the val cities); the median ensemble by that validation is shipped as
+#                               data/agents/best. LONG=1: 3 seeds on a 500 k-step schedule instead (best-long-sN)
 #   proposed-sN, blind-sN       the paper's preset (docs/method.md), with and without the height map,
 #                               on one shortened schedule (epsilon annealed over all of it), seed SEED
 # Resumable: a run whose folder exists continues from its last checkpoint; a finished one is skipped.
@@ -29,9 +31,14 @@ else
   if [[ ${LONG:-0} == 1 ]]; then
     for seed in 0 1 2; do one "best-long-s$seed" --preset best --steps 500000 --seed "$seed" & done
   else
-    # Two lanes on the 2 cores: seeds 0 and 2 in one, seed 1 in the other.
-    (one best-s0 --preset best --seed 0; one best-s2 --preset best --seed 2) &
-    one best-s1 --preset best --seed 1 &
+    for trio in "0 1 2" "3 4 5" "6 7 8"; do
+      for seed in $trio; do one "best-s$seed" --preset best --seed "$seed" & done
+      wait
+      members=()
+      for seed in $trio; do members+=("$OUT/best-s$seed"); done
+      folder=$OUT/best-e${trio// /}
+      [[ -d $folder ]] || OMP_NUM_THREADS=1 uavrl ensemble "${members[@]}" --out "$folder" --quiet
+    done
   fi
 fi
 wait

@@ -107,10 +107,12 @@ class Report:
 
 def agent_name(config: DQNConfig) -> str:
     """The method's name in tables: the paper's ``DQN`` and ``blind DQN``, or the learner that trained it (``PQN``,
-    ``+ GRU`` for a recurrent core), then the preset: ``DQN (paper)``, ``PQN + GRU (best)``."""
+    ``+ GRU`` for a recurrent core, ``x N`` for an ensemble of N runs), then the preset: ``DQN (paper)``, ``PQN + GRU
+    (best)``, ``PQN + GRU x 3 (best)``."""
     learner = "PQN" if config.learner == "pqn" else "DQN"
     core = " + GRU" if config.recurrent else ""
-    return f"{'' if config.agent == 'dqn' else 'blind '}{learner}{core} ({config.preset})"
+    members = f" x {config.ensemble}" if config.ensemble > 1 else ""
+    return f"{'' if config.agent == 'dqn' else 'blind '}{learner}{core}{members} ({config.preset})"
 
 
 def load_agent(folder: str | Path, epsilon: float, seed: int) -> Agent:
@@ -264,14 +266,20 @@ def plot_training(agents: list[Agent], bounds: dict[str, float], out: Path, note
     plt = _pyplot()
     fig, axes = plt.subplots(len(curves), 2, figsize=(11, 2.9 * len(curves)), constrained_layout=True, squeeze=False)
     for (ax_ok, ax_gain), a in zip(axes, curves, strict=True):
-        df = a.metrics
-        full = np.arange(len(df)) >= RUNNING_WINDOW - 1  # the window holds 100 episodes from here on
-        for ax, column, scale in ((ax_ok, "success", 100.0), (ax_gain, "sinr_gain_db", 1.0)):
-            rolling = scale * df[column].astype(float).rolling(RUNNING_WINDOW, min_periods=1).mean()
-            line = ax.plot(df["step"][full], rolling[full], linewidth=1.6)[0]
-            ax.plot(df["step"][:RUNNING_WINDOW], rolling[:RUNNING_WINDOW], color=line.get_color(), alpha=0.3, linewidth=1)
+        # An ensemble's metrics hold each member's training episodes (a ``member`` column): one curve per member.
+        runs = a.metrics.groupby("member", sort=False) if "member" in a.metrics else [(None, a.metrics)]
+        for member, df in runs:
+            df = df.reset_index(drop=True)
+            full = np.arange(len(df)) >= RUNNING_WINDOW - 1  # the window holds 100 episodes from here on
+            for ax, column, scale in ((ax_ok, "success", 100.0), (ax_gain, "sinr_gain_db", 1.0)):
+                rolling = scale * df[column].astype(float).rolling(RUNNING_WINDOW, min_periods=1).mean()
+                line = ax.plot(df["step"][full], rolling[full], linewidth=1.6, label=member)[0]
+                ax.plot(df["step"][:RUNNING_WINDOW], rolling[:RUNNING_WINDOW], color=line.get_color(), alpha=0.3, linewidth=1)
+        for ax in (ax_ok, ax_gain):
             ax.grid(alpha=0.3)
             ax.set_xlabel("training step")
+        if "member" in a.metrics:
+            ax_ok.legend(fontsize=7, loc="lower right", title="members", title_fontsize=7)
         key = ", ".join(f"{c}@{v}" for c, v in a.trained_on.items())
         if key in bounds:
             ax_gain.axhline(bounds[key], color="black", linestyle="--", linewidth=1,
@@ -500,7 +508,9 @@ def provenance_table(provenances: list[dict]) -> str:
         trained = ", ".join(f"{k}@{v}" for k, v in (a["trained_on"] or {}).items()) or "unknown"
         selected = ", ".join(f"{k}@{v}" for k, v in (a.get("selected_on") or {}).items()) or "its training cities' held-out users"
         best = a["best_eval"] or {}
-        chosen = f"best.pt from step {best.get('step')}" if best else "best.pt"
+        members = a["config"].get("ensemble", 1)
+        chosen = (f"the mean of {members} runs' best.pt" if members > 1
+                  else f"best.pt from step {best.get('step')}" if best else "best.pt")  # fmt: skip
         rows.append([f"agent {name}", f"{a['folder']}; {a['config']['total_steps']:,} steps; trained on {trained}; "
                      f"selected on {selected}; {chosen}"])  # fmt: skip
         for i, cmd in enumerate(a["commands"] or ["(not recorded)"]):

@@ -198,3 +198,33 @@ def train(
     last = trainer.state.evals[-1] if trainer.state.evals else None
     summary = f"; last evaluation: {100 * last['success']:.1f} % success, median {last['median_steps']:g} steps" if last else ""
     stdout().print(f"trained {run_dir}{summary}", highlight=False, soft_wrap=True)
+
+
+@click.command()
+@click.argument("runs", nargs=-1, required=True, type=click.Path(file_okay=False, exists=True, path_type=Path))
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="The ensemble's folder (new): run.json, checkpoints/best.pt, eval.parquet, metrics.parquet, as a run's; "
+    "`uavrl report --run OUT` plays it.",
+)
+@root_option
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+def ensemble(runs: tuple[Path, ...], out: Path, root: Path, quiet: bool) -> None:
+    """Finished training RUNS (two or more folders of `uavrl train`, one config, different seeds) as one agent: the
+    mean of their Q values, each network with its own recurrent state (rl/agent/ensemble.py). It is evaluated as a run
+    is, on the members' validation cities (their config's eval_episodes, seeded as a run's), never on a test city."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from uavplace.rl.agent.ensemble import build_ensemble
+    from uavplace.schemas.cli import command_line
+
+    columns = (TextColumn("[bold]ensemble[/] validation"), BarColumn(), TextColumn("{task.completed:,}/{task.total:,} episodes"),
+               TimeElapsedColumn())  # fmt: skip
+    with Progress(*columns, console=stdout(), disable=quiet) as bar:
+        task = bar.add_task("validation", total=None)
+        row = build_ensemble(list(runs), out, root, command=command_line(),
+                             on_progress=lambda done, total: bar.update(task, completed=done, total=total))  # fmt: skip
+    stdout().print(f"wrote {out}: {len(runs)} runs; validation {100 * row['success']:.1f} % success, median "
+                   f"{row['median_steps']:g} steps", highlight=False, soft_wrap=True)  # fmt: skip

@@ -182,12 +182,13 @@ uavdata.help = uavdata.help.format(noise=EMBEDDED_NOISE_DBM)
         "datasets": "uavplace.rl.cli:datasets",
         "baselines": "uavplace.rl.cli:baselines",
         "train": "uavplace.rl.cli:train",
+        "ensemble": "uavplace.rl.cli:ensemble",
         "report": "uavplace.eval.cli:report",
     },
 )
 @click.version_option(package_name="uavplace", prog_name="uavrl")
 def uavrl() -> None:
-    """UAV placement agents: the datasets they can use, training and reports."""
+    """UAV placement agents: the datasets they can use, training, ensembles of runs and reports."""
 
 
 @uavdata.command()

@@ -145,8 +145,9 @@ def test_config_round_trip_and_presets():
     assert paper.env.t_max == 800 and paper.env.rotate and paper.eps_end == 0.0 and paper.test_epsilon == 0.096
     assert preset_config("best").recurrent and preset_config("best-pqn").learner == "pqn"
     best = preset_config("best")
-    assert best.env.homing_channel and best.train_revisit_penalty == best.test_revisit_penalty == 1.0
+    assert best.env.homing_channel and best.train_revisit_penalty == best.test_revisit_penalty == 1.0 and best.gamma == 0.98
     gru = {"recurrent": False, "num_envs": 128, "rollout_steps": 16, "train_revisit_penalty": 0.0, "preset": "best-pqn"}
+    gru["gamma"] = 0.99
     gru["env"] = best.env.model_copy(update={"homing_channel": False})
     assert best.model_copy(update=gru) == preset_config("best-pqn")
     with pytest.raises(ValueError, match="unknown preset"):
@@ -617,3 +618,81 @@ def test_aux_genie_head_learns_the_genie_moves(tmp_path, city_root):
     np.testing.assert_array_equal(follower.act(obs, legal, env), expected)
     with pytest.raises(ValueError, match="genie-move head"):
         DQNPolicy(FoveaQNetwork(2, 21, hidden=8, fovea=7), aux_weight=1.0)  # no head
+
+
+def test_ensemble_acts_on_the_mean_q_and_plays_like_a_run(tmp_path, corpus_root):
+    """``uavrl ensemble`` of two recurrent runs (seeds 0 and 1): each member keeps its own state and the Q values are
+    the mean of theirs; the folder reads as an agent, evaluated on the members' validation episodes, and the report
+    plays it. Members that differ in more than the seed, or share one, and a training config with an ensemble, are
+    refused before anything is written."""
+    from click.testing import CliRunner
+
+    from uavplace.eval.report import ReportConfig, load_agent, make_report
+    from uavplace.rl.agent.ensemble import build_ensemble
+    from uavplace.schemas.cli import uavrl
+
+    for seed in (0, 1):
+        config = _tiny_config().model_copy(update=GRU | {"seed": seed})
+        Trainer(
+            config, ["c-000"], corpus_root, tmp_path / f"s{seed}", command=f"uavrl train s{seed}", val_datasets=["c-002"]
+        ).run()
+    res = CliRunner().invoke(
+        uavrl,
+        [
+            "ensemble",
+            str(tmp_path / "s0"),
+            str(tmp_path / "s1"),
+            "--out",
+            str(tmp_path / "e"),
+            "--root",
+            str(corpus_root),
+            "--quiet",
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    assert "2 runs; validation" in res.output
+    members = [load_policy(tmp_path / f"s{s}" / "checkpoints" / "best.pt")[0].net for s in (0, 1)]
+    policy, config = load_policy(tmp_path / "e" / "checkpoints" / "best.pt")
+    assert config.ensemble == 2 and config.seed == 0
+    cfg = config.env_config(evaluation=True)
+    torch.manual_seed(3)
+    obs = [torch.randn(5, cfg.num_channels, cfg.window, cfg.window) * 40 for _ in range(3)]
+    h = policy.net.initial_state(5)
+    hs = [m.initial_state(5) for m in members]
+    with torch.no_grad():
+        for x in obs:  # three moves: the members' states go on apart
+            h = policy.net.encode(x, h)
+            hs = [m.encode(x, part) for m, part in zip(members, hs, strict=True)]
+            torch.testing.assert_close(h, torch.cat(hs, dim=1))
+            torch.testing.assert_close(policy.net.head(h), (members[0].head(hs[0]) + members[1].head(hs[1])) / 2)
+    assert not torch.allclose(members[0].head(hs[0]), members[1].head(hs[1]))
+    record = read_run_json(tmp_path / "e")
+    assert list(record.members) == [str(tmp_path / "s0"), str(tmp_path / "s1")]
+    assert list(record.datasets) == ["c-000"] and list(record.val_datasets) == ["c-002"]
+    assert record.commands[:2] == ["uavrl train s0", "uavrl train s1"] and len(record.commands) == 3  # then its own
+    evals = pd.read_parquet(tmp_path / "e" / "eval.parquet")
+    assert len(evals) == 1 and 0 <= evals.success[0] <= 1
+    curves = pd.read_parquet(tmp_path / "e" / "metrics.parquet")
+    assert set(curves.member) == {"s0", "s1"}
+    agent = load_agent(tmp_path / "e", 0.096, 0)
+    assert agent.name == "PQN + GRU x 2 (fast)" and agent.best_eval["success"] == evals.success[0]
+    report = make_report(ReportConfig(dataset="held", runs=[str(tmp_path / "e")], episodes=8), tmp_path / "r", root=corpus_root)
+    assert "PQN + GRU x 2 (fast)" in report.table["method"].tolist()
+    with pytest.raises(InputError, match="selected its checkpoint in c-002"):
+        make_report(ReportConfig(dataset="c-002", runs=[str(tmp_path / "e")], episodes=8), tmp_path / "r2", root=corpus_root)
+    # Refused, with nothing written: a member of another config, the same seed twice, one run, an existing --out.
+    config = _tiny_config().model_copy(update=GRU | {"seed": 2, "gamma": 0.9})
+    Trainer(config, ["c-000"], corpus_root, tmp_path / "g", val_datasets=["c-002"]).run()
+    for runs, match in (
+        (["s0", "g"], "config.gamma: differs from"),
+        (["s0", "s0"], "config.seed: the same seed as"),
+        (["s0"], "at least two runs"),
+        (["s0", "e"], "already an ensemble"),
+    ):
+        with pytest.raises(InputError, match=match):
+            build_ensemble([tmp_path / r for r in runs], tmp_path / "bad", corpus_root)
+        assert not (tmp_path / "bad").exists()
+    with pytest.raises(InputError, match="exists"):
+        build_ensemble([tmp_path / "s0", tmp_path / "s1"], tmp_path / "e", corpus_root)
+    with pytest.raises(InputError, match="uavrl ensemble"):
+        Trainer(_tiny_config().model_copy(update={"ensemble": 2}), ["c-000"], corpus_root, tmp_path / "t")

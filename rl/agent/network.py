@@ -204,3 +204,55 @@ class FoveaQNetwork(DuelingQ):
             m = self.fovea
             views.append(F.avg_pool2d(x[..., c - m : c + m + 1, c - m : c + m + 1], 3, 2))  # [B, C, f, f]
         return self.fc(torch.cat(views, dim=1))
+
+
+class MeanQ(nn.Module):
+    """Networks of one architecture acting as one agent (``DQNConfig.ensemble``, built by ``uavrl ensemble``): the
+    Q values are the mean of theirs, each network reading the same observation with its own features and, when
+    recurrent, its own state. The features ``z`` (and a recurrent state ``h``) are the members' side by side,
+    ``[B, members * hidden]``, so that ``DQNPolicy`` acts with an ensemble as with one network."""
+
+    def __init__(self, nets: list[DuelingQ]) -> None:
+        super().__init__()
+        if len(nets) < 2:
+            raise ValueError("an ensemble needs at least two networks")
+        if len({type(n) for n in nets}) != 1 or len({n.recurrent for n in nets}) != 1:
+            raise ValueError("the networks of an ensemble must share one architecture")
+        self.nets = nn.ModuleList(nets)
+
+    @property
+    def recurrent(self) -> bool:
+        return self.nets[0].recurrent
+
+    def _parts(self, z: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        return z.chunk(len(self.nets), dim=1)
+
+    def initial_state(self, n: int) -> torch.Tensor:
+        return torch.cat([net.initial_state(n) for net in self.nets], dim=1)
+
+    def embed(self, obs: torch.Tensor) -> torch.Tensor:
+        return torch.cat([net.embed(obs) for net in self.nets], dim=1)
+
+    def encode(self, obs: torch.Tensor, h: torch.Tensor | None = None) -> torch.Tensor:
+        if not self.recurrent:
+            return self.embed(obs)
+        return torch.cat([net.encode(obs, part) for net, part in zip(self.nets, self._parts(h), strict=True)], dim=1)
+
+    def head(self, z: torch.Tensor) -> torch.Tensor:
+        """The mean of the members' Q values ``[B, n_actions]``."""
+        return torch.stack([net.head(part) for net, part in zip(self.nets, self._parts(z), strict=True)]).mean(0)
+
+    def aux(self, z: torch.Tensor) -> torch.Tensor:
+        """The mean of the members' genie-move logits (``DQNPolicy``'s ``aux_weight``)."""
+        if self.nets[0].aux is None:
+            raise TypeError("the ensemble's networks have no genie-move head (trained with aux_genie = 0)")
+        return torch.stack([net.aux(part) for net, part in zip(self.nets, self._parts(z), strict=True)]).mean(0)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        if self.recurrent:
+            raise TypeError("a recurrent ensemble needs its state: encode(obs, h), then head")
+        return torch.stack([net(obs) for net in self.nets]).mean(0)
+
+    def fused(self) -> MeanQ:
+        """``QNetwork.fused`` for each member that has it (the same Q values, faster acting)."""
+        return MeanQ([net.fused() if isinstance(net, QNetwork) else copy.deepcopy(net).eval() for net in self.nets])

@@ -24,6 +24,7 @@ import numpy as np
 import pandas as pd
 import torch
 from pydantic import Field, ValidationError
+from torch import nn
 
 from uavplace.dataset.bundle import Bundle, load_bundle
 from uavplace.rl.agent.checkpoint import CHECKPOINT_JSON, load_tensors, require, save_tensors
@@ -62,11 +63,16 @@ class RunRecord(Contract):
     uavplace_version: str
     torch_version: str
     created_utc: str
+    members: dict[str, RunRecord] = Field(
+        default_factory=dict,
+        description="An ensemble's runs (`uavrl ensemble`): each run folder as it was given, with its run.json",
+    )
 
     @property
     def commands(self) -> list[str]:
-        """Every command that trained the run, in order: the first, then each ``--resume``."""
-        return [self.command, *self.resumed]
+        """Every command that made the run, in order: an ensemble's members' first, then the first, then each
+        ``--resume``."""
+        return [*(c for m in self.members.values() for c in m.commands), self.command, *self.resumed]
 
 
 def read_run_json(folder: str | Path) -> RunRecord:
@@ -166,6 +172,26 @@ def plan_cities(bundles: list[Bundle], val_bundles: list[Bundle], eval_split: st
     return Cities(train, train_users, train_split, train, [b.user_indices(split) for b in train], split)
 
 
+def validation_set(config: DQNConfig, cities: Cities) -> tuple[MapSet, np.ndarray]:
+    """The maps and the fixed episodes (``config.eval_episodes``, seeded by ``config.seed``) of a run's periodic
+    evaluation, the one that chooses ``best.pt``."""
+    maps = MapSet(cities.val, config.env_config(evaluation=True).model_copy(update={"split": cities.val_split}), cities.val_users)
+    return maps, maps.sample_episodes(config.eval_episodes, np.random.default_rng([config.seed, 2]))
+
+
+def play_validation(
+    policy: DQNPolicy, maps: MapSet, episodes: np.ndarray, on_step: Callable[[int, int], None] | None = None
+) -> dict:
+    """``policy`` on the validation episodes: success rate, median steps and mean return (``on_step``: progress)."""
+    df = run_episodes(maps, policy, episodes, num_envs=min(256, len(episodes)), on_step=on_step)
+    summary = summarise(df)
+    return {
+        "success": float(summary["success"]),
+        "median_steps": float(summary["median_steps"]),
+        "mean_return": float(df.return_.mean()),
+    }
+
+
 def _atomic_torch_save(obj: dict, path: Path) -> None:
     tmp = path.with_name(path.name + ".tmp")
     save_tensors(obj, tmp)
@@ -191,6 +217,10 @@ class Trainer:
         val_datasets: list[str] | None = None,
     ) -> None:
         self.config, self.datasets, self.root, self.run_dir = config, list(datasets), str(root), Path(run_dir)
+        if config.ensemble != 1:
+            raise InputError(
+                None, "a run trains one network: build an ensemble from finished runs with `uavrl ensemble`", field="ensemble"
+            )
         torch.manual_seed(config.seed)
         if "OMP_NUM_THREADS" not in os.environ:  # both cores of the reference machine, unless told otherwise
             torch.set_num_threads(max(1, min(2, os.cpu_count() or 1)))
@@ -205,9 +235,7 @@ class Trainer:
             )  # fmt: skip
         self.maps = MapSet(cities.train, config.env_config().model_copy(update={"split": cities.train_split}), cities.train_users)
         self.eval_split = cities.val_split
-        eval_cfg = config.env_config(evaluation=True).model_copy(update={"split": cities.val_split})
-        self.eval_maps = MapSet(cities.val, eval_cfg, cities.val_users)
-        self.eval_episodes = self.eval_maps.sample_episodes(config.eval_episodes, np.random.default_rng([config.seed, 2]))
+        self.eval_maps, self.eval_episodes = validation_set(config, cities)
         self.env = BatchedEnv(self.maps, config.num_envs, compact=True)
         c, w = self.maps.config.num_channels, self.maps.config.window
         self.agent = DQN(config, c, w)
@@ -347,15 +375,7 @@ class Trainer:
     # -- evaluation ---------------------------------------------------------------------------------
     def evaluate(self) -> dict:
         policy = DQNPolicy.from_config(self.agent.online, self.config)
-        df = run_episodes(self.eval_maps, policy, self.eval_episodes, num_envs=min(256, len(self.eval_episodes)))
-        summary = summarise(df)
-        row = {
-            "step": self.state.step,
-            "success": summary["success"],
-            "median_steps": summary["median_steps"],
-            "mean_return": float(df.return_.mean()),
-            "wall_s": self.wall_s(),
-        }
+        row = {"step": self.state.step, **play_validation(policy, self.eval_maps, self.eval_episodes), "wall_s": self.wall_s()}
         score = (row["success"], -row["median_steps"])
         if self.state.best_score is None or score > tuple(self.state.best_score):
             self.state.best_score = score
@@ -488,6 +508,12 @@ def _plain(row: dict) -> dict:
 
 def policy_from_checkpoint(ck: dict, path: str | Path, epsilon: float = 0.096, seed: int = 0) -> tuple[DQNPolicy, DQNConfig]:
     """The policy a loaded ``best.pt`` (``load_tensors``) holds, with its config; ``InputError`` naming ``path``."""
+    net, config = network_from_checkpoint(ck, path)
+    return DQNPolicy.from_config(net, config, epsilon, seed), config
+
+
+def network_from_checkpoint(ck: dict, path: str | Path) -> tuple[nn.Module, DQNConfig]:
+    """The network a loaded ``best.pt`` holds, with its config; ``InputError`` naming ``path``."""
     require(ck, path, "online", "config")
     try:
         config = DQNConfig.model_validate(ck["config"])
@@ -502,7 +528,7 @@ def policy_from_checkpoint(ck: dict, path: str | Path, epsilon: float = 0.096, s
         raise InputError(
             path, f"weights do not fit the network its config describes ({str(exc)[:200]})", field="online"
         ) from None
-    return DQNPolicy.from_config(net, config, epsilon, seed), config
+    return net, config
 
 
 def load_policy(path: str | Path, epsilon: float = 0.096, seed: int = 0) -> tuple[DQNPolicy, DQNConfig]:
