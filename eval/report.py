@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import torch
 from pydantic import Field
 
 from uavplace.dataset.bundle import Bundle, load_bundle
@@ -499,7 +500,10 @@ def provenance_table(provenances: list[dict]) -> str:
     first = provenances[0]
     rows = [["what", "value"]]
     rows.append(["report command", first["command"]])
-    rows.append(["made", f"{first['created_utc']}, uavplace {first['uavplace_version']}"])
+    made = f"{first['created_utc']}, uavplace {first['uavplace_version']}"
+    if "torch" in first:  # reports from before the threads were recorded lack it
+        made += f", torch {first['torch']['version']} on {first['torch']['threads']} threads"
+    rows.append(["made", made])
     for p in provenances:
         c = p["test_bundle_config"]
         rows.append([f"test city {p['test_city']}", f"bundle {p['test_bundle']}: grid {c.get('grid_m')} m, altitude "
@@ -598,6 +602,9 @@ def make_report(
             "command": command,
             "created_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
             "uavplace_version": uavplace_version(),
+            # The agents' moves depend on the torch threads: a network's sums split another way can break a near-tie
+            # between moves the other way (README, "Gamma 0.98, and three seeds as one agent").
+            "torch": {"version": torch.__version__, "threads": torch.get_num_threads()},
             "report_config": json.loads(config.model_dump_json()),
             "test_city": bundle.city,
             "test_bundle": bundle.version,

@@ -132,6 +132,7 @@ def test_report_end_to_end(tmp_path, two_cities):
     doc = json.loads((out / "report.json").read_text())
     assert doc["test_bundle"] and set(doc["agents"]["PQN + GRU (best)"]["trained_on"]) == {"citya"}
     assert doc["report_config"]["episodes"] == 60 and "upper_bounds_db" in doc
+    assert doc["torch"]["threads"] >= 1 and doc["torch"]["version"]
     # The trajectories follow the stated rule: the success nearest the median, the successes' p90, a failure.
     shown = eps[eps.method == "PQN + GRU (best)"].set_index("episode")
     picks = dict(zip(doc["trajectories"]["rules"], doc["trajectories"]["episodes"], strict=True))

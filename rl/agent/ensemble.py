@@ -114,7 +114,14 @@ def build_ensemble(
         config.eval_split,
     )
     maps, episodes = validation_set(config, cities)
-    curves = [_metrics(m.folder).assign(member=m.folder.name) for m in members if (m.folder / "metrics.parquet").is_file()]
+    labels = [m.folder.name for m in members]
+    if len(set(labels)) < len(labels):  # runs of one name in other folders: the whole path tells them apart
+        labels = [str(m.folder) for m in members]
+    curves = [
+        _metrics(m.folder).assign(member=label)
+        for m, label in zip(members, labels, strict=True)
+        if (m.folder / "metrics.parquet").is_file()
+    ]
     policy = DQNPolicy.from_config(net, config)
     row = {"step": None, **play_validation(policy, maps, episodes, on_step=on_progress), "wall_s": None}
     record = RunRecord(
