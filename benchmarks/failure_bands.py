@@ -83,7 +83,7 @@ def away_moves(df: pd.DataFrame, paths: dict, bundle: Bundle, p_t_db: float) -> 
         d = dist[row[user], path[:, 0], path[:, 1]]
         before.append(d[:-1][np.diff(d) > 0])
     away = np.concatenate(before) if before else np.zeros(0)
-    shares = np.histogram(away, AWAY_BANDS)[0]
+    shares = np.histogram(away, np.add(AWAY_BANDS, 0.5))[0]  # whole moves: the bands (lo, hi] of the labels
     return len(ok), int(ok.steps.sum()), float(np.median(ok.steps - ok.genie_steps)) if len(ok) else 0.0, shares
 
 
