@@ -229,12 +229,7 @@ if [[ $V5_ROWS == 1 ]]; then
     # Three seeds of one row as one agent (the mean of their Q values), for each trio of seeds trained; each is
     # evaluated on the validation cities as a run is (rl/agent/ensemble.py). An existing ensemble is kept.
     mkdir -p runs/ensembles
-    for trio in "0 1 2" "3 4 5" "6 7 8"; do
-      members=()
-      for seed in $trio; do [[ -f $OUT/$ENSEMBLE-s$seed/checkpoints/best.pt ]] && members+=("$OUT/$ENSEMBLE-s$seed"); done
-      folder=runs/ensembles/$ENSEMBLE-E${trio// /}
-      if [[ ${#members[@]} == 3 && ! -d $folder ]]; then OMP_NUM_THREADS=1 uavrl ensemble "${members[@]}" --out "$folder" --quiet; fi
-    done
+    for trio in "0 1 2" "3 4 5" "6 7 8"; do ensemble_of "runs/ensembles/$ENSEMBLE-E${trio// /}" "$OUT/$ENSEMBLE" "$trio"; done
   fi
   exit 0
 fi

@@ -38,3 +38,13 @@ lever() {
   [[ ${!switch:-0} == 1 ]] || return 0
   side_by_side "$name" "${!seeds_var:-0}" "$@"
 }
+
+# `ensemble_of FOLDER RUN_PREFIX "SEEDS"`: `uavrl ensemble` of the runs RUN_PREFIX-sN (N in SEEDS) into FOLDER, once every
+# one of them holds a best.pt; an existing FOLDER is kept.
+ensemble_of() {
+  local folder=$1 prefix=$2 members=()
+  for seed in $3; do [[ -f $prefix-s$seed/checkpoints/best.pt ]] && members+=("$prefix-s$seed"); done
+  if [[ ${#members[@]} == $(wc -w <<< "$3") && ! -d $folder ]]; then
+    OMP_NUM_THREADS=1 uavrl ensemble "${members[@]}" --out "$folder" --quiet
+  fi
+}

@@ -34,10 +34,7 @@ else
     for trio in "0 1 2" "3 4 5" "6 7 8"; do
       for seed in $trio; do one "best-s$seed" --preset best --seed "$seed" & done
       wait
-      members=()
-      for seed in $trio; do members+=("$OUT/best-s$seed"); done
-      folder=$OUT/best-e${trio// /}
-      [[ -d $folder ]] || OMP_NUM_THREADS=1 uavrl ensemble "${members[@]}" --out "$folder" --quiet
+      ensemble_of "$OUT/best-e${trio// /}" "$OUT/best" "$trio"
     done
   fi
 fi

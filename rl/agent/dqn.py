@@ -474,7 +474,7 @@ class DQNPolicy:
         revisit_penalty: float = 0.0,
         aux_weight: float = 0.0,
     ) -> None:
-        if aux_weight > 0 and getattr(net.nets[0] if isinstance(net, MeanQ) else net, "aux", None) is None:
+        if aux_weight > 0 and getattr(net, "aux", None) is None:
             raise ValueError("aux_weight needs a network with a genie-move head (trained with aux_genie > 0)")
         self.net = net.fused() if isinstance(net, (QNetwork, MeanQ)) else net.eval()
         self.device = next(net.parameters()).device

@@ -26,7 +26,8 @@ import torch
 
 from uavplace.dataset.bundle import load_bundle
 from uavplace.rl.agent.checkpoint import load_tensors, save_tensors
-from uavplace.rl.agent.dqn import DQNConfig, DQNPolicy, make_network
+from uavplace.rl.agent.dqn import DQNConfig, DQNPolicy
+from uavplace.rl.agent.network import MeanQ
 from uavplace.rl.agent.train import (
     RUN_JSON,
     RunRecord,
@@ -106,8 +107,7 @@ def build_ensemble(
     check_members(members)
     first = members[0]
     config = first.config.model_copy(update={"ensemble": len(members)})
-    net = make_network(config, config.env_config().num_channels, config.env.window)
-    net.load_state_dict({f"nets.{i}.{k}": v for i, m in enumerate(members) for k, v in m.net.state_dict().items()})
+    net = MeanQ([m.net for m in members])  # the network `make_network(config)` builds, with the members' weights
     cities = plan_cities(
         [load_bundle(c, v, root=root) for c, v in first.run.datasets.items()],
         [load_bundle(c, v, root=root) for c, v in first.run.val_datasets.items()],

@@ -219,6 +219,8 @@ class MeanQ(nn.Module):
         if len({type(n) for n in nets}) != 1 or len({n.recurrent for n in nets}) != 1:
             raise ValueError("the networks of an ensemble must share one architecture")
         self.nets = nn.ModuleList(nets)
+        # The genie-move head, as a single network has it: None when the members were trained without one.
+        self.aux = self._mean_aux if nets[0].aux is not None else None
 
     @property
     def recurrent(self) -> bool:
@@ -242,10 +244,8 @@ class MeanQ(nn.Module):
         """The mean of the members' Q values ``[B, n_actions]``."""
         return torch.stack([net.head(part) for net, part in zip(self.nets, self._parts(z), strict=True)]).mean(0)
 
-    def aux(self, z: torch.Tensor) -> torch.Tensor:
+    def _mean_aux(self, z: torch.Tensor) -> torch.Tensor:
         """The mean of the members' genie-move logits (``DQNPolicy``'s ``aux_weight``)."""
-        if self.nets[0].aux is None:
-            raise TypeError("the ensemble's networks have no genie-move head (trained with aux_genie = 0)")
         return torch.stack([net.aux(part) for net, part in zip(self.nets, self._parts(z), strict=True)]).mean(0)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
