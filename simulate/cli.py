@@ -93,18 +93,44 @@ class Point(click.ParamType):
 @click.option("--no-diffraction", is_flag=True, help="Switch edge diffraction off (faster, more dead cells).")
 @click.option(
     "--gap-fill",
-    default="4,16",
+    default="none",
     show_default=True,
-    help="Coarser maps (cell x factor, same samples) whose cells fill Monte Carlo gaps of the grid; "
-    "'none' to keep gaps as unreached.",
+    help="Coarser maps (cell x factor, same samples, e.g. 4,16) traced as well, which the smooth and parent "
+    "methods take their levels from; 'none' for the geodesic method.",
 )
 @click.option(
     "--gap-fill-method",
-    type=click.Choice(["smooth", "parent"]),
-    default="smooth",
+    type=click.Choice(["geodesic", "smooth", "parent"]),
+    default="geodesic",
     show_default=True,
-    help="smooth: a gap takes the level of the coarse map and the variation of its nearest hit cells, never across "
-    "a building; parent: the coarse cell's mean, copied (the first version: 4 x 4 and 16 x 16 mosaics).",
+    help="How cells no ray hit are filled. geodesic: the exact straight path from the user through the walls it "
+    "crosses (simulate/transmission.py; none beyond --depth walls), then a walk of --gap-fill-reach metres from "
+    "the hit cells through open ground, losing --gap-fill-decay dB per metre; the rest stays unreached. The "
+    "earlier fills from --gap-fill's coarse maps, which leave the coarse cells' lattice in the maps: smooth (the "
+    "coarse level, the variation of the nearest hit cells) and parent (the coarse cell's mean, copied).",
+)
+@click.option(
+    "--gap-fill-reach",
+    "gap_fill_reach_m",
+    type=click.FloatRange(min=0, max=400),
+    default=16.0,
+    show_default=True,
+    help="geodesic: how far [m] from a hit cell the walk goes (0: direct paths only).",
+)
+@click.option(
+    "--gap-fill-decay",
+    "gap_fill_decay_db_per_m",
+    type=click.FloatRange(min=0, max=100),
+    default=1.0,
+    show_default=True,
+    help="geodesic: loss of the walk [dB per metre].",
+)
+@click.option(
+    "--trace-cache",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Keep each city's traced maps in this folder (CITY.npz, arrays only) and reuse them when the spec and the "
+    "ray-trace settings match: changing only --gap-fill-reach or --gap-fill-decay then re-fills without tracing.",
 )
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the city generator, the users and the ray sampler.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
@@ -128,6 +154,9 @@ def simulate(
     no_diffraction: bool,
     gap_fill: str,
     gap_fill_method: str,
+    gap_fill_reach_m: float,
+    gap_fill_decay_db_per_m: float,
+    trace_cache: Path | None,
     seed: int,
     quiet: bool,
 ) -> None:
@@ -167,6 +196,9 @@ def simulate(
         raise click.BadParameter(f"{gap_fill!r}: expected factors like 4,16, or none", param_hint="--gap-fill") from None
     if any(f < 2 for f in factors):
         raise click.BadParameter("factors must be >= 2", param_hint="--gap-fill")
+    if gap_fill_method != "geodesic" and not factors:
+        raise click.BadParameter(f"the {gap_fill_method} method takes its levels from coarse maps: add --gap-fill 4,16",
+                                 param_hint="--gap-fill")  # fmt: skip
     rt = RayTraceConfig(
         frequency_hz=frequency_hz,
         samples_per_tx=int(samples),
@@ -175,9 +207,11 @@ def simulate(
         seed=seed,
         gap_fill_factors=factors,
         gap_fill_method=gap_fill_method,
+        gap_fill_reach_m=gap_fill_reach_m,
+        gap_fill_decay_db_per_m=gap_fill_decay_db_per_m,
     )
     if len(specs) > 1 or ray_address is not None:
-        _simulate_corpus(specs, rt, out_root, ray_address, cpus_per_city, quiet)
+        _simulate_corpus(specs, rt, out_root, ray_address, cpus_per_city, quiet, trace_cache)
         return
     if is_done(specs[0], city_config(rt, specs[0]), out_root):
         stdout().print(f"{name}: already done with the same settings in {out_root / name}", highlight=False, soft_wrap=True)
@@ -193,7 +227,8 @@ def simulate(
                 if lines and done:
                     console.print(f"simulate {name}: {stage} {done}/{total}", highlight=False, markup=False)
 
-            folder, record = simulate_city(specs[0], rt, out_root, command=command_line(), on_progress=on_progress)
+            folder, record = simulate_city(specs[0], rt, out_root, command=command_line(), on_progress=on_progress,
+                                           trace_cache=trace_cache)  # fmt: skip
     except RuntimeError as err:  # Sionna RT missing or its child process failed
         fail(err)
     g = record["grid"]
@@ -201,14 +236,15 @@ def simulate(
         f"simulated {name}: {record['geometry']}, {len(record['users_m'])} users, "
         f"grid {g['num_x']} x {g['num_y']} at {g['spacing_m']:g} m and {g['altitude_m']:g} m, "
         f"{100 * record['unreached_cell_share']:.1f} % of user-cells unreached "
-        f"({100 * record['gap_filled_cell_share']:.1f} % Monte Carlo gaps filled), ray tracing {record['raytrace_seconds']:.1f} s "
+        f"({100 * record['gap_filled_cell_share']:.1f} % filled: no ray hit them), ray tracing {record['raytrace_seconds']:.1f} s "
         f"(wall {record['wall_seconds']:.1f} s) -> {folder}",
         highlight=False,
         soft_wrap=True,
     )
 
 
-def _simulate_corpus(specs, rt, out_root: Path, address: str | None, cpus_per_city: float, quiet: bool) -> None:  # noqa: ANN001
+def _simulate_corpus(specs, rt, out_root: Path, address: str | None, cpus_per_city: float, quiet: bool,  # noqa: ANN001
+                     trace_cache: Path | None = None) -> None:  # fmt: skip
     """Several cities as Ray tasks, one progress bar (a line per city when not on a terminal), resumable."""
     from uavplace.simulate.corpus import simulate_corpus
 
@@ -232,7 +268,7 @@ def _simulate_corpus(specs, rt, out_root: Path, address: str | None, cpus_per_ci
 
         try:
             done, skipped = simulate_corpus(specs, rt, out_root, command=command_line(), address=address,
-                                            cpus_per_city=cpus_per_city, on_city=on_city)  # fmt: skip
+                                            cpus_per_city=cpus_per_city, on_city=on_city, trace_cache=trace_cache)  # fmt: skip
         except RuntimeError as err:
             fail(err)
     out.print(

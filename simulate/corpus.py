@@ -50,10 +50,12 @@ def is_done(spec: SimulationSpec, config: RayTraceConfig, out_root: str | Path) 
     return same_spec and record.get("raytrace") == json.loads(json.dumps(asdict(config)))
 
 
-def _simulate_task(spec: SimulationSpec, config: RayTraceConfig, out_root: str, command: str) -> dict:
+def _simulate_task(
+    spec: SimulationSpec, config: RayTraceConfig, out_root: str, command: str, trace_cache: str | None = None
+) -> dict:
     """One city, in a Ray worker: the summary of its simulation.json, or the one-line error that stopped it."""
     try:
-        folder, record = simulate_city(spec, config, out_root, command=command)
+        folder, record = simulate_city(spec, config, out_root, command=command, trace_cache=trace_cache)
     except (InputError, RuntimeError, OSError) as err:
         return {"name": spec.name, "error": " ".join(str(err).split())}
     return {"name": spec.name, "folder": str(folder), "geometry": record["geometry"], "seconds": record["wall_seconds"]}
@@ -68,12 +70,14 @@ def simulate_corpus(
     address: str | None = None,
     cpus_per_city: float = 2.0,
     on_city: Callable[[dict, int, int], None] | None = None,
+    trace_cache: str | Path | None = None,
 ) -> tuple[list[dict], list[str]]:
     """Simulate every city not yet done, as Ray tasks; (summaries of the cities traced, names skipped).
 
     ``address``: a Ray cluster (``ray://host:10001`` or ``auto``); None starts a local Ray with this
     machine's CPUs. ``cpus_per_city``: CPUs a task reserves (the ray tracer uses them all).
-    ``on_city(summary, done, total)`` is called as each city finishes.
+    ``on_city(summary, done, total)`` is called as each city finishes. ``trace_cache``: as ``simulate_city``'s (a
+    folder the Ray workers can reach).
     """
     try:
         import ray
@@ -88,7 +92,8 @@ def simulate_corpus(
         ray.init(address=address, include_dashboard=False, log_to_driver=False, configure_logging=False)
     try:
         task = ray.remote(num_cpus=cpus_per_city, max_retries=0)(_simulate_task)
-        pending = [task.remote(s, city_config(config, s), str(Path(out_root).resolve()), command) for s in todo]
+        cache = None if trace_cache is None else str(Path(trace_cache).resolve())
+        pending = [task.remote(s, city_config(config, s), str(Path(out_root).resolve()), command, cache) for s in todo]
         done: list[dict] = []
         while pending:
             ready, pending = ray.wait(pending, num_returns=1)

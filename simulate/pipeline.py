@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+import os
 import tempfile
 import time
 from collections.abc import Callable
@@ -32,17 +33,20 @@ import shapely
 from uavplace.schemas import InputError
 from uavplace.schemas.base import uavplace_version
 from uavplace.schemas.files import atomic_directory, check_name, check_replaceable
+from uavplace.simulate.fidelity import lattice_boundary_shares, lattice_step_ratios
 from uavplace.simulate.insite import UNREACHED_POWER_DBM, ReceiverGrid, write_city, write_p2m, write_setup, write_txrx
 from uavplace.simulate.procedural import PRESETS, USER_HEIGHT_M, generate_city, sample_users
 from uavplace.simulate.raytrace import (
     RadioMapJob,
     RayTraceConfig,
+    check_fill,
     constant_patch_share,
+    direct_gains_isolated,
     fill,
     path_gain_maps_isolated,
     sionna_versions,
 )
-from uavplace.simulate.scene import Block, write_scene
+from uavplace.simulate.scene import CONCRETE, Block, write_scene
 from uavplace.simulate.styles import STYLE_SIZE_M, STYLES, styled_city
 
 USER_SET = (1, "User")
@@ -176,6 +180,12 @@ def load_geometry(
 
 #: How simulation.json describes each gap-fill method.
 GAP_FILL_TEXT = {
+    "geodesic": "a cell no ray hit takes the exact straight path from the user through the walls it crosses (ITU-R "
+    "P.2040-4 slab transmission of the wall material at each crossing's incidence, free space, the user antenna's "
+    "gain; none when it crosses more than max_depth walls), and a hit cell keeps at least that path's power; cells "
+    "within {reach:g} m of a hit cell, walking through cells without a building at or above the plane, take the "
+    "geometric mean of their known 4-neighbours' gain relative to free space, front by front, less {decay:g} dB per "
+    "metre walked; no coarse maps",
     "smooth": "a cell no ray hit, whose parent in the maps of {factors} x coarser cells got rays, takes the geometric "
     "mean of its known 4-neighbours' gain relative to free space, spread outward from the hit cells through cells "
     "without a building at or above the plane; then each parent's gaps are scaled to the parent's mean gain",
@@ -248,6 +258,57 @@ def place_users(blocks: list[Block], grid: ReceiverGrid, spec: SimulationSpec) -
     return users + [x0, y0, 0.0]
 
 
+def direct_maps(job: RadioMapJob, config: RayTraceConfig, on_batch: Callable[[int, int], None] | None = None) -> dict:
+    """What ``fill``'s ``geodesic`` method adds to the radio maps of ``job``: the exact straight paths through the
+    buildings' walls (``raytrace.direct_gains``, in a child process), ``{"direct": [U, ny, nx], "crossings": ...}``."""
+    return direct_gains_isolated(job, config, CONCRETE.at(config.frequency_hz), on_batch=on_batch)
+
+
+def map_quality(gain: np.ndarray, open_cells: np.ndarray) -> dict[str, float]:
+    """The reference-free measures of ``simulate.fidelity`` on path gain maps [U, ny, nx]: the share of the dead/live
+    boundaries on the 16 m and 64 m lattice lines, the step ratios across them, and the constant 4 x 4 patch share."""
+    live = gain > 0
+    shares = lattice_boundary_shares(live, open_cells)
+    with np.errstate(divide="ignore"):
+        steps = lattice_step_ratios(np.where(live, 10 * np.log10(np.where(live, gain, 1.0)), 0.0), live, open_cells)
+    out = {
+        "dead_live_boundaries_on_64m_lines": shares["64 m"],
+        "dead_live_boundaries_on_16m_lines": shares["16 m"],
+        "step_ratio_across_64m_lines": steps["64 m"],
+        "step_ratio_across_16m_lines": steps["16 m"],
+        "constant_4x4_patch_share": constant_patch_share(gain, live & open_cells),
+    }
+    return {k: (None if np.isnan(v) else v) for k, v in out.items()}  # None (JSON null) where undefined: no boundary
+
+
+#: Settings that only change how the traced maps are filled: a trace cache entry serves any of their values.
+FILL_ONLY = ("gap_fill_reach_m", "gap_fill_decay_db_per_m")
+
+
+def _trace_key(spec: SimulationSpec, config: RayTraceConfig) -> str:
+    """What a city's traced maps depend on: its spec and the ray-trace settings, less ``FILL_ONLY``."""
+    settings = {k: v for k, v in asdict(config).items() if k not in FILL_ONLY}
+    return json.dumps({"spec": asdict(spec), "raytrace": settings, "uavplace": uavplace_version()}, sort_keys=True)
+
+
+def _cached_traces(cache: Path | None, spec: SimulationSpec, config: RayTraceConfig, trace) -> tuple[dict, bool]:  # noqa: ANN001
+    """``trace()``'s maps, or those kept in ``cache/<name>.npz`` under the same ``_trace_key`` (arrays only, no
+    pickle); (maps, whether they came from the cache). A new trace is kept there, written atomically."""
+    key = _trace_key(spec, config)
+    path = None if cache is None else Path(cache) / f"{spec.name}.npz"
+    if path is not None and path.is_file():
+        with np.load(path, allow_pickle=False) as z:
+            if "key" in z.files and str(z["key"]) == key:
+                return {(int(k[1:]) if k[0] == "f" and k[1:].isdigit() else k): z[k] for k in z.files if k != "key"}, True
+    maps = trace()
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + ".tmp.npz")
+        np.savez_compressed(tmp, key=np.array(key), **{(f"f{k}" if isinstance(k, int) else k): v for k, v in maps.items()})
+        os.replace(tmp, path)
+    return maps, False
+
+
 def simulate_city(
     spec: SimulationSpec,
     rt_config: RayTraceConfig,
@@ -255,14 +316,23 @@ def simulate_city(
     *,
     command: str = "",
     on_progress: Callable[[str, int, int], None] | None = None,
+    trace_cache: str | Path | None = None,
 ) -> tuple[Path, dict]:
-    """Simulate one city into ``out_root/<name>/``; returns (folder, the simulation.json record)."""
+    """Simulate one city into ``out_root/<name>/``; returns (folder, the simulation.json record).
+
+    ``trace_cache``: a folder where the traced maps are kept (``<name>.npz``) and reused when the spec and the
+    ray-trace settings are the same, so that changing only the fill's reach or decay needs no new trace.
+    """
 
     def progress(stage: str, done: int, total: int) -> None:
         if on_progress is not None:
             on_progress(stage, done, total)
 
     check_name(spec.name, "city name")
+    try:
+        check_fill(rt_config)
+    except ValueError as err:
+        raise InputError(spec.source, str(err), field="gap_fill_method") from None
     check_replaceable(Path(out_root) / spec.name, PROVENANCE, "simulated city")  # before minutes of ray tracing
     t_start = time.perf_counter()
     blocks, bounds, described = load_geometry(spec.source, spec.seed, spec.crop_m)
@@ -276,13 +346,23 @@ def simulate_city(
         xml, materials = write_scene(
             tmp, blocks, (corner[0], corner[1], corner[0] + size[0], corner[1] + size[1]), rt_config.frequency_hz
         )
-        t_rt = time.perf_counter()
         job = RadioMapJob(str(xml), tuple(map(tuple, users.tolist())), center, size, spec.grid_m)
-        maps = path_gain_maps_isolated(job, rt_config, on_batch=lambda d, t: progress("ray tracing", d, t))
-        rt_seconds = time.perf_counter() - t_rt
+        seconds = {"raytrace": 0.0, "direct": 0.0}
+
+        def trace() -> dict:
+            t = time.perf_counter()
+            maps: dict = path_gain_maps_isolated(job, rt_config, on_batch=lambda d, n: progress("ray tracing", d, n))
+            seconds["raytrace"] = time.perf_counter() - t
+            if rt_config.gap_fill_method == "geodesic":
+                t = time.perf_counter()
+                maps |= direct_maps(job, rt_config, on_batch=lambda d, n: progress("direct paths", d, n))
+                seconds["direct"] = time.perf_counter() - t
+            return maps
+
+        maps, from_cache = _cached_traces(Path(trace_cache) if trace_cache else None, spec, rt_config, trace)
     pos = grid.points()  # [ny * nx, 3], x fastest: the same order as gain[u].ravel()
     opened = open_cells(blocks, grid)
-    gain, filled = fill(maps, rt_config, opened, squared_distances(users, grid))
+    gain, filled = fill(maps, rt_config, opened, squared_distances(users, grid), cell_m=grid.spacing_m)
     with atomic_directory(Path(out_root) / spec.name, marker=PROVENANCE, what="simulated city") as out:
         write_txrx(out / f"{spec.name}.txrx", users, grid, tx_power_dbm=spec.tx_dbm, user_set=USER_SET, grid_set=GRID_SET)
         write_setup(out / f"{spec.name}.setup", spec.name, frequency_hz=rt_config.frequency_hz, features=[f"{spec.name}.city"])
@@ -296,6 +376,7 @@ def simulate_city(
                       distance_m=dist, values=power, gz=True)  # fmt: skip
             progress("writing", u + 1, len(users))
         reached = gain > 0
+        quality = map_quality(gain, opened)
         record = {
             "tool": "uavdata simulate",
             "created_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
@@ -325,12 +406,18 @@ def simulate_city(
                 "hit_by_rays": int((reached & ~filled).sum()),
                 "monte_carlo_gaps_filled": int(filled.sum()),
                 "unreached": int((~reached).sum()),
-                "gap_fill": GAP_FILL_TEXT[rt_config.gap_fill_method].format(factors=rt_config.gap_fill_factors),
-                "constant_4x4_patch_share": constant_patch_share(gain, (gain > 0) & opened),
+                "gap_fill": GAP_FILL_TEXT[rt_config.gap_fill_method].format(
+                    factors=rt_config.gap_fill_factors,
+                    reach=rt_config.gap_fill_reach_m,
+                    decay=rt_config.gap_fill_decay_db_per_m,
+                ),
+                **quality,
             },
             "unreached_cell_share": float(1 - reached.mean()),
             "gap_filled_cell_share": float(filled.mean()),
-            "raytrace_seconds": round(rt_seconds, 2),
+            "raytrace_seconds": round(seconds["raytrace"], 2),
+            "direct_path_seconds": round(seconds["direct"], 2),
+            "traces_from_cache": from_cache,
             "wall_seconds": round(time.perf_counter() - t_start, 2),
         }
         (out / PROVENANCE).write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")

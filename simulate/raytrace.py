@@ -35,13 +35,19 @@ class RayTraceConfig:
     seed: int = 0
     antenna: str = "hw_dipole"  # vertical half-wave dipole at the users; Sionna's radio map takes an isotropic receiver
     users_per_call: int = 8
-    #: Coarser maps traced as well (cell size x factor, so factor**2 more rays per cell) to fill Monte
-    #: Carlo gaps; () for none. Each costs about one more solver call (measured: fewer samples for the
-    #: coarse maps saved only ~20 % of the time and left 1.7 x more cells unreached).
-    gap_fill_factors: tuple[int, ...] = (4, 16)
-    #: How a cell no ray hit is filled when a coarser map got rays there: "smooth" (the coarse level with the
+    #: Coarser maps traced as well (cell size x factor, so factor**2 more rays per cell), which the ``smooth`` and
+    #: ``parent`` fills take their levels from; () for none (``geodesic`` needs none). Each costs about one more
+    #: solver call (measured: fewer samples for the coarse maps saved only ~20 % of the time and left 1.7 x more
+    #: cells unreached).
+    gap_fill_factors: tuple[int, ...] = ()
+    #: What the radio map misses: "geodesic" (``fill_geodesic``: the exact straight path through the walls,
+    #: ``simulate.transmission``, and a short walk from the hit cells), or the earlier fills from the coarse maps: "smooth" (the coarse level with the
     #: variation of the nearest hit cells, see ``fill_smooth``) or "parent" (the coarse cell's mean, copied: a mosaic).
-    gap_fill_method: str = "smooth"
+    gap_fill_method: str = "geodesic"
+    #: ``geodesic``: how far from a hit cell [m] a cell no ray hit is walked to, and the decay on the way [dB/m]
+    #: (chosen on the validation cities' exact paths, ``benchmarks/bench_fidelity.py``); reach 0: direct paths only.
+    gap_fill_reach_m: float = 16.0
+    gap_fill_decay_db_per_m: float = 1.0
 
 
 def _expand(coarse: np.ndarray, factor: int, shape: tuple[int, int]) -> np.ndarray:
@@ -151,28 +157,83 @@ def _shifted(a: np.ndarray, step: int, axis: int) -> np.ndarray:
     return out
 
 
-#: Gap fills: ``smooth`` (``fill_smooth``, the default) and ``parent`` (``fill_gaps``: the coarse cell copied).
-FILL_METHODS = ("smooth", "parent")
+#: What the radio map misses: ``geodesic`` (the default, ``fill_geodesic``: exact straight paths through the walls and a
+#: short walk from the hit cells), ``smooth`` (``fill_smooth``) and ``parent`` (``fill_gaps``: the coarse cell copied).
+FILL_METHODS = ("geodesic", "smooth", "parent")
+
+
+def fill_geodesic(
+    fine: np.ndarray,
+    direct: np.ndarray,
+    open_cells: np.ndarray,
+    d2: np.ndarray,
+    *,
+    reach_m: float,
+    decay_db_per_m: float,
+    cell_m: float,
+) -> np.ndarray:
+    """Complete the radio map ``fine`` [U, ny, nx] without coarse maps, so without their lattice.
+
+    1. A cell no ray hit takes the exact straight path through the walls, ``direct`` [U, ny, nx] (0 where
+       there is none); a hit cell keeps at least its power (the sum of all paths is never below one of them).
+    2. The radio map samples diffraction only at edges the user sees, so the paths that reflect and then
+       diffract into a side street reach few cells. Cells within ``reach_m`` of a hit cell, walking through
+       ``open_cells`` [ny, nx] (no building at or above the plane: never from the lit side of a wall), take the
+       geometric mean of their already known 4-neighbours' gain relative to free space (gain x ``d2``, the
+       squared user-to-cell distance), front by front outward from the hit cells, less ``decay_db_per_m`` for each
+       metre walked. Beyond that, cells stay unreached, as InSite leaves them.
+    """
+    known = fine > 0
+    value = np.where(known, np.log(np.where(known, fine * d2, 1.0)), 0.0)  # log of the gain relative to free space
+    spread = np.broadcast_to(open_cells, fine.shape)
+    step_ln = decay_db_per_m * cell_m * np.log(10) / 10
+    for _ in range(int(reach_m // cell_m + 1e-9)):
+        src = known & spread
+        total = np.zeros_like(value)
+        count = np.zeros(fine.shape, np.int32)
+        for axis, step in ((-1, 1), (-1, -1), (-2, 1), (-2, -1)):
+            total += _shifted(np.where(src, value, 0.0), step, axis)
+            count += _shifted(src.astype(np.int32), step, axis)
+        new = spread & ~known & (count > 0)
+        if not new.any():
+            break
+        value[new] = total[new] / count[new] - step_ln
+        known |= new
+    walked = np.where(known & ~(fine > 0), np.exp(value) / d2, 0.0)
+    return np.maximum(np.where(fine > 0, fine, walked), direct)
+
+
+def check_fill(config: RayTraceConfig) -> None:
+    """A ``ValueError`` when the fill method and the coarse maps do not go together."""
+    if config.gap_fill_method not in FILL_METHODS:
+        raise ValueError(f"unknown gap fill method {config.gap_fill_method!r} ({', '.join(FILL_METHODS)})")
+    if config.gap_fill_method != "geodesic" and not config.gap_fill_factors:
+        raise ValueError(f"the {config.gap_fill_method!r} fill takes its levels from coarse maps: give --gap-fill, e.g. 4,16")
 
 
 def fill(
-    maps: dict[int, np.ndarray], config: RayTraceConfig, open_cells: np.ndarray, d2: np.ndarray
+    maps: dict[int | str, np.ndarray], config: RayTraceConfig, open_cells: np.ndarray, d2: np.ndarray, cell_m: float = 4.0
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The raw maps of ``path_gain_maps`` (by cell factor) filled by ``config.gap_fill_method``: (gain, filled mask).
+    """The raw maps of ``path_gain_maps`` (by cell factor) completed by ``config.gap_fill_method``: (gain, mask of the
+    cells that no ray hit but the method made live).
 
-    ``open_cells`` [ny, nx]: no building at or above the plane; ``d2`` [U, ny, nx]: squared user-to-cell distances [m^2].
+    ``geodesic`` also takes ``maps["direct"]`` [U, ny, nx] (``direct_gains``) and the cell size ``cell_m``. ``open_cells`` [ny, nx]: no building at or above the plane; ``d2`` [U, ny, nx]:
+    squared user-to-cell distances [m^2].
     """
+    check_fill(config)
     fine = maps[1]
+    if config.gap_fill_method == "geodesic":
+        gain = fill_geodesic(fine, maps["direct"], open_cells, d2, reach_m=config.gap_fill_reach_m,
+                             decay_db_per_m=config.gap_fill_decay_db_per_m, cell_m=cell_m)  # fmt: skip
+        return gain, (fine == 0) & (gain > 0)
     factors = tuple(config.gap_fill_factors)
     coarse = [maps[f] for f in factors]
     if config.gap_fill_method == "smooth":
         gain = fill_smooth(fine, coarse, factors, open_cells, d2)
-    elif config.gap_fill_method == "parent":
+    else:
         gain = fine
         for f, c in zip(factors, coarse, strict=True):
             gain = fill_gaps(gain, c, f)
-    else:
-        raise ValueError(f"unknown gap fill method {config.gap_fill_method!r} (smooth or parent)")
     return gain, (fine == 0) & (gain > 0)
 
 
@@ -332,6 +393,33 @@ def point_path_gains(
     return out
 
 
+def direct_gains(
+    job: RadioMapJob, config: RayTraceConfig, material: dict, on_batch: Callable[[int, int], None] | None = None
+) -> dict[str, np.ndarray]:
+    """The exact straight path through the walls from each user to each cell of the job's grid
+    (``simulate.transmission``; ``material``: the buildings' radio material as ``Material.at`` gives it):
+    ``{"direct": gain [U, ny, nx], "crossings": walls crossed [U, ny, nx]}`` (``max_depth + 1`` where too many)."""
+    from uavplace.simulate.transmission import complex_permittivity, direct_path_gains
+
+    mi, _, scene = _scene(job, config)
+    nx, ny = (round(s / job.cell_m) for s in job.size_m)
+    corner = (job.center_m[0] - job.size_m[0] / 2, job.center_m[1] - job.size_m[1] / 2)
+    ix, iy = np.meshgrid(np.arange(nx), np.arange(ny))
+    cells = np.c_[corner[0] + (ix.ravel() + 0.5) * job.cell_m, corner[1] + (iy.ravel() + 0.5) * job.cell_m,
+                  np.full(ix.size, job.center_m[2])]  # fmt: skip
+    eta = complex_permittivity(material["relative_permittivity"], material["conductivity_s_m"], config.frequency_hz)
+    gains, crossings = [], []
+    users = np.asarray(job.users_m, float)
+    for u, user in enumerate(users):
+        g, n = direct_path_gains(mi, scene.mi_scene, user, cells, eta, material["thickness_m"], 3e8 / config.frequency_hz,
+                                 pattern=config.antenna, max_crossings=config.max_depth)  # fmt: skip
+        gains.append(g.reshape(ny, nx))
+        crossings.append(n.reshape(ny, nx))
+        if on_batch is not None:
+            on_batch(u + 1, len(users))
+    return {"direct": np.stack(gains), "crossings": np.stack(crossings)}
+
+
 def _isolated(kind: str, payload: dict, on_batch: Callable[[int, int], None] | None) -> dict[str, np.ndarray]:
     """Run ``kind`` (``maps`` or ``points``) in a child Python process; its arrays by name.
 
@@ -384,6 +472,13 @@ def point_path_gains_isolated(
     return _isolated("points", payload, on_batch)["gain"]
 
 
+def direct_gains_isolated(
+    job: RadioMapJob, config: RayTraceConfig, material: dict, on_batch: Callable[[int, int], None] | None = None
+) -> dict[str, np.ndarray]:
+    """``direct_gains`` in a child Python process (see ``_isolated``)."""
+    return _isolated("direct", {"job": asdict(job), "config": asdict(config), "material": material}, on_batch)
+
+
 def _child(job_path: str) -> None:
     doc = json.loads(Path(job_path).read_text())
     j = doc["job"]
@@ -396,6 +491,8 @@ def _child(job_path: str) -> None:
     if doc["kind"] == "maps":
         maps = path_gain_maps(job, config, on_batch=report, edge_diffraction=doc.get("edge_diffraction", False))
         arrays = {f"f{k}": v for k, v in maps.items()}
+    elif doc["kind"] == "direct":
+        arrays = direct_gains(job, config, doc["material"], on_batch=report)
     else:
         arrays = {"gain": point_path_gains(job, np.asarray(doc["points_m"]), config, on_batch=report)}
     tmp = Path(doc["result"]).with_suffix(".tmp.npz")

@@ -150,6 +150,61 @@ def test_bad_simulation_inputs(tmp_path):
     assert not (tmp_path / "t").exists()
     res = CliRunner().invoke(uavdata, ["simulate", "procedural:tiny", "--name", "t", "--out", str(tmp_path), "--gap-fill", "1"])
     assert res.exit_code == 2 and "factors must be >= 2" in res.output
+    res = CliRunner().invoke(
+        uavdata, ["simulate", "procedural:tiny", "--name", "t", "--out", str(tmp_path), "--gap-fill-method", "smooth"]
+    )
+    assert res.exit_code == 2 and "takes its levels from coarse maps: add --gap-fill 4,16" in res.output
+    assert not (tmp_path / "t").exists()
+
+
+def test_slab_transmission_has_p2040s_known_values():
+    """ITU-R P.2040's single-layer slab: transparent when thin or matched, and at half a wavelength inside (a
+    resonance); ((1 - r^2) / (1 + r^2))^2 at a quarter wavelength, r = (1 - n) / (1 + n); lossy slabs attenuate."""
+    from uavplace.simulate.transmission import slab_transmission
+
+    cos = np.array([1.0, 0.7, 0.2])
+    for eta, thickness in ((4.0, 0.0), (1.0, 0.3)):
+        te, tm = slab_transmission(cos, eta, thickness, 0.375)
+        np.testing.assert_allclose([te, tm], 1.0, atol=1e-12)
+    n, lam = 2.0, 0.375
+    te, tm = slab_transmission(np.array([1.0]), n**2, lam / (2 * n), lam)
+    np.testing.assert_allclose([te, tm], 1.0, atol=1e-12)
+    r = (1 - n) / (1 + n)
+    te, tm = slab_transmission(np.array([1.0]), n**2, lam / (4 * n), lam)
+    np.testing.assert_allclose([te, tm], ((1 - r**2) / (1 + r**2)) ** 2, rtol=1e-12)
+    te, _ = slab_transmission(np.array([1.0, 0.1]), complex(5.24, -0.9), 0.2, lam)
+    assert 0 < te[1] < te[0] < 1  # grazing costs more than normal incidence
+
+
+def test_lattice_measures_see_a_mosaic_and_not_a_city():
+    """Dead regions made of 64 m blocks put every boundary on the 64 m lines; a disc of dead cells about 1 in 16 and
+    1 in 4 (16 m lines). Levels constant per 16 m block step only across the 16 m lines; a smooth ramp steps evenly."""
+    from uavplace.simulate.fidelity import lattice_boundary_shares, lattice_step_ratios
+
+    opened = np.ones((96, 96), bool)
+    blocks = np.zeros((96, 96), bool)
+    blocks[16:48, 32:80] = True  # whole 64 m blocks (16 cells of 4 m)
+    shares = lattice_boundary_shares(~blocks[None], opened)
+    assert shares == {"16 m": 1.0, "64 m": 1.0}
+    yy, xx = np.mgrid[:96, :96]
+    disc = np.hypot(yy - 47.3, xx - 50.1) < 30.7
+    shares = lattice_boundary_shares(~disc[None], opened)
+    assert shares["64 m"] < 0.12 and 0.15 < shares["16 m"] < 0.35
+    ramp = (0.1 * xx + 0.07 * yy)[None]
+    steps = lattice_step_ratios(ramp, np.ones_like(ramp, bool), opened)
+    assert steps["16 m"] == pytest.approx(1.0, abs=0.02) and steps["64 m"] == pytest.approx(1.0, abs=0.02)
+    mosaic = ramp + 5.0 * np.random.default_rng(0).random((24, 24)).repeat(4, 0).repeat(4, 1)[None]
+    steps = lattice_step_ratios(mosaic, np.ones_like(mosaic, bool), opened)
+    assert steps["16 m"] > 3 and steps["64 m"] > 3
+
+
+def test_error_quantiles_count_a_dead_estimate_of_a_live_pair_as_infinite():
+    from uavplace.simulate.fidelity import error_quantiles
+
+    ref = np.array([1e-9, 1e-9, 1e-9, 0.0])
+    est = np.array([1e-9, 2e-9, 0.0, 1e-9])
+    q = error_quantiles(est, ref, np.ones(4, bool))
+    assert q["pairs"] == 3 and q["median_db"] == pytest.approx(10 * np.log10(2)) and q["p90_db"] == np.inf
 
 
 def _simulate(tmp_path, *args: str, quiet: bool = True) -> subprocess.CompletedProcess:
@@ -210,10 +265,35 @@ def test_exact_paths_behind_a_knife_edge_follow_itu_r_p526(tmp_path):
 
 
 @needs_sionna
+def test_direct_paths_through_walls_equal_the_exact_paths(tmp_path):
+    """``direct_gains`` (Mitsuba crossings, P.2040 slabs) against Sionna's PathSolver in a scene where the straight
+    path through a 20 m box is the only one (two refractions, no diffraction, depth 2): within 0.2 dB. A cell behind
+    two boxes needs four crossings: none at depth 2, and the same path, 4 crossings, at depth 5."""
+    from uavplace.simulate.raytrace import RadioMapJob, RayTraceConfig, direct_gains_isolated, point_path_gains_isolated
+    from uavplace.simulate.scene import CONCRETE, Block, write_scene
+
+    blocks = [Block(shapely.box(-15, -15, 15, 15), 0.0, 20.0, 0), Block(shapely.box(45, -15, 75, 15), 0.0, 20.0, 1)]
+    xml, _ = write_scene(tmp_path, blocks, (-100, -100, 100, 100), 800e6)
+    job = RadioMapJob(str(xml), ((-40.0, 2.0, 1.5),), (0.0, 0.0, 10.0), (200.0, 200.0), 4.0)
+    cells = [(25, 30), (27, 33), (23, 35), (26, 48)]  # (iy, ix): behind the first box; the last behind both
+    pts = np.array([[-100 + (ix + 0.5) * 4, -100 + (iy + 0.5) * 4, 10.0] for iy, ix in cells])
+    config = RayTraceConfig(max_depth=2, diffraction=False, samples_per_tx=200_000, seed=1)
+    exact = point_path_gains_isolated(job, pts, config)[0]
+    out = direct_gains_isolated(job, config, CONCRETE.at(800e6))
+    got = np.array([out["direct"][0, iy, ix] for iy, ix in cells])
+    crossings = [out["crossings"][0, iy, ix] for iy, ix in cells]
+    assert crossings == [2, 2, 2, 3]  # the last: 4 crossings, more than depth 2
+    np.testing.assert_allclose(10 * np.log10(got[:3]), 10 * np.log10(exact[:3]), atol=0.2)
+    assert got[3] == 0 and exact[3] == 0
+    deep = direct_gains_isolated(job, RayTraceConfig(max_depth=5), CONCRETE.at(800e6))
+    assert deep["crossings"][0, 26, 48] == 4 and 0 < deep["direct"][0, 26, 48] < got[0]
+
+
+@needs_sionna
 def test_simulate_ingest_build_round_trip(tmp_path):
     """The tiny city through the real commands; the bundle's SINR equals the radio map's, computed here again."""
     from uavplace.simulate.insite import ReceiverGrid
-    from uavplace.simulate.pipeline import open_cells, squared_distances
+    from uavplace.simulate.pipeline import direct_maps, open_cells, squared_distances
     from uavplace.simulate.raytrace import RadioMapJob, RayTraceConfig, fill, path_gain_maps_isolated
     from uavplace.simulate.scene import write_scene
 
@@ -235,7 +315,8 @@ def test_simulate_ingest_build_round_trip(tmp_path):
     cfg = RayTraceConfig(samples_per_tx=200_000, seed=4)
     job = RadioMapJob(str(xml), tuple(map(tuple, users.tolist())), (48.0, 40.0, 10.0), (96.0, 80.0), 4.0)
     grid = ReceiverGrid(x0_m=2.0, y0_m=2.0, z_m=10.0, num_x=24, num_y=20, spacing_m=4.0)
-    gain, _ = fill(path_gain_maps_isolated(job, cfg), cfg, open_cells(blocks, grid), squared_distances(users, grid))
+    maps = path_gain_maps_isolated(job, cfg) | direct_maps(job, cfg)
+    gain, _ = fill(maps, cfg, open_cells(blocks, grid), squared_distances(users, grid))
     live = gain > 0
     expected = 20.0 + 10 * np.log10(np.where(live, gain, 1.0)) + 104.0
     cells = [(0, 3, 4), (1, 10, 12), (2, 17, 20), (0, 0, 0)]

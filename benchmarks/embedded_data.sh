@@ -1,0 +1,18 @@
+#!/usr/bin/env bash
+# Ray-trace every embedded city of data/raw/ (the README's data section), into OUT (default data/raw).
+# Resumable: a city whose simulation.json records the same settings is skipped, so run it again after a stop.
+# The traced maps are kept in runs/traces (TRACES): changing only the fill's reach or decay re-fills in seconds.
+# About 90 minutes on the 2-core machine alone (fine radio maps at 1.6e7 rays per user, then the direct paths).
+#
+#     bash benchmarks/embedded_data.sh [OUT]
+set -euo pipefail
+out=${1:-data/raw}
+traces=${TRACES:-runs/traces}
+common=(--samples 1.6e7 --out "$out" --trace-cache "$traces")
+uavdata simulate procedural:mixed --count 18 --name corpus --seed 100 --users 16 "${common[@]}"
+uavdata simulate procedural:oldtown --count 6 --name oldtown --seed 200 --users 16 "${common[@]}"
+uavdata simulate procedural:test --name test --users 25 --seed 2 "${common[@]}"
+uavdata simulate sionna:etoile --crop=-200,-200,200,200 --name etoile --users 25 --seed 4 "${common[@]}"
+uavdata simulate sionna:florence --crop=-200,-250,200,250 --name florence --users 25 --seed 5 "${common[@]}"
+uavdata simulate procedural:train --name train --users 27 --seed 1 "${common[@]}"
+uavdata simulate procedural:tiny --name tiny --users 4 --seed 3 --samples 2e6 --out "$out" --trace-cache "$traces"
