@@ -33,10 +33,18 @@ shaping from the genie's distance, times ``reward_scale``.
 ## Episode end
 ``terminated`` when SINR >= P_T; ``truncated`` after ``t_max`` moves.
 
+## Info
+``action_mask``, ``sinr_db`` (the SINR measured at the UAV's cell) and ``position``
+(the UAV's cell), and ``illegal`` after a step: what a UAV knows. With
+``evaluation_info=True`` also ``genie_steps`` (the fewest moves to a target) and
+``view`` (which user and symmetry the episode plays): both are read off the
+user's map, which a searching agent must not see. They are for an evaluator
+scoring episodes; a learner given them could home in on a user nobody located.
+
 ## Arguments
 ``dataset`` (a city name or list, or loaded ``MapSet``), ``config`` (``EnvConfig``
-or a dict of its fields), ``root`` (processed-data root), ``**overrides``
-(``EnvConfig`` fields, e.g. ``blind=True``).
+or a dict of its fields), ``root`` (processed-data root), ``evaluation_info``
+(see Info), ``**overrides`` (``EnvConfig`` fields, e.g. ``blind=True``).
 
 ## Version history
 - v0: first version.
@@ -60,6 +68,7 @@ class UavPlacementEnv(gym.Env):
         dataset: str | list[str] | MapSet,
         config: EnvConfig | dict | None = None,
         root: str = "data/processed",
+        evaluation_info: bool = False,
         **overrides: object,
     ) -> None:
         if isinstance(dataset, MapSet):
@@ -70,6 +79,7 @@ class UavPlacementEnv(gym.Env):
             base = config if isinstance(config, EnvConfig) else EnvConfig(**(config or {}))
             maps = MapSet.load(dataset, base.model_copy(update=overrides) if overrides else base, root=root)
         self.config = maps.config
+        self.evaluation_info = evaluation_info
         self._env = BatchedEnv(maps, 1, autoreset=False)
         c, w = self.config.num_channels, self.config.window
         low = min(self.config.p_l_db, -self.config.height_clip_m)
@@ -87,13 +97,9 @@ class UavPlacementEnv(gym.Env):
 
     def _info(self, extra: dict | None = None) -> dict:
         e = self._env
-        info = {
-            "action_mask": self.action_mask(),
-            "sinr_db": float(e.sinr_here()[0]),
-            "genie_steps": int(e.genie_steps()[0]),
-            "view": int(e.view[0]),
-            "position": e.pos[0].copy(),
-        }
+        info = {"action_mask": self.action_mask(), "sinr_db": float(e.sinr_here()[0]), "position": e.pos[0].copy()}
+        if self.evaluation_info:  # read off the user's map: never for the agent (see Info)
+            info |= {"genie_steps": int(e.genie_steps()[0]), "view": int(e.view[0])}
         return info | (extra or {})
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:

@@ -20,6 +20,7 @@ import numpy as np
 from uavplace.dataset.bundle import Bundle, load_bundle
 from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target, valid_starts
 from uavplace.rl.config import EnvConfig
+from uavplace.rl.randomness import stream_key
 from uavplace.schemas.files import in_corpus
 
 #: Moves of the 4 actions in canvas coordinates (dy, dx): 0 north (+y), 1 east (+x), 2 south (-y), 3 west (-x).
@@ -79,6 +80,10 @@ class MapSet:
             raise ValueError(f"no user of split {config.split!r} in bundles {[b.city for b in bundles]}")
         self.scenarios = scenarios
         S = self.symmetries = config.symmetries
+        #: [num_views] uint64: what identifies each view's map for per-episode draws (``rl.randomness``).
+        self.view_keys = np.array(
+            [stream_key(bundles[sc.bundle].version, sc.user, k) for sc in scenarios for k in range(S)], np.uint64
+        )
         nb, nv = len(bundles), S * len(scenarios)
         self.height = np.full((S * nb, L, L), config.edge_height_m, np.float32)
         self.blocked = np.ones((S * nb, L, L), bool)

@@ -4,7 +4,8 @@ Every policy, learned or not, has the same interface (the evaluator scores any o
 the same way): ``reset(rows)`` when episodes (re)start in those rows, and
 ``act(obs, mask, env) -> [N] actions``. Only the genie reads ``env``'s hidden state;
 the others use what an agent may know (the observation, the legal-move mask, their
-own past moves).
+own past moves). Their random choices are drawn per episode and step from a stream of
+their own name and seed (``episode_draws``), never from a generator shared across episodes.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from typing import Protocol
 import numpy as np
 
 from uavplace.rl.maps import MOVES
+from uavplace.rl.randomness import stream_key, uniforms
 from uavplace.rl.vec_env import BatchedEnv, decode_obs
 
 
@@ -27,8 +29,19 @@ class Policy(Protocol):
 
 def random_legal(mask: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """A uniformly random legal action per row of ``mask`` [N, 4] (a row with none gets 0)."""
-    u = rng.random(mask.shape) * mask
-    return np.argmax(u, axis=1)
+    return pick_legal(mask, rng.random(mask.shape))
+
+
+def pick_legal(mask: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """The legal action of largest uniform ``u`` [N, 4] per row of ``mask`` [N, 4]: uniformly random (a row with none
+    gets 0)."""
+    return np.argmax(u * mask, axis=1)
+
+
+def episode_draws(env: BatchedEnv, stream: np.uint64, count: int) -> np.ndarray:
+    """[N, count] uniforms for each row's current episode and step (``rl.randomness``): the same in whatever order or
+    batch the episodes are played."""
+    return uniforms(stream, env.episode_keys(), env.t, count)
 
 
 class GeniePolicy:
@@ -52,7 +65,7 @@ class RandomWalkPolicy:
     name = "steered random walk"
 
     def __init__(self, seed: int = 0, p_repeat: float = 0.4) -> None:
-        self.rng = np.random.default_rng(seed)
+        self.stream = stream_key(self.name, seed)
         self.p_repeat = p_repeat
         self.last = np.zeros(0, np.int64)
 
@@ -65,8 +78,9 @@ class RandomWalkPolicy:
         n = len(mask)
         if len(self.last) != n:
             self.reset(np.arange(n), n)
-        a = random_legal(mask, self.rng)
-        repeat = (self.last >= 0) & (self.rng.random(n) < self.p_repeat)
+        u = episode_draws(env, self.stream, 5)
+        a = pick_legal(mask, u[:, :4])
+        repeat = (self.last >= 0) & (u[:, 4] < self.p_repeat)
         repeat &= mask[np.arange(n), np.maximum(self.last, 0)]
         a = np.where(repeat, self.last, a)
         self.last = a
@@ -85,7 +99,7 @@ class GreedyPolicy:
     name = "greedy hill-climbing"
 
     def __init__(self, p_h_db: float, seed: int = 0) -> None:
-        self.rng = np.random.default_rng(seed)
+        self.stream = stream_key(self.name, seed)
         self.p_h_db = p_h_db
         self.last = np.zeros(0, np.int64)
         self.prev = np.zeros(0, np.float32)
@@ -109,8 +123,9 @@ class GreedyPolicy:
         rows = np.arange(n)
         improved = (self.last >= 0) & (here > self.prev)
         keep = improved & unvisited[rows, np.maximum(self.last, 0)]
-        explore = random_legal(unvisited, self.rng)
-        score = np.where(mask & ~unvisited, neigh, -np.inf) + self.rng.random((n, 4)) * 1e-3
+        u = episode_draws(env, self.stream, 8)
+        explore = pick_legal(unvisited, u[:, :4])
+        score = np.where(mask & ~unvisited, neigh, -np.inf) + u[:, 4:] * 1e-3
         best = np.argmax(score, axis=1)
         a = np.where(keep, self.last, np.where(unvisited.any(axis=1), explore, best))
         a = np.where(mask.any(axis=1), a, 0)

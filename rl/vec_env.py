@@ -29,6 +29,7 @@ import numpy as np
 
 from uavplace.rl.config import EnvConfig
 from uavplace.rl.maps import MOVES, MapSet
+from uavplace.rl.randomness import combine
 
 #: ``encode_obs``: uint8 = round(value) + OBS_OFFSET, clipped to [0, 255]: values -150 .. +105 (dB or m).
 OBS_OFFSET = 150
@@ -191,6 +192,11 @@ class BatchedEnv:
         ny, nx = self.neighbours()
         # Blocked and off-map cells hold UNREACHABLE, never below a reachable cell's distance: no legality mask needed.
         return self.maps.steps[self.view[:, None], ny, nx] < self.genie_steps()[:, None]
+
+    def episode_keys(self) -> np.ndarray:
+        """[N] uint64: each row's episode, as ``rl.randomness`` keys it: its map (bundle version, user, symmetry) and its
+        number in the evaluation's list (``episode_id``; in training, the count of episodes started)."""
+        return combine(self.maps.view_keys[self.view], self.episode_id)
 
     def info(self) -> dict:
         return {"action_mask": self.action_mask(), "episode_id": self.episode_id.copy(), "view": self.view.copy()}

@@ -58,6 +58,10 @@ def test_check_env_and_registration(root):
         assert env.observation_space.shape == (channels, 61, 61)
         obs, info = env.reset(seed=1)
         assert obs.shape == (channels, 61, 61) and info["action_mask"].shape == (4,)
+        assert set(info) == {"action_mask", "sinr_db", "position"}  # nothing read off the user's map
+        assert set(env.step(0)[4]) == {"action_mask", "sinr_db", "position", "illegal"}
+    scored = gym.make("uavplace/UavPlacement-v0", dataset="tiny", root=str(root), evaluation_info=True)
+    assert {"genie_steps", "view"} <= set(scored.reset(seed=1)[1])
 
 
 def test_visit_counts_and_revisit_cost(root):
@@ -351,8 +355,8 @@ def test_blind_variant(root):
 
 
 def test_seeding_gives_the_same_episodes(root):
-    a = UavPlacementEnv("tiny", root=str(root), rotate=True)
-    b = UavPlacementEnv("tiny", root=str(root), rotate=True)
+    a = UavPlacementEnv("tiny", root=str(root), rotate=True, evaluation_info=True)
+    b = UavPlacementEnv("tiny", root=str(root), rotate=True, evaluation_info=True)
     for seed in (0, 5):
         oa, ia = a.reset(seed=seed)
         ob, ib = b.reset(seed=seed)
@@ -460,3 +464,39 @@ def test_starts_must_reach_a_target():
     d = difficulty(blocked, dead, sinr, 5.0)
     assert d["num_starts"] == legal_below - 9 and d["excluded_start_share"] == pytest.approx(9 / legal_below)
     assert np.isfinite(d["bfs_median_steps"])
+
+
+def test_an_episode_plays_the_same_whatever_else_is_played(maps):
+    """Random choices are drawn per episode and step (rl.randomness): the same episodes give the same moves at any batch
+    size, after other episodes played by the same policy object, and (a network's) at 1 or 2 torch threads."""
+    import torch
+
+    from uavplace.rl.agent.dqn import DQNPolicy
+    from uavplace.rl.agent.network import FoveaQNetwork
+
+    eps = maps.sample_episodes(60, np.random.default_rng(3))
+    other = maps.sample_episodes(40, np.random.default_rng(4))
+    torch.manual_seed(0)
+    net = FoveaQNetwork(maps.config.num_channels, maps.config.window, hidden=8, fovea=7, recurrent=True)
+    makers = {
+        "walk": lambda: RandomWalkPolicy(seed=1),
+        "greedy": lambda: GreedyPolicy(maps.config.p_h_db, seed=1),
+        "dqn": lambda: DQNPolicy(net, epsilon=0.3, seed=1),
+    }
+    threads = torch.get_num_threads()
+    try:
+        for name, make in makers.items():
+            alone = run_episodes(maps, make(), eps, num_envs=7)
+            policy = make()
+            run_episodes(maps, policy, other, num_envs=32)
+            after = run_episodes(maps, policy, eps, num_envs=32)
+            torch.set_num_threads(1 if threads > 1 else 2)
+            other_threads = run_episodes(maps, make(), eps, num_envs=13)
+            torch.set_num_threads(threads)
+            for df in (after, other_threads):
+                assert df.steps.tolist() == alone.steps.tolist(), name
+                assert df.success.tolist() == alone.success.tolist() and np.allclose(df.return_, alone.return_), name
+    finally:
+        torch.set_num_threads(threads)
+    other_seed = run_episodes(maps, RandomWalkPolicy(seed=2), eps, num_envs=7)
+    assert other_seed.steps.tolist() != run_episodes(maps, RandomWalkPolicy(seed=1), eps, num_envs=7).steps.tolist()

@@ -26,7 +26,8 @@ from torch import nn
 from uavplace.rl.agent.network import FoveaQNetwork, MeanQ, QNetwork
 from uavplace.rl.agent.replay import Batch
 from uavplace.rl.config import EnvConfig
-from uavplace.rl.policies import random_legal
+from uavplace.rl.policies import episode_draws, pick_legal, random_legal
+from uavplace.rl.randomness import stream_key
 from uavplace.rl.vec_env import OBS_OFFSET, BatchedEnv
 from uavplace.schemas import InputError
 from uavplace.schemas.base import Contract, validation_message
@@ -481,7 +482,7 @@ class DQNPolicy:
         self.epsilon = epsilon
         self.revisit_penalty = revisit_penalty
         self.aux_weight = aux_weight
-        self.rng = np.random.default_rng(seed)
+        self.stream = stream_key(name, seed)  # the test-epsilon moves: drawn per episode and step (rl.randomness)
         self.name = name
         self.recurrent = getattr(net, "recurrent", False)
         self.hidden: torch.Tensor | None = None  # [num_envs, hidden]: a recurrent network's state in each row
@@ -529,4 +530,5 @@ class DQNPolicy:
                 if penalty is not None:
                     q = q - penalty[rows]
                 greedy[rows] = masked_argmax(q, legal).cpu().numpy()
-        return np.where(self.rng.random(len(mask)) < self.epsilon, random_legal(mask, self.rng), greedy)
+        u = episode_draws(env, self.stream, 5)
+        return np.where(u[:, 0] < self.epsilon, pick_legal(mask, u[:, 1:]), greedy)

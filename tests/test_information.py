@@ -1,0 +1,91 @@
+"""What the agents may know: nothing of the user's map beyond the cells they measured.
+
+Each shipped agent plays episodes of the embedded tiny city; then, episode by episode, the user's
+SINR, dead-cell mask and the genie's distances are scrambled on every cell the agent never
+visited, and the episode is replayed with the same draws. An agent that reads only its own
+measurements moves exactly as before; the genie, which reads the whole map, must change somewhere
+(so that the test can fail).
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+from tests.conftest import REPO
+from uavplace.dataset.build import build_city
+from uavplace.eval.report import default_agents, load_agent
+from uavplace.ingest.pipeline import ingest_city
+from uavplace.rl.maps import MapSet
+from uavplace.rl.policies import GeniePolicy
+from uavplace.rl.rollout import run_episodes
+from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM, BuildConfig
+
+EPISODES = 12
+T_MAX = 60
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    root = tmp_path_factory.mktemp("info")
+    ingest_city(REPO / "data" / "raw" / "tiny", root)
+    build_city("tiny", BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=EMBEDDED_NOISE_DBM), root)
+    return root
+
+
+def _scrambled(maps: MapSet, view: int, keep: np.ndarray, rng: np.random.Generator) -> MapSet:
+    """A copy of ``maps`` whose ``view`` holds random SINR, dead cells and genie distances outside ``keep`` [L, L]."""
+    out = copy.copy(maps)
+    out.sinr, out.dead, out.steps = maps.sinr.copy(), maps.dead.copy(), maps.steps.copy()
+    hidden = ~keep
+    out.sinr[view][hidden] = rng.uniform(-40, 40, hidden.sum()).astype(out.sinr.dtype)
+    out.dead[view][hidden] = rng.random(hidden.sum()) < 0.3
+    out.steps[view][hidden] = rng.integers(0, 50, hidden.sum())
+    return out
+
+
+def _replay(maps: MapSet, policy, episodes: np.ndarray, rng: np.random.Generator):  # noqa: ANN001, ANN202
+    """(moves played, moves on the scrambled maps) per episode: each episode replayed alone, same number, same draws."""
+    first = run_episodes(maps, policy, episodes, num_envs=4, record=np.arange(len(episodes)))
+    same, changed = [], []
+    for k in range(len(episodes)):
+        path = first.attrs["paths"][k]
+        view = int(episodes[k, 0])
+        keep = np.zeros(maps.sinr.shape[1:], bool)
+        canvas_y, canvas_x = _to_canvas(maps, view, path)
+        keep[canvas_y, canvas_x] = True
+        other = _scrambled(maps, view, keep, rng)
+        # Episode k again, as number k of the same list (the draws are keyed by the episode's number).
+        again = run_episodes(other, policy, episodes, num_envs=4, record=np.array([k]))
+        same.append(np.array_equal(again.attrs["paths"][k], path))
+        changed.append(int(again.steps[k]) != int(first.steps[k]) or not same[-1])
+    return same, changed
+
+
+def _to_canvas(maps: MapSet, view: int, path: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bundle cells ``path`` [T, 2] as cells of the view's padded canvas (the inverse of ``MapSet.unrotate``)."""
+    views = np.full(maps.sinr.shape[1] * maps.sinr.shape[2], view)
+    yy, xx = np.mgrid[: maps.sinr.shape[1], : maps.sinr.shape[2]]
+    by, bx = maps.unrotate(views, yy.ravel(), xx.ravel())
+    lookup = {(int(a), int(b)): (int(y), int(x)) for a, b, y, x in zip(by, bx, yy.ravel(), xx.ravel(), strict=True)}
+    cells = np.array([lookup[(int(a), int(b))] for a, b in path])
+    return cells[:, 0], cells[:, 1]
+
+
+def test_agents_read_only_what_they_measured(tiny):
+    folders = default_agents(REPO / "data" / "agents")
+    assert folders, "no shipped agent under data/agents"
+    rng = np.random.default_rng(0)
+    for folder in folders:
+        agent = load_agent(folder, epsilon=0.096, seed=0)
+        env = agent.config.env_config(evaluation=True).model_copy(update={"t_max": T_MAX, "rotate": False, "split": None})
+        maps = MapSet.load("tiny", env, root=str(tiny))
+        episodes = maps.sample_episodes(EPISODES, np.random.default_rng(1))
+        same, _ = _replay(maps, agent.policy, episodes, rng)
+        assert all(same), f"{folder.name}: moves changed when cells it never visited changed ({same})"
+    maps = MapSet.load("tiny", env, root=str(tiny))
+    episodes = maps.sample_episodes(EPISODES, np.random.default_rng(1))
+    _, changed = _replay(maps, GeniePolicy(), episodes, rng)
+    assert any(changed), "the genie reads the whole map: scrambling it must change some episode"
