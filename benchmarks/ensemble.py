@@ -17,6 +17,7 @@ import argparse
 from pathlib import Path
 
 from uavplace.dataset.bundle import load_bundle
+from uavplace.eval.cities import development_cities
 from uavplace.eval.report import Agent, ReportConfig, evaluate, load_agent
 from uavplace.rl.agent.dqn import DQNPolicy
 from uavplace.rl.agent.network import MeanQ
@@ -27,7 +28,8 @@ from uavplace.rl.rollout import summarise
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("runs", nargs="+", type=Path, help="Run folders of one preset (their checkpoints/best.pt)")
-    ap.add_argument("--city", action="append", required=True, help="Validation city (repeatable)")
+    ap.add_argument("--city", action="append", default=None, help="Validation city (repeatable; default: every one)")
+    ap.add_argument("--release", action="store_true", help="Allow test cities (release numbers only, never to choose)")
     ap.add_argument("--episodes", type=int, default=1000)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--root", default="data/processed")
@@ -40,7 +42,7 @@ def main() -> None:
     ensemble = Agent("ensemble", first.folder, first.config, first.run, policy, None, None)
     print("| city | " + " | ".join(["ensemble", *(a.name for a in agents), "genie"]) + " |")
     print("|" + "---|" * (len(agents) + 3))
-    for city in args.city:
+    for city in development_cities(args.city, args.root, release=args.release):
         config = ReportConfig(dataset=city, episodes=args.episodes, t_max=500, seed=args.seed, trajectories=0)
         results = evaluate(config, load_bundle(city, root=args.root), [ensemble, *agents], baselines=[GeniePolicy()])
         cells = [f"{100 * s['success']:.1f} % / {s['median_steps']:g}" for s in map(summarise, results.values())]

@@ -21,6 +21,7 @@ import pandas as pd
 
 from uavplace.dataset.bundle import Bundle, load_bundle
 from uavplace.dataset.difficulty import steps_to_target
+from uavplace.eval.cities import development_cities
 from uavplace.eval.report import ReportConfig, evaluate, load_agent
 
 GENIE_BANDS = [0, 5, 10, 20, 30, 500]
@@ -40,11 +41,12 @@ def banded(df: pd.DataFrame, column: str, edges: list[float]) -> pd.DataFrame:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--run", default="data/agents/best", help="Agent folder (default: the shipped best)")
-    ap.add_argument("--city", action="append", required=True, help="City to play (repeatable)")
+    ap.add_argument("--city", action="append", default=None, help="City to play (repeatable; default: every validation city)")
+    ap.add_argument("--release", action="store_true", help="Allow test cities (release numbers only, never to choose)")
     ap.add_argument("--episodes", type=int, default=1000)
     ap.add_argument("--root", default="data/processed")
     args = ap.parse_args()
-    for city in args.city:
+    for city in development_cities(args.city, args.root, release=args.release):
         config = ReportConfig(dataset=city, episodes=args.episodes, trajectories=3)  # trajectories: record every path
         agent = load_agent(args.run, config.test_epsilon, config.seed)
         bundle = load_bundle(city, root=args.root)

@@ -19,13 +19,15 @@ import numpy as np
 import pandas as pd
 
 from uavplace.dataset.bundle import load_bundle
+from uavplace.eval.cities import development_cities
 from uavplace.eval.report import ReportConfig, evaluate, load_agent
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--run", default="data/agents/best", help="Agent folder (default: the shipped best)")
-    ap.add_argument("--city", action="append", default=None, help="Test city (repeatable; default: florence, test)")
+    ap.add_argument("--city", action="append", default=None, help="City to play (repeatable; default: every validation city)")
+    ap.add_argument("--release", action="store_true", help="Allow test cities (release numbers only, never to choose)")
     ap.add_argument("--episodes", type=int, default=1000)
     ap.add_argument("--loop", type=int, default=50, help="A failure visiting fewer distinct cells than this is a loop")
     ap.add_argument("--root", default="data/processed")
@@ -33,7 +35,7 @@ def main() -> None:
     print(f"| city | failures | distinct cells visited: p10 / median / p90 | loops (< {args.loop} cells) | loops / episodes |")
     print("|---|---|---|---|---|")
     drift = []
-    for city in args.city or ["florence", "test"]:
+    for city in development_cities(args.city, args.root, release=args.release):
         config = ReportConfig(dataset=city, episodes=args.episodes, trajectories=3)  # trajectories: record every path
         agent = load_agent(args.run, config.test_epsilon, config.seed)
         bundle = load_bundle(city, root=args.root)

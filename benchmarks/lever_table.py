@@ -22,6 +22,7 @@ from pathlib import Path
 import pandas as pd
 
 from uavplace.dataset.bundle import load_bundle
+from uavplace.eval.cities import development_cities
 from uavplace.eval.report import ReportConfig, evaluate, load_agent
 from uavplace.rl.agent.dqn import preset_config
 from uavplace.rl.policies import GeniePolicy
@@ -51,12 +52,13 @@ def wall_times(folders: list[Path]) -> dict[str, str]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("runs", nargs="+", type=Path)
-    ap.add_argument("--city", action="append", default=None, help="Test city (repeatable; default: test)")
+    ap.add_argument("--city", action="append", default=None, help="City to play (repeatable; default: every validation city)")
+    ap.add_argument("--release", action="store_true", help="Allow test cities (release numbers only, never to choose)")
     ap.add_argument("--episodes", type=int, default=1000)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--root", default="data/processed")
     args = ap.parse_args()
-    cities = args.city or ["test"]
+    cities = development_cities(args.city, args.root, release=args.release)
     walls = wall_times(args.runs)
     agents = [load_agent(folder, 0.096, args.seed) for folder in args.runs]
     for a in agents:  # the runs' folder names tell agents of one preset apart

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from uavplace.dataset.bundle import load_bundle
+from uavplace.eval.cities import development_cities
 from uavplace.eval.report import ReportConfig, evaluate, load_agent
 from uavplace.rl.policies import GeniePolicy
 from uavplace.rl.rollout import summarise
@@ -32,7 +33,8 @@ BETAS = (0.0, 1.0, 3.0, 10.0, 30.0)
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("runs", nargs="+", type=Path)
-    ap.add_argument("--city", action="append", required=True, help="City to play (repeatable): validation cities to choose")
+    ap.add_argument("--city", action="append", default=None, help="City to play (repeatable; default: every validation city)")
+    ap.add_argument("--release", action="store_true", help="Allow test cities (release numbers only, never to choose)")
     ap.add_argument("--beta", action="append", type=float, default=None, help=f"Penalty per earlier visit (default {BETAS})")
     ap.add_argument("--aux", action="append", type=float, default=None, help="Genie-head weight (default 0)")
     ap.add_argument("--episodes", type=int, default=1000)
@@ -43,7 +45,7 @@ def main() -> None:
     print("| city | penalty | head weight | success (mean of runs) | median steps | x genie | per run |")
     print("|---|---|---|---|---|---|---|")
     mean_success: dict[tuple[float, float], list[float]] = {r: [] for r in rules}
-    for city in args.city:
+    for city in development_cities(args.city, args.root, release=args.release):
         agents = []
         for beta, weight in rules:
             for folder in args.runs:

@@ -91,6 +91,9 @@ def report(
         reports.append(result)
         title = f"{episodes} episodes in {dataset} (t_max {t_max}, P_T {p_t_db:g} dB)"
         stdout().print(plain_table(*result.rows[0], rows=result.rows[1:], title=title))
+        if len(result.diff_rows) > 1:
+            stdout().print(plain_table(*result.diff_rows[0], rows=result.diff_rows[1:],
+                                       title=f"paired differences in {dataset}, method minus reference, 95 % intervals"))  # fmt: skip
         stdout().print(f"report: {result.out / 'report.html'}", highlight=False, soft_wrap=True)
     if len(datasets) > 1:
         rows = summary_rows(reports, t_max)

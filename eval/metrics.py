@@ -1,8 +1,13 @@
-"""The evaluation protocol's figures: per-method statistics with paired bootstrap confidence intervals.
+"""The evaluation protocol's figures: per-method statistics and paired differences with bootstrap intervals.
 
 Every method plays the same episodes (``rl.rollout.run_episodes`` on one list of episode specs), so
-one resample of episode numbers is applied to all methods at once (a paired bootstrap): the intervals
-of two methods are comparable episode for episode.
+one resample is applied to all methods at once (a paired bootstrap): the intervals of two methods,
+and of their difference, are comparable episode for episode.
+
+The episodes come from a few users (25 per test city), and episodes of one user are alike, so the
+resample has two levels (``resample_counts``): users with replacement, then the episodes of each
+drawn user with replacement. Resampling the episodes alone treats 1000 episodes of 25 users as
+1000 independent draws and gives intervals 2-3 times too narrow.
 """
 
 from __future__ import annotations
@@ -10,17 +15,65 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from uavplace.rl.rollout import STATS, episode_stats, format_stat
+from uavplace.rl.rollout import STATS, WITHIN, format_stat
 
-__all__ = ["STATS", "bootstrap_table", "ecdf", "format_stat"]
+__all__ = ["STATS", "bootstrap_table", "difference_table", "ecdf", "format_stat", "resample_counts", "weighted_stats"]
+
+#: The statistics a difference is reported for (the two the paper reports).
+DIFFERENCE_STATS = ("success", "median_steps")
 
 
-def bootstrap_table(results: dict[str, pd.DataFrame], *, n_boot: int = 2000, level: float = 0.95, seed: int = 0) -> pd.DataFrame:
-    """One row per method: each statistic with its percentile bootstrap interval (``<stat>_lo``, ``<stat>_hi``).
+def resample_counts(groups: np.ndarray | None, n: int, n_boot: int, seed: int) -> np.ndarray:
+    """[n_boot, n] how often each of ``n`` episodes is drawn in each bootstrap replicate.
 
-    ``results`` maps a method name to its ``run_episodes`` frame; all frames must hold the same
-    episodes (same ``episode``, ``view``, ``start_y``, ``start_x``), which is checked.
+    ``groups`` [n] (the user of each episode): users drawn with replacement, then for each drawn user
+    as many of its episodes as it has, with replacement (a user drawn twice contributes two draws).
+    ``None``: every episode is its own group (the plain bootstrap of episodes).
     """
+    rng = np.random.default_rng(seed)
+    if groups is None:
+        return rng.multinomial(n, np.full(n, 1.0 / n), size=n_boot)
+    _, label = np.unique(np.asarray(groups), return_inverse=True)
+    num_groups = label.max() + 1
+    drawn = rng.multinomial(num_groups, np.full(num_groups, 1.0 / num_groups), size=n_boot)  # [n_boot, groups]
+    counts = np.zeros((n_boot, n), np.int64)
+    for g in range(num_groups):
+        members = np.flatnonzero(label == g)
+        # c independent draws of the group's size from its episodes = one multinomial of c * size trials.
+        counts[:, members] = rng.multinomial(drawn[:, g] * len(members), np.full(len(members), 1.0 / len(members)))
+    return counts
+
+
+def _weighted_quantile(values: np.ndarray, weights: np.ndarray, q: float) -> np.ndarray:
+    """The ``inverted_cdf`` q-quantile of ``values`` [n] under each row of ``weights`` [B, n] (inf may occur)."""
+    order = np.argsort(values, kind="stable")
+    cum = np.cumsum(weights[:, order], axis=1)
+    k = np.argmax(cum >= q * cum[:, -1:] - 1e-9, axis=1)
+    return values[order][k]
+
+
+def weighted_stats(steps: np.ndarray, success: np.ndarray, genie_steps: np.ndarray, weights: np.ndarray) -> dict:
+    """``rl.rollout.episode_stats`` under episode weights [B, n] (bootstrap counts): each statistic [B]."""
+    ok = np.asarray(success, bool)
+    w = np.asarray(weights, np.float64)
+    to_target = np.where(ok, steps, np.inf)
+    ratio = np.where(ok, steps / np.maximum(genie_steps, 1), np.inf)
+    total = w.sum(axis=1)
+    w_ok = (w * ok).sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_ok = np.where(w_ok > 0, (w * np.where(ok, steps, 0)).sum(axis=1) / w_ok, np.nan)
+    return {
+        "success": w_ok / total,
+        "median_steps": _weighted_quantile(to_target, w, 0.5),
+        "p75_steps": _weighted_quantile(to_target, w, 0.75),
+        "within_100": (w * (to_target <= WITHIN)).sum(axis=1) / total,
+        "steps_over_genie": _weighted_quantile(ratio, w, 0.5),
+        "mean_steps_success": mean_ok,
+    }
+
+
+def _paired(results: dict[str, pd.DataFrame]) -> int:
+    """The number of episodes; a ``ValueError`` unless every frame holds the same episodes."""
     if not results:
         raise ValueError("no method to tabulate")
     frames = list(results.values())
@@ -29,22 +82,79 @@ def bootstrap_table(results: dict[str, pd.DataFrame], *, n_boot: int = 2000, lev
     for name, df in results.items():
         if not df[key].reset_index(drop=True).equals(first):
             raise ValueError(f"method {name!r} played other episodes than {next(iter(results))!r}: not a paired comparison")
-    n = len(first)
-    rng = np.random.default_rng(seed)
-    resample = rng.integers(0, n, size=(n_boot, n))  # [n_boot, n] episode numbers, shared by all methods
+    return len(first)
+
+
+def _groups(results: dict[str, pd.DataFrame], by_user: bool) -> np.ndarray | None:
+    """Each episode's user (``city/user``), or None for the bootstrap of episodes alone."""
+    df = next(iter(results.values()))
+    return (df["city"].astype(str) + "/" + df["user"].astype(str)).to_numpy() if by_user else None
+
+
+def _stats_of(df: pd.DataFrame, weights: np.ndarray) -> dict:
+    return weighted_stats(*(df[c].to_numpy() for c in ("steps", "success", "genie_steps")), weights)
+
+
+def bootstrap_table(
+    results: dict[str, pd.DataFrame], *, n_boot: int = 2000, level: float = 0.95, seed: int = 0, by_user: bool = True
+) -> pd.DataFrame:
+    """One row per method: each statistic with its percentile bootstrap interval (``<stat>_lo``, ``<stat>_hi``).
+
+    ``results`` maps a method name to its ``run_episodes`` frame; all frames must hold the same
+    episodes (same ``episode``, ``view``, ``start_y``, ``start_x``), which is checked. ``by_user``:
+    resample users, then episodes within them (``resample_counts``); else episodes alone.
+    """
+    n = _paired(results)
+    counts = resample_counts(_groups(results, by_user), n, n_boot, seed)
+    users = len(np.unique(_groups(results, True)))
     alpha = (1.0 - level) / 2.0
     rows = []
     for name, df in results.items():
-        steps, ok, genie = (df[c].to_numpy() for c in ("steps", "success", "genie_steps"))
-        point = episode_stats(steps, ok, genie)
-        boot = episode_stats(steps[resample], ok[resample], genie[resample])
-        row: dict[str, object] = {"method": name, "episodes": n}
+        point = _stats_of(df, np.ones((1, n)))
+        boot = _stats_of(df, counts)
+        row: dict[str, object] = {"method": name, "episodes": n, "users": users}
         for stat in STATS:
-            row[stat] = float(point[stat])
+            row[stat] = float(point[stat][0])
             lo, hi = np.quantile(boot[stat], [alpha, 1.0 - alpha], method="inverted_cdf")
             row[f"{stat}_lo"], row[f"{stat}_hi"] = float(lo), float(hi)
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def difference_table(
+    results: dict[str, pd.DataFrame],
+    against: list[str],
+    *,
+    n_boot: int = 2000,
+    level: float = 0.95,
+    seed: int = 0,
+    by_user: bool = True,
+) -> pd.DataFrame:
+    """Paired differences ``method - reference`` for every method and every reference of ``against`` present in
+    ``results``: one row per (method, reference, statistic of ``DIFFERENCE_STATS``) with the difference and its
+    interval, from the same resamples as ``bootstrap_table`` (same ``seed``). A median that falls on a failure is
+    infinite; a difference involving one is reported as NaN (undefined), with the share of resamples where it is."""
+    n = _paired(results)
+    counts = resample_counts(_groups(results, by_user), n, n_boot, seed)
+    ones = np.ones((1, n))
+    alpha = (1.0 - level) / 2.0
+    rows = []
+    for ref in (r for r in against if r in results):
+        ref_point, ref_boot = _stats_of(results[ref], ones), _stats_of(results[ref], counts)
+        for name, df in results.items():
+            if name == ref:
+                continue
+            point, boot = _stats_of(df, ones), _stats_of(df, counts)
+            for stat in DIFFERENCE_STATS:
+                with np.errstate(invalid="ignore"):
+                    d = boot[stat] - ref_boot[stat]
+                    p = float(point[stat][0] - ref_point[stat][0])
+                finite = np.isfinite(d)
+                ok = finite.mean() >= 1.0 - alpha and np.isfinite(p)
+                lo, hi = np.quantile(d[finite], [alpha, 1.0 - alpha], method="inverted_cdf") if ok else (np.nan, np.nan)
+                rows.append({"method": name, "against": ref, "stat": stat, "difference": p if ok else np.nan,
+                             "lo": float(lo), "hi": float(hi), "undefined_share": float(1.0 - finite.mean())})  # fmt: skip
+    return pd.DataFrame(rows, columns=["method", "against", "stat", "difference", "lo", "hi", "undefined_share"])
 
 
 def ecdf(df: pd.DataFrame, t_max: int) -> tuple[np.ndarray, np.ndarray]:

@@ -30,7 +30,7 @@ from pydantic import Field
 
 from uavplace.dataset.bundle import Bundle, load_bundle
 from uavplace.dataset.difficulty import valid_starts
-from uavplace.eval.metrics import STATS, bootstrap_table, ecdf, format_stat
+from uavplace.eval.metrics import STATS, bootstrap_table, difference_table, ecdf, format_stat
 from uavplace.rl.agent.checkpoint import load_tensors
 from uavplace.rl.agent.dqn import DQNConfig
 from uavplace.rl.agent.train import RUN_JSON, RunRecord, policy_from_checkpoint, read_run_json, training_users
@@ -99,9 +99,11 @@ class Agent:
 class Report:
     out: Path
     table: pd.DataFrame  # bootstrap_table + paper columns
+    differences: pd.DataFrame  # difference_table against the references (the blind paper agent, the genie)
     episodes: pd.DataFrame  # every method's episodes, with a "method" column
     config: ReportConfig
     rows: list[list[str]]  # the table as text (table_rows)
+    diff_rows: list[list[str]]  # the differences as text (difference_rows)
     figures: dict[str, Figure | None]  # in the report folder
     provenance: dict  # report.json
 
@@ -192,6 +194,36 @@ def results_table(results: dict[str, pd.DataFrame], config: ReportConfig) -> pd.
     table["paper_success"] = [PAPER[k]["success"] if k else np.nan for k in paper_key.values()]
     table["paper_median_steps"] = [PAPER[k]["median_steps"] if k else np.nan for k in paper_key.values()]
     return table
+
+
+def references(methods: list[str]) -> list[str]:
+    """What every method is compared with, in order: the paper's blind agent (the baseline of the paper's claim) and
+    the genie (the bound)."""
+    blind = [m for m in methods if m.startswith("blind ") and m.endswith("(paper)")]
+    return blind + [m for m in methods if m == "genie"]
+
+
+def difference_rows(differences: pd.DataFrame, t_max: int) -> list[list[str]]:
+    """The paired differences as text cells (header first): per method, success and median steps minus each reference."""
+    refs = list(dict.fromkeys(differences["against"]))
+    header = ["method", *(f"{label} - {ref}" for ref in refs for label in ("success", "median steps"))]
+    rows = [header]
+    for method, group in differences.groupby("method", sort=False):
+        cells = [str(method)]
+        for ref in refs:
+            for stat in ("success", "median_steps"):
+                r = group[(group["against"] == ref) & (group["stat"] == stat)]
+                cells.append("-" if r.empty else _difference_cell(stat, r.iloc[0]))
+        rows.append(cells)
+    return rows
+
+
+def _difference_cell(stat: str, r: pd.Series) -> str:
+    if np.isnan(r["difference"]):
+        return f"undefined ({100 * r['undefined_share']:.0f} % of resamples: a median beyond t_max)"
+    if stat == "success":
+        return f"{100 * r['difference']:+.1f} points [{100 * r['lo']:+.1f}, {100 * r['hi']:+.1f}]"
+    return f"{r['difference']:+g} [{r['lo']:+g}, {r['hi']:+g}]"
 
 
 def _paper_key(method: str) -> str | None:
@@ -463,11 +495,12 @@ pre{background:#f7f7f7;padding:8px;overflow-x:auto;font-size:12px}.prov td,.prov
 
 
 def render_section(config: ReportConfig, rows: list[list[str]], figures: dict[str, Figure | None], provenance: dict,
-                   first_figure: int = 1) -> str:  # fmt: skip
+                   first_figure: int = 1, diff_rows: list[list[str]] | None = None) -> str:  # fmt: skip
     """One city's results: how the episodes were drawn, the table, then its captioned figures (those in ``figures``:
     the CDF, the training curves, the trajectories, numbered from ``first_figure``)."""
     p = provenance
     city = html.escape(p["test_city"])
+    users = p.get("users", "all")
     penalised = {n: a["config"].get("test_revisit_penalty", 0.0) for n, a in p["agents"].items()}
     penalties = "; ".join(
         f"{html.escape(n)}: less {v:g} per earlier visit of the episode to the cell the move leads to"
@@ -482,8 +515,17 @@ def render_section(config: ReportConfig, rows: list[list[str]], figures: dict[st
         f"legal move of highest Q{revisit}, or a random legal move with probability {config.test_epsilon:g}. Steps to P_T of a "
         f"failed episode count as &gt; t_max, so the median and p75 include failures; the mean steps are over each "
         f"method's own successes (different episodes per method). Brackets: paired bootstrap 95 % intervals "
-        f"({config.n_boot} resamples). {html.escape(PAPER_SOURCE)}."
+        f"({config.n_boot} resamples) that resample the {users} users, then the episodes of each drawn user "
+        f"(episodes of one user are alike: resampling episodes alone would give intervals too narrow). "
+        f"{html.escape(PAPER_SOURCE)}."
     )
+    differences = ""
+    if diff_rows is not None and len(diff_rows) > 1:
+        differences = (
+            "<p>Paired differences, method minus reference, with 95 % intervals from the same resamples (an interval "
+            "that excludes 0 is a difference the evaluation can tell apart from chance; the median steps differ by "
+            "&quot;undefined&quot; where a median falls beyond t_max).</p>" + _html_table(diff_rows)
+        )
     alt = {"cdf": "CDF of steps to P_T in " + p["test_city"], "training": "training curves"}
     alt["trajectories"] = "trajectories in " + p["test_city"]
     shown = [_figure(figures[key], first_figure + i, alt[key]) for i, key in enumerate(k for k in alt if k in figures)]
@@ -491,6 +533,7 @@ def render_section(config: ReportConfig, rows: list[list[str]], figures: dict[st
 <h2>{city}</h2>
 <p>{notes}</p>
 {_html_table(rows)}
+{differences}
 {"".join(shown)}
 </section>"""
 
@@ -523,7 +566,11 @@ def provenance_table(provenances: list[dict]) -> str:
 
 
 def render_page(
-    sections: list[str], provenances: list[dict], summary: list[list[str]] | None = None, training: Figure | None = None
+    sections: list[str],
+    provenances: list[dict],
+    summary: list[list[str]] | None = None,
+    training: Figure | None = None,
+    caption: str = "",
 ) -> str:
     """The whole report: with several cities a summary table and the training curves (Figure 1) first, then a
     section per city, then the provenance."""
@@ -531,7 +578,8 @@ def render_page(
     summary_html = ""
     if summary is not None:
         summary_html = (
-            f"<h2>Summary: success / median steps per method and city</h2>{_html_table(summary)}"
+            f"<h2>Summary: success / median steps per method and city</h2><p>{html.escape(caption)}</p>"
+            f"{_html_table(summary)}"
             f"<h2>Training</h2>{_figure(training, 1, 'training curves')}"
         )
     raw = provenances[0] if len(provenances) == 1 else provenances
@@ -588,6 +636,7 @@ def make_report(
 
     results = evaluate(config, bundle, agents, on_progress)
     table = results_table(results, config)
+    differences = difference_table(results, references(list(results)), n_boot=config.n_boot, seed=config.seed)
     episodes = pd.concat([_plain(df.assign(method=name)) for name, df in results.items()], ignore_index=True)
     with atomic_directory(out, marker=REPORT_JSON, what="report") as tmp:
         figures: dict[str, Figure | None] = {"cdf": plot_cdf(results, config.t_max, tmp / "cdf.png")}
@@ -596,18 +645,20 @@ def make_report(
         picked = pick_trajectories(results, shown, config.trajectories)
         figures["trajectories"] = plot_trajectories(bundle, results, shown, picked, config.p_t_db, tmp / "trajectories.png")
         table.to_csv(tmp / "results.csv", index=False)
+        differences.to_csv(tmp / "differences.csv", index=False)
         table.to_parquet(tmp / "results.parquet", index=False)
         episodes.to_parquet(tmp / "episodes.parquet", index=False)
         provenance = {
             "command": command,
             "created_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
             "uavplace_version": uavplace_version(),
-            # The agents' moves depend on the torch threads: a network's sums split another way can break a near-tie
-            # between moves the other way (README, "Gamma 0.98, and three seeds as one agent").
+            # For the record: the episodes do not depend on the threads or on what was evaluated before
+            # (rl.randomness; tests/test_env.py plays them at 1 and 2 threads).
             "torch": {"version": torch.__version__, "threads": torch.get_num_threads()},
             "report_config": json.loads(config.model_dump_json()),
             "test_city": bundle.city,
             "test_bundle": bundle.version,
+            "users": int(table["users"].iloc[0]),
             "test_bundle_config": json.loads(bundle.manifest.config.model_dump_json()),
             "upper_bounds_db": bounds,
             "upper_bounds_notes": bound_notes,
@@ -626,11 +677,12 @@ def make_report(
             },
         }
         rows = table_rows(table, config.t_max)
-        section = render_section(config, rows, figures, provenance)
+        diff_rows = difference_rows(differences, config.t_max)
+        section = render_section(config, rows, figures, provenance, diff_rows=diff_rows)
         (tmp / "report.html").write_text(render_page([section], [provenance]), encoding="utf-8")
         (tmp / REPORT_JSON).write_text(json.dumps(provenance, indent=2) + "\n", encoding="utf-8")
     figures = {k: None if v is None else Figure(out / v.path.name, v.caption) for k, v in figures.items()}
-    return Report(out, table, episodes, config, rows, figures, provenance)
+    return Report(out, table, differences, episodes, config, rows, diff_rows, figures, provenance)
 
 
 #: The marker of a report page: ``write_summary_page`` replaces only a page that carries it.
@@ -653,33 +705,73 @@ def check_summary_page(out: str | Path) -> None:
 
 def write_summary_page(reports: list[Report], out: str | Path, t_max: int) -> Path:
     """``out/report.html``: the summary table (method x city), then each city's section, then the provenance;
-    ``out/summary.csv`` the same table. Written to temporary files renamed into place."""
+    ``out/summary.csv`` the same figures as numbers (``summary_frame``). Written to temporary files renamed into place."""
     out = Path(out)
-    cities = [r.provenance["test_city"] for r in reports]
     summary = summary_rows(reports, t_max)
     sections = []
     for i, r in enumerate(reports):  # the training curves once, above the cities (Figure 1); each city: CDF, trajectories
         figures = {k: v for k, v in r.figures.items() if k != "training"}
-        sections.append(render_section(r.config, r.rows, figures, r.provenance, first_figure=2 + 2 * i))
-    page = render_page(sections, [r.provenance for r in reports], summary, reports[0].figures.get("training"))
-    frame = pd.DataFrame(summary[1:], columns=["method", *cities])
-    for name, text in (("report.html", page), ("summary.csv", frame.to_csv(index=False))):
+        sections.append(render_section(r.config, r.rows, figures, r.provenance, first_figure=2 + 2 * i, diff_rows=r.diff_rows))
+    page = render_page(sections, [r.provenance for r in reports], summary, reports[0].figures.get("training"),
+                       summary_caption(reports))  # fmt: skip
+    for name, text in (("report.html", page), ("summary.csv", summary_frame(reports).to_csv(index=False))):
         atomic_write_text(out / name, text)
     return out / "report.html"
 
 
+def summary_caption(reports: list[Report]) -> str:
+    """What the summary's cells are: episodes and users per city, what the intervals resample."""
+    per_city = ", ".join(
+        f"{r.provenance['test_city']}: {r.config.episodes} episodes of {r.provenance.get('users', '?')} users" for r in reports
+    )
+    n_boot = reports[0].config.n_boot
+    return (
+        f"Success rate and median steps to P_T (failures count as beyond t_max {reports[0].config.t_max}) in each unseen "
+        f"city ({per_city}); brackets: 95 % paired bootstrap intervals ({n_boot} resamples of the users, then of the "
+        "episodes of each drawn user). Differences with intervals are in each city's section and in summary.csv."
+    )
+
+
 def summary_rows(reports: list[Report], t_max: int) -> list[list[str]]:
-    """Header then one row per method: ``success / median steps`` in each report's city (``-`` where not played)."""
+    """Header then one row per method: ``success [interval] / median steps [interval]`` in each report's city (``-``
+    where not played)."""
     cities = [r.provenance["test_city"] for r in reports]
     cells: dict[str, dict[str, str]] = {}
     for city, r in zip(cities, reports, strict=True):
         for rec in r.table.to_dict("records"):
             cells.setdefault(rec["method"], {})[city] = " / ".join(
-                format_stat(s, rec[s], t_max=t_max) for s in ("success", "median_steps")
+                format_stat(s, rec[s], rec[f"{s}_lo"], rec[f"{s}_hi"], t_max=t_max) for s in ("success", "median_steps")
             )
     return [["method", *(f"{c}: success / median steps" for c in cities)]] + [
         [m, *(c.get(city, "-") for city in cities)] for m, c in cells.items()
     ]
+
+
+#: The columns of ``summary.csv`` taken from each report's table.
+SUMMARY_STATS = ("success", "median_steps", "steps_over_genie")
+
+
+def summary_frame(reports: list[Report]) -> pd.DataFrame:
+    """``summary.csv``: one row per (city, method), numbers only: episodes, users, each of ``SUMMARY_STATS`` with its
+    interval (inf: beyond t_max), and the paired differences against the blind paper agent (``minus_blind_paper``) and
+    the genie (``minus_genie``) with theirs (NaN where undefined or not played)."""
+    rows = []
+    for r in reports:
+        city = r.provenance["test_city"]
+        for rec in r.table.to_dict("records"):
+            row: dict[str, object] = {"city": city, "method": rec["method"], "episodes": rec["episodes"], "users": rec["users"]}
+            for stat in SUMMARY_STATS:
+                row |= {stat: rec[stat], f"{stat}_lo": rec[f"{stat}_lo"], f"{stat}_hi": rec[f"{stat}_hi"]}
+            for ref in references(list(r.table["method"])):
+                kind = "genie" if ref == "genie" else "blind_paper"
+                d = r.differences[(r.differences["method"] == rec["method"]) & (r.differences["against"] == ref)]
+                for stat in ("success", "median_steps"):
+                    one = d[d["stat"] == stat]
+                    values = (np.nan,) * 3 if one.empty else tuple(one.iloc[0][["difference", "lo", "hi"]])
+                    names = (f"{stat}_minus_{kind}", f"{stat}_minus_{kind}_lo", f"{stat}_minus_{kind}_hi")
+                    row |= dict(zip(names, values, strict=True))
+            rows.append(row)
+    return pd.DataFrame(rows)
 
 
 def training_bounds(agents: list[Agent], root: str | Path, p_t_db: float) -> tuple[dict[str, float], dict[str, str]]:

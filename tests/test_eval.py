@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 from tests.conftest import write_grid_city
 from uavplace.dataset.build import build_city
-from uavplace.eval.metrics import bootstrap_table, ecdf, format_stat
+from uavplace.eval.metrics import bootstrap_table, difference_table, ecdf, format_stat
 from uavplace.ingest.pipeline import ingest_city
 from uavplace.rl.agent.dqn import preset_config
 from uavplace.rl.agent.train import Trainer
@@ -20,11 +20,14 @@ from uavplace.schemas.bundle import BuildConfig
 from uavplace.schemas.cli import uavrl
 
 
-def episodes(steps, success, genie=None) -> pd.DataFrame:
+def episodes(steps, success, genie=None, user=None) -> pd.DataFrame:
+    """A ``run_episodes`` frame; every episode its own user unless ``user`` says."""
     n = len(steps)
     return pd.DataFrame(
         {
             "episode": np.arange(n),
+            "city": "c",
+            "user": np.arange(n) if user is None else np.asarray(user),
             "view": np.zeros(n, np.int64),
             "start_y": np.arange(n),
             "start_x": np.arange(n),
@@ -74,6 +77,44 @@ def test_bootstrap_interval_covers_a_known_rate():
     assert lo < ok.mean() < hi and hi - lo == pytest.approx(2 * half, rel=0.15)
     again = bootstrap_table({"m": episodes(np.where(ok, 5, 500), ok)}, n_boot=2000, seed=1)
     pd.testing.assert_frame_equal(table, again)
+
+
+def test_user_level_intervals_are_wider_when_users_differ():
+    """20 users of 50 episodes each, every user with a success rate of its own: resampling users, then episodes, gives
+    an interval about as wide as 20 independent draws allow; resampling episodes alone, one as narrow as 1000 would."""
+    rng = np.random.default_rng(5)
+    rate = rng.beta(2, 2, size=20)
+    user = np.repeat(np.arange(20), 50)
+    ok = rng.random(1000) < rate[user]
+    df = episodes(np.where(ok, 5, 500), ok, user=user)
+    two = bootstrap_table({"m": df}, n_boot=2000, seed=1).iloc[0]
+    flat = bootstrap_table({"m": df}, n_boot=2000, seed=1, by_user=False).iloc[0]
+    wide, narrow = two["success_hi"] - two["success_lo"], flat["success_hi"] - flat["success_lo"]
+    assert two["users"] == 20 and wide > 2 * narrow
+    expected = 2 * 1.96 * np.sqrt(np.var(rate[user].reshape(20, 50).mean(axis=1)) / 20 + ok.mean() * (1 - ok.mean()) / 1000)
+    assert wide == pytest.approx(expected, rel=0.3)
+
+
+def test_paired_differences_recover_a_known_difference():
+    """B fails exactly where A fails and in 10 % more of the episodes: success differs by the known -0.1 with a narrow
+    interval that excludes 0 (paired: the shared failures cancel); median steps 10 against 20 differ by exactly 10."""
+    rng = np.random.default_rng(7)
+    n = 1000
+    user = np.repeat(np.arange(25), 40)
+    a_ok = rng.random(n) < 0.8
+    b_ok = a_ok & ~np.isin(np.arange(n), rng.choice(np.flatnonzero(a_ok), size=100, replace=False))
+    a = episodes(np.where(a_ok, 10, 500), a_ok, user=user)
+    b = episodes(np.where(b_ok, 20, 500), b_ok, user=user)
+    diff = difference_table({"a": a, "b": b}, against=["a", "missing"], n_boot=2000, seed=2)
+    assert set(diff["against"]) == {"a"} and set(diff["method"]) == {"b"}
+    success = diff[diff.stat == "success"].iloc[0]
+    assert success["difference"] == pytest.approx(-0.1)
+    assert success["lo"] < -0.1 < success["hi"] < 0 and success["hi"] - success["lo"] < 0.05
+    steps = diff[diff.stat == "median_steps"].iloc[0]
+    assert (steps["difference"], steps["lo"], steps["hi"]) == (10, 10, 10)
+    worse = episodes(np.where(a_ok & (rng.random(n) < 0.3), 20, 500), a_ok & (rng.random(n) < 0.3), user=user)
+    undefined = difference_table({"a": a, "w": worse}, against=["a"], n_boot=200).set_index("stat").loc["median_steps"]
+    assert np.isnan(undefined["difference"]) and undefined["undefined_share"] == 1.0  # w's median is a failure
 
 
 def test_bootstrap_refuses_unpaired_methods():
@@ -163,7 +204,15 @@ def test_report_on_several_cities(tmp_path, two_cities):
     page = (tmp_path / "r" / "report.html").read_text()  # one page: the summary, then a section per city
     assert page.index("Summary") < page.index('<section id="cityb">') < page.index('<section id="cityc">')
     assert page.count("<figcaption>") == 5 and "Figure 5." in page  # training once, then CDF and trajectories per city
-    assert list(pd.read_csv(tmp_path / "r" / "summary.csv").columns) == ["method", "cityb", "cityc"]
+    summary_csv = pd.read_csv(tmp_path / "r" / "summary.csv")
+    assert list(summary_csv.columns[:7]) == ["city", "method", "episodes", "users", "success", "success_lo", "success_hi"]
+    assert sorted(set(summary_csv.city)) == ["cityb", "cityc"] and (summary_csv.episodes == 20).all()
+    genie_rows = summary_csv[summary_csv.method == "genie"]
+    assert (genie_rows.success == 1.0).all() and genie_rows.success_minus_genie.isna().all()
+    others = summary_csv[summary_csv.method != "genie"]
+    assert others.success_minus_genie.notna().all() and (others.success_minus_genie <= 0).all()
+    assert summary_csv.select_dtypes("number").shape[1] == summary_csv.shape[1] - 2  # numbers, but for city and method
+    assert "Paired differences, method minus reference" in page and "resample the" in page
     # A page of the user's own under --out is never replaced, and the refusal comes before any episode.
     mine = tmp_path / "mine"
     mine.mkdir()
@@ -215,3 +264,23 @@ def test_trajectories_are_picked_by_the_stated_rule():
     always = df.assign(success=True, steps=[5, 9, 12, 20, 30, 40, 60, 70, 80, 90])
     # median 30 (episode 4), p90 80 (episode 8), no failure: the longest success (episode 9).
     assert pick_trajectories({"a": always}, "a", 3) == [(4, "median"), (8, "p90"), (9, "longest success")]
+
+
+def test_development_scripts_see_validation_cities_and_test_cities_only_for_a_release(tmp_path):
+    """``development_cities``: every built validation city by default; a test city refused without ``release``."""
+    from tests.conftest import write_grid_city
+    from uavplace.dataset.build import build_city
+    from uavplace.eval.cities import development_cities
+    from uavplace.ingest.pipeline import ingest_city
+    from uavplace.schemas import InputError
+    from uavplace.schemas.bundle import BuildConfig
+
+    root = tmp_path / "p"
+    for name, role in (("va", "val"), ("vb", "val"), ("te", "test"), ("tr", "train")):
+        ingest_city(write_grid_city(tmp_path / name, nx=8, ny=6, n_tx=2, outputs=("power",), seed=1), root, name=name)
+        build_city(name, BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=-58.0, role=role), root)
+    assert development_cities(None, root) == ["va", "vb"]
+    assert development_cities(["tr", "va"], root) == ["tr", "va"]
+    with pytest.raises(InputError, match="te: city: is a test city.*--release"):
+        development_cities(["va", "te"], root)
+    assert development_cities(["te"], root, release=True) == ["te"]
