@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import click
@@ -10,6 +11,9 @@ from uavplace.dataset.bundle import list_versions, read_latest
 from uavplace.dataset.catalog import list_cities
 from uavplace.rl.rollout import STATS, format_stat, summarise
 from uavplace.schemas.cli import fail, plain_table, root_option, stdout
+
+#: Seconds between the plain progress lines ``uavrl train`` prints when its output is not a terminal.
+LINE_SECONDS = 30.0
 
 
 @click.command()
@@ -186,13 +190,21 @@ def train(
         trainer.load()  # every check of the checkpoint before the first step
     columns = (TextColumn("[bold]train[/] {task.description}"), BarColumn(), TextColumn("{task.completed:,}/{task.total:,}"),
                TimeElapsedColumn(), TimeRemainingColumn())  # fmt: skip
-    with Progress(*columns, console=stdout(), disable=quiet) as bar:
+    lines = not quiet and not stdout().is_terminal  # a log: a plain line every LINE_SECONDS instead of a bar
+    last_line = [time.monotonic()]
+    with Progress(*columns, console=stdout(), disable=quiet or lines) as bar:
         task = bar.add_task(run_dir.name, total=config.total_steps)
 
         def on_progress(p) -> None:
             best = "-" if p.best is None else f"{100 * p.best:.0f} %"
-            bar.update(task, completed=p.step, description=f"ep {p.episodes} gain100 {p.gain_mean100:.1f} dB "
-                       f"success100 {100 * p.success100:.0f} % eps {p.epsilon:.2f} loss {p.loss:.3f} best eval {best}")  # fmt: skip
+            text = (f"ep {p.episodes} gain100 {p.gain_mean100:.1f} dB success100 {100 * p.success100:.0f} % "
+                    f"eps {p.epsilon:.2f} loss {p.loss:.3f} best eval {best}")  # fmt: skip
+            bar.update(task, completed=p.step, description=text)
+            now = time.monotonic()
+            if lines and (now - last_line[0] >= LINE_SECONDS or p.step >= config.total_steps):
+                last_line[0] = now
+                stdout().print(f"train {run_dir.name}: step {p.step:,}/{config.total_steps:,} {text}", highlight=False,
+                               markup=False, soft_wrap=True)  # fmt: skip
 
         trainer.run(resume=resume is not None, on_progress=on_progress, stop_at=until)
     last = trainer.state.evals[-1] if trainer.state.evals else None

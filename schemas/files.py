@@ -75,12 +75,21 @@ def write_json(obj: object, path: str | Path) -> None:
     Path(path).write_text(json.dumps(obj, indent=2, sort_keys=True) + "\n", encoding="utf-8")
 
 
+def umask_mode(full: int = 0o666) -> int:
+    """``full`` less the process's umask: the mode ``open`` would give a new file (0o777 for a folder)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return full & ~mask
+
+
 def atomic_write_text(path: str | Path, text: str) -> None:
-    """Write ``text`` to a temporary file beside ``path``, then rename it into place (never half-written)."""
+    """Write ``text`` to a temporary file beside ``path``, then rename it into place (never half-written). The file
+    gets the mode a plain write would (the umask's, not ``mkstemp``'s private 0600)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     try:
+        os.fchmod(fd, umask_mode())
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             f.write(text)
         os.replace(tmp, path)
@@ -144,7 +153,7 @@ def atomic_directory(final: str | Path, *, marker: str | None = None, what: str 
         if marker is not None:
             check_replaceable(final, marker, what)
         tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.tmp-", dir=final.parent))
-        tmp.chmod(0o755)  # mkdtemp makes it private; outputs are not
+        tmp.chmod(umask_mode(0o777))  # mkdtemp makes it private; outputs are not
         try:
             yield tmp
             if marker is not None and not (tmp / marker).is_file():

@@ -271,6 +271,8 @@ def test_uavrl_train_cli(tmp_path, city_root):
     assert (run_dir / "checkpoints" / "best.pt").is_file()
     res = run(uavrl, [*args, "--name", run_dir.name])
     assert res.exit_code == 2 and "exists" in res.output
+    res = run(uavrl, [*args[:-1], "--name", "logged"])  # not a terminal and not --quiet: plain lines for a log
+    assert res.exit_code == 0 and "train logged: step 96/96 ep " in res.output, res.output
     res = run(uavrl, ["train", "--dataset", "nowhere", "--root", str(city_root), "--out", str(tmp_path)])
     assert res.exit_code != 0 and "nowhere: dataset: no ingested city or corpus" in res.output
 

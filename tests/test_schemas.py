@@ -58,3 +58,23 @@ def test_input_error_is_one_line():
     err = InputError("a/b.p2m", "bad value", line=12, field="x_m")
     assert str(err) == "a/b.p2m:12: x_m: bad value"
     assert str(InputError("f", "no rows")) == "f: no rows"
+
+
+def test_atomic_outputs_take_the_umask_not_a_private_mode(tmp_path):
+    """Files and folders written atomically get the mode a plain write would: 0644 / 0755 under umask 022, 0600 /
+    0700 under 077 (mkstemp's and mkdtemp's private modes must not leak into reports and runs)."""
+    import os
+
+    from uavplace.schemas.files import atomic_directory, atomic_write_text
+
+    old = os.umask(0o022)
+    try:
+        for mask, file_mode, dir_mode in ((0o022, 0o644, 0o755), (0o077, 0o600, 0o700)):
+            os.umask(mask)
+            atomic_write_text(tmp_path / f"f{mask}.txt", "x")
+            with atomic_directory(tmp_path / f"d{mask}") as d:
+                (d / "a").write_text("y")
+            assert (tmp_path / f"f{mask}.txt").stat().st_mode & 0o777 == file_mode
+            assert (tmp_path / f"d{mask}").stat().st_mode & 0o777 == dir_mode
+    finally:
+        os.umask(old)
