@@ -64,7 +64,7 @@ def episode_options(command):
 def baselines(
     datasets: tuple[str, ...], episodes: int, t_max: int, p_t_db: float, split: str | None, seed: int, root: Path
 ) -> None:
-    """Play the genie, the steered random walk and greedy hill-climbing on the same episodes; print the table."""
+    """Play the genie, the steered random walk and greedy hill-climbing on the same episodes; print a table per city."""
     import numpy as np
     from rich.progress import Progress
 
@@ -74,16 +74,18 @@ def baselines(
     from uavplace.rl.rollout import run_episodes
 
     config = EnvConfig(t_max=t_max, p_t_db=p_t_db, split=split, rotate=False)
-    maps = MapSet.load(list(datasets), config, root=str(root))
-    eps = maps.sample_episodes(episodes, np.random.default_rng(seed))
-    table = plain_table("method", *STATS.values())
-    with Progress(console=stdout(), transient=True) as progress:
-        for policy in (GeniePolicy(), RandomWalkPolicy(seed=seed), GreedyPolicy(config.p_h_db, seed=seed)):
-            task = progress.add_task(policy.name, total=episodes)
-            df = run_episodes(maps, policy, eps, on_step=lambda d, t, task=task: progress.update(task, completed=d))
-            s = summarise(df)
-            table.add_row(policy.name, *(format_stat(k, s[k], t_max=t_max) for k in STATS))
-    stdout().print(table)
+    for dataset in datasets:  # one table per city: cities are never pooled
+        maps = MapSet.load(dataset, config, root=str(root))
+        eps = maps.sample_episodes(episodes, np.random.default_rng(seed))
+        title = f"{dataset}: {episodes} episodes, t_max {t_max}, P_T {p_t_db:g} dB" + (f", {split} users" if split else "")
+        table = plain_table("method", *STATS.values(), title=title)
+        with Progress(console=stdout(), transient=True) as progress:
+            for policy in (GeniePolicy(), RandomWalkPolicy(seed=seed), GreedyPolicy(config.p_h_db, seed=seed)):
+                task = progress.add_task(f"{dataset} {policy.name}", total=episodes)
+                df = run_episodes(maps, policy, eps, on_step=lambda d, t, task=task: progress.update(task, completed=d))
+                s = summarise(df)
+                table.add_row(policy.name, *(format_stat(k, s[k], t_max=t_max) for k in STATS))
+        stdout().print(table)
 
 
 @click.command()

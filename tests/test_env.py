@@ -438,6 +438,10 @@ def test_uavrl_baselines_cli(root):
 
     res = CliRunner().invoke(uavrl, ["baselines", "--dataset", "tiny", "--root", str(root), "--episodes", "40", "--t-max", "60"])
     assert res.exit_code == 0, res.output
+    assert "tiny: 40 episodes, t_max 60, P_T 5 dB" in res.output  # each city's table says what it is
+    twice = CliRunner().invoke(uavrl, ["baselines", "--dataset", "tiny", "--dataset", "tiny", "--root", str(root),
+                                       "--episodes", "40", "--t-max", "60"])  # fmt: skip
+    assert twice.exit_code == 0 and twice.output.count("tiny: 40 episodes") == 2  # one table per city, never pooled
     assert (
         "genie" in res.output
         and "100.0 %" in res.output
