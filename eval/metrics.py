@@ -68,6 +68,8 @@ def weighted_stats(steps: np.ndarray, success: np.ndarray, genie_steps: np.ndarr
         "p75_steps": _weighted_quantile(to_target, w, 0.75),
         "within_100": (w * (to_target <= WITHIN)).sum(axis=1) / total,
         "steps_over_genie": _weighted_quantile(ratio, w, 0.5),
+        "medians_ratio": _weighted_quantile(to_target, w, 0.5)
+        / np.maximum(_weighted_quantile(np.asarray(genie_steps, np.float64), w, 0.5), 1),
         "mean_steps_success": mean_ok,
     }
 

@@ -748,7 +748,7 @@ def summary_rows(reports: list[Report], t_max: int) -> list[list[str]]:
 
 
 #: The columns of ``summary.csv`` taken from each report's table.
-SUMMARY_STATS = ("success", "median_steps", "steps_over_genie")
+SUMMARY_STATS = ("success", "median_steps", "steps_over_genie", "medians_ratio")
 
 
 def summary_frame(reports: list[Report]) -> pd.DataFrame:

@@ -113,7 +113,7 @@ class Point(click.ParamType):
     "--gap-fill-reach",
     "gap_fill_reach_m",
     type=click.FloatRange(min=0, max=400),
-    default=16.0,
+    default=24.0,
     show_default=True,
     help="geodesic: how far [m] from a hit cell the walk goes (0: direct paths only).",
 )
@@ -121,7 +121,7 @@ class Point(click.ParamType):
     "--gap-fill-decay",
     "gap_fill_decay_db_per_m",
     type=click.FloatRange(min=0, max=100),
-    default=1.0,
+    default=3.0,
     show_default=True,
     help="geodesic: loss of the walk [dB per metre].",
 )

@@ -46,8 +46,8 @@ class RayTraceConfig:
     gap_fill_method: str = "geodesic"
     #: ``geodesic``: how far from a hit cell [m] a cell no ray hit is walked to, and the decay on the way [dB/m]
     #: (chosen on the validation cities' exact paths, ``benchmarks/bench_fidelity.py``); reach 0: direct paths only.
-    gap_fill_reach_m: float = 16.0
-    gap_fill_decay_db_per_m: float = 1.0
+    gap_fill_reach_m: float = 24.0
+    gap_fill_decay_db_per_m: float = 3.0
 
 
 def _expand(coarse: np.ndarray, factor: int, shape: tuple[int, int]) -> np.ndarray:

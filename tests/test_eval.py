@@ -49,6 +49,8 @@ def test_median_counts_failures_as_beyond_t_max():
     assert row["p75_steps"] == np.inf  # order statistic 4 of 5: a failure
     assert row["within_100"] == pytest.approx(0.6)
     assert row["steps_over_genie"] == 3.0  # ratios 2, 2, 3, inf, inf
+    assert row["medians_ratio"] == 6.0  # median steps 6 over the genie's median 1 (genie steps 1, 2, 2, 1, 1)
+    assert format_stat("medians_ratio", np.inf, 2.0, np.inf) == "inf (median a failure) [2.00, inf (median a failure)]"
     assert summarise(df) == pytest.approx({k: row[k] for k in summarise(df)})
     # With failures in the majority the median is past t_max (at exactly half, it is the last success).
     assert bootstrap_table({"m": episodes([2, 4, 6, 10, 10, 10], [1, 1, 1, 0, 0, 0])}, n_boot=200).iloc[0]["median_steps"] == 6
