@@ -271,9 +271,11 @@ def plot_cdf(results: dict[str, pd.DataFrame], t_max: int, out: Path) -> Figure:
     fig, ax = plt.subplots(figsize=(9.5, 4.8), constrained_layout=True)
     for name, df in results.items():
         s, f = ecdf(df, t_max)
-        ax.step(s, f, where="post", label=f"{name} ({100 * f[-1]:.0f} %)", linewidth=1.3 if name in BASELINES else 2.0)
+        ax.step(s, f, where="post", label=f"{name} ({100 * f[-1]:.1f} %)", linewidth=1.3 if name in BASELINES else 2.0)
     ax.set_xscale("symlog", linthresh=10)
     ax.set_xlim(0, t_max)
+    ticks = [t for t in (0, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000) if t <= t_max]
+    ax.set_xticks(ticks, [str(t) for t in ticks])
     ax.set_ylim(0, 1.01)
     ax.set_xlabel("steps to reach P_T (linear to 10, logarithmic above)")
     ax.set_ylabel("share of episodes that reached P_T")
@@ -583,12 +585,14 @@ def render_page(
             f"<h2>Training</h2>{_figure(training, 1, 'training curves')}"
         )
     raw = provenances[0] if len(provenances) == 1 else provenances
+    # One city: its report's time. Several: the page's own, when the last city was done (the first city's is earlier).
+    made = provenances[0]["created_utc"] if summary is None else dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><meta name="generator" content="{GENERATOR}">
 <title>uavplace report: {html.escape(cities)}</title>
 <style>{_CSS}</style></head><body>
 <h1>uavplace: UAV placement for a user of unknown location</h1>
-<p>Unseen-city evaluation in {html.escape(cities)}. Made {html.escape(provenances[0]["created_utc"])} by
+<p>Unseen-city evaluation in {html.escape(cities)}. Made {html.escape(made)} by
 <code>{html.escape(provenances[0]["command"])}</code>.</p>
 {summary_html}
 {"".join(sections)}
