@@ -30,7 +30,7 @@ def test_checkpoint_payloads_never_run(tmp_path, shared):  # noqa: F811
     agent = w.agent()
     w.payload(agent / "checkpoints" / "best.pt")
     res = invoke(uavrl, *w.report("--run", str(agent)))
-    assert res.exit_code == 2 and "refused" in res.output and "GLOBAL io.open" in res.output
+    assert res.exit_code == 2 and "refused" in res.output and "io.open" in res.output
     for run in (w.run_folder(payload=True),):
         res = invoke(uavrl, "train", "--resume", str(run), "--root", str(w.root()))
         assert res.exit_code == 2 and "refused" in res.output
@@ -146,3 +146,43 @@ def test_report_checks_everything_before_the_first_episode(tmp_path, shared):  #
     report = make_report(ok, tmp_path / "r", root=w.root(), on_progress=on_progress)
     assert played and (report.out / "report.json").is_file()
     assert "elsewhere@0123456789ab" in (report.out / "report.json").read_text()
+
+
+def test_checkpoint_payloads_are_named_whatever_torch_says(tmp_path):
+    """A bare pickle of protocol 4 calling os.system: torch 2.13 refuses it as an "Unsupported operand", not a global;
+    the refusal still says the file holds Python objects and names what it would call, and nothing runs."""
+    import pickle
+
+    from uavplace.rl.agent.checkpoint import load_tensors
+
+    marker = tmp_path / "PWNED"
+
+    class Payload:
+        def __reduce__(self):  # noqa: ANN204
+            return (os.system, (f"touch {marker}",))
+
+    path = tmp_path / "best.pt"
+    path.write_bytes(pickle.dumps({"online": Payload()}, protocol=4))
+    with pytest.raises(InputError, match=r"holds Python objects .*it names posix.system"):
+        load_tensors(path)
+    assert not marker.exists()
+
+
+def test_non_finite_weights_are_refused_on_save_and_on_load(tmp_path):
+    """NaN or inf weights (a diverged training, a tampered file) are never saved and never loaded: the error names
+    the tensor; the file a refused save would have replaced is untouched."""
+    import torch
+
+    from uavplace.rl.agent.checkpoint import load_tensors, save_tensors
+
+    good = {"online": {"w": torch.ones(3), "steps": torch.tensor([1, 2])}, "config": {"lr": 1e-3}}
+    path = tmp_path / "best.pt"
+    save_tensors(good, path)
+    before = path.read_bytes()
+    bad = {"online": {"w": torch.tensor([1.0, float("nan"), 2.0]), "steps": torch.tensor([1, 2])}}
+    with pytest.raises(InputError, match=r"online\.w holds NaN or inf: the training diverged"):
+        save_tensors(bad, path)
+    assert path.read_bytes() == before and load_tensors(path)["config"] == {"lr": 1e-3}
+    torch.save({"online": {"w": torch.tensor([float("inf")])}}, tmp_path / "tampered.pt")
+    with pytest.raises(InputError, match=r"tampered.pt: weights: online\.w holds NaN or inf: not usable weights"):
+        load_tensors(tmp_path / "tampered.pt")
