@@ -165,13 +165,11 @@ def train(
     runs: Path, name: str | None, until: int | None, resume: Path | None, root: Path, quiet: bool,
 ) -> None:  # fmt: skip
     """Train the DQN agent (or its blind twin) on built cities; write config, metrics and checkpoints to a run folder."""
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-
     from uavplace.dataset.catalog import expand_datasets
     from uavplace.rl.agent.dqn import parse_settings, preset_config
-    from uavplace.rl.agent.train import Trainer, new_run_dir, read_run_json
-    from uavplace.schemas.cli import command_line
-    from uavplace.schemas.files import check_name
+    from uavplace.rl.agent.train import new_run_dir, read_run_json
+    from uavplace.schemas import InputError
+    from uavplace.schemas.files import check_name, exclusive_folder
 
     if resume is not None:
         doc = read_run_json(resume)
@@ -185,9 +183,34 @@ def train(
         overrides |= {"eval_every": eval_every} if eval_every else {}
         config = preset_config(preset, **overrides)
         run_dir = named or new_run_dir(runs, config)
+    # The run folder is held for the whole training: a second command on it (the same --name a second later, or a
+    # second --resume) is refused at once, and a new run's folder is claimed before any work.
+    try:
+        with exclusive_folder(run_dir, "training run"):
+            _train_in(run_dir, resume, config, datasets, val_datasets, root, until, quiet)
+    except InputError as err:
+        fail(err)
+
+
+def _train_in(run_dir: Path, resume, config, datasets, val_datasets, root: Path, until: int | None, quiet: bool) -> None:  # noqa: ANN001
+    """``uavrl train``'s work, with ``run_dir``'s lock held."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    from uavplace.rl.agent.train import Trainer
+    from uavplace.schemas.cli import command_line
+
+    claimed = False
+    if resume is None:
         if run_dir.exists():
             fail(FileExistsError(f"{run_dir} exists: choose another --name, or continue it with --resume {run_dir}"))
-    trainer = Trainer(config, list(datasets), root, run_dir, command=command_line(), val_datasets=list(val_datasets))
+        run_dir.mkdir(parents=True)
+        claimed = True
+    try:
+        trainer = Trainer(config, list(datasets), root, run_dir, command=command_line(), val_datasets=list(val_datasets))
+    except BaseException:
+        if claimed and not any(run_dir.iterdir()):
+            run_dir.rmdir()  # nothing was written: give the name back
+        raise
     if resume is not None:
         trainer.load()  # every check of the checkpoint before the first step
     columns = (TextColumn("[bold]train[/] {task.description}"), BarColumn(), TextColumn("{task.completed:,}/{task.total:,}"),

@@ -116,6 +116,23 @@ def folder_lock(final: str | Path) -> Iterator[None]:
         os.close(fd)  # closing the descriptor releases the lock
 
 
+@contextlib.contextmanager
+def exclusive_folder(final: str | Path, what: str) -> Iterator[None]:
+    """Hold ``final``'s lock (``folder_lock``'s file) for the whole block, or refuse at once (``InputError``) when
+    another process holds it: for long work on one folder (a training run) that a second command must not join."""
+    final = Path(final)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(final.parent / f".{final.name}.lock", os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise InputError(final, f"another process is working on this {what} now: wait for it to finish") from None
+        yield
+    finally:
+        os.close(fd)
+
+
 def check_replaceable(final: str | Path, marker: str, what: str) -> None:
     """Refuse (``InputError``) if ``final`` exists and is not an empty folder or a ``what`` uavplace made.
 

@@ -265,7 +265,7 @@ def test_uavrl_train_cli(tmp_path, city_root):
     ]
     res = run(uavrl, args)
     assert res.exit_code == 0, res.output
-    (run_dir,) = tmp_path.iterdir()
+    (run_dir,) = (p for p in tmp_path.iterdir() if p.is_dir())  # beside it only its lock file, .NAME.lock
     assert "fast-dqn-s0" in run_dir.name and "last evaluation" in res.output
     assert {"run.json", "metrics.parquet", "eval.parquet", "checkpoints"} <= {p.name for p in run_dir.iterdir()}
     assert (run_dir / "checkpoints" / "best.pt").is_file()
@@ -273,6 +273,17 @@ def test_uavrl_train_cli(tmp_path, city_root):
     assert res.exit_code == 2 and "exists" in res.output
     res = run(uavrl, [*args[:-1], "--name", "logged"])  # not a terminal and not --quiet: plain lines for a log
     assert res.exit_code == 0 and "train logged: step 96/96 ep " in res.output, res.output
+    from uavplace.schemas.files import exclusive_folder
+
+    with exclusive_folder(tmp_path / "busy", "training run"):  # another command holds the name (or resumes the run)
+        res = run(uavrl, [*args, "--name", "busy"])
+        assert res.exit_code == 2 and "another process is working on this training run now" in res.output
+        assert not (tmp_path / "busy").exists()  # refused before anything was claimed or written
+        res = run(uavrl, ["train", "--resume", str(run_dir), "--root", str(city_root), "--quiet"])
+        assert res.exit_code == 0  # another run's lock is not this one's
+    with exclusive_folder(run_dir, "training run"):
+        res = run(uavrl, ["train", "--resume", str(run_dir), "--root", str(city_root), "--quiet"])
+        assert res.exit_code == 2 and "another process is working on this training run now" in res.output
     res = run(uavrl, ["train", "--dataset", "nowhere", "--root", str(city_root), "--out", str(tmp_path)])
     assert res.exit_code != 0 and "nowhere: dataset: no ingested city or corpus" in res.output
 
