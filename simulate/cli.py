@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import click
@@ -179,8 +180,9 @@ def simulate(
     package versions, materials, wall time). Then: uavdata ingest OUT/<name>/ && uavdata build.
     Needs the raytrace extra: pip install -e '.[raytrace]' (CPU: libllvm19).
     """
+    from uavplace.schemas import InputError
     from uavplace.simulate.corpus import city_config, corpus_specs, is_done
-    from uavplace.simulate.pipeline import SimulationSpec, simulate_city
+    from uavplace.simulate.pipeline import SimulationSpec, check_simulation, simulate_city
     from uavplace.simulate.raytrace import RayTraceConfig
 
     check_name(name, "city name")
@@ -189,7 +191,6 @@ def simulate(
             raise click.BadParameter("expected XMIN,YMIN,XMAX,YMAX", param_hint=hint)
     base = SimulationSpec(source=sources[0], name=name, num_users=len(users_m) or num_users, grid_m=grid_m, altitude_m=altitude_m,
                           tx_dbm=tx_dbm, seed=seed, extent_m=extent, users_m=tuple(users_m), crop_m=crop)  # fmt: skip
-    specs = corpus_specs(list(sources), name, count, base)
     try:
         factors = () if gap_fill == "none" else tuple(int(f) for f in gap_fill.split(","))
     except ValueError:
@@ -201,7 +202,7 @@ def simulate(
                                  param_hint="--gap-fill")  # fmt: skip
     rt = RayTraceConfig(
         frequency_hz=frequency_hz,
-        samples_per_tx=int(samples),
+        samples_per_tx=int(samples) if math.isfinite(samples) else samples,  # check_simulation refuses nan and inf
         max_depth=depth,
         diffraction=not no_diffraction,
         seed=seed,
@@ -210,6 +211,11 @@ def simulate(
         gap_fill_reach_m=gap_fill_reach_m,
         gap_fill_decay_db_per_m=gap_fill_decay_db_per_m,
     )
+    try:
+        check_simulation(base, rt, count)  # every option, before any list of cities is made or any work starts
+    except InputError as err:
+        fail(err)
+    specs = corpus_specs(list(sources), name, count, base)
     if len(specs) > 1 or ray_address is not None:
         _simulate_corpus(specs, rt, out_root, ray_address, cpus_per_city, quiet, trace_cache)
         return

@@ -96,6 +96,51 @@ def _size(text: str, source: str) -> tuple[float, float]:
     return (w, h)
 
 
+#: Limits of one ``uavdata simulate`` call, checked before any work (``check_simulation``); each error names its option.
+LIMITS = {
+    "count": (1, 1000),  # cities of one call
+    "users": (1, 1000),  # users per city
+    "grid_m": (0.5, 100.0),  # cell side [m]
+    "altitude_m": (2.0, 1000.0),  # above the users' 1.5 m
+    "tx_dbm": (-50.0, 70.0),
+    "frequency_hz": (1e8, 1e11),
+    "samples": (1e3, 1e10),  # rays per user
+    "depth": (0, 10),
+    "extent_m": (0.0, 5000.0),  # side of an --extent or --crop box [m]
+    "user_cells": (1, 5e7),  # users x grid cells: the maps held in memory (8 bytes each)
+}
+
+
+def _bounded(value: float, name: str, option: str) -> None:
+    lo, hi = LIMITS[name]
+    if not (np.isfinite(value) and lo <= value <= hi):
+        raise InputError(option, f"{value!r} is out of range: {lo:g} to {hi:g} (simulate.pipeline.LIMITS)", field=name)
+
+
+def check_simulation(spec: SimulationSpec, config: RayTraceConfig, count: int = 1) -> None:
+    """``InputError`` naming the option unless every setting of the call is finite and in ``LIMITS`` (also the box of
+    ``--extent``/``--crop`` and the ``--user`` positions), before any geometry is loaded or any memory allocated."""
+    _bounded(count, "count", "--count")
+    _bounded(len(spec.users_m) or spec.num_users, "users", "--users")
+    _bounded(spec.grid_m, "grid_m", "--grid")
+    _bounded(spec.altitude_m, "altitude_m", "--alt")
+    _bounded(spec.tx_dbm, "tx_dbm", "--tx-dbm")
+    _bounded(config.frequency_hz, "frequency_hz", "--freq")
+    _bounded(config.samples_per_tx, "samples", "--samples")
+    _bounded(config.max_depth, "depth", "--depth")
+    for option, box in (("--extent", spec.extent_m), ("--crop", spec.crop_m)):
+        if box is None:
+            continue
+        if not all(np.isfinite(box)) or box[2] <= box[0] or box[3] <= box[1]:
+            raise InputError(option, f"{box}: expected finite XMIN,YMIN,XMAX,YMAX with XMIN < XMAX and YMIN < YMAX", field="box")
+        _bounded(max(box[2] - box[0], box[3] - box[1]), "extent_m", option)
+        cells = ((box[2] - box[0]) // spec.grid_m) * ((box[3] - box[1]) // spec.grid_m)
+        _bounded(cells * (len(spec.users_m) or spec.num_users), "user_cells", f"{option} with --grid and --users")
+    for k, (x, y) in enumerate(spec.users_m):
+        if not (np.isfinite(x) and np.isfinite(y)):
+            raise InputError("--user", f"user {k + 1} at ({x}, {y}): coordinates must be finite", field="user")
+
+
 def load_geometry(
     source: str, seed: int, crop: tuple[float, float, float, float] | None = None
 ) -> tuple[list[Block], tuple[float, float, float, float], str]:
@@ -169,6 +214,9 @@ def load_geometry(
     if not blocks:
         raise InputError(path, "no building in the geometry" + (" inside --crop" if crop else ""), field="geometry")
     b = crop if crop is not None else tuple(shapely.total_bounds([blk.footprint for blk in blocks]))
+    if max(b[2] - b[0], b[3] - b[1]) > LIMITS["extent_m"][1]:
+        raise InputError(path, f"the geometry spans {b[2] - b[0]:.0f} x {b[3] - b[1]:.0f} m, more than "
+                         f"{LIMITS['extent_m'][1]:g} m a side: give --crop", field="geometry")  # fmt: skip
     tiers = len(blocks)
     described = f"{source if source.startswith('sionna:') else path.name}: {len(records)} buildings in {tiers} roof tiers"
     if left_out:
@@ -222,6 +270,7 @@ def buildings_of(blocks: list[Block]) -> list[list[tuple[shapely.Polygon, float,
 def receiver_grid(bounds: tuple[float, float, float, float], spec: SimulationSpec) -> ReceiverGrid:
     x0, y0, x1, y1 = spec.extent_m or bounds
     nx, ny = int((x1 - x0) // spec.grid_m), int((y1 - y0) // spec.grid_m)
+    _bounded(nx * ny * (len(spec.users_m) or spec.num_users), "user_cells", "--grid with --users (the city's size)")
     if nx < 2 or ny < 2:
         raise InputError(
             spec.source, f"a {x1 - x0:g} x {y1 - y0:g} m extent holds fewer than 2 x 2 cells of {spec.grid_m:g} m", field="extent"
@@ -329,6 +378,7 @@ def simulate_city(
             on_progress(stage, done, total)
 
     check_name(spec.name, "city name")
+    check_simulation(spec, rt_config)
     try:
         check_fill(rt_config)
     except ValueError as err:

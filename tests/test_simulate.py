@@ -155,6 +155,17 @@ def test_bad_simulation_inputs(tmp_path):
     )
     assert res.exit_code == 2 and "takes its levels from coarse maps: add --gap-fill 4,16" in res.output
     assert not (tmp_path / "t").exists()
+    for args, option in (
+        (["--grid", "0"], "--grid"), (["--grid", "nan"], "--grid"), (["--samples", "nan"], "--samples"),
+        (["--samples", "inf"], "--samples"), (["--extent", "nan,0,100,100"], "--extent"), (["--freq", "0"], "--freq"),
+        (["--freq", "-8e8"], "--freq"), (["--crop=-inf,0,100,100"], "--crop"), (["--alt", "-10"], "--alt"),
+        (["--count", "1000000000"], "--count"), (["--users", "100000000"], "--users"), (["--tx-dbm", "nan"], "--tx-dbm"),
+        (["--depth", "99"], "--depth"), (["--extent", "0,0,50000,100"], "--extent"), (["--user", "nan,3"], "--user"),
+        (["--grid", "0.5", "--extent", "0,0,4000,4000", "--users", "27"], "--extent with --grid and --users"),
+    ):  # fmt: skip
+        res = CliRunner().invoke(uavdata, ["simulate", "procedural:tiny", "--name", "t", "--out", str(tmp_path), *args])
+        assert res.exit_code == 2 and f"error: {option}:" in res.output and "internal error" not in res.output, (args, res.output)
+        assert not (tmp_path / "t").exists()
 
 
 def test_slab_transmission_has_p2040s_known_values():
