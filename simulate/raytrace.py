@@ -94,25 +94,33 @@ def fill_smooth(
     known = fine > 0
     value = np.where(known, np.log(np.where(known, fine * d2, 1.0)), 0.0)  # log of the gain relative to free space
     gap = live & ~known
-    spread = np.broadcast_to(open_cells, fine.shape)
-    for _ in range(sum(shape)):
-        src = known & spread
-        total = np.zeros_like(value)
-        count = np.zeros(fine.shape, np.int32)
-        for axis, step in ((-1, 1), (-1, -1), (-2, 1), (-2, -1)):
-            total += _shifted(np.where(src, value, 0.0), step, axis)
-            count += _shifted(src.astype(np.int32), step, axis)
-        new = gap & ~known & (count > 0)
-        if not new.any():
-            break
-        value[new] = total[new] / count[new]
-        known |= new
+    _walk_fronts(value, known, gap, np.broadcast_to(open_cells, fine.shape), sum(shape))
     relative = np.where(known, np.exp(value), 0.0)
     for c, f in zip(coarse, factors, strict=True):  # gaps no front reached: the finest parent that saw rays
         relative = np.where(known, relative, _expand(c * _block_mean(d2, f), f, shape))
         known |= relative > 0
     out = np.where(fine > 0, fine, np.where(live, relative / d2, 0.0))  # hit cells exactly as traced
     return _to_parent_level(out, fine, coarse, factors)
+
+
+def _walk_fronts(
+    value: np.ndarray, known: np.ndarray, targets: np.ndarray, spread: np.ndarray, fronts: int, step_ln: float = 0.0
+) -> None:
+    """In place, front by front outward from the ``known`` cells (at most ``fronts`` fronts): each cell of ``targets``
+    with known 4-neighbours in ``spread`` takes their mean ``value`` (a log gain) less ``step_ln``, and becomes known.
+    Only cells of ``spread`` pass a value on, so nothing crosses a building."""
+    for _ in range(fronts):
+        src = known & spread
+        total = np.zeros_like(value)
+        count = np.zeros(value.shape, np.int32)
+        for axis, step in ((-1, 1), (-1, -1), (-2, 1), (-2, -1)):
+            total += _shifted(np.where(src, value, 0.0), step, axis)
+            count += _shifted(src.astype(np.int32), step, axis)
+        new = targets & ~known & (count > 0)
+        if not new.any():
+            break
+        value[new] = total[new] / count[new] - step_ln
+        known |= new
 
 
 def _to_parent_level(filled: np.ndarray, fine: np.ndarray, coarse: list[np.ndarray], factors: tuple[int, ...]) -> np.ndarray:
@@ -187,18 +195,7 @@ def fill_geodesic(
     value = np.where(known, np.log(np.where(known, fine * d2, 1.0)), 0.0)  # log of the gain relative to free space
     spread = np.broadcast_to(open_cells, fine.shape)
     step_ln = decay_db_per_m * cell_m * np.log(10) / 10
-    for _ in range(int(reach_m // cell_m + 1e-9)):
-        src = known & spread
-        total = np.zeros_like(value)
-        count = np.zeros(fine.shape, np.int32)
-        for axis, step in ((-1, 1), (-1, -1), (-2, 1), (-2, -1)):
-            total += _shifted(np.where(src, value, 0.0), step, axis)
-            count += _shifted(src.astype(np.int32), step, axis)
-        new = spread & ~known & (count > 0)
-        if not new.any():
-            break
-        value[new] = total[new] / count[new] - step_ln
-        known |= new
+    _walk_fronts(value, known, spread, spread, int(reach_m // cell_m + 1e-9), step_ln)
     walked = np.where(known & ~(fine > 0), np.exp(value) / d2, 0.0)
     return np.maximum(np.where(fine > 0, fine, walked), direct)
 
