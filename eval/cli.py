@@ -61,11 +61,19 @@ from uavplace.schemas.cli import command_line, plain_table, root_option, stdout
 )
 @click.option("--agents-dir", type=click.Path(file_okay=False, path_type=Path), default=Path("data/agents"), show_default=True,
               help="Where the default agents are looked for.")  # fmt: skip
+@click.option(
+    "--markdown",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Also write every table (each city's results and paired differences, then the summary) as Markdown to this "
+    "file, for a README that cannot drift from what the command printed.",
+)
 @root_option
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def report(
     runs: tuple[Path, ...], datasets: tuple[str, ...], out: Path | None, episodes: int, t_max: int, p_t_db: float, test_epsilon: float,
-    n_boot: int, trajectories: int, split: str | None, seed: int, agents_dir: Path, root: Path, quiet: bool,
+    n_boot: int, trajectories: int, split: str | None, seed: int, agents_dir: Path, markdown: Path | None, root: Path,
+    quiet: bool,
 ) -> None:  # fmt: skip
     """Evaluate agents and baselines on the same episodes of a test city; write an HTML report, PNGs, CSV and Parquet.
 
@@ -100,6 +108,12 @@ def report(
         stdout().print(plain_table(*rows[0], rows=rows[1:], title="success / median steps per method and city"))
         page = write_summary_page(reports, out or Path("reports"), t_max)
         stdout().print(f"report (every city): {page}", highlight=False, soft_wrap=True)
+    if markdown is not None:
+        from uavplace.eval.report import markdown_tables
+        from uavplace.schemas.files import atomic_write_text
+
+        atomic_write_text(markdown, markdown_tables(reports, t_max))
+        stdout().print(f"tables (Markdown): {markdown}", highlight=False, soft_wrap=True)
 
 
 def _one_report(config, out: Path, root: Path, quiet: bool):

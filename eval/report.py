@@ -723,6 +723,31 @@ def write_summary_page(reports: list[Report], out: str | Path, t_max: int) -> Pa
     return out / "report.html"
 
 
+def _markdown(rows: list[list[str]]) -> str:
+    escape = str.maketrans({"|": "\\|"})
+    lines = ["| " + " | ".join(c.translate(escape) for c in rows[0]) + " |", "|" + "---|" * len(rows[0])]
+    return "\n".join(lines + ["| " + " | ".join(c.translate(escape) for c in r) + " |" for r in rows[1:]])
+
+
+def markdown_tables(reports: list[Report], t_max: int) -> str:
+    """Every table of the reports as Markdown: per city its results and paired differences (each with what it is),
+    then, with several cities, the summary with its caption."""
+    parts = []
+    for r in reports:
+        p = r.provenance
+        parts.append(f"**{p['test_city']}** ({r.config.episodes} episodes of {p.get('users', '?')} users, bundle "
+                     f"{p['test_bundle']}, t_max {r.config.t_max}, P_T {r.config.p_t_db:g} dB; 95 % intervals over users, "
+                     "then episodes)")  # fmt: skip
+        parts.append(_markdown(r.rows))
+        if len(r.diff_rows) > 1:
+            parts.append(f"Paired differences in {p['test_city']}, method minus reference (95 % intervals):")
+            parts.append(_markdown(r.diff_rows))
+    if len(reports) > 1:
+        parts.append(summary_caption(reports))
+        parts.append(_markdown(summary_rows(reports, t_max)))
+    return "\n\n".join(parts) + "\n"
+
+
 def summary_caption(reports: list[Report]) -> str:
     """What the summary's cells are: episodes and users per city, what the intervals resample."""
     per_city = ", ".join(

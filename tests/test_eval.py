@@ -195,8 +195,13 @@ def test_report_on_several_cities(tmp_path, two_cities):
     """One report folder per test city under --out, then one summary line per method across the cities."""
     root, run = two_cities
     args = ["report", "--run", str(run), "--dataset", "cityb", "--dataset", "cityc", "--root", str(root)]
-    res = CliRunner().invoke(uavrl, [*args, "--out", str(tmp_path / "r"), "--episodes", "20", "--t-max", "30", "--quiet"])
+    md = tmp_path / "tables.md"
+    res = CliRunner().invoke(uavrl, [*args, "--out", str(tmp_path / "r"), "--episodes", "20", "--t-max", "30", "--quiet",
+                                     "--markdown", str(md)])  # fmt: skip
     assert res.exit_code == 0, res.output
+    text = md.read_text()  # the tables the command printed, as Markdown: a README copies them, never retypes them
+    assert text.index("**cityb** (20 episodes") < text.index("**cityc** (20 episodes") < text.index("| method | cityb: success")
+    assert "Paired differences in cityb, method minus reference" in text and "| genie | 100.0 % [100.0, 100.0 %]" in text
     for city in ("cityb", "cityc"):
         doc = json.loads((tmp_path / "r" / city / "report.json").read_text())
         assert doc["report_config"]["dataset"] == city
