@@ -23,8 +23,9 @@ from uavplace.schemas.files import DEFAULT_ROOT, check_name
     help="Root of processed data; tables go to OUT/<city>/ingested/.",
 )
 @click.option("--name", default=None, help="City name (default: the folder's name; only with one FOLDER).")
-@click.option("--quiet", is_flag=True, help="No progress bar and no per-file table; only the summary line.")
-def ingest(folders: tuple[Path, ...], out_root: Path, name: str | None, quiet: bool) -> None:
+@click.option("--verbose", is_flag=True, help="Also a table of every file: kind, status, rows read and rejected, notes.")
+@click.option("--quiet", is_flag=True, help="No progress bar; only the summary line per city (and any warning).")
+def ingest(folders: tuple[Path, ...], out_root: Path, name: str | None, verbose: bool, quiet: bool) -> None:
     """Read every export in each city FOLDER, validate it and write tables (e.g. `uavdata ingest data/raw/*/`).
 
     Understands Wireless InSite receiver outputs (.p2m, .p2m.gz: power, pl,
@@ -38,10 +39,10 @@ def ingest(folders: tuple[Path, ...], out_root: Path, name: str | None, quiet: b
     if name is not None:
         check_name(name, "city name")
     for folder in folders:
-        _ingest_one(folder, out_root, name, quiet)
+        _ingest_one(folder, out_root, name, verbose, quiet)
 
 
-def _ingest_one(folder: Path, out_root: Path, name: str | None, quiet: bool) -> None:
+def _ingest_one(folder: Path, out_root: Path, name: str | None, verbose: bool, quiet: bool) -> None:
     from uavplace.ingest.pipeline import ingest_city
 
     with Progress(
@@ -60,13 +61,13 @@ def _ingest_one(folder: Path, out_root: Path, name: str | None, quiet: bool) -> 
 
         out_dir, manifest, report = ingest_city(folder, out_root, name=name, command=command_line(), on_file=on_file)
     out = stdout()
-    if not quiet:
+    if verbose:
         table = plain_table("file", "kind", "status", "rows", "rejected", "note", title=f"{manifest.name}: files")
         for f in report.files:  # file names and notes are the user's text, not markup
             table.add_row(*map(Text, (f.path, f.kind, f.status, str(f.rows_read), str(f.rows_rejected), f.message or "")))
         out.print(table)
-        for w in report.warnings:
-            console.print(f"[yellow]warning:[/] {w}", highlight=False, soft_wrap=True)
+    for w in report.warnings:  # never hidden: a warning is something the user has to see
+        console.print(Text.assemble(("warning:", "yellow"), f" {w}"), highlight=False, soft_wrap=True)  # w: the user's text
     c = manifest.counts
     out.print(
         f"ingested {manifest.name}: {c['files']} files ({c['files_parsed']} parsed, {c['files_skipped']} skipped, "

@@ -261,6 +261,9 @@ def test_versions_units_and_bracketed_names_are_shown(tmp_path):
     city = write_grid_city(tmp_path / "city")
     (city / "notes [draft].txt").write_text("x")
     res = run("ingest", str(city), "--out", str(tmp_path / "proc"))
-    assert res.exit_code == 0 and "notes [draft].txt" in res.output
+    assert res.exit_code == 0 and "notes [draft].txt" in res.output  # a warning is printed whatever the verbosity
+    assert "city: files" not in res.output and res.output.count("ingested city:") == 1  # a line per city by default
+    res = run("ingest", str(city), "--out", str(tmp_path / "proc"), "--verbose")
+    assert res.exit_code == 0 and "city: files" in res.output and "unknown" in res.output  # the table of every file
     res = run("list", "--root", str(tmp_path / "proc"))
     assert "frequency [MHz]" in res.output
