@@ -36,6 +36,7 @@ def test_embedded_city_ingests_builds_and_is_faithful(tmp_path, city):
     from uavplace.rl.maps import MapSet
     from uavplace.rl.policies import GeniePolicy
     from uavplace.rl.rollout import run_episodes
+    from uavplace.simulate.fidelity import lattice_boundary_shares, lattice_step_ratios
     from uavplace.simulate.raytrace import constant_patch_share
 
     record = json.loads((RAW / city / "simulation.json").read_text())
@@ -50,6 +51,13 @@ def test_embedded_city_ingests_builds_and_is_faithful(tmp_path, city):
         assert abs(d["bfs_median_steps"] - 14) <= 3, d["bfs_median_steps"]
     live = ~b.dead & ~b.blocked[None] & (b.sinr_db > b.sinr_floor_db)
     assert constant_patch_share(b.sinr_db, live) <= 0.01
+    # No lattice of the coarse maps once used to fill gaps (docs/fidelity.md): dead regions follow the city, about 1 in
+    # 16 (1 in 4) of their boundaries on the 64 m (16 m) lines, and the SINR steps as much across those lines as elsewhere.
+    shares = lattice_boundary_shares(~b.dead, ~b.blocked)
+    if not np.isnan(shares["64 m"]):  # (a city with no dead cell has no boundary)
+        assert shares["64 m"] <= 0.10 and shares["16 m"] <= 0.30, shares
+    steps = lattice_step_ratios(b.sinr_db, ~b.dead, ~b.blocked)
+    assert steps["64 m"] <= 1.1 and steps["16 m"] <= 1.1, steps
     maps = MapSet([b], EnvConfig(t_max=500, rotate=False))
     episodes = maps.sample_episodes(200, np.random.default_rng(0))
     assert run_episodes(maps, GeniePolicy(), episodes)["success"].all()
