@@ -178,6 +178,7 @@ GRU = PQN | {"recurrent": True}
     [({}, {}), ({"context_zoom": 3, "homing_channel": True}, {}), ({}, PQN), ({}, GRU)],
     ids=["plain", "context-homing", "pqn", "gru"],
 )
+@pytest.mark.slow
 def test_resume_continues_exactly(tmp_path, city_root, env, learner):
     """Train 256 steps straight, or stop at 96 and 200 and resume each time: identical networks and next actions
     (with context and homing channels too, whose memory of blocks and of the best cell the checkpoint keeps; with
@@ -397,6 +398,7 @@ def test_recurrent_policy_keeps_a_state_per_row(city_root):
 @pytest.mark.parametrize(
     "learner", [{"learner": "replay", "recurrent": False}, {"recurrent": False}, {}], ids=["replay", "pqn", "pqn-gru"]
 )
+@pytest.mark.slow
 def test_short_training_run_learns(tmp_path, learner):
     """On the embedded tiny city (noisier, so that few cells reach P_T), 15 k steps beat the random walk
     clearly on held-out episodes (drawn with another seed than training's), with either learner (and PQN with a

@@ -205,6 +205,7 @@ def test_half_written_bundle_is_never_loaded(tmp_path):
         load_bundle("city@fedcba987654", root=root)
 
 
+@pytest.mark.slow
 def test_kill_9_during_build_leaves_a_loadable_latest(tmp_path):
     """A real `uavdata build` killed with SIGKILL at several moments: latest always loads, every bundle folder is whole."""
     root = tmp_path / "p"

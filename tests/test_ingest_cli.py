@@ -233,6 +233,7 @@ def _ingest_peak_mb(city, out) -> float:
     return float(proc.stdout.split()[-1])
 
 
+@pytest.mark.slow
 def test_ingest_memory_stays_flat(tmp_path):
     """A .p2m ten times larger costs the ingest little more memory: it is read and written in batches."""
     import numpy as np

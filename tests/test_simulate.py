@@ -340,6 +340,7 @@ def test_simulate_ingest_build_round_trip(tmp_path):
 
 
 @needs_sionna
+@pytest.mark.slow
 def test_a_corpus_runs_on_local_ray_and_resumes(tmp_path):
     """Two tiny cities of generator v2 as Ray tasks; the same command again skips them; seeds make the cities."""
     pytest.importorskip("ray")
