@@ -72,6 +72,15 @@ def _sinr(gain: np.ndarray) -> np.ndarray:
                           SINR_FLOOR_DB)  # fmt: skip
 
 
+def _pct(v: float | None) -> str:
+    """A share, or "-" where ``map_quality`` has none (a map without a dead/live boundary)."""
+    return "-" if v is None else f"{100 * v:.1f} %"
+
+
+def _ratio(v: float | None) -> str:
+    return "-" if v is None else f"{v:.2f}"
+
+
 def _db(v: float) -> str:
     return "dead" if v == np.inf else f"{v:.2f}"
 
@@ -220,9 +229,9 @@ def main() -> None:
               f"{r['missed_pairs']} | {_db(r['missed_median_db'])} / {_db(r['missed_p90_db'])} | "
               f"{r['sinr_hit_median_db']:.2f} / {r['sinr_hit_p90_db']:.2f} | "
               f"{r['sinr_missed_median_db']:.2f} / {r['sinr_missed_p90_db']:.2f} | "
-              f"{100 * r['dead_live_agreement']:.1f} % | {100 * r['dead_live_boundaries_on_64m_lines']:.1f} % / "
-              f"{100 * r['dead_live_boundaries_on_16m_lines']:.1f} % | {r['step_ratio_across_64m_lines']:.2f} / "
-              f"{r['step_ratio_across_16m_lines']:.2f} | {100 * r['constant_4x4_patch_share']:.2f} % |")  # fmt: skip
+              f"{100 * r['dead_live_agreement']:.1f} % | {_pct(r['dead_live_boundaries_on_64m_lines'])} / "
+              f"{_pct(r['dead_live_boundaries_on_16m_lines'])} | {_ratio(r['step_ratio_across_64m_lines'])} / "
+              f"{_ratio(r['step_ratio_across_16m_lines'])} | {100 * r['constant_4x4_patch_share']:.2f} % |")  # fmt: skip
     print(
         "targets: hit and missed median <= 3 dB and p90 <= 8 dB (a dead estimate of a live pair counts as an infinite "
         "error), agreement >= 95 %, boundaries <= 10 % / 30 %, steps <= 1.1 x, patches <= 1 %"
