@@ -106,9 +106,7 @@ def folder_lock(final: str | Path) -> Iterator[None]:
     lock is released by the kernel if its holder dies, so a killed writer never
     leaves a folder locked.
     """
-    final = Path(final)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    fd = os.open(final.parent / f".{final.name}.lock", os.O_RDWR | os.O_CREAT, 0o644)
+    fd = _open_lock(final)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX)
         yield
@@ -116,13 +114,18 @@ def folder_lock(final: str | Path) -> Iterator[None]:
         os.close(fd)  # closing the descriptor releases the lock
 
 
+def _open_lock(final: str | Path) -> int:
+    """A descriptor of ``final``'s lock file, ``.<name>.lock`` beside it (created, with its parent, if missing)."""
+    final = Path(final)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    return os.open(final.parent / f".{final.name}.lock", os.O_RDWR | os.O_CREAT, 0o644)
+
+
 @contextlib.contextmanager
 def exclusive_folder(final: str | Path, what: str) -> Iterator[None]:
     """Hold ``final``'s lock (``folder_lock``'s file) for the whole block, or refuse at once (``InputError``) when
     another process holds it: for long work on one folder (a training run) that a second command must not join."""
-    final = Path(final)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    fd = os.open(final.parent / f".{final.name}.lock", os.O_RDWR | os.O_CREAT, 0o644)
+    fd = _open_lock(final)
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
