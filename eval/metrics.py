@@ -93,6 +93,12 @@ def _groups(results: dict[str, pd.DataFrame], by_user: bool) -> np.ndarray | Non
     return (df["city"].astype(str) + "/" + df["user"].astype(str)).to_numpy() if by_user else None
 
 
+def _resamples(results: dict[str, pd.DataFrame], n_boot: int, seed: int, by_user: bool) -> tuple[int, np.ndarray]:
+    """(episodes, ``resample_counts``) of paired results: the same for the table and the differences of one seed."""
+    n = _paired(results)
+    return n, resample_counts(_groups(results, by_user), n, n_boot, seed)
+
+
 def _stats_of(df: pd.DataFrame, weights: np.ndarray) -> dict:
     return weighted_stats(*(df[c].to_numpy() for c in ("steps", "success", "genie_steps")), weights)
 
@@ -106,8 +112,7 @@ def bootstrap_table(
     episodes (same ``episode``, ``view``, ``start_y``, ``start_x``), which is checked. ``by_user``:
     resample users, then episodes within them (``resample_counts``); else episodes alone.
     """
-    n = _paired(results)
-    counts = resample_counts(_groups(results, by_user), n, n_boot, seed)
+    n, counts = _resamples(results, n_boot, seed, by_user)
     users = len(np.unique(_groups(results, True)))
     alpha = (1.0 - level) / 2.0
     rows = []
@@ -136,8 +141,7 @@ def difference_table(
     ``results``: one row per (method, reference, statistic of ``DIFFERENCE_STATS``) with the difference and its
     interval, from the same resamples as ``bootstrap_table`` (same ``seed``). A median that falls on a failure is
     infinite; a difference involving one is reported as NaN (undefined), with the share of resamples where it is."""
-    n = _paired(results)
-    counts = resample_counts(_groups(results, by_user), n, n_boot, seed)
+    n, counts = _resamples(results, n_boot, seed, by_user)
     ones = np.ones((1, n))
     alpha = (1.0 - level) / 2.0
     rows = []
