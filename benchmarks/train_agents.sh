@@ -6,14 +6,16 @@
 #                               best-e345, best-e678, each three seeds as one agent (`uavrl ensemble`, evaluated on
 #                               the val cities); the median ensemble by that validation is shipped as
 #                               data/agents/best. LONG=1: 3 seeds on a 500 k-step schedule instead (best-long-sN)
+#   best-blind-s0 ... s2        (WHICH=best-blind) the `best` preset with the blind agent (no height channel), 3 seeds,
+#                               three side by side: the map question of docs/map_claim.md against best-s0 ... s2
 #   proposed-sN, blind-sN       the paper's preset (docs/method.md), with and without the height map,
 #                               on one shortened schedule (epsilon annealed over all of it), seed SEED
 # Resumable: a run whose folder exists continues from its last checkpoint; a finished one is skipped.
 #
-#   bash benchmarks/train_agents.sh best|paper [OUT]     # OUT defaults to runs/agents
+#   bash benchmarks/train_agents.sh best|best-blind|paper [OUT]     # OUT defaults to runs/agents
 #   SEED=1 PAPER_STEPS=300000 bash benchmarks/train_agents.sh paper runs/agents-v4
 set -euo pipefail
-WHICH=${1:?best or paper}
+WHICH=${1:?best, best-blind or paper}
 OUT=${2:-runs/agents}
 PAPER_STEPS=${PAPER_STEPS:-100000}
 mkdir -p "$OUT"
@@ -27,6 +29,8 @@ if [[ $WHICH == paper ]]; then
   SEED=${SEED:-0}
   one "proposed-s$SEED" "${PAPER[@]}" --seed "$SEED" --agent dqn &
   one "blind-s$SEED" "${PAPER[@]}" --seed "$SEED" --agent blind &
+elif [[ $WHICH == best-blind ]]; then
+  side_by_side best-blind "0 1 2" --preset best --agent blind
 else
   if [[ ${LONG:-0} == 1 ]]; then
     for seed in 0 1 2; do one "best-long-s$seed" --preset best --steps 500000 --seed "$seed" & done

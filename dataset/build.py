@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import datetime as dt
 import hashlib
-import json
+import io
+import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,14 +30,14 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from uavplace.dataset.bundle import load_bundle, read_latest, write_latest
+from uavplace.dataset.bundle import bundle_version, load_bundle, read_latest, write_latest
 from uavplace.dataset.catalog import DEFAULT_ROOT, INGESTED_MANIFEST, read_city_manifest
 from uavplace.dataset.difficulty import difficulty
 from uavplace.dataset.raster import cell_centres, cell_index, grid_over, ground_z, height_map
-from uavplace.schemas import SCHEMA_VERSION, CityManifest, InputError
+from uavplace.schemas import CityManifest, InputError
 from uavplace.schemas.base import uavplace_version
 from uavplace.schemas.bundle import BUNDLE_MANIFEST, CELLS, USERS, BuildConfig, BundleManifest, GridSpec, SinrInfo, SinrSource
-from uavplace.schemas.files import atomic_directory, sha256_file, write_model_json
+from uavplace.schemas.files import atomic_directory, folder_lock, sha256_file, write_model_json
 from uavplace.schemas.tables import BUILDING_PARTS, BUILDINGS, RECEIVERS, TRANSMITTERS
 
 #: How many distinct receiver heights an altitude error lists.
@@ -74,31 +75,48 @@ class Ingested:
 
 
 def read_ingested(city: str, root: str | Path = DEFAULT_ROOT) -> Ingested:
-    """Read an ingested city, refusing tables whose sha256 differs from the ingest manifest."""
+    """Read an ingested city, refusing tables whose sha256 differs from the ingest manifest.
+
+    The folder is read under its lock (the one ``uavdata ingest`` holds while it replaces the folder), and every file
+    is read once: its bytes are hashed and parsed, so the hashes recorded in a bundle are those of what it was built
+    from, even when an ingest of the same city runs at the same time.
+    """
     folder = Path(root) / city / INGESTED_MANIFEST.parent
-    manifest = read_city_manifest(folder / INGESTED_MANIFEST.name)
-    files = {spec.name: spec.filename for spec in (RECEIVERS, TRANSMITTERS, BUILDINGS, BUILDING_PARTS)}
-    files["terrain"] = "terrain.npz"
-    hashes: dict[str, str] = {}
-    for name, expected in manifest.tables.items():
-        path = folder / files.get(name, name)
-        if not path.is_file():
-            raise InputError(path, "missing ingested table: run `uavdata ingest` again")
-        actual = sha256_file(path)
-        if actual != expected:
-            raise InputError(path, "sha256 differs from the ingest manifest: the table was changed after ingest", field="sha256")
-        hashes[files.get(name, name)] = actual
+    if not folder.parent.is_dir():  # checked before the lock, which would make the city's folder
+        read_city_manifest(folder / INGESTED_MANIFEST.name)  # the error: run `uavdata ingest` first
+    with folder_lock(folder):
+        manifest = read_city_manifest(folder / INGESTED_MANIFEST.name)
+        files = {spec.name: spec.filename for spec in (RECEIVERS, TRANSMITTERS, BUILDINGS, BUILDING_PARTS)}
+        files["terrain"] = "terrain.npz"
+        hashes: dict[str, str] = {}
+        data: dict[str, bytes] = {}
+        for name, expected in manifest.tables.items():
+            path = folder / files.get(name, name)
+            if not path.is_file():
+                raise InputError(path, "missing ingested table: run `uavdata ingest` again")
+            data[name] = path.read_bytes()
+            actual = hashlib.sha256(data[name]).hexdigest()
+            if actual != expected:
+                raise InputError(
+                    path, "sha256 differs from the ingest manifest: the table was changed after ingest", field="sha256"
+                )
+            hashes[files.get(name, name)] = actual
 
     def table(spec) -> pd.DataFrame:
+        if spec.name not in data:
+            raise InputError(folder / INGESTED_MANIFEST.name, f"lists no table {spec.name}: run `uavdata ingest` again")
         try:
-            return pq.read_table(folder / spec.filename).to_pandas()
+            return pq.read_table(pa.BufferReader(data[spec.name])).to_pandas()
         except (OSError, ValueError) as exc:
             raise InputError(folder / spec.filename, f"unreadable ingested table ({str(exc)[:160]})") from None
 
     terrain = None
-    if "terrain" in manifest.tables:
-        with np.load(folder / "terrain.npz", allow_pickle=False) as npz:
-            terrain = {k: npz[k] for k in npz.files}
+    if "terrain" in data:
+        try:
+            with np.load(io.BytesIO(data["terrain"]), allow_pickle=False) as npz:
+                terrain = {k: npz[k] for k in npz.files}
+        except (OSError, ValueError, EOFError, NotImplementedError, RuntimeError, zipfile.BadZipFile) as exc:
+            raise InputError(folder / "terrain.npz", f"unreadable terrain ({type(exc).__name__}: {str(exc)[:160]})") from None
     return Ingested(
         folder=folder,
         manifest=manifest,
@@ -109,12 +127,6 @@ def read_ingested(city: str, root: str | Path = DEFAULT_ROOT) -> Ingested:
         terrain=terrain,
         hashes=hashes,
     )
-
-
-def bundle_version(inputs: dict[str, str], config: BuildConfig) -> str:
-    """12 hex digits of sha256 over the input hashes, the config and the schema version."""
-    doc = {"schema_version": SCHEMA_VERSION, "inputs": inputs, "config": config.model_dump(mode="json")}
-    return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:12]
 
 
 def _receivers_at_altitude(ing: Ingested, config: BuildConfig) -> pd.DataFrame:

@@ -9,7 +9,9 @@ This module needs only numpy, pandas, pyarrow and the contracts.
 
 from __future__ import annotations
 
+import hashlib
 import json
+import re
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,11 +24,14 @@ from pydantic import ValidationError
 from uavplace.dataset.catalog import DEFAULT_ROOT
 from uavplace.schemas import SCHEMA_VERSION, InputError
 from uavplace.schemas.base import validation_message
-from uavplace.schemas.bundle import BUNDLE_FILES, BUNDLE_MANIFEST, MAP_ARRAYS, USERS, BundleManifest
+from uavplace.schemas.bundle import BUNDLE_FILES, BUNDLE_MANIFEST, CELLS, MAP_ARRAYS, USERS, BuildConfig, BundleManifest
 from uavplace.schemas.files import atomic_write_text, check_name, sha256_file
 
 #: Name of the per-city file holding the version ``load_bundle`` picks by default.
 LATEST = "latest"
+_VERSION = re.compile(r"[0-9a-f]{12}")
+#: The largest archive member ``load_bundle`` reads (its header is checked against the manifest first) [bytes].
+MAX_ARRAY_BYTES = 8 * 2**30
 
 
 @dataclass(frozen=True, eq=False)
@@ -85,12 +90,33 @@ def city_dir(city: str, root: str | Path = DEFAULT_ROOT) -> Path:
     return Path(root) / city
 
 
+def bundle_version(inputs: dict[str, str], config: BuildConfig) -> str:
+    """12 hex digits of sha256 over the input hashes, the config and the schema version."""
+    doc = {"schema_version": SCHEMA_VERSION, "inputs": inputs, "config": config.model_dump(mode="json")}
+    return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:12]
+
+
 def read_latest(city: str, root: str | Path = DEFAULT_ROOT) -> str | None:
-    """The version the city's ``latest`` pointer names, or None if it has no bundle yet."""
+    """The version the city's ``latest`` pointer names, or None if it has no bundle yet.
+
+    The pointer must hold one bundle version (12 hex digits), a folder of that city: anything else (a path such
+    as ``../../x``, garbage) is an ``InputError`` naming the file, never followed.
+    """
     path = city_dir(city, root) / LATEST
     if not path.is_file():
         return None
-    return path.read_text(encoding="utf-8").strip() or None
+    try:
+        text = path.read_text(encoding="utf-8").strip()
+    except (UnicodeDecodeError, OSError) as exc:
+        raise InputError(path, f"unreadable ({type(exc).__name__}): run `uavdata build --city {city}` again") from None
+    if not text:
+        return None
+    if not _VERSION.fullmatch(text):
+        raise InputError(
+            path, f"{text[:40]!r} is not a bundle version (12 hex digits): run `uavdata build --city {city}` again",
+            field=LATEST,
+        )  # fmt: skip
+    return text
 
 
 def write_latest(city: str, version: str, root: str | Path = DEFAULT_ROOT) -> None:
@@ -176,41 +202,134 @@ def resolve(city: str, version: str | None = None, root: str | Path = DEFAULT_RO
 
 
 def load_bundle(city: str, version: str | None = None, root: str | Path = DEFAULT_ROOT, *, verify: bool = True) -> Bundle:
-    """Load a city's bundle (the latest, or ``version``), checking schema version and file hashes.
+    """Load a city's bundle (the latest, or ``version``), checking it before any array is used.
 
     ``city`` is a city name, ``name@version``, or a path to a bundle folder.
-    ``verify=False`` skips the sha256 check (the schema check always runs).
+    Checked: the schema version; that the manifest is this folder's (its city and version name the folder, and its
+    version is the hash of its inputs and config); the sha256 of every file (skipped with ``verify=False``); every
+    array's header against the manifest's grid before it is read; every value's range; the users' table.
     """
     as_path = Path(city)
     folder = as_path if (as_path / BUNDLE_MANIFEST).is_file() else resolve(city, version, root)
     manifest = read_manifest(folder)
+    check_identity(folder, manifest)
     if verify:
         verify_files(folder, manifest)
+    arrays = read_arrays(folder / "maps.npz", manifest)
+    check_values(folder / "maps.npz", manifest, arrays)
     try:
-        with np.load(folder / "maps.npz", allow_pickle=False) as npz:
-            missing = sorted(set(MAP_ARRAYS) - set(npz.files))
-            if missing:
-                raise InputError(folder / "maps.npz", f"missing arrays {missing}")
-            arrays = {k: npz[k] for k in MAP_ARRAYS}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:  # garbage, a pickle, a truncated archive
-        raise InputError(folder / "maps.npz", f"not a readable map archive ({type(exc).__name__}: {str(exc)[:160]})") from None
-    ny, nx = manifest.grid.shape
-    expected = {"x_m": (nx,), "y_m": (ny,), "height_rel_m": (ny, nx), "blocked": (ny, nx), "building_id": (ny, nx)}
-    expected |= {k: (manifest.num_users, ny, nx) for k in ("sinr_db", "dead", "num_rx")}
-    for name, shape in expected.items():
-        a = arrays[name]
-        if a.shape != shape or a.dtype != np.dtype(MAP_ARRAYS[name][0]):
-            raise InputError(
-                folder / "maps.npz", f"array {a.dtype}{list(a.shape)}, expected {MAP_ARRAYS[name][0]}{list(shape)}", field=name
-            )
-        if a.dtype.kind == "f" and not np.isfinite(a).all():
-            bad = np.argwhere(~np.isfinite(a))[0].tolist()
-            raise InputError(folder / "maps.npz", f"value {a[tuple(bad)]} at {bad} is not finite", field=name)
-        a.setflags(write=False)
-    try:
-        users = pq.read_table(folder / USERS.filename).to_pandas()
+        table = pq.read_table(folder / USERS.filename)
     except (OSError, ValueError) as exc:
         raise InputError(folder / USERS.filename, f"unreadable ({str(exc)[:160]})") from None
-    if len(users) != manifest.num_users:
-        raise InputError(folder / USERS.filename, f"{len(users)} users, manifest says {manifest.num_users}")
+    users = USERS.conform(table, str(folder / USERS.filename)).to_pandas()
+    check_users(folder / USERS.filename, manifest, users)
     return Bundle(path=folder, manifest=manifest, users=users, **arrays)
+
+
+def check_identity(folder: Path, manifest: BundleManifest) -> None:
+    """Refuse a manifest that is not this folder's: a renamed city or version, or a version that is not the hash of
+    the manifest's own inputs and config (an edited manifest). A city's identity is what a test-city refusal rests on."""
+    path = folder / BUNDLE_MANIFEST
+    if manifest.version != folder.name:
+        raise InputError(path, f"version {manifest.version} is not its folder's name {folder.name!r}", field="version")
+    if manifest.city != folder.resolve().parent.name:
+        raise InputError(
+            path, f"city {manifest.city!r} is not its folder's {folder.resolve().parent.name!r}: a renamed bundle", field="city"
+        )
+    expected = bundle_version(manifest.inputs, manifest.config)
+    if expected != manifest.version:
+        raise InputError(
+            path, f"version {manifest.version} is not the hash of its inputs and config ({expected}): the manifest was "
+            "edited after the build", field="version",
+        )  # fmt: skip
+
+
+def expected_shapes(manifest: BundleManifest) -> dict[str, tuple[int, ...]]:
+    """Every array of ``maps.npz`` and the shape the manifest gives it."""
+    ny, nx = manifest.grid.shape
+    shapes = {"x_m": (nx,), "y_m": (ny,), "height_rel_m": (ny, nx), "blocked": (ny, nx), "building_id": (ny, nx)}
+    return shapes | {k: (manifest.num_users, ny, nx) for k in ("sinr_db", "dead", "num_rx")}
+
+
+def read_arrays(path: Path, manifest: BundleManifest) -> dict[str, np.ndarray]:
+    """The arrays of ``maps.npz``, each header (shape, dtype) checked against the manifest before its data is read, so
+    a header that claims terabytes is refused, not allocated."""
+    shapes = expected_shapes(manifest)
+    try:
+        with zipfile.ZipFile(path) as zf:
+            names = set(zf.namelist())
+            missing = sorted(k for k in MAP_ARRAYS if f"{k}.npy" not in names)
+            if missing:
+                raise InputError(path, f"missing arrays {missing}")
+            arrays = {}
+            for name, shape in shapes.items():
+                dtype = np.dtype(MAP_ARRAYS[name][0])
+                with zf.open(f"{name}.npy") as f:
+                    major, minor = np.lib.format.read_magic(f)
+                    reader = np.lib.format.read_array_header_1_0 if major == 1 else np.lib.format.read_array_header_2_0
+                    got_shape, fortran, got_dtype = reader(f)
+                    if got_shape != shape or got_dtype != dtype or fortran:
+                        raise InputError(
+                            path, f"array {got_dtype}{list(got_shape)}{' (Fortran order)' if fortran else ''}, expected "
+                            f"{dtype}{list(shape)}", field=name,
+                        )  # fmt: skip
+                    if dtype.itemsize * int(np.prod(shape)) > MAX_ARRAY_BYTES:
+                        raise InputError(path, f"array of {dtype.itemsize * int(np.prod(shape)):,} bytes, over "
+                                         f"MAX_ARRAY_BYTES ({MAX_ARRAY_BYTES:,})", field=name)  # fmt: skip
+                    f.seek(0)
+                    arrays[name] = np.lib.format.read_array(f, allow_pickle=False)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, NotImplementedError, RuntimeError) as exc:
+        # garbage, a pickle, a truncated archive; zipfile's NotImplementedError (a compression or version it lacks) and
+        # RuntimeError (an encrypted member)
+        raise InputError(path, f"not a readable map archive ({type(exc).__name__}: {str(exc)[:160]})") from None
+    return arrays
+
+
+def check_values(path: Path, manifest: BundleManifest, arrays: dict[str, np.ndarray]) -> None:
+    """Every map value physical and consistent: the cell centres on the manifest's grid, heights and SINR in their
+    columns' ranges (``CELLS``), SINR at or above the floor and equal to it on dead cells, building ids from -1, at
+    least one open cell. The arrays are made read-only."""
+    grid = manifest.grid
+    for name, lo, n in (("x_m", grid.x_min_m, grid.num_x), ("y_m", grid.y_min_m, grid.num_y)):
+        centres = lo + (np.arange(n) + 0.5) * grid.spacing_m
+        if not np.allclose(arrays[name], centres, rtol=0, atol=1e-6 * grid.spacing_m + 1e-9):
+            bad = int(np.argmax(~np.isclose(arrays[name], centres, rtol=0, atol=1e-6 * grid.spacing_m + 1e-9)))
+            raise InputError(path, f"cell centre {arrays[name][bad]} at {bad} is off the manifest's grid", field=name)
+    floor = manifest.sinr.floor_db
+    bounds = {
+        "height_rel_m": CELLS.column("height_rel_m"),
+        "sinr_db": CELLS.column("sinr_db"),
+    }
+    for name, column in bounds.items():
+        bad = column.first_out_of_range(arrays[name].ravel())
+        if bad is not None:
+            where = list(map(int, np.unravel_index(bad, arrays[name].shape)))
+            value = arrays[name].flat[bad]
+            what = "is not finite" if not np.isfinite(value) else f"is outside {column.range_text()}"
+            raise InputError(path, f"value {float(value):g} at {where} {what}", field=name)
+    sinr, dead = arrays["sinr_db"], arrays["dead"]
+    if (sinr < floor - 1e-3).any() or (sinr[dead] != np.float32(floor)).any():
+        raise InputError(path, f"SINR below the manifest's floor {floor} dB, or a dead cell not at it", field="sinr_db")
+    if (arrays["building_id"] < -1).any():
+        raise InputError(path, "building id below -1", field="building_id")
+    if arrays["blocked"].all():
+        raise InputError(path, "every cell is blocked: the UAV has nowhere to fly", field="blocked")
+    for a in arrays.values():
+        a.setflags(write=False)
+
+
+def check_users(path: Path, manifest: BundleManifest, users: pd.DataFrame) -> None:
+    """The users' table matches the maps: one row per map, ``user`` 0..n-1 in order, cells on the grid or -1."""
+    if len(users) != manifest.num_users:
+        raise InputError(path, f"{len(users)} users, manifest says {manifest.num_users}")
+    if not np.array_equal(users["user"].to_numpy(), np.arange(len(users))):
+        raise InputError(path, f"user ids are not 0..{len(users) - 1} in order", field="user")
+    ny, nx = manifest.grid.shape
+    for name, n in (("ix", nx), ("iy", ny)):
+        v = users[name].to_numpy()
+        if ((v < -1) | (v >= n)).any():
+            row = int(np.argmax((v < -1) | (v >= n)))
+            raise InputError(path, f"row {row}: cell {v[row]} is off the grid's {n} cells", field=name)
+    splits = set(users["split"].dropna())
+    if not splits <= {"train", "val", "test"}:
+        raise InputError(path, f"unknown splits {sorted(splits - {'train', 'val', 'test'})}", field="split")

@@ -85,6 +85,12 @@ def report(
     from uavplace.eval.report import ReportConfig, check_summary_page, default_agents, summary_rows, write_summary_page
 
     chosen = list(runs) or default_agents(agents_dir)
+    cities = [d.split("@")[0] for d in datasets]
+    twice = sorted({c for c in cities if cities.count(c) > 1})
+    if twice:  # one folder and one summary row per city: two versions of one city would overwrite each other
+        given = ", ".join(d for d in datasets if d.split("@")[0] in twice)
+        raise click.UsageError(f"--dataset names {', '.join(twice)} more than once ({given}): one report per city; "
+                               "report each version with its own --out")  # fmt: skip
     if len(datasets) > 1:
         check_summary_page(out or Path("reports"))
     reports = []

@@ -17,7 +17,8 @@ import pandas as pd
 
 from uavplace.rl.rollout import STATS, WITHIN, format_stat
 
-__all__ = ["STATS", "bootstrap_table", "difference_table", "ecdf", "format_stat", "resample_counts", "weighted_stats"]
+__all__ = ["STATS", "bootstrap_table", "difference_table", "ecdf", "format_stat", "group_tables", "resample_counts",
+           "weighted_stats"]  # fmt: skip
 
 #: The statistics a difference is reported for (the two the paper reports).
 DIFFERENCE_STATS = ("success", "median_steps")
@@ -161,6 +162,63 @@ def difference_table(
                 rows.append({"method": name, "against": ref, "stat": stat, "difference": p if ok else np.nan,
                              "lo": float(lo), "hi": float(hi), "undefined_share": float(1.0 - finite.mean())})  # fmt: skip
     return pd.DataFrame(rows, columns=["method", "against", "stat", "difference", "lo", "hi", "undefined_share"])
+
+
+def group_tables(
+    results: dict[str, pd.DataFrame],
+    groups: dict[str, list[str]],
+    against: list[str],
+    *,
+    n_boot: int = 2000,
+    level: float = 0.95,
+    seed: int = 0,
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Methods made of several runs (seeds of one preset): (table, differences).
+
+    A group's statistic is the mean of its runs' (``groups``: name -> the run names of ``results``). Its interval
+    resamples three levels: the group's runs with replacement (each group on its own: seeds of two presets are
+    unrelated), then users, then episodes within each drawn user (those two paired across all runs, which play
+    the same episodes). The table holds one row per group and statistic of ``DIFFERENCE_STATS``: the mean over runs,
+    its interval, and the runs' own minimum and maximum; the differences ``group - reference`` for every group and
+    each reference group of ``against``, paired in the users and episodes. A median on a failure is infinite; a mean
+    or difference involving one is NaN, with the share of resamples where it is."""
+    n, counts = _resamples(results, n_boot, seed, True)
+    rng = np.random.default_rng([seed, 1])
+    alpha = (1.0 - level) / 2.0
+    ones = np.ones((1, n))
+    point, boot = {}, {}
+    for name, runs in groups.items():
+        stats = [(_stats_of(results[r], ones), _stats_of(results[r], counts)) for r in runs]
+        draws = rng.integers(0, len(runs), size=(n_boot, len(runs)))  # the runs of each replicate
+        point[name] = {st: np.array([s[0][st][0] for s in stats]) for st in DIFFERENCE_STATS}
+        boot[name] = {st: np.stack([s[1][st] for s in stats])[draws, np.arange(n_boot)[:, None]].mean(axis=1)
+                      for st in DIFFERENCE_STATS}  # fmt: skip
+
+    def interval(values: np.ndarray, at: float) -> tuple[float, float, float, float]:
+        finite = np.isfinite(values)
+        ok = finite.mean() >= 1.0 - alpha and np.isfinite(at)
+        lo, hi = np.quantile(values[finite], [alpha, 1.0 - alpha], method="inverted_cdf") if ok else (np.nan, np.nan)
+        return (at if ok else np.nan), float(lo), float(hi), float(1.0 - finite.mean())
+
+    rows = []
+    for name, runs in groups.items():
+        for st in DIFFERENCE_STATS:
+            value, lo, hi, undefined = interval(boot[name][st], float(point[name][st].mean()))
+            rows.append({"group": name, "runs": len(runs), "stat": st, "value": value, "lo": lo, "hi": hi,
+                         "run_min": float(point[name][st].min()), "run_max": float(point[name][st].max()),
+                         "undefined_share": undefined})  # fmt: skip
+    diffs = []
+    for ref in (r for r in against if r in groups):
+        for name in groups:
+            if name == ref:
+                continue
+            for st in DIFFERENCE_STATS:
+                with np.errstate(invalid="ignore"):
+                    d, at = boot[name][st] - boot[ref][st], float(point[name][st].mean() - point[ref][st].mean())
+                value, lo, hi, undefined = interval(d, at)
+                diffs.append({"group": name, "against": ref, "stat": st, "difference": value, "lo": lo, "hi": hi,
+                              "undefined_share": undefined})  # fmt: skip
+    return pd.DataFrame(rows), pd.DataFrame(diffs)
 
 
 def ecdf(df: pd.DataFrame, t_max: int) -> tuple[np.ndarray, np.ndarray]:

@@ -149,12 +149,14 @@ def evaluate(
     agents: list[Agent],
     on_progress: Callable[[str, int, int], None] | None = None,
     baselines: list[Policy] | None = None,
+    seen: Callable[[MapSet], None] | None = None,
 ) -> dict[str, pd.DataFrame]:
     """Play the same ``config.episodes`` episodes with every method; ``{method: run_episodes frame}``.
 
     Each agent plays in the environment it was trained for (its window, channels, memory values)
     with the report's ``t_max`` and ``P_T``; the episodes are drawn once from the users of the city.
-    ``baselines``: the policies played beside the agents (default: ``baseline_policies``).
+    ``baselines``: the policies played beside the agents (default: ``baseline_policies``). ``seen``: applied to
+    each agent's maps before it plays (e.g. ``MapSet.show_buildings``: what the agents see, not where they move).
     """
     base = EnvConfig(t_max=config.t_max, p_t_db=config.p_t_db, split=config.split, rotate=False)
     maps = {"": MapSet([bundle], base)}
@@ -169,6 +171,8 @@ def evaluate(
         key = env.model_dump_json()
         if key not in maps:
             maps[key] = MapSet([bundle], env)
+            if seen is not None:
+                seen(maps[key])
         methods.append((a.name, a.policy, maps[key]))
     methods += [(p.name, p, maps[""]) for p in (baseline_policies(config, base) if baselines is None else baselines)]
     names = [m[0] for m in methods]
@@ -293,6 +297,15 @@ def plot_cdf(results: dict[str, pd.DataFrame], t_max: int, out: Path) -> Figure:
     return Figure(out, caption)
 
 
+def by_episode_start(metrics: pd.DataFrame, num_envs: int, t_max: int) -> pd.DataFrame:
+    """Training episodes (``metrics.parquet`` rows, logged when they end) ordered by the step at which they started
+    (``start``: the end step less ``length`` moves of ``num_envs`` steps each), without those started after the last
+    step that guarantees every episode begun by then had ended (``t_max`` moves before the log's end)."""
+    start = metrics["step"].to_numpy() - metrics["length"].to_numpy() * num_envs
+    out = metrics.assign(start=start).sort_values("start", kind="stable")
+    return out[out["start"] <= metrics["step"].max() - t_max * num_envs].reset_index(drop=True)
+
+
 def plot_training(agents: list[Agent], bounds: dict[str, float], out: Path, notes: dict[str, str] | None = None) -> Figure | None:
     """One row per agent, on its own step axis: the success rate and the mean SINR gain of its last 100 training episodes."""
     curves = [a for a in agents if a.metrics is not None and len(a.metrics)]
@@ -304,15 +317,15 @@ def plot_training(agents: list[Agent], bounds: dict[str, float], out: Path, note
         # An ensemble's metrics hold each member's training episodes (a ``member`` column): one curve per member.
         runs = a.metrics.groupby("member", sort=False) if "member" in a.metrics else [(None, a.metrics)]
         for member, df in runs:
-            df = df.reset_index(drop=True)
+            df = by_episode_start(df, a.config.num_envs, a.config.env.t_max)
             full = np.arange(len(df)) >= RUNNING_WINDOW - 1  # the window holds 100 episodes from here on
             for ax, column, scale in ((ax_ok, "success", 100.0), (ax_gain, "sinr_gain_db", 1.0)):
                 rolling = scale * df[column].astype(float).rolling(RUNNING_WINDOW, min_periods=1).mean()
-                line = ax.plot(df["step"][full], rolling[full], linewidth=1.6, label=member)[0]
-                ax.plot(df["step"][:RUNNING_WINDOW], rolling[:RUNNING_WINDOW], color=line.get_color(), alpha=0.3, linewidth=1)
+                line = ax.plot(df["start"][full], rolling[full], linewidth=1.6, label=member)[0]
+                ax.plot(df["start"][:RUNNING_WINDOW], rolling[:RUNNING_WINDOW], color=line.get_color(), alpha=0.3, linewidth=1)
         for ax in (ax_ok, ax_gain):
             ax.grid(alpha=0.3)
-            ax.set_xlabel("training step")
+            ax.set_xlabel("training step at the episode's start")
         if "member" in a.metrics:
             ax_ok.legend(fontsize=7, loc="lower right", title="members", title_fontsize=7)
         key = ", ".join(f"{c}@{v}" for c, v in a.trained_on.items())
@@ -335,7 +348,9 @@ def plot_training(agents: list[Agent], bounds: dict[str, float], out: Path, note
     caption = (
         f"Training curves, one row per agent on its own step axis: the share of successful training episodes (left) "
         f"and the mean SINR gain (final minus start SINR; right), each over the last {RUNNING_WINDOW} training episodes "
-        f"(faint: the first {RUNNING_WINDOW - 1} episodes, a partial window). Training episodes explore (epsilon in the "
+        f"by the step at which they started (faint: the first {RUNNING_WINDOW - 1} episodes, a partial window). By start, "
+        f"not by end: the first episodes to end are the quick successes, since a failure lasts t_max; the curves stop "
+        f"where episodes started later might not have ended when training did. Training episodes explore (epsilon in the "
         f"title) and stop at the training t_max. Dashed: the paper's training bound, the mean over training users and "
         f"start cells of P_T - start SINR, i.e. the gain if every episode ended exactly at P_T; a successful episode "
         f"ends on the first cell at or above P_T, so the curve can pass it." + (f" Bound computed on: {where}." if where else "")
@@ -385,6 +400,7 @@ def plot_trajectories(
         return None
     plt = _pyplot()
     import matplotlib
+    from matplotlib import patheffects
     from matplotlib.lines import Line2D
 
     df = results[agent].set_index("episode")
@@ -405,12 +421,16 @@ def plot_trajectories(
                 ax.set_title(f"{rule}: episode {ep}, user {user}\n{outcome} (genie {int(row['genie_steps'])})", fontsize=9)
                 label = "building height - altitude [m]"
             else:
-                sinr = np.ma.masked_array(bundle.sinr_db[user], mask=bundle.dead[user])
+                # Open cells only: dead ones grey (masked), blocked ones drawn apart in black, never as flyable SINR.
+                sinr = np.ma.masked_array(bundle.sinr_db[user], mask=bundle.dead[user] | bundle.blocked)
                 im = ax.imshow(sinr, origin="lower", extent=extent, cmap=matplotlib.colormaps["magma"].with_extremes(bad="0.75"))
+                ax.imshow(np.ma.masked_array(np.ones(bundle.shape), mask=~bundle.blocked), origin="lower", extent=extent,
+                          cmap=matplotlib.colors.ListedColormap(["0.05"]), vmin=0, vmax=1)  # fmt: skip
                 target = (bundle.sinr_db[user] >= p_t_db) & ~bundle.dead[user] & ~bundle.blocked
                 ax.contour(target, levels=[0.5], origin="lower", extent=extent, colors="cyan", linewidths=0.8)
                 label = "SINR [dB]"
-            ax.contour(bundle.blocked, levels=[0.5], origin="lower", extent=extent, colors="white", linewidths=0.4)
+            for color, width in (("black", 1.6), ("white", 0.6)):  # a white line on a black one: seen on any colour
+                ax.contour(bundle.blocked, levels=[0.5], origin="lower", extent=extent, colors=color, linewidths=width)
             ax.plot(px, py, color="red", linewidth=1.4)
             ax.plot(px[0], py[0], "o", color="lime", markeredgecolor="black")
             ax.plot(px[-1], py[-1], "s", color="red", markeredgecolor="black")
@@ -425,7 +445,14 @@ def plot_trajectories(
         Line2D([], [], marker="o", color="lime", markeredgecolor="black", linestyle="", label="start"),
         Line2D([], [], marker="s", color="red", markeredgecolor="black", linestyle="", label="end"),
         Line2D([], [], marker="*", color="cyan", markersize=11, markeredgecolor="black", linestyle="", label="user"),
-        Line2D([], [], color="white", linewidth=1, label="building edge (blocked)"),
+        Line2D(
+            [],
+            [],
+            color="white",
+            linewidth=1,
+            path_effects=[patheffects.withStroke(linewidth=2.6, foreground="black")],
+            label="building edge (blocked)",
+        ),
         Line2D([], [], color="cyan", linewidth=1, label=f"P_T = {p_t_db:g} dB contour"),
     ]
     legend = fig.legend(handles=handles, loc="outside lower center", ncol=6, fontsize=8, facecolor="0.85")
@@ -438,7 +465,8 @@ def plot_trajectories(
         f"{agent}: {len(picks)} of its {n} episodes in {bundle.city}, chosen by rule, not by eye: "
         + "; ".join(dict.fromkeys(TRAJECTORY_RULES[rule] for _, rule in picks))
         + ". Top: building height minus the flight altitude (blocked cells, where buildings rise above the UAV, inside "
-        "the white edges). Bottom: the user's SINR map; grey: dead cells (no ray reached them); cyan contour: the "
+        "the white-on-black edges). Bottom: the user's SINR map over the open cells; black: blocked cells (a building "
+        "above the UAV: never flown, no SINR shown); grey: open cells no ray reached (dead); cyan contour: the open "
         f"cells at or above P_T = {p_t_db:g} dB. Red: the UAV's path; green circle: start; red square: end; star: the user."
     )
     return Figure(out, caption)
@@ -623,6 +651,12 @@ def make_report(
     bundle = load_bundle(config.dataset, root=root)
     agents = [load_agent(r, config.test_epsilon, config.seed) for r in config.runs]
     for a in agents:
+        same = [city for city, version in {**a.trained_on, **a.selected_on}.items() if version == bundle.version]
+        if same and bundle.city not in same:  # the same bundle under another name: a copied or renamed city
+            raise InputError(
+                a.folder, f"trained or selected on bundle {bundle.version} (as {', '.join(same)}), which is this test "
+                f"city's ({bundle.city}): not an unseen-city evaluation", field="datasets",
+            )  # fmt: skip
         if bundle.city in a.trained_on:
             raise InputError(
                 a.folder, f"was trained in {bundle.city}, the test city: not an unseen-city evaluation", field="datasets"

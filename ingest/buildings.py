@@ -62,12 +62,13 @@ def crop_records(records: list[BuildingRecord], box: tuple[float, float, float, 
     return kept, dropped
 
 
-def buildings_tables(records: list[BuildingRecord]) -> tuple[pa.Table, pa.Table, list[Rejection]]:
+def buildings_tables(records: list[BuildingRecord], ground_z_m: float = 0.0) -> tuple[pa.Table, pa.Table, list[Rejection]]:
     """Validate buildings and return (buildings, parts, rejections).
 
-    A building whose parts have no footprint area is rejected (counted, with
-    its source line), never silently dropped. A footprint that is not a valid
-    polygon raises ``InputError``.
+    A building whose parts have no footprint area, or whose roof is below
+    ``ground_z_m`` (the lowest ground: the terrain's, or 0 without terrain, where
+    the build puts the ground) is rejected (counted, with its source line), never
+    silently dropped. A footprint that is not a valid polygon raises ``InputError``.
     """
     rows: dict[str, list] = {c: [] for c in BUILDINGS.column_names}
     parts: dict[str, list] = {c: [] for c in BUILDING_PARTS.column_names}
@@ -87,6 +88,10 @@ def buildings_tables(records: list[BuildingRecord]) -> tuple[pa.Table, pa.Table,
         footprint = shapely.union_all([p.footprint for p in kept])
         base = min(p.base_z_m for p in kept)
         roof = max(p.roof_z_m for p in kept)
+        if ground_z_m is not None and roof < ground_z_m:
+            reason = f"roof at {roof:g} m is below the ground ({ground_z_m:g} m without terrain): never in the UAV's way"
+            rejected.append(Rejection(file=rec.source_file, line=rec.source_line, field="roof_z_m", reason=reason))
+            continue
         bid = len(rows["building_id"])
         try:
             Building(

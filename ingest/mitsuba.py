@@ -24,12 +24,13 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
+from xml.parsers import expat
 
 import numpy as np
 import shapely
 
 from uavplace.ingest.buildings import MIN_AREA_M2, BuildingRecord, Part, crop_records
-from uavplace.ingest.mesh import FLAT_M
+from uavplace.ingest.mesh import FLAT_M, bodies, load_mesh
 from uavplace.schemas import InputError, Rejection
 
 #: Shape types whose geometry is a mesh file.
@@ -52,17 +53,52 @@ class SceneGeometry:
     num_cropped: int  # bodies wholly outside the crop box
 
 
+class _Declared(Exception):
+    pass
+
+
+def _declared(*_: object) -> None:
+    raise _Declared
+
+
+def refuse_declarations(raw: bytes, name: str) -> None:
+    """Refuse an XML document that declares a DOCTYPE or entities, in whatever encoding it is written.
+
+    The check runs in the parser (expat), after decoding: a byte search would miss ``<!ENTITY`` in UTF-16.
+    """
+    parser = expat.ParserCreate()
+    parser.StartDoctypeDeclHandler = _declared
+    parser.EntityDeclHandler = _declared
+    try:
+        parser.Parse(raw, True)
+    except _Declared:
+        raise InputError(
+            name, "the scene declares a DOCTYPE or entities: refused (a scene needs neither)",
+            line=parser.CurrentLineNumber, field="xml",
+        ) from None  # fmt: skip
+    except expat.ExpatError:
+        return  # not well-formed: ElementTree's parse names the line
+    except ValueError as exc:  # e.g. UTF-16 without a byte-order mark
+        raise InputError(name, f"unsupported text encoding ({exc}): write the scene in UTF-8", field="xml") from None
+
+
 def _scene_shapes(xml_path: Path, name: str) -> tuple[list[tuple[str, Path]], list[Rejection]]:
     """(shape id, mesh file) of every mesh shape, after the safety checks; other shapes rejected."""
     raw = xml_path.read_bytes()
-    if b"<!DOCTYPE" in raw or b"<!ENTITY" in raw:
-        raise InputError(name, "the scene declares a DOCTYPE or entities: refused (a scene needs neither)", field="xml")
+    refuse_declarations(raw, name)
     try:
         root = ET.fromstring(raw)
     except ET.ParseError as exc:
         raise InputError(name, f"not a Mitsuba XML scene ({exc})", line=exc.position[0], field="xml") from None
     if root.tag != "scene":
         raise InputError(name, f"root element is <{root.tag}>, a Mitsuba scene's is <scene>", field="xml")
+    for tag in ("shapegroup", "include"):  # an instance's transform, or another file's shapes: neither is applied here
+        found = root.find(f".//{tag}")
+        if found is not None:
+            raise InputError(
+                name, f"<{tag}> is not supported (instances are placed by transforms, includes read other files): "
+                "export the scene with every mesh as a shape of its own", field=found.get("id") or tag,
+            )  # fmt: skip
     folder = xml_path.parent.resolve()
     shapes, rejected = [], []
     for i, shape in enumerate(root.iter("shape")):
@@ -70,7 +106,7 @@ def _scene_shapes(xml_path: Path, name: str) -> tuple[list[tuple[str, Path]], li
         if shape.get("type") not in MESH_SHAPES:
             rejected.append(Rejection(file=name, field=sid, reason=f"shape type '{shape.get('type')}' is not a mesh file"))
             continue
-        if shape.find("transform") is not None:
+        if shape.find(".//transform") is not None:
             raise InputError(name, f"shape '{sid}' has a transform: bake it into the mesh (not applied here)", field=sid)
         ref = shape.find("string[@name='filename']")
         if ref is None or not ref.get("value"):
@@ -84,35 +120,18 @@ def _scene_shapes(xml_path: Path, name: str) -> tuple[list[tuple[str, Path]], li
     return shapes, rejected
 
 
-def _bodies(mesh):  # noqa: ANN001, ANN202 - trimesh.Trimesh in, a list of them out
-    """Connected bodies: faces joined through shared (welded) vertices, not only shared edges, so the
-    meshes of one building (a material split, tiers that touch) make one body."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    f = mesh.faces
-    n = len(mesh.vertices)
-    rows = np.concatenate([f[:, 0], f[:, 1]])
-    cols = np.concatenate([f[:, 1], f[:, 2]])
-    _, label = connected_components(coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n)), directed=False)
-    face_label = label[f[:, 0]]
-    order = np.argsort(face_label, kind="stable")
-    groups = np.split(order, np.flatnonzero(np.diff(face_label[order])) + 1)
-    return [mesh.submesh([g], append=True) for g in groups]
-
-
-def _tiers(body) -> list[Part]:  # noqa: ANN001 - a trimesh.Trimesh
-    """A body's roof tiers as parts (see the module docstring)."""
-    tri = body.triangles  # [F, 3, 3]
-    base = float(body.vertices[:, 2].min())
-    normals = body.face_normals
-    up = normals[:, 2] > UP_NORMAL_Z
+def _tiers(tri: np.ndarray) -> list[Part]:
+    """A body's roof tiers as parts (see the module docstring); ``tri`` its triangles ``[F, 3, 3]``."""
+    base = float(tri[:, :, 2].min())
+    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    length = np.linalg.norm(normals, axis=1)
+    up = normals[:, 2] > UP_NORMAL_Z * np.where(length > 0, length, np.inf)
     polys = shapely.polygons(tri[:, :, :2])
     area = shapely.area(polys)
     roof = up & (area > MIN_AREA_M2)
     if not roof.any():
         footprint = shapely.union_all(polys[area > MIN_AREA_M2])
-        return [Part(footprint=footprint, base_z_m=base, roof_z_m=float(body.vertices[:, 2].max()))]
+        return [Part(footprint=footprint, base_z_m=base, roof_z_m=float(tri[:, :, 2].max()))]
     z = tri[roof][:, :, 2].max(axis=1)
     order = np.argsort(z)
     starts, low = [0], z[order[0]]
@@ -143,27 +162,22 @@ def read_mitsuba(
         raise InputError(name, "the scene has no mesh shape (ply or obj)", field="shape")
     meshes = []
     for sid, mesh_path in shapes:
-        try:
-            mesh = trimesh.load(str(mesh_path), force="mesh", process=False)
-        except Exception as exc:  # trimesh raises many types on malformed files
-            raise InputError(mesh_path, f"unreadable mesh of shape '{sid}' ({type(exc).__name__}: {exc})") from None
+        mesh = load_mesh(mesh_path, f"{mesh_path} (shape '{sid}')", process=False)
         if len(mesh.faces) == 0:
             rejected.append(Rejection(file=name, field=sid, reason="mesh has no faces"))
             continue
-        if not np.isfinite(mesh.vertices).all():
-            raise InputError(mesh_path, f"shape '{sid}' has vertices that are not finite", field="vertices")
         meshes.append(mesh)
     merged = trimesh.util.concatenate(meshes)
     merged.merge_vertices()  # one building split over material meshes shares its vertices
-    bodies = _bodies(merged)
+    found = bodies(np.asarray(merged.vertices), np.asarray(merged.faces))
     records = []
-    for i, body in enumerate(bodies):
-        zmin, zmax = float(body.vertices[:, 2].min()), float(body.vertices[:, 2].max())
+    for i, tri in enumerate(found):
+        zmin, zmax = float(tri[:, :, 2].min()), float(tri[:, :, 2].max())
         if zmax - zmin < FLAT_M:
             rejected.append(Rejection(file=name, field=f"body[{i}]", reason=f"flat body ({zmax - zmin:.2f} m tall): ground"))
             continue
-        records.append(BuildingRecord(name=f"body{i}", source_file=f"{name}#body[{i}]", source_line=None, parts=_tiers(body)))
+        records.append(BuildingRecord(name=f"body{i}", source_file=f"{name}#body[{i}]", source_line=None, parts=_tiers(tri)))
     cropped = 0
     if crop is not None:
         records, cropped = crop_records(records, crop)
-    return SceneGeometry(records, rejected, num_shapes=len(shapes), num_bodies=len(bodies), num_cropped=cropped)
+    return SceneGeometry(records, rejected, num_shapes=len(shapes), num_bodies=len(found), num_cropped=cropped)

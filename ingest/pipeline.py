@@ -26,7 +26,7 @@ from uavplace.ingest.buildings import BuildingRecord, buildings_tables
 from uavplace.ingest.geojson import read_geojson
 from uavplace.ingest.mesh import MESH_SUFFIXES, read_mesh
 from uavplace.ingest.wireless_insite.city import read_city, read_terrain
-from uavplace.ingest.wireless_insite.p2m import MAX_ANTENNA_GAINS_DB, POSITION_COLUMNS, P2MStream, parse_filename
+from uavplace.ingest.wireless_insite.p2m import COHERENT_MARGIN_DB, POSITION_COLUMNS, P2MStream, antenna_gain_dbi, parse_filename
 from uavplace.ingest.wireless_insite.setup import read_setup
 from uavplace.ingest.wireless_insite.txrx import read_txrx
 from uavplace.schemas import (
@@ -255,12 +255,12 @@ class _ReceiverReader:
         if rx_set is None and self.txrx:
             self.warnings.append(f"{f.rel}: receiver set {ident.rx_set} is not in the .txrx; not checked")
         ant = self.setup.antenna(rx_set.rx_antenna) if self.setup and rx_set else None
-        max_power = None
-        if tx_set is not None and tx_set.tx_power_dbm is not None:
-            max_power = tx_set.tx_power_dbm + MAX_ANTENNA_GAINS_DB
+        tx_ant = self.setup.antenna(tx_set.tx_antenna) if self.setup and tx_set else None
+        gains = antenna_gain_dbi(tx_ant.type if tx_ant else None) + antenna_gain_dbi(ant.type if ant else None)
         stream = P2MStream(
-            f.path, display=f.rel, power_threshold_dbm=ant.power_threshold_dbm if ant else None, max_power_dbm=max_power
-        )
+            f.path, display=f.rel, power_threshold_dbm=ant.power_threshold_dbm if ant else None,
+            max_gain_db=gains + COHERENT_MARGIN_DB, tx_power_dbm=tx_set.tx_power_dbm if tx_set is not None else None,
+        )  # fmt: skip
         return stream, rx_set
 
     def _batches(self, f: Classified) -> Iterator[pa.Table]:
@@ -444,6 +444,8 @@ def ingest_city(
         tick(f.rel)
         recs = read_city(f.path, f.rel)
         records += recs
+        if not recs:
+            warnings.append(f"{f.rel}: a .city without any structure: no building from it")
         done(f, rows=len(recs), message=f"{len(recs)} structure(s)")
     for f in by_kind["geojson"]:
         tick(f.rel)
@@ -457,13 +459,6 @@ def ingest_city(
         records += recs
         rejections += rej
         done(f, rows=len(recs) + len(rej), rejected=len(rej), message=f"{len(recs)} building bod(ies)")
-    buildings, parts, rej = buildings_tables(records)
-    rejections += rej
-    for r in rej:
-        rel = r.file.split("#", 1)[0]  # "file#features[3]" or "file#body[2]": the file's report
-        old = reports[rel]
-        reports[rel] = old.model_copy(update={"rows_rejected": old.rows_rejected + r.count})
-
     terrain_arrays = None
     terrain_info = None
     if by_kind["terrain"]:
@@ -482,6 +477,13 @@ def ingest_city(
             z_min_m=float(terrain_arrays[0][:, 2].min()),
             z_max_m=float(terrain_arrays[0][:, 2].max()),
         )
+
+    buildings, parts, rej = buildings_tables(records, ground_z_m=None if terrain_info else 0.0)
+    rejections += rej
+    for r in rej:
+        rel = r.file.split("#", 1)[0]  # "file#features[3]" or "file#body[2]": the file's report
+        old = reports[rel]
+        reports[rel] = old.model_copy(update={"rows_rejected": old.rows_rejected + r.count})
 
     freqs = sorted({float(x) for x in transmitters.column("frequency_hz").drop_null().to_pylist()})
     if not freqs and setup and len(setup.waveforms) == 1:
@@ -530,8 +532,8 @@ def ingest_city(
             sources=tuple(
                 SourceFile(
                     path=f.rel,
-                    sha256=sha256_file(f.path),
-                    size_bytes=f.path.stat().st_size,
+                    sha256=None if f.kind == "link" else sha256_file(f.path),
+                    size_bytes=None if f.kind == "link" else f.path.stat().st_size,
                     kind=f.kind,
                     status=reports[f.rel].status,
                 )

@@ -196,7 +196,7 @@ def _train_in(run_dir: Path, resume, config, datasets, val_datasets, root: Path,
     """``uavrl train``'s work, with ``run_dir``'s lock held."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-    from uavplace.rl.agent.train import Trainer
+    from uavplace.rl.agent.train import Interrupted, Trainer
     from uavplace.schemas.cli import command_line
 
     claimed = False
@@ -231,7 +231,12 @@ def _train_in(run_dir: Path, resume, config, datasets, val_datasets, root: Path,
                 stdout().print(f"train {run_dir.name}: step {p.step:,}/{config.total_steps:,} {text}", highlight=False,
                                markup=False, soft_wrap=True)  # fmt: skip
 
-        trainer.run(resume=resume is not None, on_progress=on_progress, stop_at=until)
+        try:
+            trainer.run(resume=resume is not None, on_progress=on_progress, stop_at=until)
+        except Interrupted as stop:
+            bar.stop()
+            stdout().print(str(stop), highlight=False, soft_wrap=True)
+            raise SystemExit(130) from None  # the shell's status for Ctrl-C
     last = trainer.state.evals[-1] if trainer.state.evals else None
     summary = f"; last evaluation: {100 * last['success']:.1f} % success, median {last['median_steps']:g} steps" if last else ""
     stdout().print(f"trained {run_dir}{summary}", highlight=False, soft_wrap=True)

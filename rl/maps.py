@@ -137,6 +137,30 @@ class MapSet:
             weight = np.array([city_weight(config.city_weights, scenarios[s].city) for s in self.startable])
             self.start_p = weight / weight.sum()
 
+    def show_buildings(self, donor: Bundle | None) -> None:
+        """Let the agent see ``donor``'s buildings instead of its city's (None: no building at all), in place: the
+        height channel, the context channels and the SINR memory's blocked cells at the start of an episode. The
+        moves (which cells are blocked), the SINR and the genie stay the city's: the experiment that asks whether
+        an agent uses the map (docs/map_claim.md). ``donor`` must have the city's grid shape."""
+        cfg, S, p = self.config, self.symmetries, self.pad
+        seen_blocked = np.ones_like(self.blocked)  # beyond the edge: blocked, as in ``blocked``
+        for i, b in enumerate(self.bundles):
+            if donor is not None and donor.shape != b.shape:
+                raise ValueError(f"{donor.city} is {donor.shape} cells, {b.city} {b.shape}: a donor map needs the same shape")
+            height = np.full(b.shape, -b.altitude_m, np.float32) if donor is None else donor.height_rel_m
+            blocked = np.zeros(b.shape, bool) if donor is None else donor.blocked
+            for k in range(S):
+                h = transform(np.clip(height, -cfg.height_clip_m, cfg.height_clip_m), k)
+                ny, nx = h.shape
+                self.height[S * i + k, p : p + ny, p : p + nx] = h
+                seen_blocked[S * i + k, p : p + ny, p : p + nx] = transform(blocked, k)
+        if not cfg.blind:  # the blind memory hides buildings already: only the edge shows as P_L
+            self.memory0[...] = np.where(seen_blocked[self.view_map], cfg.p_l_db, cfg.p_h_db)
+        if cfg.context_zoom:
+            z, edge = cfg.context_zoom, cfg.edge_height_m
+            self.context_height[...] = self._blocks(self.height, z, edge, np.mean)
+            self.context_memory0[...] = self._blocks(self.memory0, z, np.float32(cfg.p_l_db), np.max)
+
     def _blocks(self, a: np.ndarray, z: int, fill: float, reduce: Callable[..., np.ndarray]) -> np.ndarray:
         """``reduce`` over the ``z x z`` blocks of canvases ``a`` ``[K, L, L]`` (the last blocks filled with ``fill``),
         padded with ``fill`` by ``context_pad`` blocks on every side: ``[K, Lc, Lc]``."""

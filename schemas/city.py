@@ -16,8 +16,10 @@ FileStatus = Literal["parsed", "skipped", "unknown"]
 
 class SourceFile(Contract):
     path: str = Field(description="Path relative to the city folder")
-    sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
-    size_bytes: int = Field(ge=0)
+    sha256: str | None = Field(
+        pattern=r"^[0-9a-f]{64}$", description="sha256 of the bytes; None for a link out of the city folder (never opened)"
+    )
+    size_bytes: int | None = Field(ge=0, description="Size [bytes]; None for a link out of the city folder (never followed)")
     kind: str = Field(description="Format family: p2m, txrx, setup, city, terrain, geojson, mesh, other")
     status: FileStatus
 

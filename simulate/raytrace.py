@@ -271,6 +271,30 @@ def sionna_versions() -> dict[str, str]:
     return out
 
 
+#: The modules of the ``raytrace`` extra the ray tracer needs, with the package that brings each.
+RAYTRACE_MODULES = {"sionna.rt": "sionna-rt", "mitsuba": "mitsuba", "drjit": "drjit"}
+
+
+def require_raytrace() -> None:
+    """``RuntimeError`` naming the extra and the packages when the ray tracer's modules are missing (checked before
+    any child process starts, so that the error is one line, not a child's traceback)."""
+    import importlib.util
+
+    missing = []
+    for module, package in RAYTRACE_MODULES.items():
+        try:
+            found = importlib.util.find_spec(module) is not None
+        except ImportError:  # the parent package itself is missing
+            found = False
+        if not found:
+            missing.append(package)
+    if missing:
+        raise RuntimeError(
+            f"the ray tracer needs the raytrace extra (missing: {', '.join(missing)}): pip install -e '.[raytrace]' "
+            "(on a CPU also apt-get install libllvm19)"
+        )
+
+
 def import_sionna():
     """Import sionna.rt with a CPU LLVM variant; a clear error when the extra or LLVM is missing."""
     if "DRJIT_LIBLLVM_PATH" not in os.environ and Path(LLVM_19).exists():
@@ -425,6 +449,7 @@ def _isolated(kind: str, payload: dict, on_batch: Callable[[int, int], None] | N
     keeps that out of the caller. The child writes its result atomically and reports progress
     on stdout; a missing result is an error carrying the child's output.
     """
+    require_raytrace()
     with tempfile.TemporaryDirectory(prefix="uavplace-rt-") as tmp:
         job_file = Path(tmp) / "job.json"
         result = Path(tmp) / "result.npz"

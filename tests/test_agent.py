@@ -711,3 +711,35 @@ def test_ensemble_acts_on_the_mean_q_and_plays_like_a_run(tmp_path, corpus_root)
         build_ensemble([tmp_path / "s0", tmp_path / "s1"], tmp_path / "e", corpus_root)
     with pytest.raises(InputError, match="uavrl ensemble"):
         Trainer(_tiny_config().model_copy(update={"ensemble": 2}), ["c-000"], corpus_root, tmp_path / "t")
+
+
+def test_ctrl_c_checkpoints_and_only_resumes_that_ran_are_recorded(tmp_path, city_root):
+    """Ctrl-C (SIGINT) mid-training: a checkpoint at that step and ``Interrupted`` naming the resume command. A resume
+    that dies before its first checkpoint leaves run.json as it was; one that runs is recorded once."""
+    import os
+    import signal
+
+    from uavplace.rl.agent.train import Interrupted
+
+    def press_at(step: int):
+        def on_progress(p) -> None:
+            if p.step >= step:
+                os.kill(os.getpid(), signal.SIGINT)
+
+        return on_progress
+
+    run = tmp_path / "r"
+    with pytest.raises(Interrupted, match=f"Continue with: uavrl train --resume {run}") as stop:
+        Trainer(_tiny_config(), ["tiny"], city_root, run, command="uavrl train").run(on_progress=press_at(40))
+    last = json.loads((run / "checkpoints" / "last" / "checkpoint.json").read_text())
+    assert last["step"] == stop.value.step and 40 <= stop.value.step < 128  # before the first evaluation
+
+    def crash(p) -> None:
+        raise RuntimeError("the machine went away")
+
+    with pytest.raises(RuntimeError):
+        Trainer(_tiny_config(), ["tiny"], city_root, run, command="uavrl train --resume r").run(resume=True, on_progress=crash)
+    assert read_run_json(run).resumed == []
+    Trainer(_tiny_config(), ["tiny"], city_root, run, command="uavrl train --resume r").run(resume=True)
+    assert read_run_json(run).resumed == [f"uavrl train --resume r (from step {stop.value.step})"]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handler is put back

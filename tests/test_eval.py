@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 from tests.conftest import write_grid_city
 from uavplace.dataset.build import build_city
-from uavplace.eval.metrics import bootstrap_table, difference_table, ecdf, format_stat
+from uavplace.eval.metrics import bootstrap_table, difference_table, ecdf, format_stat, group_tables
 from uavplace.ingest.pipeline import ingest_city
 from uavplace.rl.agent.dqn import preset_config
 from uavplace.rl.agent.train import Trainer
@@ -117,6 +117,29 @@ def test_paired_differences_recover_a_known_difference():
     worse = episodes(np.where(a_ok & (rng.random(n) < 0.3), 20, 500), a_ok & (rng.random(n) < 0.3), user=user)
     undefined = difference_table({"a": a, "w": worse}, against=["a"], n_boot=200).set_index("stat").loc["median_steps"]
     assert np.isnan(undefined["difference"]) and undefined["undefined_share"] == 1.0  # w's median is a failure
+
+
+def test_groups_of_seeds_average_their_runs_and_resample_them():
+    """Preset A's three seeds succeed in 90, 80 and 70 % of the same 1000 episodes, preset B's three in 50 %: A is
+    80 % with its seeds' range 70-90 % and an interval wider than any one seed's (the seeds differ), and A - B is the
+    known +0.3, its interval excluding 0. One seed alone has no seed variation: its interval is the user-level one."""
+    rng = np.random.default_rng(11)
+    n, user = 1000, np.repeat(np.arange(25), 40)
+    u = rng.random(n)
+    runs = {f"a{k}": u < rate for k, rate in enumerate((0.9, 0.8, 0.7))} | {f"b{k}": u < 0.5 for k in range(3)}
+    results = {name: episodes(np.where(ok, 10, 500), ok, user=user) for name, ok in runs.items()}
+    groups = {"A": ["a0", "a1", "a2"], "B": ["b0", "b1", "b2"], "A0": ["a0"]}
+    table, diffs = group_tables(results, groups, against=["B"], n_boot=2000, seed=3)
+    a = table[(table.group == "A") & (table.stat == "success")].iloc[0]
+    assert a["value"] == pytest.approx(np.mean([(u < r).mean() for r in (0.9, 0.8, 0.7)]))
+    assert (a["run_min"], a["run_max"]) == ((u < 0.7).mean(), (u < 0.9).mean()) and a["runs"] == 3
+    one = table[(table.group == "A0") & (table.stat == "success")].iloc[0]
+    assert a["hi"] - a["lo"] > one["hi"] - one["lo"]
+    d = diffs[(diffs.group == "A") & (diffs.stat == "success")].iloc[0]
+    assert d["against"] == "B" and d["difference"] == pytest.approx((u < 0.8).mean() - (u < 0.5).mean(), abs=0.02)
+    assert 0 < d["lo"] < d["difference"] < d["hi"]
+    steps = diffs[(diffs.group == "A") & (diffs.stat == "median_steps")].iloc[0]
+    assert np.isnan(steps["difference"]) or steps["difference"] <= 0  # B's median is a failure: undefined
 
 
 def test_bootstrap_refuses_unpaired_methods():
@@ -291,3 +314,14 @@ def test_development_scripts_see_validation_cities_and_test_cities_only_for_a_re
     with pytest.raises(InputError, match="te: city: is a test city.*--release"):
         development_cities(["va", "te"], root)
     assert development_cities(["te"], root, release=True) == ["te"]
+
+
+def test_training_curves_order_episodes_by_their_start():
+    """One env, t_max 10: a failure begun at step 0 ends at 10, after quick successes begun at 1-5. Ordered by start it
+    comes first (by end, the curve would open on successes only); episodes begun in the last t_max steps are left out."""
+    from uavplace.eval.report import by_episode_start
+
+    metrics = pd.DataFrame({"step": [2, 3, 4, 5, 6, 10, 25, 30], "length": [1, 1, 1, 1, 1, 10, 2, 1],
+                            "success": [True] * 5 + [False, True, True]})  # fmt: skip
+    out = by_episode_start(metrics, num_envs=1, t_max=10)
+    assert out["start"].tolist() == [0, 1, 2, 3, 4, 5] and not out["success"].iloc[0]  # 23 and 29 begin after 30 - 10

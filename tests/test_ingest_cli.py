@@ -268,3 +268,19 @@ def test_versions_units_and_bracketed_names_are_shown(tmp_path):
     assert res.exit_code == 0 and "city: files" in res.output and "unknown" in res.output  # the table of every file
     res = run("list", "--root", str(tmp_path / "proc"))
     assert "frequency [MHz]" in res.output
+
+
+def test_underground_roofs_are_rejected_and_an_empty_city_warns(tmp_path):
+    """A roof-only building at z = -20 m (below the ground, 0 m without terrain) is counted as rejected, not kept as a
+    building that can never block; a .city without structures says so."""
+    from tests.bad_inputs.cases import _city_file, _face
+
+    city = write_grid_city(tmp_path / "c")
+    for f in city.glob("*.city"):
+        f.unlink()
+    (city / "b.city").write_text(_city_file(_face((0, 0, -20), (10, 0, -20), (10, 10, -20), (0, 10, -20))))
+    (city / "e.city").write_text("begin_<city> c\nend_<city>\n")
+    _, manifest, report = ingest_city(city, tmp_path / "out")
+    assert manifest.counts["buildings"] == 0 and manifest.counts["rows_rejected"] == 1
+    assert any("roof at -20 m is below the ground (0 m without terrain)" in r.reason for r in report.rejections)
+    assert any("e.city: a .city without any structure" in w for w in report.warnings)

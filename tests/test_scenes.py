@@ -63,6 +63,12 @@ def test_a_tower_on_a_podium_is_two_tiers_of_one_building(tmp_path):
         (_shape("x", "../outside.ply"), "points outside the scene's folder"),
         (_shape("x", "meshes/a.ply", '<transform name="to_world"><scale value="2"/></transform>'), "has a transform"),
         (_shape("x", "meshes/none.ply"), "no such mesh file"),
+        (  # a mesh placed by an instance's translate: used untranslated once
+            '<shapegroup id="g">' + _shape("x", "meshes/a.ply") + '</shapegroup><shape type="instance" id="i">'
+            '<ref id="g"/><transform name="to_world"><translate x="500"/></transform></shape>',
+            "<shapegroup> is not supported",
+        ),
+        ('<include filename="other.xml"/>', "<include> is not supported"),
     ],
 )
 def test_unsafe_or_unsupported_scenes_are_refused(tmp_path, shapes, message):
@@ -72,8 +78,14 @@ def test_unsafe_or_unsupported_scenes_are_refused(tmp_path, shapes, message):
     xml.write_text(SCENE.format(shapes=shapes))
     with pytest.raises(InputError, match=message):
         read_mitsuba(xml)
-    xml.write_text('<!DOCTYPE scene [<!ENTITY a "aaaa">]>' + SCENE.format(shapes=_shape("a", "meshes/a.ply")))
-    with pytest.raises(InputError, match="DOCTYPE"):
+    declared = '<!DOCTYPE scene [<!ENTITY a "aaaa">]>' + SCENE.format(shapes=_shape("a", "meshes/a.ply"))
+    for encoding in ("utf-8", "utf-16"):  # after decoding: UTF-16 bytes hide '<!ENTITY' from a byte search
+        header = "" if encoding == "utf-8" else f'<?xml version="1.0" encoding="{encoding}"?>'
+        xml.write_bytes((header + declared).encode(encoding))
+        with pytest.raises(InputError, match="DOCTYPE"):
+            read_mitsuba(xml)
+    xml.write_bytes(('<?xml version="1.0" encoding="utf-16-le"?>' + declared).encode("utf-16-le"))  # no byte-order mark
+    with pytest.raises(InputError, match="unsupported text encoding"):
         read_mitsuba(xml)
 
 

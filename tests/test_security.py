@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
+import sys
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -97,6 +100,9 @@ def test_symlinks_out_of_the_city_are_not_read(tmp_path):
     res = invoke(uavdata, "ingest", str(city), "--out", str(tmp_path / "proc"))
     assert res.exit_code == 0, res.output
     assert "city.pl.t003_01.r002.p2m: symbolic link to" in res.output and "outside the city folder: not read" in res.output
+    manifest = json.loads((tmp_path / "proc" / "city" / "ingested" / "manifest.json").read_text())
+    link = next(s for s in manifest["sources"] if s["path"] == "city.pl.t003_01.r002.p2m")
+    assert link["kind"] == "link" and link["sha256"] is None and link["size_bytes"] is None  # never opened nor stat'ed
 
 
 def test_concurrent_ingests_of_one_city_take_turns(tmp_path):
@@ -186,3 +192,52 @@ def test_non_finite_weights_are_refused_on_save_and_on_load(tmp_path):
     torch.save({"online": {"w": torch.tensor([float("inf")])}}, tmp_path / "tampered.pt")
     with pytest.raises(InputError, match=r"tampered.pt: weights: online\.w holds NaN or inf: not usable weights"):
         load_tensors(tmp_path / "tampered.pt")
+
+
+def _child(code: str, timeout: float = 60.0) -> subprocess.CompletedProcess:
+    """Run ``code`` in a fresh Python (the repository importable); killed after ``timeout`` s, so a hang fails the test."""
+    env = os.environ | {"PYTHONPATH": str(REPO)}
+    return subprocess.run([sys.executable, "-c", code], env=env, cwd=REPO, capture_output=True, text=True, timeout=timeout)
+
+
+def test_mesh_references_that_are_not_regular_files_never_block(tmp_path):
+    """An OBJ's material library and a glTF's buffer that are FIFOs: a read would block forever; they are refused."""
+    os.mkfifo(tmp_path / "mat.mtl")
+    os.mkfifo(tmp_path / "buf.bin")
+    (tmp_path / "a.obj").write_text("mtllib mat.mtl\nv 0 0 0\nv 10 0 0\nv 0 10 20\nv 10 10 20\nf 1 2 3\nf 2 4 3\n")
+    gltf = {
+        "asset": {"version": "2.0"}, "buffers": [{"uri": "buf.bin", "byteLength": 36}],
+        "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 36}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "max": [1, 1, 1], "min": [0, 0, 0]}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}], "nodes": [{"mesh": 0}], "scenes": [{"nodes": [0]}],
+    }  # fmt: skip
+    (tmp_path / "b.gltf").write_text(json.dumps(gltf))
+    res = _child(
+        "from pathlib import Path\nfrom uavplace.ingest.mesh import read_mesh\nfrom uavplace.schemas import InputError\n"
+        f"print(len(read_mesh(Path({str(tmp_path / 'a.obj')!r}))[0]))\n"
+        f"try:\n    read_mesh(Path({str(tmp_path / 'b.gltf')!r}))\nexcept InputError as e:\n    print(e)\n"
+    )
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.splitlines()[0] == "1"  # the OBJ without its materials: one building
+    assert "buf.bin: not a regular file (a FIFO, device or folder): refused" in res.stdout
+
+
+def test_a_mesh_of_many_bodies_stays_small(tmp_path):
+    """20,000 separate boxes in one PLY (5 MB): read in seconds and well under 2 GB (it passed 8 GB once)."""
+    import trimesh
+
+    box = trimesh.creation.box(extents=(4, 4, 10))
+    n, k = 20_000, 142
+    offsets = np.stack([(np.arange(n) % k) * 8.0, (np.arange(n) // k) * 8.0, np.full(n, 5.0)], axis=1)
+    vertices = (box.vertices[None] + offsets[:, None]).reshape(-1, 3)
+    faces = (box.faces[None] + 8 * np.arange(n)[:, None, None]).reshape(-1, 3)
+    trimesh.Trimesh(vertices, faces, process=False).export(tmp_path / "city.ply")
+    res = _child(
+        "import resource, time\nfrom pathlib import Path\nfrom uavplace.ingest.mesh import read_mesh\n"
+        f"t = time.time(); records, _ = read_mesh(Path({str(tmp_path / 'city.ply')!r}))\n"
+        "print(len(records), time.time() - t, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\n"
+    )
+    assert res.returncode == 0, res.stderr
+    count, seconds, max_kb = res.stdout.split()
+    assert int(count) == n
+    assert float(seconds) < 60 and int(max_kb) < 2 * 2**20, res.stdout

@@ -168,6 +168,19 @@ def test_bad_simulation_inputs(tmp_path):
         assert not (tmp_path / "t").exists()
 
 
+def test_a_missing_raytrace_extra_is_one_clear_line(tmp_path, monkeypatch):
+    """Without the raytrace extra, simulate says which extra and packages to install, in one line (it printed the child
+    process's whole traceback)."""
+    from uavplace.simulate import raytrace
+
+    monkeypatch.setattr(raytrace, "RAYTRACE_MODULES", {"uavplace_absent.rt": "sionna-rt", "json": "-"})
+    res = CliRunner().invoke(uavdata, ["simulate", "procedural:tiny", "--name", "t", "--out", str(tmp_path)])
+    lines = [line for line in res.output.splitlines() if line.strip()]
+    assert res.exit_code == 2 and len(lines) == 1, res.output
+    assert "needs the raytrace extra (missing: sionna-rt): pip install -e '.[raytrace]'" in lines[0]
+    assert not (tmp_path / "t").exists()
+
+
 def test_slab_transmission_has_p2040s_known_values():
     """ITU-R P.2040's single-layer slab: transparent when thin or matched, and at half a wavelength inside (a
     resonance); ((1 - r^2) / (1 + r^2))^2 at a quarter wavelength, r = (1 - n) / (1 + n); lossy slabs attenuate."""

@@ -72,8 +72,26 @@ _NON_SPACE = re.compile(rb"\S")
 _HEADER_PROBE = 1 << 16
 #: InSite's power threshold when the .setup gives none [dBm].
 DEFAULT_POWER_THRESHOLD_DBM = -250.0
-#: A received power may exceed its transmitter's power by at most both antennas' gains [dB] (two 30 dBi dishes).
-MAX_ANTENNA_GAINS_DB = 60.0
+#: Peak gain [dBi] of the InSite antenna types whose gain the type fixes (keys lower case, without spaces).
+ANTENNA_GAINS_DBI = {"isotropic": 0.0, "halfwavedipole": 2.15, "shortdipole": 1.76, "linearwiredipole": 2.15}
+#: Gain [dBi] assumed for a declared antenna of another type (a horn, an array, a dish): a large dish's.
+UNKNOWN_ANTENNA_GAIN_DBI = 30.0
+#: Gain [dBi] of an antenna the export does not declare: a half-wave dipole, InSite's default.
+UNDECLARED_ANTENNA_GAIN_DBI = 2.15
+#: A received power may exceed the transmitted power plus both antennas' gains by at most this [dB]. In the far field
+#: every path loses power (a path gain above 0 dB is not physical); only paths adding in phase can raise the sum,
+#: and two equal paths in phase double the amplitude: +6 dB.
+COHERENT_MARGIN_DB = 6.0
+
+
+def antenna_gain_dbi(antenna_type: str | None) -> float:
+    """Peak gain [dBi] bounding an antenna of this InSite ``type`` (None: not declared): ``ANTENNA_GAINS_DBI``,
+    else ``UNKNOWN_ANTENNA_GAIN_DBI``, or ``UNDECLARED_ANTENNA_GAIN_DBI`` without a declaration."""
+    if antenna_type is None:
+        return UNDECLARED_ANTENNA_GAIN_DBI
+    return ANTENNA_GAINS_DBI.get(antenna_type.replace(" ", "").replace("_", "").lower(), UNKNOWN_ANTENNA_GAIN_DBI)
+
+
 #: Text read per batch by the streaming reader (a row is about 45 bytes: some 45 k rows a batch). Measured on a
 #: 5 M-row ingest: 16 MiB peaked 150 MB higher, 1 MiB and below ran 10-20 % slower.
 BATCH_BYTES = 2 << 20
@@ -264,8 +282,9 @@ class P2MStream:
         display: the name errors and the metadata use for it.
         power_threshold_dbm: the receiving antenna's threshold [dBm]; received
             powers at or below it are "not reached" (default -250, InSite's).
-        max_power_dbm: the highest physical received power [dBm] (the
-            transmit power plus antenna gains), when known.
+        max_gain_db: the most a received power may exceed the transmitted
+            one [dB]: both antennas' gains and ``COHERENT_MARGIN_DB``.
+        tx_power_dbm: the transmitter's power [dBm], when known.
         batch_bytes: text read per batch.
     """
 
@@ -275,7 +294,8 @@ class P2MStream:
         *,
         display: str | None = None,
         power_threshold_dbm: float | None = None,
-        max_power_dbm: float | None = None,
+        max_gain_db: float | None = None,
+        tx_power_dbm: float | None = None,
         batch_bytes: int = BATCH_BYTES,
     ) -> None:
         self.path = Path(path)
@@ -288,7 +308,7 @@ class P2MStream:
         self.gz = self.path.name.endswith(".gz")
         self.batch_bytes = batch_bytes
         self.threshold = DEFAULT_POWER_THRESHOLD_DBM if power_threshold_dbm is None else power_threshold_dbm
-        self.max_power_dbm = max_power_dbm
+        self.max_gain_db, self.tx_power_dbm = max_gain_db, tx_power_dbm
         self._raw: bytes | None = None  # the whole (converted) file, when it had to be read whole
         probe = self._read(_HEADER_PROBE)
         conversion = _text_conversion(probe)
@@ -439,16 +459,8 @@ class P2MStream:
             self._check_range(RECEIVERS.column(n), cols[n], None, row0)
         for n in self.values:
             self._check_range(RECEIVERS.column(n), cols[n], ~unreached, row0)
-        if self.max_power_dbm is not None and "power_dbm" in cols:
-            over = ~unreached & (cols["power_dbm"] > self.max_power_dbm)
-            if over.any():
-                row = int(np.argmax(over))
-                raise self._fail(
-                    row0 + row,
-                    "power_dbm",
-                    f"received power {cols['power_dbm'][row]:g} dBm exceeds the transmit power plus antenna gains "
-                    f"({self.max_power_dbm:g} dBm): not physical",
-                )
+        if self.max_gain_db is not None and self.tx_power_dbm is not None:
+            self._check_gain(cols, unreached, row0)
 
         self._rows += len(rx)
         self._reached += int((~unreached).sum())
@@ -459,6 +471,23 @@ class P2MStream:
             out[n] = pa.array(cols[n], mask=unreached) if unreached.any() else pa.array(cols[n])
         out["reached"] = pa.array(~unreached) if self._has_reach else pa.nulls(len(rx), pa.bool_())
         return pa.table(out)
+
+    def _check_gain(self, cols: dict[str, np.ndarray], unreached: np.ndarray, row0: int) -> None:
+        """Refuse a reached row whose received power exceeds the transmit power by more than both antennas and paths
+        in phase can (``max_gain_db``): in the far field every path loses power, so a dropped sign is caught here.
+        (Path gain and path loss are bounded by their columns' ranges: at most 0 dB gained.)"""
+        assert self.max_gain_db is not None
+        if self.tx_power_dbm is None or "power_dbm" not in cols:
+            return
+        limit = self.tx_power_dbm + self.max_gain_db
+        over = ~unreached & (cols["power_dbm"] > limit)
+        if over.any():
+            row = int(np.argmax(over))
+            raise self._fail(
+                row0 + row, "power_dbm",
+                f"received power {cols['power_dbm'][row]:g} dBm is beyond {limit:g} dBm, the transmit power and both "
+                f"antennas' gains with {COHERENT_MARGIN_DB:g} dB for paths in phase: not physical in the far field",
+            )  # fmt: skip
 
     def _check_range(self, column: Column, values: np.ndarray, valid: np.ndarray | None, row0: int) -> None:
         row = column.first_out_of_range(values, valid)
@@ -515,9 +544,12 @@ def read_p2m(
     *,
     display: str | None = None,
     power_threshold_dbm: float | None = None,
-    max_power_dbm: float | None = None,
+    max_gain_db: float | None = None,
+    tx_power_dbm: float | None = None,
 ) -> tuple[ReceiverSet, pa.Table]:
     """Read one receiver output whole: its ``ReceiverSet`` and one table of the columns ``P2MStream`` yields."""
-    stream = P2MStream(path, display=display, power_threshold_dbm=power_threshold_dbm, max_power_dbm=max_power_dbm)
+    stream = P2MStream(
+        path, display=display, power_threshold_dbm=power_threshold_dbm, max_gain_db=max_gain_db, tx_power_dbm=tx_power_dbm
+    )
     tables = list(stream)
     return stream.meta, pa.concat_tables(tables)

@@ -22,18 +22,43 @@ Formats:
 
 from __future__ import annotations
 
+import io
 import pickle
 import re
 from pathlib import Path
+from typing import Any
 
 import torch
+from pydantic import Field, model_validator
 
 from uavplace.schemas import InputError
+from uavplace.schemas.base import Contract
+from uavplace.schemas.files import atomic_write_bytes
 
 #: The reason inside ``torch.load(weights_only=True)``'s refusal ("Unsupported global: GLOBAL os.system ...").
 _UNPICKLER_ERROR = re.compile(r"WeightsUnpickler error:\s*(\S[^\n]*)")
 #: The resumable checkpoint folder's marker, written last.
 CHECKPOINT_JSON = "checkpoint.json"
+
+
+class CheckpointState(Contract):
+    """``checkpoint.json``: the counters and random-generator states of a resumable checkpoint, checked on resume."""
+
+    step: int = Field(ge=0, description="Environment steps done")
+    updates: int = Field(ge=0, description="Gradient updates done")
+    best_score: tuple[float, float] | None = Field(description="(success, -median steps) of the best evaluation")
+    synced_at: int = Field(ge=0, description="Step of the last target-network sync")
+    losses: list[float] = Field(max_length=10_000)
+    episodes_started: int = Field(ge=0)
+    rng: dict[str, Any] = Field(description="The trainer's numpy bit-generator state")
+    env_rng: dict[str, Any] = Field(description="The environment's numpy bit-generator state")
+    wall_s: float | None = Field(default=None, ge=0, description="Training seconds so far (None before they were kept)")
+
+    @model_validator(mode="after")
+    def _ordered(self) -> CheckpointState:
+        if self.synced_at > self.step:
+            raise ValueError(f"synced_at {self.synced_at} is after step {self.step}")
+        return self
 
 
 #: Globals a weights-only checkpoint may name: torch's tensor rebuilders and storages, and OrderedDict.
@@ -55,13 +80,16 @@ def non_finite(obj: object, prefix: str = "") -> str | None:
 
 
 def save_tensors(obj: dict, path: str | Path) -> None:
-    """``torch.save`` of tensors and plain containers only (the caller makes it atomic). Weights with NaN or inf are
-    refused (an ``InputError`` naming them) so that a diverged training never replaces a good checkpoint."""
+    """``torch.save`` of tensors and plain containers only, written atomically (``atomic_write_bytes``: a full disk is
+    an ``OSError`` naming the file, and nothing half-written is left). Weights with NaN or inf are refused (an
+    ``InputError`` naming them) so that a diverged training never replaces a good checkpoint."""
     bad = non_finite(obj)
     if bad is not None:
         raise InputError(path, f"{bad} holds NaN or inf: the training diverged; the last good checkpoint is kept",
                          field="weights")  # fmt: skip
-    torch.save(obj, path)
+    buffer = io.BytesIO()  # serialised in memory: torch's writer words a full disk as an internal assertion
+    torch.save(obj, buffer)
+    atomic_write_bytes(path, buffer.getvalue())
 
 
 def pickle_globals(path: str | Path) -> list[str]:

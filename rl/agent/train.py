@@ -12,11 +12,16 @@ objects: they load with ``weights_only=True``.
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
+import io
 import json
 import os
+import signal
+import threading
 import time
-from collections.abc import Callable
+import zipfile
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,7 +32,7 @@ from pydantic import Field, ValidationError
 from torch import nn
 
 from uavplace.dataset.bundle import Bundle, load_bundle
-from uavplace.rl.agent.checkpoint import CHECKPOINT_JSON, load_tensors, require, save_tensors
+from uavplace.rl.agent.checkpoint import CHECKPOINT_JSON, CheckpointState, load_tensors, require, save_tensors
 from uavplace.rl.agent.dqn import DQN, DQNConfig, DQNPolicy, make_network
 from uavplace.rl.agent.pqn import Rollout, pqn_round
 from uavplace.rl.agent.replay import ReplayBuffer
@@ -36,7 +41,14 @@ from uavplace.rl.rollout import run_episodes, summarise
 from uavplace.rl.vec_env import BatchedEnv
 from uavplace.schemas import InputError
 from uavplace.schemas.base import Contract, uavplace_version, validation_message
-from uavplace.schemas.files import atomic_directory, atomic_write_text, in_corpus, recover_directory, write_model_json
+from uavplace.schemas.files import (
+    atomic_directory,
+    atomic_write_bytes,
+    atomic_write_text,
+    in_corpus,
+    recover_directory,
+    write_model_json,
+)
 
 #: The resumable checkpoint folder under ``checkpoints/``.
 LAST = "last"
@@ -192,16 +204,51 @@ def play_validation(
     }
 
 
-def _atomic_torch_save(obj: dict, path: Path) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    save_tensors(obj, tmp)
-    os.replace(tmp, path)
+class Interrupted(Exception):
+    """Training stopped by Ctrl-C (SIGINT) at a step boundary, after a checkpoint there."""
+
+    def __init__(self, run_dir: Path, step: int) -> None:
+        super().__init__(f"interrupted at step {step:,}; checkpoint saved. Continue with: uavrl train --resume {run_dir}")
+        self.run_dir, self.step = run_dir, step
+
+
+@contextlib.contextmanager
+def _interrupts() -> Iterator[Callable[[], bool]]:
+    """While the block runs, Ctrl-C (SIGINT) only sets a flag the training loop reads between steps, so that it can
+    checkpoint a consistent state; a second Ctrl-C interrupts at once. Outside the main thread nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield lambda: False
+        return
+    pressed = []
+
+    def handler(signum: int, frame: object) -> None:
+        if pressed:
+            raise KeyboardInterrupt
+        pressed.append(signum)
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield lambda: bool(pressed)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def read_state(path: Path, max_step: int) -> CheckpointState:
+    """``checkpoint.json``, checked: its schema (``CheckpointState``) and a step within the run's schedule."""
+    try:
+        state = CheckpointState.model_validate_json(path.read_text(encoding="utf-8"))
+    except ValidationError as exc:
+        field, message = validation_message(exc)
+        raise InputError(path, message, field=field) from None
+    if state.step > max_step:
+        raise InputError(path, f"step {state.step:,} is beyond the run's {max_step:,} steps", field="step")
+    return state
 
 
 def _atomic_parquet(df: pd.DataFrame, path: Path) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    df.to_parquet(tmp, index=False)
-    os.replace(tmp, path)
+    buffer = io.BytesIO()
+    df.to_parquet(buffer, index=False)
+    atomic_write_bytes(path, buffer.getvalue())
 
 
 class Trainer:
@@ -278,10 +325,10 @@ class Trainer:
         self.run_dir.mkdir(parents=True, exist_ok=True)
         write_model_json(record, self.run_dir / RUN_JSON)
 
-    def record_resume(self) -> None:
-        """Append this command to ``run.json``'s ``resumed`` (written to a temporary file, then renamed)."""
+    def record_resume(self, step: int) -> None:
+        """Append this command, resumed from ``step``, to ``run.json``'s ``resumed`` (atomically)."""
         record = read_run_json(self.run_dir)
-        record.resumed.append(f"{self.command} (from step {self.state.step})")
+        record.resumed.append(f"{self.command} (from step {step})")
         atomic_write_text(self.run_dir / RUN_JSON, record.model_dump_json(indent=2) + "\n")
 
     def wall_s(self) -> float | None:
@@ -289,8 +336,11 @@ class Trainer:
         before = self.state.wall_s
         return None if before is None else before + time.perf_counter() - self._began
 
-    def save(self) -> None:
-        """Write ``checkpoints/last/`` as one unit (a folder renamed into place), then publish the metrics."""
+    def save(self, resumed_from: int | None = None) -> None:
+        """Write ``checkpoints/last/`` as one unit (a folder renamed into place), then publish the metrics;
+        ``resumed_from``: record this command's resume from that step in ``run.json`` first (``record_resume``)."""
+        if resumed_from is not None:
+            self.record_resume(resumed_from)
         s = self.state
         metrics = with_running_means(pd.DataFrame(s.episodes))
         evals = pd.DataFrame(s.evals)
@@ -334,7 +384,7 @@ class Trainer:
             old = " (an old pickled last.pt is not loaded: start a new run)" if (self.checkpoints / "last.pt").exists() else ""
             raise InputError(last, f"no complete checkpoint to resume from{old}", field=CHECKPOINT_JSON)
         try:
-            doc = json.loads((last / CHECKPOINT_JSON).read_text(encoding="utf-8"))
+            doc = read_state(last / CHECKPOINT_JSON, self.config.total_steps + self.config.num_envs)
             ck = load_tensors(last / "networks.pt", map_location=self.agent.device)
             require(ck, last / "networks.pt", "online", "target", "optimizer", "torch_rng")
             self.agent.online.load_state_dict(ck["online"])
@@ -351,20 +401,29 @@ class Trainer:
                     # A checkpoint from before the env counted visits holds which cells were visited: once each.
                     getattr(self.env, k)[...] = z["visited"] if k == "visits" and k not in z else z[k]
                 self.state.last_action, self.state.start_sinr = z["last_action"], z["start_sinr"]
-            self.agent.updates = int(doc["updates"])
-            self.state.step, self.state.synced_at = int(doc["step"]), int(doc["synced_at"])
-            self.state.losses = [float(x) for x in doc["losses"]]
-            self.state.best_score = tuple(doc["best_score"]) if doc["best_score"] is not None else None
-            self.env._episodes_started = int(doc["episodes_started"])
-            self.rng.bit_generator.state = doc["rng"]
-            self.env.rng.bit_generator.state = doc["env_rng"]
-            self.state.wall_s = doc.get("wall_s")  # checkpoints before the trainer kept time have none
+            self.agent.updates = doc.updates
+            self.state.step, self.state.synced_at = doc.step, doc.synced_at
+            self.state.losses = list(doc.losses)
+            self.state.best_score = doc.best_score
+            self.env._episodes_started = doc.episodes_started
+            self.rng.bit_generator.state = doc.rng
+            self.env.rng.bit_generator.state = doc.env_rng
+            self.state.wall_s = doc.wall_s  # checkpoints before the trainer kept time have none
             self.memory.load(last / self.memory_file)
             metrics = pd.read_parquet(last / "metrics.parquet")
             evals = pd.read_parquet(last / "eval.parquet")
         except InputError:
             raise
-        except (OSError, ValueError, KeyError, TypeError, RuntimeError) as exc:  # a damaged or foreign checkpoint
+        except (
+            OSError,
+            ValueError,
+            KeyError,
+            TypeError,
+            RuntimeError,
+            EOFError,
+            NotImplementedError,
+            zipfile.BadZipFile,
+        ) as exc:  # a damaged or foreign checkpoint (zipfile raises the last three)
             raise InputError(last, f"cannot resume from this checkpoint ({type(exc).__name__}: {str(exc)[:200]})") from None
         self.state.episodes = metrics.drop(columns=["sinr_gain_mean100_db", "success_mean100"], errors="ignore").to_dict(
             "records"
@@ -380,7 +439,7 @@ class Trainer:
         if self.state.best_score is None or score > tuple(self.state.best_score):
             self.state.best_score = score
             self.checkpoints.mkdir(parents=True, exist_ok=True)
-            _atomic_torch_save(
+            save_tensors(
                 {"online": self.agent.online.state_dict(), "config": self.config.model_dump(mode="json"), "eval": _plain(row)},
                 self.checkpoints / "best.pt",
             )
@@ -389,6 +448,18 @@ class Trainer:
             row["best"] = False
         self.state.evals.append(row)
         return row
+
+    def _finite(self, losses: list[float], lr: float) -> list[float]:
+        """``losses``, or an ``InputError`` once one is NaN or inf: the training stops there, its last checkpoint and
+        ``best.pt`` as the last evaluation left them (weights that diverged are never saved: ``save_tensors``)."""
+        if np.isfinite(losses).all():
+            return losses
+        last = self.state.evals[-1]["step"] if self.state.evals else None
+        kept = f"checkpoints/ hold step {last:,}" if last is not None else "no checkpoint was written yet"
+        raise InputError(
+            self.run_dir, f"the loss became {next(x for x in losses if not np.isfinite(x))} at step {self.state.step:,} "
+            f"(learning rate {lr:.3g}): training stopped; {kept}. Lower --set lr_start or grad_clip", field="loss",
+        )  # fmt: skip
 
     # -- the loop -----------------------------------------------------------------------------------
     def run(
@@ -401,7 +472,6 @@ class Trainer:
         if resume:
             if not self.loaded:
                 self.load()
-            self.record_resume()
             obs, mask = env.observe(), env.action_mask()
         else:
             self.write_run_json()
@@ -409,79 +479,85 @@ class Trainer:
             mask = info["action_mask"]
             s.last_action = np.full(n, -1, np.int64)
             s.start_sinr = env.sinr_here().copy()
+        pending = s.step if resume else None  # a resume is recorded in run.json at its first checkpoint: only those that ran
         self._began = time.perf_counter()
         next_eval = (s.step // cfg.eval_every + 1) * cfg.eval_every
-        while s.step < cfg.total_steps and (stop_at is None or s.step < stop_at):
-            frac = s.step / cfg.total_steps
-            eps = linear(cfg.eps_start, cfg.eps_end, s.step / (cfg.eps_fraction * cfg.total_steps))
-            genie = env.genie_moves() if cfg.aux_genie > 0 else None
-            if self.rollout is not None and self.rollout.t == 0:
-                self.rollout.h0[...] = self.agent.state()  # a recurrent network learns from the state it began with
-            visits = env.neighbour_visits() if cfg.train_revisit_penalty > 0 else None
-            actions = self.agent.act(obs, mask, eps, s.last_action, self.rng, visits)
-            next_obs, reward, term, trunc, info = env.step(actions)
-            final_obs = final_mask = np.zeros((0,))
-            if trunc.any():
-                pick = np.isin(info["final_index"], np.flatnonzero(trunc))
-                final_obs, final_mask = info["final_obs"][pick], info["final_mask"][pick]
-            self.memory.add(obs, mask, actions, reward, term, trunc, final_obs, final_mask, genie)
-            s.step += n
-            done = term | trunc
-            s.last_action = np.where(done, -1, actions)
-            if done.any():
-                rows = np.flatnonzero(done)
-                self.agent.reset_state(rows)
-                for r in rows:
-                    s.episodes.append(
-                        {
-                            "step": s.step,
-                            "episode": len(s.episodes),
-                            "sinr_gain_db": float(info["sinr"][r] - s.start_sinr[r]),
-                            "success": bool(term[r]),
-                            "length": int(info["steps"][r]),
-                            "epsilon": eps,
-                            "lr": linear(cfg.lr_start, cfg.lr_end, frac),
-                            "loss": float(np.mean(s.losses[-50:])) if s.losses else float("nan"),
-                        }
-                    )
-                s.start_sinr[rows] = env.sinr_here()[rows]
-            obs, mask = next_obs, info["action_mask"]
-            lr = linear(cfg.lr_start, cfg.lr_end, frac)
-            if self.rollout is not None:
-                if self.rollout.full:  # PQN: fit this rollout's Q(lambda) returns, then collect the next
-                    s.losses.extend(pqn_round(self.agent, self.rollout, obs, mask, lr, self.rng))
-                    self.rollout.t = 0
+        with _interrupts() as interrupted:
+            while s.step < cfg.total_steps and (stop_at is None or s.step < stop_at) and not interrupted():
+                frac = s.step / cfg.total_steps
+                eps = linear(cfg.eps_start, cfg.eps_end, s.step / (cfg.eps_fraction * cfg.total_steps))
+                genie = env.genie_moves() if cfg.aux_genie > 0 else None
+                if self.rollout is not None and self.rollout.t == 0:
+                    self.rollout.h0[...] = self.agent.state()  # a recurrent network learns from the state it began with
+                visits = env.neighbour_visits() if cfg.train_revisit_penalty > 0 else None
+                actions = self.agent.act(obs, mask, eps, s.last_action, self.rng, visits)
+                next_obs, reward, term, trunc, info = env.step(actions)
+                final_obs = final_mask = np.zeros((0,))
+                if trunc.any():
+                    pick = np.isin(info["final_index"], np.flatnonzero(trunc))
+                    final_obs, final_mask = info["final_obs"][pick], info["final_mask"][pick]
+                self.memory.add(obs, mask, actions, reward, term, trunc, final_obs, final_mask, genie)
+                s.step += n
+                done = term | trunc
+                s.last_action = np.where(done, -1, actions)
+                if done.any():
+                    rows = np.flatnonzero(done)
+                    self.agent.reset_state(rows)
+                    for r in rows:
+                        s.episodes.append(
+                            {
+                                "step": s.step,
+                                "episode": len(s.episodes),
+                                "sinr_gain_db": float(info["sinr"][r] - s.start_sinr[r]),
+                                "success": bool(term[r]),
+                                "length": int(info["steps"][r]),
+                                "epsilon": eps,
+                                "lr": linear(cfg.lr_start, cfg.lr_end, frac),
+                                "loss": float(np.mean(s.losses[-50:])) if s.losses else float("nan"),
+                            }
+                        )
+                    s.start_sinr[rows] = env.sinr_here()[rows]
+                obs, mask = next_obs, info["action_mask"]
+                lr = linear(cfg.lr_start, cfg.lr_end, frac)
+                if self.rollout is not None:
+                    if self.rollout.full:  # PQN: fit this rollout's Q(lambda) returns, then collect the next
+                        s.losses.extend(self._finite(pqn_round(self.agent, self.rollout, obs, mask, lr, self.rng), lr))
+                        self.rollout.t = 0
+                        s.losses = s.losses[-200:]
+                elif s.step >= cfg.learning_starts and self.replay.can_sample():
+                    # One gradient step per train_every env steps since learning started.
+                    owed = (s.step - cfg.learning_starts) // cfg.train_every - self.agent.updates
+                    for _ in range(max(0, owed)):
+                        batch = self.replay.sample(cfg.batch_size, self.rng)
+                        s.losses.extend(self._finite([self.agent.update(batch, lr)], lr))
                     s.losses = s.losses[-200:]
-            elif s.step >= cfg.learning_starts and self.replay.can_sample():
-                # One gradient step per train_every env steps since learning started.
-                owed = (s.step - cfg.learning_starts) // cfg.train_every - self.agent.updates
-                for _ in range(max(0, owed)):
-                    batch = self.replay.sample(cfg.batch_size, self.rng)
-                    s.losses.append(self.agent.update(batch, lr))
-                s.losses = s.losses[-200:]
-            if self.replay is not None and s.step - s.synced_at >= cfg.target_update:
-                self.agent.sync_target()
-                s.synced_at = s.step
-            if s.step >= next_eval or s.step >= cfg.total_steps:
-                self.evaluate()
-                self.save()
-                next_eval += cfg.eval_every
-            if on_progress is not None:
-                last = s.episodes[-100:]
-                on_progress(
-                    Progress(
-                        step=s.step,
-                        total=cfg.total_steps,
-                        episodes=len(s.episodes),
-                        gain_mean100=float(np.mean([e["sinr_gain_db"] for e in last])) if last else float("nan"),
-                        success100=float(np.mean([e["success"] for e in last])) if last else float("nan"),
-                        epsilon=eps,
-                        loss=float(np.mean(s.losses[-50:])) if s.losses else float("nan"),
-                        best=s.best_score[0] if s.best_score else None,
+                if self.replay is not None and s.step - s.synced_at >= cfg.target_update:
+                    self.agent.sync_target()
+                    s.synced_at = s.step
+                if s.step >= next_eval or s.step >= cfg.total_steps:
+                    self.evaluate()
+                    self.save(pending)
+                    pending = None
+                    next_eval += cfg.eval_every
+                if on_progress is not None:
+                    last = s.episodes[-100:]
+                    on_progress(
+                        Progress(
+                            step=s.step,
+                            total=cfg.total_steps,
+                            episodes=len(s.episodes),
+                            gain_mean100=float(np.mean([e["sinr_gain_db"] for e in last])) if last else float("nan"),
+                            success100=float(np.mean([e["success"] for e in last])) if last else float("nan"),
+                            epsilon=eps,
+                            loss=float(np.mean(s.losses[-50:])) if s.losses else float("nan"),
+                            best=s.best_score[0] if s.best_score else None,
+                        )
                     )
-                )
+            if interrupted():  # Ctrl-C: checkpoint at this step boundary, then say how to go on
+                self.save(pending)
+                raise Interrupted(self.run_dir, s.step)
         if stop_at is not None and stop_at <= s.step < cfg.total_steps:
-            self.save()  # a planned stop (`--until`): resumable from here
+            self.save(pending)  # a planned stop (`--until`): resumable from here
         s.wall_s = self.wall_s()  # this start's seconds, for a later ``run`` of this trainer
         return self.run_dir
 

@@ -32,6 +32,12 @@ POINTS = {"type": "Polygon", "coordinates": [[[0, 0], [20, 0], [20, 20], [0, 20]
 BOWTIE = {"type": "Polygon", "coordinates": [[[0, 0], [20, 20], [20, 0], [0, 20], [0, 0]]]}
 
 
+PLY_HEAD = (
+    "ply\nformat {fmt} 1.0\nelement vertex {n}\nproperty float x\nproperty float y\nproperty float z\nelement face 2\n"
+    "property list uchar int vertex_indices\nend_header\n"
+)
+
+
 def _fc(*features: object) -> dict:
     return {"type": "FeatureCollection", "features": list(features)}
 
@@ -97,16 +103,79 @@ def _bundle_npz_object(w: Workspace) -> list[str]:
     return ["show", "city", "--root", str(w.forge("maps.npz", buf.getvalue())), "--out", str(w.tmp / "s.png")]
 
 
-def _bundle_inf(w: Workspace) -> list[str]:
+def _bundle_arrays(mutate: Callable[[dict[str, np.ndarray]], None]) -> Callable[[Workspace], list[str]]:
+    """``uavdata show`` of a bundle whose maps ``mutate`` changed (in a copy of every array), hash updated."""
+
+    def make(w: Workspace) -> list[str]:
+        import io
+
+        with np.load(w.bundle() / "maps.npz") as z:
+            arrays = {k: z[k].copy() for k in z.files}
+        mutate(arrays)
+        buf = io.BytesIO()
+        np.savez(buf, **arrays)
+        return ["show", "city", "--root", str(w.forge("maps.npz", buf.getvalue())), "--out", str(w.tmp / "s.png")]
+
+    return make
+
+
+def _set(name: str, index: tuple[int, ...], value: float) -> Callable[[dict[str, np.ndarray]], None]:
+    return lambda a: a[name].__setitem__(index, value)
+
+
+def _huge_header(w: Workspace) -> list[str]:
+    """A ``sinr_db.npy`` whose header claims 4 TB: refused from its header, never allocated."""
     import io
+    import zipfile
 
     with np.load(w.bundle() / "maps.npz") as z:
         arrays = {k: z[k] for k in z.files}
-    arrays["sinr_db"] = arrays["sinr_db"].copy()
-    arrays["sinr_db"][0, 1, 2] = np.inf
     buf = io.BytesIO()
-    np.savez(buf, **arrays)
+    with zipfile.ZipFile(buf, "w") as zf:
+        for name, a in arrays.items():
+            member = io.BytesIO()
+            if name == "sinr_db":
+                np.lib.format.write_array_header_1_0(
+                    member, {"descr": "<f4", "fortran_order": False, "shape": (2**20, 2**10, 2**10)}
+                )
+            else:
+                np.lib.format.write_array(member, a)
+            zf.writestr(f"{name}.npy", member.getvalue())
     return ["show", "city", "--root", str(w.forge("maps.npz", buf.getvalue())), "--out", str(w.tmp / "s.png")]
+
+
+def _users_edit(column: str, row: int, value: object) -> Callable[[Workspace], list[str]]:
+    def make(w: Workspace) -> list[str]:
+        import io
+
+        import pandas as pd
+
+        users = pd.read_parquet(w.bundle() / "users.parquet")
+        users.loc[row, column] = value
+        buf = io.BytesIO()
+        users.to_parquet(buf, index=False)
+        return ["show", "city", "--root", str(w.forge("users.parquet", buf.getvalue())), "--out", str(w.tmp / "s.png")]
+
+    return make
+
+
+def _manifest_edit(key: str, value: object) -> Callable[[Workspace], list[str]]:
+    def make(w: Workspace) -> list[str]:
+        path = w.bundle() / "manifest.json"
+        doc = json.loads(path.read_text())
+        doc[key] = value
+        path.write_text(json.dumps(doc))
+        return ["show", "city", "--root", str(w.root()), "--out", str(w.tmp / "s.png")]
+
+    return make
+
+
+def _latest(text: str) -> Callable[[Workspace], list[str]]:
+    def make(w: Workspace) -> list[str]:
+        (w.root() / "city" / "latest").write_text(text)
+        return ["show", "city", "--root", str(w.root()), "--out", str(w.tmp / "s.png")]
+
+    return make
 
 
 def _forged(name: str, data: bytes) -> Callable[[Workspace], list[str]]:
@@ -180,12 +249,6 @@ CASES: list[Case] = [
         lambda w: w.p2m(5, 4, "-3"),
         f"{PL1}:{L5}: distance_m: -3 is outside the physical range",
     ),
-    Case(
-        "p2m negative path loss",
-        "uavdata",
-        lambda w: w.p2m(5, 5, "-5"),
-        f"{PL1}:{L5}: path_loss_db: -5 is outside the physical range [0, 250] dB",
-    ),
     Case("p2m x 1e300", "uavdata", lambda w: w.p2m(5, 1, "1e300"), f"{PL1}:{L5}: x_m: 1e+300 is outside the physical range"),
     Case("p2m z 1e5", "uavdata", lambda w: w.p2m(5, 3, "1e5"), f"{PL1}:{L5}: z_m: 100000 is outside the physical range"),
     Case(
@@ -203,8 +266,9 @@ CASES: list[Case] = [
     Case(
         "p2m power above tx + gains",
         "uavdata",
-        lambda w: w.p2m(5, 5, "90", ("power",), POWER1),
-        f"{POWER1}:{L5}: power_dbm: received power 90 dBm exceeds the transmit power plus antenna gains (80 dBm)",
+        lambda w: w.p2m(5, 5, "70.8", ("power",), POWER1),  # a sign dropped from -70.8 dBm (20 dBm, two dipoles)
+        f"{POWER1}:{L5}: power_dbm: received power 70.8 dBm is beyond 30.3 dBm, the transmit power and both antennas' "
+        "gains with 6 dB for paths in phase",
     ),
     Case(
         "p2m phase 720", "uavdata", lambda w: w.p2m(5, 6, "720", ("power",), POWER1), f"{POWER1}:{L5}: phase_deg: 720 is outside"
@@ -689,9 +753,56 @@ CASES: list[Case] = [
         "show object array in maps.npz",
         "uavdata",
         _bundle_npz_object,
-        "maps.npz: not a readable map archive (ValueError: Object arrays cannot be loaded",
+        "maps.npz: sinr_db: array object[1], expected float32",
     ),
-    Case("show non-finite map", "uavdata", _bundle_inf, "maps.npz: sinr_db: value inf at [0, 1, 2] is not finite"),
+    Case(
+        "show non-finite map",
+        "uavdata",
+        _bundle_arrays(_set("sinr_db", (0, 1, 2), np.inf)),
+        "maps.npz: sinr_db: value inf at [0, 1, 2] is not finite",
+    ),
+    Case(
+        "show SINR of 1e30",
+        "uavdata",
+        _bundle_arrays(_set("sinr_db", (1, 0, 3), 1e30)),
+        "sinr_db: value 1e+30 at [1, 0, 3] is outside",
+    ),
+    Case(
+        "show height of 1e30",
+        "uavdata",
+        _bundle_arrays(_set("height_rel_m", (2, 2), 1e30)),
+        "height_rel_m: value 1e+30 at [2, 2]",
+    ),
+    Case(
+        "show SINR under the floor",
+        "uavdata",
+        _bundle_arrays(_set("sinr_db", (0, 0, 0), -300.0)),
+        "SINR below the manifest's floor",
+    ),
+    Case("show all blocked", "uavdata", _bundle_arrays(lambda a: a["blocked"].fill(True)), "blocked: every cell is blocked"),
+    Case("show building id -7", "uavdata", _bundle_arrays(_set("building_id", (0, 0), -7)), "building_id: building id below -1"),
+    Case("show cell centres moved", "uavdata", _bundle_arrays(_set("x_m", (3,), 1e4)), "x_m: cell centre 10000.0 at 3 is off"),
+    Case("show npy header of 4 TB", "uavdata", _huge_header, "sinr_db: array float32[1048576, 1024, 1024], expected float32[2"),
+    Case(
+        "show user id out of range", "uavdata", _users_edit("user", 1, 7), "users.parquet: user: user ids are not 0..1 in order"
+    ),
+    Case("show user cell off the grid", "uavdata", _users_edit("ix", 0, 99), "users.parquet: ix: row 0: cell 99 is off the grid"),
+    Case(
+        "show manifest city renamed",
+        "uavdata",
+        _manifest_edit("city", "elsewhere"),
+        "manifest.json: city: city 'elsewhere' is not",
+    ),
+    Case(
+        "show manifest version edited",
+        "uavdata",
+        _manifest_edit("version", "0123456789ab"),
+        "version: version 0123456789ab is not its folder",
+    ),
+    Case(
+        "show latest escapes the root", "uavdata", _latest("../../.."), "city/latest: latest: '../../..' is not a bundle version"
+    ),
+    Case("show latest is garbage", "uavdata", _latest("\x00\x01zz"), "is not a bundle version (12 hex digits)"),
     Case(
         "show tampered users table",
         "uavdata",
@@ -784,6 +895,18 @@ CASES: list[Case] = [
         "sionna:atlantis: source: ",
     ),
     Case("simulate a scene outside its folder", "uavdata", _scene_escape, "points outside the scene's folder"),
+    Case(
+        "ingest PLY header of 2e9 vertices",
+        "uavdata",
+        lambda w: w.add_file("b.ply", PLY_HEAD.format(n=2_000_000_000, fmt="binary_little_endian") + "\0" * 64),
+        "b.ply:3: vertex: declares 2,000,000,000 vertex rows of at least 12 bytes; the file holds 64",
+    ),
+    Case(
+        "ingest PLY face index out of range",
+        "uavdata",
+        lambda w: w.add_file("b.ply", PLY_HEAD.format(n=4, fmt="ascii") + "0 0 0\n10 0 0\n0 10 20\n10 10 20\n3 0 1 2\n3 1 3 9\n"),
+        "b.ply: unreadable mesh (IndexError: index 9 is out of bounds",
+    ),
     # -- report ------------------------------------------------------------------------------------
     Case(
         "report unknown dataset",
@@ -814,6 +937,18 @@ CASES: list[Case] = [
         "best.pt: pickle: refused: the checkpoint holds Python objects other than tensors",
     ),
     Case("report garbage best.pt", "uavrl", _agent_file(b"garbage"), "best.pt: not a readable PyTorch checkpoint"),
+    Case(
+        "report agent trained on the test bundle renamed",
+        "uavrl",
+        lambda w: w.report("--run", str(w.agent("renamed", w.bundle().name))),
+        "trained or selected on bundle",
+    ),
+    Case(
+        "report one city twice",
+        "uavrl",
+        lambda w: w.report("--dataset", "city@0123456789ab"),
+        "--dataset names city more than once (city, city@0123456789ab): one report per city",
+    ),
     Case(
         "report best.pt holding a list",
         "uavrl",
@@ -905,6 +1040,12 @@ CASES: list[Case] = [
         "uavrl",
         lambda w: ["train", "--resume", str(w.run_folder(networks=b"junk")), "--root", str(w.root())],
         "networks.pt: not a readable PyTorch checkpoint",
+    ),
+    Case(
+        "train resume a step of 1e12",
+        "uavrl",
+        lambda w: ["train", "--resume", str(w.run_folder(step=1e12)), "--root", str(w.root())],
+        "checkpoint.json: step: step 1,000,000,000,000 is beyond the run's 68 steps",
     ),
     Case(
         "train unknown preset",

@@ -102,8 +102,8 @@ class Workspace:
         (folder / "manifest.json").write_text(json.dumps(manifest))
         return self.root()
 
-    def agent(self, trained_on: str = "elsewhere") -> Path:
-        """A copy of a valid agent folder (untrained weights of the fast preset) trained on ``trained_on``."""
+    def agent(self, trained_on: str = "elsewhere", version: str = "0123456789ab") -> Path:
+        """A copy of a valid agent folder (untrained weights of the fast preset) trained on ``trained_on@version``."""
         dst = self.tmp / "agent"
         k = 0
         while dst.exists():
@@ -111,7 +111,7 @@ class Workspace:
             dst = self.tmp / f"agent-{k}"
         shutil.copytree(self.shared / "agent", dst)
         run = json.loads((dst / "run.json").read_text())
-        run["datasets"] = {trained_on: "0123456789ab"}
+        run["datasets"] = {trained_on: version}
         (dst / "run.json").write_text(json.dumps(run))
         return dst
 
@@ -126,8 +126,11 @@ class Workspace:
         torch.save({key: RunsCode(str(path.parent / "PWNED")), "config": {}}, path)
         return path
 
-    def run_folder(self, *, networks: bytes | None = None, payload: bool = False, old_last: bool = False) -> Path:
-        """A training run folder to resume: run.json of the fast preset on the built city, and a checkpoint."""
+    def run_folder(
+        self, *, networks: bytes | None = None, payload: bool = False, old_last: bool = False, step: float = 0
+    ) -> Path:
+        """A training run folder to resume: run.json of the fast preset on the built city, and a checkpoint (whose
+        ``checkpoint.json`` holds ``step``, empty random-generator states and no networks unless given)."""
         from uavplace.rl.agent.dqn import preset_config
         from uavplace.rl.agent.train import RunRecord
 
@@ -142,7 +145,9 @@ class Workspace:
             shutil.rmtree(last)
             self.payload(run / "checkpoints" / "last.pt")
             return run
-        (last / "checkpoint.json").write_text("{}")
+        state = {"step": step, "updates": 0, "best_score": None, "synced_at": 0, "losses": [], "episodes_started": 0,
+                 "rng": {}, "env_rng": {}, "wall_s": None}  # fmt: skip
+        (last / "checkpoint.json").write_text(json.dumps(state))
         if payload:
             self.payload(last / "networks.pt")
         elif networks is not None:
