@@ -59,6 +59,15 @@ from uavplace.schemas.cli import command_line, plain_table, root_option, stdout
     help="Episodes of the first agent drawn on the maps, by rule: the success closest to its median steps, the success at "
     "the 90th percentile of its successes, its first failure (0: no trajectory figure).",
 )
+@click.option(
+    "--group",
+    "groups",
+    multiple=True,
+    metavar="NAME=RUN,RUN,...",
+    help="Report these runs (a preset's seeds, each also played alone) as one method NAME: the mean over its runs, "
+    "the runs' range, and an interval that resamples runs, then users, then episodes; with paired differences against "
+    "the blind paper agent and the genie (repeatable; groups.csv and a table in the report).",
+)
 @click.option("--agents-dir", type=click.Path(file_okay=False, path_type=Path), default=Path("data/agents"), show_default=True,
               help="Where the default agents are looked for.")  # fmt: skip
 @click.option(
@@ -72,8 +81,8 @@ from uavplace.schemas.cli import command_line, plain_table, root_option, stdout
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def report(
     runs: tuple[Path, ...], datasets: tuple[str, ...], out: Path | None, episodes: int, t_max: int, p_t_db: float, test_epsilon: float,
-    n_boot: int, trajectories: int, split: str | None, seed: int, agents_dir: Path, markdown: Path | None, root: Path,
-    quiet: bool,
+    n_boot: int, trajectories: int, split: str | None, seed: int, groups: tuple[str, ...], agents_dir: Path,
+    markdown: Path | None, root: Path, quiet: bool,
 ) -> None:  # fmt: skip
     """Evaluate agents and baselines on the same episodes of a test city; write an HTML report, PNGs, CSV and Parquet.
 
@@ -85,6 +94,14 @@ def report(
     from uavplace.eval.report import ReportConfig, check_summary_page, default_agents, summary_rows, write_summary_page
 
     chosen = list(runs) or default_agents(agents_dir)
+    grouped: dict[str, list[str]] = {}
+    for text in groups:
+        name, _, members = text.partition("=")
+        folders = [m for m in members.split(",") if m]
+        if not name or not folders:
+            raise click.UsageError(f"--group {text!r}: expected NAME=RUN,RUN,...")
+        grouped[name] = [str(Path(f)) for f in folders]
+        chosen += [Path(f) for f in folders if Path(f) not in chosen]
     cities = [d.split("@")[0] for d in datasets]
     twice = sorted({c for c in cities if cities.count(c) > 1})
     if twice:  # one folder and one summary row per city: two versions of one city would overwrite each other
@@ -97,7 +114,7 @@ def report(
     for dataset in datasets:
         config = ReportConfig(
             dataset=dataset, runs=[str(r) for r in chosen], episodes=episodes, t_max=t_max, p_t_db=p_t_db,
-            test_epsilon=test_epsilon, seed=seed, n_boot=n_boot, trajectories=trajectories, split=split,
+            test_epsilon=test_epsilon, seed=seed, n_boot=n_boot, trajectories=trajectories, split=split, groups=grouped,
         )  # fmt: skip
         city = dataset.split("@")[0]
         folder = out if out and len(datasets) == 1 else (out or Path("reports")) / city
@@ -108,6 +125,10 @@ def report(
         if len(result.diff_rows) > 1:
             stdout().print(plain_table(*result.diff_rows[0], rows=result.diff_rows[1:],
                                        title=f"paired differences in {dataset}, method minus reference, 95 % intervals"))  # fmt: skip
+        if result.group_rows is not None:
+            stdout().print(plain_table(*result.group_rows[0], rows=result.group_rows[1:],
+                                       title=f"groups of runs in {dataset}: mean over runs [interval over runs, users, "
+                                       "episodes] (runs' range)"))  # fmt: skip
         stdout().print(f"report: {result.out / 'report.html'}", highlight=False, soft_wrap=True)
     if len(datasets) > 1:
         rows = summary_rows(reports, t_max)

@@ -30,7 +30,7 @@ from pydantic import Field
 
 from uavplace.dataset.bundle import Bundle, load_bundle
 from uavplace.dataset.difficulty import valid_starts
-from uavplace.eval.metrics import STATS, bootstrap_table, difference_table, ecdf, format_stat
+from uavplace.eval.metrics import STATS, bootstrap_table, difference_table, ecdf, format_stat, group_tables
 from uavplace.rl.agent.checkpoint import load_tensors
 from uavplace.rl.agent.dqn import DQNConfig
 from uavplace.rl.agent.train import RUN_JSON, RunRecord, policy_from_checkpoint, read_run_json, training_users
@@ -70,6 +70,10 @@ class ReportConfig(Contract):
         default=3, ge=0, le=3, description="Episodes drawn for the first agent, by TRAJECTORY_RULES in order (0: none)"
     )
     split: str | None = Field(default=None, description="Users of this split only (None: all users of the city)")
+    groups: dict[str, list[str]] = Field(
+        default_factory=dict,
+        description="Methods made of several runs (a preset's seeds): name -> run folders, each also one of ``runs``",
+    )
 
 
 @dataclass
@@ -106,6 +110,7 @@ class Report:
     diff_rows: list[list[str]]  # the differences as text (difference_rows)
     figures: dict[str, Figure | None]  # in the report folder
     provenance: dict  # report.json
+    group_rows: list[list[str]] | None = None  # the groups of seeds as text (group_rows), when --group was given
 
 
 def agent_name(config: DQNConfig) -> str:
@@ -217,6 +222,38 @@ def difference_rows(differences: pd.DataFrame, t_max: int) -> list[list[str]]:
         for ref in refs:
             for stat in ("success", "median_steps"):
                 r = group[(group["against"] == ref) & (group["stat"] == stat)]
+                cells.append("-" if r.empty else _difference_cell(stat, r.iloc[0]))
+        rows.append(cells)
+    return rows
+
+
+def groups_of(config: ReportConfig, agents: list[Agent]) -> dict[str, list[str]]:
+    """``config.groups`` with each run folder replaced by its agent's name in the results."""
+    by_folder = {str(Path(r)): a.name for r, a in zip(config.runs, agents, strict=True)}
+    return {g: [by_folder[str(Path(r))] for r in runs] for g, runs in config.groups.items()}
+
+
+def group_rows(table: pd.DataFrame, differences: pd.DataFrame, groups: dict[str, list[str]]) -> list[list[str]]:
+    """``group_tables`` as text cells (header first): each group's runs, success and median steps (mean over its runs,
+    interval, the runs' range), then each difference against a reference."""
+    refs = list(dict.fromkeys(differences["against"]))
+    header = ["group", "runs", "success", "median steps",
+              *(f"{label} - {ref}" for ref in refs for label in ("success", "median steps"))]  # fmt: skip
+    rows = [header]
+    for group in (g for g in groups if g not in refs):
+        cells = [group, ", ".join(groups[group])]
+        for stat in ("success", "median_steps"):
+            r = table[(table["group"] == group) & (table["stat"] == stat)].iloc[0]
+            scale, unit = (100, " %") if stat == "success" else (1, "")
+            value = (
+                "undefined"
+                if np.isnan(r["value"])
+                else f"{scale * r['value']:.1f}{unit} [{scale * r['lo']:.1f}, {scale * r['hi']:.1f}]"
+            )
+            cells.append(f"{value} ({scale * r['run_min']:g}-{scale * r['run_max']:g})")
+        for ref in refs:
+            for stat in ("success", "median_steps"):
+                r = differences[(differences["group"] == group) & (differences["against"] == ref) & (differences["stat"] == stat)]
                 cells.append("-" if r.empty else _difference_cell(stat, r.iloc[0]))
         rows.append(cells)
     return rows
@@ -525,7 +562,8 @@ pre{background:#f7f7f7;padding:8px;overflow-x:auto;font-size:12px}.prov td,.prov
 
 
 def render_section(config: ReportConfig, rows: list[list[str]], figures: dict[str, Figure | None], provenance: dict,
-                   first_figure: int = 1, diff_rows: list[list[str]] | None = None) -> str:  # fmt: skip
+                   first_figure: int = 1, diff_rows: list[list[str]] | None = None,
+                   group_rows: list[list[str]] | None = None) -> str:  # fmt: skip
     """One city's results: how the episodes were drawn, the table, then its captioned figures (those in ``figures``:
     the CDF, the training curves, the trajectories, numbered from ``first_figure``)."""
     p = provenance
@@ -555,6 +593,12 @@ def render_section(config: ReportConfig, rows: list[list[str]], figures: dict[st
             "<p>Paired differences, method minus reference, with 95 % intervals from the same resamples (an interval "
             "that excludes 0 is a difference the evaluation can tell apart from chance; the median steps differ by "
             "&quot;undefined&quot; where a median falls beyond t_max).</p>" + _html_table(diff_rows)
+        )
+    if group_rows is not None:
+        differences += (
+            "<p>Presets as groups of runs (seeds): each figure is the mean over the group's runs; its interval resamples "
+            "the runs, then users, then episodes, and the differences are paired in users and episodes; in "
+            "parentheses, the runs' own range.</p>" + _html_table(group_rows)
         )
     alt = {"cdf": "CDF of steps to P_T in " + p["test_city"], "training": "training curves"}
     alt["trajectories"] = "trajectories in " + p["test_city"]
@@ -674,7 +718,10 @@ def make_report(
 
     results = evaluate(config, bundle, agents, on_progress)
     table = results_table(results, config)
-    differences = difference_table(results, references(list(results)), n_boot=config.n_boot, seed=config.seed)
+    refs = references(list(results))
+    differences = difference_table(results, refs, n_boot=config.n_boot, seed=config.seed)
+    groups = groups_of(config, agents) | {r: [r] for r in refs}
+    grouped = group_tables(results, groups, refs, n_boot=config.n_boot, seed=config.seed) if config.groups else None
     episodes = pd.concat([_plain(df.assign(method=name)) for name, df in results.items()], ignore_index=True)
     with atomic_directory(out, marker=REPORT_JSON, what="report") as tmp:
         figures: dict[str, Figure | None] = {"cdf": plot_cdf(results, config.t_max, tmp / "cdf.png")}
@@ -684,6 +731,10 @@ def make_report(
         figures["trajectories"] = plot_trajectories(bundle, results, shown, picked, config.p_t_db, tmp / "trajectories.png")
         table.to_csv(tmp / "results.csv", index=False)
         differences.to_csv(tmp / "differences.csv", index=False)
+        if grouped is not None:
+            pd.concat([grouped[0], grouped[1]], keys=["group", "difference"], names=["table"]).reset_index(level=0).to_csv(
+                tmp / "groups.csv", index=False
+            )
         table.to_parquet(tmp / "results.parquet", index=False)
         episodes.to_parquet(tmp / "episodes.parquet", index=False)
         provenance = {
@@ -716,11 +767,13 @@ def make_report(
         }
         rows = table_rows(table, config.t_max)
         diff_rows = difference_rows(differences, config.t_max)
-        section = render_section(config, rows, figures, provenance, diff_rows=diff_rows)
+        grows = None if grouped is None else group_rows(*grouped, groups)
+        provenance["groups"] = {g: runs for g, runs in groups.items() if g not in refs} if grouped is not None else None
+        section = render_section(config, rows, figures, provenance, diff_rows=diff_rows, group_rows=grows)
         (tmp / "report.html").write_text(render_page([section], [provenance]), encoding="utf-8")
         (tmp / REPORT_JSON).write_text(json.dumps(provenance, indent=2) + "\n", encoding="utf-8")
     figures = {k: None if v is None else Figure(out / v.path.name, v.caption) for k, v in figures.items()}
-    return Report(out, table, differences, episodes, config, rows, diff_rows, figures, provenance)
+    return Report(out, table, differences, episodes, config, rows, diff_rows, figures, provenance, grows)
 
 
 #: The marker of a report page: ``write_summary_page`` replaces only a page that carries it.

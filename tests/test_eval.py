@@ -214,6 +214,28 @@ def test_report_end_to_end(tmp_path, two_cities):
     pd.testing.assert_frame_equal(table, pd.read_csv(out / "results.csv"))
 
 
+def test_report_groups_runs_as_one_preset(tmp_path, two_cities):
+    """`--group best=A,B` plays both runs and reports them as one method: the mean over the runs, their range, an
+    interval over runs, users and episodes, differences against the genie; groups.csv and the page hold it."""
+    import shutil
+
+    root, run = two_cities
+    twin = tmp_path / "twin"
+    shutil.copytree(run, twin)  # the same weights under another folder: a group whose runs agree exactly
+    out = tmp_path / "report"
+    args = ["report", "--dataset", "cityb", "--root", str(root), "--out", str(out), "--episodes", "40", "--t-max", "40",
+            "--bootstrap", "200", "--quiet", "--trajectories", "0", "--group", f"best={run},{twin}"]  # fmt: skip
+    res = CliRunner().invoke(uavrl, args)
+    assert res.exit_code == 0, res.output
+    assert "groups of runs in cityb" in res.output
+    groups = pd.read_csv(out / "groups.csv")
+    best = groups[(groups.table == "group") & (groups.group == "best") & (groups.stat == "success")].iloc[0]
+    assert best["runs"] == 2 and best["run_min"] == best["run_max"] == best["value"]
+    assert ((groups.table == "difference") & (groups.group == "best") & (groups.against == "genie")).sum() == 2
+    page = (out / "report.html").read_text()
+    assert "Presets as groups of runs" in page and json.loads((out / "report.json").read_text())["groups"]["best"]
+
+
 def test_report_on_several_cities(tmp_path, two_cities):
     """One report folder per test city under --out, then one summary line per method across the cities."""
     root, run = two_cities
