@@ -8,8 +8,8 @@ and their ratio to the genie's median on the same episodes, and the wall time: t
 (``wall_s`` of its last evaluation, over its starts and resumes), or for a run trained before the
 trainer kept time, what the lever script logged (``wall.txt`` beside the runs; a resumed run's
 parts added up, a part that was killed is not there). Test cities are only reported here, never used to choose.
-Each agent is loaded once: its random moves (epsilon) run on from one city to the next, so a city
-after the first differs from ``uavrl report`` (a fresh agent per city) by that noise alone.
+Each agent is loaded once; its random moves are drawn per episode (``rl/randomness.py``), so every city plays
+as ``uavrl report`` plays it, whatever was played before.
 
     python benchmarks/lever_table.py runs/levers/R* [--city test --city etoile] [--episodes 1000]
 """

@@ -29,7 +29,7 @@ from uavplace.dataset.bundle import load_bundle
 from uavplace.dataset.catalog import list_cities
 from uavplace.eval.cities import development_cities
 from uavplace.eval.metrics import group_tables
-from uavplace.eval.report import ReportConfig, evaluate, load_agent
+from uavplace.eval.report import ReportConfig, evaluate, group_rows, load_agent, markdown_table
 from uavplace.rl.policies import GeniePolicy
 
 #: The conditions, in the table's order; the first is the reference of the differences.
@@ -75,31 +75,16 @@ def play(city: str, args: argparse.Namespace, donor: str | None) -> dict[str, pd
     return results
 
 
-def tables(results: dict[str, pd.DataFrame], args: argparse.Namespace) -> tuple[pd.DataFrame, pd.DataFrame]:
+def tables(results: dict[str, pd.DataFrame], args: argparse.Namespace) -> tuple[pd.DataFrame, pd.DataFrame, dict]:
     groups = {c: [k for k in results if k.startswith(f"{c}/")] for c in CONDITIONS}
     groups = {c: runs for c, runs in groups.items() if runs} | {"genie": ["genie"]}
-    return group_tables(results, groups, against=["map"], n_boot=args.n_boot, seed=args.seed)
+    return *group_tables(results, groups, against=["map"], n_boot=args.n_boot, seed=args.seed), groups
 
 
-def show(where: str, table: pd.DataFrame, diffs: pd.DataFrame) -> None:
-    print(f"\n{where}: mean over seeds [95 % interval over seeds, users, episodes] (seeds' range)")
-    print("| condition | seeds | success | median steps |")
-    print("|---|---|---|---|")
-    for group, rows in table.groupby("group", sort=False):
-        cells = []
-        for _, r in rows.iterrows():
-            scale, unit = (100, " %") if r.stat == "success" else (1, "")
-            cells.append(f"{scale * r.value:.1f}{unit} [{scale * r.lo:.1f}, {scale * r.hi:.1f}] "
-                         f"({scale * r.run_min:.1f}-{scale * r.run_max:.1f})")  # fmt: skip
-        print(f"| {group} | {rows.runs.iloc[0]} | {' | '.join(cells)} |")
-    print("\n| condition - map | success (points) | median steps |")
-    print("|---|---|---|")
-    for group, rows in diffs.groupby("group", sort=False):
-        cells = []
-        for _, r in rows.iterrows():
-            scale = 100 if r.stat == "success" else 1
-            cells.append(f"{scale * r.difference:+.1f} [{scale * r.lo:+.1f}, {scale * r.hi:+.1f}]")
-        print(f"| {group} | {' | '.join(cells)} |")
+def show(where: str, table: pd.DataFrame, diffs: pd.DataFrame, groups: dict[str, list[str]]) -> None:
+    print(f"\n{where}: mean over seeds [95 % interval over seeds, users, episodes] (seeds' range); differences paired "
+          "in users and episodes\n")  # fmt: skip
+    print(markdown_table(group_rows(table, diffs, groups, references_too=True)))
 
 
 def main() -> None:
@@ -124,14 +109,14 @@ def main() -> None:
         results = play(city, args, donor)
         for name, df in results.items():
             pooled.setdefault(name, []).append(df)
-        table, diffs = tables(results, args)
-        show(f"{city} (swapped map: {donor or 'none of its shape'})", table, diffs)
+        table, diffs, groups = tables(results, args)
+        show(f"{city} (swapped map: {donor or 'none of its shape'})", table, diffs, groups)
         out_tables.append(table.assign(city=city, donor=donor))
         out_diffs.append(diffs.assign(city=city, donor=donor))
     if len(cities) > 1:
         common = {k: v for k, v in pooled.items() if len(v) == len(cities)}  # swapped maps only where every city has one
-        table, diffs = tables({k: pd.concat(v, ignore_index=True) for k, v in common.items()}, args)
-        show(f"all {len(cities)} cities pooled ({', '.join(cities)})", table, diffs)
+        table, diffs, groups = tables({k: pd.concat(v, ignore_index=True) for k, v in common.items()}, args)
+        show(f"all {len(cities)} cities pooled ({', '.join(cities)})", table, diffs, groups)
         out_tables.append(table.assign(city="pooled"))
         out_diffs.append(diffs.assign(city="pooled"))
     if args.csv is not None:

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import base64
 import datetime as dt
-import html
+import functools
 import json
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -233,14 +233,17 @@ def groups_of(config: ReportConfig, agents: list[Agent]) -> dict[str, list[str]]
     return {g: [by_folder[str(Path(r))] for r in runs] for g, runs in config.groups.items()}
 
 
-def group_rows(table: pd.DataFrame, differences: pd.DataFrame, groups: dict[str, list[str]]) -> list[list[str]]:
+def group_rows(
+    table: pd.DataFrame, differences: pd.DataFrame, groups: dict[str, list[str]], *, references_too: bool = False
+) -> list[list[str]]:
     """``group_tables`` as text cells (header first): each group's runs, success and median steps (mean over its runs,
-    interval, the runs' range), then each difference against a reference."""
+    interval, the runs' range), then each difference against a reference (the references' own rows only with
+    ``references_too``)."""
     refs = list(dict.fromkeys(differences["against"]))
     header = ["group", "runs", "success", "median steps",
               *(f"{label} - {ref}" for ref in refs for label in ("success", "median steps"))]  # fmt: skip
     rows = [header]
-    for group in (g for g in groups if g not in refs):
+    for group in (g for g in groups if references_too or g not in refs):
         cells = [group, ", ".join(groups[group])]
         for stat in ("success", "median_steps"):
             r = table[(table["group"] == group) & (table["stat"] == stat)].iloc[0]
@@ -250,7 +253,8 @@ def group_rows(table: pd.DataFrame, differences: pd.DataFrame, groups: dict[str,
                 if np.isnan(r["value"])
                 else f"{scale * r['value']:.1f}{unit} [{scale * r['lo']:.1f}, {scale * r['hi']:.1f}]"
             )
-            cells.append(f"{value} ({scale * r['run_min']:g}-{scale * r['run_max']:g})")
+            spec = ".1f" if stat == "success" else "g"
+            cells.append(f"{value} ({scale * r['run_min']:{spec}}-{scale * r['run_max']:{spec}})")
         for ref in refs:
             for stat in ("success", "median_steps"):
                 r = differences[(differences["group"] == group) & (differences["against"] == ref) & (differences["stat"] == stat)]
@@ -523,14 +527,21 @@ PAPER_SOURCE = (
 )
 
 
-def _figure(fig: Figure | None, number: int, alt: str) -> str:
-    if fig is None:
-        return f"<p><em>Figure {number} ({html.escape(alt)}): nothing to draw.</em></p>"
-    data = base64.b64encode(fig.path.read_bytes()).decode("ascii")
-    return (
-        f'<figure><img alt="{html.escape(alt)}" src="data:image/png;base64,{data}">'
-        f"<figcaption><b>Figure {number}.</b> {html.escape(fig.caption)}</figcaption></figure>"
-    )
+def _figure(fig: Figure | None, number: int, alt: str) -> dict:
+    """What the templates' ``figure`` macro draws: the PNG inlined (base64), numbered, with its caption."""
+    data = None if fig is None else base64.b64encode(fig.path.read_bytes()).decode("ascii")
+    return {"number": number, "alt": alt, "data": data, "caption": None if fig is None else fig.caption}
+
+
+@functools.cache
+def _templates():  # noqa: ANN202 - a jinja2.Environment
+    """The report pages' Jinja2 templates (``eval/templates/``), autoescaped: every value is text."""
+    import jinja2
+
+    return jinja2.Environment(
+        loader=jinja2.PackageLoader("uavplace.eval", "templates"), autoescape=True, undefined=jinja2.StrictUndefined,
+        keep_trailing_newline=True,
+    )  # fmt: skip
 
 
 def table_rows(table: pd.DataFrame, t_max: int) -> list[list[str]]:
@@ -547,13 +558,6 @@ def table_rows(table: pd.DataFrame, t_max: int) -> list[list[str]]:
     return rows
 
 
-def _html_table(rows: list[list[str]], css_class: str | None = None) -> str:
-    head = "".join(f"<th>{html.escape(c)}</th>" for c in rows[0])
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows[1:])
-    opening = "<table>" if css_class is None else f'<table class="{css_class}">'
-    return f"{opening}<thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
-
-
 _CSS = """body{font-family:system-ui,sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;color:#222}
 table{border-collapse:collapse;margin:1em 0;font-size:14px}td,th{border:1px solid #ccc;padding:4px 8px;text-align:right}
 td:first-child,th:first-child{text-align:left}th{background:#f3f3f3}img{max-width:100%}
@@ -564,55 +568,25 @@ pre{background:#f7f7f7;padding:8px;overflow-x:auto;font-size:12px}.prov td,.prov
 def render_section(config: ReportConfig, rows: list[list[str]], figures: dict[str, Figure | None], provenance: dict,
                    first_figure: int = 1, diff_rows: list[list[str]] | None = None,
                    group_rows: list[list[str]] | None = None) -> str:  # fmt: skip
-    """One city's results: how the episodes were drawn, the table, then its captioned figures (those in ``figures``:
-    the CDF, the training curves, the trajectories, numbered from ``first_figure``)."""
+    """One city's results (``templates/section.html.j2``): how the episodes were drawn, the table, the differences,
+    then its captioned figures (those in ``figures``: the CDF, the training curves, the trajectories, numbered from
+    ``first_figure``)."""
     p = provenance
-    city = html.escape(p["test_city"])
-    users = p.get("users", "all")
     penalised = {n: a["config"].get("test_revisit_penalty", 0.0) for n, a in p["agents"].items()}
-    penalties = "; ".join(
-        f"{html.escape(n)}: less {v:g} per earlier visit of the episode to the cell the move leads to"
-        for n, v in penalised.items()
-        if v
-    )
-    revisit = f" ({penalties})" if penalties else ""
-    notes = (
-        f"{config.episodes} episodes in <b>{city}</b> (bundle {html.escape(p['test_bundle'])}), "
-        f"users drawn uniformly, then a start cell uniformly among the legal, live cells below P_T; "
-        f"the same episodes for every method. t_max {config.t_max}, P_T {config.p_t_db:g} dB; the agents take the "
-        f"legal move of highest Q{revisit}, or a random legal move with probability {config.test_epsilon:g}. Steps to P_T of a "
-        f"failed episode count as &gt; t_max, so the median and p75 include failures; the mean steps are over each "
-        f"method's own successes (different episodes per method). Brackets: paired bootstrap 95 % intervals "
-        f"({config.n_boot} resamples) that resample the {users} users, then the episodes of each drawn user "
-        f"(episodes of one user are alike: resampling episodes alone would give intervals too narrow). "
-        f"{html.escape(PAPER_SOURCE)}."
-    )
-    differences = ""
-    if diff_rows is not None and len(diff_rows) > 1:
-        differences = (
-            "<p>Paired differences, method minus reference, with 95 % intervals from the same resamples (an interval "
-            "that excludes 0 is a difference the evaluation can tell apart from chance; the median steps differ by "
-            "&quot;undefined&quot; where a median falls beyond t_max).</p>" + _html_table(diff_rows)
-        )
-    if group_rows is not None:
-        differences += (
-            "<p>Presets as groups of runs (seeds): each figure is the mean over the group's runs; its interval resamples "
-            "the runs, then users, then episodes, and the differences are paired in users and episodes; in "
-            "parentheses, the runs' own range.</p>" + _html_table(group_rows)
-        )
+    penalties = "; ".join(f"{n}: less {v:g} per earlier visit of the episode to the cell the move leads to"
+                          for n, v in penalised.items() if v)  # fmt: skip
     alt = {"cdf": "CDF of steps to P_T in " + p["test_city"], "training": "training curves"}
     alt["trajectories"] = "trajectories in " + p["test_city"]
     shown = [_figure(figures[key], first_figure + i, alt[key]) for i, key in enumerate(k for k in alt if k in figures)]
-    return f"""<section id="{city}">
-<h2>{city}</h2>
-<p>{notes}</p>
-{_html_table(rows)}
-{differences}
-{"".join(shown)}
-</section>"""
+    return _templates().get_template("section.html.j2").render(
+        city=p["test_city"], bundle=p["test_bundle"], episodes=config.episodes, t_max=config.t_max,
+        p_t=f"{config.p_t_db:g}", penalties=penalties, epsilon=f"{config.test_epsilon:g}", n_boot=config.n_boot,
+        users=p.get("users", "all"), paper_source=PAPER_SOURCE, rows=rows, diff_rows=diff_rows, group_rows=group_rows,
+        figures=shown,
+    )  # fmt: skip
 
 
-def provenance_table(provenances: list[dict]) -> str:
+def provenance_rows(provenances: list[dict]) -> list[list[str]]:
     """What made the report, readable: the command, the bundles tested on and every agent (runs, cities, commands)."""
     first = provenances[0]
     rows = [["what", "value"]]
@@ -636,7 +610,7 @@ def provenance_table(provenances: list[dict]) -> str:
                      f"selected on {selected}; {chosen}"])  # fmt: skip
         for i, cmd in enumerate(a["commands"] or ["(not recorded)"]):
             rows.append([f"agent {name}: command {i + 1}", cmd])
-    return _html_table(rows, "prov")
+    return rows
 
 
 def render_page(
@@ -646,33 +620,20 @@ def render_page(
     training: Figure | None = None,
     caption: str = "",
 ) -> str:
-    """The whole report: with several cities a summary table and the training curves (Figure 1) first, then a
-    section per city, then the provenance."""
-    cities = ", ".join(p["test_city"] for p in provenances)
-    summary_html = ""
-    if summary is not None:
-        summary_html = (
-            f"<h2>Summary: success / median steps per method and city</h2><p>{html.escape(caption)}</p>"
-            f"{_html_table(summary)}"
-            f"<h2>Training</h2>{_figure(training, 1, 'training curves')}"
-        )
+    """The whole report (``templates/page.html.j2``): with several cities a summary table and the training curves
+    (Figure 1) first, then a section per city (``render_section``'s HTML), then the provenance. Self-contained: the
+    style and the figures are inlined."""
+    import markupsafe
+
     raw = provenances[0] if len(provenances) == 1 else provenances
     # One city: its report's time. Several: the page's own, when the last city was done (the first city's is earlier).
     made = provenances[0]["created_utc"] if summary is None else dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
-    return f"""<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><meta name="generator" content="{GENERATOR}">
-<title>uavplace report: {html.escape(cities)}</title>
-<style>{_CSS}</style></head><body>
-<h1>uavplace: UAV placement for a user of unknown location</h1>
-<p>Unseen-city evaluation in {html.escape(cities)}. Made {html.escape(made)} by
-<code>{html.escape(provenances[0]["command"])}</code>.</p>
-{summary_html}
-{"".join(sections)}
-<h2>Provenance</h2>
-{provenance_table(provenances)}
-<details><summary>report.json (raw)</summary><pre>{html.escape(json.dumps(raw, indent=2))}</pre></details>
-</body></html>
-"""
+    return _templates().get_template("page.html.j2").render(
+        generator=GENERATOR, cities=", ".join(p["test_city"] for p in provenances), css=markupsafe.Markup(_CSS),
+        made=made, command=provenances[0]["command"], summary=summary, caption=caption,
+        training=_figure(training, 1, "training curves"), sections=[markupsafe.Markup(s) for s in sections],
+        provenance=provenance_rows(provenances), raw=json.dumps(raw, indent=2),
+    )  # fmt: skip
 
 
 def make_report(
@@ -810,7 +771,8 @@ def write_summary_page(reports: list[Report], out: str | Path, t_max: int) -> Pa
     return out / "report.html"
 
 
-def _markdown(rows: list[list[str]]) -> str:
+def markdown_table(rows: list[list[str]]) -> str:
+    """Text cells (header first) as a Markdown table."""
     escape = str.maketrans({"|": "\\|"})
     lines = ["| " + " | ".join(c.translate(escape) for c in rows[0]) + " |", "|" + "---|" * len(rows[0])]
     return "\n".join(lines + ["| " + " | ".join(c.translate(escape) for c in r) + " |" for r in rows[1:]])
@@ -825,13 +787,13 @@ def markdown_tables(reports: list[Report], t_max: int) -> str:
         parts.append(f"**{p['test_city']}** ({r.config.episodes} episodes of {p.get('users', '?')} users, bundle "
                      f"{p['test_bundle']}, t_max {r.config.t_max}, P_T {r.config.p_t_db:g} dB; 95 % intervals over users, "
                      "then episodes)")  # fmt: skip
-        parts.append(_markdown(r.rows))
+        parts.append(markdown_table(r.rows))
         if len(r.diff_rows) > 1:
             parts.append(f"Paired differences in {p['test_city']}, method minus reference (95 % intervals):")
-            parts.append(_markdown(r.diff_rows))
+            parts.append(markdown_table(r.diff_rows))
     if len(reports) > 1:
         parts.append(summary_caption(reports))
-        parts.append(_markdown(summary_rows(reports, t_max)))
+        parts.append(markdown_table(summary_rows(reports, t_max)))
     return "\n\n".join(parts) + "\n"
 
 
