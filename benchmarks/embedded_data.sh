@@ -14,5 +14,8 @@ uavdata simulate procedural:oldtown --count 6 --name oldtown --seed 200 --users 
 uavdata simulate procedural:test --name test --users 25 --seed 2 "${common[@]}"
 uavdata simulate sionna:etoile --crop=-200,-200,200,200 --name etoile --users 25 --seed 4 "${common[@]}"
 uavdata simulate sionna:florence --crop=-200,-250,200,250 --name florence --users 25 --seed 5 "${common[@]}"
+# Validation crops of the two real scenes, beside (never overlapping) their test crops above: decisions on real geometry.
+uavdata simulate sionna:etoile --crop=200,-200,400,200 --name etoile-val --users 16 --seed 6 "${common[@]}"
+uavdata simulate sionna:florence --crop=200,-250,494,250 --name florence-val --users 16 --seed 7 "${common[@]}"
 uavdata simulate procedural:train --name train --users 27 --seed 1 "${common[@]}"
 uavdata simulate procedural:tiny --name tiny --users 4 --seed 3 --samples 2e6 --out "$out" --trace-cache "$traces"

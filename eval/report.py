@@ -268,7 +268,10 @@ def _difference_cell(stat: str, r: pd.Series) -> str:
         return f"undefined ({100 * r['undefined_share']:.0f} % of resamples: a median beyond t_max)"
     if stat == "success":
         return f"{100 * r['difference']:+.1f} points [{100 * r['lo']:+.1f}, {100 * r['hi']:+.1f}]"
-    return f"{r['difference']:+g} [{r['lo']:+g}, {r['hi']:+g}]"
+    values = (r["difference"], r["lo"], r["hi"])
+    if all(float(v).is_integer() for v in values):  # one run's medians: whole steps
+        return f"{r['difference']:+g} [{r['lo']:+g}, {r['hi']:+g}]"
+    return f"{r['difference']:+.1f} [{r['lo']:+.1f}, {r['hi']:+.1f}]"  # a mean over runs
 
 
 def _paper_key(method: str) -> str | None:
@@ -791,6 +794,10 @@ def markdown_tables(reports: list[Report], t_max: int) -> str:
         if len(r.diff_rows) > 1:
             parts.append(f"Paired differences in {p['test_city']}, method minus reference (95 % intervals):")
             parts.append(markdown_table(r.diff_rows))
+        if r.group_rows is not None:
+            parts.append(f"Groups of runs in {p['test_city']}: mean over runs [95 % interval over runs, users, episodes] "
+                         "(the runs' range), differences paired in users and episodes:")  # fmt: skip
+            parts.append(markdown_table(r.group_rows))
     if len(reports) > 1:
         parts.append(summary_caption(reports))
         parts.append(markdown_table(summary_rows(reports, t_max)))

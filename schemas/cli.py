@@ -58,12 +58,15 @@ def fail(err: Exception | str) -> NoReturn:
 
 
 def plain_table(*headers: str, rows: list[list[str]] = (), **kwargs) -> Table:  # noqa: ANN003 - rich.table.Table's options
-    """A rich table whose headers are text, not markup: units such as ``[m]`` stay visible; ``rows`` are added."""
+    """A rich table whose headers, cells and title are text, not markup: units such as ``[m]``, intervals and names
+    such as ``best [best-s0]`` stay visible; ``rows`` are added."""
+    if isinstance(kwargs.get("title"), str):
+        kwargs["title"] = Text(kwargs["title"])
     table = Table(**kwargs)
     for header in headers:
         table.add_column(Text(header))
     for row in rows:
-        table.add_row(*row)
+        table.add_row(*(Text(c) if isinstance(c, str) else c for c in row))
     return table
 
 
