@@ -119,7 +119,7 @@ def baselines(
     help="Hyperparameters: best (ours: a recurrent Q-network learnt by PQN, 300 k steps: about 10 min on one of 2 CPU "
     "cores for the 22 training cities of the embedded corpora), best-pqn (the same without the recurrent core: about "
     "5 min), best-dqn (that one learnt by replay DQN: about 8 min), paper "
-    "(docs/method.md, ~7 M steps: days on a CPU), fast (minutes, for checks). Presets: rl/agent/dqn.py, PRESETS.",
+    "(docs/method.md, ~7 M steps: days on a CPU), fast (40 k steps: 139-146 s on 2 cores, measured 2026-12-01; for checks). Presets: rl/agent/dqn.py, PRESETS.",
 )
 @click.option("--steps", type=click.IntRange(min=1), default=None, help="Environment steps (default: the preset's).")
 @click.option(
