@@ -25,32 +25,31 @@ from pathlib import Path
 
 import pandas as pd
 
-from uavplace.dataset.bundle import load_bundle
+from uavplace.dataset.bundle import load_bundle, read_manifest, resolve
 from uavplace.dataset.catalog import list_cities
 from uavplace.eval.cities import development_cities
 from uavplace.eval.metrics import group_tables
 from uavplace.eval.report import ReportConfig, evaluate, group_rows, load_agent, markdown_table
 from uavplace.rl.policies import GeniePolicy
+from uavplace.schemas import InputError
 
 #: The conditions, in the table's order; the first is the reference of the differences.
 CONDITIONS = ("map", "blind", "no buildings", "swapped map")
 
 
 def donor_for(city: str, root: str, given: dict[str, str]) -> str | None:
-    """The city whose buildings the map agents see in the swapped-map condition (same grid shape, not a test city)."""
+    """The city whose buildings the map agents see in the swapped-map condition (same grid shape, not a test city),
+    found from the latest bundles' manifests (no map is read)."""
     if city in given:
         return given[city]
     shape = load_bundle(city, root=root).shape
     for entry in list_cities(root):
-        name = entry.name
-        if name == city:
-            continue
         try:
-            b = load_bundle(name, root=root)
-        except Exception:  # noqa: BLE001 - an unbuilt or damaged city is simply not a donor
+            manifest = read_manifest(resolve(entry.name, root=root))
+        except InputError:  # an unbuilt or damaged city is simply not a donor
             continue
-        if b.shape == shape and b.manifest.config.role != "test":
-            return name
+        if entry.name != city and manifest.grid.shape == shape and manifest.config.role != "test":
+            return entry.name
     return None
 
 

@@ -292,15 +292,13 @@ def check_values(path: Path, manifest: BundleManifest, arrays: dict[str, np.ndar
     grid = manifest.grid
     for name, lo, n in (("x_m", grid.x_min_m, grid.num_x), ("y_m", grid.y_min_m, grid.num_y)):
         centres = lo + (np.arange(n) + 0.5) * grid.spacing_m
-        if not np.allclose(arrays[name], centres, rtol=0, atol=1e-6 * grid.spacing_m + 1e-9):
-            bad = int(np.argmax(~np.isclose(arrays[name], centres, rtol=0, atol=1e-6 * grid.spacing_m + 1e-9)))
+        off = ~np.isclose(arrays[name], centres, rtol=0, atol=1e-6 * grid.spacing_m + 1e-9)
+        if off.any():
+            bad = int(np.argmax(off))
             raise InputError(path, f"cell centre {arrays[name][bad]} at {bad} is off the manifest's grid", field=name)
     floor = manifest.sinr.floor_db
-    bounds = {
-        "height_rel_m": CELLS.column("height_rel_m"),
-        "sinr_db": CELLS.column("sinr_db"),
-    }
-    for name, column in bounds.items():
+    for name in ("height_rel_m", "sinr_db"):
+        column = CELLS.column(name)
         bad = column.first_out_of_range(arrays[name].ravel())
         if bad is not None:
             where = list(map(int, np.unravel_index(bad, arrays[name].shape)))

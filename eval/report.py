@@ -684,8 +684,9 @@ def make_report(
     table = results_table(results, config)
     refs = references(list(results))
     differences = difference_table(results, refs, n_boot=config.n_boot, seed=config.seed)
-    groups = groups_of(config, agents) | {r: [r] for r in refs}
-    grouped = group_tables(results, groups, refs, n_boot=config.n_boot, seed=config.seed) if config.groups else None
+    named = groups_of(config, agents)  # the --group runs by their names in the results; references as groups of one
+    groups = named | {r: [r] for r in refs}
+    grouped = group_tables(results, groups, refs, n_boot=config.n_boot, seed=config.seed) if named else None
     episodes = pd.concat([_plain(df.assign(method=name)) for name, df in results.items()], ignore_index=True)
     with atomic_directory(out, marker=REPORT_JSON, what="report") as tmp:
         figures: dict[str, Figure | None] = {"cdf": plot_cdf(results, config.t_max, tmp / "cdf.png")}
@@ -732,7 +733,7 @@ def make_report(
         rows = table_rows(table, config.t_max)
         diff_rows = difference_rows(differences, config.t_max)
         grows = None if grouped is None else group_rows(*grouped, groups)
-        provenance["groups"] = {g: runs for g, runs in groups.items() if g not in refs} if grouped is not None else None
+        provenance["groups"] = named or None
         section = render_section(config, rows, figures, provenance, diff_rows=diff_rows, group_rows=grows)
         (tmp / "report.html").write_text(render_page([section], [provenance]), encoding="utf-8")
         (tmp / REPORT_JSON).write_text(json.dumps(provenance, indent=2) + "\n", encoding="utf-8")

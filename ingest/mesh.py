@@ -53,7 +53,7 @@ def _folder_resolver(folder: Path):  # noqa: ANN202 - a trimesh resolver
 
     class FolderFiles(FilePathResolver):
         def get(self, name: str) -> bytes:
-            path = self.absolute(name)  # ValueError out of the folder
+            path = (folder / name.strip()).resolve()  # checked here: trimesh 4's resolver reads anywhere
             if not path.is_relative_to(folder.resolve()):
                 raise ValueError(f"'{name}' is outside the mesh's folder")
             try:

@@ -91,15 +91,12 @@ class MapSet:
         self.dead = np.ones((nv, L, L), bool)
         self.steps = np.full((nv, L, L), UNREACHABLE, np.int32)
         self.shapes = np.zeros((S * nb, 2), np.int64)  # transformed (num_y, num_x) per bundle-symmetry
-        on_map = np.zeros((S * nb, L, L), bool)  # False beyond the edge
+        self.on_map = np.zeros((S * nb, L, L), bool)  # False beyond the edge
         for i, b in enumerate(bundles):
+            self._paint_buildings(i, b.height_rel_m, b.blocked, self.blocked)
             for k in range(S):
-                h = transform(np.clip(b.height_rel_m, -config.height_clip_m, config.height_clip_m), k)
-                ny, nx = h.shape
-                self.height[S * i + k, p : p + ny, p : p + nx] = h
-                self.blocked[S * i + k, p : p + ny, p : p + nx] = transform(b.blocked, k)
-                on_map[S * i + k, p : p + ny, p : p + nx] = True
-                self.shapes[S * i + k] = (ny, nx)
+                ny, nx = self.shapes[S * i + k] = transform(b.blocked, k).shape
+                self.on_map[S * i + k, p : p + ny, p : p + nx] = True
         for s, sc in enumerate(scenarios):
             b = bundles[sc.bundle]
             legal = ~b.blocked
@@ -113,17 +110,10 @@ class MapSet:
                 self.steps[v, p : p + ny, p : p + nx] = transform(steps, k)
         self.view_map = np.repeat(S * np.array([sc.bundle for sc in scenarios]), S) + np.tile(np.arange(S), len(scenarios))
         blocked_v = self.blocked[self.view_map]
-        # Blind: buildings unknown, so blocked map cells look unvisited; beyond the edge stays P_L.
-        hidden = ~on_map[self.view_map] if config.blind else blocked_v
-        self.memory0 = np.where(hidden, config.p_l_db, config.p_h_db).astype(np.float32)
-        # Context channels: the canvas in z x z blocks, padded by half a window of blocks, so that a window of
-        # blocks centred on the block of any map cell is a plain slice too.
         self.context_pad = config.window // 2
+        self.memory0, context_height, context_memory0 = self._start_channels(self.blocked)
         if config.context_zoom:
-            z, edge = config.context_zoom, config.edge_height_m
-            self.context_height = self._blocks(self.height, z, edge, np.mean)  # [S * nb, Lc, Lc]
-            # [nv, Lc, Lc]: P_H where the block has a cell the memory shows as P_H (one that can be visited), else P_L.
-            self.context_memory0 = self._blocks(self.memory0, z, np.float32(config.p_l_db), np.max)
+            self.context_height, self.context_memory0 = context_height, context_memory0
         # Valid starts per view, concatenated: flat canvas indices, with offset and count per view.
         valid = valid_starts(blocked_v, self.dead, self.sinr, config.p_t_db, self.steps)
         flat = [np.flatnonzero(valid[v]) for v in range(nv)]
@@ -142,24 +132,42 @@ class MapSet:
         height channel, the context channels and the SINR memory's blocked cells at the start of an episode. The
         moves (which cells are blocked), the SINR and the genie stay the city's: the experiment that asks whether
         an agent uses the map (docs/map_claim.md). ``donor`` must have the city's grid shape."""
-        cfg, S, p = self.config, self.symmetries, self.pad
         seen_blocked = np.ones_like(self.blocked)  # beyond the edge: blocked, as in ``blocked``
         for i, b in enumerate(self.bundles):
             if donor is not None and donor.shape != b.shape:
                 raise ValueError(f"{donor.city} is {donor.shape} cells, {b.city} {b.shape}: a donor map needs the same shape")
             height = np.full(b.shape, -b.altitude_m, np.float32) if donor is None else donor.height_rel_m
-            blocked = np.zeros(b.shape, bool) if donor is None else donor.blocked
-            for k in range(S):
-                h = transform(np.clip(height, -cfg.height_clip_m, cfg.height_clip_m), k)
-                ny, nx = h.shape
-                self.height[S * i + k, p : p + ny, p : p + nx] = h
-                seen_blocked[S * i + k, p : p + ny, p : p + nx] = transform(blocked, k)
-        if not cfg.blind:  # the blind memory hides buildings already: only the edge shows as P_L
-            self.memory0[...] = np.where(seen_blocked[self.view_map], cfg.p_l_db, cfg.p_h_db)
-        if cfg.context_zoom:
-            z, edge = cfg.context_zoom, cfg.edge_height_m
-            self.context_height[...] = self._blocks(self.height, z, edge, np.mean)
-            self.context_memory0[...] = self._blocks(self.memory0, z, np.float32(cfg.p_l_db), np.max)
+            self._paint_buildings(i, height, np.zeros(b.shape, bool) if donor is None else donor.blocked, seen_blocked)
+        memory0, context_height, context_memory0 = self._start_channels(seen_blocked)
+        self.memory0[...] = memory0  # in place: an env made from these maps holds views of them
+        if self.config.context_zoom:
+            self.context_height[...], self.context_memory0[...] = context_height, context_memory0
+
+    def _paint_buildings(self, i: int, height: np.ndarray, blocked: np.ndarray, into_blocked: np.ndarray) -> None:
+        """Bundle ``i``'s canvases under every symmetry: ``height`` (clipped) into ``self.height``, ``blocked`` into
+        ``into_blocked`` (``self.blocked``, or what the agent is shown)."""
+        cfg, S, p = self.config, self.symmetries, self.pad
+        for k in range(S):
+            h = transform(np.clip(height, -cfg.height_clip_m, cfg.height_clip_m), k)
+            ny, nx = h.shape
+            self.height[S * i + k, p : p + ny, p : p + nx] = h
+            into_blocked[S * i + k, p : p + ny, p : p + nx] = transform(blocked, k)
+
+    def _start_channels(self, seen_blocked: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """(``memory0``, ``context_height``, ``context_memory0``) from ``self.height`` and the blocked cells the agent
+        sees; the context ones None without ``context_zoom``."""
+        cfg = self.config
+        # Blind: buildings unknown, so blocked map cells look unvisited; beyond the edge stays P_L.
+        hidden = ~self.on_map[self.view_map] if cfg.blind else seen_blocked[self.view_map]
+        memory0 = np.where(hidden, cfg.p_l_db, cfg.p_h_db).astype(np.float32)
+        if not cfg.context_zoom:
+            return memory0, None, None
+        # Context channels: the canvas in z x z blocks, padded by half a window of blocks, so that a window of
+        # blocks centred on the block of any map cell is a plain slice too. context_height [S * nb, Lc, Lc];
+        # context_memory0 [nv, Lc, Lc]: P_H where the block has a cell the memory shows as P_H (one that can be
+        # visited), else P_L.
+        z, edge = cfg.context_zoom, cfg.edge_height_m
+        return memory0, self._blocks(self.height, z, edge, np.mean), self._blocks(memory0, z, np.float32(cfg.p_l_db), np.max)
 
     def _blocks(self, a: np.ndarray, z: int, fill: float, reduce: Callable[..., np.ndarray]) -> np.ndarray:
         """``reduce`` over the ``z x z`` blocks of canvases ``a`` ``[K, L, L]`` (the last blocks filled with ``fill``),

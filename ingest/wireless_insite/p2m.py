@@ -473,11 +473,10 @@ class P2MStream:
         return pa.table(out)
 
     def _check_gain(self, cols: dict[str, np.ndarray], unreached: np.ndarray, row0: int) -> None:
-        """Refuse a reached row whose received power exceeds the transmit power by more than both antennas and paths
+        """(Called with ``tx_power_dbm`` and ``max_gain_db`` known.) Refuse a reached row whose received power exceeds the transmit power by more than both antennas and paths
         in phase can (``max_gain_db``): in the far field every path loses power, so a dropped sign is caught here.
         (Path gain and path loss are bounded by their columns' ranges: at most 0 dB gained.)"""
-        assert self.max_gain_db is not None
-        if self.tx_power_dbm is None or "power_dbm" not in cols:
+        if "power_dbm" not in cols:
             return
         limit = self.tx_power_dbm + self.max_gain_db
         over = ~unreached & (cols["power_dbm"] > limit)

@@ -92,29 +92,27 @@ def _quantity_twice(w: Workspace) -> list[str]:
     return w.ingest(city)
 
 
-def _bundle_npz_object(w: Workspace) -> list[str]:
+def _show(w: Workspace, root: object) -> list[str]:
+    """``uavdata show city`` of the bundle under ``root`` (the workspace's root, or what ``forge`` returned)."""
+    return ["show", "city", "--root", str(root), "--out", str(w.tmp / "s.png")]
+
+
+def _npz(arrays: dict[str, np.ndarray]) -> bytes:
     import io
 
-    with np.load(w.bundle() / "maps.npz") as z:
-        arrays = {k: z[k] for k in z.files}
-    arrays["sinr_db"] = np.array([{"evil": 1}], dtype=object)
     buf = io.BytesIO()
     np.savez(buf, **arrays)
-    return ["show", "city", "--root", str(w.forge("maps.npz", buf.getvalue())), "--out", str(w.tmp / "s.png")]
+    return buf.getvalue()
 
 
 def _bundle_arrays(mutate: Callable[[dict[str, np.ndarray]], None]) -> Callable[[Workspace], list[str]]:
     """``uavdata show`` of a bundle whose maps ``mutate`` changed (in a copy of every array), hash updated."""
 
     def make(w: Workspace) -> list[str]:
-        import io
-
         with np.load(w.bundle() / "maps.npz") as z:
             arrays = {k: z[k].copy() for k in z.files}
         mutate(arrays)
-        buf = io.BytesIO()
-        np.savez(buf, **arrays)
-        return ["show", "city", "--root", str(w.forge("maps.npz", buf.getvalue())), "--out", str(w.tmp / "s.png")]
+        return _show(w, w.forge("maps.npz", _npz(arrays)))
 
     return make
 
@@ -141,7 +139,7 @@ def _huge_header(w: Workspace) -> list[str]:
             else:
                 np.lib.format.write_array(member, a)
             zf.writestr(f"{name}.npy", member.getvalue())
-    return ["show", "city", "--root", str(w.forge("maps.npz", buf.getvalue())), "--out", str(w.tmp / "s.png")]
+    return _show(w, w.forge("maps.npz", buf.getvalue()))
 
 
 def _users_edit(column: str, row: int, value: object) -> Callable[[Workspace], list[str]]:
@@ -154,7 +152,7 @@ def _users_edit(column: str, row: int, value: object) -> Callable[[Workspace], l
         users.loc[row, column] = value
         buf = io.BytesIO()
         users.to_parquet(buf, index=False)
-        return ["show", "city", "--root", str(w.forge("users.parquet", buf.getvalue())), "--out", str(w.tmp / "s.png")]
+        return _show(w, w.forge("users.parquet", buf.getvalue()))
 
     return make
 
@@ -165,7 +163,7 @@ def _manifest_edit(key: str, value: object) -> Callable[[Workspace], list[str]]:
         doc = json.loads(path.read_text())
         doc[key] = value
         path.write_text(json.dumps(doc))
-        return ["show", "city", "--root", str(w.root()), "--out", str(w.tmp / "s.png")]
+        return _show(w, w.root())
 
     return make
 
@@ -173,13 +171,13 @@ def _manifest_edit(key: str, value: object) -> Callable[[Workspace], list[str]]:
 def _latest(text: str) -> Callable[[Workspace], list[str]]:
     def make(w: Workspace) -> list[str]:
         (w.root() / "city" / "latest").write_text(text)
-        return ["show", "city", "--root", str(w.root()), "--out", str(w.tmp / "s.png")]
+        return _show(w, w.root())
 
     return make
 
 
 def _forged(name: str, data: bytes) -> Callable[[Workspace], list[str]]:
-    return lambda w: ["show", "city", "--root", str(w.forge(name, data)), "--out", str(w.tmp / "s.png")]
+    return lambda w: _show(w, w.forge(name, data))
 
 
 def _agent_file(content: bytes | Callable[[Workspace], object]) -> Callable[[Workspace], list[str]]:
@@ -752,7 +750,7 @@ CASES: list[Case] = [
     Case(
         "show object array in maps.npz",
         "uavdata",
-        _bundle_npz_object,
+        _bundle_arrays(lambda a: a.__setitem__("sinr_db", np.array([{"evil": 1}], dtype=object))),
         "maps.npz: sinr_db: array object[1], expected float32",
     ),
     Case(
