@@ -22,7 +22,7 @@ import hashlib
 import io
 import zipfile
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -36,9 +36,19 @@ from uavplace.dataset.difficulty import difficulty
 from uavplace.dataset.raster import cell_centres, cell_index, grid_over, ground_z, height_map
 from uavplace.schemas import CityManifest, InputError
 from uavplace.schemas.base import uavplace_version
-from uavplace.schemas.bundle import BUNDLE_MANIFEST, CELLS, USERS, BuildConfig, BundleManifest, GridSpec, SinrInfo, SinrSource
+from uavplace.schemas.bundle import (
+    BUNDLE_MANIFEST,
+    CELLS,
+    ROUTE_POINTS,
+    USERS,
+    BuildConfig,
+    BundleManifest,
+    GridSpec,
+    SinrInfo,
+    SinrSource,
+)
 from uavplace.schemas.files import atomic_directory, folder_lock, sha256_file, write_model_json
-from uavplace.schemas.tables import BUILDING_PARTS, BUILDINGS, RECEIVERS, TRANSMITTERS
+from uavplace.schemas.tables import BUILDING_PARTS, BUILDINGS, RECEIVERS, ROUTES, TRANSMITTERS
 
 #: How many distinct receiver heights an altitude error lists.
 _HEIGHTS_SHOWN = 8
@@ -72,6 +82,7 @@ class Ingested:
     parts: pd.DataFrame
     terrain: dict[str, np.ndarray] | None
     hashes: dict[str, str]
+    routes: pd.DataFrame | None = None  # the tracking task's route points (ingest.routes), when the city has routes
 
 
 def read_ingested(city: str, root: str | Path = DEFAULT_ROOT) -> Ingested:
@@ -86,7 +97,7 @@ def read_ingested(city: str, root: str | Path = DEFAULT_ROOT) -> Ingested:
         read_city_manifest(folder / INGESTED_MANIFEST.name)  # the error: run `uavdata ingest` first
     with folder_lock(folder):
         manifest = read_city_manifest(folder / INGESTED_MANIFEST.name)
-        files = {spec.name: spec.filename for spec in (RECEIVERS, TRANSMITTERS, BUILDINGS, BUILDING_PARTS)}
+        files = {spec.name: spec.filename for spec in (RECEIVERS, TRANSMITTERS, BUILDINGS, BUILDING_PARTS, ROUTES)}
         files["terrain"] = "terrain.npz"
         hashes: dict[str, str] = {}
         data: dict[str, bytes] = {}
@@ -126,7 +137,49 @@ def read_ingested(city: str, root: str | Path = DEFAULT_ROOT) -> Ingested:
         parts=table(BUILDING_PARTS),
         terrain=terrain,
         hashes=hashes,
+        routes=table(ROUTES) if ROUTES.name in data else None,
     )
+
+
+def split_routes(ing: Ingested) -> tuple[Ingested, Ingested | None]:
+    """(the users' part of ``ing``, the route points' part or None): the receivers and transmitters of the route
+    points (``ing.routes``) apart from the users', so that each is rasterised on its own and no route point is a user."""
+    if ing.routes is None:
+        return ing, None
+    keys = pd.MultiIndex.from_frame(ing.routes[["tx_set_id", "tx_point"]].astype("int64"))
+
+    def of_routes(df: pd.DataFrame) -> np.ndarray:
+        return pd.MultiIndex.from_arrays([df["tx_set_id"].astype("int64"), df["tx_point"].astype("int64")]).isin(keys)
+
+    rx, tx = of_routes(ing.receivers), of_routes(ing.transmitters)
+    users = replace(ing, receivers=ing.receivers[~rx], transmitters=ing.transmitters[~tx], routes=None)
+    return users, replace(ing, receivers=ing.receivers[rx], transmitters=ing.transmitters[tx])
+
+
+def rasterise_routes(ing: Ingested, config: BuildConfig, grid: GridSpec) -> tuple[dict[str, np.ndarray], pd.DataFrame]:
+    """The route points' maps (``schemas.bundle.ROUTE_ARRAYS``) on the users' ``grid``, made as the users' are, and
+    the ``ROUTE_POINTS`` table; ``InputError`` when a route point has no receivers or they span another grid."""
+    rgrid, arrays, points, *_ = rasterise(ing, config.model_copy(update={"role": None, "val_users": 0}))
+    source = ing.folder / ROUTES.filename
+    if rgrid != grid:
+        raise InputError(source, f"the route points' receivers span another grid ({rgrid.num_x} x {rgrid.num_y} cells) than "
+                         f"the users' ({grid.num_x} x {grid.num_y})", field="tx_point")  # fmt: skip
+    index = pd.Series(np.arange(len(points)), index=pd.MultiIndex.from_frame(points[["tx_set_id", "tx_point"]].astype("int64")))
+    routes = ing.routes.sort_values(["route", "order"], kind="stable").reset_index(drop=True)
+    keys = pd.MultiIndex.from_frame(routes[["tx_set_id", "tx_point"]].astype("int64"))
+    missing = ~keys.isin(index.index)
+    if missing.any():
+        k = int(np.argmax(missing))
+        raise InputError(source, f"route {routes['route'][k]} point {routes['order'][k]} (t{routes['tx_point'][k]:03d}_"
+                         f"{routes['tx_set_id'][k]:02d}) has no receivers at the altitude", field="tx_point")  # fmt: skip
+    order = index.loc[keys].to_numpy()  # the rasterised map of each route point, in route order
+    ix, iy, inside = cell_index(grid, routes["x_m"].to_numpy(), routes["y_m"].to_numpy())
+    table = pd.DataFrame({
+        "point": np.arange(len(routes)), "route": routes["route"], "order": routes["order"], "time_s": routes["time_s"],
+        "tx_set_id": routes["tx_set_id"], "tx_point": routes["tx_point"], "x_m": routes["x_m"], "y_m": routes["y_m"],
+        "ix": np.where(inside, ix, -1), "iy": np.where(inside, iy, -1), "kind": routes["kind"], "speed_mps": routes["speed_mps"],
+    })  # fmt: skip
+    return {"sinr_db": arrays["sinr_db"][order], "dead": arrays["dead"][order]}, table
 
 
 def _receivers_at_altitude(ing: Ingested, config: BuildConfig) -> pd.DataFrame:
@@ -483,12 +536,19 @@ def build_city(
             return BuildResult(city, final, bundle.manifest, built=False, previous_latest=_moved(before, version))
 
     stage("rasterise")
-    grid, arrays, users, info, counts, warnings = rasterise(ing, config)
+    of_users, of_routes = split_routes(ing)
+    grid, arrays, users, info, counts, warnings = rasterise(of_users, config)
+    routes = None if of_routes is None else rasterise_routes(of_routes, config, grid)
     stage("write")
     with atomic_directory(final, marker=BUNDLE_MANIFEST, what="map bundle") as tmp:
         np.savez(tmp / "maps.npz", **arrays)
         _write_parquet(CELLS, cells_frame(grid, arrays), tmp / CELLS.filename)
         _write_parquet(USERS, users, tmp / USERS.filename)
+        files = ["maps.npz", CELLS.filename, USERS.filename]
+        if routes is not None:
+            np.savez(tmp / "routes.npz", **routes[0])
+            _write_parquet(ROUTE_POINTS, routes[1], tmp / ROUTE_POINTS.filename)
+            files += ["routes.npz", ROUTE_POINTS.filename]
         split = users["split"].value_counts().to_dict()
         manifest = BundleManifest(
             city=city,
@@ -500,10 +560,11 @@ def build_city(
             grid=grid,
             sinr=info,
             num_users=len(users),
+            num_route_points=0 if routes is None else len(routes[1]),
             split={k: int(split.get(k, 0)) for k in ("train", "val", "test")},
             counts={"users": len(users), **counts},
             difficulty=difficulty(arrays["blocked"], arrays["dead"], arrays["sinr_db"], config.p_t_db),
-            files={name: sha256_file(tmp / name) for name in ("maps.npz", CELLS.filename, USERS.filename)},
+            files={name: sha256_file(tmp / name) for name in files},
             inputs=ing.hashes,
             warnings=tuple(warnings),
         )

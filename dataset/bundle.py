@@ -24,7 +24,17 @@ from pydantic import ValidationError
 from uavplace.dataset.catalog import DEFAULT_ROOT
 from uavplace.schemas import SCHEMA_VERSION, InputError
 from uavplace.schemas.base import validation_message
-from uavplace.schemas.bundle import BUNDLE_FILES, BUNDLE_MANIFEST, CELLS, MAP_ARRAYS, USERS, BuildConfig, BundleManifest
+from uavplace.schemas.bundle import (
+    BUNDLE_FILES,
+    BUNDLE_MANIFEST,
+    CELLS,
+    MAP_ARRAYS,
+    ROUTE_ARRAYS,
+    ROUTE_POINTS,
+    USERS,
+    BuildConfig,
+    BundleManifest,
+)
 from uavplace.schemas.files import atomic_write_text, check_name, sha256_file
 
 #: Name of the per-city file holding the version ``load_bundle`` picks by default.
@@ -49,6 +59,9 @@ class Bundle:
     sinr_db: np.ndarray  # [num_users, num_y, num_x] float32
     dead: np.ndarray  # [num_users, num_y, num_x] bool
     num_rx: np.ndarray  # [num_users, num_y, num_x] uint16
+    routes: pd.DataFrame | None = None  # ``ROUTE_POINTS``: the tracking task's route points, in route order (None: no routes)
+    route_sinr_db: np.ndarray | None = None  # [num_route_points, num_y, num_x] float32
+    route_dead: np.ndarray | None = None  # [num_route_points, num_y, num_x] bool
 
     @property
     def city(self) -> str:
@@ -164,8 +177,9 @@ def read_manifest(folder: Path) -> BundleManifest:
 
 def verify_files(folder: Path, manifest: BundleManifest) -> None:
     """Check that the bundle holds exactly the files its manifest lists, with their sha256."""
-    if set(manifest.files) != set(BUNDLE_FILES):
-        raise InputError(folder / BUNDLE_MANIFEST, f"lists files {sorted(manifest.files)}, expected {list(BUNDLE_FILES)}")
+    expected_files = set(BUNDLE_FILES) | ({"routes.npz", ROUTE_POINTS.filename} if manifest.num_route_points else set())
+    if set(manifest.files) != expected_files:
+        raise InputError(folder / BUNDLE_MANIFEST, f"lists files {sorted(manifest.files)}, expected {sorted(expected_files)}")
     for name, expected in manifest.files.items():
         path = folder / name
         if not path.is_file():
@@ -215,15 +229,57 @@ def load_bundle(city: str, version: str | None = None, root: str | Path = DEFAUL
     check_identity(folder, manifest)
     if verify:
         verify_files(folder, manifest)
-    arrays = read_arrays(folder / "maps.npz", manifest)
+    arrays = read_arrays(folder / "maps.npz", expected_shapes(manifest), MAP_ARRAYS)
     check_values(folder / "maps.npz", manifest, arrays)
-    try:
-        table = pq.read_table(folder / USERS.filename)
-    except (OSError, ValueError) as exc:
-        raise InputError(folder / USERS.filename, f"unreadable ({str(exc)[:160]})") from None
-    users = USERS.conform(table, str(folder / USERS.filename)).to_pandas()
+    users = _read_table(folder, USERS)
     check_users(folder / USERS.filename, manifest, users)
-    return Bundle(path=folder, manifest=manifest, users=users, **arrays)
+    routes = read_routes(folder, manifest) if manifest.num_route_points else {}
+    return Bundle(path=folder, manifest=manifest, users=users, **arrays, **routes)
+
+
+def _read_table(folder: Path, spec) -> pd.DataFrame:  # noqa: ANN001 - a TableSpec
+    try:
+        table = pq.read_table(folder / spec.filename)
+    except (OSError, ValueError) as exc:
+        raise InputError(folder / spec.filename, f"unreadable ({str(exc)[:160]})") from None
+    return spec.conform(table, str(folder / spec.filename)).to_pandas()
+
+
+def read_routes(folder: Path, manifest: BundleManifest) -> dict:
+    """A bundle's routes (``routes.npz``, ``routes.parquet``), checked: the arrays' headers against the manifest
+    before they are read, the SINR in range and at the floor on dead cells, the points 0..P-1 in order, each route's
+    ``order`` 0, 1, ... and its times increasing, cells on the grid or -1."""
+    ny, nx = manifest.grid.shape
+    p = manifest.num_route_points
+    path = folder / "routes.npz"
+    arrays = read_arrays(path, {k: (p, ny, nx) for k in ROUTE_ARRAYS}, ROUTE_ARRAYS)
+    floor = manifest.sinr.floor_db
+    sinr, dead = arrays["sinr_db"], arrays["dead"]
+    bad = CELLS.column("sinr_db").first_out_of_range(sinr.ravel())
+    if bad is not None or (sinr < floor - 1e-3).any() or (sinr[dead] != np.float32(floor)).any():
+        raise InputError(
+            path, f"SINR out of range, below the manifest's floor {floor} dB, or a dead cell not at it", field="sinr_db"
+        )
+    table = _read_table(folder, ROUTE_POINTS)
+    source = folder / ROUTE_POINTS.filename
+    if len(table) != p or not np.array_equal(table["point"].to_numpy(), np.arange(p)):
+        raise InputError(source, f"points are not 0..{p - 1} in order (the manifest says {p} route points)", field="point")
+    first = np.r_[True, np.diff(table["route"].to_numpy()) != 0]
+    order, time = table["order"].to_numpy(), table["time_s"].to_numpy()
+    expected = np.arange(p) - np.maximum.accumulate(np.where(first, np.arange(p), 0))
+    if (
+        not np.array_equal(order, expected)
+        or (np.diff(time)[~first[1:]] <= 0).any()
+        or len(set(table["route"][first])) != first.sum()
+    ):
+        raise InputError(source, "routes are not each in one run of rows, ordered 0, 1, ... with increasing times", field="order")
+    for name, n in (("ix", nx), ("iy", ny)):
+        v = table[name].to_numpy()
+        if ((v < -1) | (v >= n)).any():
+            raise InputError(source, f"row {int(np.argmax((v < -1) | (v >= n)))}: cell off the grid's {n} cells", field=name)
+    for a in arrays.values():
+        a.setflags(write=False)
+    return {"routes": table, "route_sinr_db": sinr, "route_dead": dead}
 
 
 def check_identity(folder: Path, manifest: BundleManifest) -> None:
@@ -251,19 +307,18 @@ def expected_shapes(manifest: BundleManifest) -> dict[str, tuple[int, ...]]:
     return shapes | {k: (manifest.num_users, ny, nx) for k in ("sinr_db", "dead", "num_rx")}
 
 
-def read_arrays(path: Path, manifest: BundleManifest) -> dict[str, np.ndarray]:
-    """The arrays of ``maps.npz``, each header (shape, dtype) checked against the manifest before its data is read, so
-    a header that claims terabytes is refused, not allocated."""
-    shapes = expected_shapes(manifest)
+def read_arrays(path: Path, shapes: dict[str, tuple[int, ...]], dtypes: dict[str, tuple[str, str]]) -> dict[str, np.ndarray]:
+    """The arrays ``shapes`` names in an archive (``maps.npz``, ``routes.npz``), each header (shape, dtype: ``dtypes``)
+    checked before its data is read, so a header that claims terabytes is refused, not allocated."""
     try:
         with zipfile.ZipFile(path) as zf:
             names = set(zf.namelist())
-            missing = sorted(k for k in MAP_ARRAYS if f"{k}.npy" not in names)
+            missing = sorted(k for k in shapes if f"{k}.npy" not in names)
             if missing:
                 raise InputError(path, f"missing arrays {missing}")
             arrays = {}
             for name, shape in shapes.items():
-                dtype = np.dtype(MAP_ARRAYS[name][0])
+                dtype = np.dtype(dtypes[name][0])
                 with zf.open(f"{name}.npy") as f:
                     major, minor = np.lib.format.read_magic(f)
                     reader = np.lib.format.read_array_header_1_0 if major == 1 else np.lib.format.read_array_header_2_0

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from uavplace.rl.cli import episode_options
-from uavplace.schemas.cli import command_line, plain_table, root_option, stdout
+from uavplace.schemas.cli import command_line, fail, plain_table, ray_address_option, root_option, stdout
 
 
 @click.command()
@@ -162,3 +162,80 @@ def _one_report(config, out: Path, root: Path, quiet: bool):
             bar.update(tasks[method], completed=done)
 
         return make_report(config, out, root=root, command=command_line(), on_progress=on_progress)
+
+
+@click.command()
+@click.argument("spec_file", metavar="SPEC", type=click.Path(dir_okay=False, exists=True, path_type=Path))
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Folder of the sweep's runs and table  [default: runs/<SPEC's name without .toml>]",
+)
+@ray_address_option("the trials")
+@click.option(
+    "--cpus-per-trial",
+    type=click.FloatRange(min=1),
+    default=1.0,
+    show_default=True,
+    help="CPUs each trial reserves, and its torch threads: trials run side by side on what the machine has.",
+)
+@click.option("--table-only", is_flag=True, help="Train nothing: only play the finished runs and write the table.")
+@root_option
+@click.option("--quiet", is_flag=True, help="No progress bar for the table's evaluation.")
+def sweep(spec_file: Path, out: Path | None, ray_address: str | None, cpus_per_trial: float, table_only: bool, root: Path,
+          quiet: bool) -> None:  # fmt: skip
+    """Train the runs of a sweep file SPEC on Ray Tune, then compare them on the validation cities.
+
+    \b
+    SPEC is a TOML file (eval/sweep.py, SweepSpec), e.g. benchmarks/sweeps/best.toml:
+      datasets = ["corpus", "oldtown", "train"]
+      [[trials]]                       # runs OUT/best-s0, OUT/best-s1, ...
+      name = "best"
+      preset = "best"
+      seeds = [0, 1, 2]
+      settings = {"env.shaping" = 1}   # as uavrl train --set
+      [[ensembles]]
+      name = "best-e012"
+      members = ["best-s0", "best-s1", "best-s2"]
+    Each trial is a run folder of `uavrl train`; running the same command again continues the
+    unfinished ones and skips the finished. The table (OUT/sweep.md, OUT/sweep.csv) plays every
+    run and ensemble on 1000 episodes of each validation city, with the genie, as `uavrl report`
+    plays them; test cities are never used.
+    """
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from uavplace.eval.sweep import read_spec, run_sweep, validation_table, write_table
+    from uavplace.schemas import InputError
+
+    out = out or Path("runs") / spec_file.stem
+    say = stdout()
+    try:
+        spec = read_spec(spec_file)
+        if not table_only:
+            failed = run_sweep(spec, out, root=root, address=ray_address, cpus_per_trial=cpus_per_trial,
+                               command=command_line(), on_line=lambda line: say.print(line, highlight=False, markup=False))  # fmt: skip
+            if failed:
+                fail(f"{len(failed)} trial(s) failed: {', '.join(failed)}; run the command again to continue them")
+        folders = [out / name for name in (*spec.run_names(), *(e.name for e in spec.ensembles))]
+        missing = [f.name for f in folders if not (f / "checkpoints" / "best.pt").is_file()]
+        if missing:
+            fail(f"not trained yet: {', '.join(missing)} (run the sweep without --table-only)")
+        columns = (TextColumn("[bold]sweep[/] {task.description:<24}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+        with Progress(*columns, console=say, disable=quiet, transient=True) as bar:
+            tasks: dict[str, int] = {}
+
+            def on_progress(method: str, done: int, total: int) -> None:
+                if method not in tasks:
+                    tasks[method] = bar.add_task(method, total=total)
+                bar.update(tasks[method], completed=done)
+
+            table = validation_table(folders, list(spec.cities), root=root, episodes=spec.episodes, seed=spec.seed,
+                                     on_progress=on_progress)  # fmt: skip
+    except InputError as err:
+        fail(err)
+    except RuntimeError as err:  # Ray Tune missing
+        fail(err)
+    path = write_table(table, out, spec_file)
+    say.print(path.read_text(encoding="utf-8"), highlight=False, markup=False, soft_wrap=True)
+    say.print(f"table: {path} (and sweep.csv); the spec: {out / 'sweep.toml'}", highlight=False, soft_wrap=True)

@@ -71,7 +71,9 @@ def _ingest_one(folder: Path, out_root: Path, name: str | None, verbose: bool, q
     c = manifest.counts
     out.print(
         f"ingested {manifest.name}: {c['files']} files ({c['files_parsed']} parsed, {c['files_skipped']} skipped, "
-        f"{c['files_unknown']} unknown), {c['transmitters']} users, {c['receiver_rows']} receiver rows "
+        f"{c['files_unknown']} unknown), {c['transmitters'] - c.get('route_points', 0)} users, "
+        + (f"{c['route_points']} route points, " if c.get("route_points") else "")
+        + f"{c['receiver_rows']} receiver rows "
         f"({c['receiver_rows_reached']} reached), {c['buildings']} buildings, {c['rows_rejected']} rows rejected "
         f"-> {out_dir}",
         highlight=False,

@@ -21,10 +21,12 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
+import shapely
 
 from uavplace.ingest.buildings import BuildingRecord, buildings_tables
 from uavplace.ingest.geojson import read_geojson
 from uavplace.ingest.mesh import MESH_SUFFIXES, read_mesh
+from uavplace.ingest.routes import read_routes
 from uavplace.ingest.wireless_insite.city import read_city, read_terrain
 from uavplace.ingest.wireless_insite.p2m import COHERENT_MARGIN_DB, POSITION_COLUMNS, P2MStream, antenna_gain_dbi, parse_filename
 from uavplace.ingest.wireless_insite.setup import read_setup
@@ -33,6 +35,7 @@ from uavplace.schemas import (
     BUILDING_PARTS,
     BUILDINGS,
     RECEIVERS,
+    ROUTES,
     TRANSMITTERS,
     CityManifest,
     FileReport,
@@ -95,6 +98,8 @@ def classify(folder: Path) -> list[Classified]:
             elif not ident.is_receiver_output:
                 reason = ident.skip_reason
             kind = "p2m"
+        elif low.endswith(".routes.csv"):
+            kind = "routes"
         elif low.endswith(".txrx"):
             kind = "txrx"
         elif low.endswith(".setup"):
@@ -484,6 +489,17 @@ def ingest_city(
         rel = r.file.split("#", 1)[0]  # "file#features[3]" or "file#body[2]": the file's report
         old = reports[rel]
         reports[rel] = old.model_copy(update={"rows_rejected": old.rows_rejected + r.count})
+    routes = None
+    if (f := _single(by_kind["routes"], "routes.csv")) is not None:
+        tick(f.rel)
+        # The footprints a user on the ground could walk into: parts reaching down to the users' 1.5 m (all of them
+        # over terrain, whose heights are absolute).
+        low = [shapely.from_wkb(w) for w, z in zip(parts.column("footprint_wkb").to_pylist(), parts.column("base_z_m").to_pylist(),
+                                                   strict=True) if terrain_info is not None or z <= 1.5]  # fmt: skip
+        routes = read_routes(f.path, f.rel, transmitters, low)
+        done(
+            f, rows=routes.num_rows, message=f"{len(set(routes.column('route').to_pylist()))} route(s), {routes.num_rows} points"
+        )
 
     freqs = sorted({float(x) for x in transmitters.column("frequency_hz").drop_null().to_pylist()})
     if not freqs and setup and len(setup.waveforms) == 1:
@@ -497,7 +513,8 @@ def ingest_city(
             for key in sorted(groups):
                 receivers.write(key, groups[key], writer)
         tables[RECEIVERS.name] = sha256_file(tmp / RECEIVERS.filename)
-        for spec, table in ((TRANSMITTERS, transmitters), (BUILDINGS, buildings), (BUILDING_PARTS, parts)):
+        written = [(TRANSMITTERS, transmitters), (BUILDINGS, buildings), (BUILDING_PARTS, parts)]
+        for spec, table in written + ([(ROUTES, routes)] if routes is not None else []):
             pq.write_table(table, tmp / spec.filename, compression="zstd")
             tables[spec.name] = sha256_file(tmp / spec.filename)
         if terrain_arrays is not None:
@@ -528,6 +545,7 @@ def ingest_city(
                 "building_parts": parts.num_rows,
                 "terrain_triangles": terrain_info.num_faces if terrain_info else 0,
                 "rows_rejected": report.rows_rejected,
+                "route_points": routes.num_rows if routes is not None else 0,
             },
             sources=tuple(
                 SourceFile(

@@ -196,23 +196,13 @@ def _train_in(run_dir: Path, resume, config, datasets, val_datasets, root: Path,
     """``uavrl train``'s work, with ``run_dir``'s lock held."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-    from uavplace.rl.agent.train import Interrupted, Trainer
+    from uavplace.rl.agent.train import Interrupted, start_run
     from uavplace.schemas.cli import command_line
 
-    claimed = False
-    if resume is None:
-        if run_dir.exists():
-            fail(FileExistsError(f"{run_dir} exists: choose another --name, or continue it with --resume {run_dir}"))
-        run_dir.mkdir(parents=True)
-        claimed = True
     try:
-        trainer = Trainer(config, list(datasets), root, run_dir, command=command_line(), val_datasets=list(val_datasets))
-    except BaseException:
-        if claimed and not any(run_dir.iterdir()):
-            run_dir.rmdir()  # nothing was written: give the name back
-        raise
-    if resume is not None:
-        trainer.load()  # every check of the checkpoint before the first step
+        trainer = start_run(run_dir, config, datasets, val_datasets, root, resume=resume is not None, command=command_line())
+    except FileExistsError as err:
+        fail(err)
     columns = (TextColumn("[bold]train[/] {task.description}"), BarColumn(), TextColumn("{task.completed:,}/{task.total:,}"),
                TimeElapsedColumn(), TimeRemainingColumn())  # fmt: skip
     lines = not quiet and not stdout().is_terminal  # a log: a plain line every LINE_SECONDS instead of a bar

@@ -44,7 +44,10 @@ scoring episodes; a learner given them could home in on a user nobody located.
 ## Arguments
 ``dataset`` (a city name or list, or loaded ``MapSet``), ``config`` (``EnvConfig``
 or a dict of its fields), ``root`` (processed-data root), ``evaluation_info``
-(see Info), ``**overrides`` (``EnvConfig`` fields, e.g. ``blind=True``).
+(see Info), ``obs_scale`` (observations and their bounds divided by it: 50 puts
+them in about [-3, 2], what uavplace's own networks divide by and what libraries
+whose networks expect inputs of order 1, such as Stable-Baselines3, need; see
+docs/peer.md), ``**overrides`` (``EnvConfig`` fields, e.g. ``blind=True``).
 
 ## Version history
 - v0: first version.
@@ -69,8 +72,11 @@ class UavPlacementEnv(gym.Env):
         config: EnvConfig | dict | None = None,
         root: str = "data/processed",
         evaluation_info: bool = False,
+        obs_scale: float = 1.0,
         **overrides: object,
     ) -> None:
+        if not (np.isfinite(obs_scale) and obs_scale > 0):
+            raise ValueError(f"obs_scale must be positive and finite, not {obs_scale}")
         if isinstance(dataset, MapSet):
             maps = dataset
             if config is not None or overrides:
@@ -84,7 +90,8 @@ class UavPlacementEnv(gym.Env):
         c, w = self.config.num_channels, self.config.window
         low = min(self.config.p_l_db, -self.config.height_clip_m)
         high = max(self.config.p_h_db, self.config.height_clip_m, self.config.edge_height_m)
-        self.observation_space = gym.spaces.Box(low, high, (c, w, w), np.float32)
+        self.obs_scale = float(obs_scale)
+        self.observation_space = gym.spaces.Box(low / self.obs_scale, high / self.obs_scale, (c, w, w), np.float32)
         self.action_space = gym.spaces.Discrete(4)
 
     @property
@@ -107,10 +114,58 @@ class UavPlacementEnv(gym.Env):
         e = self._env
         e.rng = self.np_random  # all randomness from Gymnasium's seeded generator
         e._start(np.array([0]))
-        return e.observe()[0], self._info()
+        return self._observe(), self._info()
 
     def step(self, action: int) -> tuple[np.ndarray, float, bool, bool, dict]:
         e = self._env
         _, reward, terminated, truncated, info = e.step(np.array([int(action)]))
         extra = {"illegal": bool(info["illegal"][0])}
-        return e.observe()[0], float(reward[0]), bool(terminated[0]), bool(truncated[0]), self._info(extra)
+        return self._observe(), float(reward[0]), bool(terminated[0]), bool(truncated[0]), self._info(extra)
+
+    def _observe(self) -> np.ndarray:
+        obs = self._env.observe()[0]
+        return obs if self.obs_scale == 1.0 else obs / np.float32(self.obs_scale)
+
+
+class UavTrackingEnv(gym.Env):
+    """``uavplace/UavTracking-v0``: one episode of the tracking task (``rl.tracking``: a user who moves along a
+    ray-traced route; 5 actions, the 4 moves and stay; a fixed horizon, ``truncated`` at its end, never
+    ``terminated``). ``info``: ``action_mask`` (5), ``sinr_db``, ``position``, after a step ``covered`` and
+    ``illegal``. ``dataset``: cities whose bundles have routes (or a loaded ``RouteSet``); ``config``: a
+    ``TrackingConfig`` or a dict of its fields; ``**overrides``: its fields."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, dataset, config=None, root: str = "data/processed", **overrides: object) -> None:  # noqa: ANN001
+        from uavplace.dataset.bundle import load_bundle
+        from uavplace.rl.tracking import RouteSet, TrackingConfig, TrackingEnv
+
+        if isinstance(dataset, RouteSet):
+            routes = dataset
+        else:
+            base = config if isinstance(config, TrackingConfig) else TrackingConfig(**(config or {}))
+            names = [dataset] if isinstance(dataset, str) else list(dataset)
+            routes = RouteSet([load_bundle(n, root=root) for n in names], base.model_copy(update=overrides))
+        self.config = routes.config
+        self._env = TrackingEnv(routes, 1, autoreset=False)
+        c, w = self.config.num_channels, self.config.window
+        low = min(self.config.p_l_db, -self.config.height_clip_m)
+        high = max(self.config.p_h_db, self.config.height_clip_m, self.config.edge_height_m, self.config.age_clip_s)
+        self.observation_space = gym.spaces.Box(low, high, (c, w, w), np.float32)
+        self.action_space = gym.spaces.Discrete(5)
+
+    def _info(self, extra: dict | None = None) -> dict:
+        e = self._env
+        mask = e.action_mask()[0].astype(np.int8)
+        return {"action_mask": mask, "sinr_db": float(e.sinr_here()[0]), "position": e.pos[0].copy()} | (extra or {})
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
+        super().reset(seed=seed)
+        self._env.rng = self.np_random  # all randomness from Gymnasium's seeded generator
+        self._env._start(np.array([0]))
+        return self._env.observe()[0], self._info()
+
+    def step(self, action: int) -> tuple[np.ndarray, float, bool, bool, dict]:
+        obs, reward, _, truncated, info = self._env.step(np.array([int(action)]))
+        extra = {"covered": bool(info["covered"][0]), "illegal": bool(info["illegal"][0])}
+        return obs[0], float(reward[0]), False, bool(truncated[0]), self._info(extra)

@@ -16,7 +16,7 @@ from uavplace.schemas.city import (
 )
 from uavplace.schemas.geometry import Building, TerrainInfo
 from uavplace.schemas.receivers import QUANTITIES, Quantity, ReceiverSet
-from uavplace.schemas.tables import BUILDING_PARTS, BUILDINGS, RECEIVERS, TRANSMITTERS, TableSpec
+from uavplace.schemas.tables import BUILDING_PARTS, BUILDINGS, RECEIVERS, ROUTES, TRANSMITTERS, TableSpec
 from uavplace.schemas.txrx import AntennaInfo, CommSystemInfo, SetupInfo, Transmitter, TxRxSet, WaveformInfo
 
 __all__ = [
@@ -45,6 +45,7 @@ __all__ = [
     "Rejection",
     "SetupInfo",
     "SourceFile",
+    "ROUTES",
     "TRANSMITTERS",
     "TableSpec",
     "TerrainInfo",

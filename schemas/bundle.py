@@ -45,6 +45,13 @@ MAP_ARRAYS: dict[str, tuple[str, str]] = {
     "num_rx": ("uint16", "[num_users, num_y, num_x] receivers of the export averaged into the cell"),
 }
 
+#: Arrays of ``routes.npz`` (a bundle with routes): name -> (dtype, shape description). A route point's map is a
+#: user's, made the same way from the export.
+ROUTE_ARRAYS: dict[str, tuple[str, str]] = {
+    "sinr_db": ("float32", "[num_route_points, num_y, num_x] SINR [dB] of the user at each route point"),
+    "dead": ("bool", "[num_route_points, num_y, num_x] no ray-traced path reached the cell"),
+}
+
 #: The noise-plus-interference level [dBm] the embedded cities (data/raw/) and the shipped agents are calibrated at:
 #: where the embedded test city's genie needs the paper's 14 moves (README, benchmarks/calibrate_difficulty.py).
 EMBEDDED_NOISE_DBM = -75.0
@@ -140,6 +147,9 @@ class BundleManifest(Contract):
     grid: GridSpec
     sinr: SinrInfo
     num_users: int = Field(ge=1)
+    num_route_points: int = Field(
+        default=0, ge=0, description="Route points of the tracking task's routes (routes.npz, routes.parquet); 0: no routes"
+    )
     split: dict[str, int] = Field(description="Users per split (train, val, test)")
     counts: dict[str, int]
     difficulty: dict[str, float | None] = Field(
@@ -195,5 +205,26 @@ USERS = TableSpec(
         Column("split", pa.string(), "", "train, val or test; null when the city declares no role", nullable=True),
         Column("num_receivers", _I32, "", "Receivers of the export used for this user"),
         Column("num_dead_cells", _I32, "", "Cells of the grid no path reached for this user"),
+    ),
+)
+
+ROUTE_POINTS = TableSpec(
+    name="route_points",
+    filename="routes.parquet",
+    description="One row per route point of the tracking task (a bundle with routes), in route order; ``point`` is "
+    "its map in routes.npz.",
+    columns=(
+        Column("point", _I32, "", "Index of the point's map in routes.npz, 0-based, in table order"),
+        Column("route", _I32, "", "Route id"),
+        Column("order", _I32, "", "0-based position along the route"),
+        Column("time_s", _F64, "s", "When the user is at the point, from the route's start", min=0, max=1e6),
+        Column("tx_set_id", _I32, "", "Transmitter set project_id in the export"),
+        Column("tx_point", _I32, "", "Point number within the set in the export"),
+        Column("x_m", _F64, "m", "Point position x"),
+        Column("y_m", _F64, "m", "Point position y"),
+        Column("ix", _I32, "", "Cell column of the point (-1 outside the grid)"),
+        Column("iy", _I32, "", "Cell row of the point (-1 outside the grid)"),
+        Column("kind", pa.string(), "", "Kind of route (pedestrian, vehicle)"),
+        Column("speed_mps", _F64, "m/s", "The user's speed along the route", min=0.1, max=100.0),
     ),
 )

@@ -49,6 +49,15 @@ root_option = click.option(
 )
 
 
+def ray_address_option(what: str):  # noqa: ANN201 - a click decorator
+    """``--ray-address``: the Ray cluster ``what`` runs on (a local Ray by default), one wording for every command."""
+    return click.option(
+        "--ray-address",
+        default=None,
+        help=f"Ray cluster to run {what} on (e.g. ray://head:10001, or auto); default: a local Ray on this machine.",
+    )
+
+
 def fail(err: Exception | str) -> NoReturn:
     """Print one error line and exit with status 2."""
     text = describe_os_error(err) if isinstance(err, OSError) and not isinstance(err, InputError) else str(err)
@@ -187,11 +196,12 @@ uavdata.help = uavdata.help.format(noise=EMBEDDED_NOISE_DBM)
         "train": "uavplace.rl.cli:train",
         "ensemble": "uavplace.rl.cli:ensemble",
         "report": "uavplace.eval.cli:report",
+        "sweep": "uavplace.eval.cli:sweep",
     },
 )
 @click.version_option(package_name="uavplace", prog_name="uavrl")
 def uavrl() -> None:
-    """UAV placement agents: the datasets they can use, training, ensembles of runs and reports."""
+    """UAV placement agents: the datasets they can use, training, ensembles of runs, sweeps and reports."""
 
 
 @uavdata.command()

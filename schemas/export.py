@@ -7,7 +7,7 @@ from typing import Any
 from pydantic import BaseModel
 
 from uavplace.schemas.base import SCHEMA_VERSION
-from uavplace.schemas.bundle import CELLS, USERS, BuildConfig, BundleManifest
+from uavplace.schemas.bundle import CELLS, ROUTE_POINTS, USERS, BuildConfig, BundleManifest
 from uavplace.schemas.city import CityManifest, IngestReport
 from uavplace.schemas.geometry import Building, TerrainInfo
 from uavplace.schemas.receivers import ReceiverSet
@@ -25,7 +25,7 @@ SCHEMA_MODELS: dict[str, type[BaseModel] | TableSpec] = {
     "terrain": TerrainInfo,
     "bundle_manifest": BundleManifest,
     "build_config": BuildConfig,
-    **{f"table_{t.name}": t for t in (*ALL_TABLES, CELLS, USERS)},
+    **{f"table_{t.name}": t for t in (*ALL_TABLES, CELLS, USERS, ROUTE_POINTS)},
 }
 
 _JSON_TYPES = {

@@ -344,4 +344,27 @@ BUILDING_PARTS = TableSpec(
     ),
 )
 
-ALL_TABLES = (RECEIVERS, TRANSMITTERS, BUILDINGS, BUILDING_PARTS)
+#: Route points of one route are at most this far apart [m] (the sampling ``uavdata simulate --routes`` writes).
+ROUTE_MAX_STEP_M = 2.0
+#: Kinds of route a user can follow, with their speed [m/s] (``uavdata simulate --route-kinds``).
+ROUTE_KINDS = {"pedestrian": 1.4, "vehicle": 10.0}
+
+ROUTES = TableSpec(
+    name="routes",
+    filename="routes.parquet",
+    description="One row per route point: user routes for the tracking task, each point a transmitter of the .txrx "
+    "traced as a user (<name>.routes.csv).",
+    columns=(
+        Column("route", _I32, "", "Route id", min=0, max=1e6),
+        Column("order", _I32, "", "0-based position of the point along its route", min=0, max=1e6),
+        Column("time_s", _F64, "s", "When the user is at the point, from the route's start", min=0, max=1e6),
+        Column("tx_set_id", _I32, "", "Transmitter set project_id of the point"),
+        Column("tx_point", _I32, "", "Point number within that set, 1-based", min=1),
+        Column("x_m", _F64, "m", "Position x", min=XY_RANGE_M[0], max=XY_RANGE_M[1]),
+        Column("y_m", _F64, "m", "Position y", min=XY_RANGE_M[0], max=XY_RANGE_M[1]),
+        Column("kind", pa.string(), "", f"Kind of route: {', '.join(ROUTE_KINDS)}"),
+        Column("speed_mps", _F64, "m/s", "The user's speed along the route", min=0.1, max=100.0),
+    ),
+)
+
+ALL_TABLES = (RECEIVERS, TRANSMITTERS, BUILDINGS, BUILDING_PARTS, ROUTES)

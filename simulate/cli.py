@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from uavplace.schemas.cli import Bounds, Metres, command_line, console, fail, stdout
+from uavplace.schemas.cli import Bounds, Metres, command_line, console, fail, ray_address_option, stdout
 from uavplace.schemas.files import check_name
 
 
@@ -41,11 +41,7 @@ class Point(click.ParamType):
     show_default=True,
     help="Cities to draw from one procedural SOURCE, seeds SEED, SEED+1, ... (a corpus).",
 )
-@click.option(
-    "--ray-address",
-    default=None,
-    help="Ray cluster to run a corpus on (e.g. ray://head:10001, or auto); default: a local Ray on this machine.",
-)
+@ray_address_option("a corpus")
 @click.option(
     "--cpus-per-city",
     type=click.FloatRange(min=0.5),
@@ -75,6 +71,22 @@ class Point(click.ParamType):
     type=Point(),
     multiple=True,
     help="Place a user at X,Y instead of sampling (repeatable; overrides --users).",
+)
+@click.option(
+    "--routes",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="User routes for the tracking task: paths along open ground (clear of every building by 0.25 m or more), sampled "
+    "every <= 2 m, every point traced as a user; written as the .txrx points set 'Route' and <name>.routes.csv "
+    "(simulate/routes.py).",
+)
+@click.option("--route-length", "route_length_m", type=Metres(), default="120m", show_default=True, help="Length of each route.")
+@click.option(
+    "--route-kinds",
+    default="pedestrian,vehicle",
+    show_default=True,
+    help="Kinds of the routes, in turn: pedestrian (1.4 m/s) and vehicle (10 m/s); a kind sets the user's speed.",
 )
 @click.option("--grid", "grid_m", type=Metres(), default="4m", show_default=True, help="Receiver grid spacing.")
 @click.option(
@@ -144,6 +156,9 @@ def simulate(
     out_root: Path,
     num_users: int,
     users_m: tuple,
+    routes: int,
+    route_length_m: float,
+    route_kinds: str,
     grid_m: float,
     altitude_m: float,
     extent,
@@ -190,7 +205,8 @@ def simulate(
         if isinstance(value, str):
             raise click.BadParameter("expected XMIN,YMIN,XMAX,YMAX", param_hint=hint)
     base = SimulationSpec(source=sources[0], name=name, num_users=len(users_m) or num_users, grid_m=grid_m, altitude_m=altitude_m,
-                          tx_dbm=tx_dbm, seed=seed, extent_m=extent, users_m=tuple(users_m), crop_m=crop)  # fmt: skip
+                          tx_dbm=tx_dbm, seed=seed, extent_m=extent, users_m=tuple(users_m), crop_m=crop, routes=routes,
+                        route_length_m=route_length_m, route_kinds=tuple(k.strip() for k in route_kinds.split(",")))  # fmt: skip
     try:
         factors = () if gap_fill == "none" else tuple(int(f) for f in gap_fill.split(","))
     except ValueError:
@@ -241,7 +257,13 @@ def simulate(
     stdout().print(
         f"simulated {name}: {record['geometry']}, {len(record['users_m'])} users, "
         f"grid {g['num_x']} x {g['num_y']} at {g['spacing_m']:g} m and {g['altitude_m']:g} m, "
-        f"{100 * record['unreached_cell_share']:.1f} % of user-cells unreached "
+        + (
+            f"{record['routes']['count']} routes ({record['routes']['points']} points, "
+            f"{record['routes']['seconds_per_point']:g} s a point), "
+            if record["routes"]["count"]
+            else ""
+        )
+        + f"{100 * record['unreached_cell_share']:.1f} % of user-cells unreached "
         f"({100 * record['gap_filled_cell_share']:.1f} % filled: no ray hit them), ray tracing {record['raytrace_seconds']:.1f} s "
         f"(wall {record['wall_seconds']:.1f} s) -> {folder}",
         highlight=False,

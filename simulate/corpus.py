@@ -15,7 +15,7 @@ from dataclasses import asdict, replace
 from pathlib import Path
 
 from uavplace.schemas import InputError
-from uavplace.simulate.pipeline import PROVENANCE, SimulationSpec, simulate_city
+from uavplace.simulate.pipeline import PROVENANCE, SimulationSpec, simulate_city, spec_record
 from uavplace.simulate.raytrace import RayTraceConfig
 
 
@@ -46,7 +46,7 @@ def is_done(spec: SimulationSpec, config: RayTraceConfig, out_root: str | Path) 
         record = json.loads(path.read_text(encoding="utf-8"))
     except (ValueError, OSError):
         return False
-    same_spec = record.get("spec") == json.loads(json.dumps(asdict(spec)))
+    same_spec = record.get("spec") == json.loads(json.dumps(spec_record(spec)))
     return same_spec and record.get("raytrace") == json.loads(json.dumps(asdict(config)))
 
 

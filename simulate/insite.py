@@ -64,23 +64,15 @@ def _write(path: Path, text: str, *, gz: bool = False, crlf: bool = False) -> Pa
     return path
 
 
-def write_txrx(
-    path: str | Path,
-    users_m: np.ndarray,
-    grid: ReceiverGrid,
-    *,
-    tx_power_dbm: float = 20.0,
-    user_set: tuple[int, str] = (1, "User"),
-    grid_set: tuple[int, str] = (2, "Drone_grid"),
-) -> Path:
-    """A .txrx with the users as one transmitter points set and the receiver grid. ``users_m``: ``[N, 3]``."""
-    users = "\n".join(f"{x:.6f} {y:.6f} {z:.6f}" for x, y, z in np.asarray(users_m, dtype=float))
-    text = f"""begin_<points> {user_set[1]}
-project_id {user_set[0]}
+def _points_set(points_m: np.ndarray, points_set: tuple[int, str], tx_power_dbm: float) -> str:
+    """A transmitter points set of a .txrx."""
+    points = "\n".join(f"{x:.6f} {y:.6f} {z:.6f}" for x, y, z in np.asarray(points_m, dtype=float))
+    return f"""begin_<points> {points_set[1]}
+project_id {points_set[0]}
 active
 begin_<location>
-nVertices {len(users_m)}
-{users}
+nVertices {len(points_m)}
+{points}
 end_<location>
 is_transmitter yes
 is_receiver no
@@ -92,7 +84,24 @@ end_<pattern>
 power {tx_power_dbm:.5f}
 end_<transmitter>
 end_<points>
-begin_<grid> {grid_set[1]}
+"""
+
+
+def write_txrx(
+    path: str | Path,
+    users_m: np.ndarray,
+    grid: ReceiverGrid,
+    *,
+    tx_power_dbm: float = 20.0,
+    user_set: tuple[int, str] = (1, "User"),
+    grid_set: tuple[int, str] = (2, "Drone_grid"),
+    route_points_m: np.ndarray | None = None,
+    route_set: tuple[int, str] = (3, "Route"),
+) -> Path:
+    """A .txrx with the users as one transmitter points set, the receiver grid, and the route points (``[P, 3]``, if
+    any) as a second transmitter points set. ``users_m``: ``[N, 3]``."""
+    text = _points_set(users_m, user_set, tx_power_dbm)
+    text += f"""begin_<grid> {grid_set[1]}
 project_id {grid_set[0]}
 active
 begin_<location>
@@ -112,6 +121,8 @@ end_<pattern>
 end_<receiver>
 end_<grid>
 """
+    if route_points_m is not None and len(route_points_m):
+        text += _points_set(route_points_m, route_set, tx_power_dbm)
     return _write(Path(path), text)
 
 

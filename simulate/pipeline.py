@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+import math
 import os
 import tempfile
 import time
@@ -46,6 +47,7 @@ from uavplace.simulate.raytrace import (
     path_gain_maps_isolated,
     sionna_versions,
 )
+from uavplace.simulate.routes import KINDS, MAX_STEP_M, ROUTE_SET, Route, draw_routes, write_routes_csv
 from uavplace.simulate.scene import CONCRETE, Block, write_scene
 from uavplace.simulate.styles import STYLE_SIZE_M, STYLES, styled_city
 
@@ -69,6 +71,9 @@ class SimulationSpec:
     extent_m: tuple[float, float, float, float] | None = None
     users_m: tuple[tuple[float, float], ...] = ()
     crop_m: tuple[float, float, float, float] | None = None
+    routes: int = 0  # user routes drawn on open ground, every point traced as a user (simulate.routes)
+    route_length_m: float = 120.0
+    route_kinds: tuple[str, ...] = ("pedestrian", "vehicle")
 
 
 #: Scenes shipped with Sionna RT that ``sionna:<name>`` names (any scene of ``sionna.rt.scene`` works).
@@ -108,6 +113,9 @@ LIMITS = {
     "depth": (0, 10),
     "extent_m": (0.0, 5000.0),  # side of an --extent or --crop box [m]
     "user_cells": (1, 5e7),  # users x grid cells: the maps held in memory (8 bytes each)
+    "routes": (0, 200),  # routes per city
+    "route_length_m": (4.0, 2000.0),
+    "route_points": (0, 5000),  # route points per city, each traced as a user
 }
 
 
@@ -139,6 +147,20 @@ def check_simulation(spec: SimulationSpec, config: RayTraceConfig, count: int = 
     for k, (x, y) in enumerate(spec.users_m):
         if not (np.isfinite(x) and np.isfinite(y)):
             raise InputError("--user", f"user {k + 1} at ({x}, {y}): coordinates must be finite", field="user")
+    _bounded(spec.routes, "routes", "--routes")
+    if spec.routes:
+        _bounded(spec.route_length_m, "route_length_m", "--route-length")
+        _bounded(route_point_count(spec), "route_points", "--routes with --route-length (their points)")
+        unknown = [k for k in spec.route_kinds if k not in KINDS]
+        if unknown or not spec.route_kinds:
+            raise InputError(
+                "--route-kinds", f"{unknown or 'none'}: expected kinds among {', '.join(KINDS)}", field="route_kinds"
+            )
+
+
+def route_point_count(spec: SimulationSpec) -> int:
+    """The route points ``spec`` asks for (each route resampled at steps of at most ``MAX_STEP_M``)."""
+    return spec.routes * (math.ceil(spec.route_length_m / MAX_STEP_M) + 1)
 
 
 def load_geometry(
@@ -280,6 +302,19 @@ def receiver_grid(bounds: tuple[float, float, float, float], spec: SimulationSpe
     )
 
 
+def city_routes(blocks: list[Block], grid: ReceiverGrid, spec: SimulationSpec) -> list[Route]:
+    """``spec.routes`` routes over the open ground of the grid (``simulate.routes``), seeded by ``spec.seed``."""
+    if not spec.routes:
+        return []
+    x0, y0 = grid.x0_m - grid.spacing_m / 2, grid.y0_m - grid.spacing_m / 2
+    box = (x0, y0, x0 + grid.num_x * grid.spacing_m, y0 + grid.num_y * grid.spacing_m)
+    try:
+        return draw_routes([b.footprint for b in blocks], box, spec.routes, spec.route_length_m, spec.route_kinds,
+                           np.random.default_rng([spec.seed, 3]))  # fmt: skip
+    except ValueError as err:
+        raise InputError(spec.source, str(err), field="routes") from None
+
+
 def place_users(blocks: list[Block], grid: ReceiverGrid, spec: SimulationSpec) -> np.ndarray:
     foot = [b.footprint for b in blocks]
     union = shapely.union_all(foot) if foot else shapely.Polygon()
@@ -337,7 +372,13 @@ FILL_ONLY = ("gap_fill_reach_m", "gap_fill_decay_db_per_m")
 def _trace_key(spec: SimulationSpec, config: RayTraceConfig) -> str:
     """What a city's traced maps depend on: its spec and the ray-trace settings, less ``FILL_ONLY``."""
     settings = {k: v for k, v in asdict(config).items() if k not in FILL_ONLY}
-    return json.dumps({"spec": asdict(spec), "raytrace": settings, "uavplace": uavplace_version()}, sort_keys=True)
+    return json.dumps({"spec": spec_record(spec), "raytrace": settings, "uavplace": uavplace_version()}, sort_keys=True)
+
+
+def spec_record(spec: SimulationSpec) -> dict:
+    """``spec`` as simulation.json records it: without the route settings when it has no routes (as before routes)."""
+    doc = asdict(spec)
+    return doc if spec.routes else {k: v for k, v in doc.items() if not k.startswith("route")}
 
 
 def _cached_traces(cache: Path | None, spec: SimulationSpec, config: RayTraceConfig, trace) -> tuple[dict, bool]:  # noqa: ANN001
@@ -388,6 +429,13 @@ def simulate_city(
     blocks, bounds, described = load_geometry(spec.source, spec.seed, spec.crop_m)
     grid = receiver_grid(bounds, spec)
     users = place_users(blocks, grid, spec)
+    routes = city_routes(blocks, grid, spec)
+    route_points = (
+        np.concatenate([np.c_[r.points_m, np.full(len(r.points_m), USER_HEIGHT_M)] for r in routes])
+        if routes
+        else np.zeros((0, 3))
+    )
+    sources = np.concatenate([users, route_points])  # every transmitter traced: the users, then the route points
     size = (grid.num_x * grid.spacing_m, grid.num_y * grid.spacing_m)
     corner = (grid.x0_m - grid.spacing_m / 2, grid.y0_m - grid.spacing_m / 2)
     center = (corner[0] + size[0] / 2, corner[1] + size[1] / 2, spec.altitude_m)
@@ -396,7 +444,7 @@ def simulate_city(
         xml, materials = write_scene(
             tmp, blocks, (corner[0], corner[1], corner[0] + size[0], corner[1] + size[1]), rt_config.frequency_hz
         )
-        job = RadioMapJob(str(xml), tuple(map(tuple, users.tolist())), center, size, spec.grid_m)
+        job = RadioMapJob(str(xml), tuple(map(tuple, sources.tolist())), center, size, spec.grid_m)
         seconds = {"raytrace": 0.0, "direct": 0.0}
 
         def trace() -> dict:
@@ -412,27 +460,31 @@ def simulate_city(
         maps, from_cache = _cached_traces(Path(trace_cache) if trace_cache else None, spec, rt_config, trace)
     pos = grid.points()  # [ny * nx, 3], x fastest: the same order as gain[u].ravel()
     opened = open_cells(blocks, grid)
-    gain, filled = fill(maps, rt_config, opened, squared_distances(users, grid), cell_m=grid.spacing_m)
+    gain, filled = fill(maps, rt_config, opened, squared_distances(sources, grid), cell_m=grid.spacing_m)
     with atomic_directory(Path(out_root) / spec.name, marker=PROVENANCE, what="simulated city") as out:
-        write_txrx(out / f"{spec.name}.txrx", users, grid, tx_power_dbm=spec.tx_dbm, user_set=USER_SET, grid_set=GRID_SET)
+        write_txrx(out / f"{spec.name}.txrx", users, grid, tx_power_dbm=spec.tx_dbm, user_set=USER_SET, grid_set=GRID_SET,
+                   route_points_m=route_points, route_set=ROUTE_SET)  # fmt: skip
+        if routes:
+            write_routes_csv(out / f"{spec.name}.routes.csv", routes)
         write_setup(out / f"{spec.name}.setup", spec.name, frequency_hz=rt_config.frequency_hz, features=[f"{spec.name}.city"])
         write_city(out / f"{spec.name}.city", buildings_of(blocks), name=spec.name)
-        for u in range(len(users)):
+        for u in range(len(sources)):
             g = gain[u].ravel()
             with np.errstate(divide="ignore"):
                 power = np.where(g > 0, spec.tx_dbm + 10 * np.log10(g), np.nan)
-            dist = np.linalg.norm(pos - users[u], axis=1)
-            write_p2m(out, spec.name, "power", tx_point=u + 1, tx_set=USER_SET, rx_set=GRID_SET, positions_m=pos,
+            dist = np.linalg.norm(pos - sources[u], axis=1)
+            tx_set, tx_point = (USER_SET, u + 1) if u < len(users) else (ROUTE_SET, u - len(users) + 1)
+            write_p2m(out, spec.name, "power", tx_point=tx_point, tx_set=tx_set, rx_set=GRID_SET, positions_m=pos,
                       distance_m=dist, values=power, gz=True)  # fmt: skip
-            progress("writing", u + 1, len(users))
+            progress("writing", u + 1, len(sources))
         reached = gain > 0
-        quality = map_quality(gain, opened)
+        quality = map_quality(gain[: len(users)], opened)
         record = {
             "tool": "uavdata simulate",
             "created_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
             "uavplace_version": uavplace_version(),
             "command": command,
-            "spec": asdict(spec),
+            "spec": spec_record(spec),
             "geometry": described,
             "num_buildings": len({b.building for b in blocks}),
             "num_building_parts": len(blocks),
@@ -445,6 +497,17 @@ def simulate_city(
                 "altitude_m": spec.altitude_m,
             },  # fmt: skip
             "users_m": np.round(users, 3).tolist(),
+            "routes": {
+                "count": len(routes),
+                "points": len(route_points),
+                "kinds": {k: sum(r.kind == k for r in routes) for k in spec.route_kinds} if routes else {},
+                "speeds_mps": {k: KINDS[k] for k in spec.route_kinds} if routes else {},
+                "length_m": spec.route_length_m if routes else 0.0,
+                "max_step_m": MAX_STEP_M,
+                "drawn": "shortest 8-connected paths over a 1 m raster of the open ground at least 1 m from every "
+                "footprint, straightened where the line stays 0.5 m from them (every point and step at least 0.25 m clear), resampled at equal steps <= 2 m (simulate/routes.py)",
+                "seconds_per_point": round((seconds["raytrace"] + seconds["direct"]) / len(sources), 3) if routes else None,
+            },
             "raytrace": asdict(rt_config),
             "receiver_antenna": "isotropic (Sionna's radio map); user antenna: vertical " + rt_config.antenna,
             "phase_deg": "not computed (the radio map is an incoherent power sum); written as 0 in the power outputs",

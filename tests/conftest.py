@@ -54,20 +54,30 @@ def write_grid_city(
     z: float = 10.0,
     tx_power_dbm: float = 20.0,
     dead_share: float = 0.2,
+    routes: list[np.ndarray] | None = None,
 ) -> Path:
     """A small InSite-like city: a .txrx (users + one receiver grid at ``z``), a .setup and receiver outputs.
 
     Path loss is 40 + 20 log10(distance + 1) plus uniform 0..10 dB; a ``dead_share`` of receivers is unreached.
+    ``routes``: pedestrian routes (``[n, 2]`` points each), written as the .txrx points set ``Route``, one output
+    per point and ``city.routes.csv``, as ``uavdata simulate --routes`` writes them.
     """
+    from uavplace.simulate.routes import ROUTE_SET, Route, write_routes_csv
+
     rng = np.random.default_rng(seed)
     folder.mkdir(parents=True, exist_ok=True)
     grid = ReceiverGrid(x0_m=10.0, y0_m=-20.0, z_m=z, num_x=nx, num_y=ny, spacing_m=spacing)
     tx = np.array([(10.0 + 3.0 * i, -18.0, 1.5) for i in range(n_tx)])
-    write_txrx(folder / "city.txrx", tx, grid, tx_power_dbm=tx_power_dbm)
+    drawn = [Route(k, "pedestrian", np.asarray(r, float)) for k, r in enumerate(routes or [])]
+    points = np.array([(x, y, 1.5) for r in drawn for x, y in r.points_m]).reshape(-1, 3)
+    write_txrx(folder / "city.txrx", tx, grid, tx_power_dbm=tx_power_dbm, route_points_m=points)
     write_setup(folder / "city.setup", "synthetic")
+    if drawn:
+        write_routes_csv(folder / "city.routes.csv", drawn)
     pos = grid.points()
-    for t in range(n_tx):
-        dist = np.hypot(pos[:, 0] - tx[t, 0], pos[:, 1] - tx[t, 1]) + 1.0
+    sources = [((1, "User"), t + 1, tx[t]) for t in range(n_tx)] + [(ROUTE_SET, k + 1, p) for k, p in enumerate(points)]
+    for tx_set, tx_point, where in sources:
+        dist = np.hypot(pos[:, 0] - where[0], pos[:, 1] - where[1]) + 1.0
         pl = 40 + 20 * np.log10(dist) + rng.uniform(0, 10, dist.size)
         pl[rng.random(dist.size) < dead_share] = np.nan
         for output in outputs:
@@ -75,8 +85,8 @@ def write_grid_city(
                 folder,
                 "city",
                 output,
-                tx_point=t + 1,
-                tx_set=(1, "User"),
+                tx_point=tx_point,
+                tx_set=tx_set,
                 rx_set=(2, "Drone_grid"),
                 positions_m=pos,
                 distance_m=dist,

@@ -562,6 +562,46 @@ class Trainer:
         return self.run_dir
 
 
+def start_run(
+    run_dir: Path,
+    config: DQNConfig,
+    datasets: list[str],
+    val_datasets: list[str],
+    root: str | Path,
+    *,
+    resume: bool,
+    command: str = "",
+) -> Trainer:
+    """The trainer of the run in ``run_dir``, ready to ``run(resume=resume)``; call it with the folder's lock held
+    (``exclusive_folder``). A new run claims its folder first (``FileExistsError`` when it exists) and gives the name
+    back if its trainer cannot be made; a resumed one is loaded (every check of the checkpoint before the first
+    step). ``uavrl train`` and every trial of ``uavrl sweep`` start here."""
+    claimed = False
+    if not resume:
+        if run_dir.exists():
+            raise FileExistsError(f"{run_dir} exists: choose another --name, or continue it with --resume {run_dir}")
+        run_dir.mkdir(parents=True)
+        claimed = True
+    try:
+        trainer = Trainer(config, list(datasets), root, run_dir, command=command, val_datasets=list(val_datasets))
+    except BaseException:
+        if claimed and not any(run_dir.iterdir()):
+            run_dir.rmdir()  # nothing was written: give the name back
+        raise
+    if resume:
+        trainer.load()
+    return trainer
+
+
+def run_finished(run_dir: Path) -> bool:
+    """True when the run's evaluations reached its ``total_steps`` (its schedule is done)."""
+    path = run_dir / "eval.parquet"
+    if not path.is_file() or not (run_dir / RUN_JSON).is_file():
+        return False
+    evals = pd.read_parquet(path, columns=["step"])
+    return bool(len(evals)) and int(evals["step"].max()) >= read_run_json(run_dir).config.total_steps
+
+
 def with_running_means(df: pd.DataFrame) -> pd.DataFrame:
     """Per-episode metrics plus their means over the last 100 episodes (the paper's training curve)."""
     if len(df):

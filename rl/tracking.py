@@ -1,0 +1,426 @@
+"""The tracking task: a UAV keeps a usable link to a user who moves along a ray-traced route.
+
+The second task beside placement (placement is unchanged). A bundle with routes (``uavdata simulate
+--routes``, then ingest and build) holds a radio map per route point. An episode picks a route, a start
+time on it and a start cell (legal, live, below P_T, a target reachable at the start time), and lasts a
+fixed ``horizon`` of steps. Each step takes ``step_s`` = cell side / ``uav_speed_mps`` seconds (4 m at
+10 m/s: 0.4 s): the UAV moves one cell (actions 0-3, the placement moves) or stays (action 4); the user
+walks on by speed x time, to the route's end and back (``user_point``). The UAV measures the SINR of its
+cell to the user's current position, the route point nearest in time, and nothing else of the user.
+
+Observation ``[C, window, window]`` around the UAV: the height channel (not blind), the age of each
+measurement (seconds since the cell was last measured, clipped at ``age_clip_s``; unvisited cells and
+blocked ones show the clip), and the SINR memory (the last SINR measured at each cell; P_H unvisited, P_L
+blocked or beyond the edge), which stays last as in placement. Reward: ``cover_reward`` for each step at
+or above P_T plus ``gain_weight`` times the SINR change.
+
+Per-episode metrics (``episode_metrics``): steps to first reach P_T, the share of the steps after that at
+or above P_T (coverage), the longest outage after it, and the share of the whole horizon covered.
+Baselines: the ``oracle`` (dynamic programming over (time, cell) on the whole route and every map: the
+most covered steps possible, the upper bound), the placement genie re-planned every step toward the
+current P_T region (``ReplanningGenie``), and the placement baselines, which act through the same
+interface (``rl.policies``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from pydantic import Field
+
+from uavplace.dataset.bundle import Bundle
+from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target
+from uavplace.rl.config import EnvConfig
+from uavplace.rl.maps import MOVES, MapSet
+from uavplace.rl.randomness import combine, stream_key
+from uavplace.schemas.base import Contract
+
+#: The 5 tracking actions in canvas coordinates (dy, dx): the 4 placement moves, then 4 = stay.
+TRACK_MOVES = np.vstack([MOVES, [[0, 0]]])
+STAY = 4
+
+
+class TrackingConfig(Contract):
+    """Everything that defines the tracking task (saved with every run and report that uses it)."""
+
+    p_t_db: float = Field(default=5.0, description="SINR target P_T [dB]: a step at or above it is covered")
+    horizon: int = Field(default=300, ge=1, le=100_000, description="Steps per episode")
+    uav_speed_mps: float = Field(default=10.0, gt=0, le=100, description="UAV speed: one cell per cell side / speed seconds")
+    window: int = Field(default=61, ge=3, description="Observation side in cells (odd), centred on the UAV")
+    blind: bool = Field(default=False, description="No height channel; blocked cells shown as P_H in the SINR memory")
+    p_h_db: float = Field(default=50.0, description="SINR memory of unvisited cells [dB]")
+    p_l_db: float = Field(default=-150.0, description="SINR memory of blocked cells and beyond the edge [dB]")
+    age_clip_s: float = Field(
+        default=100.0, gt=0, description="Measurement ages are clipped at this [s]; unvisited cells show it"
+    )
+    cover_reward: float = Field(default=1.0, description="Reward of a covered step")
+    gain_weight: float = Field(default=0.05, description="Reward per dB of SINR change")
+    edge_height_m: float = Field(default=100.0, description="Height channel beyond the map edge [m]")
+    height_clip_m: float = Field(default=100.0, gt=0, description="Height channel clipped to +/- this [m]")
+
+    @property
+    def num_channels(self) -> int:
+        return 2 if self.blind else 3
+
+    def placement_env(self) -> EnvConfig:
+        """The placement ``EnvConfig`` whose canvases (height, blocked, padding) this task shares."""
+        return EnvConfig(p_t_db=self.p_t_db, window=self.window, blind=self.blind, p_h_db=self.p_h_db, p_l_db=self.p_l_db,
+                         edge_height_m=self.edge_height_m, height_clip_m=self.height_clip_m, rotate=False)  # fmt: skip
+
+
+def user_point(times_s: np.ndarray, start_s: np.ndarray, t: np.ndarray, step_s: np.ndarray) -> np.ndarray:
+    """Index along each route of the point the user is at after ``t`` steps of ``step_s`` seconds from ``start_s``:
+    the user walks to the route's end and back (period twice the route's duration), at the point nearest in time.
+    ``times_s``: ``[K, n_max]`` point times per route (``inf`` past a route's last point); the others ``[K]``."""
+    last = np.nanmax(np.where(np.isfinite(times_s), times_s, np.nan), axis=1)
+    s = np.mod(start_s + t * step_s, 2 * last)
+    s = np.where(s > last, 2 * last - s, s)  # on the way back
+    after = np.clip((times_s <= s[:, None]).sum(axis=1), 1, times_s.shape[1] - 1)  # the first point later than s
+    lo = np.minimum(after - 1, np.isfinite(times_s).sum(axis=1) - 1)
+    hi = np.minimum(after, np.isfinite(times_s).sum(axis=1) - 1)
+    rows = np.arange(len(s))
+    nearer_hi = np.abs(times_s[rows, hi] - s) < np.abs(s - times_s[rows, lo])
+    return np.where(nearer_hi, hi, lo)
+
+
+class RouteSet:
+    """The routes of one or more bundles laid on the placement canvases (``MapSet``; identity symmetry only).
+
+    ``sinr`` / ``dead`` ``[P, L, L]`` (every route point's map on the canvas; beyond the edge P_L / dead),
+    ``steps`` ``[P, L, L]`` (moves to a target of that point's map), ``times`` ``[R, n_max]`` (inf padded),
+    ``first`` ``[R]`` (each route's first point in ``sinr``), ``count`` ``[R]``, ``bundle`` ``[R]``, ``step_s`` ``[R]``.
+    """
+
+    def __init__(self, bundles: list[Bundle], config: TrackingConfig) -> None:
+        with_routes = [b for b in bundles if b.routes is not None]
+        if not with_routes:
+            raise ValueError(f"no bundle with routes among {[b.city for b in bundles]}: simulate them with --routes")
+        self.bundles, self.config = with_routes, config
+        self.maps = MapSet(with_routes, config.placement_env())
+        p, L = self.maps.pad, self.maps.side
+        total = sum(len(b.routes) for b in with_routes)
+        self.sinr = np.full((total, L, L), config.p_l_db, np.float32)
+        self.dead = np.ones((total, L, L), bool)
+        self.steps = np.full((total, L, L), UNREACHABLE, np.int32)
+        first, count, bundle, step_s, times, keys, names = [], [], [], [], [], [], []
+        offset = 0
+        for i, b in enumerate(with_routes):
+            ny, nx = b.shape
+            legal = ~b.blocked
+            sl = slice(offset, offset + len(b.routes))
+            self.sinr[sl, p : p + ny, p : p + nx] = b.route_sinr_db
+            self.dead[sl, p : p + ny, p : p + nx] = b.route_dead
+            target = legal & ~b.route_dead & (b.route_sinr_db >= config.p_t_db)
+            self.steps[sl, p : p + ny, p : p + nx] = steps_to_target(legal, target)
+            for route, rows in b.routes.groupby("route", sort=False):
+                first.append(offset + int(rows.index[0]))
+                count.append(len(rows))
+                bundle.append(i)
+                step_s.append(b.spacing_m / config.uav_speed_mps)
+                times.append(rows["time_s"].to_numpy())
+                keys.append(stream_key(b.version, "route", int(route)))
+                names.append((b.city, int(route), str(rows["kind"].iloc[0])))
+            offset += len(b.routes)
+        n_max = max(len(t) for t in times)
+        self.times = np.full((len(times), n_max), np.inf)
+        for r, t in enumerate(times):
+            self.times[r, : len(t)] = t
+        self.first, self.count, self.bundle = np.array(first), np.array(count), np.array(bundle)
+        self.step_s = np.array(step_s)
+        self.route_keys = np.array(keys, np.uint64)
+        self.names = names  # (city, route id, kind) per route
+
+    @property
+    def num_routes(self) -> int:
+        return len(self.first)
+
+    def point(self, route: np.ndarray, start_s: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Row in ``sinr`` of the point the user of each episode is at after ``t`` steps."""
+        return self.first[route] + user_point(self.times[route], start_s, t, self.step_s[route])
+
+    def sample_episodes(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """``[n, 4]`` float64 episode specs ``(route, start_s, y, x)``: a route (uniform), a start time on it (uniform
+        over the route's duration) and a start cell: legal, live, below P_T, with a target reachable at that time."""
+        out = np.zeros((n, 4))
+        for k in range(n):
+            for _attempt in range(100):
+                r = int(rng.integers(self.num_routes))
+                start = float(rng.random() * self.times[r, self.count[r] - 1])
+                pt = int(self.point(np.array([r]), np.array([start]), np.array([0]))[0])
+                m = self.bundle[r] * self.maps.symmetries  # the bundle's canvas (identity symmetry)
+                ok = (
+                    ~self.maps.blocked[m]
+                    & ~self.dead[pt]
+                    & (self.sinr[pt] < self.config.p_t_db)
+                    & (self.steps[pt] != UNREACHABLE)
+                )
+                cells = np.flatnonzero(ok)
+                if len(cells):
+                    y, x = divmod(int(cells[rng.integers(len(cells))]), self.maps.side)
+                    out[k] = (r, start, y, x)
+                    break
+            else:
+                raise ValueError("no route has a time and a start cell below P_T with a reachable target")
+        return out
+
+
+def episode_metrics(covered: np.ndarray) -> dict[str, np.ndarray]:
+    """Per-episode metrics of ``covered`` ``[K, H]`` (step 1..H at or above P_T): ``first_reach`` (steps to the first
+    covered step, inf if none), ``coverage`` (share of the steps from it on that are covered, 0 if none),
+    ``longest_outage`` (longest run of uncovered steps after it; the horizon if never reached) and ``covered_share``
+    (share of all H steps covered)."""
+    k, h = covered.shape
+    ever = covered.any(axis=1)
+    first = np.where(ever, covered.argmax(axis=1) + 1, np.inf)
+    after = np.arange(1, h + 1)[None, :] >= np.where(ever, first, h + 1)[:, None]
+    coverage = np.where(ever, (covered & after).sum(axis=1) / np.maximum(after.sum(axis=1), 1), 0.0)
+    outage = np.zeros(k, np.int64)
+    run = np.zeros(k, np.int64)
+    for t in range(h):
+        run = np.where(after[:, t] & ~covered[:, t], run + 1, 0)
+        outage = np.maximum(outage, run)
+    return {"first_reach": first, "coverage": coverage, "longest_outage": np.where(ever, outage, h),
+            "covered_share": covered.mean(axis=1)}  # fmt: skip
+
+
+def oracle_path(legal: np.ndarray, covered: np.ndarray, start: tuple[int, int]) -> tuple[np.ndarray, int]:
+    """The UAV's cells ``[H + 1, 2]`` (start first) that cover the most of steps 1..H, by dynamic programming over
+    (time, cell): ``covered`` ``[H, ny, nx]`` (step t's map: the cell covers the user then), ``legal`` ``[ny, nx]``;
+    moves to a 4-neighbour or stay. Returns (path, covered steps). Ties go to staying, then actions 0-3 in order."""
+    h, ny, nx = covered.shape
+    neg = np.iinfo(np.int32).min // 4
+    value = np.zeros((ny, nx), np.int32)  # best covered count from step t on, standing in the cell after step t - 1
+    choice = np.zeros((h, ny, nx), np.int8)
+    for t in range(h - 1, -1, -1):
+        here = np.where(legal, covered[t].astype(np.int32) + value, neg)  # being in the cell at step t
+        best = here.copy()
+        arg = np.full((ny, nx), STAY, np.int8)
+        for a, (dy, dx) in enumerate(MOVES):  # from cell c, moving to c + (dy, dx)
+            shifted = np.full((ny, nx), neg, np.int32)
+            ys, yd = (slice(0, ny - dy), slice(dy, ny)) if dy >= 0 else (slice(-dy, ny), slice(0, ny + dy))
+            xs, xd = (slice(0, nx - dx), slice(dx, nx)) if dx >= 0 else (slice(-dx, nx), slice(0, nx + dx))
+            shifted[ys, xs] = here[yd, xd]
+            better = shifted > best
+            best = np.where(better, shifted, best)
+            arg = np.where(better, a, arg)
+        choice[t], value = arg, np.where(legal, best, neg)
+    path = [np.array(start)]
+    for t in range(h):
+        path.append(path[-1] + TRACK_MOVES[choice[t, path[-1][0], path[-1][1]]])
+    return np.array(path), int(value[start])
+
+
+@dataclass
+class TrackingEpisodes:
+    """What ``run_tracking`` returns: one row per episode, and each episode's covered steps ``[K, H]``."""
+
+    table: pd.DataFrame
+    covered: np.ndarray
+
+
+class TrackingEnv:
+    """``num_envs`` tracking episodes stepped together in numpy, played from ``queue`` (``[K, 4]`` specs of
+    ``RouteSet.sample_episodes``) or drawn with the generator of ``reset(seed)``; a finished episode restarts at once
+    (``info["final_index"]``) unless the queue has run out (``exhausted``), or unless ``autoreset`` is False (the
+    single Gymnasium env)."""
+
+    def __init__(self, routes: RouteSet, num_envs: int, *, queue: np.ndarray | None = None, autoreset: bool = True) -> None:
+        self.routes, self.config, self.maps, self.autoreset = routes, routes.config, routes.maps, autoreset
+        self.num_envs, self.queue, self.queue_pos = num_envs, queue, 0
+        n, L, w = num_envs, self.maps.side, routes.config.window
+        self.route = np.zeros(n, np.int64)
+        self.start_s = np.zeros(n)
+        self.pos = np.zeros((n, 2), np.int64)
+        self.t = np.zeros(n, np.int64)
+        self.episode_id = np.full(n, -1, np.int64)
+        self.exhausted = np.zeros(n, bool)
+        self.memory = np.zeros((n, L, L), np.float32)
+        self.seen_at = np.zeros((n, L, L), np.float32)  # when each cell was last measured [s]; -inf never
+        self.rng = np.random.default_rng()
+        self._started = 0
+        self._rows = np.arange(n)
+        self._memory_windows = np.lib.stride_tricks.sliding_window_view(self.memory, (w, w), axis=(1, 2))
+        self._seen_windows = np.lib.stride_tricks.sliding_window_view(self.seen_at, (w, w), axis=(1, 2))
+        self._height_windows = np.lib.stride_tricks.sliding_window_view(self.maps.height, (w, w), axis=(1, 2))
+
+    def canvas(self, idx: np.ndarray | None = None) -> np.ndarray:
+        """The height/blocked canvas row of each env's bundle."""
+        idx = self._rows if idx is None else idx
+        return self.routes.bundle[self.route[idx]] * self.maps.symmetries
+
+    def point(self) -> np.ndarray:
+        """Each env's route point now (a row of ``routes.sinr``)."""
+        return self.routes.point(self.route, self.start_s, self.t)
+
+    def sinr_here(self) -> np.ndarray:
+        return self.routes.sinr[self.point(), self.pos[:, 0], self.pos[:, 1]]
+
+    def _start(self, idx: np.ndarray) -> None:
+        k = len(idx)
+        if self.queue is None:
+            specs, ids = self.routes.sample_episodes(k, self.rng), self._started + np.arange(k)
+            self._started += k
+        else:
+            take = min(k, len(self.queue) - self.queue_pos)
+            specs = np.repeat(self.queue[:1], k, axis=0)
+            specs[:take] = self.queue[self.queue_pos : self.queue_pos + take]
+            ids = np.where(np.arange(k) < take, self.queue_pos + np.arange(k), -1)
+            self.queue_pos += take
+        self.route[idx], self.start_s[idx] = specs[:, 0].astype(np.int64), specs[:, 1]
+        self.pos[idx] = specs[:, 2:].astype(np.int64)
+        self.t[idx], self.episode_id[idx], self.exhausted[idx] = 0, ids, ids < 0
+        hidden = ~self.maps.on_map[self.canvas(idx)] if self.config.blind else self.maps.blocked[self.canvas(idx)]
+        self.memory[idx] = np.where(hidden, self.config.p_l_db, self.config.p_h_db)
+        self.seen_at[idx] = -np.inf
+        self._measure(idx)
+
+    def _measure(self, idx: np.ndarray) -> np.ndarray:
+        y, x = self.pos[idx, 0], self.pos[idx, 1]
+        sinr = self.routes.sinr[self.routes.point(self.route[idx], self.start_s[idx], self.t[idx]), y, x]
+        self.memory[idx, y, x] = sinr
+        self.seen_at[idx, y, x] = self.t[idx] * self.routes.step_s[self.route[idx]]
+        return sinr
+
+    def reset(self, seed: int | None = None) -> tuple[np.ndarray, dict]:
+        if seed is not None:
+            self.rng = np.random.default_rng(seed)
+        self._started, self.queue_pos = 0, 0
+        self._start(self._rows)
+        return self.observe(), {"action_mask": self.action_mask()}
+
+    def neighbours(self, idx: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Canvas ``(y, x)`` of the 4 cells the moves lead to, each ``[len(idx), 4]`` (placement's interface)."""
+        idx = self._rows if idx is None else idx
+        return self.pos[idx, None, 0] + MOVES[None, :, 0], self.pos[idx, None, 1] + MOVES[None, :, 1]
+
+    def action_mask(self) -> np.ndarray:
+        """``[N, 5]`` bool: the moves into a legal cell, and staying (always legal)."""
+        ny, nx = self.neighbours()
+        return np.c_[~self.maps.blocked[self.canvas()[:, None], ny, nx], np.ones(self.num_envs, bool)]
+
+    def episode_keys(self) -> np.ndarray:
+        """[N] uint64 keys of each row's episode for per-episode random draws (``rl.randomness``)."""
+        return combine(self.routes.route_keys[self.route], self.episode_id)
+
+    def observe(self) -> np.ndarray:
+        cfg, rows = self.config, self._rows
+        y0, x0 = self.pos[:, 0] - cfg.window // 2, self.pos[:, 1] - cfg.window // 2
+        obs = np.empty((self.num_envs, cfg.num_channels, cfg.window, cfg.window), np.float32)
+        if not cfg.blind:
+            obs[:, 0] = self._height_windows[self.canvas(), y0, x0]
+        now = (self.t * self.routes.step_s[self.route]).astype(np.float32)
+        np.minimum(now[:, None, None] - self._seen_windows[rows, y0, x0], np.float32(cfg.age_clip_s), out=obs[:, -2])
+        obs[:, -1] = self._memory_windows[rows, y0, x0]
+        return obs
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
+        actions = np.asarray(actions, np.int64)
+        old = self.sinr_here()
+        target = self.pos + TRACK_MOVES[actions]
+        legal = ~self.maps.blocked[self.canvas(), target[:, 0], target[:, 1]]
+        self.pos = np.where(legal[:, None], target, self.pos)
+        self.t += 1
+        new = self._measure(self._rows)
+        covered = new >= self.config.p_t_db
+        reward = (self.config.cover_reward * covered + self.config.gain_weight * (new - old)).astype(np.float32)
+        truncated = self.t >= self.config.horizon
+        info = {"illegal": ~legal, "covered": covered, "episode_id": self.episode_id.copy(), "steps": self.t.copy()}
+        if truncated.any() and self.autoreset:
+            ended = np.flatnonzero(truncated)
+            info["final_index"] = ended
+            self._start(ended)
+        info["action_mask"] = self.action_mask()
+        return self.observe(), reward, np.zeros(self.num_envs, bool), truncated, info
+
+
+class MovesOnly:
+    """A placement policy (``rl.policies``: 4 moves, never stays) acting in the tracking env: it is shown the moves'
+    legal mask only, and keeps acting by its own rule after it first reaches P_T."""
+
+    def __init__(self, policy) -> None:  # noqa: ANN001 - a rl.policies.Policy
+        self.policy, self.name = policy, policy.name
+
+    def reset(self, rows: np.ndarray, num_envs: int) -> None:
+        self.policy.reset(rows, num_envs)
+
+    def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingEnv) -> np.ndarray:
+        return self.policy.act(obs, mask[:, :4], env)
+
+
+class ReplanningGenie:
+    """The placement genie re-planned every step: knows the user's map now (not the future); stays while covered,
+    else takes a shortest legal path toward the current P_T region."""
+
+    name = "re-planning genie"
+
+    def reset(self, rows: np.ndarray, num_envs: int) -> None:
+        pass
+
+    def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingEnv) -> np.ndarray:
+        point = env.point()
+        ny, nx = env.neighbours()
+        steps = env.routes.steps[point[:, None], ny, nx].astype(np.int64)
+        steps[~mask[:, :4]] = np.iinfo(np.int64).max
+        here = env.routes.steps[point, env.pos[:, 0], env.pos[:, 1]]
+        return np.where(here == 0, STAY, np.argmin(steps, axis=1))
+
+
+class OraclePolicy:
+    """The upper bound: knows the whole route and every map; follows ``oracle_path`` of its episode (computed when the
+    episode starts), the most covered steps possible."""
+
+    name = "oracle"
+
+    def __init__(self) -> None:
+        self.paths: dict[int, np.ndarray] = {}
+
+    def reset(self, rows: np.ndarray, num_envs: int) -> None:
+        pass
+
+    def plan(self, env: TrackingEnv, row: int) -> np.ndarray:
+        r, p = int(env.route[row]), env.maps.pad
+        b = env.routes.bundles[env.routes.bundle[r]]
+        ny, nx = b.shape
+        t = np.arange(1, env.config.horizon + 1)
+        points = env.routes.point(np.full(len(t), r), np.full(len(t), env.start_s[row]), t)
+        sinr = env.routes.sinr[points, p : p + ny, p : p + nx]
+        covered = (sinr >= env.config.p_t_db) & ~env.routes.dead[points, p : p + ny, p : p + nx]
+        path, _ = oracle_path(~b.blocked, covered, (int(env.pos[row, 0]) - p, int(env.pos[row, 1]) - p))
+        return path + p
+
+    def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingEnv) -> np.ndarray:
+        out = np.full(env.num_envs, STAY, np.int64)
+        for row in range(env.num_envs):
+            key = int(env.episode_id[row])
+            if env.t[row] == 0 or key not in self.paths:
+                self.paths[key] = self.plan(env, row)
+            step = self.paths[key][env.t[row] + 1] - env.pos[row]
+            out[row] = int(np.flatnonzero((TRACK_MOVES == step).all(axis=1))[0])
+        return out
+
+
+def run_tracking(routes: RouteSet, policy, episodes: np.ndarray, *, num_envs: int = 256) -> TrackingEpisodes:  # noqa: ANN001
+    """Play ``episodes`` (``[K, 4]`` specs) to the horizon with ``policy`` (``rl.policies`` interface: ``reset``,
+    ``act(obs, mask, env)``); one row per episode with the metrics of ``episode_metrics``."""
+    k, h = len(episodes), routes.config.horizon
+    env = TrackingEnv(routes, min(num_envs, k), queue=np.asarray(episodes, float))
+    obs, info = env.reset()
+    policy.reset(np.arange(env.num_envs), env.num_envs)
+    covered = np.zeros((k, h), bool)
+    done = 0
+    while done < k:
+        live = ~env.exhausted
+        ids, t = env.episode_id.copy(), env.t.copy()
+        obs, _, _, truncated, info = env.step(policy.act(obs, info["action_mask"], env))
+        covered[ids[live], t[live]] = info["covered"][live]
+        finished = truncated & live
+        done += int(finished.sum())
+        if finished.any():
+            policy.reset(np.flatnonzero(finished), env.num_envs)
+    metrics = episode_metrics(covered)
+    table = pd.DataFrame({"episode": np.arange(k), "route": episodes[:, 0].astype(int), "start_s": episodes[:, 1]} | metrics)
+    table["city"] = [routes.names[int(r)][0] for r in table["route"]]
+    table["kind"] = [routes.names[int(r)][2] for r in table["route"]]
+    return TrackingEpisodes(table, covered)

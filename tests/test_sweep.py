@@ -1,0 +1,122 @@
+"""``uavrl sweep``: training runs as Ray Tune trials in run folders of their own, resumable, and one table on the
+validation cities from the report's evaluation."""
+
+from __future__ import annotations
+
+import json
+
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+
+from tests.conftest import write_grid_city
+from uavplace.dataset.build import build_city
+from uavplace.ingest.pipeline import ingest_city
+from uavplace.schemas.bundle import BuildConfig
+from uavplace.schemas.cli import uavrl
+
+pytest.importorskip("ray.tune", reason="Ray Tune missing (pip install -e '.[sweep]')")
+
+#: A tiny schedule: 128 steps, a few small networks (the settings of tests/test_agent.py's tiny runs).
+TINY = """
+datasets = ["tiny"]
+cities = ["tiny-val"]
+episodes = 24
+
+[[trials]]
+name = "t"
+preset = "fast"
+seeds = [0, 1]
+steps = 128
+eval_every = 64
+settings = {num_envs = 8, buffer_size = 512, batch_size = 16, train_every = 4, learning_starts = 64, eval_episodes = 16, hidden = 16, conv_channels = [4, 8, 8], "env.t_max" = 30}
+
+[[ensembles]]
+name = "t-e01"
+members = ["t-s0", "t-s1"]
+"""
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("sweep")
+    for name, seed, role in (("tiny", 5, "train"), ("tiny-val", 6, "val")):
+        ingest_city(
+            write_grid_city(tmp / "raw" / name, nx=12, ny=10, n_tx=4, outputs=("power",), seed=seed), tmp / "p", name=name
+        )
+        build_city(
+            name,
+            BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=-58.0, role=role, val_users=1 if role == "train" else 0),
+            tmp / "p",
+        )
+    return tmp / "p"
+
+
+@pytest.mark.slow
+def test_sweep_trains_resumes_and_tables(tmp_path, root):
+    """Two trials and their ensemble: each trial a normal run folder (the config `uavrl train` makes from the same
+    options), a trial stopped before the sweep is continued, not restarted; the table plays every run on the
+    validation city; a second call trains nothing."""
+    from uavplace.eval.sweep import read_spec
+    from uavplace.rl.agent.train import Trainer, read_run_json
+
+    spec_file = tmp_path / "tiny.toml"
+    spec_file.write_text(TINY)
+    out = tmp_path / "runs"
+    configs = read_spec(spec_file).configs()
+    Trainer(configs["t-s1"], ["tiny"], root, out / "t-s1", command="uavrl train --until 64").run(stop_at=64)
+    args = ["sweep", str(spec_file), "--out", str(out), "--root", str(root), "--quiet"]
+    res = CliRunner().invoke(uavrl, args)
+    assert res.exit_code == 0, res.output
+    assert "2 trials, 0 finished before; training t-s0, t-s1" in res.output
+    assert "ensemble t-e01: validation" in res.output
+    for name in ("t-s0", "t-s1"):
+        record = read_run_json(out / name)
+        assert record.config == configs[name] and record.config.total_steps == 128 and record.config.env.t_max == 30
+        assert pd.read_parquet(out / name / "eval.parquet").step.max() == 128
+    assert read_run_json(out / "t-s0").resumed == []
+    assert [r.split(" (from")[1] for r in read_run_json(out / "t-s1").resumed] == [" step 64)"]  # continued, not restarted
+    table = pd.read_csv(out / "sweep.csv")
+    assert table["run"].tolist() == ["t-s0", "t-s1", "t-e01"] and (table["cities"] == "tiny-val").all()
+    assert table["tiny-val success"].between(0, 1).all() and (table["tiny-val success_lo"] <= table["tiny-val success"]).all()
+    assert "| t-e01 |" in (out / "sweep.md").read_text() and (out / "sweep.toml").read_text() == TINY
+    res = CliRunner().invoke(uavrl, args)
+    assert res.exit_code == 0 and "2 trials, 2 finished before" in res.output and "training" not in res.output
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ('datasets = ["tiny"]\n[[trials]]\nname = "a"\nseed = [1]\n', "trials.0.seed: Extra inputs are not permitted"),
+        ('datasets = ["tiny"]\n[[trials]]\nname = "a"\nsettings = {gama = 0.5}\n', "settings.set: 'gama=0.5'"),
+        (
+            'datasets = ["tiny"]\n[[trials]]\nname = "a"\n[[ensembles]]\nname = "e"\nmembers = ["a-s0", "b-s0"]\n',
+            "b-s0 is not a run of the sweep",
+        ),  # fmt: skip
+        ('datasets = ["tiny"]\n[[trials]]\nname = "a"\nseeds = [0, 0]\n', "repeat a seed"),
+        ('datasets = ["tiny"\n', "not a TOML file"),
+    ],
+    ids=["unknown-field", "unknown-setting", "unknown-member", "seed-twice", "not-toml"],
+)
+def test_sweep_refuses_bad_specs(tmp_path, text, message):
+    """A bad sweep file is one error line naming the file and the field, before Ray starts or anything is written."""
+    spec = tmp_path / "bad.toml"
+    spec.write_text(text)
+    res = CliRunner().invoke(uavrl, ["sweep", str(spec), "--out", str(tmp_path / "out")])
+    assert res.exit_code == 2 and str(spec) in res.output and message in " ".join(res.output.split()), res.output
+    assert not (tmp_path / "out").exists()
+
+
+def test_shipped_sweep_files_validate():
+    """The sweep files in benchmarks/sweeps/ validate, and the `best` one trains what train_agents.sh trained."""
+    from pathlib import Path
+
+    from uavplace.eval.sweep import read_spec
+    from uavplace.rl.agent.dqn import preset_config
+
+    files = sorted(Path(__file__).parents[1].joinpath("benchmarks", "sweeps").glob("*.toml"))
+    assert files
+    specs = {f.stem: read_spec(f) for f in files}
+    best = specs["best"].configs()
+    assert list(best) == [f"best-s{s}" for s in range(9)] and best["best-s4"] == preset_config("best", seed=4)
+    assert json.loads(json.dumps([e.members for e in specs["best"].ensembles]))[1] == ["best-s3", "best-s4", "best-s5"]

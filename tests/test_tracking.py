@@ -1,0 +1,221 @@
+"""The tracking task (a user who moves): routes drawn on open ground, the routes table contract from export to
+bundle, the env's time stepping, and the oracle against brute force."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+import shapely
+
+from tests.conftest import write_grid_city
+from uavplace.dataset.build import build_city
+from uavplace.dataset.bundle import load_bundle
+from uavplace.ingest.pipeline import ingest_city
+from uavplace.rl.tracking import (
+    STAY,
+    TRACK_MOVES,
+    MovesOnly,
+    OraclePolicy,
+    ReplanningGenie,
+    RouteSet,
+    TrackingConfig,
+    TrackingEnv,
+    episode_metrics,
+    oracle_path,
+    run_tracking,
+    user_point,
+)
+from uavplace.schemas import InputError
+from uavplace.schemas.bundle import BuildConfig
+from uavplace.simulate.routes import KINDS, MAX_STEP_M, draw_routes
+
+#: Two routes on the synthetic grid city (x 8..32, y -22..-2): an L along open ground, and a short straight one.
+ROUTES = [
+    np.array([(12.0 + 2 * k, -14.0) for k in range(9)] + [(28.0, -14.0 + 2 * k) for k in range(1, 5)]),
+    np.array([(14.0, -6.0 + 1.5 * k) for k in range(3)]),
+]
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("tracking")
+    ingest_city(write_grid_city(tmp / "raw", nx=6, ny=5, n_tx=3, seed=2, dead_share=0.0, routes=ROUTES), tmp / "p", name="walk")
+    build_city("walk", BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=-45.0), tmp / "p")
+    return tmp / "p"
+
+
+def test_routes_keep_to_open_ground_and_their_sampling():
+    """Drawn routes: the asked length, steps of at most 2 m, clear of every building, kinds in turn, the same
+    routes for the same seed."""
+    blocks = [shapely.box(20, 20, 60, 60), shapely.box(70, 10, 90, 80), shapely.box(10, 70, 50, 95)]
+    routes = draw_routes(blocks, (0, 0, 100, 100), 4, 60.0, ("pedestrian", "vehicle"), np.random.default_rng(1))
+    union = shapely.union_all(blocks)
+    for k, r in enumerate(routes):
+        steps = np.linalg.norm(np.diff(r.points_m, axis=0), axis=1)
+        assert steps.max() <= MAX_STEP_M + 1e-9 and 55.0 < steps.sum() <= 60.0 + 1e-6  # chords of a 60 m line
+        assert not shapely.intersects(shapely.LineString(r.points_m), shapely.buffer(union, 0.25))
+        assert r.kind == ("pedestrian", "vehicle")[k % 2]
+        np.testing.assert_allclose(r.times_s[-1], steps.sum() / KINDS[r.kind])
+    again = draw_routes(blocks, (0, 0, 100, 100), 4, 60.0, ("pedestrian", "vehicle"), np.random.default_rng(1))
+    assert all(np.array_equal(a.points_m, b.points_m) for a, b in zip(routes, again, strict=True))
+    with pytest.raises(ValueError, match="no path of 500 m"):
+        draw_routes(blocks, (0, 0, 100, 100), 1, 500.0, ("pedestrian",), np.random.default_rng(1))
+
+
+def test_routes_travel_from_export_to_bundle(root):
+    """The route points are traced as users but are not users of the bundle: placement sees the 3 users only; the
+    bundle's routes table holds every point in route order with its map."""
+    b = load_bundle("walk", root=root)
+    assert b.num_users == 3 and b.manifest.num_route_points == sum(len(r) for r in ROUTES)
+    assert b.routes["route"].tolist() == [0] * len(ROUTES[0]) + [1] * len(ROUTES[1])
+    np.testing.assert_allclose(b.routes[["x_m", "y_m"]].to_numpy(), np.vstack(ROUTES))
+    assert b.route_sinr_db.shape == (len(b.routes), *b.shape)
+    # A point's map is brightest near the point (the synthetic path loss grows with distance).
+    k = 5
+    iy, ix = np.unravel_index(np.argmax(b.route_sinr_db[k]), b.shape)
+    assert abs(b.x_m[ix] - b.routes["x_m"][k]) <= 6 and abs(b.y_m[iy] - b.routes["y_m"][k]) <= 6
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda rows: rows[:3] + rows[4:], "city.routes.csv:4: order: order 3 of route 0: expected 2"),
+        (lambda rows: [*rows[:2], rows[2].replace(",1.4286,", ",9.0000,"), *rows[3:]], "city.routes.csv:3: time_s: time 9 s"),
+        (
+            lambda rows: [*rows[:2], rows[2].replace(",3,2,", ",3,99,"), *rows[3:]],
+            "city.routes.csv:3: tx_point: no transmitter t099_03",
+        ),
+        (lambda rows: [*rows[:2], rows[2].replace("pedestrian", "horse"), *rows[3:]], "city.routes.csv:3: kind: 'horse'"),
+    ],
+    ids=["order-gap", "wrong-time", "unknown-point", "unknown-kind"],
+)
+def test_bad_routes_are_refused_with_their_line(tmp_path, edit, message):
+    """A routes file that breaks the contract is refused by ingest, naming the file, the line and the field."""
+    folder = write_grid_city(tmp_path / "raw", nx=6, ny=5, n_tx=1, routes=ROUTES)
+    path = folder / "city.routes.csv"
+    path.write_text("\n".join(edit(path.read_text().splitlines())) + "\n")
+    with pytest.raises(InputError) as err:
+        ingest_city(folder, tmp_path / "p", name="bad")
+    assert message in str(err.value)
+
+
+def test_a_jump_a_moved_point_or_a_building_on_the_route_is_refused(tmp_path):
+    """No jump longer than the sampling; every point where the .txrx puts its transmitter; no point inside a building
+    (the .city's footprints)."""
+    from uavplace.simulate.insite import write_city
+
+    folder = write_grid_city(tmp_path / "m", nx=6, ny=5, n_tx=1, routes=ROUTES)
+    txrx = folder / "city.txrx"
+    txrx.write_text(txrx.read_text().replace("14.000000 -14.000000 1.500000", "14.500000 -14.000000 1.500000"))
+    with pytest.raises(InputError, match=r"routes.csv:3: x_m: \(14, -14\), but the .txrx puts t002_03 at \(14.5, -14\)"):
+        ingest_city(folder, tmp_path / "p", name="moved")
+
+    far = [np.array([(12.0, -14.0), (16.0, -14.0)])]
+    folder = write_grid_city(tmp_path / "a", nx=6, ny=5, n_tx=1, routes=far)
+    with pytest.raises(InputError, match="routes.csv:3: x_m: a jump of 4.000 m"):
+        ingest_city(folder, tmp_path / "p", name="jump")
+    folder = write_grid_city(tmp_path / "b", nx=6, ny=5, n_tx=1, routes=ROUTES)
+    write_city(folder / "city.city", [[(shapely.box(19.0, -16.0, 23.0, -12.0), 0.0, 30.0)]], name="city")
+    with pytest.raises(InputError, match=r"routes.csv:6: x_m: point \(20, -14\) is inside a building"):
+        ingest_city(folder, tmp_path / "p", name="inside")
+
+
+def test_user_walks_the_route_and_back():
+    """After t steps of step_s the user is at the point nearest in time, turning back at each end."""
+    times = np.array([[0.0, 1.0, 2.0, 3.0, np.inf]])
+    at = [int(user_point(times, np.array([0.5]), np.array([t]), np.array([0.5]))[0]) for t in range(14)]
+    # s = 0.5, 1.0, ... 3.0 (the end) at t = 5, then back: 3.5 is 2.5, ... 6.0 is 0 (the start), 6.5 is 0.5 again;
+    # a time halfway between two points takes the earlier one
+    assert at == [0, 1, 1, 2, 2, 3, 2, 2, 1, 1, 0, 0, 0, 1]
+
+
+def _brute_force(legal: np.ndarray, covered: np.ndarray, start: tuple[int, int]) -> int:
+    h, ny, nx = covered.shape
+    best = 0
+    for actions in itertools.product(range(5), repeat=h):
+        y, x, total = *start, 0
+        for t, a in enumerate(actions):
+            ty, tx = y + TRACK_MOVES[a][0], x + TRACK_MOVES[a][1]
+            if 0 <= ty < ny and 0 <= tx < nx and legal[ty, tx]:
+                y, x = ty, tx
+            total += bool(covered[t, y, x])
+        best = max(best, total)
+    return best
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_oracle_equals_brute_force(seed):
+    """The dynamic programme's covered count equals the best over every action sequence (5^5) on a small grid with
+    blocked cells and a moving covered region, and its path is legal and scores what it claims."""
+    rng = np.random.default_rng(seed)
+    legal = rng.random((4, 5)) > 0.25
+    start = tuple(int(v) for v in np.argwhere(legal)[0])
+    covered = rng.random((5, 4, 5)) < 0.3
+    path, value = oracle_path(legal, covered, start)
+    assert value == _brute_force(legal, covered, start)
+    assert legal[path[:, 0], path[:, 1]].all() and (np.abs(np.diff(path, axis=0)).sum(axis=1) <= 1).all()
+    assert value == sum(bool(covered[t, path[t + 1][0], path[t + 1][1]]) for t in range(5))
+
+
+def test_env_steps_time_and_the_oracle_bounds_every_method(root):
+    """The env moves the user by speed x step time, keeps the UAV in place on stay, truncates at the horizon; on the
+    same episodes the oracle covers at least as much as the re-planning genie and a random walk, and exactly what
+    its dynamic programme promised."""
+    from uavplace.rl.policies import RandomWalkPolicy
+
+    config = TrackingConfig(horizon=20, window=9, p_t_db=5.0)
+    routes = RouteSet([load_bundle("walk", root=root)], config)
+    assert routes.num_routes == 2 and np.allclose(routes.step_s, 0.4)
+    episodes = routes.sample_episodes(12, np.random.default_rng(0))
+    env = TrackingEnv(routes, 3, queue=episodes)
+    obs, info = env.reset()
+    assert obs.shape == (3, 3, 9, 9) and info["action_mask"].shape == (3, 5) and info["action_mask"][:, STAY].all()
+    pos = env.pos.copy()
+    for t in range(1, 6):
+        obs, reward, terminated, truncated, info = env.step(np.full(3, STAY))
+        assert (env.pos == pos).all() and (env.t == t).all() and not truncated.any()
+        expected = routes.first[env.route] + user_point(
+            routes.times[env.route], env.start_s, np.full(3, t), routes.step_s[env.route]
+        )
+        assert (env.point() == expected).all()
+        assert (obs[:, 1, 4, 4] == 0).all()  # the cell it stands in was measured just now
+    for _ in range(15):
+        obs, reward, terminated, truncated, info = env.step(np.full(3, STAY))
+    assert truncated.all() and (env.t == 0).all()  # restarted at the horizon
+    results = {
+        p.name: run_tracking(routes, p, episodes)
+        for p in (OraclePolicy(), ReplanningGenie(), MovesOnly(RandomWalkPolicy(seed=0)))
+    }
+    oracle = results["oracle"].table["covered_share"].to_numpy()
+    for name, res in results.items():
+        assert (oracle >= res.table["covered_share"].to_numpy() - 1e-12).all(), name
+    assert oracle.mean() > results["steered random walk"].table["covered_share"].mean()
+    m = episode_metrics(results["oracle"].covered)
+    assert np.array_equal(m["covered_share"], oracle)
+
+
+def test_episode_metrics_by_hand():
+    covered = np.array([[0, 0, 1, 1, 0, 0, 0, 1], [0] * 8, [1] * 8], bool)
+    m = episode_metrics(covered)
+    assert m["first_reach"].tolist() == [3, np.inf, 1]
+    np.testing.assert_allclose(m["coverage"], [3 / 6, 0, 1])
+    assert m["longest_outage"].tolist() == [3, 8, 0]
+    np.testing.assert_allclose(m["covered_share"], [3 / 8, 0, 1])
+
+
+def test_gymnasium_tracking_env(root):
+    """``gymnasium.make("uavplace/UavTracking-v0")`` passes Gymnasium's checker and ends at its horizon."""
+    import gymnasium as gym
+    from gymnasium.utils.env_checker import check_env
+
+    import uavplace.rl  # noqa: F401 - registers the envs
+
+    env = gym.make("uavplace/UavTracking-v0", dataset="walk", root=str(root), horizon=7, window=9)
+    check_env(env.unwrapped, skip_render_check=True)
+    obs, info = env.reset(seed=1)
+    assert env.action_space.n == 5 and info["action_mask"][STAY] == 1 and obs.shape == (3, 9, 9)
+    for t in range(7):
+        obs, reward, terminated, truncated, info = env.step(STAY)
+        assert not terminated and truncated == (t == 6) and "covered" in info
