@@ -7,11 +7,14 @@ episodes. Targets: batched >= 10 x SyncVectorEnv at N = 256, and >= 50 k steps/s
     python benchmarks/bench_env.py [--dataset train --root data/processed] [--steps 300]
     python benchmarks/bench_env.py --dataset train --corpus corpus      # one city against many
     python benchmarks/bench_env.py --homing                              # the homing channel's cost
+    python benchmarks/bench_env.py --tracking tiny-routes                # the tracking task against placement
 
 Without --dataset it ingests and builds the embedded training city into a temporary root.
 ``--corpus NAME`` adds the batched env over the corpus's cities and the dataset together
 (the training set of the `best` preset), with the training levers on (8 symmetries, the
 visited channel, far starts), at N = 64: its steps/s against the one city's, measured in the same run.
+``--tracking CITY`` (a city with routes): the tracking env (``rl.tracking.TrackingEnv``) against the placement env on
+that city, both at N = 256 with random legal moves, in the same run (the median of 3 seeds each).
 """
 
 from __future__ import annotations
@@ -26,12 +29,14 @@ import numpy as np
 import pandas as pd
 
 from uavplace.dataset.build import build_city
+from uavplace.dataset.bundle import load_bundle
 from uavplace.dataset.catalog import expand_datasets
 from uavplace.ingest.pipeline import ingest_city
 from uavplace.rl.config import EnvConfig
 from uavplace.rl.env import UavPlacementEnv
 from uavplace.rl.maps import MapSet
 from uavplace.rl.policies import random_legal
+from uavplace.rl.tracking import RouteSet, TrackingConfig, TrackingEnv
 from uavplace.rl.vec_env import BatchedEnv
 from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM, BuildConfig
 
@@ -47,6 +52,18 @@ def bench_batched(maps: MapSet, n: int, steps: int, seed: int = 0) -> float:
     for _ in range(steps):
         a = random_legal(mask, rng)
         _, _, _, _, info = env.step(a)
+        mask = info["action_mask"]
+    return n * steps / (time.perf_counter() - t)
+
+
+def bench_tracking(routes: RouteSet, n: int, steps: int, seed: int = 0) -> float:
+    env = TrackingEnv(routes, n)
+    _, info = env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    mask = info["action_mask"]
+    t = time.perf_counter()
+    for _ in range(steps):
+        _, _, _, _, info = env.step(random_legal(mask, rng))
         mask = info["action_mask"]
     return n * steps / (time.perf_counter() - t)
 
@@ -74,7 +91,17 @@ def main() -> None:
     ap.add_argument(
         "--homing", action="store_true", help="also time the `best` preset's channels with the homing channel against without"
     )
+    ap.add_argument("--tracking", default=None, help="a built city with routes: the tracking env against placement there")
     args = ap.parse_args()
+    if args.tracking:
+        bundle = load_bundle(args.tracking, root=args.root)
+        place = MapSet([bundle], EnvConfig(rotate=False))
+        track = RouteSet([bundle], TrackingConfig())
+        rates = [np.median([bench(m, 256, args.steps, seed) for seed in range(3)]) for bench, m in
+                 ((bench_batched, place), (bench_tracking, track))]  # fmt: skip
+        print(f"N = 256, {args.tracking}: placement {rates[0]:,.0f} steps/s; tracking {rates[1]:,.0f} steps/s; "
+              f"ratio {rates[1] / rates[0]:.2f}")  # fmt: skip
+        return
     with tempfile.TemporaryDirectory() as tmp:
         root, name = args.root, args.dataset
         if name is None:

@@ -19,3 +19,4 @@ uavdata simulate sionna:etoile --crop=200,-200,400,200 --name etoile-val --users
 uavdata simulate sionna:florence --crop=200,-250,494,250 --name florence-val --users 16 --seed 7 "${common[@]}"
 uavdata simulate procedural:train --name train --users 27 --seed 1 "${common[@]}"
 uavdata simulate procedural:tiny --name tiny --users 4 --seed 3 --samples 2e6 --out "$out" --trace-cache "$traces"
+uavdata simulate procedural:tiny --name tiny-routes --users 4 --seed 3 --samples 2e6 --routes 4 --route-length 40m --out "$out" --trace-cache "$traces"

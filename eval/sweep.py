@@ -256,7 +256,7 @@ def _trial_worker(params: dict) -> None:
 
 def changed_settings(config: DQNConfig) -> str:
     """The fields of ``config`` (and its env) that differ from its preset, as ``--set`` would write them."""
-    base = preset_config(config.preset, agent=config.agent, seed=config.seed).model_dump()
+    base = preset_config(config.preset, seed=config.seed).model_dump()  # the agent (dqn or blind) shows as a change
     mine = config.model_dump()
     out = [f"{k}={v}" for k, v in mine.items() if k not in ("env", "total_steps", "eval_every", "seed") and v != base[k]]
     out += [f"env.{k}={v}" for k, v in mine["env"].items() if v != base["env"][k]]

@@ -64,3 +64,16 @@ def test_embedded_city_ingests_builds_and_is_faithful(tmp_path, city):
     env = gym.make("uavplace/UavPlacement-v0", dataset=city, root=str(tmp_path), rotate=True)
     check_env(env.unwrapped)
     assert env.reset(seed=0)[0].shape == (2, 61, 61)
+    if record.get("routes", {}).get("count"):  # the tracking task: every route point in the bundle, the oracle on top
+        from uavplace.rl.tracking import OraclePolicy, ReplanningGenie, RouteSet, TrackingConfig, run_tracking
+
+        assert (
+            b.manifest.num_route_points == record["routes"]["points"] and b.routes["route"].nunique() == record["routes"]["count"]
+        )
+        routes = RouteSet([b], TrackingConfig(horizon=60))
+        episodes = routes.sample_episodes(24, np.random.default_rng(0))
+        oracle, genie = (run_tracking(routes, p, episodes).table["covered_share"] for p in (OraclePolicy(), ReplanningGenie()))
+        assert (oracle >= genie).all() and oracle.mean() > 0.5
+        check_env(
+            gym.make("uavplace/UavTracking-v0", dataset=city, root=str(tmp_path), horizon=60).unwrapped, skip_render_check=True
+        )
