@@ -54,11 +54,12 @@ def table(args: argparse.Namespace) -> None:
     cities = development_cities(args.city, args.root)
     best = load_agent(args.best, 0.096, args.seed)
     best.name = best.policy.name = f"{best.name} [{args.best.name}]"
+    bundles = {city: load_bundle(city, root=args.root) for city in cities}
+    # The peers once: a model is made with an env, but its weights and its moves do not depend on which city's.
+    maps = MapSet([bundles[cities[0]]], EnvConfig(t_max=500, rotate=False))
+    peers = [load_peer(folder, maps, seed=args.seed) for folder in args.peer]
     lines = []
-    for city in cities:
-        bundle = load_bundle(city, root=args.root)
-        maps = MapSet([bundle], EnvConfig(t_max=500, rotate=False))
-        peers = [load_peer(folder, maps, seed=args.seed) for folder in args.peer]
+    for city, bundle in bundles.items():
         config = ReportConfig(dataset=city, episodes=args.episodes, t_max=500, seed=args.seed, trajectories=0)
         results = evaluate(config, bundle, [best], baselines=[GeniePolicy(), *peers])
         t = bootstrap_table(results, seed=args.seed).set_index("method")

@@ -148,15 +148,16 @@ def read_spec(path: str | Path) -> SweepSpec:
     return spec
 
 
-def _trial(params: dict) -> None:
-    """One Ray Tune trial: train (or continue, or skip) the run ``params["run"]`` under the run folder's lock, then
-    report its last validation evaluation to Tune."""
+def _trial(tune_config: dict) -> None:
+    """One Ray Tune trial (``{"trial": params}``): train (or continue, or skip) the run ``params["run"]`` under the run
+    folder's lock, then report its last validation evaluation to Tune."""
     import torch
     from ray import tune
 
     from uavplace.rl.agent.train import read_run_json, run_finished, start_run
     from uavplace.schemas.files import exclusive_folder
 
+    params = tune_config["trial"]
     config = DQNConfig.model_validate_json(params["config"])
     run_dir = Path(params["out"]) / params["run"]
     torch.set_num_threads(max(1, int(params["cpus"])))
@@ -215,7 +216,7 @@ def run_sweep(
             common = {"out": str(out), "root": str(root), "datasets": spec.datasets, "val_datasets": spec.val_datasets,
                       "command": command, "cpus": cpus_per_trial}  # fmt: skip
             space = [common | {"run": name, "config": configs[name].model_dump_json()} for name in todo]
-            trainable = tune.with_resources(_trial_worker, {"cpu": cpus_per_trial})
+            trainable = tune.with_resources(_trial, {"cpu": cpus_per_trial})
             stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%d-%H%M%S")
             tuner = tune.Tuner(
                 trainable,
@@ -247,11 +248,6 @@ def run_sweep(
 
 def _scores(row: dict) -> str:
     return f"{format_stat('success', row['success'])} success, median {format_stat('median_steps', row['median_steps'])} steps"
-
-
-def _trial_worker(params: dict) -> None:
-    """Tune's entry point (``{"trial": params}``)."""
-    _trial(params["trial"])
 
 
 def changed_settings(config: DQNConfig) -> str:

@@ -40,6 +40,9 @@ from uavplace.schemas.base import Contract
 #: The 5 tracking actions in canvas coordinates (dy, dx): the 4 placement moves, then 4 = stay.
 TRACK_MOVES = np.vstack([MOVES, [[0, 0]]])
 STAY = 4
+#: The action of each move (dy + 1, dx + 1) in ``TRACK_MOVES`` (-1: no action makes it).
+ACTION_OF = np.full((3, 3), -1, np.int64)
+ACTION_OF[TRACK_MOVES[:, 0] + 1, TRACK_MOVES[:, 1] + 1] = np.arange(len(TRACK_MOVES))
 
 
 class TrackingConfig(Contract):
@@ -74,13 +77,13 @@ def user_point(times_s: np.ndarray, start_s: np.ndarray, t: np.ndarray, step_s: 
     """Index along each route of the point the user is at after ``t`` steps of ``step_s`` seconds from ``start_s``:
     the user walks to the route's end and back (period twice the route's duration), at the point nearest in time.
     ``times_s``: ``[K, n_max]`` point times per route (``inf`` past a route's last point); the others ``[K]``."""
-    last = np.nanmax(np.where(np.isfinite(times_s), times_s, np.nan), axis=1)
+    rows = np.arange(len(times_s))
+    final = np.isfinite(times_s).sum(axis=1) - 1  # each route's last point
+    last = times_s[rows, final]
     s = np.mod(start_s + t * step_s, 2 * last)
     s = np.where(s > last, 2 * last - s, s)  # on the way back
     after = np.clip((times_s <= s[:, None]).sum(axis=1), 1, times_s.shape[1] - 1)  # the first point later than s
-    lo = np.minimum(after - 1, np.isfinite(times_s).sum(axis=1) - 1)
-    hi = np.minimum(after, np.isfinite(times_s).sum(axis=1) - 1)
-    rows = np.arange(len(s))
+    lo, hi = np.minimum(after - 1, final), np.minimum(after, final)
     nearer_hi = np.abs(times_s[rows, hi] - s) < np.abs(s - times_s[rows, lo])
     return np.where(nearer_hi, hi, lo)
 
@@ -105,6 +108,7 @@ class RouteSet:
         self.dead = np.ones((total, L, L), bool)
         self.steps = np.full((total, L, L), UNREACHABLE, np.int32)
         first, count, bundle, step_s, times, keys, names = [], [], [], [], [], [], []
+        start_cells: list[np.ndarray] = []  # per route point: the canvas cells an episode may start in then
         offset = 0
         for i, b in enumerate(with_routes):
             ny, nx = b.shape
@@ -114,6 +118,8 @@ class RouteSet:
             self.dead[sl, p : p + ny, p : p + nx] = b.route_dead
             target = legal & ~b.route_dead & (b.route_sinr_db >= config.p_t_db)
             self.steps[sl, p : p + ny, p : p + nx] = steps_to_target(legal, target)
+            starts = ~self.maps.blocked[i * self.maps.symmetries] & ~self.dead[sl] & (self.sinr[sl] < config.p_t_db)
+            start_cells += [np.flatnonzero(ok) for ok in starts & (self.steps[sl] != UNREACHABLE)]
             for route, rows in b.routes.groupby("route", sort=False):
                 first.append(offset + int(rows.index[0]))
                 count.append(len(rows))
@@ -131,6 +137,7 @@ class RouteSet:
         self.step_s = np.array(step_s)
         self.route_keys = np.array(keys, np.uint64)
         self.names = names  # (city, route id, kind) per route
+        self.start_cells = start_cells
 
     @property
     def num_routes(self) -> int:
@@ -148,15 +155,7 @@ class RouteSet:
             for _attempt in range(100):
                 r = int(rng.integers(self.num_routes))
                 start = float(rng.random() * self.times[r, self.count[r] - 1])
-                pt = int(self.point(np.array([r]), np.array([start]), np.array([0]))[0])
-                m = self.bundle[r] * self.maps.symmetries  # the bundle's canvas (identity symmetry)
-                ok = (
-                    ~self.maps.blocked[m]
-                    & ~self.dead[pt]
-                    & (self.sinr[pt] < self.config.p_t_db)
-                    & (self.steps[pt] != UNREACHABLE)
-                )
-                cells = np.flatnonzero(ok)
+                cells = self.start_cells[int(self.point(np.array([r]), np.array([start]), np.array([0]))[0])]
                 if len(cells):
                     y, x = divmod(int(cells[rng.integers(len(cells))]), self.maps.side)
                     out[k] = (r, start, y, x)
@@ -374,7 +373,8 @@ class OraclePolicy:
     name = "oracle"
 
     def __init__(self) -> None:
-        self.paths: dict[int, np.ndarray] = {}
+        self.plans = np.zeros((0, 0, 2), np.int64)  # [num_envs, horizon + 1, 2]: each row's planned canvas cells
+        self.planned = np.zeros(0, np.int64)  # the episode each row's plan is for
 
     def reset(self, rows: np.ndarray, num_envs: int) -> None:
         pass
@@ -391,14 +391,14 @@ class OraclePolicy:
         return path + p
 
     def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingEnv) -> np.ndarray:
-        out = np.full(env.num_envs, STAY, np.int64)
-        for row in range(env.num_envs):
-            key = int(env.episode_id[row])
-            if env.t[row] == 0 or key not in self.paths:
-                self.paths[key] = self.plan(env, row)
-            step = self.paths[key][env.t[row] + 1] - env.pos[row]
-            out[row] = int(np.flatnonzero((TRACK_MOVES == step).all(axis=1))[0])
-        return out
+        n = env.num_envs
+        if self.plans.shape[:2] != (n, env.config.horizon + 1):
+            self.plans = np.zeros((n, env.config.horizon + 1, 2), np.int64)
+            self.planned = np.full(n, -2, np.int64)
+        for row in np.flatnonzero((env.t == 0) | (self.planned != env.episode_id)):  # episodes that just began
+            self.plans[row], self.planned[row] = self.plan(env, row), env.episode_id[row]
+        dy, dx = (self.plans[np.arange(n), env.t + 1] - env.pos).T
+        return ACTION_OF[dy + 1, dx + 1]
 
 
 def run_tracking(routes: RouteSet, policy, episodes: np.ndarray, *, num_envs: int = 256) -> TrackingEpisodes:  # noqa: ANN001
