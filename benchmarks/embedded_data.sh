@@ -20,3 +20,9 @@ uavdata simulate sionna:florence --crop=200,-250,494,250 --name florence-val --u
 uavdata simulate procedural:train --name train --users 27 --seed 1 "${common[@]}"
 uavdata simulate procedural:tiny --name tiny --users 4 --seed 3 --samples 2e6 --out "$out" --trace-cache "$traces"
 uavdata simulate procedural:tiny --name tiny-routes --users 4 --seed 3 --samples 2e6 --routes 4 --route-length 40m --out "$out" --trace-cache "$traces"
+# The tracking task's test cities: the test cities' geometry (same source, crop and seed) with one user and two 40 m
+# routes (a pedestrian and a vehicle, 42 points), at the embedded ray count: about 5 MB each (docs/tracking.md).
+routes=(--users 1 --routes 2 --route-length 40m)
+uavdata simulate procedural:test --name test-routes --seed 2 "${routes[@]}" "${common[@]}"
+uavdata simulate sionna:etoile --crop=-200,-200,200,200 --name etoile-routes --seed 4 "${routes[@]}" "${common[@]}"
+uavdata simulate sionna:florence --crop=-200,-250,200,250 --name florence-routes --seed 5 "${routes[@]}" "${common[@]}"

@@ -48,6 +48,7 @@ from uavplace.schemas.bundle import (
     SinrSource,
 )
 from uavplace.schemas.files import atomic_directory, folder_lock, sha256_file, write_model_json
+from uavplace.schemas.limits import check_limit
 from uavplace.schemas.tables import BUILDING_PARTS, BUILDINGS, RECEIVERS, ROUTES, TRANSMITTERS
 
 #: How many distinct receiver heights an altitude error lists.
@@ -235,7 +236,9 @@ def lattice_spacing(x: np.ndarray, y: np.ndarray, tol_m: float = 1e-3) -> float 
     return round((dx + dy) / 2, 6)
 
 
-def _grid(ing: Ingested, rx: pd.DataFrame, config: BuildConfig, export_spacing: float | None) -> GridSpec:
+def _grid(ing: Ingested, rx: pd.DataFrame, config: BuildConfig, export_spacing: float | None, num_users: int) -> GridSpec:
+    """The bundle's grid; ``InputError`` naming ``--grid`` when it passes the limits ``grid_cells`` or ``map_bytes`` (the
+    users' maps held in memory), checked before anything is allocated."""
     half = (export_spacing or 0.0) / 2
     rx_box = (rx["x_m"].min() - half, rx["y_m"].min() - half, rx["x_m"].max() + half, rx["y_m"].max() + half)
     mode = config.bounds
@@ -250,6 +253,11 @@ def _grid(ing: Ingested, rx: pd.DataFrame, config: BuildConfig, export_spacing: 
 
         bx = shapely.total_bounds(shapely.from_wkb(ing.buildings["footprint_wkb"].to_numpy()))
         box = (min(rx_box[0], bx[0]), min(rx_box[1], bx[1]), max(rx_box[2], bx[2]), max(rx_box[3], bx[3]))
+    w, h = float(box[2] - box[0]), float(box[3] - box[1])
+    cells = max(1.0, w / config.grid_m) * max(1.0, h / config.grid_m)
+    what = f"{w:g} x {h:g} m at {config.grid_m:g} m"
+    check_limit("grid_cells", cells, "--grid", f"cells of {what}", field="grid_m")
+    check_limit("map_bytes", cells * num_users * 8, "--grid", f"maps of {num_users} users over {what} [bytes]", field="grid_m")
     return grid_over(*box, config.grid_m)
 
 
@@ -324,7 +332,7 @@ def rasterise(
     if without:
         warnings.append(f"{without} transmitter(s) have no receivers at the altitude and are not users of the bundle")
     export_spacing = _export_spacing(ing, rx)
-    grid = _grid(ing, rx, config, export_spacing)
+    grid = _grid(ing, rx, config, export_spacing, len(users))
     _check_coverage(ing, rx, tol_m=max(export_spacing or 0.0, config.grid_m) / 2 + 1e-6)
 
     source, column = _sinr_source(ing, rx)

@@ -36,12 +36,11 @@ from uavplace.schemas.bundle import (
     BundleManifest,
 )
 from uavplace.schemas.files import atomic_write_text, check_name, sha256_file
+from uavplace.schemas.limits import check_limit
 
 #: Name of the per-city file holding the version ``load_bundle`` picks by default.
 LATEST = "latest"
 _VERSION = re.compile(r"[0-9a-f]{12}")
-#: The largest archive member ``load_bundle`` reads (its header is checked against the manifest first) [bytes].
-MAX_ARRAY_BYTES = 8 * 2**30
 
 
 @dataclass(frozen=True, eq=False)
@@ -328,9 +327,7 @@ def read_arrays(path: Path, shapes: dict[str, tuple[int, ...]], dtypes: dict[str
                             path, f"array {got_dtype}{list(got_shape)}{' (Fortran order)' if fortran else ''}, expected "
                             f"{dtype}{list(shape)}", field=name,
                         )  # fmt: skip
-                    if dtype.itemsize * int(np.prod(shape)) > MAX_ARRAY_BYTES:
-                        raise InputError(path, f"array of {dtype.itemsize * int(np.prod(shape)):,} bytes, over "
-                                         f"MAX_ARRAY_BYTES ({MAX_ARRAY_BYTES:,})", field=name)  # fmt: skip
+                    check_limit("array_bytes", dtype.itemsize * int(np.prod(shape)), path, "array size [bytes]", field=name)
                     f.seek(0)
                     arrays[name] = np.lib.format.read_array(f, allow_pickle=False)
     except (OSError, ValueError, EOFError, zipfile.BadZipFile, NotImplementedError, RuntimeError) as exc:
@@ -342,7 +339,7 @@ def read_arrays(path: Path, shapes: dict[str, tuple[int, ...]], dtypes: dict[str
 
 def check_values(path: Path, manifest: BundleManifest, arrays: dict[str, np.ndarray]) -> None:
     """Every map value physical and consistent: the cell centres on the manifest's grid, heights and SINR in their
-    columns' ranges (``CELLS``), SINR at or above the floor and equal to it on dead cells, building ids from -1, at
+    columns' ranges (``CELLS``), SINR at or above the floor and equal to it on dead cells, building ids from -1 to the buildings' count, at
     least one open cell. The arrays are made read-only."""
     grid = manifest.grid
     for name, lo, n in (("x_m", grid.x_min_m, grid.num_x), ("y_m", grid.y_min_m, grid.num_y)):
@@ -363,8 +360,11 @@ def check_values(path: Path, manifest: BundleManifest, arrays: dict[str, np.ndar
     sinr, dead = arrays["sinr_db"], arrays["dead"]
     if (sinr < floor - 1e-3).any() or (sinr[dead] != np.float32(floor)).any():
         raise InputError(path, f"SINR below the manifest's floor {floor} dB, or a dead cell not at it", field="sinr_db")
-    if (arrays["building_id"] < -1).any():
-        raise InputError(path, "building id below -1", field="building_id")
+    buildings = manifest.counts.get("buildings")
+    ids = arrays["building_id"]
+    if (ids < -1).any() or (buildings is not None and (ids >= buildings).any()):
+        raise InputError(path, f"building id outside -1 .. {buildings - 1 if buildings is not None else 'n'} (the manifest's "
+                         f"{buildings} buildings)", field="building_id")  # fmt: skip
     if arrays["blocked"].all():
         raise InputError(path, "every cell is blocked: the UAV has nowhere to fly", field="blocked")
     for a in arrays.values():
@@ -383,6 +383,18 @@ def check_users(path: Path, manifest: BundleManifest, users: pd.DataFrame) -> No
         if ((v < -1) | (v >= n)).any():
             row = int(np.argmax((v < -1) | (v >= n)))
             raise InputError(path, f"row {row}: cell {v[row]} is off the grid's {n} cells", field=name)
+    # a position is in its cell (-1 outside the grid); an unknown (null) position has no cell
+    g = manifest.grid
+    x, y = (users[c].to_numpy(dtype=np.float64, na_value=np.nan) for c in ("x_m", "y_m"))
+    known = np.isfinite(x) & np.isfinite(y)
+    fx, fy = np.floor((x - g.x_min_m) / g.spacing_m), np.floor((y - g.y_min_m) / g.spacing_m)
+    inside = known & (fx >= 0) & (fx < g.num_x) & (fy >= 0) & (fy < g.num_y)
+    expect_x, expect_y = np.where(inside, fx, -1), np.where(inside, fy, -1)
+    wrong = (users["ix"].to_numpy() != expect_x) | (users["iy"].to_numpy() != expect_y)
+    if wrong.any():
+        row = int(np.argmax(wrong))
+        raise InputError(path, f"row {row}: position ({x[row]:g}, {y[row]:g}) m is not in its cell ({users['ix'].iloc[row]}, "
+                         f"{users['iy'].iloc[row]}) of the grid", field="x_m")  # fmt: skip
     splits = set(users["split"].dropna())
     if not splits <= {"train", "val", "test"}:
         raise InputError(path, f"unknown splits {sorted(splits - {'train', 'val', 'test'})}", field="split")

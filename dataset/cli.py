@@ -7,12 +7,14 @@ import sys
 from pathlib import Path
 
 import click
+from pydantic import ValidationError
 from rich.markup import escape
 
 from uavplace.dataset.catalog import list_cities
 from uavplace.schemas import InputError
+from uavplace.schemas.base import validation_message
 from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM, BuildConfig
-from uavplace.schemas.cli import Bounds, Metres, command_line, console, fail, plain_table, root_option, stdout
+from uavplace.schemas.cli import SEED, Bounds, Finite, Metres, command_line, console, fail, plain_table, root_option, stdout
 from uavplace.schemas.files import check_name
 
 
@@ -47,7 +49,7 @@ def _splits(values: tuple[str, ...]) -> dict[str, str]:
 @click.option("--city", "cities", multiple=True, help="Build only this ingested city (repeatable; default: all).")
 @click.option(
     "--noise-dbm",
-    type=float,
+    type=Finite(),
     default=-104.0,
     show_default=True,
     help="Noise plus background interference power [dBm] (the paper's combined -104 dBm; the embedded "
@@ -55,21 +57,21 @@ def _splits(values: tuple[str, ...]) -> dict[str, str]:
 )
 @click.option(
     "--interference-std-db",
-    type=float,
+    type=Finite(),
     default=0.0,
     show_default=True,
     help="Std [dB] of a Gaussian per-cell offset of the noise+interference level (0: none).",
 )
 @click.option(
     "--tx-dbm",
-    type=float,
+    type=Finite(),
     default=None,
     help="User transmit power [dBm]: needed when the export has path loss/gain and no power; "
     "else it overrides the export's (received power shifts with it).",
 )
 @click.option(
     "--sinr-floor-db",
-    type=float,
+    type=Finite(),
     default=-40.0,
     show_default=True,
     help="SINR given to dead cells (no ray-traced path) and lowest SINR reported anywhere [dB].",
@@ -98,10 +100,10 @@ def _splits(values: tuple[str, ...]) -> dict[str, str]:
     show_default=True,
     help="Users of each train city held out for validation (seeded).",
 )
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the interference draw and of the user split.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the interference draw and of the user split.")
 @click.option(
     "--p-t-db",
-    type=float,
+    type=Finite(),
     default=5.0,
     show_default=True,
     help="SINR target the manifest's difficulty figures (targets, BFS steps) are computed at [dB].",
@@ -169,8 +171,9 @@ def build(
                 val_users=val_users if role.get(name) == "train" else 0,
                 p_t_db=p_t_db,
             )
-        except ValueError as exc:
-            raise click.BadParameter(str(exc)) from None
+        except ValidationError as exc:
+            field, message = validation_message(exc)
+            raise click.BadParameter(f"{message} (got {exc.errors()[0].get('input')!r})", param_hint=field) from None
         try:
             with console.status(f"[bold]build[/] {name}", spinner="dots") if not quiet else contextlib.nullcontext() as status:
 

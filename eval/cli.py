@@ -2,12 +2,23 @@
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 import click
 
 from uavplace.rl.cli import episode_options
-from uavplace.schemas.cli import command_line, fail, plain_table, ray_address_option, root_option, stdout
+from uavplace.schemas.cli import (
+    Counted,
+    Finite,
+    command_line,
+    console,
+    fail,
+    plain_table,
+    ray_address_option,
+    root_option,
+    stdout,
+)
 
 
 @click.command()
@@ -38,7 +49,7 @@ from uavplace.schemas.cli import command_line, fail, plain_table, ray_address_op
 @episode_options
 @click.option(
     "--test-epsilon",
-    type=click.FloatRange(0, 1),
+    type=Finite(0, 1),
     default=0.096,
     show_default=True,
     help="Probability of a random legal move of the agents (paper: 0.096).",
@@ -46,7 +57,7 @@ from uavplace.schemas.cli import command_line, fail, plain_table, ray_address_op
 @click.option(
     "--bootstrap",
     "n_boot",
-    type=click.IntRange(min=100),
+    type=Counted("bootstrap", min=100),
     default=2000,
     show_default=True,
     help="Bootstrap resamples of the 95 % intervals.",
@@ -77,12 +88,28 @@ from uavplace.schemas.cli import command_line, fail, plain_table, ray_address_op
     help="Also write every table (each city's results and paired differences, then the summary) as Markdown to this "
     "file, for a README that cannot drift from what the command printed.",
 )
+@click.option(
+    "--task",
+    type=click.Choice(["placement", "tracking"]),
+    default="placement",
+    show_default=True,
+    help="placement: the paper's task (a user who stays); tracking: a user who moves along the routes of the cities "
+    "(bundles simulated with --routes; rl/tracking.py): the oracle, the agents (placement agents run unchanged), the "
+    "re-planning genie and the baselines (eval/tracking.py; OUT defaults to reports/tracking).",
+)
+@click.option(
+    "--horizon",
+    type=Counted("t_max"),
+    default=300,
+    show_default=True,
+    help="Tracking: steps per episode (each 0.4 s at 4 m cells: a 10 m/s UAV crossing one cell).",
+)
 @root_option
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def report(
     runs: tuple[Path, ...], datasets: tuple[str, ...], out: Path | None, episodes: int, t_max: int, p_t_db: float, test_epsilon: float,
     n_boot: int, trajectories: int, split: str | None, seed: int, groups: tuple[str, ...], agents_dir: Path,
-    markdown: Path | None, root: Path, quiet: bool,
+    markdown: Path | None, task: str, horizon: int, root: Path, quiet: bool,
 ) -> None:  # fmt: skip
     """Evaluate agents and baselines on the same episodes of a test city; write an HTML report, PNGs, CSV and Parquet.
 
@@ -90,10 +117,22 @@ def report(
     hill-climbing. Prints the results table (95 % bootstrap intervals in brackets) and the report's path;
     with several cities, one report folder each, then a summary of success and median steps per method and city, and
     one page with every city (OUT/report.html, OUT/summary.csv; OUT defaults to reports/).
+
+    With --task tracking, the user moves: the oracle (the upper bound), the agents (placement agents run unchanged),
+    the re-planning genie, the random walk and greedy hill-climbing on the same episodes of each city's routes; one
+    page OUT/tracking.html with a table per city, the coverage over time and three episodes on the maps
+    (eval/tracking.py).
     """
     from uavplace.eval.report import ReportConfig, check_summary_page, default_agents, summary_rows, write_summary_page
 
     chosen = list(runs) or default_agents(agents_dir)
+    if task == "tracking":
+        if groups or split:
+            raise click.UsageError("--task tracking plays every route of the cities: it takes no --group or --split")
+        _tracking_report(datasets, chosen, out, episodes, horizon, p_t_db, test_epsilon, seed, n_boot, trajectories,
+                         markdown, root, quiet)  # fmt: skip
+        return
+
     grouped: dict[str, list[str]] = {}
     for text in groups:
         name, _, members = text.partition("=")
@@ -143,6 +182,34 @@ def report(
         stdout().print(f"tables (Markdown): {markdown}", highlight=False, soft_wrap=True)
 
 
+def _tracking_report(datasets: tuple[str, ...], runs: list[Path], out: Path | None, episodes: int, horizon: int, p_t_db: float,
+                     test_epsilon: float, seed: int, n_boot: int, trajectories: int, markdown: Path | None, root: Path,
+                     quiet: bool) -> None:  # fmt: skip
+    from uavplace.eval.tracking import TrackingReportConfig, make_tracking_report, table_rows
+    from uavplace.rl.tracking import TrackingConfig
+    from uavplace.schemas.files import atomic_write_text
+
+    config = TrackingReportConfig(datasets=list(datasets), runs=[str(r) for r in runs], episodes=episodes, seed=seed,
+                                  test_epsilon=test_epsilon, n_boot=n_boot, trajectories=trajectories,
+                                  task=TrackingConfig(horizon=horizon, p_t_db=p_t_db))  # fmt: skip
+    with console.status("[bold]tracking report[/]", spinner="dots") if not quiet else contextlib.nullcontext() as status:
+
+        def on_progress(city: str, method: str) -> None:
+            if status is not None:
+                status.update(f"[bold]tracking report[/] {city}: {method}")
+
+        table, page = make_tracking_report(config, out or Path("reports") / "tracking", root=root, command=command_line(),
+                                           on_progress=on_progress)  # fmt: skip
+    for city, rows in table.groupby("city", sort=False):
+        cells = table_rows(rows, horizon)
+        title = f"{episodes} tracking episodes in {city} (horizon {horizon}, P_T {p_t_db:g} dB)"
+        stdout().print(plain_table(*cells[0], rows=cells[1:], title=title))
+    if markdown is not None:
+        atomic_write_text(markdown, (page.parent / "tracking.md").read_text(encoding="utf-8"))
+        stdout().print(f"tables (Markdown): {markdown}", highlight=False, soft_wrap=True)
+    stdout().print(f"report: {page}", highlight=False, soft_wrap=True)
+
+
 def _one_report(config, out: Path, root: Path, quiet: bool):
     """``make_report`` with a progress bar per method."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
@@ -175,7 +242,7 @@ def _one_report(config, out: Path, root: Path, quiet: bool):
 @ray_address_option("the trials")
 @click.option(
     "--cpus-per-trial",
-    type=click.FloatRange(min=1),
+    type=Finite(min=1),
     default=1.0,
     show_default=True,
     help="CPUs each trial reserves, and its torch threads: trials run side by side on what the machine has.",

@@ -39,7 +39,7 @@ from uavplace.rl.maps import MapSet
 from uavplace.rl.policies import GeniePolicy, GreedyPolicy, Policy, RandomWalkPolicy
 from uavplace.rl.rollout import run_episodes, summarise
 from uavplace.schemas import InputError
-from uavplace.schemas.base import Contract, uavplace_version
+from uavplace.schemas.base import MAX_SEED, Contract, uavplace_version
 from uavplace.schemas.files import atomic_directory, atomic_write_text, check_replaceable
 
 #: The paper's test-city results (docs/method.md, "The paper's results"): success within t_max = 500, median steps.
@@ -64,7 +64,9 @@ class ReportConfig(Contract):
     t_max: int = Field(default=500, ge=1, description="Step budget per episode (paper: 500 at test)")
     p_t_db: float = Field(default=5.0, description="SINR target P_T [dB]")
     test_epsilon: float = Field(default=0.096, ge=0, le=1, description="Random legal move rate of the agents (paper: 0.096)")
-    seed: int = Field(default=0, description="Seed of the episodes, the agents' random moves and the baselines")
+    seed: int = Field(
+        default=0, ge=0, le=MAX_SEED, description="Seed of the episodes, the agents' random moves and the baselines"
+    )
     n_boot: int = Field(default=2000, ge=100, description="Bootstrap resamples for the 95 % intervals")
     trajectories: int = Field(
         default=3, ge=0, le=3, description="Episodes drawn for the first agent, by TRAJECTORY_RULES in order (0: none)"
@@ -132,6 +134,11 @@ def load_agent(folder: str | Path, epsilon: float, seed: int) -> Agent:
     run = read_run_json(folder) if (folder / RUN_JSON).is_file() else None
     ck = load_tensors(ckpt)
     policy, config = policy_from_checkpoint(ck, ckpt, epsilon=epsilon, seed=seed)
+    if run is not None and run.config.model_dump() != config.model_dump():
+        held, played = run.config.model_dump(), config.model_dump()
+        differ = [k for k in held if held[k] != played[k]]
+        raise InputError(folder / RUN_JSON, f"its config is not the one checkpoints/best.pt was trained with ({', '.join(differ)} "
+                         "differ): the report would describe another agent than it plays", field="config")  # fmt: skip
     policy.name = agent_name(config)
     metrics = None
     if (folder / "metrics.parquet").is_file():
@@ -639,6 +646,27 @@ def render_page(
     )  # fmt: skip
 
 
+def check_unseen(agents: list[Agent], bundle: Bundle) -> None:
+    """``InputError`` unless every agent is new to ``bundle``'s city: neither trained nor selected there, by name or
+    by bundle version (a copied or renamed test city has the same version)."""
+    for a in agents:
+        same = [city for city, version in {**a.trained_on, **a.selected_on}.items() if version == bundle.version]
+        if same and bundle.city not in same:  # the same bundle under another name: a copied or renamed city
+            raise InputError(
+                a.folder, f"trained or selected on bundle {bundle.version} (as {', '.join(same)}), which is this test "
+                f"city's ({bundle.city}): not an unseen-city evaluation", field="datasets",
+            )  # fmt: skip
+        if bundle.city in a.trained_on:
+            raise InputError(
+                a.folder, f"was trained in {bundle.city}, the test city: not an unseen-city evaluation", field="datasets"
+            )
+        if bundle.city in a.selected_on:
+            raise InputError(
+                a.folder, f"selected its checkpoint in {bundle.city}, the test city: not an unseen-city evaluation",
+                field="val_datasets",
+            )  # fmt: skip
+
+
 def make_report(
     config: ReportConfig,
     out: str | Path,
@@ -658,22 +686,7 @@ def make_report(
     check_replaceable(out, REPORT_JSON, "report")
     bundle = load_bundle(config.dataset, root=root)
     agents = [load_agent(r, config.test_epsilon, config.seed) for r in config.runs]
-    for a in agents:
-        same = [city for city, version in {**a.trained_on, **a.selected_on}.items() if version == bundle.version]
-        if same and bundle.city not in same:  # the same bundle under another name: a copied or renamed city
-            raise InputError(
-                a.folder, f"trained or selected on bundle {bundle.version} (as {', '.join(same)}), which is this test "
-                f"city's ({bundle.city}): not an unseen-city evaluation", field="datasets",
-            )  # fmt: skip
-        if bundle.city in a.trained_on:
-            raise InputError(
-                a.folder, f"was trained in {bundle.city}, the test city: not an unseen-city evaluation", field="datasets"
-            )
-        if bundle.city in a.selected_on:
-            raise InputError(
-                a.folder, f"selected its checkpoint in {bundle.city}, the test city: not an unseen-city evaluation",
-                field="val_datasets",
-            )  # fmt: skip
+    check_unseen(agents, bundle)
     names = [a.name for a in agents]
     for a in agents:  # same agent and preset twice: tell them apart by folder
         if names.count(a.name) > 1:

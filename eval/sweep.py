@@ -38,7 +38,7 @@ from uavplace.rl.agent.dqn import DQNConfig, parse_settings, preset_config
 from uavplace.rl.policies import GeniePolicy
 from uavplace.rl.rollout import format_stat
 from uavplace.schemas import InputError
-from uavplace.schemas.base import Contract, validation_message
+from uavplace.schemas.base import MAX_SEED, Contract, validation_message
 from uavplace.schemas.files import atomic_write_text, check_name
 
 #: The spec, as it was given, beside the runs it made.
@@ -64,6 +64,15 @@ class TrialSpec(Contract):
     @classmethod
     def _name(cls, v: str) -> str:
         return check_name(v, "trial name")
+
+    @field_validator("settings")
+    @classmethod
+    def _not_a_trial_field(cls, v: dict) -> dict:
+        own = {"agent": "agent", "seed": "seeds", "total_steps": "steps", "eval_every": "eval_every"}
+        clash = [f"{k} (use the trial's {own[k]})" for k in v if k in own]
+        if clash:
+            raise ValueError(f"{', '.join(clash)}: these have their own trial fields")
+        return v
 
     @field_validator("seeds")
     @classmethod
@@ -102,7 +111,7 @@ class SweepSpec(Contract):
         default_factory=list, description="Validation cities of the final table (default: every built city with the val role)"
     )
     episodes: int = Field(default=1000, ge=1, description="Episodes per city in the final table")
-    seed: int = Field(default=0, description="Seed of the final table's episodes and random moves")
+    seed: int = Field(default=0, ge=0, le=MAX_SEED, description="Seed of the final table's episodes and random moves")
     trials: list[TrialSpec] = Field(min_length=1)
     ensembles: list[EnsembleSpec] = Field(default_factory=list)
 
@@ -197,6 +206,7 @@ def run_sweep(
         from ray import tune
     except ImportError:
         raise RuntimeError("Ray Tune is not installed: pip install -e '.[sweep]'") from None
+    from uavplace.dataset.catalog import expand_datasets
     from uavplace.rl.agent.ensemble import build_ensemble
     from uavplace.rl.agent.train import run_finished
 
@@ -213,8 +223,10 @@ def run_sweep(
         if started:
             ray.init(address=address, include_dashboard=False, log_to_driver=False, configure_logging=False)
         try:
-            common = {"out": str(out), "root": str(root), "datasets": spec.datasets, "val_datasets": spec.val_datasets,
-                      "command": command, "cpus": cpus_per_trial}  # fmt: skip
+            # corpus names (``corpus`` -> corpus-000, ...) expanded here, as ``uavrl train`` does
+            common = {"out": str(out), "root": str(root), "datasets": expand_datasets(spec.datasets, root),
+                      "val_datasets": expand_datasets(spec.val_datasets, root), "command": command,
+                      "cpus": cpus_per_trial}  # fmt: skip
             space = [common | {"run": name, "config": configs[name].model_dump_json()} for name in todo]
             trainable = tune.with_resources(_trial, {"cpu": cpus_per_trial})
             stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%d-%H%M%S")

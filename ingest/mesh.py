@@ -1,7 +1,7 @@
 """Building meshes (OBJ, PLY, STL, GLB/GLTF) through trimesh.
 
 The mesh is z-up in the local metric frame, read by ``load_mesh`` (regular files of at most
-``MAX_MESH_BYTES`` only, its references inside its folder). Each connected body is a
+the limit ``mesh_bytes`` only, its references inside its folder). Each connected body is a
 building: footprint = union of its triangles seen from above, base and roof =
 its min and max z. Flat bodies (z extent below ``FLAT_M``, e.g. a ground
 plane) are rejected and counted, not taken as buildings.
@@ -19,36 +19,35 @@ import shapely
 
 from uavplace.ingest.buildings import MIN_AREA_M2, BuildingRecord, Part
 from uavplace.schemas import InputError, Rejection
+from uavplace.schemas.limits import check_limit
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")
 #: Bodies thinner than this [m] are ground or road surfaces, not buildings.
 FLAT_M = 0.5
 
 
-#: The largest mesh file (or file a mesh refers to: an OBJ's material library, a glTF's buffer) read [bytes].
-MAX_MESH_BYTES = 256 * 2**20
 #: The largest PLY header read [bytes].
 _MAX_PLY_HEADER = 64 * 2**10
 _PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
               "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}  # fmt: skip
 
 
-def regular_file_bytes(path: Path, name: str, limit: int = MAX_MESH_BYTES) -> bytes:
-    """The bytes of ``path`` if it is a regular file of at most ``limit`` bytes, else ``InputError``. Checked with
-    ``stat`` before opening: a FIFO or a device would block or never end."""
+def regular_file_bytes(path: Path, name: str) -> bytes:
+    """The bytes of ``path`` if it is a regular file within the limit ``mesh_bytes`` (a mesh, or a file a mesh refers
+    to: an OBJ's material library, a glTF's buffer), else ``InputError``. Checked with ``stat`` before opening: a FIFO
+    or a device would block or never end."""
     try:
         st = os.stat(path)
     except OSError as exc:
         raise InputError(name, f"cannot read ({exc.strerror})") from None
     if not stat.S_ISREG(st.st_mode):
         raise InputError(name, "not a regular file (a FIFO, device or folder): refused")
-    if st.st_size > limit:
-        raise InputError(name, f"{st.st_size:,} bytes, over the limit of {limit:,} (uavplace.ingest.mesh.MAX_MESH_BYTES)")
+    check_limit("mesh_bytes", st.st_size, name, "file size [bytes]")
     return path.read_bytes()
 
 
 def _folder_resolver(folder: Path):  # noqa: ANN202 - a trimesh resolver
-    """A trimesh resolver that reads only regular files inside ``folder``, each within ``MAX_MESH_BYTES``."""
+    """A trimesh resolver that reads only regular files inside ``folder``, each within the limit ``mesh_bytes``."""
     from trimesh.resolvers import FilePathResolver
 
     class FolderFiles(FilePathResolver):
@@ -93,7 +92,7 @@ def check_ply_header(data: bytes, name: str) -> None:
 
 
 def load_mesh(path: Path, name: str, *, process: bool):  # noqa: ANN201 - a trimesh.Trimesh
-    """One mesh file as a single ``trimesh.Trimesh``, read safely: a regular file within ``MAX_MESH_BYTES``, a PLY
+    """One mesh file as a single ``trimesh.Trimesh``, read safely: a regular file within the limit ``mesh_bytes``, a PLY
     header that fits its body, referenced files (materials, buffers) only regular files of its folder; faces that
     index existing vertices, finite vertices. ``InputError`` naming ``name`` otherwise."""
     import trimesh  # heavy (about 50 MB): only for cities that ship meshes

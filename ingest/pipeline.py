@@ -74,23 +74,39 @@ class Classified:
     skip_reason: str | None = None
 
 
+#: Names of the files ingest reads (a folder so named is reported, not silently passed over).
+EXPORT_SUFFIXES = (".p2m", ".p2m.gz", ".txrx", ".setup", ".city", ".ter", ".geojson", ".routes.csv", *MESH_SUFFIXES)
+
+
 def classify(folder: Path) -> list[Classified]:
     """Every non-hidden file below ``folder``, sorted, with its format family.
 
     A symbolic link that leads out of ``folder`` is listed as skipped (kind
     ``link``) and never opened: a city folder cannot make ingest read files
-    elsewhere on the machine.
+    elsewhere on the machine. Whatever is not a regular file (a FIFO, a device, a
+    socket, a broken or looping link, a folder named like an export) is listed as
+    skipped too (kind ``special``), never opened: it would block or say nothing.
     """
     out = []
     inside = folder.resolve()
-    for path in sorted(p for p in folder.rglob("*") if p.is_file()):
+    for path in sorted(folder.rglob("*")):
         rel = path.relative_to(folder).as_posix()
         if any(part.startswith(".") for part in Path(rel).parts):
             continue
         low = path.name.lower()
         kind, reason = "other", None
-        if not path.resolve().is_relative_to(inside):
-            kind, reason = "link", f"symbolic link to {path.resolve()}, outside the city folder: not read"
+        try:
+            target = path.resolve()
+        except (OSError, RuntimeError):  # a link loop
+            target = None
+        if target is not None and not target.is_relative_to(inside):
+            kind, reason = "link", f"symbolic link to {target}, outside the city folder: not read"
+        elif path.is_dir() and target is not None:
+            if not low.endswith(EXPORT_SUFFIXES):
+                continue  # a folder of the city: its files are listed themselves
+            kind, reason = "special", "a folder named like an export: not read"
+        elif target is None or not path.is_file():
+            kind, reason = "special", "not a regular file (a FIFO, device, socket, or a broken or looping link): not read"
         elif low.endswith((".p2m", ".p2m.gz")):
             ident = parse_filename(path.name)
             if ident is None:
@@ -400,7 +416,7 @@ def ingest_city(
             done(f, status="unknown", message="unknown file type")
         elif f.skip_reason is not None:
             done(f, status="skipped", message=f.skip_reason)
-            if f.kind == "link":
+            if f.kind in ("link", "special"):
                 warnings.append(f"{f.rel}: {f.skip_reason}")
 
     setup = None
@@ -550,8 +566,8 @@ def ingest_city(
             sources=tuple(
                 SourceFile(
                     path=f.rel,
-                    sha256=None if f.kind == "link" else sha256_file(f.path),
-                    size_bytes=None if f.kind == "link" else f.path.stat().st_size,
+                    sha256=None if f.kind in ("link", "special") else sha256_file(f.path),
+                    size_bytes=None if f.kind in ("link", "special") else f.path.stat().st_size,
                     kind=f.kind,
                     status=reports[f.rel].status,
                 )

@@ -21,12 +21,11 @@ import pyarrow as pa
 import shapely
 
 from uavplace.schemas import ROUTES, InputError
+from uavplace.schemas.limits import check_limit
 from uavplace.schemas.tables import ROUTE_KINDS, ROUTE_MAX_STEP_M
 
 #: The header of a routes file, in order.
 CSV_COLUMNS = ("route", "order", "time_s", "tx_set", "tx_point", "x_m", "y_m", "kind", "speed_mps")
-#: Route points read from one file at most (each is a traced user: thousands are hours of ray tracing).
-MAX_ROUTE_POINTS = 100_000
 #: Tolerances: a point on its .txrx position [m], a step over the sampling [m], time against distance / speed [s].
 POSITION_TOL_M, STEP_TOL_M, TIME_TOL_S = 1e-2, 1e-3, 1e-2
 
@@ -61,8 +60,7 @@ def read_routes(path: Path, source: str, transmitters: pa.Table, footprints: lis
         line = reader.line_num
         if not row or all(not c.strip() for c in row):
             continue
-        if len(lines) >= MAX_ROUTE_POINTS:
-            raise InputError(source, f"more than {MAX_ROUTE_POINTS} route points (ingest.routes.MAX_ROUTE_POINTS)", line=line)
+        check_limit("route_points", len(lines) + 1, source, "route points", line=line)
         if len(row) != len(CSV_COLUMNS):
             raise InputError(source, f"{len(row)} fields, expected {len(CSV_COLUMNS)}", line=line, field="row")
         for c, cell in zip(CSV_COLUMNS, row, strict=True):

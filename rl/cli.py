@@ -10,7 +10,7 @@ import click
 from uavplace.dataset.bundle import list_versions, read_latest
 from uavplace.dataset.catalog import list_cities
 from uavplace.rl.rollout import STATS, format_stat, summarise
-from uavplace.schemas.cli import fail, plain_table, root_option, stdout
+from uavplace.schemas.cli import SEED, Counted, Finite, fail, plain_table, root_option, stdout
 
 #: Seconds between the plain progress lines ``uavrl train`` prints when its output is not a terminal.
 LINE_SECONDS = 30.0
@@ -46,11 +46,11 @@ def datasets(root: Path) -> None:
 def episode_options(command):
     """The evaluation protocol's options, shared by ``baselines`` and ``report``."""
     options = (
-        click.option("--episodes", type=click.IntRange(min=1), default=1000, show_default=True, help="Episodes, the same for every method."),
-        click.option("--t-max", type=click.IntRange(min=1), default=500, show_default=True, help="Step budget per episode (paper: 500 at test)."),
-        click.option("--p-t-db", type=float, default=5.0, show_default=True, help="SINR target P_T [dB]."),
+        click.option("--episodes", type=Counted("episodes"), default=1000, show_default=True, help="Episodes, the same for every method."),
+        click.option("--t-max", type=Counted("t_max"), default=500, show_default=True, help="Step budget per episode (paper: 500 at test)."),
+        click.option("--p-t-db", type=Finite(-100, 100), default=5.0, show_default=True, help="SINR target P_T [dB]."),
         click.option("--split", type=click.Choice(["train", "val", "test"]), default=None, help="Users of this split only (default: all)."),
-        click.option("--seed", type=int, default=0, show_default=True, help="Seed of the episodes and of every random move."),
+        click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the episodes and of every random move."),
     )  # fmt: skip
     for option in reversed(options):
         command = option(command)
@@ -121,7 +121,7 @@ def baselines(
     "5 min), best-dqn (that one learnt by replay DQN: about 8 min), paper "
     "(docs/method.md, ~7 M steps: days on a CPU), fast (40 k steps: 139-146 s on 2 cores, measured 2026-12-01; for checks). Presets: rl/agent/dqn.py, PRESETS.",
 )
-@click.option("--steps", type=click.IntRange(min=1), default=None, help="Environment steps (default: the preset's).")
+@click.option("--steps", type=Counted("train_steps"), default=None, help="Environment steps (default: the preset's).")
 @click.option(
     "--set",
     "settings",
@@ -130,7 +130,7 @@ def baselines(
     help="Override one field of the preset's DQNConfig (rl/agent/dqn.py), env fields as env.FIELD "
     "(rl/config.py), e.g. --set env.shaping=1 --set eval_episodes=1000; repeatable.",
 )
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the whole run.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the whole run.")
 @click.option(
     "--eval-every",
     type=click.IntRange(min=1),
@@ -179,7 +179,15 @@ def train(
     else:
         named = runs / check_name(name, "run name") if name else None
         datasets, val_datasets = expand_datasets(datasets, root), expand_datasets(val_datasets, root)
-        overrides = parse_settings(settings) | {"agent": agent, "seed": seed} | ({"total_steps": steps} if steps else {})
+        given = parse_settings(settings)
+        # settings with their own option: the option would win over the --set without a word (--agent and --seed
+        # always, with their defaults; --steps and --eval-every when given)
+        own = {"agent": "--agent", "seed": "--seed"} | ({"total_steps": "--steps"} if steps else {})
+        own |= {"eval_every": "--eval-every"} if eval_every else {}
+        clash = [f"--set {k} and {own[k]}" for k in given if k in own]
+        if clash:
+            raise click.UsageError(f"{', '.join(clash)} set the same field: give it once, with the option")
+        overrides = given | {"agent": agent, "seed": seed} | ({"total_steps": steps} if steps else {})
         overrides |= {"eval_every": eval_every} if eval_every else {}
         config = preset_config(preset, **overrides)
         run_dir = named or new_run_dir(runs, config)
@@ -247,12 +255,12 @@ def ensemble(runs: tuple[Path, ...], out: Path, root: Path, quiet: bool) -> None
     """Finished training RUNS (two or more folders of `uavrl train`, one config, different seeds) as one agent: the
     mean of their Q values, each network with its own recurrent state (rl/agent/ensemble.py). It is evaluated as a run
     is, on the members' validation cities (their config's eval_episodes, seeded as a run's), never on a test city."""
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from uavplace.rl.agent.ensemble import build_ensemble
     from uavplace.schemas.cli import command_line
 
-    columns = (TextColumn("[bold]ensemble[/] validation"), BarColumn(), TextColumn("{task.completed:,}/{task.total:,} episodes"),
+    columns = (TextColumn("[bold]ensemble[/] validation"), BarColumn(), MofNCompleteColumn(), TextColumn("episodes"),
                TimeElapsedColumn())  # fmt: skip
     with Progress(*columns, console=stdout(), disable=quiet) as bar:
         task = bar.add_task("validation", total=None)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field, field_validator
+from pydantic import ConfigDict, Field, field_validator
 
 from uavplace.schemas.base import Contract
 
@@ -13,6 +13,8 @@ Split = Literal["train", "val", "test"]
 
 class EnvConfig(Contract):
     """Everything that defines the UAV placement problem (docs/method.md: Problem, Observation, Reward)."""
+
+    model_config = ConfigDict(allow_inf_nan=False)  # a NaN target or reward would train and report without a word
 
     p_t_db: float = Field(default=5.0, description="SINR target P_T: the episode ends (terminated) when reached [dB]")
     t_max: int = Field(
@@ -26,7 +28,9 @@ class EnvConfig(Contract):
     p_l_db: float = Field(
         default=-150.0, description="P_L: SINR memory value of blocked cells and of cells beyond the map edge [dB]"
     )
-    window: int = Field(default=61, ge=3, description="Observation side in cells (odd), centred on the UAV")
+    window: int = Field(
+        default=61, ge=3, le=1001, description="Observation side in cells (odd), centred on the UAV; at most 1001"
+    )
     blind: bool = Field(
         default=False, description="Blind variant: no height channel; blocked cells shown as P_H in the SINR memory"
     )
@@ -68,7 +72,8 @@ class EnvConfig(Contract):
     context_zoom: int = Field(
         default=0,
         ge=0,
-        description="Context channels (0: none): the whole window again at 1/context_zoom resolution (blocks of "
+        le=64,
+        description="Context channels (0: none; at most 64): the whole window again at 1/context_zoom resolution (blocks of "
         "context_zoom x context_zoom cells, so it covers context_zoom times the span): the blocks' mean height and the "
         "best SINR measured in each block (P_H where none is visited, P_L where the block is all blocked or beyond the "
         "edge); blind: the SINR one only. They sit after the height channel, before the visited and SINR memory channels",

@@ -21,6 +21,7 @@ from uavplace.dataset.bundle import Bundle, load_bundle
 from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target, valid_starts
 from uavplace.rl.config import EnvConfig
 from uavplace.rl.randomness import stream_key
+from uavplace.schemas import InputError
 from uavplace.schemas.files import in_corpus
 
 #: Moves of the 4 actions in canvas coordinates (dy, dx): 0 north (+y), 1 east (+x), 2 south (-y), 3 west (-x).
@@ -206,7 +207,9 @@ class MapSet:
         symmetry (if ``rotate``, default ``config.rotate``; else the identity) and start cell (with
         ``config.far_starts``, that share of the starts is the farther from a target of two draws)."""
         if len(self.startable) == 0:
-            raise ValueError("no scenario has a valid start cell (every legal, live cell is at or above P_T)")
+            cities = ", ".join(sorted({b.manifest.city for b in self.bundles}))
+            raise InputError(cities, f"no user has a start cell at P_T = {self.config.p_t_db:g} dB (a legal, live cell below P_T "
+                             "from which a target is reachable): choose another P_T (--p-t-db) or other users", field="p_t_db")  # fmt: skip
         rotate = self.config.rotate if rotate is None else rotate
         if self.start_p is None:
             scen = self.startable[rng.integers(0, len(self.startable), n)]

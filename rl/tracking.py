@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from pydantic import Field
+from pydantic import ConfigDict, Field
 
 from uavplace.dataset.bundle import Bundle
 from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target
@@ -47,6 +47,8 @@ ACTION_OF[TRACK_MOVES[:, 0] + 1, TRACK_MOVES[:, 1] + 1] = np.arange(len(TRACK_MO
 
 class TrackingConfig(Contract):
     """Everything that defines the tracking task (saved with every run and report that uses it)."""
+
+    model_config = ConfigDict(allow_inf_nan=False)
 
     p_t_db: float = Field(default=5.0, description="SINR target P_T [dB]: a step at or above it is covered")
     horizon: int = Field(default=300, ge=1, le=100_000, description="Steps per episode")
@@ -213,10 +215,14 @@ def oracle_path(legal: np.ndarray, covered: np.ndarray, start: tuple[int, int]) 
 
 @dataclass
 class TrackingEpisodes:
-    """What ``run_tracking`` returns: one row per episode, and each episode's covered steps ``[K, H]``."""
+    """What ``run_tracking`` returns: one row per episode, and each episode's covered steps ``[K, H]``; with
+    ``record``, also the UAV's canvas cells ``path`` ``[K, H + 1, 2]`` (the start first) and the user's route point
+    ``points`` ``[K, H + 1]`` (rows of ``RouteSet.sinr``) at each step."""
 
     table: pd.DataFrame
     covered: np.ndarray
+    path: np.ndarray | None = None
+    points: np.ndarray | None = None
 
 
 class TrackingEnv:
@@ -329,6 +335,7 @@ class TrackingEnv:
         if truncated.any() and self.autoreset:
             ended = np.flatnonzero(truncated)
             info["final_index"] = ended
+            info["final_pos"], info["final_point"] = self.pos[ended].copy(), self.point()[ended]
             self._start(ended)
         info["action_mask"] = self.action_mask()
         return self.observe(), reward, np.zeros(self.num_envs, bool), truncated, info
@@ -346,6 +353,52 @@ class MovesOnly:
 
     def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingEnv) -> np.ndarray:
         return self.policy.act(obs, mask[:, :4], env)
+
+
+class PlacementInTracking:
+    """A placement policy that reads placement observations (a trained placement agent, run unchanged) acting in the
+    tracking env. A placement env over the same cities (``BatchedEnv``, built for the agent's own ``EnvConfig``) keeps
+    the agent's channels (SINR memory, visited cells, homing cone, context) from the tracking env's positions and
+    measurements, as if the user's map were the placement episode's; the agent sees its observations, moves by its
+    own rule (never stays) and keeps acting after it first reaches P_T."""
+
+    def __init__(self, policy, env: EnvConfig, name: str | None = None) -> None:  # noqa: ANN001 - a rl.policies.Policy
+        self.policy, self.name = policy, name or policy.name
+        self.env_config = env.model_copy(update={"rotate": False, "city_weights": {}, "split": None})
+        self.mirror = None
+        self.key: tuple = ()
+
+    def reset(self, rows: np.ndarray, num_envs: int) -> None:
+        self.policy.reset(rows, num_envs)
+
+    def _mirror(self, env: TrackingEnv):  # noqa: ANN202 - a BatchedEnv
+        from uavplace.rl.vec_env import BatchedEnv
+
+        key = (id(env.routes), env.num_envs)
+        if self.key != key:
+            maps = MapSet(env.routes.bundles, self.env_config)
+            self.mirror, self.key = BatchedEnv(maps, env.num_envs, autoreset=False), key
+            # per bundle, a view of its identity symmetry: its height and blocked canvases
+            first = np.array([np.flatnonzero(maps.view_map == maps.symmetries * b)[0] for b in range(len(env.routes.bundles))])
+            self.views, self.shift = first, maps.pad - env.maps.pad
+            self.episode = np.full(env.num_envs, -2, np.int64)
+        return self.mirror
+
+    def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingEnv) -> np.ndarray:
+        mirror = self._mirror(env)
+        rows = np.arange(env.num_envs)
+        pos, sinr = env.pos + self.shift, env.sinr_here()
+        new = (env.t == 0) | (self.episode != env.episode_id)
+        if new.any():
+            idx = rows[new]
+            mirror.begin(idx, self.views[env.routes.bundle[env.route[idx]]], pos[idx, 0], pos[idx, 1], sinr[idx],
+                         env.episode_id[idx])  # fmt: skip
+            self.episode[idx] = env.episode_id[idx]
+        if (~new).any():
+            idx = rows[~new]
+            mirror.pos[idx], mirror.t[idx] = pos[idx], env.t[idx]
+            mirror.measure(idx, sinr[idx])
+        return self.policy.act(mirror.observe(), mask[:, :4], mirror)
 
 
 class ReplanningGenie:
@@ -401,21 +454,36 @@ class OraclePolicy:
         return ACTION_OF[dy + 1, dx + 1]
 
 
-def run_tracking(routes: RouteSet, policy, episodes: np.ndarray, *, num_envs: int = 256) -> TrackingEpisodes:  # noqa: ANN001
+def run_tracking(
+    routes: RouteSet,
+    policy,
+    episodes: np.ndarray,
+    *,
+    num_envs: int = 256,
+    record: bool = False,  # noqa: ANN001
+) -> TrackingEpisodes:
     """Play ``episodes`` (``[K, 4]`` specs) to the horizon with ``policy`` (``rl.policies`` interface: ``reset``,
-    ``act(obs, mask, env)``); one row per episode with the metrics of ``episode_metrics``."""
+    ``act(obs, mask, env)``); one row per episode with the metrics of ``episode_metrics`` (and with ``record``, the
+    UAV's path and the user's route points, for drawing)."""
     k, h = len(episodes), routes.config.horizon
     env = TrackingEnv(routes, min(num_envs, k), queue=np.asarray(episodes, float))
     obs, info = env.reset()
     policy.reset(np.arange(env.num_envs), env.num_envs)
     covered = np.zeros((k, h), bool)
+    path = np.zeros((k, h + 1, 2), np.int64) if record else None
+    points = np.zeros((k, h + 1), np.int64) if record else None
     done = 0
     while done < k:
         live = ~env.exhausted
         ids, t = env.episode_id.copy(), env.t.copy()
+        if record:
+            path[ids[live], t[live]], points[ids[live], t[live]] = env.pos[live], env.point()[live]
         obs, _, _, truncated, info = env.step(policy.act(obs, info["action_mask"], env))
         covered[ids[live], t[live]] = info["covered"][live]
         finished = truncated & live
+        if record and finished.any():  # the last step's cell and point, from before the env restarted these rows
+            final = np.searchsorted(info["final_index"], np.flatnonzero(finished))
+            path[ids[finished], h], points[ids[finished], h] = info["final_pos"][final], info["final_point"][final]
         done += int(finished.sum())
         if finished.any():
             policy.reset(np.flatnonzero(finished), env.num_envs)
@@ -423,4 +491,4 @@ def run_tracking(routes: RouteSet, policy, episodes: np.ndarray, *, num_envs: in
     table = pd.DataFrame({"episode": np.arange(k), "route": episodes[:, 0].astype(int), "start_s": episodes[:, 1]} | metrics)
     table["city"] = [routes.names[int(r)][0] for r in table["route"]]
     table["kind"] = [routes.names[int(r)][2] for r in table["route"]]
-    return TrackingEpisodes(table, covered)
+    return TrackingEpisodes(table, covered, path, points)

@@ -106,6 +106,28 @@ class BatchedEnv:
             + (("context_memory", "context_seen") if self.config.context_zoom else ())
         )
 
+    def check_state(self, source: object) -> None:
+        """``InputError`` (naming ``source``) unless the episode state (``state_arrays``, as a checkpoint restores it)
+        is one this env can be in: views in range, positions on open canvas cells, counters from 0, finite SINR."""
+        from uavplace.schemas import InputError
+
+        problems = {
+            "view": (self.view < 0) | (self.view >= self.maps.num_views),
+            "pos": ((self.pos < 0) | (self.pos >= self.maps.side)).any(axis=1),
+            "t": self.t < 0,
+            "memory": ~np.isfinite(self.memory).all(axis=(1, 2)),
+        }
+        if self.config.homing_channel:
+            problems["best_sinr"] = ~np.isfinite(self.best_sinr)
+            problems["best_pos"] = ((self.best_pos < 0) | (self.best_pos >= self.maps.side)).any(axis=1)
+        if self.config.context_zoom:
+            problems["context_memory"] = ~np.isfinite(self.context_memory).all(axis=(1, 2))
+        for name, bad in problems.items():
+            if bad.any():
+                raise InputError(source, f"env row {int(np.argmax(bad))}: {name} out of range or not finite", field=name)
+        if self.maps.blocked[self.maps.view_map[self.view], self.pos[:, 0], self.pos[:, 1]].any():
+            raise InputError(source, "a UAV stands in a blocked cell", field="pos")
+
     # -- episodes -----------------------------------------------------------------------------
     def _next_specs(self, k: int) -> tuple[np.ndarray, np.ndarray]:
         """``k`` episode specs and their episode ids (-1 where a queue has run out)."""
@@ -125,6 +147,11 @@ class BatchedEnv:
     def _start(self, idx: np.ndarray) -> None:
         specs, ids = self._next_specs(len(idx))
         view, y, x = specs.T
+        self.begin(idx, view, y, x, self.maps.sinr[view, y, x], ids)
+
+    def begin(self, idx: np.ndarray, view: np.ndarray, y: np.ndarray, x: np.ndarray, first: np.ndarray, ids: np.ndarray) -> None:
+        """Start episodes ``ids`` in rows ``idx``: views ``view``, the UAV at canvas cells ``(y, x)``, which measure
+        ``first`` (the view's SINR there; another task's measurement when this env only keeps an agent's channels)."""
         self.view[idx], self.pos[idx, 0], self.pos[idx, 1] = view, y, x
         self.t[idx] = 0
         self.episode_id[idx] = ids
@@ -132,7 +159,7 @@ class BatchedEnv:
         self.memory[idx] = self.maps.memory0[view]
         self.visits[idx] = 0
         self.visits[idx, y, x] = 1
-        first = self.memory[idx, y, x] = self.maps.sinr[view, y, x]
+        self.memory[idx, y, x] = first
         if self.config.homing_channel:
             self.best_sinr[idx], self.best_pos[idx] = first, self.pos[idx]
         if self.config.context_zoom:
@@ -238,6 +265,20 @@ class BatchedEnv:
         np.maximum(out, np.float32(self.config.p_l_db), out=out)
 
     # -- dynamics -------------------------------------------------------------------------------
+    def measure(self, rows: np.ndarray, new: np.ndarray) -> np.ndarray:
+        """Rows ``rows`` measured ``new`` in the cells they stand in: the visit counts, the SINR memory, the context
+        and the best SINR move on. Returns the cells' earlier visits."""
+        y, x = self.pos[rows, 0], self.pos[rows, 1]
+        before = self.visits[rows, y, x]
+        self.visits[rows, y, x] = before + 1
+        self.memory[rows, y, x] = new
+        if self.config.context_zoom:
+            self._remember_context(rows, y, x, new)
+        if self.config.homing_channel:
+            better = new > self.best_sinr[rows]  # the first cell of the best SINR stays the best
+            self.best_sinr[rows[better]], self.best_pos[rows[better]] = new[better], self.pos[rows[better]]
+        return before
+
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
         actions = np.asarray(actions, np.int64)
         rows, view, cfg = self._rows, self.view, self.config
@@ -248,15 +289,8 @@ class BatchedEnv:
         self.pos = np.where(legal[:, None], target, self.pos)
         y, x = self.pos[:, 0], self.pos[:, 1]
         new = self.maps.sinr[view, y, x]
-        before = self.visits[rows, y, x]  # earlier visits of the cell it now stands in
+        before = self.measure(rows, new)  # earlier visits of the cell it now stands in
         fresh = before == 0
-        self.visits[rows, y, x] = before + 1
-        self.memory[rows, y, x] = new
-        if cfg.context_zoom:
-            self._remember_context(rows, y, x, new)
-        if cfg.homing_channel:
-            better = new > self.best_sinr  # the first cell of the best SINR stays the best
-            self.best_sinr[better], self.best_pos[better] = new[better], self.pos[better]
         self.t += 1
         terminated = new >= cfg.p_t_db
         reward = new - old + cfg.c_e * fresh + cfg.success_bonus * terminated - cfg.step_cost

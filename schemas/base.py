@@ -9,6 +9,8 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 #: Version of every contract in this package. Bumped whenever a model or a
 #: table declaration changes in a way a reader must know about.
 SCHEMA_VERSION = "1.0"
+#: The largest seed: every seed is a non-negative integer that numpy's and torch's generators take.
+MAX_SEED = 2**63 - 1
 
 #: A name that becomes one path component (a city, a run, a simulated city): ASCII letters, digits, ``_ . -``,
 #: starting with a letter or digit, at most 64 characters. No separator, no ``..``, nothing a shell expands.
@@ -42,6 +44,9 @@ class InputError(Exception):
         self.message = message
         super().__init__(self.__str__())
 
+    def __reduce__(self):  # noqa: ANN204 - pickled by Ray and multiprocessing: rebuilt with its path, line and field
+        return (_input_error, (self.path, self.message, self.line, self.field))
+
     def __str__(self) -> str:
         parts = []
         if self.path is not None:
@@ -49,6 +54,10 @@ class InputError(Exception):
         if self.field:
             parts.append(self.field)
         return ": ".join([*parts, self.message])
+
+
+def _input_error(path: str | None, message: str, line: int | None, field: str | None) -> InputError:
+    return InputError(path, message, line=line, field=field)
 
 
 def validation_message(exc: ValidationError, default_field: str = "value") -> tuple[str, str]:

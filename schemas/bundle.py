@@ -19,9 +19,9 @@ from __future__ import annotations
 from typing import Literal
 
 import pyarrow as pa
-from pydantic import Field, field_validator, model_validator
+from pydantic import ConfigDict, Field, field_validator, model_validator
 
-from uavplace.schemas.base import NAME_PATTERN, SCHEMA_VERSION, Contract
+from uavplace.schemas.base import MAX_SEED, NAME_PATTERN, SCHEMA_VERSION, Contract
 from uavplace.schemas.tables import FREQUENCY_RANGE_HZ, POWER_RANGE_DBM, RATIO_RANGE_DB, XY_RANGE_M, Z_RANGE_M, Column, TableSpec
 
 SplitRole = Literal["train", "val", "test"]
@@ -58,22 +58,30 @@ EMBEDDED_NOISE_DBM = -75.0
 
 
 class BuildConfig(Contract):
-    """Every parameter of `uavdata build` for one city (saved in the bundle's manifest)."""
+    """Every parameter of `uavdata build` for one city (saved in the bundle's manifest). Every number must be finite
+    and within physical bounds (a noise of +inf dBm would make every cell dead without a word)."""
 
-    grid_m: float = Field(gt=0, description="Grid spacing [m]")
-    altitude_m: float = Field(ge=0, description="UAV altitude above ground [m]; receivers are taken at this height")
-    altitude_tol_m: float = Field(default=0.5, ge=0, description="Receivers within this of the altitude are used [m]")
-    noise_dbm: float = Field(default=-104.0, description="Noise plus background interference power [dBm]")
+    model_config = ConfigDict(allow_inf_nan=False)
+
+    grid_m: float = Field(gt=0, le=1000, description="Grid spacing [m]")
+    altitude_m: float = Field(ge=0, le=10_000, description="UAV altitude above ground [m]; receivers are taken at this height")
+    altitude_tol_m: float = Field(default=0.5, ge=0, le=1000, description="Receivers within this of the altitude are used [m]")
+    noise_dbm: float = Field(default=-104.0, ge=-250, le=100, description="Noise plus background interference power [dBm]")
     interference_std_db: float = Field(
-        default=0.0, ge=0, description="Std of a Gaussian per-cell offset of the noise+interference level [dB]"
+        default=0.0, ge=0, le=100, description="Std of a Gaussian per-cell offset of the noise+interference level [dB]"
     )
-    seed: int = Field(default=0, description="Seed of the interference draw and of the user split")
+    seed: int = Field(default=0, ge=0, le=MAX_SEED, description="Seed of the interference draw and of the user split")
     sinr_floor_db: float = Field(
         default=-40.0,
+        ge=-300,
+        le=100,
         description="SINR of dead cells, and the lowest SINR reported anywhere (lower values are raised to it) [dB]",
     )
     tx_dbm: float | None = Field(
-        default=None, description="User transmit power [dBm]; overrides the export's (received power shifts with it)"
+        default=None,
+        ge=-100,
+        le=100,
+        description="User transmit power [dBm]; overrides the export's (received power shifts with it)",
     )
     bounds: BoundsMode | tuple[float, float, float, float] = Field(
         default="auto",
@@ -82,7 +90,9 @@ class BuildConfig(Contract):
     )
     crop: bool = Field(default=False, description="Drop buildings wholly outside the grid (counted) instead of failing")
     role: SplitRole | None = Field(default=None, description="The city's role in experiments, if declared")
-    p_t_db: float = Field(default=5.0, description="SINR target the manifest's difficulty figures are computed at [dB]")
+    p_t_db: float = Field(
+        default=5.0, ge=-100, le=100, description="SINR target the manifest's difficulty figures are computed at [dB]"
+    )
     val_users: int = Field(default=0, ge=0, description="Users of a train city held out for validation (seeded)")
 
     @field_validator("bounds")

@@ -20,7 +20,9 @@ class SourceFile(Contract):
         pattern=r"^[0-9a-f]{64}$", description="sha256 of the bytes; None for a link out of the city folder (never opened)"
     )
     size_bytes: int | None = Field(ge=0, description="Size [bytes]; None for a link out of the city folder (never followed)")
-    kind: str = Field(description="Format family: p2m, txrx, setup, city, terrain, geojson, mesh, other")
+    kind: str = Field(
+        description="Format family: p2m, txrx, setup, city, terrain, geojson, mesh, routes, geometry, provenance, link (out of the folder), special (not a regular file), other"
+    )
     status: FileStatus
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import math
 import os
 import shlex
 import sys
@@ -23,9 +24,12 @@ from rich.table import Table
 from rich.text import Text
 
 from uavplace.schemas import InputError
+from uavplace.schemas.base import MAX_SEED
 from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM
 from uavplace.schemas.export import SCHEMA_MODELS, json_schemas
 from uavplace.schemas.files import DEFAULT_ROOT, describe_os_error
+from uavplace.schemas.limits import ENV as LIMITS_ENV
+from uavplace.schemas.limits import Limits, limits, over_limit, set_limits, shown
 
 console = Console(stderr=True)
 
@@ -125,19 +129,52 @@ class UavGroup(click.Group):
         sys.exit(rv if isinstance(rv, int) else 0)
 
 
+#: The type of every ``--seed``: numpy's and torch's generators take a non-negative integer.
+SEED = click.IntRange(0, MAX_SEED)
+
+
+class Finite(click.FloatRange):
+    """A finite number (``nan`` and ``inf`` refused: click's ``FloatRange`` lets ``nan`` through every bound),
+    optionally within ``[min, max]``."""
+
+    name = "number"
+
+    def convert(self, value, param, ctx):  # noqa: ANN001, ANN201 - click's signature
+        number = super().convert(value, param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return number
+
+
+class Counted(click.IntRange):
+    """A count of at least ``min`` that is also bounded by the resource limit ``limit`` (``schemas.limits``): the
+    loop it drives is refused before it starts, with the way to raise the limit."""
+
+    def __init__(self, limit: str, min: int = 1) -> None:  # noqa: A002 - click's name
+        super().__init__(min=min)
+        self.limit = limit
+
+    def convert(self, value, param, ctx):  # noqa: ANN001, ANN201 - click's signature
+        number = super().convert(value, param, ctx)
+        if number > getattr(limits(), self.limit):
+            self.fail(over_limit(self.limit, number, "value"), param, ctx)
+        return number
+
+
 class Metres(click.ParamType):
-    """A length in metres: ``4``, ``4m`` or ``2.5 m``."""
+    """A finite length in metres: ``4``, ``4m`` or ``2.5 m``."""
 
     name = "metres"
 
     def convert(self, value, param, ctx):  # noqa: ANN001, ANN201 - click's signature
-        if isinstance(value, float | int):
-            return float(value)
-        text = str(value).strip().lower().removesuffix("m").strip()
+        text = value if isinstance(value, float | int) else str(value).strip().lower().removesuffix("m").strip()
         try:
-            return float(text)
+            number = float(text)
         except ValueError:
             self.fail(f"{value!r} is not a length in metres (e.g. 4m, 2.5)", param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{value!r} is not a finite length", param, ctx)
+        return number
 
 
 class Bounds(click.ParamType):
@@ -152,12 +189,32 @@ class Bounds(click.ParamType):
             box = tuple(float(v) for v in str(value).split(","))
         except ValueError:
             box = ()
-        if len(box) != 4:
-            self.fail(f"{value!r}: expected auto, receivers, buildings or XMIN,YMIN,XMAX,YMAX", param, ctx)
+        if len(box) != 4 or not all(math.isfinite(v) for v in box):
+            self.fail(f"{value!r}: expected auto, receivers, buildings or XMIN,YMIN,XMAX,YMAX (finite)", param, ctx)
         return box
 
 
 _CONTEXT = {"help_option_names": ["-h", "--help"], "max_content_width": 100}
+
+
+def _apply_limits(ctx: click.Context, param: click.Parameter, pairs: tuple[str, ...]) -> tuple[str, ...]:
+    if pairs:
+        set_limits(pairs)
+    return pairs
+
+
+#: ``--limit NAME=VALUE`` on both groups: raise (or lower) a resource limit of ``uavplace.schemas.limits.Limits``.
+limit_option = click.option(
+    "--limit",
+    "limit_pairs",
+    multiple=True,
+    metavar="NAME=VALUE",
+    expose_value=False,
+    callback=_apply_limits,
+    help=f"Raise or lower a resource limit for this command, before the command's name (repeatable): "
+    f"{', '.join(f'{k} ({shown(v.default)})' for k, v in Limits.model_fields.items())}. "
+    f"The same as the environment variable {LIMITS_ENV}=NAME=VALUE,...; see the README's Security section.",
+)
 
 
 @click.group(
@@ -172,6 +229,7 @@ _CONTEXT = {"help_option_names": ["-h", "--help"], "max_content_width": 100}
     },
 )
 @click.version_option(package_name="uavplace", prog_name="uavdata")
+@limit_option
 def uavdata() -> None:
     """uavplace data pipeline: raw ray-tracer exports -> validated tables -> map bundles.
 
@@ -200,6 +258,7 @@ uavdata.help = uavdata.help.format(noise=EMBEDDED_NOISE_DBM)
     },
 )
 @click.version_option(package_name="uavplace", prog_name="uavrl")
+@limit_option
 def uavrl() -> None:
     """UAV placement agents: the datasets they can use, training, ensembles of runs, sweeps and reports."""
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from uavplace.schemas.cli import Bounds, Metres, command_line, console, fail, ray_address_option, stdout
+from uavplace.schemas.cli import SEED, Bounds, Finite, Metres, command_line, console, fail, ray_address_option, stdout
 from uavplace.schemas.files import check_name
 
 
@@ -24,6 +24,8 @@ class Point(click.ParamType):
             x, y = (float(v) for v in str(value).split(","))
         except ValueError:
             self.fail(f"{value!r}: expected X,Y in metres", param, ctx)
+        if not (math.isfinite(x) and math.isfinite(y)):
+            self.fail(f"{value!r}: X and Y must be finite", param, ctx)
         return (x, y)
 
 
@@ -44,7 +46,7 @@ class Point(click.ParamType):
 @ray_address_option("a corpus")
 @click.option(
     "--cpus-per-city",
-    type=click.FloatRange(min=0.5),
+    type=Finite(min=0.5),
     default=2.0,
     show_default=True,
     help="CPUs each city's Ray task reserves (the ray tracer uses all it is given).",
@@ -99,9 +101,9 @@ class Point(click.ParamType):
     default=None,
     help="Real geometry only: keep the buildings inside XMIN,YMIN,XMAX,YMAX [m] (clipped; counted) and make that the city.",
 )
-@click.option("--freq", "frequency_hz", type=float, default=800e6, show_default=True, help="Carrier frequency [Hz].")
-@click.option("--tx-dbm", type=float, default=20.0, show_default=True, help="User transmit power [dBm].")
-@click.option("--samples", type=float, default=1e6, show_default=True, help="Rays per user (Sionna samples_per_tx).")
+@click.option("--freq", "frequency_hz", type=Finite(), default=800e6, show_default=True, help="Carrier frequency [Hz].")
+@click.option("--tx-dbm", type=Finite(), default=20.0, show_default=True, help="User transmit power [dBm].")
+@click.option("--samples", type=Finite(), default=1e6, show_default=True, help="Rays per user (Sionna samples_per_tx).")
 @click.option("--depth", type=click.IntRange(min=0), default=5, show_default=True, help="Maximum interactions per path.")
 @click.option("--no-diffraction", is_flag=True, help="Switch edge diffraction off (faster, more dead cells).")
 @click.option(
@@ -125,7 +127,7 @@ class Point(click.ParamType):
 @click.option(
     "--gap-fill-reach",
     "gap_fill_reach_m",
-    type=click.FloatRange(min=0, max=400),
+    type=Finite(min=0, max=400),
     default=24.0,
     show_default=True,
     help="geodesic: how far [m] from a hit cell the walk goes (0: direct paths only).",
@@ -133,7 +135,7 @@ class Point(click.ParamType):
 @click.option(
     "--gap-fill-decay",
     "gap_fill_decay_db_per_m",
-    type=click.FloatRange(min=0, max=100),
+    type=Finite(min=0, max=100),
     default=3.0,
     show_default=True,
     help="geodesic: loss of the walk [dB per metre].",
@@ -145,7 +147,9 @@ class Point(click.ParamType):
     help="Keep each city's traced maps in this folder (CITY.npz, arrays only) and reuse them when the spec and the "
     "ray-trace settings match: changing only --gap-fill-reach or --gap-fill-decay then re-fills without tracing.",
 )
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the city generator, the users and the ray sampler.")
+@click.option(
+    "--seed", type=SEED, default=0, show_default=True, help="Seed of the city generator, the users and the ray sampler."
+)
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def simulate(
     sources: tuple[str, ...],

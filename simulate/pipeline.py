@@ -34,6 +34,7 @@ import shapely
 from uavplace.schemas import InputError
 from uavplace.schemas.base import uavplace_version
 from uavplace.schemas.files import atomic_directory, check_name, check_replaceable
+from uavplace.schemas.limits import check_limit, limits, shown
 from uavplace.simulate.fidelity import lattice_boundary_shares, lattice_step_ratios
 from uavplace.simulate.insite import UNREACHED_POWER_DBM, ReceiverGrid, write_city, write_p2m, write_setup, write_txrx
 from uavplace.simulate.procedural import PRESETS, USER_HEIGHT_M, generate_city, sample_users
@@ -101,34 +102,41 @@ def _size(text: str, source: str) -> tuple[float, float]:
     return (w, h)
 
 
-#: Limits of one ``uavdata simulate`` call, checked before any work (``check_simulation``); each error names its option.
-LIMITS = {
-    "count": (1, 1000),  # cities of one call
-    "users": (1, 1000),  # users per city
+#: Valid ranges of one ``uavdata simulate`` call's settings, checked before any work (``check_simulation``); each
+#: error names its option. An upper bound of None is the resource limit of the same name (``schemas.limits.Limits``,
+#: raised with ``--limit NAME=VALUE``): what the machine can afford, not what physics allows.
+RANGES = {
+    "cities": (1, None),  # cities of one call (--count)
+    "users": (1, None),  # users per city
     "grid_m": (0.5, 100.0),  # cell side [m]
     "altitude_m": (2.0, 1000.0),  # above the users' 1.5 m
     "tx_dbm": (-50.0, 70.0),
     "frequency_hz": (1e8, 1e11),
-    "samples": (1e3, 1e10),  # rays per user
+    "samples": (1e3, None),  # rays per user
     "depth": (0, 10),
-    "extent_m": (0.0, 5000.0),  # side of an --extent or --crop box [m]
-    "user_cells": (1, 5e7),  # users x grid cells: the maps held in memory (8 bytes each)
-    "routes": (0, 200),  # routes per city
-    "route_length_m": (4.0, 2000.0),
-    "route_points": (0, 5000),  # route points per city, each traced as a user
+    "extent_m": (0.0, None),  # side of an --extent or --crop box [m]
+    "user_cells": (1, None),  # users x grid cells: the maps held in memory (8 bytes each)
+    "routes": (0, None),  # routes per city
+    "route_length_m": (4.0, None),
+    "simulated_route_points": (0, None),  # route points per city, each traced as a user
 }
 
 
 def _bounded(value: float, name: str, option: str) -> None:
-    lo, hi = LIMITS[name]
-    if not (np.isfinite(value) and lo <= value <= hi):
-        raise InputError(option, f"{value!r} is out of range: {lo:g} to {hi:g} (simulate.pipeline.LIMITS)", field=name)
+    lo, hi = RANGES[name]
+    value = float(value)  # an integer option may be of any size (1e300 rays as an int)
+    if not (math.isfinite(value) and lo <= value <= (math.inf if hi is None else hi)):
+        upto = f"to {hi:g}" if hi is not None else f"up (and at most the limit {name} = {shown(getattr(limits(), name))})"
+        raise InputError(option, f"{value!r} is out of range: {lo:g} {upto}", field=name)
+    if hi is None:
+        check_limit(name, value, option, "value", field=name)
 
 
 def check_simulation(spec: SimulationSpec, config: RayTraceConfig, count: int = 1) -> None:
-    """``InputError`` naming the option unless every setting of the call is finite and in ``LIMITS`` (also the box of
-    ``--extent``/``--crop`` and the ``--user`` positions), before any geometry is loaded or any memory allocated."""
-    _bounded(count, "count", "--count")
+    """``InputError`` naming the option unless every setting of the call is finite, in ``RANGES`` and within the resource
+    limits (also the box of ``--extent``/``--crop`` and the ``--user`` positions), before any geometry is loaded or any
+    memory allocated."""
+    _bounded(count, "cities", "--count")
     _bounded(len(spec.users_m) or spec.num_users, "users", "--users")
     _bounded(spec.grid_m, "grid_m", "--grid")
     _bounded(spec.altitude_m, "altitude_m", "--alt")
@@ -150,7 +158,7 @@ def check_simulation(spec: SimulationSpec, config: RayTraceConfig, count: int = 
     _bounded(spec.routes, "routes", "--routes")
     if spec.routes:
         _bounded(spec.route_length_m, "route_length_m", "--route-length")
-        _bounded(route_point_count(spec), "route_points", "--routes with --route-length (their points)")
+        _bounded(route_point_count(spec), "simulated_route_points", "--routes with --route-length (their points)")
         unknown = [k for k in spec.route_kinds if k not in KINDS]
         if unknown or not spec.route_kinds:
             raise InputError(
@@ -236,9 +244,10 @@ def load_geometry(
     if not blocks:
         raise InputError(path, "no building in the geometry" + (" inside --crop" if crop else ""), field="geometry")
     b = crop if crop is not None else tuple(shapely.total_bounds([blk.footprint for blk in blocks]))
-    if max(b[2] - b[0], b[3] - b[1]) > LIMITS["extent_m"][1]:
+    if max(b[2] - b[0], b[3] - b[1]) > limits().extent_m:
         raise InputError(path, f"the geometry spans {b[2] - b[0]:.0f} x {b[3] - b[1]:.0f} m, more than "
-                         f"{LIMITS['extent_m'][1]:g} m a side: give --crop", field="geometry")  # fmt: skip
+                         f"the limit extent_m = {limits().extent_m:g} m a side: give --crop, or raise it with "
+                         "`--limit extent_m=VALUE`", field="geometry")  # fmt: skip
     tiers = len(blocks)
     described = f"{source if source.startswith('sionna:') else path.name}: {len(records)} buildings in {tiers} roof tiers"
     if left_out:

@@ -60,6 +60,48 @@ def test_input_error_is_one_line():
     assert str(InputError("f", "no rows")) == "f: no rows"
 
 
+def test_input_error_survives_pickling():
+    """Ray hands a trial's error to the driver by pickling it: the error must come back whole, not as a TypeError."""
+    import pickle
+
+    err = pickle.loads(pickle.dumps(InputError("a/b.p2m", "bad value", line=12, field="x_m")))
+    assert isinstance(err, InputError) and (err.path, err.line, err.field) == ("a/b.p2m", 12, "x_m")
+    assert str(err) == "a/b.p2m:12: x_m: bad value"
+
+
+def test_every_limit_is_documented_with_its_default():
+    """docs/security.md's table of resource limits lists each limit of ``Limits`` with its default (no drift)."""
+    from pathlib import Path
+
+    from uavplace.schemas.limits import Limits, shown
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "security.md").read_text()
+    for name, field in Limits.model_fields.items():
+        assert f"| `{name}` | {shown(field.default)} |" in doc, name
+
+
+def test_limits_parse_override_and_name_the_option(monkeypatch):
+    """--limit NAME=VALUE and UAVPLACE_LIMITS set the limits of this process and its children; a value past a limit is
+    one InputError naming the limit and how to raise it; bad pairs are refused."""
+    from uavplace.schemas import limits as lim
+
+    monkeypatch.setattr(lim, "_current", None)
+    monkeypatch.setenv(lim.ENV, "grid_cells=100")
+    assert lim.limits().grid_cells == 100
+    lim.set_limits(["mesh_bytes=2e3"])
+    assert lim.limits().grid_cells == 100 and lim.limits().mesh_bytes == 2000
+    assert "mesh_bytes=2000" in __import__("os").environ[lim.ENV]
+    lim.check_limit("grid_cells", 100, "x", "cells")
+    with pytest.raises(InputError, match=r"101 is over the limit grid_cells = 100; raise it with `--limit grid_cells=VALUE`"):
+        lim.check_limit("grid_cells", 101, "--grid", "cells")
+    with pytest.raises(InputError, match="is over the limit"):
+        lim.check_limit("grid_cells", float("nan"), "--grid", "cells")
+    for bad in ("nope=3", "grid_cells", "grid_cells=abc", "grid_cells=-1"):
+        with pytest.raises(InputError):
+            lim.set_limits([bad])
+    monkeypatch.setattr(lim, "_current", None)
+
+
 def test_atomic_outputs_take_the_umask_not_a_private_mode(tmp_path):
     """Files and folders written atomically get the mode a plain write would: 0644 / 0755 under umask 022, 0600 /
     0700 under 077 (mkstemp's and mkdtemp's private modes must not leak into reports and runs)."""

@@ -105,6 +105,23 @@ def test_symlinks_out_of_the_city_are_not_read(tmp_path):
     assert link["kind"] == "link" and link["sha256"] is None and link["size_bytes"] is None  # never opened nor stat'ed
 
 
+def test_what_is_not_a_regular_file_is_listed_never_opened(tmp_path):
+    """A FIFO named like an export (it would block), a link to a device, a looping link and a folder named like an
+    export are each reported as not read, with a warning and in the manifest (never silently passed over)."""
+    city = write_grid_city(tmp_path / "city")
+    os.mkfifo(city / "city.pl.t003_01.r002.p2m")
+    (city / "loop.p2m").symlink_to(city / "loop")
+    (city / "loop").symlink_to(city / "loop.p2m")
+    (city / "more.txrx").mkdir()
+    res = invoke(uavdata, "ingest", str(city), "--out", str(tmp_path / "proc"))
+    assert res.exit_code == 0, res.output
+    manifest = json.loads((tmp_path / "proc" / "city" / "ingested" / "manifest.json").read_text())
+    special = {s["path"]: s for s in manifest["sources"] if s["kind"] == "special"}
+    assert set(special) == {"city.pl.t003_01.r002.p2m", "loop.p2m", "loop", "more.txrx"}
+    assert all(s["sha256"] is None and s["status"] == "skipped" for s in special.values())
+    assert "city.pl.t003_01.r002.p2m: not a regular file" in res.output and "more.txrx: a folder named like" in res.output
+
+
 def test_concurrent_ingests_of_one_city_take_turns(tmp_path):
     """Three `uavdata ingest`, then three `uavdata build`, of one city at once: all succeed (a per-folder lock)."""
     city = write_grid_city(tmp_path / "city", nx=150, ny=120, n_tx=8, spacing=2.0, outputs=("pl", "power"))
@@ -241,3 +258,37 @@ def test_a_mesh_of_many_bodies_stays_small(tmp_path):
     count, seconds, max_kb = res.stdout.split()
     assert int(count) == n
     assert float(seconds) < 60 and int(max_kb) < 2 * 2**20, res.stdout
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 24 kB file system (tmpfs), where every command runs out of space; skips where mounting is not allowed."""
+    mount = tmp_path / "small"
+    mount.mkdir()
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=24k", "tmpfs", str(mount)], capture_output=True)
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a small tmpfs here: {done.stderr.decode(errors='replace').strip()}")
+    yield mount
+    subprocess.run(["umount", str(mount)], capture_output=True)
+
+
+def test_a_full_disk_is_one_line_and_leaves_nothing_half_written(tmp_path, small_disk):
+    """ENOSPC in ingest and in training: exit 2, one `error:` line saying the disk is full, no traceback, and no
+    temporary file or folder left on the full file system."""
+    city = write_grid_city(tmp_path / "raw" / "city", nx=40, ny=40, n_tx=6)
+    done = subprocess.run([*UAVDATA, "ingest", str(city), "--out", str(small_disk / "root")], capture_output=True, text=True)
+    lines = [x for x in done.stderr.splitlines() if x.strip()]
+    assert done.returncode == 2 and len(lines) == 1 and "no space left" in lines[0].lower(), done.stderr
+    assert not [p for p in small_disk.rglob("*") if "tmp" in p.name or p.name.startswith(".")
+                and not p.name.endswith(".lock")], list(small_disk.rglob("*"))  # fmt: skip
+    subprocess.run([*UAVDATA, "ingest", str(city), "--out", str(tmp_path / "root"), "--quiet"], check=True)
+    subprocess.run([*UAVDATA, "build", "--root", str(tmp_path / "root"), "--grid", "4m", "--alt", "10", "--noise-dbm", "-60",
+                    "--quiet"], check=True)  # fmt: skip
+    uavrl_cli = [sys.executable, "-m", "uavplace.schemas.cli", "uavrl"]
+    done = subprocess.run([*uavrl_cli, "train", "--dataset", "city", "--root", str(tmp_path / "root"), "--preset", "fast",
+                           "--steps", "64", "--eval-every", "32", "--out", str(small_disk / "runs"), "--name", "r", "--quiet",
+                           "--set", "buffer_size=128", "--set", "learning_starts=16", "--set", "eval_episodes=4"],
+                          capture_output=True, text=True)  # fmt: skip
+    lines = [x for x in done.stderr.splitlines() if x.strip()]
+    assert done.returncode == 2 and len(lines) == 1 and "no space left" in lines[0].lower(), done.stderr
+    assert not [p for p in small_disk.rglob("*") if ".tmp" in p.name], list(small_disk.rglob("*"))

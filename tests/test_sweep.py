@@ -95,8 +95,9 @@ def test_sweep_trains_resumes_and_tables(tmp_path, root):
         ),  # fmt: skip
         ('datasets = ["tiny"]\n[[trials]]\nname = "a"\nseeds = [0, 0]\n', "repeat a seed"),
         ('datasets = ["tiny"\n', "not a TOML file"),
+        ('datasets = ["tiny"]\n[[trials]]\nname = "a"\nsettings = {seed = 3}\n', "seed (use the trial's seeds)"),
     ],
-    ids=["unknown-field", "unknown-setting", "unknown-member", "seed-twice", "not-toml"],
+    ids=["unknown-field", "unknown-setting", "unknown-member", "seed-twice", "not-toml", "seed-as-a-setting"],
 )
 def test_sweep_refuses_bad_specs(tmp_path, text, message):
     """A bad sweep file is one error line naming the file and the field, before Ray starts or anything is written."""

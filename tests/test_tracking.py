@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import shapely
 
-from tests.conftest import write_grid_city
+from tests.conftest import REPO, write_grid_city
 from uavplace.dataset.build import build_city
 from uavplace.dataset.bundle import load_bundle
 from uavplace.ingest.pipeline import ingest_city
@@ -219,3 +219,70 @@ def test_gymnasium_tracking_env(root):
     for t in range(7):
         obs, reward, terminated, truncated, info = env.step(STAY)
         assert not terminated and truncated == (t == 6) and "covered" in info
+
+
+def test_recorded_paths_replay_the_covered_steps(root):
+    """run_tracking(record=True) gives the UAV's cells and the user's points at every step: moves of at most one cell,
+    the episode's start cell first, and the covered steps are exactly those where the SINR of that cell to that point
+    reaches P_T; recording changes nothing of the play."""
+    config = TrackingConfig(horizon=15, window=9)
+    routes = RouteSet([load_bundle("walk", root=root)], config)
+    episodes = routes.sample_episodes(9, np.random.default_rng(3))
+    plain = run_tracking(routes, ReplanningGenie(), episodes, num_envs=4)
+    res = run_tracking(routes, ReplanningGenie(), episodes, num_envs=4, record=True)
+    assert np.array_equal(plain.covered, res.covered) and res.path.shape == (9, 16, 2)
+    assert (np.abs(np.diff(res.path, axis=1)).sum(axis=2) <= 1).all()
+    assert np.array_equal(res.path[:, 0], episodes[:, 2:].astype(int))
+    sinr = routes.sinr[res.points[:, 1:], res.path[:, 1:, 0], res.path[:, 1:, 1]]
+    assert np.array_equal(sinr >= config.p_t_db, res.covered)
+
+
+def test_tracking_table_intervals_resample_routes():
+    """The tracking table's intervals: a method that covers everything has [1, 1]; the fraction of the oracle is the
+    ratio of the means; routes that differ widen the interval of the route-level bootstrap."""
+    import pandas as pd
+
+    from uavplace.eval.tracking import tracking_table
+    from uavplace.rl.tracking import TrackingEpisodes
+
+    rng = np.random.default_rng(0)
+    k, h = 200, 10
+    route = np.repeat(np.arange(4), k // 4)
+    half = rng.random((k, h)) < np.where(route < 2, 0.9, 0.1)[:, None]  # two good routes, two bad
+
+    def episodes(covered: np.ndarray) -> TrackingEpisodes:
+        table = pd.DataFrame({"episode": np.arange(k), "route": route, "city": "c"} | episode_metrics(covered))
+        return TrackingEpisodes(table, covered)
+
+    t = tracking_table({"oracle": episodes(np.ones((k, h), bool)), "half": episodes(half)}, n_boot=400, seed=1)
+    o, m = t.set_index("method").loc["oracle"], t.set_index("method").loc["half"]
+    assert o["covered_share"] == o["covered_share_lo"] == o["covered_share_hi"] == 1.0
+    assert m["of_oracle"] == pytest.approx(half.mean())
+    assert m["covered_share_lo"] < half.mean() < m["covered_share_hi"]
+    assert m["covered_share_hi"] - m["covered_share_lo"] > 0.3  # routes of 0.9 and 0.1: the route level dominates
+
+
+def test_tracking_report_from_the_command_line(root, tmp_path):
+    """`uavrl report --task tracking` writes the page, the table, the Markdown, the figures and tracking.json, and
+    prints one table per city; a shipped placement agent plays unchanged beside the baselines; --group is refused."""
+    import json
+
+    from click.testing import CliRunner
+
+    from uavplace.schemas.cli import uavrl
+
+    out = tmp_path / "trk"
+    args = ["report", "--task", "tracking", "--dataset", "walk", "--root", str(root), "--episodes", "12", "--horizon",
+            "20", "--bootstrap", "100", "--out", str(out), "--markdown", str(tmp_path / "t.md"), "--run",
+            str(REPO / "data" / "agents" / "proposed"), "--quiet"]  # fmt: skip
+    result = CliRunner().invoke(uavrl, args)
+    assert result.exit_code == 0, result.output
+    table = (out / "tracking.md").read_text()
+    assert all(m in table for m in ("oracle", "DQN (paper)", "re-planning genie", "greedy hill-climbing"))
+    for name in ("tracking.html", "tracking.csv", "tracking.md", "tracking.json", "walk-coverage.png", "walk-episodes.png"):
+        assert (out / name).is_file(), name
+    record = json.loads((out / "tracking.json").read_text())
+    assert record["config"]["task"]["horizon"] == 20 and record["cities"][0]["city"] == "walk"
+    assert (tmp_path / "t.md").read_text() == (out / "tracking.md").read_text()
+    refused = CliRunner().invoke(uavrl, [*args[:-1], "--group", f"g={tmp_path}"])
+    assert refused.exit_code == 2 and "takes no --group" in refused.output

@@ -108,6 +108,8 @@ class Block:
                 k = int(rest.strip())
             except ValueError:
                 raise InputError(self.path, f"'{rest.strip()}' is not a count", line=lineno, field=N_VERTICES) from None
+            if k < 1:
+                raise InputError(self.path, f"{N_VERTICES} {k}: a count of at least 1", line=lineno, field=N_VERTICES)
             lines = self.entries[i + 1 : i + 1 + k]
             if len(lines) < k:
                 raise InputError(

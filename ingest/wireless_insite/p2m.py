@@ -30,6 +30,7 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 
 from uavplace.schemas import InputError, ReceiverSet
+from uavplace.schemas.limits import check_limit, limits
 from uavplace.schemas.receivers import QUANTITIES, RECEIVER_OUTPUTS, SKIPPED_OUTPUTS
 from uavplace.schemas.tables import RECEIVERS, Column
 
@@ -70,6 +71,8 @@ POSITION_COLUMNS = ("x_m", "y_m", "z_m", "distance_m")
 _NON_SPACE = re.compile(rb"\S")
 #: Bytes read to find the header of an uncompressed file.
 _HEADER_PROBE = 1 << 16
+#: The longest line of a receiver row read [bytes] (a row is a few dozen: 8 numbers).
+MAX_LINE_BYTES = 1 << 16
 #: InSite's power threshold when the .setup gives none [dBm].
 DEFAULT_POWER_THRESHOLD_DBM = -250.0
 #: Peak gain [dBi] of the InSite antenna types whose gain the type fixes (keys lower case, without spaces).
@@ -356,11 +359,16 @@ class P2MStream:
         return pa.input_stream(str(self.path), compression="gzip" if self.gz else None)
 
     def _read(self, size: int | None) -> bytes:
+        """``size`` bytes of the (decompressed) file, or all of it within the limit ``export_bytes``."""
+        limit = limits().export_bytes
         try:
             with self._stream() as f:
-                return f.read() if size is None else f.read(size)
+                data = f.read(limit + 1) if size is None else f.read(size)
         except OSError as exc:
             raise InputError(self.name, f"not a readable gzip file ({exc})" if self.gz else f"unreadable ({exc})") from None
+        if size is None:
+            check_limit("export_bytes", len(data), self.name, "size of the (decompressed) text [bytes]")
+        return data
 
     def _whole(self) -> bytes:
         """The whole (converted) file: read only when an error has to name its line."""
@@ -393,13 +401,22 @@ class P2MStream:
         return InputError(self.name, message, line=line, field=field)
 
     def _blocks(self) -> Iterator[bytes]:
-        """The body in blocks of about ``batch_bytes``, each ending at a line end (no read-ahead: memory stays flat)."""
+        """The body in blocks of about ``batch_bytes``, each ending at a line end (no read-ahead: memory stays flat);
+        ``InputError`` on a line longer than ``MAX_LINE_BYTES`` or a text past the limit ``export_bytes`` (a
+        decompression bomb is stopped there, not held in memory)."""
         body = self._body()
         rest = b""
+        read, lines = self.header.body_offset, len(self.header.lines)
         while data := body.read(self.batch_bytes):
+            read += len(data)
+            check_limit("export_bytes", read, self.name, "size of the (decompressed) text [bytes]")
             data = rest + data
             cut = data.rfind(b"\n") + 1
             rest = data[cut:]
+            if len(rest) > MAX_LINE_BYTES:
+                raise InputError(self.name, f"a line of more than {MAX_LINE_BYTES:,} bytes (a receiver row is a few dozen)",
+                                 line=lines + data.count(b"\n", 0, cut) + 1)  # fmt: skip
+            lines += data.count(b"\n", 0, cut)
             if cut and data[:cut].strip():
                 yield data[:cut]
         if rest.strip():

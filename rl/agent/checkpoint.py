@@ -23,6 +23,7 @@ Formats:
 from __future__ import annotations
 
 import io
+import math
 import pickle
 import re
 from pathlib import Path
@@ -58,6 +59,10 @@ class CheckpointState(Contract):
     def _ordered(self) -> CheckpointState:
         if self.synced_at > self.step:
             raise ValueError(f"synced_at {self.synced_at} is after step {self.step}")
+        if self.best_score is not None and not (0 <= self.best_score[0] <= 1 and self.best_score[1] <= 0):
+            raise ValueError(f"best_score {list(self.best_score)}: expected (success in 0..1, -median steps <= 0)")
+        if not all(math.isfinite(v) for v in self.losses):
+            raise ValueError("losses holds NaN or inf: a training stops before it saves a non-finite loss")
         return self
 
 

@@ -20,7 +20,7 @@ from typing import Literal
 
 import numpy as np
 import torch
-from pydantic import Field, ValidationError, model_validator
+from pydantic import ConfigDict, Field, ValidationError, model_validator
 from torch import nn
 
 from uavplace.rl.agent.network import FoveaQNetwork, MeanQ, QNetwork
@@ -30,24 +30,29 @@ from uavplace.rl.policies import episode_draws, pick_legal, random_legal
 from uavplace.rl.randomness import stream_key
 from uavplace.rl.vec_env import OBS_OFFSET, BatchedEnv
 from uavplace.schemas import InputError
-from uavplace.schemas.base import Contract, validation_message
+from uavplace.schemas.base import MAX_SEED, Contract, validation_message
+from uavplace.schemas.limits import check_limit, limits, over_limit
 
 
 class DQNConfig(Contract):
     """Every hyperparameter of a run (saved with it); ``PRESETS`` holds the named sets."""
 
+    model_config = ConfigDict(allow_inf_nan=False)
+
     preset: str = Field(default="custom", description="Name of the preset this config came from")
     agent: Literal["dqn", "blind"] = Field(default="dqn", description="dqn: height + SINR memory; blind: SINR memory only")
     total_steps: int = Field(default=7_000_000, ge=1, description="Environment steps (all envs together)")
-    num_envs: int = Field(default=8, ge=1, description="Episodes acted on in parallel (batched env)")
+    num_envs: int = Field(default=8, ge=1, le=65_536, description="Episodes acted on in parallel (batched env)")
     learner: Literal["replay", "pqn"] = Field(
         default="replay",
         description="replay: double DQN from a replay buffer with a target network (the paper's); pqn: Q(lambda) on "
         "each rollout of the batched env, no replay, no target network (rl/agent/pqn.py)",
     )
-    rollout_steps: int = Field(default=16, ge=1, description="PQN: moves of every env per rollout (then the updates)")
+    rollout_steps: int = Field(default=16, ge=1, le=100_000, description="PQN: moves of every env per rollout (then the updates)")
     q_lambda: float = Field(default=0.65, ge=0, le=1, description="PQN: lambda of the Q(lambda) returns (0: one-step)")
-    epochs: int = Field(default=4, ge=1, description="PQN: passes over each rollout, in shuffled minibatches of batch_size")
+    epochs: int = Field(
+        default=4, ge=1, le=10_000, description="PQN: passes over each rollout, in shuffled minibatches of batch_size"
+    )
     layer_norm: bool = Field(default=False, description="Layer norm after each fully connected layer (PQN's stabiliser)")
     recurrent: bool = Field(
         default=False,
@@ -55,11 +60,11 @@ class DQNConfig(Contract):
         "reset at each episode's start (PQN only: it learns on whole rollouts, from the state each began with)",
     )
     buffer_size: int = Field(default=500_000, ge=1, description="Replay capacity in transitions (FIFO)")
-    batch_size: int = Field(default=20, ge=1, description="Transitions per gradient step")
+    batch_size: int = Field(default=20, ge=1, le=1_000_000, description="Transitions per gradient step")
     train_every: int = Field(default=3, ge=1, description="Environment steps per gradient step (replay learner)")
     learning_starts: int = Field(default=10_000, ge=0, description="Environment steps before the first update (replay learner)")
     gamma: float = Field(default=0.99, gt=0, le=1, description="Discount factor")
-    n_step: int = Field(default=1, ge=1, description="Steps of the return before bootstrapping")
+    n_step: int = Field(default=1, ge=1, le=1000, description="Steps of the return before bootstrapping")
     lr_start: float = Field(default=1e-4, gt=0, description="Learning rate at the start (annealed linearly)")
     lr_end: float = Field(default=1e-5, gt=0, description="Learning rate at the end")
     grad_clip: float = Field(default=10.0, gt=0, description="Max global gradient norm")
@@ -74,7 +79,9 @@ class DQNConfig(Contract):
         default="paper",
         description="paper: 3 convolutions + fully connected (QNetwork); fovea: centre + pooled surround, fully connected",
     )
-    fovea: int = Field(default=15, ge=3, description="Fovea network: side of the centre crop and of the pooled surround [cells]")
+    fovea: int = Field(
+        default=15, ge=3, le=1001, description="Fovea network: side of the centre crop and of the pooled surround [cells]"
+    )
     pool_extremes: bool = Field(
         default=False,
         description="Fovea network: the surround max- and min-pooled as well as averaged (a lane of open cells, a "
@@ -120,7 +127,7 @@ class DQNConfig(Contract):
         "added to its Q-value (the head reads the same observation; 0: the Q head alone acts)",
     )
     eval_t_max: int = Field(default=500, ge=1, description="Step budget of evaluation episodes (paper: 500)")
-    seed: int = Field(default=0, description="Seed of everything (envs, exploration, replay sampling, torch)")
+    seed: int = Field(default=0, ge=0, le=MAX_SEED, description="Seed of everything (envs, exploration, replay sampling, torch)")
     ensemble: int = Field(
         default=1,
         ge=1,
@@ -141,6 +148,18 @@ class DQNConfig(Contract):
             )
         if self.recurrent and self.learner != "pqn":
             raise ValueError("recurrent needs learner=pqn (the replay learner samples single transitions, not sequences)")
+        if self.test_aux_weight > 0 and self.aux_genie <= 0:
+            raise ValueError("test_aux_weight needs a network with a genie-move head (trained with aux_genie > 0)")
+        return self
+
+    @model_validator(mode="after")
+    def _within_limits(self) -> DQNConfig:
+        """The loops a config drives are bounded by the resource limits (``schemas.limits``), checked when it is made
+        or read from a run.json, before any work; the network's and the replay's sizes are checked where they are built."""
+        for field, limit, value in (("total_steps", "train_steps", self.total_steps), ("eval_episodes", "episodes", self.eval_episodes),
+                                    ("eval_t_max", "t_max", self.eval_t_max), ("env.t_max", "t_max", self.env.t_max)):  # fmt: skip
+            if value > getattr(limits(), limit):
+                raise ValueError(over_limit(limit, value, field))
         return self
 
     @property
@@ -293,10 +312,19 @@ def revisit_penalty(visits: np.ndarray, weight: float, device: torch.device) -> 
 
 def make_network(config: DQNConfig, in_channels: int, window: int) -> nn.Module:
     """The Q-network ``config.network`` names, with the config's sizes; ``config.ensemble`` of them as one agent
-    (``MeanQ``) when it is above 1."""
+    (``MeanQ``) when it is above 1. Its size is counted on torch's meta device first (no memory) and refused past
+    the limit ``network_params``: the sizes come from a run.json or ``--set`` and could ask for any amount."""
+    with torch.device("meta"):
+        count = sum(p.numel() for p in _network(config, in_channels, window).parameters())
+    check_limit("network_params", count, "hidden, conv_channels, fovea, ensemble, env.window",
+                f"parameters of a {config.network} network of {config.ensemble} member(s)", field="config")  # fmt: skip
+    return _network(config, in_channels, window)
+
+
+def _network(config: DQNConfig, in_channels: int, window: int) -> nn.Module:
     if config.ensemble > 1:
         member = config.model_copy(update={"ensemble": 1})
-        return MeanQ([make_network(member, in_channels, window) for _ in range(config.ensemble)])
+        return MeanQ([_network(member, in_channels, window) for _ in range(config.ensemble)])
     sizes = {
         "hidden": config.hidden,
         "dropout": config.dropout,

@@ -16,6 +16,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from uavplace.schemas.limits import check_limit
+
 
 class Batch(NamedTuple):
     obs: np.ndarray  # [B, C, w, w] uint8
@@ -35,6 +37,9 @@ class ReplayBuffer:
         self.capacity = max(num_envs * (n_step + 2), (capacity // num_envs) * num_envs)
         self.n_step, self.gamma = n_step, gamma
         c = self.capacity
+        slot = int(np.prod(obs_shape)) + 4 + 4 + 1 + 4 + 1 + 1 + 4  # observation bytes, masks, action, reward, flags, index
+        check_limit("replay_bytes", c * slot * (1 + 1 / t_max), "buffer_size", f"replay memory of {c:,} transitions [bytes]",
+                    field="buffer_size")  # fmt: skip
         self.obs = np.zeros((c, *obs_shape), np.uint8)
         self.mask = np.zeros((c, 4), bool)
         self.genie = np.zeros((c, 4), bool)

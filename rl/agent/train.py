@@ -401,6 +401,12 @@ class Trainer:
                     # A checkpoint from before the env counted visits holds which cells were visited: once each.
                     getattr(self.env, k)[...] = z["visited"] if k == "visits" and k not in z else z[k]
                 self.state.last_action, self.state.start_sinr = z["last_action"], z["start_sinr"]
+            self.env.check_state(last / "env.npz")
+            if (
+                not np.isfinite(self.state.start_sinr).all()
+                or ((self.state.last_action < -1) | (self.state.last_action > 3)).any()
+            ):
+                raise InputError(last / "env.npz", "start_sinr not finite or last_action outside -1..3", field="start_sinr")
             self.agent.updates = doc.updates
             self.state.step, self.state.synced_at = doc.step, doc.synced_at
             self.state.losses = list(doc.losses)

@@ -38,6 +38,14 @@ PLY_HEAD = (
 )
 
 
+def _edit_json(path, edit):  # noqa: ANN001, ANN202
+    """``path`` (a JSON file) changed in place by ``edit(doc)``; returns the file's folder."""
+    doc = json.loads(path.read_text())
+    edit(doc)
+    path.write_text(json.dumps(doc))
+    return path.parent
+
+
 def _fc(*features: object) -> dict:
     return {"type": "FeatureCollection", "features": list(features)}
 
@@ -1057,5 +1065,103 @@ CASES: list[Case] = [
         "uavrl",
         lambda w: ["baselines", "--dataset", "nosuch", "--root", str(w.root())],
         "no bundle of city 'nosuch'",
+    ),
+    # found by the second probe pass (benchmarks/probe_pass.py, docs/probes.md)
+    Case(
+        "build a grid past the limit grid_cells",
+        "uavdata",
+        lambda w: ["build", "--root", str(w.root()), "--grid", "0.001m", "--alt", "10", "--quiet"],
+        "is over the limit grid_cells = 4,000,000; raise it with `--limit grid_cells=VALUE`",
+    ),
+    Case(
+        "build a grid of 1e-300 m",
+        "uavdata",
+        lambda w: ["build", "--root", str(w.root()), "--grid", "1e-300m", "--alt", "10", "--quiet"],
+        "inf is over the limit grid_cells",
+    ),
+    Case(
+        "build an infinite noise",
+        "uavdata",
+        lambda w: ["build", "--root", str(w.root()), "--grid", "4m", "--alt", "10", "--noise-dbm", "inf", "--quiet"],
+        "Invalid value for '--noise-dbm': 'inf' is not a finite number",
+    ),
+    Case(
+        "build a negative seed",
+        "uavdata",
+        lambda w: ["build", "--root", str(w.root()), "--grid", "4m", "--alt", "10", "--seed", "-1"],
+        "Invalid value for '--seed'",
+    ),
+    Case(
+        "a limit of nan",
+        "uavdata",
+        lambda w: ["--limit", "grid_cells=nan", "list"],
+        "grid_cells: Input should be a finite number",
+    ),
+    Case("an unknown limit", "uavrl", lambda w: ["--limit", "cells=3", "datasets"], "expected NAME=VALUE with NAME one of"),
+    Case(
+        "train a replay past the limit replay_bytes",
+        "uavrl",
+        lambda w: [
+            "train",
+            "--dataset",
+            "city",
+            "--root",
+            str(w.root()),
+            "--preset",
+            "fast",
+            "--out",
+            str(w.tmp / "runs"),
+            "--set",
+            "buffer_size=1000000000000",
+        ],  # fmt: skip
+        "is over the limit replay_bytes",
+    ),
+    Case(
+        "train a network past the limit network_params",
+        "uavrl",
+        lambda w: [
+            "train",
+            "--dataset",
+            "city",
+            "--root",
+            str(w.root()),
+            "--preset",
+            "fast",
+            "--out",
+            str(w.tmp / "runs"),
+            "--set",
+            "hidden=1000000000",
+        ],  # fmt: skip
+        "is over the limit network_params",
+    ),
+    Case(
+        "baselines at a P_T no cell is below",
+        "uavrl",
+        lambda w: ["baselines", "--dataset", "city", "--root", str(w.root()), "--episodes", "4", "--p-t-db", "-100"],
+        "city: p_t_db: no user has a start cell at P_T = -100 dB",
+    ),
+    Case(
+        "city face of -4 vertices",
+        "uavdata",
+        lambda w: w.add_file("b.city", _city_file(SQUARE_ROOF.replace("nVertices 4", "nVertices -4"))),
+        "b.city:5: nVertices: nVertices -4: a count of at least 1",
+    ),
+    Case(
+        "simulate 1e300 rays",
+        "uavdata",
+        lambda w: ["simulate", "procedural:tiny", "--name", "t", "--out", str(w.tmp / "sim"), "--samples", "1e300"],
+        "--samples: samples: value: 1e+300 is over the limit samples = 10,000,000,000",
+    ),
+    Case(
+        "train --set seed, which --seed would override",
+        "uavrl",
+        lambda w: ["train", "--dataset", "city", "--root", str(w.root()), "--preset", "fast", "--set", "seed=3"],
+        "--set seed and --seed set the same field: give it once, with the option",
+    ),
+    Case(
+        "report of a run whose run.json holds another config than best.pt",
+        "uavrl",
+        lambda w: w.report("--run", str(_edit_json(w.agent() / "run.json", lambda d: d["config"].update(hidden=7)))),
+        "run.json: config: its config is not the one checkpoints/best.pt was trained with (hidden differ)",
     ),
 ]

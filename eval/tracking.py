@@ -1,0 +1,310 @@
+"""``uavrl report --task tracking``: the moving-user task (``rl.tracking``) evaluated and written as a report.
+
+Every method plays the same episodes of each city (routes, start times and start cells drawn from the report's
+seed): the oracle (the most covered steps possible: the upper bound), the placement genie re-planned every step,
+the steered random walk and greedy hill-climbing. Per method and city: the median steps to first reach P_T, the
+coverage after it, the median longest outage, the share of the horizon covered and that share as a fraction of the
+oracle's. Intervals are paired bootstrap 95 % intervals that resample the routes (a route plays the part a user
+plays in placement: its episodes are alike), then the episodes of each drawn route (``eval.metrics.resample_counts``).
+
+The folder ``OUT`` (default ``reports/tracking``) holds ``tracking.html`` (self-contained, the placement report's
+style), ``tracking.csv`` (every statistic with its interval), ``tracking.md``, ``episodes.parquet``, per city
+``<city>-coverage.png`` (the share of episodes covered at each step) and ``<city>-episodes.png`` (three episodes
+on the maps, chosen by ``EPISODE_RULES``), and ``tracking.json`` (the config and what the report was made from).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from pydantic import ConfigDict, Field
+
+from uavplace.dataset.bundle import load_bundle
+from uavplace.eval.metrics import _weighted_quantile, resample_counts
+from uavplace.eval.report import _CSS, Agent, Figure, _figure, _pyplot, _templates, check_unseen, load_agent, markdown_table
+from uavplace.rl.policies import GreedyPolicy, RandomWalkPolicy
+from uavplace.rl.tracking import (
+    MovesOnly,
+    OraclePolicy,
+    PlacementInTracking,
+    ReplanningGenie,
+    RouteSet,
+    TrackingConfig,
+    TrackingEpisodes,
+    run_tracking,
+)
+from uavplace.schemas import InputError
+from uavplace.schemas.base import MAX_SEED, Contract, uavplace_version
+from uavplace.schemas.files import atomic_directory, check_replaceable
+
+TRACKING_JSON = "tracking.json"
+#: Statistic -> (column header, how episodes are summarised).
+STATS = {
+    "first_reach": ("median steps to first reach P_T", "median"),
+    "coverage": ("coverage after first reach", "mean"),
+    "longest_outage": ("median longest outage [steps]", "median"),
+    "covered_share": ("share of the horizon covered", "mean"),
+}
+UPPER_BOUND = "oracle"
+#: The episodes drawn on the maps, of the best method that is not the oracle, by its covered share.
+EPISODE_RULES = ("the 10th percentile of its covered share", "its median covered share", "the 90th percentile")
+_QUANTILES = (0.1, 0.5, 0.9)
+_SHORT = ("10th percentile", "median", "90th percentile")
+
+
+class TrackingReportConfig(Contract):
+    """Every parameter of one tracking report (saved in ``tracking.json``)."""
+
+    model_config = ConfigDict(allow_inf_nan=False)
+
+    datasets: list[str] = Field(min_length=1, description="Cities with routes (built bundles, optionally city@version)")
+    runs: list[str] = Field(default_factory=list, description="Placement agents (run folders or shipped agents), run unchanged")
+    test_epsilon: float = Field(default=0.096, ge=0, le=1, description="Random legal move rate of the agents (paper: 0.096)")
+    episodes: int = Field(default=1000, ge=1, description="Episodes per city, the same for every method")
+    task: TrackingConfig = Field(default_factory=TrackingConfig, description="The tracking task (horizon, P_T, speeds)")
+    seed: int = Field(default=0, ge=0, le=MAX_SEED, description="Seed of the episodes and the baselines' random moves")
+    n_boot: int = Field(default=2000, ge=100, description="Bootstrap resamples of the 95 % intervals")
+    trajectories: int = Field(default=3, ge=0, le=3, description="Episodes drawn on the maps, by EPISODE_RULES (0: none)")
+
+
+def tracking_methods(task: TrackingConfig, seed: int, agents: list[Agent] = ()) -> list:
+    """The methods of the report: the upper bound first, then the agents (placement agents run unchanged,
+    ``PlacementInTracking``), then the re-planning genie and the baselines."""
+    return [OraclePolicy(), *(PlacementInTracking(a.policy, a.config.env_config(evaluation=True), a.name) for a in agents),
+            ReplanningGenie(), MovesOnly(RandomWalkPolicy(seed=seed)), MovesOnly(GreedyPolicy(task.p_h_db, seed=seed))]  # fmt: skip
+
+
+def _summary(values: np.ndarray, how: str, weights: np.ndarray) -> np.ndarray:
+    """Each bootstrap replicate's summary ``[B]`` of ``values`` ``[n]`` under ``weights`` ``[B, n]``."""
+    if how == "median":
+        return _weighted_quantile(values, weights, 0.5)
+    return weights @ values / weights.sum(axis=1)
+
+
+def tracking_table(results: dict[str, TrackingEpisodes], n_boot: int, seed: int) -> pd.DataFrame:
+    """One row per method: each statistic of ``STATS`` and the covered share as a fraction of the oracle's, with
+    paired 95 % intervals (routes, then episodes within each drawn route)."""
+    first = next(iter(results.values())).table
+    n = len(first)
+    counts = resample_counts(first["route"].to_numpy(), n, n_boot, seed).astype(np.float64)
+    ones = np.ones((1, n))
+    bound = results.get(UPPER_BOUND)
+    rows = []
+    for name, res in results.items():
+        row: dict[str, object] = {"city": first["city"].iloc[0], "method": name, "episodes": n,
+                                  "routes": int(first["route"].nunique())}  # fmt: skip
+        for stat, (_, how) in STATS.items():
+            v = res.table[stat].to_numpy(dtype=np.float64)
+            row[stat] = float(_summary(v, how, ones)[0])
+            lo, hi = np.quantile(_summary(v, how, counts), [0.025, 0.975], method="inverted_cdf")
+            row[f"{stat}_lo"], row[f"{stat}_hi"] = float(lo), float(hi)
+        if bound is not None:
+            mine, best = res.table["covered_share"].to_numpy(), bound.table["covered_share"].to_numpy()
+            row["of_oracle"] = float(mine.mean() / best.mean()) if best.mean() > 0 else np.nan
+            with np.errstate(invalid="ignore", divide="ignore"):
+                ratio = (counts @ mine) / (counts @ best)
+            row["of_oracle_lo"], row["of_oracle_hi"] = (float(x) for x in np.nanquantile(ratio, [0.025, 0.975]))
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def _cell(stat: str, r: dict, horizon: int) -> str:
+    v, lo, hi = r[stat], r[f"{stat}_lo"], r[f"{stat}_hi"]
+    if stat in ("first_reach",):
+        shown = lambda x: f"> {horizon}" if not np.isfinite(x) else f"{x:g}"  # noqa: E731
+        return f"{shown(v)} [{shown(lo)}, {shown(hi)}]"
+    if stat == "longest_outage":
+        return f"{v:g} [{lo:g}, {hi:g}]"
+    return f"{v:.3f} [{lo:.3f}, {hi:.3f}]"
+
+
+def table_rows(table: pd.DataFrame, horizon: int) -> list[list[str]]:
+    """The table as text cells (header first)."""
+    rows = [["method", *(h for h, _ in STATS.values()), "covered share / the oracle's"]]
+    for r in table.to_dict("records"):
+        cells = [r["method"], *(_cell(s, r, horizon) for s in STATS)]
+        cells.append("-" if "of_oracle" not in r or np.isnan(r["of_oracle"]) else _cell("of_oracle", r, horizon))
+        rows.append(cells)
+    return rows
+
+
+def plot_coverage(results: dict[str, TrackingEpisodes], task: TrackingConfig, step_s: float, city: str, out: Path) -> Figure:
+    """The share of episodes covered at each step, one curve per method."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(9.5, 4.2), constrained_layout=True)
+    t = np.arange(1, task.horizon + 1)
+    for name, res in results.items():
+        share = res.covered.mean(axis=0)
+        ax.plot(t, share, label=f"{name} ({res.covered.mean():.3f})", linewidth=2.0 if name == UPPER_BOUND else 1.4,
+                linestyle="--" if name == UPPER_BOUND else "-")  # fmt: skip
+    ax.set_xlim(1, task.horizon)
+    ax.set_ylim(0, 1.01)
+    ax.set_xlabel(f"step (one step: {step_s:g} s, a {task.uav_speed_mps:g} m/s UAV crossing one cell)")
+    ax.set_ylabel("share of episodes covered")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, title="method (share of the horizon)", title_fontsize=8)
+    ax.set_title(f"{city}: coverage over time")
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    n = len(next(iter(results.values())).table)
+    caption = (f"{city}: the share of the {n} episodes in which the UAV covers the user (SINR at or above P_T = "
+               f"{task.p_t_db:g} dB) at each step, one curve per method, all on the same episodes; in the legend, the "
+               "mean over the horizon (the share of the horizon covered). The oracle, dashed, is the upper bound.")  # fmt: skip
+    return Figure(out, caption)
+
+
+def pick_episodes(results: dict[str, TrackingEpisodes], count: int) -> tuple[str, list[int]]:
+    """The method drawn (the best by mean covered share that is not the oracle) and its episodes at the quantiles of
+    ``EPISODE_RULES`` of its covered share (ties: the lowest episode index)."""
+    candidates = {k: v for k, v in results.items() if k != UPPER_BOUND} or results
+    method = max(candidates, key=lambda k: (candidates[k].table["covered_share"].mean(), k))
+    share = candidates[method].table["covered_share"].to_numpy()
+    order = np.argsort(share, kind="stable")
+    return method, [int(order[min(len(order) - 1, int(q * len(order)))]) for q in _QUANTILES[:count]]
+
+
+def plot_episodes(routes: RouteSet, res: TrackingEpisodes, method: str, picked: list[int], city: str, out: Path) -> Figure | None:
+    """Each picked episode on two maps: the heights with the user's route and the UAV's path, and the share of the
+    episode's steps at which each cell would have covered the user, with the same path."""
+    if not picked:
+        return None
+    import matplotlib
+    from matplotlib.lines import Line2D
+
+    plt = _pyplot()
+    task, p = routes.config, routes.maps.pad
+    fig, axes = plt.subplots(len(picked), 2, figsize=(11, 4.6 * len(picked)), constrained_layout=True, squeeze=False)
+    for row, e in enumerate(picked):
+        r = int(res.table["route"].iloc[e])
+        b = routes.bundles[routes.bundle[r]]
+        ny, nx = b.shape
+        g = b.manifest.grid
+        extent = (g.x_min_m, g.x_max_m, g.y_min_m, g.y_max_m)
+        points = res.points[e]
+        covered = (routes.sinr[points[1:], p : p + ny, p : p + nx] >= task.p_t_db) & ~routes.dead[
+            points[1:], p : p + ny, p : p + nx
+        ]
+        share = np.ma.masked_array(covered.mean(axis=0), mask=b.blocked)
+        px = g.x_min_m + (res.path[e, :, 1] - p + 0.5) * g.spacing_m
+        py = g.y_min_m + (res.path[e, :, 0] - p + 0.5) * g.spacing_m
+        offset = sum(len(routes.bundles[i].routes) for i in range(routes.bundle[r]))  # rows of earlier bundles
+        user = b.routes.iloc[points - offset]  # the user's position at each step
+        route = b.routes.iloc[routes.first[r] - offset : routes.first[r] - offset + routes.count[r]]
+        m = res.table.iloc[e]
+        for col, ax in enumerate(axes[row]):
+            if col == 0:
+                im = ax.imshow(b.height_rel_m, origin="lower", extent=extent, cmap="viridis")
+                fig.colorbar(im, ax=ax, shrink=0.8, label="height above ground [m]")
+            else:
+                im = ax.imshow(share, origin="lower", extent=extent, cmap=matplotlib.colormaps["magma"], vmin=0, vmax=1)
+                ax.imshow(np.ma.masked_array(np.ones(b.shape), mask=~b.blocked), origin="lower", extent=extent,
+                          cmap=matplotlib.colors.ListedColormap(["0.05"]), vmin=0, vmax=1)  # fmt: skip
+                fig.colorbar(im, ax=ax, shrink=0.8, label="share of the steps the cell covers the user")
+            ax.plot(route["x_m"], route["y_m"], color="cyan", linewidth=3, alpha=0.6, zorder=3)
+            ax.plot(user["x_m"].iloc[0], user["y_m"].iloc[0], "*", color="cyan", markersize=13, markeredgecolor="black", zorder=5)
+            ax.plot(user["x_m"].iloc[-1], user["y_m"].iloc[-1], "*", color="magenta", markersize=13, markeredgecolor="black",
+                    zorder=5)  # fmt: skip
+            for color, width in (("black", 1.6), ("white", 0.6)):
+                ax.plot(px, py, color=color, linewidth=width, zorder=4)
+            ax.plot(px[0], py[0], "o", color="lime", markeredgecolor="black", zorder=5)
+            ax.plot(px[-1], py[-1], "s", color="red", markeredgecolor="black", zorder=5)
+            ax.set_title(f"episode {e} ({_SHORT[row]}): covered {m['covered_share']:.2f}, first reach {m['first_reach']:g}",
+                         fontsize=9)  # fmt: skip
+    handles = [Line2D([], [], color="white", linewidth=2, label="UAV path"),
+               Line2D([], [], marker="o", color="lime", markeredgecolor="black", linestyle="", label="UAV start"),
+               Line2D([], [], marker="s", color="red", markeredgecolor="black", linestyle="", label="UAV end"),
+               Line2D([], [], color="cyan", linewidth=3, alpha=0.6, label="user's route"),
+               Line2D([], [], marker="*", color="cyan", markeredgecolor="black", linestyle="", markersize=11, label="user start"),
+               Line2D([], [], marker="*", color="magenta", markeredgecolor="black", linestyle="", markersize=11,
+                      label="user end")]  # fmt: skip
+    fig.legend(handles=handles, loc="outside lower center", ncol=6, fontsize=8, facecolor="0.85")
+    fig.savefig(out, dpi=90)
+    plt.close(fig)
+    caption = (f"{city}: three episodes of {method} (the best method but the oracle by its mean covered share), picked "
+               f"at {', '.join(EPISODE_RULES[: len(picked)])} of its covered share. Left: heights; right: the share of "
+               "the episode's steps at which each cell would have covered the user (blocked cells black). The user walks "
+               "the cyan route (to its end and back) from the cyan star to the magenta one; the UAV's path is the white "
+               "line from the green circle to the red square.")  # fmt: skip
+    return Figure(out, caption)
+
+
+def make_tracking_report(
+    config: TrackingReportConfig,
+    out: str | Path,
+    *,
+    root: str | Path = "data/processed",
+    command: str = "",
+    on_progress: Callable[[str, str], None] | None = None,
+) -> tuple[pd.DataFrame, Path]:
+    """Evaluate every method on each city of ``config`` and write the report folder ``out`` (atomically; an existing
+    folder is replaced only if it is a tracking report). Returns the table (every city) and the page."""
+    out = Path(out)
+    check_replaceable(out, TRACKING_JSON, "tracking report")
+    bundles = [load_bundle(name, root=root) for name in config.datasets]
+    agents = [load_agent(r, config.test_epsilon, config.seed) for r in config.runs]
+    for b in bundles:
+        if b.routes is None:
+            raise InputError(b.path, "this bundle has no routes: simulate them with `uavdata simulate ... --routes N`, then "
+                             "ingest and build", field="routes")  # fmt: skip
+        check_unseen(agents, b)
+    tables, sections, provenance, figures_all = [], [], [], []
+    per_city: list[tuple] = []
+    for b in bundles:
+        routes = RouteSet([b], config.task)
+        episodes = routes.sample_episodes(config.episodes, np.random.default_rng([config.seed, 7]))
+        results: dict[str, TrackingEpisodes] = {}
+        for policy in tracking_methods(config.task, config.seed, agents):
+            if on_progress is not None:
+                on_progress(b.city, policy.name)
+            results[policy.name] = run_tracking(routes, policy, episodes, record=True)
+        table = tracking_table(results, config.n_boot, config.seed)
+        tables.append(table)
+        per_city.append((b, routes, results, table))
+    with atomic_directory(out, marker=TRACKING_JSON, what="tracking report") as tmp:
+        number = 1
+        for b, routes, results, table in per_city:
+            step_s = float(routes.step_s[0])
+            figs = [plot_coverage(results, config.task, step_s, b.city, tmp / f"{b.city}-coverage.png")]
+            method, picked = pick_episodes(results, config.trajectories)
+            figs.append(plot_episodes(routes, results[method], method, picked, b.city, tmp / f"{b.city}-episodes.png"))
+            shown = [
+                _figure(f, number + i, alt)
+                for i, (f, alt) in enumerate(zip(figs, ("coverage over time", "episodes"), strict=True))
+            ]
+            number += len(shown)
+            rows = table_rows(table, config.task.horizon)
+            kinds = routes.names
+            sections.append(_templates().get_template("tracking_section.html.j2").render(
+                city=b.city, bundle=b.version, episodes=config.episodes, routes=routes.num_routes,
+                kinds=", ".join(sorted({k for _, _, k in kinds})), horizon=config.task.horizon, step_s=f"{step_s:g}",
+                speed=f"{config.task.uav_speed_mps:g}", p_t=f"{config.task.p_t_db:g}", n_boot=config.n_boot,
+                rows=rows, figures=shown,
+            ))  # fmt: skip
+            provenance.append({"city": b.city, "bundle": b.version, "routes": routes.num_routes,
+                               "route_points": len(b.routes), "drawn": {"method": method, "episodes": picked}})  # fmt: skip
+            figures_all += [f.caption for f in figs if f is not None]
+            episodes_frame = pd.concat([r.table.assign(method=name) for name, r in results.items()], ignore_index=True)
+            episodes_frame.to_parquet(tmp / f"{b.city}-episodes.parquet", index=False)
+        table = pd.concat(tables, ignore_index=True)
+        table.to_csv(tmp / "tracking.csv", index=False)
+        md = [f"### {t['city'].iloc[0]}\n\n" + markdown_table(table_rows(t, config.task.horizon)) for t in tables]
+        (tmp / "tracking.md").write_text("\n\n".join(md) + "\n", encoding="utf-8")
+        record = {"command": command, "created_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+                  "uavplace_version": uavplace_version(), "config": json.loads(config.model_dump_json()),
+                  "cities": provenance, "figures": figures_all,
+                  "agents": {a.name: {"folder": str(a.folder), "trained_on": a.trained_on or None,
+                                      "selected_on": a.selected_on or None} for a in agents}}  # fmt: skip
+        import markupsafe
+
+        page = _templates().get_template("tracking.html.j2").render(
+            css=markupsafe.Markup(_CSS), cities=", ".join(b.city for b in bundles), made=record["created_utc"],
+            command=command, sections=[markupsafe.Markup(s) for s in sections], raw=json.dumps(record, indent=2),
+        )  # fmt: skip
+        (tmp / "tracking.html").write_text(page, encoding="utf-8")
+        (tmp / TRACKING_JSON).write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
+    return table, out / "tracking.html"
