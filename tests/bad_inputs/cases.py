@@ -234,7 +234,7 @@ CASES: list[Case] = [
         "p2m 5-million-digit number",
         "uavdata",
         lambda w: w.p2m(5, 5, "9" * 5_000_000),
-        f"{PL1}:{L5}: path_loss_db: ",
+        f"{PL1}:{L5}: a line of more than 65,536 bytes (a receiver row is a few dozen)",
     ),
     Case(
         "p2m underscore in a number",
@@ -786,7 +786,12 @@ CASES: list[Case] = [
         "SINR below the manifest's floor",
     ),
     Case("show all blocked", "uavdata", _bundle_arrays(lambda a: a["blocked"].fill(True)), "blocked: every cell is blocked"),
-    Case("show building id -7", "uavdata", _bundle_arrays(_set("building_id", (0, 0), -7)), "building_id: building id below -1"),
+    Case(
+        "show building id -7",
+        "uavdata",
+        _bundle_arrays(_set("building_id", (0, 0), -7)),
+        "building_id: building id outside -1 .. -1 (the manifest's 0 buildings)",
+    ),
     Case("show cell centres moved", "uavdata", _bundle_arrays(_set("x_m", (3,), 1e4)), "x_m: cell centre 10000.0 at 3 is off"),
     Case("show npy header of 4 TB", "uavdata", _huge_header, "sinr_db: array float32[1048576, 1024, 1024], expected float32[2"),
     Case(
