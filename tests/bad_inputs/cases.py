@@ -38,6 +38,12 @@ PLY_HEAD = (
 )
 
 
+def _train_with(setting: str) -> Callable[[Workspace], list[str]]:
+    """``uavrl train`` of the fast preset on the built city with one ``--set``."""
+    return lambda w: ["train", "--dataset", "city", "--root", str(w.root()), "--preset", "fast", "--out", str(w.tmp / "runs"),
+                      "--set", setting]  # fmt: skip
+
+
 def _edit_json(path, edit):  # noqa: ANN001, ANN202
     """``path`` (a JSON file) changed in place by ``edit(doc)``; returns the file's folder."""
     doc = json.loads(path.read_text())
@@ -1106,37 +1112,13 @@ CASES: list[Case] = [
     Case(
         "train a replay past the limit replay_bytes",
         "uavrl",
-        lambda w: [
-            "train",
-            "--dataset",
-            "city",
-            "--root",
-            str(w.root()),
-            "--preset",
-            "fast",
-            "--out",
-            str(w.tmp / "runs"),
-            "--set",
-            "buffer_size=1000000000000",
-        ],  # fmt: skip
+        _train_with("buffer_size=1000000000000"),
         "is over the limit replay_bytes",
     ),
     Case(
         "train a network past the limit network_params",
         "uavrl",
-        lambda w: [
-            "train",
-            "--dataset",
-            "city",
-            "--root",
-            str(w.root()),
-            "--preset",
-            "fast",
-            "--out",
-            str(w.tmp / "runs"),
-            "--set",
-            "hidden=1000000000",
-        ],  # fmt: skip
+        _train_with("hidden=1000000000"),
         "is over the limit network_params",
     ),
     Case(
@@ -1160,7 +1142,7 @@ CASES: list[Case] = [
     Case(
         "train --set seed, which --seed would override",
         "uavrl",
-        lambda w: ["train", "--dataset", "city", "--root", str(w.root()), "--preset", "fast", "--set", "seed=3"],
+        _train_with("seed=3"),
         "--set seed and --seed set the same field: give it once, with the option",
     ),
     Case(
