@@ -42,6 +42,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 import zipfile
 from collections.abc import Callable
@@ -105,8 +106,6 @@ def finish(proc: subprocess.Popen, t0: float, timeout: float) -> Result:
     """Wait for ``proc`` (killing its session past ``timeout``); its exit status, time and peak memory (``wait4``'s
     maximum resident size covers the children it waited for)."""
     out, err = [], []
-    import threading
-
     readers = [threading.Thread(target=lambda s=s, b=b: b.append(s.read())) for s, b in ((proc.stdout, out), (proc.stderr, err))]
     for r in readers:
         r.start()

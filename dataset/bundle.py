@@ -22,6 +22,7 @@ import pyarrow.parquet as pq
 from pydantic import ValidationError
 
 from uavplace.dataset.catalog import DEFAULT_ROOT
+from uavplace.dataset.raster import cell_index
 from uavplace.schemas import SCHEMA_VERSION, InputError
 from uavplace.schemas.base import validation_message
 from uavplace.schemas.bundle import (
@@ -384,12 +385,8 @@ def check_users(path: Path, manifest: BundleManifest, users: pd.DataFrame) -> No
             row = int(np.argmax((v < -1) | (v >= n)))
             raise InputError(path, f"row {row}: cell {v[row]} is off the grid's {n} cells", field=name)
     # a position is in its cell (-1 outside the grid); an unknown (null) position has no cell
-    g = manifest.grid
     x, y = (users[c].to_numpy(dtype=np.float64, na_value=np.nan) for c in ("x_m", "y_m"))
-    known = np.isfinite(x) & np.isfinite(y)
-    fx, fy = np.floor((x - g.x_min_m) / g.spacing_m), np.floor((y - g.y_min_m) / g.spacing_m)
-    inside = known & (fx >= 0) & (fx < g.num_x) & (fy >= 0) & (fy < g.num_y)
-    expect_x, expect_y = np.where(inside, fx, -1), np.where(inside, fy, -1)
+    expect_x, expect_y, _ = cell_index(manifest.grid, x, y)  # as the build placed them (NaN: outside, -1)
     wrong = (users["ix"].to_numpy() != expect_x) | (users["iy"].to_numpy() != expect_y)
     if wrong.any():
         row = int(np.argmax(wrong))

@@ -252,7 +252,7 @@ def make_tracking_report(
             raise InputError(b.path, "this bundle has no routes: simulate them with `uavdata simulate ... --routes N`, then "
                              "ingest and build", field="routes")  # fmt: skip
         check_unseen(agents, b)
-    tables, sections, provenance, figures_all = [], [], [], []
+    sections, provenance, figures_all = [], [], []
     per_city: list[tuple] = []
     for b in bundles:
         routes = RouteSet([b], config.task)
@@ -262,9 +262,7 @@ def make_tracking_report(
             if on_progress is not None:
                 on_progress(b.city, policy.name)
             results[policy.name] = run_tracking(routes, policy, episodes, record=True)
-        table = tracking_table(results, config.n_boot, config.seed)
-        tables.append(table)
-        per_city.append((b, routes, results, table))
+        per_city.append((b, routes, results, tracking_table(results, config.n_boot, config.seed)))
     with atomic_directory(out, marker=TRACKING_JSON, what="tracking report") as tmp:
         number = 1
         for b, routes, results, table in per_city:
@@ -290,6 +288,7 @@ def make_tracking_report(
             figures_all += [f.caption for f in figs if f is not None]
             episodes_frame = pd.concat([r.table.assign(method=name) for name, r in results.items()], ignore_index=True)
             episodes_frame.to_parquet(tmp / f"{b.city}-episodes.parquet", index=False)
+        tables = [t for *_, t in per_city]
         table = pd.concat(tables, ignore_index=True)
         table.to_csv(tmp / "tracking.csv", index=False)
         md = [f"### {t['city'].iloc[0]}\n\n" + markdown_table(table_rows(t, config.task.horizon)) for t in tables]

@@ -413,10 +413,10 @@ class P2MStream:
             data = rest + data
             cut = data.rfind(b"\n") + 1
             rest = data[cut:]
+            lines += data.count(b"\n", 0, cut)
             if len(rest) > MAX_LINE_BYTES:
                 raise InputError(self.name, f"a line of more than {MAX_LINE_BYTES:,} bytes (a receiver row is a few dozen)",
-                                 line=lines + data.count(b"\n", 0, cut) + 1)  # fmt: skip
-            lines += data.count(b"\n", 0, cut)
+                                 line=lines + 1)  # fmt: skip
             if cut and data[:cut].strip():
                 yield data[:cut]
         if rest.strip():
