@@ -17,11 +17,12 @@ by the same function on the same episodes) and prints the wall time each took to
 evaluations included.
 
     pip install -e '.[bench]'      # adds tianshou
-    uavdata ingest data/raw/train/ && uavdata build --grid 4m --alt 10 --noise-dbm -75 --split train=train
+    uavdata ingest data/raw/train/ && uavdata build --city train --grid 4m --alt 10 --noise-dbm -75 --split train=train --val-users 3
     python benchmarks/bench_train.py [--steps 20000] [--preset best-dqn]
     python benchmarks/bench_train.py --memory
     python benchmarks/bench_train.py --corpus corpus      # the train city alone against the corpus and it
     python benchmarks/bench_train.py --learners --corpus corpus   # replay DQN, PQN and PQN + GRU on the corpus
+    python benchmarks/bench_train.py --paper-speed --steps 8000 --warmup 3000   # the paper network, fast against plain
     python benchmarks/bench_train.py --to-target 0.9 [--budget 300000] [--eval-every 10000]
 """
 
@@ -38,27 +39,78 @@ import numpy as np
 import torch
 
 from uavplace.dataset.catalog import expand_datasets
-from uavplace.rl.agent.dqn import DQNConfig, make_network, preset_config
+from uavplace.rl.agent.dqn import DQN, DQNConfig, make_network, preset_config
 from uavplace.rl.agent.train import Trainer, linear
 from uavplace.rl.config import EnvConfig
 
 
-def bench_ours(config: DQNConfig, dataset: str | list[str], root: str, steps: int, warmup: int) -> dict:
+def bench_ours(config: DQNConfig, dataset: str | list[str], root: str, steps: int, warmup: int, fast: bool = True) -> dict:
+    """Env steps/s and updates/s of our trainer from step ``warmup`` to ``steps`` (the clock stops at the last step's
+    progress report, before the checkpoint ``stop_at`` writes); ``fast``: the trainer's (False: the plain arrangement)."""
     with tempfile.TemporaryDirectory() as tmp:
-        trainer = Trainer(config, [dataset] if isinstance(dataset, str) else dataset, root, Path(tmp) / "run")
+        trainer = Trainer(config, [dataset] if isinstance(dataset, str) else dataset, root, Path(tmp) / "run", fast=fast)
         marks: dict[str, float] = {}
 
         def on_progress(p) -> None:
             if "t0" not in marks and p.step >= warmup:
                 marks["t0"], marks["s0"], marks["u0"] = time.perf_counter(), p.step, trainer.agent.updates
+            marks["t1"], marks["s1"], marks["u1"] = time.perf_counter(), p.step, trainer.agent.updates
 
         trainer.run(on_progress=on_progress, stop_at=steps)
-        dt = time.perf_counter() - marks["t0"]
+        dt = marks["t1"] - marks["t0"]
         return {
-            "env_steps_per_s": (trainer.state.step - marks["s0"]) / dt,
-            "updates_per_s": (trainer.agent.updates - marks["u0"]) / dt,
+            "env_steps_per_s": (marks["s1"] - marks["s0"]) / dt,
+            "updates_per_s": (marks["u1"] - marks["u0"]) / dt,
             "updates": trainer.agent.updates,
         }
+
+
+def bench_paper_speed(args: argparse.Namespace) -> None:
+    """The paper network's training, fast (``DQN(fast=True)``, what runs train with) against the plain arrangement
+    of the same computation (``fast=False``: NCHW tensors, eval-mode modules, per-parameter Adam and clipping), in one
+    run: the milliseconds of one gradient step and of acting for the preset's envs, interleaved in rounds on the same
+    batches of one trainer's replay, then the whole training loop's env steps/s of each (``--rounds`` each, alternating)."""
+    config = preset_config(
+        "paper", total_steps=10 * args.steps, buffer_size=args.steps, learning_starts=min(2_000, args.warmup),
+        eval_every=10 * args.steps,
+    )  # fmt: skip
+    print(f"paper preset: {config.num_envs} envs, batch {config.batch_size} every {config.train_every} env steps, "
+          f"{torch.get_num_threads()} torch threads; median over {args.rounds} rounds")  # fmt: skip
+    with tempfile.TemporaryDirectory() as tmp:
+        trainer = Trainer(config, [args.dataset], args.root, Path(tmp) / "run")
+        trainer.run(stop_at=args.warmup)
+        rng = np.random.default_rng(0)
+        batches = [trainer.replay.sample(config.batch_size, rng) for _ in range(20)]
+        c, w = trainer.maps.config.num_channels, trainer.maps.config.window
+        agents = {}
+        for fast in (False, True):
+            torch.manual_seed(0)
+            agents[fast] = DQN(config, c, w, fast=fast)
+        obs, mask = trainer.env.observe(), trainer.env.action_mask()
+        last = np.full(config.num_envs, -1, np.int64)
+        times: dict[tuple[str, bool], list[float]] = {}
+        for _ in range(args.rounds):
+            for fast, agent in agents.items():
+                t0 = time.perf_counter()
+                for b in batches:
+                    agent.update(b, config.lr_start)
+                t1 = time.perf_counter()
+                for _ in range(len(batches)):
+                    agent.act(obs, mask, 0.0, last, rng)
+                t2 = time.perf_counter()
+                times.setdefault(("update", fast), []).append(1e3 * (t1 - t0) / len(batches))
+                times.setdefault(("act", fast), []).append(1e3 * (t2 - t1) / len(batches))
+    for what in ("update", "act"):
+        plain, fast = (float(np.median(times[(what, f)])) for f in (False, True))
+        print(f"  {what:>6}: plain {plain:6.2f} ms  fast {fast:6.2f} ms  speed-up {plain / fast:.2f}x")
+    loops: dict[bool, list[float]] = {False: [], True: []}
+    for _ in range(args.rounds):
+        for fast in (False, True):
+            loops[fast].append(bench_ours(config, args.dataset, args.root, args.steps, args.warmup, fast=fast)["env_steps_per_s"])
+    plain, fast = (float(np.median(loops[f])) for f in (False, True))
+    print(
+        f"  training loop: plain {plain:6.1f} env steps/s  fast {fast:6.1f} env steps/s  speed-up {fast / plain:.2f}x (aim: 2x)"
+    )
 
 
 def tianshou_dqn(config: DQNConfig, dataset: str, root: str):  # noqa: ANN201 - (algorithm, policy, collector, our network)
@@ -293,6 +345,10 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=20_000, help="env steps per trainer (after which the clock stops)")
     ap.add_argument("--warmup", type=int, default=4_000, help="env steps before the clock starts (updates already on)")
     ap.add_argument("--memory", action="store_true", help="peak RSS of a paper-preset run with a full replay instead")
+    ap.add_argument(
+        "--paper-speed", action="store_true", help="instead: the paper network's training, fast against plain (try --steps 8000)"
+    )
+    ap.add_argument("--rounds", type=int, default=3, help="--paper-speed: alternating rounds of each")
     ap.add_argument("--corpus", default=None, help="instead: ours on --dataset alone against the corpus NAME-NNN and it")
     ap.add_argument("--to-target", type=float, default=None, help="instead: wall time of both to this validation success")
     ap.add_argument(
@@ -314,6 +370,9 @@ def main() -> None:
         return
     if args.learners:
         bench_learners(args)
+        return
+    if args.paper_speed:
+        bench_paper_speed(args)
         return
     if args.corpus:
         bench_corpus(args)

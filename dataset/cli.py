@@ -18,14 +18,25 @@ from uavplace.schemas.cli import SEED, Bounds, Finite, Metres, command_line, con
 from uavplace.schemas.files import check_name
 
 
-def _splits(values: tuple[str, ...]) -> dict[str, str]:
-    out = {}
+def _splits(values: tuple[str, ...]) -> dict[str, str | None]:
+    """``--split`` values as ``{city: role}`` (``none``: no role, None)."""
+    out: dict[str, str | None] = {}
     for v in values:
         city, sep, role = v.partition("=")
-        if not sep or role not in ("train", "val", "test"):
-            raise click.BadParameter(f"{v!r}: expected CITY=train, CITY=val or CITY=test", param_hint="--split")
-        out[city] = role
+        if not sep or role not in ("train", "val", "test", "none"):
+            raise click.BadParameter(f"{v!r}: expected CITY=train, CITY=val, CITY=test or CITY=none", param_hint="--split")
+        out[city] = None if role == "none" else role
     return out
+
+
+def _latest_role(city: str, root: Path) -> str | None:
+    """The role of ``city``'s latest bundle (None: no role, or no bundle yet)."""
+    from uavplace.dataset.bundle import read_manifest, resolve
+
+    try:
+        return read_manifest(resolve(city, root=root)).config.role
+    except InputError:
+        return None
 
 
 @click.command()
@@ -90,8 +101,9 @@ def _splits(values: tuple[str, ...]) -> dict[str, str]:
     "splits",
     multiple=True,
     metavar="CITY=ROLE",
-    help="Declare a city's role: train, val (a validation city: all its users select checkpoints) or test "
-    "(repeatable). Recorded in the bundle.",
+    help="Declare a city's role: train, val (a validation city: all its users select checkpoints), test, or none "
+    "(repeatable). Recorded in the bundle. A city whose latest bundle has a role must be named again (a build "
+    "without it would drop the role).",
 )
 @click.option(
     "--val-users",
@@ -152,6 +164,11 @@ def build(
     unknown = sorted(set(role) - set(names))
     if unknown:
         raise click.BadParameter(f"cities {unknown} are not being built", param_hint="--split")
+    held = {n: r for n in names if n not in role and (r := _latest_role(n, root)) is not None}
+    if held:  # a build without their --split would make new bundles without a role and move `latest` to them
+        fail(InputError(root, f"{', '.join(f'{n} (a {r} city)' for n, r in held.items())}: the latest bundle has a role that "
+                        "this build would drop; name it again (--split CITY=ROLE, and --val-users for a train city), "
+                        "drop it with --split CITY=none, or build other cities with --city", field="split"))  # fmt: skip
     out = stdout()
     errors = 0
     for name in names:

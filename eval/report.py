@@ -162,6 +162,7 @@ def evaluate(
     on_progress: Callable[[str, int, int], None] | None = None,
     baselines: list[Policy] | None = None,
     seen: Callable[[MapSet], None] | None = None,
+    episodes: np.ndarray | None = None,
 ) -> dict[str, pd.DataFrame]:
     """Play the same ``config.episodes`` episodes with every method; ``{method: run_episodes frame}``.
 
@@ -169,12 +170,17 @@ def evaluate(
     with the report's ``t_max`` and ``P_T``; the episodes are drawn once from the users of the city.
     ``baselines``: the policies played beside the agents (default: ``baseline_policies``). ``seen``: applied to
     each agent's maps before it plays (e.g. ``MapSet.show_buildings``: what the agents see, not where they move).
+    ``episodes``: the specs to play (``MapSet.sample_episodes`` of the city's maps at the report's settings, e.g. drawn
+    on a twin city and kept where ``can_start``), instead of the ``config.episodes`` drawn with ``config.seed``.
     """
     base = EnvConfig(t_max=config.t_max, p_t_db=config.p_t_db, split=config.split, rotate=False)
     maps = {"": MapSet([bundle], base)}
-    episodes = maps[""].sample_episodes(config.episodes, np.random.default_rng(config.seed))  # as `uavrl baselines`
+    if episodes is None:
+        episodes = maps[""].sample_episodes(config.episodes, np.random.default_rng(config.seed))  # as `uavrl baselines`
+    elif not maps[""].can_start(episodes).all():
+        raise ValueError("evaluate: an episode given does not start on a start cell of this city")
     shown = shown_method(agents)
-    record = np.arange(config.episodes) if config.trajectories else None  # the rule picks among all episodes
+    record = np.arange(len(episodes)) if config.trajectories else None  # the rule picks among all episodes
     methods: list[tuple[str, Policy, MapSet]] = []
     for a in agents:
         env = a.config.env_config(evaluation=True).model_copy(

@@ -228,6 +228,17 @@ class MapSet:
         y, x = np.divmod(self.start_cells[pick], self.side)
         return np.stack([view, y, x], axis=1)
 
+    def can_start(self, episodes: np.ndarray) -> np.ndarray:
+        """``[n]`` bool: whether each episode spec ``(view, y, x)`` starts on one of its view's start cells here (a
+        legal, live cell below P_T from which a target is reachable): specs drawn on another MapSet of the same
+        scenarios and canvas, such as a twin city's, may not."""
+        episodes = np.asarray(episodes, np.int64)
+        out = np.zeros(len(episodes), bool)
+        for k, (view, y, x) in enumerate(episodes):
+            off, count = self.start_offset[view], self.start_count[view]
+            out[k] = y * self.side + x in self.start_cells[off : off + count]
+        return out
+
     def episodes_from(self, episodes: np.ndarray, other: MapSet) -> np.ndarray:
         """Episode specs drawn on ``other`` as specs of this MapSet: the same views and start cells. Canvas
         coordinates include the pad of half a window, so two windows put one cell at different ``(y, x)``;

@@ -145,6 +145,10 @@ class Finite(click.FloatRange):
             self.fail(f"{value!r} is not a finite number", param, ctx)
         return number
 
+    def _describe_range(self) -> str:
+        """The range as ``--help`` shows it: "finite" without bounds (click would write ``x<=None``)."""
+        return "finite" if self.min is None and self.max is None else super()._describe_range()
+
 
 class Counted(click.IntRange):
     """A count of at least ``min`` that is also bounded by the resource limit ``limit`` (``schemas.limits``): the
@@ -236,7 +240,7 @@ def uavdata() -> None:
     \b
     Typical use on a new city:
       uavdata ingest data/raw/cityA/
-      uavdata build --grid 4m --alt 10 --noise-dbm {noise:g}
+      uavdata build --city cityA --grid 4m --alt 10 --noise-dbm {noise:g}
     ({noise:g} dBm of noise plus interference is the level the embedded cities
     and the shipped agents are calibrated at; see the README.)
     """

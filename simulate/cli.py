@@ -105,6 +105,16 @@ class Point(click.ParamType):
 @click.option("--tx-dbm", type=Finite(), default=20.0, show_default=True, help="User transmit power [dBm].")
 @click.option("--samples", type=Finite(), default=1e6, show_default=True, help="Rays per user (Sionna samples_per_tx).")
 @click.option("--depth", type=click.IntRange(min=0), default=5, show_default=True, help="Maximum interactions per path.")
+@click.option(
+    "--solver",
+    type=click.Choice(["radio-map", "paths"]),
+    default="radio-map",
+    show_default=True,
+    help="radio-map: Sionna's radio map of every cell, the gaps filled by --gap-fill-method. paths: exact paths "
+    "(Sionna's PathSolver, every path found, as InSite computes them) at every open cell, nothing filled, --samples "
+    "rays per user for each cell (2e6 is the fidelity reference's): about a second a cell and user on 2 cores, so "
+    "for small cities (simulate/raytrace.py, exact_path_maps; docs/fidelity.md, the exact-path twin).",
+)
 @click.option("--no-diffraction", is_flag=True, help="Switch edge diffraction off (faster, more dead cells).")
 @click.option(
     "--gap-fill",
@@ -171,6 +181,7 @@ def simulate(
     tx_dbm: float,
     samples: float,
     depth: int,
+    solver: str,
     no_diffraction: bool,
     gap_fill: str,
     gap_fill_method: str,
@@ -230,6 +241,7 @@ def simulate(
         gap_fill_method=gap_fill_method,
         gap_fill_reach_m=gap_fill_reach_m,
         gap_fill_decay_db_per_m=gap_fill_decay_db_per_m,
+        solver=solver,
     )
     try:
         check_simulation(base, rt, count)  # every option, before any list of cities is made or any work starts

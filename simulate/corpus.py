@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from dataclasses import asdict, replace
+from dataclasses import replace
 from pathlib import Path
 
 from uavplace.schemas import InputError
 from uavplace.simulate.pipeline import PROVENANCE, SimulationSpec, simulate_city, spec_record
-from uavplace.simulate.raytrace import RayTraceConfig
+from uavplace.simulate.raytrace import RayTraceConfig, raytrace_record
 
 
 def corpus_specs(sources: list[str], name: str, count: int, base: SimulationSpec) -> list[SimulationSpec]:
@@ -47,7 +47,7 @@ def is_done(spec: SimulationSpec, config: RayTraceConfig, out_root: str | Path) 
     except (ValueError, OSError):
         return False
     same_spec = record.get("spec") == json.loads(json.dumps(spec_record(spec)))
-    return same_spec and record.get("raytrace") == json.loads(json.dumps(asdict(config)))
+    return same_spec and record.get("raytrace") == json.loads(json.dumps(raytrace_record(config)))
 
 
 def _simulate_task(

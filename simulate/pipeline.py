@@ -39,13 +39,16 @@ from uavplace.simulate.fidelity import lattice_boundary_shares, lattice_step_rat
 from uavplace.simulate.insite import UNREACHED_POWER_DBM, ReceiverGrid, write_city, write_p2m, write_setup, write_txrx
 from uavplace.simulate.procedural import PRESETS, USER_HEIGHT_M, generate_city, sample_users
 from uavplace.simulate.raytrace import (
+    SOLVERS,
     RadioMapJob,
     RayTraceConfig,
     check_fill,
     constant_patch_share,
     direct_gains_isolated,
+    exact_path_maps,
     fill,
     path_gain_maps_isolated,
+    raytrace_record,
     sionna_versions,
 )
 from uavplace.simulate.routes import KINDS, MAX_STEP_M, ROUTE_SET, Route, draw_routes, write_routes_csv
@@ -144,6 +147,8 @@ def check_simulation(spec: SimulationSpec, config: RayTraceConfig, count: int = 
     _bounded(config.frequency_hz, "frequency_hz", "--freq")
     _bounded(config.samples_per_tx, "samples", "--samples")
     _bounded(config.max_depth, "depth", "--depth")
+    if config.solver not in SOLVERS:
+        raise InputError("--solver", f"{config.solver!r}: expected one of {', '.join(SOLVERS)}", field="solver")
     for option, box in (("--extent", spec.extent_m), ("--crop", spec.crop_m)):
         if box is None:
             continue
@@ -258,6 +263,12 @@ def load_geometry(
 
 
 #: How simulation.json describes each gap-fill method.
+#: What simulation.json says of the solver that traced a city.
+SOLVER_TEXT = {"radio-map": "Sionna's radio map", "paths": "Sionna's PathSolver, a receiver at every open cell's centre"}
+PATHS_TEXT = (
+    "none: every open cell from exact paths (PathSolver, every path of up to max_depth interactions, as InSite "
+    "computes them); a cell no path reaches stays unreached"
+)
 GAP_FILL_TEXT = {
     "geodesic": "a cell no ray hit takes the exact straight path from the user through the walls it crosses (ITU-R "
     "P.2040-4 slab transmission of the wall material at each crossing's incidence, free space, the user antenna's "
@@ -271,6 +282,15 @@ GAP_FILL_TEXT = {
     "parent": "a cell no ray hit takes the mean path gain of its parent cell in the maps of {factors} x coarser cells "
     "(same samples per user), finest first",
 }
+
+
+def gap_fill_text(config: RayTraceConfig) -> str:
+    """What simulation.json says of how the cells no ray hit were filled (none with exact paths)."""
+    if config.solver == "paths":
+        return PATHS_TEXT
+    return GAP_FILL_TEXT[config.gap_fill_method].format(
+        factors=config.gap_fill_factors, reach=config.gap_fill_reach_m, decay=config.gap_fill_decay_db_per_m
+    )
 
 
 def open_cells(blocks: list[Block], grid: ReceiverGrid) -> np.ndarray:
@@ -347,7 +367,13 @@ def place_users(blocks: list[Block], grid: ReceiverGrid, spec: SimulationSpec) -
             raise InputError(spec.source, f"user {k + 1} at ({users[k, 0]:g}, {users[k, 1]:g}) is outside the grid", field="user")
         return users
     rng = np.random.default_rng([spec.seed, 2])
-    users = sample_users((x1 - x0, y1 - y0), [shapely.transform(f, lambda c: c - [x0, y0]) for f in foot], spec.num_users, rng)
+    try:
+        users = sample_users(
+            (x1 - x0, y1 - y0), [shapely.transform(f, lambda c: c - [x0, y0]) for f in foot], spec.num_users, rng
+        )
+    except ValueError as err:  # too little open ground 8 m inside the edges
+        raise InputError(spec.source, f"{err}: give a larger --extent or --crop, fewer --users, or place them with --user",
+                         field="users") from None  # fmt: skip
     return users + [x0, y0, 0.0]
 
 
@@ -380,7 +406,7 @@ FILL_ONLY = ("gap_fill_reach_m", "gap_fill_decay_db_per_m")
 
 def _trace_key(spec: SimulationSpec, config: RayTraceConfig) -> str:
     """What a city's traced maps depend on: its spec and the ray-trace settings, less ``FILL_ONLY``."""
-    settings = {k: v for k, v in asdict(config).items() if k not in FILL_ONLY}
+    settings = {k: v for k, v in raytrace_record(config).items() if k not in FILL_ONLY}
     return json.dumps({"spec": spec_record(spec), "raytrace": settings, "uavplace": uavplace_version()}, sort_keys=True)
 
 
@@ -449,6 +475,7 @@ def simulate_city(
     corner = (grid.x0_m - grid.spacing_m / 2, grid.y0_m - grid.spacing_m / 2)
     center = (corner[0] + size[0] / 2, corner[1] + size[1] / 2, spec.altitude_m)
     progress("scene", 0, len(users))
+    opened = open_cells(blocks, grid)
     with tempfile.TemporaryDirectory(prefix="uavplace-scene-") as tmp:
         xml, materials = write_scene(
             tmp, blocks, (corner[0], corner[1], corner[0] + size[0], corner[1] + size[1]), rt_config.frequency_hz
@@ -458,6 +485,10 @@ def simulate_city(
 
         def trace() -> dict:
             t = time.perf_counter()
+            if rt_config.solver == "paths":  # every open cell from exact paths: nothing to fill
+                exact = exact_path_maps(job, rt_config, opened, on_batch=lambda d, n: progress("exact paths (cells)", d, n))
+                seconds["raytrace"] = time.perf_counter() - t
+                return {1: exact}
             maps: dict = path_gain_maps_isolated(job, rt_config, on_batch=lambda d, n: progress("ray tracing", d, n))
             seconds["raytrace"] = time.perf_counter() - t
             if rt_config.gap_fill_method == "geodesic":
@@ -468,8 +499,10 @@ def simulate_city(
 
         maps, from_cache = _cached_traces(Path(trace_cache) if trace_cache else None, spec, rt_config, trace)
     pos = grid.points()  # [ny * nx, 3], x fastest: the same order as gain[u].ravel()
-    opened = open_cells(blocks, grid)
-    gain, filled = fill(maps, rt_config, opened, squared_distances(sources, grid), cell_m=grid.spacing_m)
+    if rt_config.solver == "paths":
+        gain, filled = maps[1], np.zeros(maps[1].shape, bool)
+    else:
+        gain, filled = fill(maps, rt_config, opened, squared_distances(sources, grid), cell_m=grid.spacing_m)
     with atomic_directory(Path(out_root) / spec.name, marker=PROVENANCE, what="simulated city") as out:
         write_txrx(out / f"{spec.name}.txrx", users, grid, tx_power_dbm=spec.tx_dbm, user_set=USER_SET, grid_set=GRID_SET,
                    route_points_m=route_points, route_set=ROUTE_SET)  # fmt: skip
@@ -517,8 +550,8 @@ def simulate_city(
                 "footprint, straightened where the line stays 0.5 m from them (every point and step at least 0.25 m clear), resampled at equal steps <= 2 m (simulate/routes.py)",
                 "seconds_per_point": round((seconds["raytrace"] + seconds["direct"]) / len(sources), 3) if routes else None,
             },
-            "raytrace": asdict(rt_config),
-            "receiver_antenna": "isotropic (Sionna's radio map); user antenna: vertical " + rt_config.antenna,
+            "raytrace": raytrace_record(rt_config),
+            "receiver_antenna": f"isotropic ({SOLVER_TEXT[rt_config.solver]}); user antenna: vertical {rt_config.antenna}",
             "phase_deg": "not computed (the radio map is an incoherent power sum); written as 0 in the power outputs",
             "unreached_power_dbm": UNREACHED_POWER_DBM,
             "materials": materials,
@@ -528,11 +561,7 @@ def simulate_city(
                 "hit_by_rays": int((reached & ~filled).sum()),
                 "monte_carlo_gaps_filled": int(filled.sum()),
                 "unreached": int((~reached).sum()),
-                "gap_fill": GAP_FILL_TEXT[rt_config.gap_fill_method].format(
-                    factors=rt_config.gap_fill_factors,
-                    reach=rt_config.gap_fill_reach_m,
-                    decay=rt_config.gap_fill_decay_db_per_m,
-                ),
+                "gap_fill": gap_fill_text(rt_config),
                 **quality,
             },
             "unreached_cell_share": float(1 - reached.mean()),

@@ -23,9 +23,15 @@ import numpy as np
 LLVM_19 = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
 
 
+#: The solvers ``RayTraceConfig.solver`` names: Sionna's ``RadioMapSolver`` (a map of every cell per solver call,
+#: gaps filled by ``gap_fill_method``), or ``PathSolver`` at every open cell (``exact_path_maps``: every path found,
+#: as InSite computes them, nothing filled; about a second a cell and user on the 2 reference cores).
+SOLVERS = ("radio-map", "paths")
+
+
 @dataclass(frozen=True)
 class RayTraceConfig:
-    """Solver settings (Sionna ``RadioMapSolver``)."""
+    """Solver settings (Sionna ``RadioMapSolver``, or ``PathSolver`` with ``solver="paths"``)."""
 
     frequency_hz: float = 800e6
     samples_per_tx: int = 1_000_000
@@ -48,6 +54,16 @@ class RayTraceConfig:
     #: (chosen on the validation cities' exact paths, ``benchmarks/bench_fidelity.py``); reach 0: direct paths only.
     gap_fill_reach_m: float = 24.0
     gap_fill_decay_db_per_m: float = 3.0
+    #: ``SOLVERS``: "radio-map" (the default), or "paths": every open cell from exact paths, no radio map and no fill
+    #: (``samples_per_tx`` then is PathSolver's ``samples_per_src``).
+    solver: str = "radio-map"
+
+
+def raytrace_record(config: RayTraceConfig) -> dict:
+    """``config`` as ``simulation.json`` and the trace cache record it: without ``solver`` when it is the radio map's (as
+    before there was a choice, so that the cities simulated then stay up to date)."""
+    doc = asdict(config)
+    return doc if config.solver != "radio-map" else {k: v for k, v in doc.items() if k != "solver"}
 
 
 def _expand(coarse: np.ndarray, factor: int, shape: tuple[int, int]) -> np.ndarray:
@@ -492,6 +508,33 @@ def point_path_gains_isolated(
     """``point_path_gains`` in a child Python process (see ``_isolated``)."""
     payload = {"job": asdict(job), "config": asdict(config), "points_m": np.asarray(points_m, float).tolist()}
     return _isolated("points", payload, on_batch)["gain"]
+
+
+def exact_path_maps(
+    job: RadioMapJob,
+    config: RayTraceConfig,
+    open_cells: np.ndarray,
+    on_batch: Callable[[int, int], None] | None = None,
+    cells_per_call: int = 128,
+) -> np.ndarray:
+    """Path gain maps [U, ny, nx] of ``job`` from exact paths alone (``point_path_gains``: PathSolver, a receiver at the
+    centre of every cell of ``open_cells`` [ny, nx] at the plane's height, every path found); 0 where no path reaches a
+    cell and at every cell with a building at or above the plane, as InSite leaves them. The cells go to child
+    processes ``cells_per_call`` at a time (the path buffer grows with the receivers); ``on_batch(done, total)``
+    counts cells."""
+    nx, ny = (round(s / job.cell_m) for s in job.size_m)
+    if open_cells.shape != (ny, nx):
+        raise ValueError(f"open_cells {open_cells.shape} is not the job's grid ({ny}, {nx})")
+    corner = (job.center_m[0] - job.size_m[0] / 2, job.center_m[1] - job.size_m[1] / 2)
+    iy, ix = np.nonzero(open_cells)
+    cells = np.c_[corner[0] + (ix + 0.5) * job.cell_m, corner[1] + (iy + 0.5) * job.cell_m, np.full(ix.size, job.center_m[2])]
+    out = np.zeros((len(job.users_m), ny, nx))
+    for start in range(0, len(cells), cells_per_call):
+        part = slice(start, start + cells_per_call)
+        out[:, iy[part], ix[part]] = point_path_gains_isolated(job, cells[part], config)
+        if on_batch is not None:
+            on_batch(min(start + cells_per_call, len(cells)), len(cells))
+    return out
 
 
 def direct_gains_isolated(

@@ -24,7 +24,7 @@ from uavplace.rl.agent.dqn import (
     preset_config,
     to_tensor,
 )
-from uavplace.rl.agent.network import FoveaQNetwork
+from uavplace.rl.agent.network import FoveaQNetwork, QNetwork
 from uavplace.rl.agent.pqn import q_lambda_returns
 from uavplace.rl.agent.replay import Batch, ReplayBuffer
 from uavplace.rl.agent.train import Trainer, load_policy, plan_cities, read_run_json
@@ -78,6 +78,70 @@ def test_masked_argmax_never_picks_an_illegal_move():
     for eps in (0.0, 0.5, 1.0):
         acts = agent.act(obs, mask, eps, last=rng.integers(-1, 4, 500), rng=rng)
         assert mask[np.arange(500), acts].all()
+
+
+def test_forward_eval_is_the_eval_mode_forward_whatever_the_mode():
+    torch.manual_seed(0)
+    net = QNetwork(2, 21, hidden=16, channels=(4, 8, 8), dropout=0.5)
+    for _ in range(3):  # move the running statistics away from their initial values
+        net(torch.randn(16, 2, 21, 21) * 40 + 10)
+    x = torch.randn(5, 2, 21, 21) * 40
+    with torch.no_grad():
+        folded = net.forward_eval(x)  # in train mode: dropout and batch statistics must not enter
+        assert net.training
+        torch.testing.assert_close(folded, net.eval()(x), rtol=1e-4, atol=1e-4)
+        last = net.to(memory_format=torch.channels_last).forward_eval(x.contiguous(memory_format=torch.channels_last))
+        torch.testing.assert_close(last, folded, rtol=1e-4, atol=1e-4)
+    with pytest.raises(TypeError, match="recurrent"):
+        QNetwork(2, 21, hidden=16, channels=(4, 8, 8), recurrent=True).forward_eval(x)
+
+
+def test_fast_dqn_computes_what_the_plain_one_does():
+    """DQN(fast=True) (channels-last, folded batch norms, fused Adam and clipping) against fast=False from the same
+    weights on the same batch: the same targets, Q values, moves, gradients and step. (Over many updates the two drift
+    apart as any change of summation order makes them: the convolutions' biases before a batch norm have no true
+    gradient, so Adam moves them by its step size in the direction of rounding noise.)"""
+    rng = np.random.default_rng(0)
+    config = DQNConfig(hidden=16, conv_channels=(4, 8, 8), batch_size=12)
+    agents = {}
+    for fast in (False, True):
+        torch.manual_seed(0)
+        agents[fast] = DQN(config, in_channels=2, window=21, fast=fast)
+    assert agents[True].optimizer.param_groups[0]["fused"] and not agents[False].optimizer.param_groups[0]["fused"]
+    for agent in agents.values():  # running statistics away from their start, the same in both
+        agent.online.train()
+        with torch.no_grad():
+            agent.online(torch.from_numpy(rng.integers(0, 250, (32, 2, 21, 21)).astype(np.float32)))
+        rng = np.random.default_rng(0)
+    obs, next_obs = (rng.integers(0, 250, (12, 2, 21, 21), dtype=np.uint8) for _ in range(2))
+    mask = rng.random((12, 4)) < 0.7
+    mask[:, 0] = True
+    batch = Batch(obs=obs, action=rng.integers(0, 4, 12), reward=rng.normal(size=12).astype(np.float32),
+                  discount=np.full(12, 0.99, np.float32), next_obs=next_obs, next_mask=mask)  # fmt: skip
+    torch.testing.assert_close(agents[True].td_target(batch), agents[False].td_target(batch), rtol=1e-4, atol=1e-4)
+    q = {fast: agent.q_values(obs) for fast, agent in agents.items()}
+    torch.testing.assert_close(q[True], q[False], rtol=1e-4, atol=1e-4)
+    moves = {fast: agent.act(obs, mask, 0.0, np.full(12, -1), np.random.default_rng(0)) for fast, agent in agents.items()}
+    np.testing.assert_array_equal(moves[True], moves[False])
+    before = [p.detach().clone() for p in agents[False].online.parameters()]
+    for agent in agents.values():
+        torch.manual_seed(1)  # the same dropout masks
+        agent.update(batch, 1e-3)
+    params = {fast: list(agent.online.parameters()) for fast, agent in agents.items()}
+    for was, a, b in zip(before, params[False], params[True], strict=True):
+        torch.testing.assert_close(b.grad, a.grad, rtol=1e-3, atol=1e-5)
+        real = a.grad.abs() > 1e-4  # gradients above rounding noise: Adam's first step is -lr * sign(grad) there
+        torch.testing.assert_close(b[real], a[real], rtol=0, atol=1e-6)
+        assert torch.allclose(a[real], was[real] - 1e-3 * a.grad[real].sign(), atol=1e-6)
+
+
+def test_fast_dqn_keeps_its_fused_step_through_a_checkpoint():
+    config = DQNConfig(hidden=8, conv_channels=(4, 4, 4))
+    plain, fast = DQN(config, 2, 21, fast=False), DQN(config, 2, 21, fast=True)
+    fast.load_optimizer(plain.optimizer.state_dict())  # a checkpoint written by plain Adam
+    assert fast.optimizer.param_groups[0]["fused"]
+    plain.load_optimizer(fast.optimizer.state_dict())
+    assert not plain.optimizer.param_groups[0]["fused"]
 
 
 def test_replay_n_step_returns_and_truncation():

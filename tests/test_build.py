@@ -375,8 +375,13 @@ def test_cli_build_list_show(tmp_path):
     assert res.exit_code == 0, res.output
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     first = read_latest("city", root)
-    res = run(uavdata, ["build", "--root", str(root), "--noise-dbm", "-90"])  # another setting moves `latest`, and says so
+    res = run(uavdata, ["build", "--root", str(root), "--noise-dbm", "-90"])  # would drop the train role: refused
+    assert res.exit_code == 2 and "city (a train city)" in res.output and "--split CITY=none" in res.output
+    assert read_latest("city", root) == first
+    res = run(uavdata, ["build", "--root", str(root), "--noise-dbm", "-90", "--split", "city=train"])  # moves `latest`, says so
     assert res.exit_code == 0 and f"(it was city@{first}); to keep using the other, name it: --dataset city@{first}" in res.output
+    res = run(uavdata, ["build", "--root", str(root), "--split", "city=none", "--noise-dbm", "-90"])  # dropped when asked
+    assert res.exit_code == 0 and load_bundle("city", root=root).manifest.config.role is None
     res = run(uavdata, ["build", "--root", str(root), "--alt", "30"])
     assert res.exit_code == 2 and "heights present: 10 m (60 rx)" in res.output
     res = run(uavdata, ["build", "--root", str(root), "--grid", "four"])

@@ -295,6 +295,33 @@ def test_an_agent_of_another_window_plays_the_same_episodes(tmp_path, two_cities
         np.testing.assert_array_equal(results[name][key].to_numpy(), genie, err_msg=name)
 
 
+def test_twin_cities_play_the_same_episodes_where_both_can_start(two_cities):
+    """Episodes drawn on one city and kept where another of the same grid and users ``can_start`` them play from the
+    same cells in both (``evaluate(episodes=...)``, the exact-path twin's benchmark); one that cannot start is refused."""
+    from uavplace.dataset.bundle import load_bundle
+    from uavplace.eval.report import ReportConfig, evaluate
+    from uavplace.rl.config import EnvConfig
+    from uavplace.rl.maps import MapSet
+    from uavplace.rl.policies import GeniePolicy
+
+    root, _ = two_cities
+    b, c = load_bundle("cityb", root=root), load_bundle("cityc", root=root)
+    base = EnvConfig(t_max=30, rotate=False)
+    maps_b, maps_c = MapSet([b], base), MapSet([c], base)
+    draw = maps_b.sample_episodes(200, np.random.default_rng(0))
+    assert maps_b.can_start(draw).all()
+    ok = maps_c.can_start(draw)
+    assert 0 < ok.sum() < len(draw)  # other maps: some starts are not start cells there
+    config = ReportConfig(dataset="cityb", episodes=40, t_max=30)
+    key = ["episode", "view", "start_y", "start_x"]
+    kept = draw[ok][:40]
+    frames = [evaluate(config, bundle, [], baselines=[GeniePolicy()], episodes=kept)["genie"] for bundle in (b, c)]
+    np.testing.assert_array_equal(frames[0][key].to_numpy(), frames[1][key].to_numpy())
+    assert len(frames[0]) == len(kept)
+    with pytest.raises(ValueError, match="does not start"):
+        evaluate(config, c, [], baselines=[GeniePolicy()], episodes=draw[~ok][:1])
+
+
 def test_report_refuses_the_training_city(tmp_path, two_cities):
     root, run = two_cities
     res = CliRunner().invoke(uavrl, ["report", "--run", str(run), "--dataset", "citya", "--root", str(root), "--out", str(tmp_path / "r"),

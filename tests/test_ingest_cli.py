@@ -284,3 +284,17 @@ def test_underground_roofs_are_rejected_and_an_empty_city_warns(tmp_path):
     assert manifest.counts["buildings"] == 0 and manifest.counts["rows_rejected"] == 1
     assert any("roof at -20 m is below the ground (0 m without terrain)" in r.reason for r in report.rejections)
     assert any("e.city: a .city without any structure" in w for w in report.warnings)
+
+
+def test_every_help_names_its_ranges_without_none():
+    """Every option of every command of both CLIs in ``--help``: a range shown as it is (an unbounded finite number
+    reads "finite", never click's ``x<=None``)."""
+    import click
+
+    for group in (uavdata, uavrl):
+        names = group.list_commands(click.Context(group))  # the lazy groups load a command when it is asked for
+        assert "build" in names or "train" in names
+        for name in names:
+            res = CliRunner().invoke(group, [name, "--help"], terminal_width=200)
+            assert res.exit_code == 0, (group.name, name, res.output)
+            assert "None]" not in res.output and "x<=None" not in res.output, (group.name, name)

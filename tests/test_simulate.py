@@ -315,6 +315,40 @@ def test_direct_paths_through_walls_equal_the_exact_paths(tmp_path):
 
 
 @needs_sionna
+def test_simulate_with_exact_paths_at_every_open_cell(tmp_path):
+    """--solver paths: every open cell of a corner of the tiny city from PathSolver, as a direct call gives it; the
+    cells under a building unreached; nothing filled; the record says so, and the same command resumes."""
+    from uavplace.simulate.insite import ReceiverGrid
+    from uavplace.simulate.pipeline import open_cells
+    from uavplace.simulate.raytrace import RadioMapJob, RayTraceConfig, exact_path_maps
+    from uavplace.simulate.scene import write_scene
+
+    args = ["procedural:tiny", "--name", "tp", "--user", "70,46", "--extent", "52,38,76,54", "--solver", "paths",
+            "--samples", "1e5", "--seed", "4"]  # fmt: skip
+    _simulate(tmp_path, *args)
+    record = json.loads((tmp_path / "raw" / "tp" / "simulation.json").read_text())
+    assert record["raytrace"]["solver"] == "paths" and record["cells"]["monte_carlo_gaps_filled"] == 0
+    assert record["cells"]["gap_fill"].startswith("none: every open cell from exact paths")
+    assert "already done with the same settings" in _simulate(tmp_path, *args).stdout
+    root = tmp_path / "p"
+    ingest_city(tmp_path / "raw" / "tp", root)
+    b = load_bundle(build_city("tp", BuildConfig(grid_m=4.0, altitude_m=10.0, crop=True), root).path)
+    assert b.shape == (4, 6)
+
+    blocks, _, _ = load_geometry("procedural:tiny", 4)
+    xml, _ = write_scene(tmp_path / "scene", blocks, (52.0, 38.0, 76.0, 54.0), 800e6)
+    grid = ReceiverGrid(x0_m=54.0, y0_m=40.0, z_m=10.0, num_x=6, num_y=4, spacing_m=4.0)
+    opened = open_cells(blocks, grid)
+    assert 0 < opened.sum() < opened.size  # the corner holds a building's edge
+    job = RadioMapJob(str(xml), ((70.0, 46.0, 1.5),), (64.0, 46.0, 10.0), (24.0, 16.0), 4.0)
+    gain = exact_path_maps(job, RayTraceConfig(samples_per_tx=100_000, seed=4, solver="paths"), opened)[0]
+    assert (gain[~opened] == 0).all() and (gain[opened] > 0).all()
+    expected = np.maximum(20.0 + 10 * np.log10(np.where(opened, gain, 1.0)) + 104.0, -40.0)
+    np.testing.assert_allclose(b.sinr_db[0][opened], expected[opened], atol=0.01)
+    np.testing.assert_array_equal(b.dead[0], ~opened)
+
+
+@needs_sionna
 def test_simulate_ingest_build_round_trip(tmp_path):
     """The tiny city through the real commands; the bundle's SINR equals the radio map's, computed here again."""
     from uavplace.simulate.insite import ReceiverGrid

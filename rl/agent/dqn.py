@@ -371,13 +371,20 @@ class DQN:
     """The online and target networks, the optimiser and the action rule (with a recurrent network, its state in
     each of the ``num_envs`` training envs, ``hidden``)."""
 
-    def __init__(self, config: DQNConfig, in_channels: int, window: int) -> None:
+    def __init__(self, config: DQNConfig, in_channels: int, window: int, fast: bool = True) -> None:
         self.config = config
         self.device = resolve_device(config.device)
         self.online = make_network(config, in_channels, window).to(self.device)
+        # ``fast``: the same computation, arranged for speed (benchmarks/bench_train.py --paper-speed measures it
+        # against fast=False): a convolutional network's weights and inputs in channels-last order, its eval-mode
+        # values (acting, the double-Q target) with the batch norms folded (``QNetwork.forward_eval``), and Adam and
+        # the gradient clipping each in one fused pass over the parameters.
+        self.fast = fast
+        if fast and isinstance(self.online, QNetwork):
+            self.online = self.online.to(memory_format=torch.channels_last)
         self.target = copy.deepcopy(self.online)
         self.target.eval()
-        self.optimizer = torch.optim.Adam(self.online.parameters(), lr=config.lr_start)
+        self.optimizer = torch.optim.Adam(self.online.parameters(), lr=config.lr_start, fused=fast or None)
         self.updates = 0
         self.hidden = self.online.initial_state(config.num_envs) if config.recurrent else None
 
@@ -396,9 +403,9 @@ class DQN:
         """Q ``[N, 4]`` of the training envs' observations (a recurrent network's state moves on with them)."""
         self.online.eval()
         with torch.no_grad():
-            x = to_tensor(obs, self.device)
+            x = self.input(obs)
             if self.hidden is None:
-                return self.online(x)
+                return self.evaluate(self.online, x)
             q, self.hidden = self.online.step(x, self.hidden)
             return q
 
@@ -428,12 +435,12 @@ class DQN:
 
     def td_target(self, batch: Batch) -> torch.Tensor:
         """Double-Q n-step target ``[B]``, legal moves only."""
-        next_obs = to_tensor(batch.next_obs, self.device)
+        next_obs = self.input(batch.next_obs)
         next_mask = torch.from_numpy(batch.next_mask).to(self.device)
         with torch.no_grad():
             self.online.eval()
-            best = masked_argmax(self.online(next_obs), next_mask)  # [B]
-            q_next = self.target(next_obs).gather(1, best[:, None]).squeeze(1)  # [B]
+            best = masked_argmax(self.evaluate(self.online, next_obs), next_mask)  # [B]
+            q_next = self.evaluate(self.target, next_obs).gather(1, best[:, None]).squeeze(1)  # [B]
         reward, discount = (torch.from_numpy(a).to(self.device) for a in (batch.reward, batch.discount))
         return reward + discount * q_next
 
@@ -458,7 +465,7 @@ class DQN:
         ``[B, hidden]``, restarting where ``first`` ``[T, B]`` marks an episode's start; ``action``, ``target`` and
         ``genie`` are then ``[T, B]`` (``[T, B, 4]``), and every step of every sequence counts alike."""
         self.online.train()
-        x = to_tensor(obs, self.device)
+        x = self.input(obs)
         if h0 is None:
             z = self.online.embed(x)
         else:
@@ -475,13 +482,32 @@ class DQN:
             group["lr"] = lr
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
-        torch.nn.utils.clip_grad_norm_(self.online.parameters(), self.config.grad_clip)
+        torch.nn.utils.clip_grad_norm_(self.online.parameters(), self.config.grad_clip, foreach=self.fast or None)
         self.optimizer.step()
         self.updates += 1
         return td_loss.item()
 
     def sync_target(self) -> None:
         self.target.load_state_dict(self.online.state_dict())
+
+    def input(self, obs: np.ndarray) -> torch.Tensor:
+        """``obs`` as the online network reads it: ``to_tensor``, channels-last for a fast convolutional network."""
+        if self.fast and isinstance(self.online, QNetwork):
+            return to_tensor(np.ascontiguousarray(np.moveaxis(obs, -3, -1)), self.device).movedim(-1, -3)  # [..., C, w, w]
+        return to_tensor(obs, self.device)
+
+    def evaluate(self, net: nn.Module, x: torch.Tensor) -> torch.Tensor:
+        """Eval-mode Q values of ``net`` (the online or the target network) at ``x``; call it under ``torch.no_grad``."""
+        if self.fast and isinstance(net, QNetwork):
+            return net.forward_eval(x)
+        return net.eval()(x)
+
+    def load_optimizer(self, state: dict) -> None:
+        """The optimiser's state from a checkpoint, keeping this agent's choice of the fused step (a checkpoint's
+        parameter groups carry the flag they were saved with)."""
+        self.optimizer.load_state_dict(state)
+        for group in self.optimizer.param_groups:
+            group["fused"] = self.fast or None
 
 
 class DQNPolicy:

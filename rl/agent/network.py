@@ -8,6 +8,7 @@ import copy
 import torch
 import torch.nn.functional as F
 from torch import nn
+from torch.nn.utils.fusion import fuse_conv_bn_eval, fuse_conv_bn_weights
 
 #: Observations (dB and m) are divided by this before the first layer.
 INPUT_SCALE = 50.0
@@ -129,8 +130,6 @@ class QNetwork(DuelingQ):
         """An evaluation-mode copy for acting, never for training: each batch norm folded into the convolution
         before it and the weights in channels-last order (the same Q values; together about half the time
         on a CPU, ``benchmarks/bench_report.py --legacy``)."""
-        from torch.nn.utils.fusion import fuse_conv_bn_eval
-
         net = copy.deepcopy(self).eval()
         layers = list(net.features)
         folded: list[nn.Module] = []
@@ -141,6 +140,28 @@ class QNetwork(DuelingQ):
                 folded.append(layer)
         net.features = nn.Sequential(*folded)
         return net.to(memory_format=torch.channels_last)
+
+    def forward_eval(self, obs: torch.Tensor) -> torch.Tensor:
+        """Q values ``[B, n_actions]`` as ``eval()`` gives them, whatever mode the network is in: each batch norm
+        folded into the convolution before it from the weights and statistics of this moment (a few small tensor
+        operations, so a network that changes at every update acts and bootstraps by it), dropout off. The same
+        values up to rounding (``tests/test_agent.py``) at the cost of the convolutions alone; call it under
+        ``torch.no_grad``. A feedforward network only."""
+        if self.core is not None:
+            raise TypeError("a recurrent network needs its state: step(obs, h) or unroll(obs, h0, first)")
+        x = obs / INPUT_SCALE
+        convs = [m for m in self.features if isinstance(m, nn.Conv2d)]
+        norms = [m for m in self.features if isinstance(m, nn.BatchNorm2d)]
+        for conv, bn in zip(convs, norms, strict=True):  # each followed by its batch norm and a ReLU
+            weight, bias = fuse_conv_bn_weights(
+                conv.weight, conv.bias, bn.running_mean, bn.running_var, bn.eps, bn.weight, bn.bias
+            )
+            x = F.relu(F.conv2d(x, weight, bias, conv.stride))
+        z = x.flatten(1)
+        for layer in self.fc:
+            if not isinstance(layer, nn.Dropout):
+                z = layer(z)
+        return self.head(z)
 
     def embed(self, obs: torch.Tensor) -> torch.Tensor:
         """``[B, hidden]``: the features both heads read (a recurrent network's GRU input)."""

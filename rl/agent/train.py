@@ -262,7 +262,9 @@ class Trainer:
         run_dir: Path,
         command: str = "",
         val_datasets: list[str] | None = None,
+        fast: bool = True,
     ) -> None:
+        """``fast``: ``DQN``'s (the same computation, arranged for speed; False only to measure it)."""
         self.config, self.datasets, self.root, self.run_dir = config, list(datasets), str(root), Path(run_dir)
         if config.ensemble != 1:
             raise InputError(
@@ -285,7 +287,7 @@ class Trainer:
         self.eval_maps, self.eval_episodes = validation_set(config, cities)
         self.env = BatchedEnv(self.maps, config.num_envs, compact=True)
         c, w = self.maps.config.num_channels, self.maps.config.window
-        self.agent = DQN(config, c, w)
+        self.agent = DQN(config, c, w, fast=fast)
         # What the learner learns from, saved with every checkpoint: the replay, or PQN's rollout so far.
         self.replay: ReplayBuffer | None = None
         self.rollout: Rollout | None = None
@@ -389,7 +391,7 @@ class Trainer:
             require(ck, last / "networks.pt", "online", "target", "optimizer", "torch_rng")
             self.agent.online.load_state_dict(ck["online"])
             self.agent.target.load_state_dict(ck["target"])
-            self.agent.optimizer.load_state_dict(ck["optimizer"])
+            self.agent.load_optimizer(ck["optimizer"])
             torch.set_rng_state(ck["torch_rng"].cpu())
             if self.agent.hidden is not None:
                 require(ck, last / "networks.pt", "hidden")
