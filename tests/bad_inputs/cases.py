@@ -690,7 +690,7 @@ CASES: list[Case] = [
         "build bad --split",
         "uavdata",
         lambda w: ["build", "--root", str(w.root()), "--split", "city=maybe"],
-        "expected CITY=train, CITY=val or CITY=test",
+        "expected CITY=train, CITY=val, CITY=test or CITY=none",
     ),
     Case(
         "build --grid four",
