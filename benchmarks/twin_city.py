@@ -50,6 +50,8 @@ def same_episodes(paths: Bundle, radio: Bundle, config: ReportConfig) -> tuple[n
     rng = np.random.default_rng(config.seed)
     kept, dropped = [], 0
     while sum(len(k) for k in kept) < config.episodes:
+        if dropped > 100 * config.episodes:
+            raise SystemExit(f"{radio.manifest.city}: almost no start of {paths.manifest.city} starts there; not twins?")
         draw = maps_p.sample_episodes(config.episodes, rng)
         ok = maps_r.can_start(draw)  # the same users in the same order, the same canvas: the same specs
         kept.append(draw[ok])
