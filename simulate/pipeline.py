@@ -262,13 +262,13 @@ def load_geometry(
     return blocks, (float(b[0]), float(b[1]), float(b[2]), float(b[3])), described
 
 
-#: How simulation.json describes each gap-fill method.
 #: What simulation.json says of the solver that traced a city.
 SOLVER_TEXT = {"radio-map": "Sionna's radio map", "paths": "Sionna's PathSolver, a receiver at every open cell's centre"}
 PATHS_TEXT = (
     "none: every open cell from exact paths (PathSolver, every path of up to max_depth interactions, as InSite "
     "computes them); a cell no path reaches stays unreached"
 )
+#: How simulation.json describes each gap-fill method.
 GAP_FILL_TEXT = {
     "geodesic": "a cell no ray hit takes the exact straight path from the user through the walls it crosses (ITU-R "
     "P.2040-4 slab transmission of the wall material at each crossing's incidence, free space, the user antenna's "
@@ -499,10 +499,7 @@ def simulate_city(
 
         maps, from_cache = _cached_traces(Path(trace_cache) if trace_cache else None, spec, rt_config, trace)
     pos = grid.points()  # [ny * nx, 3], x fastest: the same order as gain[u].ravel()
-    if rt_config.solver == "paths":
-        gain, filled = maps[1], np.zeros(maps[1].shape, bool)
-    else:
-        gain, filled = fill(maps, rt_config, opened, squared_distances(sources, grid), cell_m=grid.spacing_m)
+    gain, filled = fill(maps, rt_config, opened, squared_distances(sources, grid), cell_m=grid.spacing_m)
     with atomic_directory(Path(out_root) / spec.name, marker=PROVENANCE, what="simulated city") as out:
         write_txrx(out / f"{spec.name}.txrx", users, grid, tx_power_dbm=spec.tx_dbm, user_set=USER_SET, grid_set=GRID_SET,
                    route_points_m=route_points, route_set=ROUTE_SET)  # fmt: skip

@@ -228,13 +228,16 @@ def fill(
     maps: dict[int | str, np.ndarray], config: RayTraceConfig, open_cells: np.ndarray, d2: np.ndarray, cell_m: float = 4.0
 ) -> tuple[np.ndarray, np.ndarray]:
     """The raw maps of ``path_gain_maps`` (by cell factor) completed by ``config.gap_fill_method``: (gain, mask of the
-    cells that no ray hit but the method made live).
+    cells that no ray hit but the method made live); with ``config.solver == "paths"`` the maps are exact paths at every
+    open cell and are returned as they are, nothing filled.
 
     ``geodesic`` also takes ``maps["direct"]`` [U, ny, nx] (``direct_gains``) and the cell size ``cell_m``. ``open_cells`` [ny, nx]: no building at or above the plane; ``d2`` [U, ny, nx]:
     squared user-to-cell distances [m^2].
     """
     check_fill(config)
     fine = maps[1]
+    if config.solver == "paths":  # exact paths at every open cell (``exact_path_maps``): nothing to fill
+        return fine, np.zeros(fine.shape, bool)
     if config.gap_fill_method == "geodesic":
         gain = fill_geodesic(fine, maps["direct"], open_cells, d2, reach_m=config.gap_fill_reach_m,
                              decay_db_per_m=config.gap_fill_decay_db_per_m, cell_m=cell_m)  # fmt: skip
@@ -275,6 +278,20 @@ class RadioMapJob:
     center_m: tuple[float, float, float]  # plane centre; z is the altitude
     size_m: tuple[float, float]
     cell_m: float
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(ny, nx)``: the plane's cells."""
+        nx, ny = (round(s / self.cell_m) for s in self.size_m)
+        return ny, nx
+
+    def cell_centres(self) -> np.ndarray:
+        """``[ny * nx, 3]`` the centres of the plane's cells at its height, x fastest (the order of ``map.ravel()``)."""
+        ny, nx = self.shape
+        corner = (self.center_m[0] - self.size_m[0] / 2, self.center_m[1] - self.size_m[1] / 2)
+        ix, iy = np.meshgrid(np.arange(nx), np.arange(ny))
+        return np.c_[corner[0] + (ix.ravel() + 0.5) * self.cell_m, corner[1] + (iy.ravel() + 0.5) * self.cell_m,
+                     np.full(ix.size, self.center_m[2])]  # fmt: skip
 
 
 def sionna_versions() -> dict[str, str]:
@@ -439,11 +456,8 @@ def direct_gains(
     from uavplace.simulate.transmission import complex_permittivity, direct_path_gains
 
     mi, _, scene = _scene(job, config)
-    nx, ny = (round(s / job.cell_m) for s in job.size_m)
-    corner = (job.center_m[0] - job.size_m[0] / 2, job.center_m[1] - job.size_m[1] / 2)
-    ix, iy = np.meshgrid(np.arange(nx), np.arange(ny))
-    cells = np.c_[corner[0] + (ix.ravel() + 0.5) * job.cell_m, corner[1] + (iy.ravel() + 0.5) * job.cell_m,
-                  np.full(ix.size, job.center_m[2])]  # fmt: skip
+    ny, nx = job.shape
+    cells = job.cell_centres()
     eta = complex_permittivity(material["relative_permittivity"], material["conductivity_s_m"], config.frequency_hz)
     gains, crossings = [], []
     users = np.asarray(job.users_m, float)
@@ -522,19 +536,17 @@ def exact_path_maps(
     cell and at every cell with a building at or above the plane, as InSite leaves them. The cells go to child
     processes ``cells_per_call`` at a time (the path buffer grows with the receivers); ``on_batch(done, total)``
     counts cells."""
-    nx, ny = (round(s / job.cell_m) for s in job.size_m)
-    if open_cells.shape != (ny, nx):
-        raise ValueError(f"open_cells {open_cells.shape} is not the job's grid ({ny}, {nx})")
-    corner = (job.center_m[0] - job.size_m[0] / 2, job.center_m[1] - job.size_m[1] / 2)
-    iy, ix = np.nonzero(open_cells)
-    cells = np.c_[corner[0] + (ix + 0.5) * job.cell_m, corner[1] + (iy + 0.5) * job.cell_m, np.full(ix.size, job.center_m[2])]
-    out = np.zeros((len(job.users_m), ny, nx))
+    if open_cells.shape != job.shape:
+        raise ValueError(f"open_cells {open_cells.shape} is not the job's grid {job.shape}")
+    chosen = np.flatnonzero(open_cells.ravel())
+    cells = job.cell_centres()[chosen]
+    out = np.zeros((len(job.users_m), open_cells.size))
     for start in range(0, len(cells), cells_per_call):
         part = slice(start, start + cells_per_call)
-        out[:, iy[part], ix[part]] = point_path_gains_isolated(job, cells[part], config)
+        out[:, chosen[part]] = point_path_gains_isolated(job, cells[part], config)
         if on_batch is not None:
             on_batch(min(start + cells_per_call, len(cells)), len(cells))
-    return out
+    return out.reshape(len(job.users_m), *job.shape)
 
 
 def direct_gains_isolated(
