@@ -117,16 +117,18 @@ class Report:
 
 def agent_name(config: DQNConfig) -> str:
     """The method's name in tables: the paper's ``DQN`` and ``blind DQN``, or the learner that trained it (``PQN``,
-    ``+ GRU`` for a recurrent core, ``x N`` for an ensemble of N runs), then the preset: ``DQN (paper)``, ``PQN + GRU
-    (best)``, ``PQN + GRU x 3 (best)``."""
+    ``+ GRU`` for a recurrent core, ``x N`` for an ensemble of N runs), then the preset (and the tracking task):
+    ``DQN (paper)``, ``PQN + GRU (best)``, ``PQN + GRU x 3 (best)``, ``PQN + GRU (best, tracking)``."""
     learner = "PQN" if config.learner == "pqn" else "DQN"
     core = " + GRU" if config.recurrent else ""
     members = f" x {config.ensemble}" if config.ensemble > 1 else ""
-    return f"{'' if config.agent == 'dqn' else 'blind '}{learner}{core}{members} ({config.preset})"
+    task = ", tracking" if config.task == "tracking" else ""
+    return f"{'' if config.agent == 'dqn' else 'blind '}{learner}{core}{members} ({config.preset}{task})"
 
 
-def load_agent(folder: str | Path, epsilon: float, seed: int) -> Agent:
-    """A run folder (``run.json`` + ``checkpoints/best.pt``) as an evaluable agent; ``InputError`` if it is not one."""
+def load_agent(folder: str | Path, epsilon: float, seed: int, task: str | None = "placement") -> Agent:
+    """A run folder (``run.json`` + ``checkpoints/best.pt``) as an evaluable agent; ``InputError`` if it is not one,
+    or if it learnt another task than ``task`` (None: either)."""
     folder = Path(folder)
     ckpt = folder / "checkpoints" / "best.pt"
     if not ckpt.is_file():
@@ -139,6 +141,9 @@ def load_agent(folder: str | Path, epsilon: float, seed: int) -> Agent:
         differ = [k for k in held if held[k] != played[k]]
         raise InputError(folder / RUN_JSON, f"its config is not the one checkpoints/best.pt was trained with ({', '.join(differ)} "
                          "differ): the report would describe another agent than it plays", field="config")  # fmt: skip
+    if task is not None and config.task != task:
+        how = "`uavrl report --task tracking`" if config.task == "tracking" else "a placement report"
+        raise InputError(folder, f"a {config.task} agent, not a {task} one: {how} plays it", field="task")
     policy.name = agent_name(config)
     metrics = None
     if (folder / "metrics.parquet").is_file():

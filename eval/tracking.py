@@ -34,6 +34,7 @@ from uavplace.rl.tracking import (
     PlacementInTracking,
     ReplanningGenie,
     RouteSet,
+    TrackingAgent,
     TrackingConfig,
     TrackingEpisodes,
     run_tracking,
@@ -63,7 +64,10 @@ class TrackingReportConfig(Contract):
     model_config = ConfigDict(allow_inf_nan=False)
 
     datasets: list[str] = Field(min_length=1, description="Cities with routes (built bundles, optionally city@version)")
-    runs: list[str] = Field(default_factory=list, description="Placement agents (run folders or shipped agents), run unchanged")
+    runs: list[str] = Field(
+        default_factory=list,
+        description="Agents (run folders or shipped agents): tracking agents, and placement agents run unchanged",
+    )
     test_epsilon: float = Field(default=0.096, ge=0, le=1, description="Random legal move rate of the agents (paper: 0.096)")
     episodes: int = Field(default=1000, ge=1, description="Episodes per city, the same for every method")
     task: TrackingConfig = Field(default_factory=TrackingConfig, description="The tracking task (horizon, P_T, speeds)")
@@ -73,10 +77,17 @@ class TrackingReportConfig(Contract):
 
 
 def tracking_methods(task: TrackingConfig, seed: int, agents: list[Agent] = ()) -> list:
-    """The methods of the report: the upper bound first, then the agents (placement agents run unchanged,
-    ``PlacementInTracking``), then the re-planning genie and the baselines."""
-    return [OraclePolicy(), *(PlacementInTracking(a.policy, a.config.env_config(evaluation=True), a.name) for a in agents),
-            ReplanningGenie(), MovesOnly(RandomWalkPolicy(seed=seed)), MovesOnly(GreedyPolicy(task.p_h_db, seed=seed))]  # fmt: skip
+    """The methods of the report: the upper bound first, then the agents (tracking agents on the observations they
+    were trained with, ``TrackingAgent``; placement agents run unchanged, ``PlacementInTracking``), then the
+    re-planning genie and the baselines."""
+    played = [
+        TrackingAgent(a.policy, a.config.tracking_config(), a.name)
+        if a.config.task == "tracking"
+        else PlacementInTracking(a.policy, a.config.env_config(evaluation=True), a.name)
+        for a in agents
+    ]
+    return [OraclePolicy(), *played, ReplanningGenie(), MovesOnly(RandomWalkPolicy(seed=seed)),
+            MovesOnly(GreedyPolicy(task.p_h_db, seed=seed))]  # fmt: skip
 
 
 def _summary(values: np.ndarray, how: str, weights: np.ndarray) -> np.ndarray:
@@ -246,7 +257,7 @@ def make_tracking_report(
     out = Path(out)
     check_replaceable(out, TRACKING_JSON, "tracking report")
     bundles = [load_bundle(name, root=root) for name in config.datasets]
-    agents = [load_agent(r, config.test_epsilon, config.seed) for r in config.runs]
+    agents = [load_agent(r, config.test_epsilon, config.seed, task=None) for r in config.runs]
     for b in bundles:
         if b.routes is None:
             raise InputError(b.path, "this bundle has no routes: simulate them with `uavdata simulate ... --routes N`, then "

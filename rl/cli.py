@@ -121,6 +121,16 @@ def baselines(
     "5 min), best-dqn (that one learnt by replay DQN: about 8 min), paper "
     "(docs/method.md, ~7 M steps: days on a CPU), fast (40 k steps: 139-146 s on 2 cores, measured 2026-12-01; for checks). Presets: rl/agent/dqn.py, PRESETS.",
 )
+@click.option(
+    "--task",
+    type=click.Choice(["placement", "tracking"]),
+    default="placement",
+    show_default=True,
+    help="placement: find a user who stands still (the paper's task); tracking: keep a user who walks its route "
+    "covered (rl/tracking.py; 5 actions, stay the fifth; every --dataset and validation city needs routes, "
+    "`uavdata simulate --routes N`; best.pt is the network that covers the most of the horizon on the validation "
+    "cities' routes; the preset's revisit penalties are off).",
+)
 @click.option("--steps", type=Counted("train_steps"), default=None, help="Environment steps (default: the preset's).")
 @click.option(
     "--set",
@@ -128,7 +138,8 @@ def baselines(
     multiple=True,
     metavar="FIELD=VALUE",
     help="Override one field of the preset's DQNConfig (rl/agent/dqn.py), env fields as env.FIELD "
-    "(rl/config.py), e.g. --set env.shaping=1 --set eval_episodes=1000; repeatable.",
+    "(rl/config.py), the tracking task's as tracking.FIELD (rl/tracking.py, TrackingConfig), e.g. --set "
+    "env.shaping=1 --set eval_episodes=1000 --set tracking.horizon=200; repeatable.",
 )
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the whole run.")
 @click.option(
@@ -145,7 +156,9 @@ def baselines(
     show_default=True,
     help="Folder of runs; this one goes to OUT/<run-id>/.",
 )
-@click.option("--name", default=None, help="Run folder name under OUT (default: <time>-<preset>-<agent>-s<seed>); must be new.")
+@click.option(
+    "--name", default=None, help="Run folder name under OUT (default: <time>-<preset>[-tracking]-<agent>-s<seed>); must be new."
+)
 @click.option(
     "--until",
     type=click.IntRange(min=1),
@@ -161,10 +174,11 @@ def baselines(
 @root_option
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def train(
-    datasets, val_datasets, agent: str, preset: str, steps: int | None, settings, seed: int, eval_every: int | None,
+    datasets, val_datasets, agent: str, preset: str, task: str, steps: int | None, settings, seed: int, eval_every: int | None,
     runs: Path, name: str | None, until: int | None, resume: Path | None, root: Path, quiet: bool,
 ) -> None:  # fmt: skip
-    """Train the DQN agent (or its blind twin) on built cities; write config, metrics and checkpoints to a run folder."""
+    """Train the DQN agent (or its blind twin) on built cities, for placement or tracking; write config, metrics and
+    checkpoints to a run folder."""
     from uavplace.dataset.catalog import expand_datasets
     from uavplace.rl.agent.dqn import parse_settings, preset_config
     from uavplace.rl.agent.train import new_run_dir, read_run_json
@@ -182,12 +196,12 @@ def train(
         given = parse_settings(settings)
         # settings with their own option: the option would win over the --set without a word (--agent and --seed
         # always, with their defaults; --steps and --eval-every when given)
-        own = {"agent": "--agent", "seed": "--seed"} | ({"total_steps": "--steps"} if steps else {})
+        own = {"agent": "--agent", "seed": "--seed", "task": "--task"} | ({"total_steps": "--steps"} if steps else {})
         own |= {"eval_every": "--eval-every"} if eval_every else {}
         clash = [f"--set {k} and {own[k]}" for k in given if k in own]
         if clash:
             raise click.UsageError(f"{', '.join(clash)} set the same field: give it once, with the option")
-        overrides = given | {"agent": agent, "seed": seed} | ({"total_steps": steps} if steps else {})
+        overrides = given | {"agent": agent, "seed": seed, "task": task} | ({"total_steps": steps} if steps else {})
         overrides |= {"eval_every": eval_every} if eval_every else {}
         config = preset_config(preset, **overrides)
         run_dir = named or new_run_dir(runs, config)
@@ -237,6 +251,9 @@ def _train_in(run_dir: Path, resume, config, datasets, val_datasets, root: Path,
             raise SystemExit(130) from None  # the shell's status for Ctrl-C
     last = trainer.state.evals[-1] if trainer.state.evals else None
     summary = f"; last evaluation: {100 * last['success']:.1f} % success, median {last['median_steps']:g} steps" if last else ""
+    if last and config.task == "tracking":
+        summary = f"; last evaluation: {100 * last['covered_share']:.1f} % of the horizon covered, P_T reached in " \
+                  f"{100 * last['success']:.1f} % of the episodes"  # fmt: skip
     stdout().print(f"trained {run_dir}{summary}", highlight=False, soft_wrap=True)
 
 

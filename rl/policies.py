@@ -28,12 +28,12 @@ class Policy(Protocol):
 
 
 def random_legal(mask: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """A uniformly random legal action per row of ``mask`` [N, 4] (a row with none gets 0)."""
+    """A uniformly random legal action per row of ``mask`` [N, A] (a row with none gets 0)."""
     return pick_legal(mask, rng.random(mask.shape))
 
 
 def pick_legal(mask: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """The legal action of largest uniform ``u`` [N, 4] per row of ``mask`` [N, 4]: uniformly random (a row with none
+    """The legal action of largest uniform ``u`` [N, A] per row of ``mask`` [N, A]: uniformly random (a row with none
     gets 0)."""
     return np.argmax(u * mask, axis=1)
 

@@ -35,6 +35,7 @@ from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target
 from uavplace.rl.config import EnvConfig
 from uavplace.rl.maps import MOVES, MapSet
 from uavplace.rl.randomness import combine, stream_key
+from uavplace.rl.vec_env import encode_obs
 from uavplace.schemas.base import Contract
 
 #: The 5 tracking actions in canvas coordinates (dy, dx): the 4 placement moves, then 4 = stay.
@@ -43,6 +44,10 @@ STAY = 4
 #: The action of each move (dy + 1, dx + 1) in ``TRACK_MOVES`` (-1: no action makes it).
 ACTION_OF = np.full((3, 3), -1, np.int64)
 ACTION_OF[TRACK_MOVES[:, 0] + 1, TRACK_MOVES[:, 1] + 1] = np.arange(len(TRACK_MOVES))
+
+
+#: The fields of ``TrackingConfig`` that shape what an agent observes (the others define the task).
+OBSERVATION_FIELDS = ("window", "blind", "p_h_db", "p_l_db", "age_clip_s", "edge_height_m", "height_clip_m")
 
 
 class TrackingConfig(Contract):
@@ -68,6 +73,11 @@ class TrackingConfig(Contract):
     @property
     def num_channels(self) -> int:
         return 2 if self.blind else 3
+
+    def observed_as(self, agent: TrackingConfig) -> TrackingConfig:
+        """This task (horizon, P_T, speeds) with ``agent``'s observation (``OBSERVATION_FIELDS``): what a tracking
+        agent trained with ``agent`` sees when it plays this task."""
+        return self.model_copy(update={k: getattr(agent, k) for k in OBSERVATION_FIELDS})
 
     def placement_env(self) -> EnvConfig:
         """The placement ``EnvConfig`` whose canvases (height, blocked, padding) this task shares."""
@@ -228,12 +238,25 @@ class TrackingEpisodes:
 class TrackingEnv:
     """``num_envs`` tracking episodes stepped together in numpy, played from ``queue`` (``[K, 4]`` specs of
     ``RouteSet.sample_episodes``) or drawn with the generator of ``reset(seed)``; a finished episode restarts at once
-    (``info["final_index"]``) unless the queue has run out (``exhausted``), or unless ``autoreset`` is False (the
-    single Gymnasium env)."""
+    (``info["final_index"]``, with the ended rows' last observation, mask, cell and route point) unless the queue has
+    run out (``exhausted``), or unless ``autoreset`` is False (the single Gymnasium env). ``compact``: uint8
+    observations (``rl.vec_env.encode_obs``, 1 dB / 1 m / 1 s a step), as the trainer stores them.
 
-    def __init__(self, routes: RouteSet, num_envs: int, *, queue: np.ndarray | None = None, autoreset: bool = True) -> None:
+    The trainer's interface is placement's ``BatchedEnv``'s: ``state_arrays`` and ``check_state`` (what a checkpoint
+    keeps), ``genie_moves`` (a training aid), ``info["sinr"]``, ``info["steps"]`` and ``info["covered_share"]``
+    (each row's episode so far; at its end, the ended episode's)."""
+
+    def __init__(
+        self,
+        routes: RouteSet,
+        num_envs: int,
+        *,
+        queue: np.ndarray | None = None,
+        autoreset: bool = True,
+        compact: bool = False,
+    ) -> None:
         self.routes, self.config, self.maps, self.autoreset = routes, routes.config, routes.maps, autoreset
-        self.num_envs, self.queue, self.queue_pos = num_envs, queue, 0
+        self.num_envs, self.queue, self.queue_pos, self.compact = num_envs, queue, 0, compact
         n, L, w = num_envs, self.maps.side, routes.config.window
         self.route = np.zeros(n, np.int64)
         self.start_s = np.zeros(n)
@@ -243,8 +266,9 @@ class TrackingEnv:
         self.exhausted = np.zeros(n, bool)
         self.memory = np.zeros((n, L, L), np.float32)
         self.seen_at = np.zeros((n, L, L), np.float32)  # when each cell was last measured [s]; -inf never
+        self.covered_steps = np.zeros(n, np.int64)  # steps of this episode at or above P_T so far
         self.rng = np.random.default_rng()
-        self._started = 0
+        self._episodes_started = 0
         self._rows = np.arange(n)
         self._memory_windows = np.lib.stride_tricks.sliding_window_view(self.memory, (w, w), axis=(1, 2))
         self._seen_windows = np.lib.stride_tricks.sliding_window_view(self.seen_at, (w, w), axis=(1, 2))
@@ -265,8 +289,8 @@ class TrackingEnv:
     def _start(self, idx: np.ndarray) -> None:
         k = len(idx)
         if self.queue is None:
-            specs, ids = self.routes.sample_episodes(k, self.rng), self._started + np.arange(k)
-            self._started += k
+            specs, ids = self.routes.sample_episodes(k, self.rng), self._episodes_started + np.arange(k)
+            self._episodes_started += k
         else:
             take = min(k, len(self.queue) - self.queue_pos)
             specs = np.repeat(self.queue[:1], k, axis=0)
@@ -275,7 +299,7 @@ class TrackingEnv:
             self.queue_pos += take
         self.route[idx], self.start_s[idx] = specs[:, 0].astype(np.int64), specs[:, 1]
         self.pos[idx] = specs[:, 2:].astype(np.int64)
-        self.t[idx], self.episode_id[idx], self.exhausted[idx] = 0, ids, ids < 0
+        self.t[idx], self.episode_id[idx], self.exhausted[idx], self.covered_steps[idx] = 0, ids, ids < 0, 0
         hidden = ~self.maps.on_map[self.canvas(idx)] if self.config.blind else self.maps.blocked[self.canvas(idx)]
         self.memory[idx] = np.where(hidden, self.config.p_l_db, self.config.p_h_db)
         self.seen_at[idx] = -np.inf
@@ -291,9 +315,45 @@ class TrackingEnv:
     def reset(self, seed: int | None = None) -> tuple[np.ndarray, dict]:
         if seed is not None:
             self.rng = np.random.default_rng(seed)
-        self._started, self.queue_pos = 0, 0
+        self._episodes_started, self.queue_pos = 0, 0
         self._start(self._rows)
         return self.observe(), {"action_mask": self.action_mask()}
+
+    @property
+    def state_arrays(self) -> tuple[str, ...]:
+        """Names of the arrays that hold the episodes' state: with the episode counter and the generator, what a
+        checkpoint keeps to continue exactly."""
+        return ("route", "start_s", "pos", "t", "episode_id", "memory", "seen_at", "covered_steps")
+
+    def check_state(self, source: object) -> None:
+        """``InputError`` (naming ``source``) unless the episode state (``state_arrays``, as a checkpoint restores it)
+        is one this env can be in: routes in range, positions on open canvas cells, start times and counters from 0."""
+        from uavplace.schemas import InputError
+
+        problems = {
+            "route": (self.route < 0) | (self.route >= self.routes.num_routes),
+            "start_s": ~np.isfinite(self.start_s) | (self.start_s < 0),
+            "pos": ((self.pos < 0) | (self.pos >= self.maps.side)).any(axis=1),
+            "t": (self.t < 0) | (self.t >= self.config.horizon),
+            "memory": ~np.isfinite(self.memory).all(axis=(1, 2)),
+            "covered_steps": (self.covered_steps < 0) | (self.covered_steps > self.t),
+        }
+        for name, bad in problems.items():
+            if bad.any():
+                raise InputError(source, f"env row {int(np.argmax(bad))}: {name} out of range or not finite", field=name)
+        if self.maps.blocked[self.canvas(), self.pos[:, 0], self.pos[:, 1]].any():
+            raise InputError(source, "a UAV stands in a blocked cell", field="pos")
+
+    def genie_moves(self) -> np.ndarray:
+        """``[N, 5]`` bool: the re-planning genie's choice (privileged, for training aids only; never part of an
+        observation): stay on a cell that covers the user's point now, else the moves that start a shortest legal path
+        to that point's P_T region; none where no target is reachable."""
+        point = self.point()
+        ny, nx = self.neighbours()
+        here = self.routes.steps[point, self.pos[:, 0], self.pos[:, 1]]
+        # Blocked and off-map cells hold UNREACHABLE, never below a reachable cell's distance: no legality mask needed.
+        moves = self.routes.steps[point[:, None], ny, nx] < here[:, None]
+        return np.c_[moves & (here > 0)[:, None], here == 0]
 
     def neighbours(self, idx: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Canvas ``(y, x)`` of the 4 cells the moves lead to, each ``[len(idx), 4]`` (placement's interface)."""
@@ -318,7 +378,7 @@ class TrackingEnv:
         now = (self.t * self.routes.step_s[self.route]).astype(np.float32)
         np.minimum(now[:, None, None] - self._seen_windows[rows, y0, x0], np.float32(cfg.age_clip_s), out=obs[:, -2])
         obs[:, -1] = self._memory_windows[rows, y0, x0]
-        return obs
+        return encode_obs(obs) if self.compact else obs
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
         actions = np.asarray(actions, np.int64)
@@ -329,13 +389,16 @@ class TrackingEnv:
         self.t += 1
         new = self._measure(self._rows)
         covered = new >= self.config.p_t_db
+        self.covered_steps += covered
         reward = (self.config.cover_reward * covered + self.config.gain_weight * (new - old)).astype(np.float32)
         truncated = self.t >= self.config.horizon
-        info = {"illegal": ~legal, "covered": covered, "episode_id": self.episode_id.copy(), "steps": self.t.copy()}
+        info = {"illegal": ~legal, "covered": covered, "episode_id": self.episode_id.copy(), "steps": self.t.copy(),
+                "sinr": new, "covered_share": self.covered_steps / self.t}  # fmt: skip
         if truncated.any() and self.autoreset:
             ended = np.flatnonzero(truncated)
             info["final_index"] = ended
             info["final_pos"], info["final_point"] = self.pos[ended].copy(), self.point()[ended]
+            info["final_obs"], info["final_mask"] = self.observe()[ended], self.action_mask()[ended]
             self._start(ended)
         info["action_mask"] = self.action_mask()
         return self.observe(), reward, np.zeros(self.num_envs, bool), truncated, info
@@ -401,6 +464,20 @@ class PlacementInTracking:
         return self.policy.act(mirror.observe(), mask[:, :4], mirror)
 
 
+class TrackingAgent:
+    """An agent trained on the tracking task (``uavrl train --task tracking``), acting on the observations it was
+    trained with (``observation``: its ``TrackingConfig``); ``run_tracking`` plays it on a ``RouteSet`` of those."""
+
+    def __init__(self, policy, observation: TrackingConfig, name: str) -> None:  # noqa: ANN001 - a DQNPolicy
+        self.policy, self.observation, self.name = policy, observation, name
+
+    def reset(self, rows: np.ndarray, num_envs: int) -> None:
+        self.policy.reset(rows, num_envs)
+
+    def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingEnv) -> np.ndarray:
+        return self.policy.act(obs, mask, env)
+
+
 class ReplanningGenie:
     """The placement genie re-planned every step: knows the user's map now (not the future); stays while covered,
     else takes a shortest legal path toward the current P_T region."""
@@ -464,7 +541,18 @@ def run_tracking(
 ) -> TrackingEpisodes:
     """Play ``episodes`` (``[K, 4]`` specs) to the horizon with ``policy`` (``rl.policies`` interface: ``reset``,
     ``act(obs, mask, env)``); one row per episode with the metrics of ``episode_metrics`` (and with ``record``, the
-    UAV's path and the user's route points, for drawing)."""
+    UAV's path and the user's route points, for drawing). A ``TrackingAgent`` whose observation differs from
+    ``routes.config``'s plays the same episodes on routes laid out for its own (cells and paths shifted between
+    the two canvases' paddings)."""
+    own = getattr(policy, "observation", None)
+    if own is not None and routes.config.observed_as(own) != routes.config:
+        mine = RouteSet(routes.bundles, routes.config.observed_as(own))
+        shift = mine.maps.pad - routes.maps.pad
+        played = run_tracking(mine, policy, np.asarray(episodes, float) + [0, 0, shift, shift], num_envs=num_envs,
+                              record=record)  # fmt: skip
+        if played.path is not None:
+            played.path -= shift
+        return played
     k, h = len(episodes), routes.config.horizon
     env = TrackingEnv(routes, min(num_envs, k), queue=np.asarray(episodes, float))
     obs, info = env.reset()

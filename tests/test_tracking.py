@@ -286,3 +286,130 @@ def test_tracking_report_from_the_command_line(root, tmp_path):
     assert (tmp_path / "t.md").read_text() == (out / "tracking.md").read_text()
     refused = CliRunner().invoke(uavrl, [*args[:-1], "--group", f"g={tmp_path}"])
     assert refused.exit_code == 2 and "takes no --group" in refused.output
+
+
+@pytest.fixture(scope="module")
+def val_root(root):
+    """``root`` with a second routed city, ``walk-val``, built as a validation city (other routes on other paths)."""
+    raw = root.parent / "raw-val"
+    routes = [ROUTES[1], np.array([(10.0 + 2 * k, -10.0) for k in range(8)])]
+    ingest_city(write_grid_city(raw, nx=6, ny=5, n_tx=2, seed=5, dead_share=0.0, routes=routes), root, name="walk-val")
+    build_city("walk-val", BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=-45.0, role="val"), root)
+    return root
+
+
+def _tracking_config(**update):
+    from uavplace.rl.agent.dqn import preset_config
+
+    tiny = {"total_steps": 512, "num_envs": 8, "rollout_steps": 8, "batch_size": 32, "epochs": 2, "hidden": 16,
+            "fovea": 5, "eval_every": 256, "eval_episodes": 16}  # fmt: skip
+    return preset_config("best", task="tracking", tracking={"horizon": 24, "window": 9}, **(tiny | update))
+
+
+def test_genie_moves_hold_the_replanning_genies_choice(root):
+    """The tracking env's training aid: stay exactly where the cell covers the user's point now; elsewhere the moves
+    that start a shortest path to its P_T region, among them the re-planning genie's own."""
+    routes = RouteSet([load_bundle("walk", root=root)], TrackingConfig(horizon=30, window=9))
+    env = TrackingEnv(routes, 16)
+    env.reset(seed=4)
+    genie, rng = ReplanningGenie(), np.random.default_rng(0)
+    seen = 0
+    for _ in range(20):
+        moves, mask = env.genie_moves(), env.action_mask()
+        here = routes.steps[env.point(), env.pos[:, 0], env.pos[:, 1]]
+        assert np.array_equal(moves[:, STAY], here == 0) and not (moves[:, :STAY] & (here == 0)[:, None]).any()
+        assert not (moves & ~mask).any()
+        chosen = genie.act(None, mask, env)
+        has = moves.any(axis=1)
+        assert moves[np.flatnonzero(has), chosen[has]].all()
+        seen += int(has.sum())
+        env.step(rng.integers(0, 5, 16))
+    assert seen > 100
+
+
+def test_tracking_agent_trains_selects_on_validation_routes_and_reports(val_root, tmp_path):
+    """`uavrl train --task tracking`: a 5-action network learnt by the `best` learner on the routes of the training
+    city, evaluated on the validation city's (covered share in eval.parquet and metrics.parquet); stopped and resumed
+    it ends where a straight run ends; `uavrl report --task tracking` plays it on its own observation (a 9-cell window
+    in a report of 61) beside the baselines, and the placement report refuses it."""
+    import json
+
+    import pandas as pd
+    import torch
+    from click.testing import CliRunner
+
+    from uavplace.rl.agent.train import TrackingTrainer, load_policy, read_run_json
+    from uavplace.schemas.cli import uavrl
+
+    args = ["train", "--task", "tracking", "--dataset", "walk", "--dataset", "walk-val", "--root", str(val_root),
+            "--out", str(tmp_path), "--steps", "512", "--eval-every", "256", "--quiet"]  # fmt: skip
+    sets = [f"--set={k}={v}" for k, v in _tracking_config().model_dump(include={"num_envs", "rollout_steps",
+            "batch_size", "epochs", "hidden", "fovea", "eval_episodes"}).items()]  # fmt: skip
+    sets += ["--set=tracking.horizon=24", "--set=tracking.window=9"]
+    result = CliRunner().invoke(uavrl, [*args, "--name", "straight", *sets])
+    assert result.exit_code == 0, result.output
+    assert "of the horizon covered" in result.output
+    run = tmp_path / "straight"
+    record = read_run_json(run)
+    assert record.config.task == "tracking" and record.config.n_actions == 5 and record.config.train_revisit_penalty == 0
+    assert set(record.datasets) == {"walk"} and set(record.val_datasets) == {"walk-val"}
+    evals, metrics = pd.read_parquet(run / "eval.parquet"), pd.read_parquet(run / "metrics.parquet")
+    assert evals["step"].tolist() == [256, 512] and evals["covered_share"].between(0, 1).all()
+    assert len(metrics) and metrics["covered_share"].between(0, 1).all() and (metrics["length"] == 24).all()
+    policy, config = load_policy(run / "checkpoints" / "best.pt")
+    assert config.task == "tracking" and policy.net.head(torch.zeros(1, 16)).shape == (1, 5)
+
+    # Stopped at 200 and resumed: the same network as the straight run.
+    half = tmp_path / "half"
+    trainer = TrackingTrainer(_tracking_config(), ["walk", "walk-val"], val_root, half)
+    trainer.run(stop_at=200)
+    resumed = TrackingTrainer(_tracking_config(), ["walk", "walk-val"], val_root, half)
+    resumed.run(resume=True)
+    straight = TrackingTrainer(_tracking_config(), ["walk", "walk-val"], val_root, tmp_path / "again")
+    straight.run()
+    for a, b in zip(resumed.agent.online.state_dict().values(), straight.agent.online.state_dict().values(), strict=True):
+        assert torch.equal(a, b)
+
+    # A city it never saw: the validation city's export under another name.
+    ingest_city(val_root.parent / "raw-val", val_root, name="walk-unseen")
+    build_city("walk-unseen", BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=-45.0), val_root)
+    out = tmp_path / "trk"
+    report = ["report", "--task", "tracking", "--dataset", "walk-unseen", "--root", str(val_root), "--episodes", "12",
+              "--horizon", "24", "--bootstrap", "100", "--out", str(out), "--run", str(run), "--quiet"]  # fmt: skip
+    result = CliRunner().invoke(uavrl, report)
+    assert result.exit_code == 0, result.output
+    table = pd.read_csv(out / "tracking.csv")
+    mine = table[table["method"] == "PQN + GRU (best, tracking)"]
+    assert len(mine) == 1 and (mine["covered_share"] <= table.loc[table["method"] == "oracle", "covered_share"].max()).all()
+    assert json.loads((out / "tracking.json").read_text())["agents"]["PQN + GRU (best, tracking)"]
+    placement = CliRunner().invoke(uavrl, ["report", "--dataset", "walk-unseen", "--root", str(val_root), "--run", str(run),
+                                           "--episodes", "5", "--out", str(tmp_path / "p"), "--quiet"])  # fmt: skip
+    assert placement.exit_code == 2 and "a tracking agent" in placement.output
+
+
+def test_tracking_runs_need_routes_and_validation_routes(val_root, tmp_path):
+    """A tracking run refuses a city without routes and a run without a validation city with routes, naming them."""
+    from uavplace.rl.agent.train import TrackingTrainer
+
+    with pytest.raises(InputError, match="selects best.pt on validation cities with routes"):
+        TrackingTrainer(_tracking_config(), ["walk"], val_root, tmp_path / "a")
+    (tmp_path / "raw").mkdir()
+    ingest_city(write_grid_city(tmp_path / "raw" / "plain", seed=1), val_root, name="plain")
+    build_city("plain", BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=-45.0), val_root)
+    with pytest.raises(InputError, match="plain has no routes"):
+        TrackingTrainer(_tracking_config(), ["walk", "plain", "walk-val"], val_root, tmp_path / "b")
+
+
+def test_an_agent_plays_the_same_episodes_on_its_own_observation(root):
+    """A tracking agent trained with another window plays the report's episodes on a canvas of its own padding: the
+    same starts, the same covered steps and the same path, shifted back, as on the report's canvas."""
+    from uavplace.rl.tracking import TrackingAgent
+
+    config = TrackingConfig(horizon=20, window=21)
+    routes = RouteSet([load_bundle("walk", root=root)], config)
+    episodes = routes.sample_episodes(10, np.random.default_rng(5))
+    here = run_tracking(routes, ReplanningGenie(), episodes, record=True)
+    narrow = TrackingAgent(ReplanningGenie(), TrackingConfig(window=9, blind=True), "genie on a 9-cell window")
+    there = run_tracking(routes, narrow, episodes, record=True)
+    assert np.array_equal(here.covered, there.covered) and np.array_equal(here.path, there.path)
+    assert np.array_equal(there.path[:, 0], episodes[:, 2:].astype(int))

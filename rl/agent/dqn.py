@@ -28,6 +28,7 @@ from uavplace.rl.agent.replay import Batch
 from uavplace.rl.config import EnvConfig
 from uavplace.rl.policies import episode_draws, pick_legal, random_legal
 from uavplace.rl.randomness import stream_key
+from uavplace.rl.tracking import TRACK_MOVES, TrackingConfig
 from uavplace.rl.vec_env import OBS_OFFSET, BatchedEnv
 from uavplace.schemas import InputError
 from uavplace.schemas.base import MAX_SEED, Contract, validation_message
@@ -138,6 +139,15 @@ class DQNConfig(Contract):
         default="auto", description="Where the networks train: auto (CUDA if present, else CPU), cpu, cuda, cuda:N"
     )
     env: EnvConfig = Field(default_factory=lambda: EnvConfig(t_max=800, rotate=True), description="Training environment")
+    task: Literal["placement", "tracking"] = Field(
+        default="placement",
+        description="placement: find a user who stands still (the paper's task, 4 moves; the env is `env`); tracking: "
+        "keep a user who moves along its route covered (rl/tracking.py: 5 actions, stay the fifth; the task is "
+        "`tracking`, `env` is not read)",
+    )
+    tracking: TrackingConfig | None = Field(
+        default=None, description="The tracking task (horizon, P_T, speeds, observation) of a tracking run; None otherwise"
+    )
 
     @model_validator(mode="after")
     def _rollout_holds_a_batch(self) -> DQNConfig:
@@ -150,6 +160,11 @@ class DQNConfig(Contract):
             raise ValueError("recurrent needs learner=pqn (the replay learner samples single transitions, not sequences)")
         if self.test_aux_weight > 0 and self.aux_genie <= 0:
             raise ValueError("test_aux_weight needs a network with a genie-move head (trained with aux_genie > 0)")
+        if (self.task == "tracking") != (self.tracking is not None):
+            raise ValueError("a tracking run needs its task config (tracking), and only a tracking run has one")
+        if self.task == "tracking" and (self.train_revisit_penalty or self.test_revisit_penalty):
+            # A user who moves brings the UAV back to cells it has stood in: placement's loop breaker is wrong here.
+            raise ValueError("train_revisit_penalty and test_revisit_penalty are placement's: 0 in a tracking run")
         return self
 
     @model_validator(mode="after")
@@ -166,6 +181,22 @@ class DQNConfig(Contract):
     def sequences_per_batch(self) -> int:
         """Recurrent PQN: the whole env rollouts in a minibatch (``batch_size`` samples, at least one rollout)."""
         return max(1, self.batch_size // self.rollout_steps)
+
+    @property
+    def n_actions(self) -> int:
+        """The network's outputs: the 4 moves, and in the tracking task stay as well."""
+        return len(TRACK_MOVES) if self.task == "tracking" else 4
+
+    def tracking_config(self) -> TrackingConfig:
+        """The tracking task as this run plays it (blind as the agent is)."""
+        if self.tracking is None:
+            raise ValueError("not a tracking run")
+        return self.tracking.model_copy(update={"blind": self.agent == "blind"})
+
+    def observation(self) -> tuple[int, int]:
+        """``(channels, window)`` of the observations the network reads, in its task."""
+        task = self.tracking_config() if self.task == "tracking" else self.env_config()
+        return task.num_channels, task.window
 
     def env_config(self, *, evaluation: bool = False) -> EnvConfig:
         """The training environment, or (``evaluation``) the test protocol's: no symmetry (views numbered as in
@@ -271,6 +302,13 @@ PRESETS["best"] = PRESETS["best-pqn"] | {
 }
 
 
+#: What a preset changes when it learns the tracking task (``preset_config(..., task="tracking")``): a user who moves
+#: brings the UAV back to cells it has stood in, so placement's revisit penalty is off.
+TRACKING_OVERRIDES = {"train_revisit_penalty": 0.0, "test_revisit_penalty": 0.0}
+#: The nested configs ``--set PART.FIELD=VALUE`` reaches.
+NESTED = {"env": EnvConfig.model_fields, "tracking": TrackingConfig.model_fields}
+
+
 def parse_settings(settings: list[str] | tuple[str, ...]) -> dict:
     """``["lr_start=1e-3", "env.shaping=1"]`` -> ``{"lr_start": 1e-3, "env": {"shaping": 1}}`` (values as JSON
     where they parse, else strings); ``InputError`` naming the setting that has no ``=`` or an unknown field."""
@@ -278,14 +316,17 @@ def parse_settings(settings: list[str] | tuple[str, ...]) -> dict:
     for item in settings:
         key, sep, raw = item.partition("=")
         parts = key.strip().split(".")
-        known = DQNConfig.model_fields if len(parts) == 1 else EnvConfig.model_fields if parts[0] == "env" else {}
+        known = DQNConfig.model_fields if len(parts) == 1 else NESTED.get(parts[0], {})
         if not sep or len(parts) > 2 or parts[-1] not in known:
-            raise InputError(None, f"{item!r}: expected FIELD=VALUE or env.FIELD=VALUE with a known field", field="set")
+            raise InputError(
+                None, f"{item!r}: expected FIELD=VALUE, env.FIELD=VALUE or tracking.FIELD=VALUE with a known field",
+                field="set",
+            )  # fmt: skip
         try:
             value = json.loads(raw)
         except ValueError:
             value = raw
-        (out.setdefault("env", {}) if len(parts) == 2 else out)[parts[-1]] = value
+        (out.setdefault(parts[0], {}) if len(parts) == 2 else out)[parts[-1]] = value
     return out
 
 
@@ -296,8 +337,15 @@ def preset_config(name: str, **overrides: object) -> DQNConfig:
         raise ValueError(f"unknown preset {name!r} (known: {', '.join(PRESETS)})")
     default_env = DQNConfig.model_fields["env"].default_factory().model_dump()  # type: ignore[misc]
     env = default_env | dict(PRESETS[name].get("env", {})) | dict(overrides.pop("env", None) or {})  # type: ignore[arg-type]
+    tracking = overrides.pop("tracking", None)
     values = dict(PRESETS[name]) | {"preset": name} | overrides | {"env": env}
+    if values.get("task") == "tracking":  # the preset's learner on the tracking task, without placement's loop breaker
+        values = values | TRACKING_OVERRIDES | {k: overrides[k] for k in TRACKING_OVERRIDES if k in overrides}
+    elif tracking:
+        raise InputError(None, "tracking settings are for --task tracking", field="tracking")
     try:
+        if values.get("task") == "tracking":
+            values["tracking"] = TrackingConfig(**(tracking or {}))
         return DQNConfig(**(values | {"env": EnvConfig(**env)}))
     except ValidationError as exc:
         field, message = validation_message(exc)
@@ -331,6 +379,7 @@ def _network(config: DQNConfig, in_channels: int, window: int) -> nn.Module:
         "aux": config.aux_genie > 0,
         "layer_norm": config.layer_norm,
         "recurrent": config.recurrent,
+        "n_actions": config.n_actions,
     }
     if config.network == "fovea":
         return FoveaQNetwork(
@@ -358,7 +407,7 @@ def masked_argmax(q: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
 
 
 def genie_move_loss(logits: torch.Tensor, genie: torch.Tensor) -> torch.Tensor:
-    """Cross-entropy of ``logits`` ``[B, 4]`` against the set of the genie's moves ``genie`` ``[B, 4]`` bool
+    """Cross-entropy of ``logits`` ``[B, A]`` against the set of the genie's moves ``genie`` ``[B, A]`` bool
     (``-log`` of the probability given to the set), averaged over the rows with a genie move."""
     has = genie.any(dim=1)
     if not has.any():
@@ -400,7 +449,7 @@ class DQN:
         return self.hidden.cpu().numpy()
 
     def q_values(self, obs: np.ndarray) -> torch.Tensor:
-        """Q ``[N, 4]`` of the training envs' observations (a recurrent network's state moves on with them)."""
+        """Q ``[N, A]`` of the training envs' observations (a recurrent network's state moves on with them)."""
         self.online.eval()
         with torch.no_grad():
             x = self.input(obs)
@@ -459,7 +508,7 @@ class DQN:
         first: np.ndarray | None = None,
     ) -> float:
         """One gradient step of ``Q(obs, action)`` towards ``target`` ``[B]`` (Huber); returns that TD loss. With
-        ``aux_genie`` > 0 the genie-move head's loss on ``genie`` ``[B, 4]`` is added to what is minimised.
+        ``aux_genie`` > 0 the genie-move head's loss on ``genie`` ``[B, A]`` is added to what is minimised.
 
         A recurrent network learns on sequences: ``obs`` ``[T, B, ...]`` unrolled from the states ``h0``
         ``[B, hidden]``, restarting where ``first`` ``[T, B]`` marks an episode's start; ``action``, ``target`` and
@@ -584,5 +633,5 @@ class DQNPolicy:
                 if penalty is not None:
                     q = q - penalty[rows]
                 greedy[rows] = masked_argmax(q, legal).cpu().numpy()
-        u = episode_draws(env, self.stream, 5)
+        u = episode_draws(env, self.stream, 1 + mask.shape[1])  # whether to explore, then one draw per action
         return np.where(u[:, 0] < self.epsilon, pick_legal(mask, u[:, 1:]), greedy)

@@ -31,21 +31,21 @@ from uavplace.rl.agent.dqn import DQN, masked_argmax, to_tensor
 
 class Rollout:
     """``steps`` vector steps of ``num_envs`` envs: compact observations, masks, moves, rewards, ends, and the
-    final observation of each truncated row (``[steps, num_envs, ...]`` arrays); ``h0`` ``[num_envs, hidden]``, a
-    recurrent network's state in each env when the rollout began (``hidden`` 0: none)."""
+    final observation of each truncated row (``[steps, num_envs, ...]`` arrays; masks ``n_actions`` wide); ``h0``
+    ``[num_envs, hidden]``, a recurrent network's state in each env when the rollout began (``hidden`` 0: none)."""
 
-    def __init__(self, steps: int, num_envs: int, obs_shape: tuple[int, ...], hidden: int = 0) -> None:
+    def __init__(self, steps: int, num_envs: int, obs_shape: tuple[int, ...], hidden: int = 0, n_actions: int = 4) -> None:
         self.steps = steps
         self.h0 = np.zeros((num_envs, hidden), np.float32)
         self.obs = np.zeros((steps, num_envs, *obs_shape), np.uint8)
-        self.mask = np.zeros((steps, num_envs, 4), bool)
-        self.genie = np.zeros((steps, num_envs, 4), bool)
+        self.mask = np.zeros((steps, num_envs, n_actions), bool)
+        self.genie = np.zeros((steps, num_envs, n_actions), bool)
         self.action = np.zeros((steps, num_envs), np.int64)
         self.reward = np.zeros((steps, num_envs), np.float32)
         self.terminated = np.zeros((steps, num_envs), bool)
         self.truncated = np.zeros((steps, num_envs), bool)
         self.final_obs = np.zeros((steps, num_envs, *obs_shape), np.uint8)
-        self.final_mask = np.zeros((steps, num_envs, 4), bool)
+        self.final_mask = np.zeros((steps, num_envs, n_actions), bool)
         self.t = 0  # vector steps stored so far
 
     @property
@@ -118,7 +118,7 @@ def q_lambda_returns(
 
 
 def legal_max(q: torch.Tensor, mask: np.ndarray) -> np.ndarray:
-    """Max over the legal moves of Q ``[..., 4]`` (``mask`` the same shape): ``[...]``."""
+    """Max over the legal moves of Q ``[..., A]`` (``mask`` the same shape): ``[...]``."""
     legal = torch.from_numpy(mask).to(q.device)
     flat = q.reshape(-1, q.shape[-1])
     best = flat.gather(1, masked_argmax(flat, legal.reshape(flat.shape))[:, None])
@@ -153,17 +153,17 @@ def pqn_round(
         return recurrent_round(agent, rollout, obs, mask, lr, rng)
     cfg = agent.config
     steps, n = rollout.action.shape
-    flat = steps * n
+    flat, actions = steps * n, rollout.mask.shape[-1]
     following = np.concatenate([rollout.obs[1:], obs[None]])  # s_{t+1} of every slot
     following_mask = np.concatenate([rollout.mask[1:], mask[None]])
-    q_next = max_q(agent, following.reshape(flat, *obs.shape[1:]), following_mask.reshape(flat, 4)).reshape(steps, n)
+    q_next = max_q(agent, following.reshape(flat, *obs.shape[1:]), following_mask.reshape(flat, actions)).reshape(steps, n)
     q_final = np.zeros((steps, n), np.float32)
     cut = rollout.truncated
     if cut.any():
         q_final[cut] = max_q(agent, rollout.final_obs[cut], rollout.final_mask[cut])
     target = q_lambda_returns(rollout.reward, rollout.terminated, cut, q_next, q_final, cfg.gamma, cfg.q_lambda).reshape(flat)
     obs_flat = rollout.obs.reshape(flat, *obs.shape[1:])
-    action, genie = rollout.action.reshape(flat), rollout.genie.reshape(flat, 4)
+    action, genie = rollout.action.reshape(flat), rollout.genie.reshape(flat, actions)
     return [
         agent.fit(obs_flat[idx], action[idx], torch.from_numpy(target[idx]), genie[idx], lr)
         for idx in minibatches(flat, cfg.batch_size, cfg.epochs, rng)

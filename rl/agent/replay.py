@@ -6,7 +6,7 @@ episode's next step), unless the episode ended at ``i``: a terminated transition
 observation, and a truncated one keeps its final observation in a small side store (at most
 one truncation per ``t_max`` transitions of an env, so ``capacity // t_max + 2 * num_envs``
 side slots suffice). Memory: ``capacity * C * w * w`` bytes for the observations (5e5 x 2 x
-61 x 61 = 3.5 GiB) plus 19 bytes per slot.
+61 x 61 = 3.5 GiB) plus 2 A + 11 bytes per slot (A actions: 19 bytes with placement's 4 moves).
 """
 
 from __future__ import annotations
@@ -25,24 +25,32 @@ class Batch(NamedTuple):
     reward: np.ndarray  # [B] float32, the n-step discounted return
     discount: np.ndarray  # [B] float32, gamma**m, 0 where the episode terminated within the n steps
     next_obs: np.ndarray  # [B, C, w, w] uint8
-    next_mask: np.ndarray  # [B, 4] bool, legal actions at next_obs
-    genie: np.ndarray | None = None  # [B, 4] bool, the genie's moves at obs (the replay's: all False if it stores none)
+    next_mask: np.ndarray  # [B, A] bool, legal actions at next_obs (A: 4 moves, 5 in the tracking task)
+    genie: np.ndarray | None = None  # [B, A] bool, the genie's moves at obs (the replay's: all False if it stores none)
 
 
 class ReplayBuffer:
     def __init__(
-        self, capacity: int, num_envs: int, obs_shape: tuple[int, ...], t_max: int, n_step: int = 1, gamma: float = 0.99
+        self,
+        capacity: int,
+        num_envs: int,
+        obs_shape: tuple[int, ...],
+        t_max: int,
+        n_step: int = 1,
+        gamma: float = 0.99,
+        n_actions: int = 4,
     ):
         self.num_envs = num_envs
         self.capacity = max(num_envs * (n_step + 2), (capacity // num_envs) * num_envs)
         self.n_step, self.gamma = n_step, gamma
         c = self.capacity
-        slot = int(np.prod(obs_shape)) + 4 + 4 + 1 + 4 + 1 + 1 + 4  # observation bytes, masks, action, reward, flags, index
+        # observation bytes, masks, action, reward, flags, index
+        slot = int(np.prod(obs_shape)) + 2 * n_actions + 1 + 4 + 1 + 1 + 4
         check_limit("replay_bytes", c * slot * (1 + 1 / t_max), "buffer_size", f"replay memory of {c:,} transitions [bytes]",
                     field="buffer_size")  # fmt: skip
         self.obs = np.zeros((c, *obs_shape), np.uint8)
-        self.mask = np.zeros((c, 4), bool)
-        self.genie = np.zeros((c, 4), bool)
+        self.mask = np.zeros((c, n_actions), bool)
+        self.genie = np.zeros((c, n_actions), bool)
         self.action = np.zeros(c, np.int8)
         self.reward = np.zeros(c, np.float32)
         self.terminated = np.zeros(c, bool)
@@ -50,7 +58,7 @@ class ReplayBuffer:
         self.side_index = np.full(c, -1, np.int32)
         self.side_size = c // t_max + 2 * num_envs
         self.side_obs = np.zeros((self.side_size, *obs_shape), np.uint8)
-        self.side_mask = np.zeros((self.side_size, 4), bool)
+        self.side_mask = np.zeros((self.side_size, n_actions), bool)
         self.pos = 0  # next slot to write (a multiple of num_envs)
         self.size = 0  # slots written so far, up to capacity
         self.side_pos = 0

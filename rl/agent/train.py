@@ -38,6 +38,7 @@ from uavplace.rl.agent.pqn import Rollout, pqn_round
 from uavplace.rl.agent.replay import ReplayBuffer
 from uavplace.rl.maps import MapSet
 from uavplace.rl.rollout import run_episodes, summarise
+from uavplace.rl.tracking import RouteSet, TrackingEnv, run_tracking
 from uavplace.rl.vec_env import BatchedEnv
 from uavplace.schemas import InputError
 from uavplace.schemas.base import Contract, uavplace_version, validation_message
@@ -275,29 +276,21 @@ class Trainer:
             torch.set_num_threads(max(1, min(2, os.cpu_count() or 1)))
         bundles = [load_bundle(name, root=self.root) for name in self.datasets]
         cities = plan_cities(bundles, [load_bundle(n, root=self.root) for n in val_datasets or []], config.eval_split)
-        unmatched = [n for n in config.env.city_weights if not any(in_corpus(b.city, n) for b in cities.train)]
-        if unmatched:
-            raise InputError(
-                None, f"{', '.join(unmatched)}: no training city or corpus of that name (training cities: "
-                f"{', '.join(b.city for b in cities.train)})",
-                field="env.city_weights",
-            )  # fmt: skip
-        self.maps = MapSet(cities.train, config.env_config().model_copy(update={"split": cities.train_split}), cities.train_users)
-        self.eval_split = cities.val_split
-        self.eval_maps, self.eval_episodes = validation_set(config, cities)
-        self.env = BatchedEnv(self.maps, config.num_envs, compact=True)
-        c, w = self.maps.config.num_channels, self.maps.config.window
+        self.train_split, self.eval_split = cities.train_split, cities.val_split
+        self.setup_task(cities)
+        c, w = config.observation()
+        a = config.n_actions
         self.agent = DQN(config, c, w, fast=fast)
         # What the learner learns from, saved with every checkpoint: the replay, or PQN's rollout so far.
         self.replay: ReplayBuffer | None = None
         self.rollout: Rollout | None = None
         if config.learner == "pqn":
             hidden = config.hidden if config.recurrent else 0
-            self.rollout = self.memory = Rollout(config.rollout_steps, config.num_envs, (c, w, w), hidden)
+            self.rollout = self.memory = Rollout(config.rollout_steps, config.num_envs, (c, w, w), hidden, a)
             self.memory_file = "rollout.npz"
         else:
             self.replay = self.memory = ReplayBuffer(
-                config.buffer_size, config.num_envs, (c, w, w), config.env.t_max, config.n_step, config.gamma
+                config.buffer_size, config.num_envs, (c, w, w), self.t_max, config.n_step, config.gamma, a
             )
             self.memory_file = "replay.npz"
         self.rng = np.random.default_rng([config.seed, 1])
@@ -306,18 +299,49 @@ class Trainer:
         self.loaded = False  # True once ``load()`` restored a checkpoint
         self._began = time.perf_counter()  # when this start began (``run``)
 
+    # -- the task: placement here, tracking in TrackingTrainer ----------------------------------------
+    def setup_task(self, cities: Cities) -> None:
+        """The training env (``env``, compact observations) and what the periodic evaluation plays, from ``cities``."""
+        config = self.config
+        unmatched = [n for n in config.env.city_weights if not any(in_corpus(b.city, n) for b in cities.train)]
+        if unmatched:
+            raise InputError(
+                None, f"{', '.join(unmatched)}: no training city or corpus of that name (training cities: "
+                f"{', '.join(b.city for b in cities.train)})",
+                field="env.city_weights",
+            )  # fmt: skip
+        self.maps = MapSet(cities.train, config.env_config().model_copy(update={"split": cities.train_split}), cities.train_users)
+        self.eval_maps, self.eval_episodes = validation_set(config, cities)
+        self.env = BatchedEnv(self.maps, config.num_envs, compact=True)
+        self.train_bundles, self.val_bundles = self.maps.bundles, self.eval_maps.bundles
+
+    @property
+    def t_max(self) -> int:
+        """The training episodes' step budget."""
+        return self.config.env.t_max
+
+    def validate(self, policy: DQNPolicy) -> tuple[dict, tuple[float, float]]:
+        """``policy`` on the fixed validation episodes: the evaluation row's values, and its score (higher is better:
+        ``best.pt`` keeps the best)."""
+        row = play_validation(policy, self.eval_maps, self.eval_episodes)
+        return row, (row["success"], -row["median_steps"])
+
+    def episode_values(self, info: dict, row: int, terminated: bool) -> dict:
+        """A finished training episode's task values for ``metrics.parquet``."""
+        return {"success": terminated}
+
     # -- run folder ---------------------------------------------------------------------------------
     @property
     def checkpoints(self) -> Path:
         return self.run_dir / "checkpoints"
 
     def write_run_json(self) -> None:
-        trained = {b.city: b.version for b in self.maps.bundles}
+        trained = {b.city: b.version for b in self.train_bundles}
         record = RunRecord(
             config=self.config,
             datasets=trained,
-            val_datasets={b.city: b.version for b in self.eval_maps.bundles if b.city not in trained},
-            train_split=self.maps.config.split,
+            val_datasets={b.city: b.version for b in self.val_bundles if b.city not in trained},
+            train_split=self.train_split,
             eval_split=self.eval_split,
             command=self.command,
             uavplace_version=uavplace_version(),
@@ -404,11 +428,12 @@ class Trainer:
                     getattr(self.env, k)[...] = z["visited"] if k == "visits" and k not in z else z[k]
                 self.state.last_action, self.state.start_sinr = z["last_action"], z["start_sinr"]
             self.env.check_state(last / "env.npz")
+            top = self.config.n_actions - 1
             if (
                 not np.isfinite(self.state.start_sinr).all()
-                or ((self.state.last_action < -1) | (self.state.last_action > 3)).any()
+                or ((self.state.last_action < -1) | (self.state.last_action > top)).any()
             ):
-                raise InputError(last / "env.npz", "start_sinr not finite or last_action outside -1..3", field="start_sinr")
+                raise InputError(last / "env.npz", f"start_sinr not finite or last_action outside -1..{top}", field="start_sinr")
             self.agent.updates = doc.updates
             self.state.step, self.state.synced_at = doc.step, doc.synced_at
             self.state.losses = list(doc.losses)
@@ -441,9 +466,8 @@ class Trainer:
 
     # -- evaluation ---------------------------------------------------------------------------------
     def evaluate(self) -> dict:
-        policy = DQNPolicy.from_config(self.agent.online, self.config)
-        row = {"step": self.state.step, **play_validation(policy, self.eval_maps, self.eval_episodes), "wall_s": self.wall_s()}
-        score = (row["success"], -row["median_steps"])
+        values, score = self.validate(DQNPolicy.from_config(self.agent.online, self.config))
+        row = {"step": self.state.step, **values, "wall_s": self.wall_s()}
         if self.state.best_score is None or score > tuple(self.state.best_score):
             self.state.best_score = score
             self.checkpoints.mkdir(parents=True, exist_ok=True)
@@ -517,7 +541,7 @@ class Trainer:
                                 "step": s.step,
                                 "episode": len(s.episodes),
                                 "sinr_gain_db": float(info["sinr"][r] - s.start_sinr[r]),
-                                "success": bool(term[r]),
+                                **self.episode_values(info, r, bool(term[r])),
                                 "length": int(info["steps"][r]),
                                 "epsilon": eps,
                                 "lr": linear(cfg.lr_start, cfg.lr_end, frac),
@@ -570,6 +594,61 @@ class Trainer:
         return self.run_dir
 
 
+class TrackingTrainer(Trainer):
+    """A run of the tracking task (``DQNConfig.task == "tracking"``, ``rl.tracking``): placement's learner, loop,
+    checkpoints and run folder; the env is the tracking env over the training cities' routes (5 actions, stay the
+    fifth), and ``best.pt`` is the network that covered the most of the horizon on fixed episodes of the validation
+    cities' routes (ties: the one that reached P_T in more of them). A training city's routes are all trained on: a
+    tracking run needs validation cities with routes of their own (built with ``--split CITY=val``, or
+    ``--val-dataset``)."""
+
+    def setup_task(self, cities: Cities) -> None:
+        task, trained = self.config.tracking_config(), {b.city for b in cities.train}
+        val = [b for b in cities.val if b.city not in trained]  # without validation cities, plan_cities gives the trained ones
+        for b in cities.train + val:
+            if b.routes is None:
+                raise InputError(
+                    None, f"{b.city} has no routes: the tracking task trains and selects on cities simulated with "
+                    f"`uavdata simulate --routes N`", field="dataset" if b.city in trained else "val_dataset",
+                )  # fmt: skip
+        if not val:
+            raise InputError(
+                None, "the tracking task selects best.pt on validation cities with routes, and none is given: build one "
+                "with `uavdata build --split CITY=val` and add it with --dataset or --val-dataset", field="val_dataset",
+            )  # fmt: skip
+        self.routes, self.eval_routes = RouteSet(cities.train, task), RouteSet(val, task)
+        self.eval_episodes = self.eval_routes.sample_episodes(
+            self.config.eval_episodes, np.random.default_rng([self.config.seed, 2])
+        )
+        self.env = TrackingEnv(self.routes, self.config.num_envs, compact=True)
+        self.train_bundles, self.val_bundles = self.routes.bundles, self.eval_routes.bundles
+
+    @property
+    def t_max(self) -> int:
+        return self.config.tracking_config().horizon
+
+    def validate(self, policy: DQNPolicy) -> tuple[dict, tuple[float, float]]:
+        table = run_tracking(self.eval_routes, policy, self.eval_episodes, num_envs=min(256, len(self.eval_episodes))).table
+        row = tracking_summary(table)
+        return row, (row["covered_share"], row["success"])
+
+    def episode_values(self, info: dict, row: int, terminated: bool) -> dict:
+        share = float(info["covered_share"][row])
+        return {"success": share > 0, "covered_share": share}
+
+
+def tracking_summary(table: pd.DataFrame) -> dict:
+    """An evaluation row of tracking episodes (``run_tracking``'s table): the mean share of the horizon covered, the
+    mean coverage after the first reach, the share of episodes that reached P_T (``success``) and the median steps
+    to the first reach (``median_steps``; inf when half never did)."""
+    return {
+        "covered_share": float(table["covered_share"].mean()),
+        "coverage": float(table["coverage"].mean()),
+        "success": float(np.isfinite(table["first_reach"]).mean()),
+        "median_steps": float(np.median(table["first_reach"])),
+    }
+
+
 def start_run(
     run_dir: Path,
     config: DQNConfig,
@@ -590,8 +669,9 @@ def start_run(
             raise FileExistsError(f"{run_dir} exists: choose another --name, or continue it with --resume {run_dir}")
         run_dir.mkdir(parents=True)
         claimed = True
+    kind = TrackingTrainer if config.task == "tracking" else Trainer
     try:
-        trainer = Trainer(config, list(datasets), root, run_dir, command=command, val_datasets=list(val_datasets))
+        trainer = kind(config, list(datasets), root, run_dir, command=command, val_datasets=list(val_datasets))
     except BaseException:
         if claimed and not any(run_dir.iterdir()):
             run_dir.rmdir()  # nothing was written: give the name back
@@ -622,7 +702,8 @@ def with_running_means(df: pd.DataFrame) -> pd.DataFrame:
 
 def new_run_dir(runs: str | Path, config: DQNConfig) -> Path:
     stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
-    return Path(runs) / f"{stamp}-{config.preset}-{config.agent}-s{config.seed}"
+    task = "-tracking" if config.task == "tracking" else ""
+    return Path(runs) / f"{stamp}-{config.preset}{task}-{config.agent}-s{config.seed}"
 
 
 def _plain(row: dict) -> dict:
@@ -644,8 +725,7 @@ def network_from_checkpoint(ck: dict, path: str | Path) -> tuple[nn.Module, DQNC
     except ValidationError as exc:
         field, message = validation_message(exc)
         raise InputError(path, f"checkpoint config: {message}", field=field) from None
-    env = config.env_config()
-    net = make_network(config, env.num_channels, env.window)
+    net = make_network(config, *config.observation())
     try:
         net.load_state_dict(ck["online"])
     except (RuntimeError, TypeError, AttributeError) as exc:
