@@ -97,6 +97,14 @@ def _latest_role(city: str, root: Path) -> str | None:
 )
 @click.option("--crop", is_flag=True, help="Drop buildings wholly outside the grid (counted in the manifest) instead of failing.")
 @click.option(
+    "--crop-city",
+    "crop_cities",
+    multiple=True,
+    metavar="CITY",
+    help="--crop for this city only (repeatable): a city whose receiver grid covers part of its scene by design, as "
+    "`uavdata simulate --extent` makes one; the others keep the check.",
+)
+@click.option(
     "--split",
     "splits",
     multiple=True,
@@ -134,6 +142,7 @@ def build(
     sinr_floor_db: float,
     bounds,
     crop: bool,
+    crop_cities: tuple[str, ...],
     splits: tuple[str, ...],
     val_users: int,
     seed: int,
@@ -161,9 +170,10 @@ def build(
     names = list(cities) or [c.name for c in list_cities(root)]
     if not names:
         fail(InputError(root, "no ingested city: run `uavdata ingest data/raw/<city>/` first"))
-    unknown = sorted(set(role) - set(names))
-    if unknown:
-        raise click.BadParameter(f"cities {unknown} are not being built", param_hint="--split")
+    for option, given in (("--split", role), ("--crop-city", crop_cities)):
+        unknown = sorted(set(given) - set(names))
+        if unknown:
+            raise click.BadParameter(f"cities {unknown} are not being built", param_hint=option)
     held = {n: r for n in names if n not in role and (r := _latest_role(n, root)) is not None}
     if held:  # a build without their --split would make new bundles without a role and move `latest` to them
         fail(InputError(root, f"{', '.join(f'{n} (a {r} city)' for n, r in held.items())}: the latest bundle has a role that "
@@ -183,7 +193,7 @@ def build(
                 sinr_floor_db=sinr_floor_db,
                 tx_dbm=tx_dbm,
                 bounds=bounds,
-                crop=crop,
+                crop=crop or name in crop_cities,
                 role=role.get(name),
                 val_users=val_users if role.get(name) == "train" else 0,
                 p_t_db=p_t_db,

@@ -80,7 +80,8 @@ from uavplace.schemas.cli import (
     "the blind paper agent and the genie (repeatable; groups.csv and a table in the report).",
 )
 @click.option("--agents-dir", type=click.Path(file_okay=False, path_type=Path), default=Path("data/agents"), show_default=True,
-              help="Where the default agents are looked for.")  # fmt: skip
+              help="Where the default agents are looked for (without --run: those of the report's task; a tracking "
+                   "report plays the placement agents too).")  # fmt: skip
 @click.option(
     "--markdown",
     type=click.Path(dir_okay=False, path_type=Path),
@@ -125,7 +126,7 @@ def report(
     """
     from uavplace.eval.report import ReportConfig, check_summary_page, default_agents, summary_rows, write_summary_page
 
-    chosen = list(runs) or default_agents(agents_dir)
+    chosen = list(runs) or default_agents(agents_dir, None if task == "tracking" else "placement")
     if task == "tracking":
         if groups or split:
             raise click.UsageError("--task tracking plays every route of the cities: it takes no --group or --split")

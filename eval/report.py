@@ -154,10 +154,12 @@ def load_agent(folder: str | Path, epsilon: float, seed: int, task: str | None =
     return Agent(policy.name, folder, config, run, policy, ck.get("eval"), metrics)
 
 
-def default_agents(root: str | Path = "data/agents") -> list[Path]:
-    """The shipped agents: every folder under ``root`` with a ``checkpoints/best.pt``, in name order."""
+def default_agents(root: str | Path = "data/agents", task: str | None = "placement") -> list[Path]:
+    """The shipped agents: every folder under ``root`` with a ``checkpoints/best.pt``, in name order; those that
+    learnt ``task`` (by their ``run.json``; None: every agent, as the tracking report plays placement agents too)."""
     root = Path(root)
-    return sorted(p for p in root.iterdir() if (p / "checkpoints" / "best.pt").is_file()) if root.is_dir() else []
+    found = sorted(p for p in root.iterdir() if (p / "checkpoints" / "best.pt").is_file()) if root.is_dir() else []
+    return [p for p in found if task is None or not (p / RUN_JSON).is_file() or read_run_json(p).config.task == task]
 
 
 def evaluate(

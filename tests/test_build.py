@@ -286,6 +286,15 @@ def test_buildings_outside_the_grid(tmp_path):
     assert b.manifest.counts["buildings_cropped"] == 1 and b.manifest.counts["buildings_in_grid"] == 1
     assert b.blocked.sum() == 4 and np.all(b.height_rel_m[b.blocked] == 15.0)
     assert np.all(b.height_rel_m[~b.blocked] == -10.0)
+    # On the command line --crop-city CITY crops that city alone: the other keeps the check (and its bundle version).
+    ingest(write_grid_city(tmp_path / "raw2"), root, name="plain")
+    run = CliRunner().invoke
+    base = ["build", "--root", str(root), "--grid", "4m", "--alt", "10"]
+    res = run(uavdata, [*base, "--crop-city", "city"])
+    assert res.exit_code == 0, res.output
+    assert load_bundle("city", root=root).version == b.version and not load_bundle("plain", root=root).manifest.config.crop
+    assert run(uavdata, [*base, "--crop-city", "elsewhere"]).exit_code == 2
+    assert run(uavdata, [*base, "--city", "city"]).exit_code != 0
     wide = load_bundle(build_city("city", cfg(bounds="buildings"), root).path)
     assert wide.manifest.counts["buildings_in_grid"] == 2 and wide.shape[1] > 100
     low = (wide.building_id == 1) & ~wide.blocked  # the 5 m building is below the 10 m altitude: flyable

@@ -382,6 +382,16 @@ def test_tracking_agent_trains_selects_on_validation_routes_and_reports(val_root
     mine = table[table["method"] == "PQN + GRU (best, tracking)"]
     assert len(mine) == 1 and (mine["covered_share"] <= table.loc[table["method"] == "oracle", "covered_share"].max()).all()
     assert json.loads((out / "tracking.json").read_text())["agents"]["PQN + GRU (best, tracking)"]
+    # Shipped beside a placement agent: the placement report's default agents leave it out, the tracking report's not.
+    import shutil
+
+    from uavplace.eval.report import default_agents
+
+    shipped = tmp_path / "agents"
+    shutil.copytree(run, shipped / "tracker")
+    shutil.copytree(REPO / "data" / "agents" / "proposed", shipped / "proposed")
+    assert default_agents(shipped) == [shipped / "proposed"]
+    assert default_agents(shipped, None) == [shipped / "proposed", shipped / "tracker"]
     placement = CliRunner().invoke(uavrl, ["report", "--dataset", "walk-unseen", "--root", str(val_root), "--run", str(run),
                                            "--episodes", "5", "--out", str(tmp_path / "p"), "--quiet"])  # fmt: skip
     assert placement.exit_code == 2 and "a tracking agent" in placement.output
