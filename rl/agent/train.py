@@ -7,7 +7,8 @@ run's starts and resumes; the time since the last checkpoint of a killed part is
 step counters, every random state, the environments' state, the replay or PQN's rollout so far,
 the metrics up to its step; one folder renamed into place, see ``rl.agent.checkpoint``), and
 ``checkpoints/best.pt`` (the network of the best evaluation). No checkpoint is a pickle of Python
-objects: they load with ``weights_only=True``.
+objects: they load with ``weights_only=True``. A tracking run (``DQNConfig.task``, ``uavrl train --task
+tracking``) is the same loop, learner and folder on the tracking task (``TrackingTrainer``).
 """
 
 from __future__ import annotations
