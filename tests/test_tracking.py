@@ -423,3 +423,47 @@ def test_an_agent_plays_the_same_episodes_on_its_own_observation(root):
     there = run_tracking(routes, narrow, episodes, record=True)
     assert np.array_equal(here.covered, there.covered) and np.array_equal(here.path, there.path)
     assert np.array_equal(there.path[:, 0], episodes[:, 2:].astype(int))
+
+
+def test_tracking_agents_read_only_what_they_measured(root):
+    """A tracking agent (a fresh network, and every shipped one) moves exactly as before when the user's maps are
+    scrambled on every cell it never visited, at every route point, replayed with the same draws; the re-planning
+    genie, which reads those maps, changes somewhere (so that the test can fail)."""
+    import copy
+
+    from uavplace.eval.report import default_agents, load_agent
+    from uavplace.rl.agent.dqn import DQNPolicy, make_network
+    from uavplace.rl.tracking import TrackingAgent
+
+    fresh = _tracking_config()
+    torch_net = make_network(fresh, *fresh.observation())
+    agents = [TrackingAgent(DQNPolicy.from_config(torch_net, fresh), fresh.tracking_config(), "fresh")]
+    for folder in default_agents(REPO / "data" / "agents", "tracking"):
+        a = load_agent(folder, 0.096, 0, task="tracking")
+        agents.append(TrackingAgent(a.policy, a.config.tracking_config(), a.name))
+    rng = np.random.default_rng(0)
+    bundle = load_bundle("walk", root=root)
+
+    def replay(policy, task: TrackingConfig) -> tuple[list[bool], list[bool]]:  # noqa: ANN001
+        routes = RouteSet([bundle], task)
+        episodes = routes.sample_episodes(6, np.random.default_rng(1))
+        first = run_tracking(routes, policy, episodes, num_envs=3, record=True)
+        same, changed = [], []
+        for k in range(len(episodes)):
+            hidden = np.ones(routes.sinr.shape[1:], bool)
+            hidden[first.path[k, :, 0], first.path[k, :, 1]] = False
+            other = copy.copy(routes)
+            other.sinr, other.dead, other.steps = routes.sinr.copy(), routes.dead.copy(), routes.steps.copy()
+            other.sinr[:, hidden] = rng.uniform(-40, 40, (len(routes.sinr), hidden.sum()))
+            other.dead[:, hidden] = rng.random((len(routes.sinr), hidden.sum())) < 0.3
+            other.steps[:, hidden] = rng.integers(0, 30, (len(routes.sinr), hidden.sum()))
+            again = run_tracking(other, policy, episodes, num_envs=3, record=True)
+            same.append(np.array_equal(again.path[k], first.path[k]))
+            changed.append(not same[-1] or not np.array_equal(again.covered[k], first.covered[k]))
+        return same, changed
+
+    for agent in agents:
+        same, _ = replay(agent, TrackingConfig(horizon=24).observed_as(agent.observation))
+        assert all(same), f"{agent.name}: moves changed when cells it never visited changed ({same})"
+    _, changed = replay(ReplanningGenie(), TrackingConfig(horizon=24, window=9))
+    assert any(changed), "the re-planning genie reads the maps: scrambling them must change some episode"
