@@ -35,7 +35,7 @@ from pydantic import ConfigDict, Field
 from uavplace.dataset.bundle import Bundle
 from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target
 from uavplace.rl.config import EnvConfig
-from uavplace.rl.maps import MOVES, MapSet
+from uavplace.rl.maps import MOVES, MapSet, transform
 from uavplace.rl.randomness import combine, stream_key
 from uavplace.rl.vec_env import encode_obs
 from uavplace.schemas.base import Contract
@@ -71,6 +71,11 @@ class TrackingConfig(Contract):
     gain_weight: float = Field(default=0.05, description="Reward per dB of SINR change")
     edge_height_m: float = Field(default=100.0, description="Height channel beyond the map edge [m]")
     height_clip_m: float = Field(default=100.0, gt=0, description="Height channel clipped to +/- this [m]")
+    rotate: bool = Field(
+        default=False,
+        description="Training: every route also under the quarter turns of its city (each city seen four ways, as "
+        "placement's rotate); evaluation and reports play the routes as they are",
+    )
 
     @property
     def num_channels(self) -> int:
@@ -103,51 +108,56 @@ def user_point(times_s: np.ndarray, start_s: np.ndarray, t: np.ndarray, step_s: 
 
 
 class RouteSet:
-    """The routes of one or more bundles laid on the placement canvases (``MapSet``; identity symmetry only).
+    """The routes of one or more bundles laid on the placement canvases (``MapSet``): as they are, or with
+    ``rotate`` (training) also under the MapSet's other symmetries, each (route, symmetry) a route of its own.
 
     ``sinr`` / ``dead`` ``[P, L, L]`` (every route point's map on the canvas; beyond the edge P_L / dead),
     ``steps`` ``[P, L, L]`` (moves to a target of that point's map), ``times`` ``[R, n_max]`` (inf padded),
-    ``first`` ``[R]`` (each route's first point in ``sinr``), ``count`` ``[R]``, ``bundle`` ``[R]``, ``step_s`` ``[R]``.
+    ``first`` ``[R]`` (each route's first point in ``sinr``), ``count`` ``[R]``, ``bundle`` ``[R]``, ``canvas``
+    ``[R]`` (its row of the MapSet's height and blocked canvases), ``step_s`` ``[R]``.
     """
 
-    def __init__(self, bundles: list[Bundle], config: TrackingConfig) -> None:
+    def __init__(self, bundles: list[Bundle], config: TrackingConfig, rotate: bool = False) -> None:
         with_routes = [b for b in bundles if b.routes is not None]
         if not with_routes:
             raise ValueError(f"no bundle with routes among {[b.city for b in bundles]}: simulate them with --routes")
         self.bundles, self.config = with_routes, config
         self.maps = MapSet(with_routes, config.placement_env())
-        p, L = self.maps.pad, self.maps.side
-        total = sum(len(b.routes) for b in with_routes)
+        p, L, S = self.maps.pad, self.maps.side, self.maps.symmetries
+        self.turns = S if rotate else 1  # the symmetries each route is laid under (the identity first)
+        total = self.turns * sum(len(b.routes) for b in with_routes)
         self.sinr = np.full((total, L, L), config.p_l_db, np.float32)
         self.dead = np.ones((total, L, L), bool)
         self.steps = np.full((total, L, L), UNREACHABLE, np.int32)
-        first, count, bundle, step_s, times, keys, names = [], [], [], [], [], [], []
+        first, count, bundle, canvas, step_s, times, keys, names = [], [], [], [], [], [], [], []
         start_cells: list[np.ndarray] = []  # per route point: the canvas cells an episode may start in then
         offset = 0
         for i, b in enumerate(with_routes):
-            ny, nx = b.shape
-            legal = ~b.blocked
-            sl = slice(offset, offset + len(b.routes))
-            self.sinr[sl, p : p + ny, p : p + nx] = b.route_sinr_db
-            self.dead[sl, p : p + ny, p : p + nx] = b.route_dead
-            target = legal & ~b.route_dead & (b.route_sinr_db >= config.p_t_db)
-            self.steps[sl, p : p + ny, p : p + nx] = steps_to_target(legal, target)
-            starts = ~self.maps.blocked[i * self.maps.symmetries] & ~self.dead[sl] & (self.sinr[sl] < config.p_t_db)
-            start_cells += [np.flatnonzero(ok) for ok in starts & (self.steps[sl] != UNREACHABLE)]
-            for route, rows in b.routes.groupby("route", sort=False):
-                first.append(offset + int(rows.index[0]))
-                count.append(len(rows))
-                bundle.append(i)
-                step_s.append(b.spacing_m / config.uav_speed_mps)
-                times.append(rows["time_s"].to_numpy())
-                keys.append(stream_key(b.version, "route", int(route)))
-                names.append((b.city, int(route), str(rows["kind"].iloc[0])))
-            offset += len(b.routes)
+            target = ~b.blocked & ~b.route_dead & (b.route_sinr_db >= config.p_t_db)
+            steps = steps_to_target(~b.blocked, target)
+            for k in range(self.turns):
+                ny, nx = self.maps.shapes[S * i + k]
+                sl = slice(offset, offset + len(b.routes))
+                self.sinr[sl, p : p + ny, p : p + nx] = transform(b.route_sinr_db, k)
+                self.dead[sl, p : p + ny, p : p + nx] = transform(b.route_dead, k)
+                self.steps[sl, p : p + ny, p : p + nx] = transform(steps, k)
+                starts = ~self.maps.blocked[S * i + k] & ~self.dead[sl] & (self.sinr[sl] < config.p_t_db)
+                start_cells += [np.flatnonzero(ok) for ok in starts & (self.steps[sl] != UNREACHABLE)]
+                for route, rows in b.routes.groupby("route", sort=False):
+                    first.append(offset + int(rows.index[0]))
+                    count.append(len(rows))
+                    bundle.append(i)
+                    canvas.append(S * i + k)
+                    step_s.append(b.spacing_m / config.uav_speed_mps)
+                    times.append(rows["time_s"].to_numpy())
+                    keys.append(stream_key(b.version, "route", int(route), *([k] if k else [])))
+                    names.append((b.city, int(route), str(rows["kind"].iloc[0])))
+                offset += len(b.routes)
         n_max = max(len(t) for t in times)
         self.times = np.full((len(times), n_max), np.inf)
         for r, t in enumerate(times):
             self.times[r, : len(t)] = t
-        self.first, self.count, self.bundle = np.array(first), np.array(count), np.array(bundle)
+        self.first, self.count, self.bundle, self.canvas = np.array(first), np.array(count), np.array(bundle), np.array(canvas)
         self.step_s = np.array(step_s)
         self.route_keys = np.array(keys, np.uint64)
         self.names = names  # (city, route id, kind) per route
@@ -279,7 +289,7 @@ class TrackingEnv:
     def canvas(self, idx: np.ndarray | None = None) -> np.ndarray:
         """The height/blocked canvas row of each env's bundle."""
         idx = self._rows if idx is None else idx
-        return self.routes.bundle[self.route[idx]] * self.maps.symmetries
+        return self.routes.canvas[self.route[idx]]
 
     def point(self) -> np.ndarray:
         """Each env's route point now (a row of ``routes.sinr``)."""
@@ -439,6 +449,8 @@ class PlacementInTracking:
     def _mirror(self, env: TrackingEnv):  # noqa: ANN202 - a BatchedEnv
         from uavplace.rl.vec_env import BatchedEnv
 
+        if env.routes.turns != 1:
+            raise ValueError("a placement agent plays the routes as they are: a RouteSet without rotate")
         key = (id(env.routes), env.num_envs)
         if self.key != key:
             maps = MapSet(env.routes.bundles, self.env_config)
@@ -513,13 +525,14 @@ class OraclePolicy:
 
     def plan(self, env: TrackingEnv, row: int) -> np.ndarray:
         r, p = int(env.route[row]), env.maps.pad
-        b = env.routes.bundles[env.routes.bundle[r]]
-        ny, nx = b.shape
+        canvas = env.routes.canvas[r]
+        ny, nx = env.maps.shapes[canvas]
         t = np.arange(1, env.config.horizon + 1)
         points = env.routes.point(np.full(len(t), r), np.full(len(t), env.start_s[row]), t)
         sinr = env.routes.sinr[points, p : p + ny, p : p + nx]
         covered = (sinr >= env.config.p_t_db) & ~env.routes.dead[points, p : p + ny, p : p + nx]
-        path, _ = oracle_path(~b.blocked, covered, (int(env.pos[row, 0]) - p, int(env.pos[row, 1]) - p))
+        legal = ~env.maps.blocked[canvas, p : p + ny, p : p + nx]
+        path, _ = oracle_path(legal, covered, (int(env.pos[row, 0]) - p, int(env.pos[row, 1]) - p))
         return path + p
 
     def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingEnv) -> np.ndarray:

@@ -467,3 +467,30 @@ def test_tracking_agents_read_only_what_they_measured(root):
         assert all(same), f"{agent.name}: moves changed when cells it never visited changed ({same})"
     _, changed = replay(ReplanningGenie(), TrackingConfig(horizon=24, window=9))
     assert any(changed), "the re-planning genie reads the maps: scrambling them must change some episode"
+
+
+def test_rotated_routes_are_their_citys_quarter_turns(root):
+    """Training's rotate: each route also under the quarter turns of its city; the identity comes first and is the
+    unrotated RouteSet (same maps, same keys: evaluation episodes do not move); each turn's maps are the turned maps
+    on the turned canvas, and the oracle bounds the re-planning genie there too."""
+    from uavplace.rl.maps import transform
+
+    b = load_bundle("walk", root=root)
+    config = TrackingConfig(horizon=20, window=9)
+    plain, turned = RouteSet([b], config), RouteSet([b], config, rotate=True)
+    n, p, S = len(b.routes), turned.maps.pad, turned.maps.symmetries
+    assert turned.turns == S == 4 and turned.num_routes == S * plain.num_routes
+    assert np.array_equal(turned.sinr[:n], plain.sinr) and np.array_equal(turned.route_keys[:2], plain.route_keys)
+    assert len(set(turned.route_keys.tolist())) == turned.num_routes
+    for k in range(S):
+        ny, nx = turned.maps.shapes[k]
+        block = slice(k * n, (k + 1) * n)
+        np.testing.assert_array_equal(turned.sinr[block, p : p + ny, p : p + nx], transform(b.route_sinr_db, k))
+        assert np.array_equal(turned.canvas[2 * k : 2 * k + 2], [k, k])
+    episodes = turned.sample_episodes(16, np.random.default_rng(2))
+    assert len(set(turned.canvas[episodes[:, 0].astype(int)].tolist())) > 1
+    oracle, genie = (run_tracking(turned, q, episodes, record=True) for q in (OraclePolicy(), ReplanningGenie()))
+    assert (oracle.table["covered_share"] >= genie.table["covered_share"] - 1e-12).all()
+    blocked = turned.maps.blocked[turned.canvas[episodes[:, 0].astype(int)]]
+    for path, canvas in zip((oracle.path, genie.path), (blocked, blocked), strict=True):
+        assert not canvas[np.arange(16)[:, None], path[:, :, 0], path[:, :, 1]].any()

@@ -345,7 +345,8 @@ def preset_config(name: str, **overrides: object) -> DQNConfig:
         raise InputError(None, "tracking settings are for --task tracking", field="tracking")
     try:
         if values.get("task") == "tracking":
-            values["tracking"] = TrackingConfig(**(tracking or {}))
+            # the preset's training rotation (env.rotate) for the routes too, unless tracking.rotate says otherwise
+            values["tracking"] = TrackingConfig(**({"rotate": env["rotate"]} | (tracking or {})))
         return DQNConfig(**(values | {"env": EnvConfig(**env)}))
     except ValidationError as exc:
         field, message = validation_message(exc)

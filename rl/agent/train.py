@@ -617,7 +617,7 @@ class TrackingTrainer(Trainer):
                 None, "the tracking task selects best.pt on validation cities with routes, and none is given: build one "
                 "with `uavdata build --split CITY=val` and add it with --dataset or --val-dataset", field="val_dataset",
             )  # fmt: skip
-        self.routes, self.eval_routes = RouteSet(cities.train, task), RouteSet(val, task)
+        self.routes, self.eval_routes = RouteSet(cities.train, task, rotate=task.rotate), RouteSet(val, task)
         self.eval_episodes = self.eval_routes.sample_episodes(
             self.config.eval_episodes, np.random.default_rng([self.config.seed, 2])
         )
