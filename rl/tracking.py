@@ -37,7 +37,7 @@ from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target
 from uavplace.rl.config import EnvConfig
 from uavplace.rl.maps import MOVES, MapSet, transform
 from uavplace.rl.randomness import combine, stream_key
-from uavplace.rl.vec_env import encode_obs
+from uavplace.rl.vec_env import encode_obs, refuse_bad_rows
 from uavplace.schemas.base import Contract
 
 #: The 5 tracking actions in canvas coordinates (dy, dx): the 4 placement moves, then 4 = stay.
@@ -340,8 +340,6 @@ class TrackingEnv:
     def check_state(self, source: object) -> None:
         """``InputError`` (naming ``source``) unless the episode state (``state_arrays``, as a checkpoint restores it)
         is one this env can be in: routes in range, positions on open canvas cells, start times and counters from 0."""
-        from uavplace.schemas import InputError
-
         problems = {
             "route": (self.route < 0) | (self.route >= self.routes.num_routes),
             "start_s": ~np.isfinite(self.start_s) | (self.start_s < 0),
@@ -350,11 +348,7 @@ class TrackingEnv:
             "memory": ~np.isfinite(self.memory).all(axis=(1, 2)),
             "covered_steps": (self.covered_steps < 0) | (self.covered_steps > self.t),
         }
-        for name, bad in problems.items():
-            if bad.any():
-                raise InputError(source, f"env row {int(np.argmax(bad))}: {name} out of range or not finite", field=name)
-        if self.maps.blocked[self.canvas(), self.pos[:, 0], self.pos[:, 1]].any():
-            raise InputError(source, "a UAV stands in a blocked cell", field="pos")
+        refuse_bad_rows(source, problems, self.maps.blocked[self.canvas(), self.pos[:, 0], self.pos[:, 1]])
 
     def genie_moves(self) -> np.ndarray:
         """``[N, 5]`` bool: the re-planning genie's choice (privileged, for training aids only; never part of an

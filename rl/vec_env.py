@@ -35,6 +35,18 @@ from uavplace.rl.randomness import combine
 OBS_OFFSET = 150
 
 
+def refuse_bad_rows(source: object, problems: dict[str, np.ndarray], on_blocked: np.ndarray) -> None:
+    """A restored env state's check (``check_state``): ``InputError`` naming ``source``, the field and the first env
+    row where ``problems[field]`` ``[N]`` holds, or where ``on_blocked`` ``[N]`` (a UAV on a blocked cell) does."""
+    from uavplace.schemas import InputError
+
+    for name, bad in problems.items():
+        if bad.any():
+            raise InputError(source, f"env row {int(np.argmax(bad))}: {name} out of range or not finite", field=name)
+    if on_blocked.any():
+        raise InputError(source, "a UAV stands in a blocked cell", field="pos")
+
+
 def encode_obs(obs: np.ndarray) -> np.ndarray:
     """float observation -> uint8 (1 dB / 1 m resolution, values -150 .. 105)."""
     return np.clip(np.rint(obs) + OBS_OFFSET, 0, 255).astype(np.uint8)
@@ -109,8 +121,6 @@ class BatchedEnv:
     def check_state(self, source: object) -> None:
         """``InputError`` (naming ``source``) unless the episode state (``state_arrays``, as a checkpoint restores it)
         is one this env can be in: views in range, positions on open canvas cells, counters from 0, finite SINR."""
-        from uavplace.schemas import InputError
-
         problems = {
             "view": (self.view < 0) | (self.view >= self.maps.num_views),
             "pos": ((self.pos < 0) | (self.pos >= self.maps.side)).any(axis=1),
@@ -122,11 +132,7 @@ class BatchedEnv:
             problems["best_pos"] = ((self.best_pos < 0) | (self.best_pos >= self.maps.side)).any(axis=1)
         if self.config.context_zoom:
             problems["context_memory"] = ~np.isfinite(self.context_memory).all(axis=(1, 2))
-        for name, bad in problems.items():
-            if bad.any():
-                raise InputError(source, f"env row {int(np.argmax(bad))}: {name} out of range or not finite", field=name)
-        if self.maps.blocked[self.maps.view_map[self.view], self.pos[:, 0], self.pos[:, 1]].any():
-            raise InputError(source, "a UAV stands in a blocked cell", field="pos")
+        refuse_bad_rows(source, problems, self.maps.blocked[self.maps.view_map[self.view], self.pos[:, 0], self.pos[:, 1]])
 
     # -- episodes -----------------------------------------------------------------------------
     def _next_specs(self, k: int) -> tuple[np.ndarray, np.ndarray]:

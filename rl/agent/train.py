@@ -629,7 +629,7 @@ class TrackingTrainer(Trainer):
         return self.config.tracking_config().horizon
 
     def validate(self, policy: DQNPolicy) -> tuple[dict, tuple[float, float]]:
-        table = run_tracking(self.eval_routes, policy, self.eval_episodes, num_envs=min(256, len(self.eval_episodes))).table
+        table = run_tracking(self.eval_routes, policy, self.eval_episodes).table
         row = tracking_summary(table)
         return row, (row["covered_share"], row["success"])
 
