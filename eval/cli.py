@@ -105,12 +105,20 @@ from uavplace.schemas.cli import (
     show_default=True,
     help="Tracking: steps per episode (each 0.4 s at 4 m cells: a 10 m/s UAV crossing one cell).",
 )
+@click.option(
+    "--hold/--no-hold",
+    default=True,
+    show_default=True,
+    help="Tracking: also play each method that has no stay action (placement agents, the random walk, greedy "
+    "hill-climbing) holding its cell while its own measurement is at or above P_T (rl/tracking.py, Holding), as a "
+    "row '... + hold' after the method as it is.",
+)
 @root_option
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def report(
     runs: tuple[Path, ...], datasets: tuple[str, ...], out: Path | None, episodes: int, t_max: int, p_t_db: float, test_epsilon: float,
     n_boot: int, trajectories: int, split: str | None, seed: int, groups: tuple[str, ...], agents_dir: Path,
-    markdown: Path | None, task: str, horizon: int, root: Path, quiet: bool,
+    markdown: Path | None, task: str, horizon: int, hold: bool, root: Path, quiet: bool,
 ) -> None:  # fmt: skip
     """Evaluate agents and baselines on the same episodes of a test city; write an HTML report, PNGs, CSV and Parquet.
 
@@ -120,7 +128,8 @@ def report(
     one page with every city (OUT/report.html, OUT/summary.csv; OUT defaults to reports/).
 
     With --task tracking, the user moves: the oracle (the upper bound), the agents (placement agents run unchanged),
-    the re-planning genie, the random walk and greedy hill-climbing on the same episodes of each city's routes; one
+    the re-planning genie, the random walk and greedy hill-climbing on the same episodes of each city's routes, those
+    without a stay action also holding their cell while covered (--hold); one
     page OUT/tracking.html with a table per city, the coverage over time and three episodes on the maps
     (eval/tracking.py).
     """
@@ -131,7 +140,7 @@ def report(
         if groups or split:
             raise click.UsageError("--task tracking plays every route of the cities: it takes no --group or --split")
         _tracking_report(datasets, chosen, out, episodes, horizon, p_t_db, test_epsilon, seed, n_boot, trajectories,
-                         markdown, root, quiet)  # fmt: skip
+                         hold, markdown, root, quiet)  # fmt: skip
         return
 
     grouped: dict[str, list[str]] = {}
@@ -184,14 +193,14 @@ def report(
 
 
 def _tracking_report(datasets: tuple[str, ...], runs: list[Path], out: Path | None, episodes: int, horizon: int, p_t_db: float,
-                     test_epsilon: float, seed: int, n_boot: int, trajectories: int, markdown: Path | None, root: Path,
-                     quiet: bool) -> None:  # fmt: skip
-    from uavplace.eval.tracking import TrackingReportConfig, make_tracking_report, table_rows
+                     test_epsilon: float, seed: int, n_boot: int, trajectories: int, hold: bool, markdown: Path | None,
+                     root: Path, quiet: bool) -> None:  # fmt: skip
+    from uavplace.eval.tracking import SUMMARY_TITLE, TrackingReportConfig, make_tracking_report, summary_rows, table_rows
     from uavplace.rl.tracking import TrackingConfig
     from uavplace.schemas.files import atomic_write_text
 
     config = TrackingReportConfig(datasets=list(datasets), runs=[str(r) for r in runs], episodes=episodes, seed=seed,
-                                  test_epsilon=test_epsilon, n_boot=n_boot, trajectories=trajectories,
+                                  test_epsilon=test_epsilon, n_boot=n_boot, trajectories=trajectories, hold=hold,
                                   task=TrackingConfig(horizon=horizon, p_t_db=p_t_db))  # fmt: skip
     with console.status("[bold]tracking report[/]", spinner="dots") if not quiet else contextlib.nullcontext() as status:
 
@@ -205,6 +214,9 @@ def _tracking_report(datasets: tuple[str, ...], runs: list[Path], out: Path | No
         cells = table_rows(rows, horizon)
         title = f"{episodes} tracking episodes in {city} (horizon {horizon}, P_T {p_t_db:g} dB)"
         stdout().print(plain_table(*cells[0], rows=cells[1:], title=title))
+    if table["city"].nunique() > 1:
+        cells = summary_rows(table)
+        stdout().print(plain_table(*cells[0], rows=cells[1:], title=SUMMARY_TITLE))
     if markdown is not None:
         atomic_write_text(markdown, (page.parent / "tracking.md").read_text(encoding="utf-8"))
         stdout().print(f"tables (Markdown): {markdown}", highlight=False, soft_wrap=True)

@@ -1,8 +1,9 @@
 """``uavrl report --task tracking``: the moving-user task (``rl.tracking``) evaluated and written as a report.
 
 Every method plays the same episodes of each city (routes, start times and start cells drawn from the report's
-seed): the oracle (the most covered steps possible: the upper bound), the placement genie re-planned every step,
-the steered random walk and greedy hill-climbing. Per method and city: the median steps to first reach P_T, the
+seed): the oracle (the most covered steps possible: the upper bound), the agents, the placement genie re-planned
+every step, the steered random walk and greedy hill-climbing; each method that cannot stay also holding its cell
+while it covers the user (``rl.tracking.Holding``). Per method and city: the median steps to first reach P_T, the
 coverage after it, the median longest outage, the share of the horizon covered and that share as a fraction of the
 oracle's. Intervals are paired bootstrap 95 % intervals that resample the routes (a route plays the part a user
 plays in placement: its episodes are alike), then the episodes of each drawn route (``eval.metrics.resample_counts``).
@@ -29,6 +30,7 @@ from uavplace.eval.metrics import _weighted_quantile, resample_counts
 from uavplace.eval.report import _CSS, Agent, Figure, _figure, _pyplot, _templates, check_unseen, load_agent, markdown_table
 from uavplace.rl.policies import GreedyPolicy, RandomWalkPolicy
 from uavplace.rl.tracking import (
+    Holding,
     MovesOnly,
     OraclePolicy,
     PlacementInTracking,
@@ -52,6 +54,10 @@ STATS = {
     "covered_share": ("share of the horizon covered", "mean"),
 }
 UPPER_BOUND = "oracle"
+#: The title of ``summary_rows``'s table (every city side by side).
+SUMMARY_TITLE = (
+    "Share of the horizon covered in every city (as a fraction of the oracle's, 95 % interval over routes, then episodes)"
+)
 #: The episodes drawn on the maps, of the best method that is not the oracle, by its covered share.
 EPISODE_RULES = ("the 10th percentile of its covered share", "its median covered share", "the 90th percentile")
 _QUANTILES = (0.1, 0.5, 0.9)
@@ -74,20 +80,31 @@ class TrackingReportConfig(Contract):
     seed: int = Field(default=0, ge=0, le=MAX_SEED, description="Seed of the episodes and the baselines' random moves")
     n_boot: int = Field(default=2000, ge=100, description="Bootstrap resamples of the 95 % intervals")
     trajectories: int = Field(default=3, ge=0, le=3, description="Episodes drawn on the maps, by EPISODE_RULES (0: none)")
+    hold: bool = Field(
+        default=True,
+        description="Also play each method without a stay action (placement agents, random walk, greedy) holding its "
+        "cell while its own measurement is at or above P_T",
+    )
 
 
-def tracking_methods(task: TrackingConfig, seed: int, agents: list[Agent] = ()) -> list:
+def tracking_methods(task: TrackingConfig, seed: int, agents: list[Agent] = (), hold: bool = True) -> list:
     """The methods of the report: the upper bound first, then the agents (tracking agents on the observations they
     were trained with, ``TrackingAgent``; placement agents run unchanged, ``PlacementInTracking``), then the
-    re-planning genie and the baselines."""
-    played = [
-        TrackingAgent(a.policy, a.config.tracking_config(), a.name)
-        if a.config.task == "tracking"
-        else PlacementInTracking(a.policy, a.config.env_config(evaluation=True), a.name)
-        for a in agents
-    ]
-    return [OraclePolicy(), *played, ReplanningGenie(), MovesOnly(RandomWalkPolicy(seed=seed)),
-            MovesOnly(GreedyPolicy(task.p_h_db, seed=seed))]  # fmt: skip
+    re-planning genie and the baselines. With ``hold``, every method that cannot stay (the placement agents, the
+    random walk, greedy hill-climbing) is also played holding its cell while it covers the user (``Holding``), right
+    after itself; tracking agents have a stay action of their own, and the genie and the oracle already stay."""
+    played = []
+    for a in agents:
+        if a.config.task == "tracking":
+            played.append(TrackingAgent(a.policy, a.config.tracking_config(), a.name))
+        else:
+            played += _and_holding(PlacementInTracking(a.policy, a.config.env_config(evaluation=True), a.name), hold)
+    baselines = [MovesOnly(RandomWalkPolicy(seed=seed)), MovesOnly(GreedyPolicy(task.p_h_db, seed=seed))]
+    return [OraclePolicy(), *played, ReplanningGenie(), *(m for b in baselines for m in _and_holding(b, hold))]
+
+
+def _and_holding(method, hold: bool) -> list:  # noqa: ANN001 - a tracking method without a stay action
+    return [method, Holding(method)] if hold else [method]
 
 
 def _summary(values: np.ndarray, how: str, weights: np.ndarray) -> np.ndarray:
@@ -140,6 +157,23 @@ def table_rows(table: pd.DataFrame, horizon: int) -> list[list[str]]:
     for r in table.to_dict("records"):
         cells = [r["method"], *(_cell(s, r, horizon) for s in STATS)]
         cells.append("-" if "of_oracle" not in r or np.isnan(r["of_oracle"]) else _cell("of_oracle", r, horizon))
+        rows.append(cells)
+    return rows
+
+
+def summary_rows(table: pd.DataFrame) -> list[list[str]]:
+    """Every city side by side (header first): per method, in the report's order, each city's mean share of the
+    horizon covered, then that share as a fraction of the oracle's with its interval ("-": not played there)."""
+    cities = list(dict.fromkeys(table["city"]))
+    rows = [["method", *cities]]
+    for method, group in table.groupby("method", sort=False):
+        by_city = group.set_index("city")
+        cells = [method]
+        for city in cities:
+            r = by_city.loc[city] if city in by_city.index else None
+            cells.append(
+                "-" if r is None else f"{r.covered_share:.3f} ({r.of_oracle:.2f} [{r.of_oracle_lo:.2f}, {r.of_oracle_hi:.2f}])"
+            )
         rows.append(cells)
     return rows
 
@@ -269,7 +303,7 @@ def make_tracking_report(
         routes = RouteSet([b], config.task)
         episodes = routes.sample_episodes(config.episodes, np.random.default_rng([config.seed, 7]))
         results: dict[str, TrackingEpisodes] = {}
-        for policy in tracking_methods(config.task, config.seed, agents):
+        for policy in tracking_methods(config.task, config.seed, agents, config.hold):
             if on_progress is not None:
                 on_progress(b.city, policy.name)
             results[policy.name] = run_tracking(routes, policy, episodes, record=True)
@@ -303,6 +337,8 @@ def make_tracking_report(
         table = pd.concat(tables, ignore_index=True)
         table.to_csv(tmp / "tracking.csv", index=False)
         md = [f"### {t['city'].iloc[0]}\n\n" + markdown_table(table_rows(t, config.task.horizon)) for t in tables]
+        if len(tables) > 1:
+            md.append(f"### {SUMMARY_TITLE}\n\n" + markdown_table(summary_rows(table)))
         (tmp / "tracking.md").write_text("\n\n".join(md) + "\n", encoding="utf-8")
         record = {"command": command, "created_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
                   "uavplace_version": uavplace_version(), "config": json.loads(config.model_dump_json()),

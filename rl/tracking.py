@@ -19,9 +19,9 @@ or above P_T (coverage), the longest outage after it, and the share of the whole
 Baselines: the ``oracle`` (dynamic programming over (time, cell) on the whole route and every map: the
 most covered steps possible, the upper bound), the placement genie re-planned every step toward the
 current P_T region (``ReplanningGenie``), and the placement baselines, which act through the same
-interface (``rl.policies``). Agents: a placement agent run unchanged (``PlacementInTracking``), or one trained on
-this task (``uavrl train --task tracking``, ``rl.agent.train.TrackingTrainer``) on its own observation
-(``TrackingAgent``).
+interface (``rl.policies``), as they are or holding the cell while it covers the user (``Holding``). Agents:
+a placement agent run unchanged (``PlacementInTracking``; also with ``Holding``), or one trained on this task
+(``uavrl train --task tracking``, ``rl.agent.train.TrackingTrainer``) on its own observation (``TrackingAgent``).
 """
 
 from __future__ import annotations
@@ -422,6 +422,24 @@ class MovesOnly:
 
     def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingEnv) -> np.ndarray:
         return self.policy.act(obs, mask[:, :4], env)
+
+
+class Holding:
+    """A method without a stay action (a placement agent run unchanged, a placement baseline) with one rule on top:
+    stay while its own measurement now (the SINR memory's centre, the cell it stands in) is at or above P_T, else
+    act as ``policy`` does. ``policy`` still sees every observation, so a recurrent agent's state and a placement
+    agent's mirror follow the episode while it holds; it reads nothing the UAV did not measure."""
+
+    def __init__(self, policy) -> None:  # noqa: ANN001 - a tracking method (MovesOnly, PlacementInTracking)
+        self.policy, self.name = policy, f"{policy.name} + hold"
+
+    def reset(self, rows: np.ndarray, num_envs: int) -> None:
+        self.policy.reset(rows, num_envs)
+
+    def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingEnv) -> np.ndarray:
+        action = self.policy.act(obs, mask, env)
+        centre = env.config.window // 2
+        return np.where(obs[:, -1, centre, centre] >= env.config.p_t_db, STAY, action)
 
 
 class PlacementInTracking:

@@ -16,6 +16,7 @@ from uavplace.ingest.pipeline import ingest_city
 from uavplace.rl.tracking import (
     STAY,
     TRACK_MOVES,
+    Holding,
     MovesOnly,
     OraclePolicy,
     ReplanningGenie,
@@ -237,6 +238,34 @@ def test_recorded_paths_replay_the_covered_steps(root):
     assert np.array_equal(sinr >= config.p_t_db, res.covered)
 
 
+def test_holding_stays_exactly_while_its_own_measurement_covers(root):
+    """``Holding`` stays on every step whose measurement reached P_T and otherwise makes the wrapped method's move; the
+    wrapped method is called on every step (so a recurrent agent's state follows the episode), and what it would
+    have done while holding is overridden."""
+    from uavplace.rl.policies import RandomWalkPolicy
+
+    config = TrackingConfig(horizon=25, window=9, p_t_db=5.0)
+    routes = RouteSet([load_bundle("walk", root=root)], config)
+    episodes = routes.sample_episodes(16, np.random.default_rng(4))
+
+    class Counting(MovesOnly):
+        calls = 0
+
+        def act(self, obs, mask, env):
+            Counting.calls += 1
+            self.last = super().act(obs, mask, env)
+            return self.last
+
+    inner = Counting(RandomWalkPolicy(seed=0))
+    held = run_tracking(routes, Holding(inner), episodes, num_envs=16, record=True)
+    assert Counting.calls == config.horizon and held.covered.any() and (~held.covered).any()
+    moved = np.abs(np.diff(held.path, axis=1)).sum(axis=2) > 0  # [K, H]: did step t + 1 leave the cell
+    # the random walk always makes a legal move: the UAV stays exactly after the covered steps (covered[:, t - 1] is
+    # the measurement after step t), and leaves the start cells, which are below P_T
+    assert np.array_equal(moved[:, 1:], ~held.covered[:, :-1]) and moved[:, 0].all()
+    assert Holding(inner).name == "steered random walk + hold"
+
+
 def test_tracking_table_intervals_resample_routes():
     """The tracking table's intervals: a method that covers everything has [1, 1]; the fraction of the oracle is the
     ratio of the means; routes that differ widen the interval of the route-level bootstrap."""
@@ -261,6 +290,14 @@ def test_tracking_table_intervals_resample_routes():
     assert m["covered_share_lo"] < half.mean() < m["covered_share_hi"]
     assert m["covered_share_hi"] - m["covered_share_lo"] > 0.3  # routes of 0.9 and 0.1: the route level dominates
 
+    from uavplace.eval.tracking import summary_rows
+
+    other = t.assign(city="d", covered_share=t["covered_share"] / 2)[t["method"] == "half"]  # "oracle" not in d
+    rows = summary_rows(pd.concat([t, other], ignore_index=True))
+    assert rows[0] == ["method", "c", "d"] and [r[0] for r in rows[1:]] == ["oracle", "half"]
+    assert rows[1][2] == "-" and rows[2][1].startswith(f"{m['covered_share']:.3f} ({half.mean():.2f} [")
+    assert rows[2][2].startswith(f"{m['covered_share'] / 2:.3f} (")
+
 
 def test_tracking_report_from_the_command_line(root, tmp_path):
     """`uavrl report --task tracking` writes the page, the table, the Markdown, the figures and tracking.json, and
@@ -279,11 +316,15 @@ def test_tracking_report_from_the_command_line(root, tmp_path):
     assert result.exit_code == 0, result.output
     table = (out / "tracking.md").read_text()
     assert all(m in table for m in ("oracle", "DQN (paper)", "re-planning genie", "greedy hill-climbing"))
+    assert all(f"| {m} + hold |" in table for m in ("DQN (paper)", "steered random walk", "greedy hill-climbing"))
+    assert "re-planning genie + hold" not in table and "oracle + hold" not in table
     for name in ("tracking.html", "tracking.csv", "tracking.md", "tracking.json", "walk-coverage.png", "walk-episodes.png"):
         assert (out / name).is_file(), name
     record = json.loads((out / "tracking.json").read_text())
     assert record["config"]["task"]["horizon"] == 20 and record["cities"][0]["city"] == "walk"
     assert (tmp_path / "t.md").read_text() == (out / "tracking.md").read_text()
+    plain = CliRunner().invoke(uavrl, [str(tmp_path / "plain") if a == str(out) else a for a in args] + ["--no-hold"])
+    assert plain.exit_code == 0 and "+ hold" not in (tmp_path / "plain" / "tracking.md").read_text()
     refused = CliRunner().invoke(uavrl, [*args[:-1], "--group", f"g={tmp_path}"])
     assert refused.exit_code == 2 and "takes no --group" in refused.output
 
