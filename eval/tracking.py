@@ -54,6 +54,8 @@ STATS = {
     "covered_share": ("share of the horizon covered", "mean"),
 }
 UPPER_BOUND = "oracle"
+#: The method every other is compared with, paired (covered share minus its): the best baseline that reads the map.
+REFERENCE = "re-planning genie"
 #: The title of ``summary_rows``'s table (every city side by side).
 SUMMARY_TITLE = (
     "Share of the horizon covered in every city (as a fraction of the oracle's, 95 % interval over routes, then episodes)"
@@ -115,13 +117,14 @@ def _summary(values: np.ndarray, how: str, weights: np.ndarray) -> np.ndarray:
 
 
 def tracking_table(results: dict[str, TrackingEpisodes], n_boot: int, seed: int) -> pd.DataFrame:
-    """One row per method: each statistic of ``STATS`` and the covered share as a fraction of the oracle's, with
-    paired 95 % intervals (routes, then episodes within each drawn route)."""
+    """One row per method: each statistic of ``STATS``, the covered share as a fraction of the oracle's, and the
+    covered share minus the re-planning genie's (``REFERENCE``), with paired 95 % intervals (routes, then episodes
+    within each drawn route; the same resamples for every method)."""
     first = next(iter(results.values())).table
     n = len(first)
     counts = resample_counts(first["route"].to_numpy(), n, n_boot, seed).astype(np.float64)
     ones = np.ones((1, n))
-    bound = results.get(UPPER_BOUND)
+    bound, reference = results.get(UPPER_BOUND), results.get(REFERENCE)
     rows = []
     for name, res in results.items():
         row: dict[str, object] = {"city": first["city"].iloc[0], "method": name, "episodes": n,
@@ -137,6 +140,11 @@ def tracking_table(results: dict[str, TrackingEpisodes], n_boot: int, seed: int)
             with np.errstate(invalid="ignore", divide="ignore"):
                 ratio = (counts @ mine) / (counts @ best)
             row["of_oracle_lo"], row["of_oracle_hi"] = (float(x) for x in np.nanquantile(ratio, [0.025, 0.975]))
+        if reference is not None and name != REFERENCE:
+            diff = res.table["covered_share"].to_numpy() - reference.table["covered_share"].to_numpy()
+            row["minus_reference"] = float(diff.mean())
+            lo, hi = np.quantile(counts @ diff / counts.sum(axis=1), [0.025, 0.975])
+            row["minus_reference_lo"], row["minus_reference_hi"] = float(lo), float(hi)
         rows.append(row)
     return pd.DataFrame(rows)
 
@@ -148,15 +156,18 @@ def _cell(stat: str, r: dict, horizon: int) -> str:
         return f"{shown(v)} [{shown(lo)}, {shown(hi)}]"
     if stat == "longest_outage":
         return f"{v:g} [{lo:g}, {hi:g}]"
+    if stat == "minus_reference":
+        return f"{v:+.3f} [{lo:+.3f}, {hi:+.3f}]"
     return f"{v:.3f} [{lo:.3f}, {hi:.3f}]"
 
 
 def table_rows(table: pd.DataFrame, horizon: int) -> list[list[str]]:
     """The table as text cells (header first)."""
-    rows = [["method", *(h for h, _ in STATS.values()), "covered share / the oracle's"]]
+    rows = [["method", *(h for h, _ in STATS.values()), "covered share / the oracle's", f"covered share - the {REFERENCE}'s"]]
     for r in table.to_dict("records"):
         cells = [r["method"], *(_cell(s, r, horizon) for s in STATS)]
-        cells.append("-" if "of_oracle" not in r or np.isnan(r["of_oracle"]) else _cell("of_oracle", r, horizon))
+        for stat in ("of_oracle", "minus_reference"):
+            cells.append("-" if stat not in r or np.isnan(r[stat]) else _cell(stat, r, horizon))
         rows.append(cells)
     return rows
 

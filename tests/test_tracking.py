@@ -282,10 +282,17 @@ def test_tracking_table_intervals_resample_routes():
         table = pd.DataFrame({"episode": np.arange(k), "route": route, "city": "c"} | episode_metrics(covered))
         return TrackingEpisodes(table, covered)
 
-    t = tracking_table({"oracle": episodes(np.ones((k, h), bool)), "half": episodes(half)}, n_boot=400, seed=1)
+    never = episodes(np.zeros((k, h), bool))  # the reference (the re-planning genie) covers nothing
+    t = tracking_table({"oracle": episodes(np.ones((k, h), bool)), "half": episodes(half), "re-planning genie": never},
+                       n_boot=400, seed=1)  # fmt: skip
     o, m = t.set_index("method").loc["oracle"], t.set_index("method").loc["half"]
     assert o["covered_share"] == o["covered_share_lo"] == o["covered_share_hi"] == 1.0
     assert m["of_oracle"] == pytest.approx(half.mean())
+    # the paired difference against the reference: all of the oracle's, exactly; half's mean, within its interval
+    assert o["minus_reference"] == o["minus_reference_lo"] == o["minus_reference_hi"] == 1.0
+    assert m["minus_reference"] == pytest.approx(half.mean())
+    assert m["minus_reference_lo"] < half.mean() < m["minus_reference_hi"]
+    assert np.isnan(t.set_index("method").loc["re-planning genie", "minus_reference"])
     assert m["covered_share_lo"] < half.mean() < m["covered_share_hi"]
     assert m["covered_share_hi"] - m["covered_share_lo"] > 0.3  # routes of 0.9 and 0.1: the route level dominates
 
@@ -293,7 +300,7 @@ def test_tracking_table_intervals_resample_routes():
 
     other = t.assign(city="d", covered_share=t["covered_share"] / 2)[t["method"] == "half"]  # "oracle" not in d
     rows = summary_rows(pd.concat([t, other], ignore_index=True))
-    assert rows[0] == ["method", "c", "d"] and [r[0] for r in rows[1:]] == ["oracle", "half"]
+    assert rows[0] == ["method", "c", "d"] and [r[0] for r in rows[1:]] == ["oracle", "half", "re-planning genie"]
     assert rows[1][2] == "-" and rows[2][1].startswith(f"{m['covered_share']:.3f} ({half.mean():.2f} [")
     assert rows[2][2].startswith(f"{m['covered_share'] / 2:.3f} (")
 
