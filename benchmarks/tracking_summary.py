@@ -2,8 +2,8 @@
 
 ``uavrl report --task tracking`` writes each city's episodes (``<city>-episodes.parquet``: every method's
 per-episode metrics) and its config (``tracking.json``). This script recomputes the tables from them with the
-report's own functions (``eval.tracking.tracking_table``, the same bootstrap resamples: the report's ``n_boot``
-and seed) and the columns of this version, such as the paired difference against the re-planning genie, so that
+report's own functions (``eval.tracking.tracking_table`` and ``tables_markdown``, the same bootstrap resamples: the
+report's ``n_boot`` and seed) and the columns of this version, such as the paired difference against the re-planning genie, so that
 a report made before a column existed need not be played again. Prints Markdown: each city's table, then the
 share of the horizon covered in every city side by side (``eval.tracking.summary_rows``).
 
@@ -18,8 +18,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from uavplace.eval.report import markdown_table
-from uavplace.eval.tracking import SUMMARY_TITLE, TRACKING_JSON, summary_rows, table_rows, tracking_table
+from uavplace.eval.tracking import TRACKING_JSON, tables_markdown, tracking_table
 from uavplace.rl.tracking import TrackingEpisodes
 
 
@@ -35,8 +34,7 @@ def main() -> None:
         results = {m: TrackingEpisodes(e.drop(columns="method").reset_index(drop=True), None)
                    for m, e in episodes.groupby("method", sort=False)}  # fmt: skip
         tables.append(tracking_table(results, config["n_boot"], config["seed"]))
-        print(f"### {city}\n\n{markdown_table(table_rows(tables[-1], config['task']['horizon']))}\n")
-    print(f"### {SUMMARY_TITLE}\n\n{markdown_table(summary_rows(pd.concat(tables, ignore_index=True)))}")
+    print(tables_markdown(tables, config["task"]["horizon"]), end="")
 
 
 if __name__ == "__main__":

@@ -189,6 +189,14 @@ def summary_rows(table: pd.DataFrame) -> list[list[str]]:
     return rows
 
 
+def tables_markdown(tables: list[pd.DataFrame], horizon: int) -> str:
+    """``tracking.md``: each city's table (``tracking_table``), then, with several cities, ``summary_rows``'s."""
+    md = [f"### {t['city'].iloc[0]}\n\n" + markdown_table(table_rows(t, horizon)) for t in tables]
+    if len(tables) > 1:
+        md.append(f"### {SUMMARY_TITLE}\n\n" + markdown_table(summary_rows(pd.concat(tables, ignore_index=True))))
+    return "\n\n".join(md) + "\n"
+
+
 def plot_coverage(results: dict[str, TrackingEpisodes], task: TrackingConfig, step_s: float, city: str, out: Path) -> Figure:
     """The share of episodes covered at each step, one curve per method."""
     plt = _pyplot()
@@ -347,10 +355,7 @@ def make_tracking_report(
         tables = [t for *_, t in per_city]
         table = pd.concat(tables, ignore_index=True)
         table.to_csv(tmp / "tracking.csv", index=False)
-        md = [f"### {t['city'].iloc[0]}\n\n" + markdown_table(table_rows(t, config.task.horizon)) for t in tables]
-        if len(tables) > 1:
-            md.append(f"### {SUMMARY_TITLE}\n\n" + markdown_table(summary_rows(table)))
-        (tmp / "tracking.md").write_text("\n\n".join(md) + "\n", encoding="utf-8")
+        (tmp / "tracking.md").write_text(tables_markdown(tables, config.task.horizon), encoding="utf-8")
         record = {"command": command, "created_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
                   "uavplace_version": uavplace_version(), "config": json.loads(config.model_dump_json()),
                   "cities": provenance, "figures": figures_all,
