@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from uavplace.simulate.fidelity import error_quantiles
+from uavplace.simulate.fidelity import fill_scores
 from uavplace.simulate.pipeline import (
     SimulationSpec,
     direct_maps,
@@ -56,20 +56,10 @@ from uavplace.simulate.raytrace import (
 )
 from uavplace.simulate.scene import write_scene
 
-#: The embedded level (simulate's 20 dBm, the main job's -75 dBm of noise plus interference, build's -40 dB floor),
-#: at which the SINR error is measured as the agent sees it: a dead cell reads the floor, weaker paths too.
-SINR_OFFSET_DB, SINR_FLOOR_DB = 20.0 + 75.0, -40.0
 #: The coarse maps of the earlier fills (smooth, parent), traced for comparison.
 COARSE = (4, 16)
 #: Bump when simulate.transmission changes what it computes (the cache key of the direct paths).
 DIRECT_VERSION = 1
-
-
-def _sinr(gain: np.ndarray) -> np.ndarray:
-    """SINR [dB] at the embedded level of path gains (linear), the floor where dead or below."""
-    with np.errstate(divide="ignore"):
-        return np.maximum(np.where(gain > 0, SINR_OFFSET_DB + 10 * np.log10(np.where(gain > 0, gain, 1.0)), SINR_FLOOR_DB),
-                          SINR_FLOOR_DB)  # fmt: skip
 
 
 def _pct(v: float | None) -> str:
@@ -174,28 +164,8 @@ def measure(
     for method, config in configs.items():
         gain = maps[1] if config is None else fill(maps, config, opened, d2, cell_m=grid.spacing_m)[0]
         est = gain.reshape(len(pos_users), -1)[:, flat]
-        on_hit, on_missed = error_quantiles(est, ref, hit), error_quantiles(est, ref, ~hit)
-        sinr_err = np.abs(_sinr(est) - _sinr(ref))
-        rows.append(
-            {
-                "city": f"{source}{'@crop' if crop else ''}#{seed}",
-                "method": method,
-                "hit_pairs": on_hit["pairs"],
-                "hit_median_db": on_hit["median_db"],
-                "hit_p90_db": on_hit["p90_db"],
-                "missed_pairs": on_missed["pairs"],
-                "missed_median_db": on_missed["median_db"],
-                "missed_p90_db": on_missed["p90_db"],
-                "sinr_hit_median_db": float(np.median(sinr_err[hit])),
-                "sinr_hit_p90_db": float(np.percentile(sinr_err[hit], 90)),
-                "sinr_missed_median_db": float(np.median(sinr_err[~hit])),
-                "sinr_missed_p90_db": float(np.percentile(sinr_err[~hit], 90)),
-                "sinr_mean_db": float(sinr_err.mean()),
-                "sinr_p90_db": float(np.percentile(sinr_err, 90)),
-                "dead_live_agreement": float(((est > 0) == (ref > 0)).mean()),
-                **map_quality(gain, opened),
-            }
-        )
+        rows.append({"city": f"{source}{'@crop' if crop else ''}#{seed}", "method": method, **fill_scores(est, ref, hit),
+                     **map_quality(gain, opened)})  # fmt: skip
     return rows
 
 

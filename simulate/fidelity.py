@@ -95,3 +95,33 @@ def error_quantiles(estimate: np.ndarray, reference: np.ndarray, select: np.ndar
         return {"pairs": 0, "median_db": float("nan"), "p90_db": float("nan")}
     q = np.quantile(err, [0.5, 0.9], method="inverted_cdf")  # no interpolation with an infinite error
     return {"pairs": int(err.size), "median_db": float(q[0]), "p90_db": float(q[1])}
+
+
+#: The embedded level (simulate's 20 dBm, the main job's -75 dBm of noise plus interference, build's -40 dB floor),
+#: at which ``fill_scores`` measures the SINR error as the agent sees it: a dead cell reads the floor, weaker paths too.
+SINR_OFFSET_DB, SINR_FLOOR_DB = 20.0 + 75.0, -40.0
+
+
+def sinr_db(gain: np.ndarray) -> np.ndarray:
+    """SINR [dB] of path gains (linear) at the embedded level, the floor where dead or below."""
+    with np.errstate(divide="ignore"):
+        db = np.where(gain > 0, SINR_OFFSET_DB + 10 * np.log10(np.where(gain > 0, gain, 1.0)), SINR_FLOOR_DB)
+    return np.maximum(db, SINR_FLOOR_DB)
+
+
+def fill_scores(estimate: np.ndarray, reference: np.ndarray, hit: np.ndarray) -> dict[str, float]:
+    """A filled map against exact paths over the same (user, cell) pairs (arrays of one shape; ``hit``: the pairs the
+    radio map's rays hit): ``error_quantiles`` of the hit and of the missed pairs, the SINR error at the embedded level
+    (median and p90 of each part, mean and p90 of all) and the dead/live agreement."""
+    hit = np.asarray(hit, bool)
+    on_hit, on_missed = error_quantiles(estimate, reference, hit), error_quantiles(estimate, reference, ~hit)
+    sinr_err = np.abs(sinr_db(estimate) - sinr_db(reference))
+    out = {"hit_pairs": on_hit["pairs"], "hit_median_db": on_hit["median_db"], "hit_p90_db": on_hit["p90_db"],
+           "missed_pairs": on_missed["pairs"], "missed_median_db": on_missed["median_db"], "missed_p90_db": on_missed["p90_db"]}  # fmt: skip
+    for part, sel in (("hit", hit), ("missed", ~hit)):
+        err = sinr_err[sel]
+        out[f"sinr_{part}_median_db"] = float(np.median(err)) if err.size else float("nan")
+        out[f"sinr_{part}_p90_db"] = float(np.percentile(err, 90)) if err.size else float("nan")
+    out["sinr_mean_db"], out["sinr_p90_db"] = float(sinr_err.mean()), float(np.percentile(sinr_err, 90))
+    out["dead_live_agreement"] = float(((estimate > 0) == (reference > 0)).mean())
+    return out

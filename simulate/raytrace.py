@@ -120,12 +120,20 @@ def fill_smooth(
 
 
 def _walk_fronts(
-    value: np.ndarray, known: np.ndarray, targets: np.ndarray, spread: np.ndarray, fronts: int, step_ln: float = 0.0
+    value: np.ndarray,
+    known: np.ndarray,
+    targets: np.ndarray,
+    spread: np.ndarray,
+    fronts: int,
+    step_ln: float = 0.0,
+    front: np.ndarray | None = None,
 ) -> None:
     """In place, front by front outward from the ``known`` cells (at most ``fronts`` fronts): each cell of ``targets``
     with known 4-neighbours in ``spread`` takes their mean ``value`` (a log gain) less ``step_ln``, and becomes known.
-    Only cells of ``spread`` pass a value on, so nothing crosses a building."""
-    for _ in range(fronts):
+    Only cells of ``spread`` pass a value on, so nothing crosses a building. ``front`` (an int array of the same shape),
+    when given, records the number of the front that reached each cell (1, 2, ...; untouched elsewhere): its walk
+    through ``spread`` in cells, since the known neighbours in ``spread`` of a cell of front k are all of front k - 1."""
+    for k in range(1, fronts + 1):
         src = known & spread
         total = np.zeros_like(value)
         count = np.zeros(value.shape, np.int32)
@@ -137,6 +145,8 @@ def _walk_fronts(
             break
         value[new] = total[new] / count[new] - step_ln
         known |= new
+        if front is not None:
+            front[new] = k
 
 
 def _to_parent_level(filled: np.ndarray, fine: np.ndarray, coarse: list[np.ndarray], factors: tuple[int, ...]) -> np.ndarray:

@@ -232,6 +232,37 @@ def test_error_quantiles_count_a_dead_estimate_of_a_live_pair_as_infinite():
     assert q["pairs"] == 3 and q["median_db"] == pytest.approx(10 * np.log10(2)) and q["p90_db"] == np.inf
 
 
+def test_fill_scores_split_hit_and_missed_pairs():
+    """Known answers: a hit pair 10 dB off, a missed pair left dead (infinite error), the SINR at the embedded level
+    (95 dB above the gain, floored at -40 dB) and the dead/live agreement."""
+    from uavplace.simulate.fidelity import SINR_FLOOR_DB, fill_scores, sinr_db
+
+    ref = np.array([1e-10, 1e-10, 1e-12, 0.0])
+    est = np.array([1e-10, 1e-9, 0.0, 1e-14])
+    hit = np.array([True, True, False, False])
+    s = fill_scores(est, ref, hit)
+    assert s["hit_pairs"] == 2 and s["missed_pairs"] == 1 and s["missed_median_db"] == np.inf
+    assert s["hit_p90_db"] == pytest.approx(10.0)
+    np.testing.assert_allclose(sinr_db(ref), [-5.0, -5.0, -25.0, SINR_FLOOR_DB])
+    assert s["sinr_missed_median_db"] == pytest.approx(7.5)  # |floor - (-25)| = 15 and |(-45 floored) - floor| = 0
+    assert s["dead_live_agreement"] == pytest.approx(0.5)
+
+
+def test_walk_fronts_record_the_cells_walked_around_a_wall():
+    """``_walk_fronts``' front record is the walk through open cells from the known ones: around a wall, not across."""
+    from uavplace.simulate.raytrace import _walk_fronts
+
+    spread = np.ones((5, 7), bool)
+    spread[0:4, 3] = False  # a wall down column 3, open at the bottom row
+    known = np.zeros((5, 7), bool)
+    known[0, 0] = True
+    front = np.zeros((5, 7), int)
+    _walk_fronts(np.zeros((5, 7)), known, spread, spread, 20, front=front)
+    assert front[0, 1] == 1 and front[4, 3] == 7  # down 4, right 3
+    assert front[0, 4] == 4 + 4 + 4  # around the wall's end: down 4, right 4, up 4
+    assert front[1, 3] == 0 and not known[1, 3]  # the wall itself is never reached
+
+
 def _simulate(tmp_path, *args: str, quiet: bool = True) -> subprocess.CompletedProcess:
     cmd = [
         *UAVDATA,
