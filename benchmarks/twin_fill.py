@@ -140,10 +140,10 @@ def main() -> None:
           "median / p90 | SINR error, all: mean | dead/live agreement |")  # fmt: skip
     print("|---|---|---|---|---|---|---|")
     hit = fine[opened] > 0
+    maps = {1: fine, "direct": t["direct"]}
     for spec in args.geodesic or ["0:3", "24:3", "24:1", "48:0.5"]:
         reach, decay = (float(v) for v in spec.split(":"))
         config = RayTraceConfig(gap_fill_reach_m=reach, gap_fill_decay_db_per_m=decay)
-        maps = {1: fine, "direct": t["direct"]}
         gain = fill(maps, config, t["open"], t["d2"], cell_m=float(t["job"][3]))[0]
         s = fill_scores(gain[opened], exact[opened], hit)
         print(f"| geodesic {reach:g} m, {decay:g} dB/m | {_db(s['hit_median_db'])} / {_db(s['hit_p90_db'])} | "
