@@ -114,9 +114,7 @@ def measure(
     blocks, bounds, described = load_geometry(source, seed, crop)
     grid = receiver_grid(bounds, spec)
     pos_users = place_users(blocks, grid, spec)
-    size = (grid.num_x * grid.spacing_m, grid.num_y * grid.spacing_m)
-    corner = (grid.x0_m - grid.spacing_m / 2, grid.y0_m - grid.spacing_m / 2)
-    center = (corner[0] + size[0] / 2, corner[1] + size[1] / 2, grid.z_m)
+    bounds_box, center, size = grid.plane()
     opened = open_cells(blocks, grid)
     rng = np.random.default_rng(seed)
     flat = rng.choice(np.flatnonzero(opened.ravel()), size=min(cells, int(opened.sum())), replace=False)
@@ -124,7 +122,6 @@ def measure(
     city_key = f"{source}-{crop}-{users}-{seed}".replace("/", "_").replace(" ", "")
 
     with tempfile.TemporaryDirectory() as tmp:
-        bounds_box = (corner[0], corner[1], corner[0] + size[0], corner[1] + size[1])
         xml, _ = write_scene(tmp, blocks, bounds_box, RayTraceConfig().frequency_hz)
         job = RadioMapJob(str(xml), tuple(map(tuple, pos_users.tolist())), center, size, grid.spacing_m)
 

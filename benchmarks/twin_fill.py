@@ -34,7 +34,14 @@ import numpy as np
 from uavplace.ingest.wireless_insite.p2m import read_p2m
 from uavplace.simulate.fidelity import error_quantiles, fill_scores
 from uavplace.simulate.pipeline import SimulationSpec, load_geometry, open_cells, receiver_grid, squared_distances
-from uavplace.simulate.raytrace import RadioMapJob, RayTraceConfig, _walk_fronts, fill, point_path_gains_isolated
+from uavplace.simulate.raytrace import (
+    RadioMapJob,
+    RayTraceConfig,
+    _walk_fronts,
+    fill,
+    log_relative_gain,
+    point_path_gains_isolated,
+)
 from uavplace.simulate.scene import write_scene
 
 #: Settings both twins must share to be twins (simulation.json's spec; the name and the solver differ).
@@ -70,13 +77,11 @@ def load_twins(paths: Path, traces: Path) -> dict:
         power = table.column("power_dbm").to_numpy(zero_copy_only=False)
         with np.errstate(invalid="ignore"):
             exact[u] = np.where(np.isnan(power), 0.0, 10 ** ((power - spec.tx_dbm) / 10)).reshape(fine.shape[1:])
-    size = (grid.num_x * grid.spacing_m, grid.num_y * grid.spacing_m)
-    corner = (grid.x0_m - grid.spacing_m / 2, grid.y0_m - grid.spacing_m / 2)
-    center = (corner[0] + size[0] / 2, corner[1] + size[1] / 2, grid.z_m)
+    box, center, size = grid.plane()
     config = RayTraceConfig(**doc["raytrace"] | {"gap_fill_factors": tuple(doc["raytrace"]["gap_fill_factors"])})
     return {
         "fine": fine, "direct": direct, "exact": exact, "open": open_cells(blocks, grid), "d2": squared_distances(users, grid),
-        "blocks": blocks, "box": (corner[0], corner[1], corner[0] + size[0], corner[1] + size[1]), "config": config,
+        "blocks": blocks, "box": box, "config": config,
         "job": (tuple(map(tuple, users.tolist())), center, size, grid.spacing_m), "points": grid.points(),
     }  # fmt: skip
 
@@ -86,7 +91,7 @@ def front_table(t: dict, decay_db_per_m: float) -> list[str]:
     fine, exact, d2 = t["fine"], t["exact"], t["d2"]
     spread = np.broadcast_to(t["open"], fine.shape)
     known = fine > 0
-    value = np.where(known, np.log(np.where(known, fine * d2, 1.0)), 0.0)
+    value = log_relative_gain(fine, d2)
     front = np.zeros(fine.shape, int)
     _walk_fronts(value, known, spread, spread, sum(fine.shape[1:]), 0.0, front=front)
     sel = spread & (fine == 0) & (exact > 0)

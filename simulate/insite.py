@@ -51,6 +51,14 @@ class ReceiverGrid:
         y = self.y0_m + iy.ravel() * self.spacing_m
         return np.c_[x, y, np.full(x.size, self.z_m)]
 
+    def plane(self) -> tuple[tuple[float, float, float, float], tuple[float, float, float], tuple[float, float]]:
+        """The plane of cells the ray tracer measures on, each point the centre of its cell: the box (xmin, ymin,
+        xmax, ymax), the centre (x, y, z) and the size (x, y) [m]."""
+        size = (self.num_x * self.spacing_m, self.num_y * self.spacing_m)
+        corner = (self.x0_m - self.spacing_m / 2, self.y0_m - self.spacing_m / 2)
+        box = (corner[0], corner[1], corner[0] + size[0], corner[1] + size[1])
+        return box, (corner[0] + size[0] / 2, corner[1] + size[1] / 2, self.z_m), size
+
 
 def _write(path: Path, text: str, *, gz: bool = False, crlf: bool = False) -> Path:
     if crlf:

@@ -471,15 +471,11 @@ def simulate_city(
         else np.zeros((0, 3))
     )
     sources = np.concatenate([users, route_points])  # every transmitter traced: the users, then the route points
-    size = (grid.num_x * grid.spacing_m, grid.num_y * grid.spacing_m)
-    corner = (grid.x0_m - grid.spacing_m / 2, grid.y0_m - grid.spacing_m / 2)
-    center = (corner[0] + size[0] / 2, corner[1] + size[1] / 2, spec.altitude_m)
+    box, center, size = grid.plane()
     progress("scene", 0, len(users))
     opened = open_cells(blocks, grid)
     with tempfile.TemporaryDirectory(prefix="uavplace-scene-") as tmp:
-        xml, materials = write_scene(
-            tmp, blocks, (corner[0], corner[1], corner[0] + size[0], corner[1] + size[1]), rt_config.frequency_hz
-        )
+        xml, materials = write_scene(tmp, blocks, box, rt_config.frequency_hz)
         job = RadioMapJob(str(xml), tuple(map(tuple, sources.tolist())), center, size, spec.grid_m)
         seconds = {"raytrace": 0.0, "direct": 0.0}
 

@@ -108,7 +108,7 @@ def fill_smooth(
     for c, f in zip(coarse, factors, strict=True):
         live |= _expand(c, f, shape) > 0
     known = fine > 0
-    value = np.where(known, np.log(np.where(known, fine * d2, 1.0)), 0.0)  # log of the gain relative to free space
+    value = log_relative_gain(fine, d2)
     gap = live & ~known
     _walk_fronts(value, known, gap, np.broadcast_to(open_cells, fine.shape), sum(shape))
     relative = np.where(known, np.exp(value), 0.0)
@@ -117,6 +117,13 @@ def fill_smooth(
         known |= relative > 0
     out = np.where(fine > 0, fine, np.where(live, relative / d2, 0.0))  # hit cells exactly as traced
     return _to_parent_level(out, fine, coarse, factors)
+
+
+def log_relative_gain(fine: np.ndarray, d2: np.ndarray) -> np.ndarray:
+    """The natural log of each hit cell's gain relative to free space (gain x ``d2``, the squared user-to-cell
+    distance), where a walk from the hit cells starts; 0 where no ray hit (``fine`` == 0)."""
+    known = fine > 0
+    return np.where(known, np.log(np.where(known, fine * d2, 1.0)), 0.0)
 
 
 def _walk_fronts(
@@ -218,7 +225,7 @@ def fill_geodesic(
        metre walked. Beyond that, cells stay unreached, as InSite leaves them.
     """
     known = fine > 0
-    value = np.where(known, np.log(np.where(known, fine * d2, 1.0)), 0.0)  # log of the gain relative to free space
+    value = log_relative_gain(fine, d2)
     spread = np.broadcast_to(open_cells, fine.shape)
     step_ln = decay_db_per_m * cell_m * np.log(10) / 10
     _walk_fronts(value, known, spread, spread, int(reach_m // cell_m + 1e-9), step_ln)

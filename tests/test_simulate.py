@@ -263,6 +263,19 @@ def test_walk_fronts_record_the_cells_walked_around_a_wall():
     assert front[1, 3] == 0 and not known[1, 3]  # the wall itself is never reached
 
 
+def test_the_receiver_plane_has_a_cell_around_each_grid_point():
+    """``ReceiverGrid.plane``: the box, centre and size of the cells the ray tracer measures, each grid point the
+    centre of its cell (the cell-centre maths of ``RadioMapJob.cell_centres`` gives the grid's points back)."""
+    from uavplace.simulate.insite import ReceiverGrid
+    from uavplace.simulate.raytrace import RadioMapJob
+
+    grid = ReceiverGrid(x0_m=2.0, y0_m=6.0, z_m=10.0, num_x=3, num_y=2, spacing_m=4.0)
+    box, centre, size = grid.plane()
+    assert box == (0.0, 4.0, 12.0, 12.0) and centre == (6.0, 8.0, 10.0) and size == (12.0, 8.0)
+    job = RadioMapJob("unused.xml", ((0.0, 0.0, 1.5),), centre, size, grid.spacing_m)
+    np.testing.assert_allclose(job.cell_centres(), grid.points())
+
+
 def _simulate(tmp_path, *args: str, quiet: bool = True) -> subprocess.CompletedProcess:
     cmd = [
         *UAVDATA,
