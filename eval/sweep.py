@@ -32,7 +32,7 @@ from pydantic import Field, ValidationError, field_validator, model_validator
 
 from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.cities import development_cities
-from uavplace.eval.metrics import bootstrap_table
+from uavplace.eval.metrics import bootstrap_table, difference_table
 from uavplace.eval.report import ReportConfig, evaluate, load_agent
 from uavplace.rl.agent.dqn import DQNConfig, parse_settings, preset_config
 from uavplace.rl.policies import GeniePolicy
@@ -280,11 +280,14 @@ def validation_table(
     seed: int = 0,
     release: bool = False,
     on_progress: Callable[[str, int, int], None] | None = None,
+    played: dict[str, dict[str, pd.DataFrame]] | None = None,
 ) -> pd.DataFrame:
     """Every agent folder on ``cities`` (default: every built validation city; a test city only with ``release``),
     each city's episodes played by all of them and the genie (``eval.report.evaluate``). One row per agent: its
     settings, the validation that chose its ``best.pt``, its wall time, and per city the success and median steps
-    with 95 % intervals over users then episodes, and the ratio of its median to the genie's."""
+    with 95 % intervals over users then episodes, and the ratio of its median to the genie's. ``played``, when
+    given, receives each city's episodes (city -> the folder's name, or the genie's -> ``run_episodes`` frame), for
+    paired differences."""
     cities = development_cities(cities, root, release=release)
     agents = [load_agent(folder, 0.096, seed) for folder in folders]
     for a in agents:  # the folders' names tell agents of one preset apart
@@ -304,6 +307,8 @@ def validation_table(
     for city in cities:
         config = ReportConfig(dataset=city, episodes=episodes, t_max=500, seed=seed, trajectories=0)
         results = evaluate(config, load_bundle(city, root=root), agents, baselines=[GeniePolicy()], on_progress=on_progress)
+        if played is not None:
+            played[city] = results
         table = bootstrap_table(results, seed=seed).set_index("method")
         genie = table.loc[GeniePolicy.name, "median_steps"]
         for a in agents:
@@ -312,6 +317,15 @@ def validation_table(
                                                                      "median_steps_lo", "median_steps_hi")}  # fmt: skip
             rows[a.name][f"{city} x genie"] = float(r["median_steps"] / max(genie, 1))
     return pd.DataFrame(list(rows.values())).assign(cities=", ".join(cities))
+
+
+def paired_differences(played: dict[str, dict[str, pd.DataFrame]], against: str, seed: int) -> dict[str, pd.DataFrame]:
+    """Per city, then for the cities pooled (when more than one), every run minus ``against`` (the genie left out)."""
+    runs = [name for name in next(iter(played.values())) if name != GeniePolicy.name]
+    by_city = dict(played)
+    if len(played) > 1:
+        by_city[f"{len(played)} cities pooled"] = {r: pd.concat([p[r] for p in played.values()], ignore_index=True) for r in runs}
+    return {city: difference_table({r: results[r] for r in runs}, [against], seed=seed) for city, results in by_city.items()}
 
 
 def markdown(table: pd.DataFrame, t_max: int = 500) -> str:

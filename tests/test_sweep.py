@@ -57,7 +57,7 @@ def test_sweep_trains_resumes_and_tables(tmp_path, root):
     """Two trials and their ensemble: each trial a normal run folder (the config `uavrl train` makes from the same
     options), a trial stopped before the sweep is continued, not restarted; the table plays every run on the
     validation city; a second call trains nothing."""
-    from uavplace.eval.sweep import read_spec
+    from uavplace.eval.sweep import paired_differences, read_spec, validation_table
     from uavplace.rl.agent.train import Trainer, read_run_json
 
     spec_file = tmp_path / "tiny.toml"
@@ -82,6 +82,20 @@ def test_sweep_trains_resumes_and_tables(tmp_path, root):
     assert "| t-e01 |" in (out / "sweep.md").read_text() and (out / "sweep.toml").read_text() == TINY
     res = CliRunner().invoke(uavrl, args)
     assert res.exit_code == 0 and "2 trials, 2 finished before" in res.output and "training" not in res.output
+
+    # The table's episodes, kept for paired differences: a run minus another on the same episodes.
+    played = {}
+    again = validation_table([out / "t-s0", out / "t-s1"], None, root=root, episodes=40, played=played)
+    assert list(played) == ["tiny-val"] and set(played["tiny-val"]) == {"t-s0", "t-s1", "genie"}
+    frames = played["tiny-val"]
+    assert again.set_index("run").loc["t-s1", "tiny-val success"] == pytest.approx(frames["t-s1"]["success"].mean())
+    diffs = paired_differences(played, "t-s0", seed=0)
+    assert list(diffs) == ["tiny-val"]  # one city: nothing pooled
+    row = diffs["tiny-val"].set_index("stat").loc["success"]
+    assert row["method"] == "t-s1" and row["against"] == "t-s0" and row["lo"] <= row["difference"] <= row["hi"]
+    assert row["difference"] == pytest.approx(frames["t-s1"]["success"].mean() - frames["t-s0"]["success"].mean())
+    pooled = paired_differences({"a": frames, "b": frames}, "t-s0", seed=0)["2 cities pooled"].set_index("stat")
+    assert pooled.loc["success", "difference"] == pytest.approx(row["difference"])  # the same episodes twice
 
 
 @pytest.mark.parametrize(
