@@ -75,7 +75,7 @@ def main() -> None:
             if args.legacy:
                 env = agent.config.env_config(evaluation=True).model_copy(update={"t_max": config.t_max, "split": None})
                 maps = MapSet([bundle], env)
-                episodes = MapSet([bundle], base).sample_episodes(config.episodes, np.random.default_rng(config.seed))
+                episodes = MapSet([bundle], base).episode_list(config.episodes, config.seed)
                 net = make_network(agent.config, env.num_channels, env.window)
                 net.load_state_dict(load_tensors(agent.folder / "checkpoints" / "best.pt")["online"])
                 t0 = time.perf_counter()

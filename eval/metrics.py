@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from uavplace.rl.rollout import STATS, WITHIN, format_stat
+from uavplace.rl.rollout import STATS, WITHIN, format_stat, spl_terms
 
 __all__ = ["STATS", "bootstrap_table", "difference_table", "ecdf", "format_stat", "group_tables", "resample_counts",
            "weighted_stats"]  # fmt: skip
@@ -71,6 +71,7 @@ def weighted_stats(steps: np.ndarray, success: np.ndarray, genie_steps: np.ndarr
         "steps_over_genie": _weighted_quantile(ratio, w, 0.5),
         "medians_ratio": _weighted_quantile(to_target, w, 0.5)
         / np.maximum(_weighted_quantile(np.asarray(genie_steps, np.float64), w, 0.5), 1),
+        "spl": (w * spl_terms(steps, ok, genie_steps)).sum(axis=1) / total,
         "mean_steps_success": mean_ok,
     }
 

@@ -38,6 +38,15 @@ from uavplace.rl.config import EnvConfig
 from uavplace.rl.maps import MapSet
 from uavplace.rl.policies import GeniePolicy, GreedyPolicy, Policy, RandomWalkPolicy
 from uavplace.rl.rollout import run_episodes, summarise
+from uavplace.rl.searcher import (
+    DEFAULT_PREDICTOR,
+    PREDICTIONS,
+    SEARCHER,
+    MapSearchPolicy,
+    PredictionCache,
+    SearchConfig,
+    load_constants,
+)
 from uavplace.schemas import InputError
 from uavplace.schemas.base import MAX_SEED, Contract, uavplace_version
 from uavplace.schemas.files import atomic_directory, atomic_write_text, check_replaceable
@@ -75,6 +84,14 @@ class ReportConfig(Contract):
     groups: dict[str, list[str]] = Field(
         default_factory=dict,
         description="Methods made of several runs (a preset's seeds): name -> run folders, each also one of ``runs``",
+    )
+    predictor: str | None = Field(
+        default=str(DEFAULT_PREDICTOR),
+        description="The map searcher's predictor constants (rl.searcher; None: no searcher is played)",
+    )
+    search: SearchConfig = Field(default_factory=SearchConfig, description="The map searcher's settings")
+    prediction_cache: str | None = Field(
+        default=None, description="Folder of the searcher's predicted maps (None: .predictions beside the bundles)"
     )
 
 
@@ -183,7 +200,7 @@ def evaluate(
     base = EnvConfig(t_max=config.t_max, p_t_db=config.p_t_db, split=config.split, rotate=False)
     maps = {"": MapSet([bundle], base)}
     if episodes is None:
-        episodes = maps[""].sample_episodes(config.episodes, np.random.default_rng(config.seed))  # as `uavrl baselines`
+        episodes = maps[""].episode_list(config.episodes, config.seed)  # as `uavrl baselines`
     elif not maps[""].can_start(episodes).all():
         raise ValueError("evaluate: an episode given does not start on a start cell of this city")
     shown = shown_method(agents)
@@ -199,7 +216,9 @@ def evaluate(
             if seen is not None:
                 seen(maps[key])
         methods.append((a.name, a.policy, maps[key]))
-    methods += [(p.name, p, maps[""]) for p in (baseline_policies(config, base) if baselines is None else baselines)]
+    if baselines is None:
+        baselines = baseline_policies(config, base, cache=config.prediction_cache or bundle.path.parent.parent / PREDICTIONS)
+    methods += [(p.name, p, maps[""]) for p in baselines]
     names = [m[0] for m in methods]
     if len(set(names)) != len(names):
         raise ValueError(f"two methods share a name: {names}")
@@ -211,9 +230,17 @@ def evaluate(
     return results
 
 
-def baseline_policies(config: ReportConfig, env: EnvConfig) -> list[Policy]:
-    """The genie, the steered random walk and greedy hill-climbing, seeded as the report is (their names are the table's)."""
-    return [GeniePolicy(), RandomWalkPolicy(seed=config.seed), GreedyPolicy(env.p_h_db, seed=config.seed)]
+def baseline_policies(config: ReportConfig, env: EnvConfig, cache: str | Path | None = None) -> list[Policy]:
+    """The genie, the steered random walk and greedy hill-climbing, seeded as the report is (their names are the
+    table's); then, with ``config.predictor``, the map searcher and its ablation shown no building (``rl.searcher``), their
+    predicted maps kept in ``cache`` (None: not on disk)."""
+    out: list[Policy] = [GeniePolicy(), RandomWalkPolicy(seed=config.seed), GreedyPolicy(env.p_h_db, seed=config.seed)]
+    if config.predictor is not None:
+        constants = load_constants(config.predictor)
+        cache = PredictionCache(cache)
+        for buildings in (True, False):
+            out.append(MapSearchPolicy(constants, config.search.model_copy(update={"buildings": buildings}), cache))
+    return out
 
 
 def results_table(results: dict[str, pd.DataFrame], config: ReportConfig) -> pd.DataFrame:
@@ -226,10 +253,11 @@ def results_table(results: dict[str, pd.DataFrame], config: ReportConfig) -> pd.
 
 
 def references(methods: list[str]) -> list[str]:
-    """What every method is compared with, in order: the paper's blind agent (the baseline of the paper's claim) and
-    the genie (the bound)."""
+    """What every method is compared with, in order: the paper's blind agent (the baseline of the paper's claim), the
+    genie (the bound), the shipped best learner and the map searcher (its ablation's cost is the difference)."""
     blind = [m for m in methods if m.startswith("blind ") and m.endswith("(paper)")]
-    return blind + [m for m in methods if m == "genie"]
+    best = [m for m in methods if m.endswith("(best)") and not m.startswith("blind ")]
+    return blind + [m for m in methods if m == "genie"] + best + [m for m in methods if m == SEARCHER]
 
 
 def difference_rows(differences: pd.DataFrame, t_max: int) -> list[list[str]]:
@@ -860,7 +888,7 @@ def summary_rows(reports: list[Report], t_max: int) -> list[list[str]]:
 
 
 #: The columns of ``summary.csv`` taken from each report's table.
-SUMMARY_STATS = ("success", "median_steps", "steps_over_genie", "medians_ratio")
+SUMMARY_STATS = ("success", "median_steps", "steps_over_genie", "medians_ratio", "spl")
 
 
 def summary_frame(reports: list[Report]) -> pd.DataFrame:

@@ -65,7 +65,6 @@ def baselines(
     datasets: tuple[str, ...], episodes: int, t_max: int, p_t_db: float, split: str | None, seed: int, root: Path
 ) -> None:
     """Play the genie, the steered random walk and greedy hill-climbing on the same episodes; print a table per city."""
-    import numpy as np
     from rich.progress import Progress
 
     from uavplace.rl.config import EnvConfig
@@ -76,7 +75,7 @@ def baselines(
     config = EnvConfig(t_max=t_max, p_t_db=p_t_db, split=split, rotate=False)
     for dataset in datasets:  # one table per city: cities are never pooled
         maps = MapSet.load(dataset, config, root=str(root))
-        eps = maps.sample_episodes(episodes, np.random.default_rng(seed))
+        eps = maps.episode_list(episodes, seed)
         title = f"{dataset}: {episodes} episodes, t_max {t_max}, P_T {p_t_db:g} dB" + (f", {split} users" if split else "")
         table = plain_table("method", *STATS.values(), title=title)
         with Progress(console=stdout(), transient=True) as progress:
@@ -285,3 +284,38 @@ def ensemble(runs: tuple[Path, ...], out: Path, root: Path, quiet: bool) -> None
                              on_progress=lambda done, total: bar.update(task, completed=done, total=total))  # fmt: skip
     stdout().print(f"wrote {out}: {len(runs)} runs; validation {100 * row['success']:.1f} % success, median "
                    f"{row['median_steps']:g} steps", highlight=False, soft_wrap=True)  # fmt: skip
+
+
+@click.command("fit-predictor")
+@click.option("--dataset", "datasets", multiple=True, required=True, help="Training city to fit on (repeatable); a city "
+              "with a declared role gives its train users only.")  # fmt: skip
+@click.option("--val-dataset", "val_datasets", multiple=True, help="Validation city whose users' maps score the fit "
+              "(repeatable): median and p90 |error| [dB], dead/live agreement.")  # fmt: skip
+@click.option(
+    "--out", type=click.Path(dir_okay=False, path_type=Path), default=Path("data/agents/searcher/predictor.json"),
+    show_default=True, help="The constants' JSON file (written atomically; a regular file or absent).",
+)  # fmt: skip
+@root_option
+def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out: Path, root: Path) -> None:
+    """Fit the map searcher's radio-map predictor (rl/predictor.py: free space, walls crossed and Deygout's knife
+    edges on the straight path) on the users of training cities, and score it on validation cities' users."""
+    from uavplace.dataset.bundle import load_bundle
+    from uavplace.rl.predictor import fit_constants, prediction_scores
+    from uavplace.schemas.files import atomic_write_text, check_replaceable_file
+
+    check_replaceable_file(out)
+    bundles = [load_bundle(name, root=root) for name in datasets]
+    users = [b.user_indices("train") if b.manifest.config.role else b.user_indices() for b in bundles]
+    t0 = time.perf_counter()
+    constants = fit_constants(bundles, users)
+    table = plain_table("city", "users", "median |error| [dB]", "p90 |error| [dB]", "dead/live agreement")
+    for name in val_datasets:
+        b = load_bundle(name, root=root)
+        s = prediction_scores(b, b.user_indices(), constants)
+        table.add_row(name, str(b.num_users), f"{s['median_error_db']:.1f}", f"{s['p90_error_db']:.1f}",
+                      f"{100 * s['dead_live_agreement']:.1f} %")  # fmt: skip
+    atomic_write_text(out, constants.model_dump_json(indent=2) + "\n")
+    if val_datasets:
+        stdout().print(table)
+    stdout().print(f"wrote {out}: fitted on {sum(map(len, users))} users of {len(bundles)} cities in "
+                   f"{time.perf_counter() - t0:.0f} s; error std {constants.error_db:.1f} dB", highlight=False, soft_wrap=True)  # fmt: skip

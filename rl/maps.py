@@ -20,7 +20,7 @@ import numpy as np
 from uavplace.dataset.bundle import Bundle, load_bundle
 from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target, valid_starts
 from uavplace.rl.config import EnvConfig
-from uavplace.rl.randomness import stream_key
+from uavplace.rl.randomness import stream_key, uniforms
 from uavplace.schemas import InputError
 from uavplace.schemas.files import in_corpus
 
@@ -225,6 +225,30 @@ class MapSet:
             flat_steps = self.steps.reshape(len(self.steps), -1)
             farther = flat_steps[view, self.start_cells[other]] > flat_steps[view, self.start_cells[pick]]
             pick = np.where(far & farther, other, pick)
+        y, x = np.divmod(self.start_cells[pick], self.side)
+        return np.stack([view, y, x], axis=1)
+
+    def episode_list(self, n: int, seed: int, rotate: bool | None = None) -> np.ndarray:
+        """``[n, 3]`` episode specs like ``sample_episodes``'s, episode ``i`` drawn from its own uniforms (``seed`` and
+        ``i`` hashed, ``rl.randomness``): the first ``m`` of a list of ``n`` are the list of ``m``, so any prefix of an
+        evaluation plays as in the full one. Drawn as ``sample_episodes`` draws (scenario, symmetry, start cell, the
+        farther of two starts with ``config.far_starts``)."""
+        self.sample_episodes(0, np.random.default_rng(0))  # the same refusal when no user can start
+        rotate = self.config.rotate if rotate is None else rotate
+        u = uniforms(stream_key("episode list", seed), np.arange(n, dtype=np.uint64), np.zeros(n, np.int64), 5)
+        if self.start_p is None:
+            scen = self.startable[np.minimum((u[:, 0] * len(self.startable)).astype(np.int64), len(self.startable) - 1)]
+        else:
+            scen = self.startable[np.minimum(np.searchsorted(np.cumsum(self.start_p), u[:, 0], side="right"), len(self.startable) - 1)]  # fmt: skip
+        S = self.symmetries
+        k = np.minimum((u[:, 1] * S).astype(np.int64), S - 1) if rotate else np.zeros(n, np.int64)
+        view = S * scen + k
+        pick = self.start_offset[view] + np.floor(u[:, 2] * self.start_count[view]).astype(np.int64)
+        if self.config.far_starts > 0:
+            other = self.start_offset[view] + np.floor(u[:, 3] * self.start_count[view]).astype(np.int64)
+            flat_steps = self.steps.reshape(len(self.steps), -1)
+            farther = flat_steps[view, self.start_cells[other]] > flat_steps[view, self.start_cells[pick]]
+            pick = np.where((u[:, 4] < self.config.far_starts) & farther, other, pick)
         y, x = np.divmod(self.start_cells[pick], self.side)
         return np.stack([view, y, x], axis=1)
 

@@ -2,9 +2,10 @@
 
 Every policy, learned or not, has the same interface (the evaluator scores any of them
 the same way): ``reset(rows)`` when episodes (re)start in those rows, and
-``act(obs, mask, env) -> [N] actions``. Only the genie reads ``env``'s hidden state;
-the others use what an agent may know (the observation, the legal-move mask, their
-own past moves). Their random choices are drawn per episode and step from a stream of
+``act(obs, mask, env) -> [N] actions``. Only a privileged policy (``privileged = True``: the genie)
+receives the environment itself; every other policy receives an ``rl.view.AgentView`` (``rl.rollout``
+hands it over): the observation, the legal-move mask, the UAV's own measurements and the building
+map, never a user's map. Their random choices are drawn per episode and step from a stream of
 their own name and seed (``episode_draws``), never from a generator shared across episodes.
 """
 
@@ -48,6 +49,7 @@ class GeniePolicy:
     """Knows the SINR everywhere: moves along a shortest legal path to the nearest target cell (BFS)."""
 
     name = "genie"
+    privileged = True  # reads every user's map: receives the env itself
 
     def reset(self, rows: np.ndarray, num_envs: int) -> None:
         pass

@@ -10,6 +10,7 @@ import pandas as pd
 from uavplace.rl.maps import MOVES, MapSet
 from uavplace.rl.policies import Policy
 from uavplace.rl.vec_env import BatchedEnv
+from uavplace.rl.view import view_for
 
 
 def run_episodes(
@@ -52,7 +53,7 @@ def run_episodes(
     follow(np.arange(env.num_envs))
     finished = 0
     while finished < k:
-        actions = policy.act(obs, info["action_mask"], env)
+        actions = policy.act(obs, info["action_mask"], view_for(policy, env))
         live = ~env.exhausted
         ids = env.episode_id.copy()
         moved = env.pos.copy()
@@ -120,6 +121,7 @@ STATS = {
     "within_100": "solved within 100 steps",
     "steps_over_genie": "median of per-episode steps / genie",
     "medians_ratio": "median steps / median genie steps (paper's ratio)",
+    "spl": "SPL (success x genie steps / max(steps, genie steps), mean)",
     "mean_steps_success": "mean steps of its own successes (unpaired)",
 }
 #: The statistics that are ratios to the genie (infinite: the median episode failed, not a step count).
@@ -134,7 +136,9 @@ def episode_stats(steps: np.ndarray, success: np.ndarray, genie_steps: np.ndarra
     ``success`` rate; ``median_steps`` and ``p75_steps`` of steps to P_T with failures infinite;
     ``within_100``: share of episodes solved within 100 steps; ``steps_over_genie``: median of steps /
     genie steps per episode (infinite for failures); ``medians_ratio``: the median steps over the genie's median
-    steps (the paper's way of comparing; infinite when the median is a failure); ``mean_steps_success``: the mean over the method's
+    steps (the paper's way of comparing; infinite when the median is a failure); ``spl``: success weighted by path
+    length (Anderson et al. 2018, "On evaluation of embodied navigation agents"), the mean over episodes of
+    ``success * genie / max(steps, genie)``, the genie's steps as the shortest path; ``mean_steps_success``: the mean over the method's
     own successes (nan without any), so two methods' values average different episodes. Quantiles are
     order statistics (``inverted_cdf``), so a quantile that falls on a failure is inf.
     """
@@ -152,14 +156,26 @@ def episode_stats(steps: np.ndarray, success: np.ndarray, genie_steps: np.ndarra
         "steps_over_genie": np.quantile(ratio, 0.5, axis=-1, method="inverted_cdf"),
         "medians_ratio": np.quantile(to_target, 0.5, axis=-1, method="inverted_cdf")
         / np.maximum(np.quantile(genie_steps, 0.5, axis=-1, method="inverted_cdf"), 1),
+        "spl": spl_terms(steps, ok, genie_steps).mean(axis=-1),
         "mean_steps_success": mean_ok,
     }
+
+
+def spl_terms(steps: np.ndarray, success: np.ndarray, genie_steps: np.ndarray) -> np.ndarray:
+    """Each episode's term of SPL: ``success * genie / max(steps, genie)`` (1 for a success in the genie's steps; a
+    start on a target, genie 0, counts 1 when reached). Shapes broadcast."""
+    genie = np.asarray(genie_steps, np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.where(genie > 0, genie / np.maximum(np.maximum(steps, genie), 1), 1.0)
+    return np.where(np.asarray(success, bool), ratio, 0.0)
 
 
 def format_stat(stat: str, value: float, lo: float | None = None, hi: float | None = None, t_max: int | None = None) -> str:
     """A table cell: percentages for shares, ``> t_max`` (``> 500`` with ``t_max``) for infinite steps, ``[lo, hi]``
     when given."""
     share = stat in ("success", "within_100")
+    if stat == "spl":
+        return f"{value:.3f}" + (f" [{lo:.3f}, {hi:.3f}]" if lo is not None and hi is not None else "")
     beyond = "> t_max" if t_max is None else f"> {t_max}"
 
     def one(v: float) -> str:

@@ -81,6 +81,7 @@ class BatchedEnv:
         self.pos = np.zeros((n, 2), np.int64)
         self.t = np.zeros(n, np.int64)
         self.episode_id = np.full(n, -1, np.int64)
+        self.start = np.zeros((n, 2), np.int64)  # each episode's start cell in its view's map (canvas less the pad)
         self.exhausted = np.zeros(n, bool)
         self.memory = np.zeros((n, L, L), np.float32)
         self.visits = np.zeros((n, L, L), np.uint16)  # times this episode stood in each canvas cell (the start counted)
@@ -113,7 +114,7 @@ class BatchedEnv:
         """Names of the arrays that hold the episodes' state: with the episode counter and the generator, what a
         checkpoint keeps to continue exactly."""
         return (
-            ("view", "pos", "t", "episode_id", "memory", "visits")
+            ("view", "pos", "t", "episode_id", "start", "memory", "visits")
             + (("best_sinr", "best_pos") if self.config.homing_channel else ())
             + (("context_memory", "context_seen") if self.config.context_zoom else ())
         )
@@ -161,6 +162,7 @@ class BatchedEnv:
         self.view[idx], self.pos[idx, 0], self.pos[idx, 1] = view, y, x
         self.t[idx] = 0
         self.episode_id[idx] = ids
+        self.start[idx, 0], self.start[idx, 1] = y - self.maps.pad, x - self.maps.pad
         self.exhausted[idx] = ids < 0
         self.memory[idx] = self.maps.memory0[view]
         self.visits[idx] = 0
@@ -227,9 +229,10 @@ class BatchedEnv:
         return self.maps.steps[self.view[:, None], ny, nx] < self.genie_steps()[:, None]
 
     def episode_keys(self) -> np.ndarray:
-        """[N] uint64: each row's episode, as ``rl.randomness`` keys it: its map (bundle version, user, symmetry) and its
-        number in the evaluation's list (``episode_id``; in training, the count of episodes started)."""
-        return combine(self.maps.view_keys[self.view], self.episode_id)
+        """[N] uint64: each row's episode, as ``rl.randomness`` keys it: by what it is, its map (bundle version, user,
+        symmetry) and its start cell in that map, never by its place in a list. An episode plays the same in any
+        list, at any batch size and whatever window pads the canvas; two episodes of one user and start are one."""
+        return combine(self.maps.view_keys[self.view], self.start[:, 0] * self.maps.side + self.start[:, 1])
 
     def info(self) -> dict:
         return {"action_mask": self.action_mask(), "episode_id": self.episode_id.copy(), "view": self.view.copy()}

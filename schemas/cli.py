@@ -257,6 +257,7 @@ uavdata.help = uavdata.help.format(noise=EMBEDDED_NOISE_DBM)
         "baselines": "uavplace.rl.cli:baselines",
         "train": "uavplace.rl.cli:train",
         "ensemble": "uavplace.rl.cli:ensemble",
+        "fit-predictor": "uavplace.rl.cli:fit_predictor",
         "report": "uavplace.eval.cli:report",
         "sweep": "uavplace.eval.cli:sweep",
     },

@@ -144,6 +144,14 @@ def exclusive_folder(final: str | Path, what: str) -> Iterator[None]:
         os.close(fd)
 
 
+def check_replaceable_file(final: str | Path) -> None:
+    """Refuse (``InputError``) an output file path that exists and is not a regular file (a folder, a device, a FIFO, a
+    socket, a link): only a regular file or nothing is ever replaced."""
+    final = Path(final)
+    if final.is_symlink() or (final.exists() and not final.is_file()):
+        raise InputError(final, "exists and is not a regular file: refusing to replace it")
+
+
 def check_replaceable(final: str | Path, marker: str, what: str) -> None:
     """Refuse (``InputError``) if ``final`` exists and is not an empty folder or a ``what`` uavplace made.
 

@@ -91,3 +91,27 @@ def test_agents_read_only_what_they_measured(tiny):
     episodes = maps.sample_episodes(4 * EPISODES, np.random.default_rng(1))
     _, changed = _replay(maps, GeniePolicy(), episodes, np.random.default_rng(2))
     assert any(changed), "the genie reads the whole map: scrambling it must change some episode"
+
+
+def test_report_methods_read_only_what_they_measured(tiny):
+    """Every method the report plays beside the agents, but the genie (privileged), receives only the UAV's view
+    (``rl.view.AgentView``) and moves the same when the user's map is scrambled off its route: the random walk, greedy
+    hill-climbing, the map searcher and its ablation."""
+    from uavplace.eval.report import ReportConfig, baseline_policies
+    from uavplace.rl.config import EnvConfig
+    from uavplace.rl.view import AgentView, view_for
+
+    env = EnvConfig(t_max=T_MAX, rotate=False)
+    maps = MapSet.load("tiny", env, root=str(tiny))
+    policies = [p for p in baseline_policies(ReportConfig(dataset="tiny"), env) if not getattr(p, "privileged", False)]
+    assert {"map searcher", "map searcher, no buildings", "greedy hill-climbing"} <= {p.name for p in policies}
+    episodes = maps.episode_list(EPISODES, 1)
+    for policy in policies:
+        same, _ = _replay(maps, policy, episodes, np.random.default_rng(3))
+        assert all(same), f"{policy.name}: moves changed when cells it never visited changed ({same})"
+    from uavplace.rl.vec_env import BatchedEnv
+
+    batch = BatchedEnv(maps, 2)
+    batch.reset(0)
+    view = view_for(policies[0], batch)
+    assert isinstance(view, AgentView) and not any(v is maps or v is batch for v in vars(view).values())

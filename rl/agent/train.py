@@ -426,6 +426,9 @@ class Trainer:
             with np.load(last / "env.npz", allow_pickle=False) as z:
                 for k in self.env.state_arrays:
                     # A checkpoint from before the env counted visits holds which cells were visited: once each.
+                    if k == "start" and k not in z:  # from before episodes were keyed by their start: where they stand
+                        getattr(self.env, k)[...] = z["pos"] - self.env.maps.pad
+                        continue
                     getattr(self.env, k)[...] = z["visited"] if k == "visits" and k not in z else z[k]
                 self.state.last_action, self.state.start_sinr = z["last_action"], z["start_sinr"]
             self.env.check_state(last / "env.npz")

@@ -1,0 +1,68 @@
+"""The map searcher on validation cities: the report's methods that matter to it, paired on the same episodes.
+
+Per validation city (never a test city: this is where the searcher's settings are chosen): the genie, the shipped
+``best``, the map searcher (rl/searcher.py) and its ablation shown open ground, on the episodes ``uavrl report``
+draws; success, median steps, ratio to the genie's median and SPL with 95 % intervals over users then episodes, and
+the searcher's and its ablation's paired differences against ``best`` and against the searcher. Settings of the
+searcher as ``--set name=value`` (``SearchConfig`` fields).
+
+    python benchmarks/searcher_validation.py [--city oldtown-005] [--episodes 300] [--set temper=0.3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from uavplace.dataset.bundle import load_bundle
+from uavplace.eval.metrics import bootstrap_table, difference_table
+from uavplace.eval.report import ReportConfig, evaluate, load_agent, markdown_table
+from uavplace.rl.policies import GeniePolicy
+from uavplace.rl.searcher import SEARCHER, MapSearchPolicy, PredictionCache, SearchConfig, load_constants
+
+VALIDATION = ("corpus-016", "corpus-017", "oldtown-005", "etoile-val", "florence-val")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument(
+        "--city", action="append", default=None, help=f"Validation city (repeatable; default: {', '.join(VALIDATION)})"
+    )
+    ap.add_argument("--episodes", type=int, default=300)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--agent", type=Path, default=Path("data/agents/best"))
+    ap.add_argument("--set", action="append", default=[], help="A SearchConfig field, name=value (JSON value)")
+    ap.add_argument("--root", type=Path, default=Path("data/processed"))
+    args = ap.parse_args()
+    settings = {k: json.loads(v) for k, v in (s.split("=", 1) for s in args.set)}
+    search = SearchConfig(**settings)
+    constants, cache = load_constants(), PredictionCache(args.root / ".predictions")
+    agent = load_agent(args.agent, epsilon=0.096, seed=args.seed)
+    print(f"searcher settings: {search.model_dump()}")
+    for city in args.city or VALIDATION:
+        bundle = load_bundle(city, root=args.root)
+        if bundle.manifest.config.role == "test":
+            ap.error(f"{city} is a test city: release numbers come from `uavrl report`, never a choice")
+        config = ReportConfig(dataset=city, episodes=args.episodes, seed=args.seed, predictor=None)
+        policies = [GeniePolicy()] + [
+            MapSearchPolicy(constants, search.model_copy(update={"buildings": b}), cache) for b in (True, False)
+        ]
+        results = evaluate(config, bundle, [agent], baselines=policies)
+        table = bootstrap_table(results, n_boot=1000, seed=args.seed)
+        rows = [["method", "success", "median steps", "median / genie's", "SPL"]]
+        for r in table.to_dict("records"):
+            rows.append([r["method"], f"{100 * r['success']:.1f} % [{100 * r['success_lo']:.1f}, {100 * r['success_hi']:.1f}]",
+                         f"{r['median_steps']:g} [{r['median_steps_lo']:g}, {r['median_steps_hi']:g}]",
+                         f"{r['medians_ratio']:.2f}", f"{r['spl']:.3f}"])  # fmt: skip
+        print(f"\n{city} ({args.episodes} episodes)\n" + markdown_table(rows))
+        diffs = difference_table(results, [agent.name, SEARCHER], n_boot=1000, seed=args.seed)
+        for d in diffs.to_dict("records"):
+            if d["method"].startswith(SEARCHER) or d["against"] == SEARCHER:
+                scale = 100 if d["stat"] == "success" else 1
+                print(f"  {d['method']} - {d['against']}, {d['stat']}: {scale * d['difference']:+.1f} "
+                      f"[{scale * d['lo']:+.1f}, {scale * d['hi']:+.1f}]")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,310 @@
+"""A searcher that uses the map: a belief over where the user is, from predicted radio maps, and a planner.
+
+For each canvas it flies over (a city under a symmetry), the searcher predicts the SINR map of a user at every
+*candidate* cell (open ground on a lattice of ``stride`` cells; with ``buildings=False`` every lattice cell, the
+predictor shown open ground: the map ablation) with ``rl.predictor`` (``CandidateMaps``). Each row keeps a belief,
+the log-probability of each candidate, uniform at the start. After every measurement ``m`` at cell ``x``:
+
+- ``m`` above the SINR floor: ``log b += temper * log[(1 - p_dead) N(m; mu_c(x), sigma)]``;
+- ``m`` at the floor (dead, or live and below it): censored, ``log b += temper * log[p_dead + (1 - p_dead)
+  Phi((floor - mu_c(x)) / sigma)]``,
+
+with ``mu_c(x)`` the predicted SINR, ``p_dead`` the predictor's dead-cell probability and ``sigma`` its measured
+error. ``temper`` < 1 makes up for the errors of one candidate's map being alike from cell to cell. The planner then
+scores each unvisited legal cell ``x'`` by the posterior probability that it reaches P_T, ``P(x') = sum_c b_c (1 -
+p_dead) Phi((mu_c(x') - P_T) / sigma)``, discounted by ``exp(-d(x, x') / reach)`` with ``d`` the fewest legal moves
+from the UAV, and moves one cell along a shortest path to the best; it plans again at every step.
+
+It reads only what the UAV knows (an ``rl.view.AgentView``): its position, its own measurements and the public
+maps. The predicted maps of a canvas are computed once and kept on disk (``PredictionCache``), keyed by the bundle
+version, the symmetry, the candidate lattice, the blanked map and the predictor's version.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from collections import OrderedDict
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from pydantic import Field, ValidationError
+from scipy import sparse
+from scipy.sparse.csgraph import shortest_path
+from scipy.special import ndtr
+
+from uavplace.rl.maps import MOVES
+from uavplace.rl.predictor import PhysicsConstants, Scene, dead_probability, predict_sinr
+from uavplace.rl.view import AgentView, PublicMaps
+from uavplace.schemas import InputError
+from uavplace.schemas.base import Contract, validation_message
+from uavplace.schemas.files import atomic_write_bytes
+
+#: Where the shipped predictor's constants live.
+DEFAULT_PREDICTOR = Path("data/agents/searcher/predictor.json")
+#: The span of SINR [dB] over which the likelihood's flat share is spread.
+OUTLIER_SPAN_DB = 100.0
+#: The searcher's name in tables (its ablation's: SEARCHER + ", no buildings").
+SEARCHER = "map searcher"
+#: The folder of cached predicted maps beside the bundles (safe to delete: they are made again on demand).
+PREDICTIONS = ".predictions"
+
+
+class SearchConfig(Contract):
+    """The searcher's settings (chosen on validation cities)."""
+
+    stride: int = Field(default=2, ge=1, le=16, description="Candidate user cells on a lattice of this many cells")
+    temper: float = Field(default=0.5, gt=0, le=1, description="Exponent of each measurement's likelihood")
+    reach_cells: float = Field(default=12.0, gt=0, description="Distance over which a cell's score falls by e [cells]")
+    buildings: bool = Field(default=True, description="Predict with the city's buildings (False: open ground, the ablation)")
+    min_sigma_db: float = Field(default=3.0, gt=0, description="Least spread of the likelihood [dB]")
+    outlier: float = Field(
+        default=0.1,
+        ge=0,
+        lt=1,
+        description="Share of the likelihood that is flat: one measurement the predictor "
+        "got wrong lowers a candidate, never rules it out",
+    )
+
+
+@dataclass(frozen=True)
+class CandidateMaps:
+    """One canvas's predictions: ``cells`` [C, 2] candidate cells ``(iy, ix)`` of the (transformed) map, ``legal``
+    [M, 2] the map cells the UAV may enter, ``index`` [num_y, num_x] a legal cell's column (-1 elsewhere), ``mu``
+    [C, M] float32 predicted SINR [dB], ``p_dead`` [C, M] float32, ``cover`` [C, M] float32 the probability of
+    reaching P_T."""
+
+    cells: np.ndarray
+    legal: np.ndarray
+    index: np.ndarray
+    mu: np.ndarray
+    p_dead: np.ndarray
+    cover: np.ndarray
+
+
+def candidate_cells(ground_height_m: np.ndarray, stride: int, buildings: bool) -> np.ndarray:
+    """``[C, 2]`` candidate user cells: the lattice of ``stride`` cells (offset to the middle of the first block),
+    open ground only when ``buildings``."""
+    ny, nx = ground_height_m.shape
+    o = stride // 2
+    yy, xx = np.mgrid[o:ny:stride, o:nx:stride]
+    cells = np.stack([yy.ravel(), xx.ravel()], axis=1)
+    if buildings:
+        cells = cells[ground_height_m[cells[:, 0], cells[:, 1]] <= 0]
+    return cells
+
+
+class PredictionCache:
+    """Predicted maps on disk, one ``.npz`` per canvas, named by the hash of everything they depend on."""
+
+    def __init__(self, folder: str | Path | None) -> None:
+        self.folder = None if folder is None else Path(folder)
+
+    def path(self, key: str) -> Path | None:
+        return None if self.folder is None else self.folder / f"{key}.npz"
+
+    def load(self, key: str) -> np.ndarray | None:
+        path = self.path(key)
+        if path is None or not path.is_file():
+            return None
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                return z["mu"]
+        except (OSError, ValueError, KeyError):
+            return None  # a damaged cache file is made again
+
+    def save(self, key: str, mu: np.ndarray) -> None:
+        path = self.path(key)
+        if path is None:
+            return
+        path.parent.mkdir(parents=True, exist_ok=True)
+        buf = io.BytesIO()
+        np.savez(buf, mu=mu)
+        atomic_write_bytes(path, buf.getvalue())
+
+
+def predict_candidates(scene: Scene, constants: PhysicsConstants, cells: np.ndarray, legal: np.ndarray) -> np.ndarray:
+    """``[C, M]`` float16 predicted SINR of a user at each of ``cells`` [C, 2] at the ``legal`` [M, 2] UAV cells."""
+    out = np.empty((len(cells), len(legal)), np.float16)
+    for i, (iy, ix) in enumerate(cells):
+        out[i] = predict_sinr(scene, constants, (int(iy), int(ix)), legal)
+    return out
+
+
+class MapSearchPolicy:
+    """The searcher of the module's docstring as an ``rl.policies.Policy``."""
+
+    def __init__(
+        self,
+        constants: PhysicsConstants,
+        config: SearchConfig | None = None,
+        cache: PredictionCache | None = None,
+        name: str | None = None,
+    ) -> None:
+        self.constants = constants
+        self.config = config or SearchConfig()
+        self.cache = cache or PredictionCache(None)
+        self.name = name or (SEARCHER if self.config.buildings else SEARCHER + ", no buildings")
+        self._canvases: dict[tuple, CandidateMaps] = {}
+        self._graphs: dict[tuple, sparse.csr_matrix] = {}
+        self._paths: OrderedDict[tuple, tuple[np.ndarray, np.ndarray]] = OrderedDict()
+        self.belief: list[np.ndarray | None] = []
+        self.belief_canvas = np.zeros(0, np.int64)
+        self.started = np.zeros(0, bool)
+
+    # -- predictions -----------------------------------------------------------------------------
+    def canvas_maps(self, public: PublicMaps, canvas: int) -> CandidateMaps:
+        settings = public.settings[public.bundle_of(canvas)]
+        key = (settings["version"], public.symmetry_of(canvas), public.config.p_t_db)
+        if key in self._canvases:
+            return self._canvases[key]
+        cfg, k = self.config, public.symmetry_of(canvas)
+        heights = public.map_heights(canvas)
+        if not cfg.buildings:
+            heights = np.full_like(heights, -settings["altitude_m"])
+        scene = scene_of(settings, heights)
+        cells = candidate_cells(scene.ground_height_m, cfg.stride, cfg.buildings)
+        legal_map = public.legal(canvas)
+        legal = np.argwhere(legal_map)
+        index = np.full(legal_map.shape, -1, np.int64)
+        index[legal[:, 0], legal[:, 1]] = np.arange(len(legal))
+        cache_key = "-".join(
+            [settings["version"], f"k{k}", f"s{cfg.stride}", "b" if cfg.buildings else "open", self.constants.version()]
+        )
+        mu = self.cache.load(cache_key)
+        if mu is None or mu.shape != (len(cells), len(legal)):
+            mu = predict_candidates(scene, self.constants, cells, legal)
+            self.cache.save(cache_key, mu)
+        mu = mu.astype(np.float32)
+        p_dead = dead_probability(mu, self.constants)
+        sigma = max(self.constants.error_db, self.config.min_sigma_db)
+        cover = ((1 - p_dead) * ndtr((mu - public.config.p_t_db) / sigma)).astype(np.float32)
+        out = self._canvases[key] = CandidateMaps(cells, legal, index, mu, p_dead, cover)
+        return out
+
+    def _graph(self, public: PublicMaps, canvas: int, maps: CandidateMaps) -> sparse.csr_matrix:
+        key = (public.settings[public.bundle_of(canvas)]["version"], public.symmetry_of(canvas))
+        if key not in self._graphs:
+            idx, legal = maps.index, maps.legal
+            rows, cols = [], []
+            for dy, dx in MOVES:
+                ny, nx = legal[:, 0] + dy, legal[:, 1] + dx
+                ok = (ny >= 0) & (ny < idx.shape[0]) & (nx >= 0) & (nx < idx.shape[1])
+                j = np.full(len(legal), -1)
+                j[ok] = idx[ny[ok], nx[ok]]
+                keep = j >= 0
+                rows.append(np.flatnonzero(keep))
+                cols.append(j[keep])
+            r, c = np.concatenate(rows), np.concatenate(cols)
+            self._graphs[key] = sparse.csr_matrix((np.ones(len(r), np.float32), (r, c)), shape=(len(legal), len(legal)))
+        return self._graphs[key]
+
+    def _from(self, public: PublicMaps, canvas: int, maps: CandidateMaps, cell: int) -> tuple[np.ndarray, np.ndarray]:
+        """(distances [M] in moves, predecessors [M]) of the shortest legal paths from legal cell ``cell``; kept for
+        the most recent 4096 cells."""
+        key = (canvas, cell, public.settings[public.bundle_of(canvas)]["version"])
+        hit = self._paths.get(key)
+        if hit is not None:
+            self._paths.move_to_end(key)
+            return hit
+        d, pred = shortest_path(self._graph(public, canvas, maps), unweighted=True, indices=cell, return_predecessors=True)
+        hit = (d.astype(np.float32), pred.astype(np.int32))
+        self._paths[key] = hit
+        if len(self._paths) > 4096:
+            self._paths.popitem(last=False)
+        return hit
+
+    # -- the policy --------------------------------------------------------------------------------
+    def reset(self, rows: np.ndarray, num_envs: int) -> None:
+        if len(self.belief) != num_envs:
+            self.belief = [None] * num_envs
+            self.belief_canvas = np.full(num_envs, -1, np.int64)
+        for r in np.asarray(rows, np.int64):
+            self.belief[r] = None
+
+    def update(self, maps: CandidateMaps, log_b: np.ndarray, column: int, measured: float, floor_db: float) -> np.ndarray:
+        """``log_b`` [C] after measuring ``measured`` [dB] at legal cell ``column`` (the module's likelihood)."""
+        mu, p_dead = maps.mu[:, column], maps.p_dead[:, column]
+        sigma = max(self.constants.error_db, self.config.min_sigma_db)
+        eps = self.config.outlier
+        if measured <= floor_db + 1e-3:  # censored: the probability of a value at or below the floor
+            like = (1 - eps) * (p_dead + (1 - p_dead) * ndtr((floor_db - mu) / sigma)) + eps
+        else:  # a density over dB; the flat part spreads its share over OUTLIER_SPAN_DB
+            z = (measured - mu) / sigma
+            like = (1 - eps) * (1 - p_dead) * np.exp(-0.5 * z * z) / (sigma * math.sqrt(2 * math.pi)) + eps / OUTLIER_SPAN_DB
+        out = log_b + self.config.temper * np.log(like + 1e-30)
+        return out - out.max()
+
+    def act(self, obs: np.ndarray, mask: np.ndarray, env: AgentView) -> np.ndarray:
+        n = len(mask)
+        if len(self.belief) != n:
+            self.reset(np.arange(n), n)
+        public = env.public
+        pos, t, canvas = env.pos, env.t, env.canvas
+        measured, visits = env.measured(), env.visits
+        actions = np.zeros(n, np.int64)
+        p = public.pad
+        for r in range(n):
+            if env.exhausted[r] or not mask[r].any():
+                continue
+            c = int(canvas[r])
+            maps = self.canvas_maps(public, c)
+            here = int(maps.index[pos[r, 0] - p, pos[r, 1] - p])
+            floor_db = float(public.settings[public.bundle_of(c)]["floor_db"])
+            if self.belief[r] is None or t[r] == 0 or self.belief_canvas[r] != c:
+                log_b = np.zeros(len(maps.cells), np.float32)
+                # Every cell measured so far (at t = 0 the start), as the memory holds it.
+                seen = np.argwhere(visits[r] > 0)
+                for y, x in seen:
+                    log_b = self.update(maps, log_b, int(maps.index[y - p, x - p]), float(env.memory[r, y, x]), floor_db)
+                self.belief_canvas[r] = c
+            else:
+                log_b = self.update(maps, self.belief[r], here, float(measured[r]), floor_db)
+            self.belief[r] = log_b
+            b = np.exp(log_b)
+            b /= b.sum()
+            score = b @ maps.cover  # [M] the posterior probability of reaching P_T
+            dist, pred = self._from(public, c, maps, here)
+            seen_cells = visits[r, maps.legal[:, 0] + p, maps.legal[:, 1] + p] > 0
+            score = np.where(seen_cells | ~np.isfinite(dist), -1.0, score * np.exp(-dist / self.config.reach_cells))
+            target = int(np.argmax(score))
+            if target == here or score[target] < 0:
+                actions[r] = int(np.argmax(mask[r]))
+                continue
+            step = target  # walk back from the target to the cell next to the UAV
+            while pred[step] != here and pred[step] >= 0:
+                step = int(pred[step])
+            dy, dx = maps.legal[step] - maps.legal[here]
+            move = np.flatnonzero((MOVES[:, 0] == dy) & (MOVES[:, 1] == dx))
+            actions[r] = int(move[0]) if len(move) and mask[r, move[0]] else int(np.argmax(mask[r]))
+        return actions
+
+
+def scene_of(settings: dict, heights_rel_m: np.ndarray) -> Scene:
+    """The predictor's ``Scene`` from a canvas's public settings (``rl.view.public_settings``) and heights."""
+    return Scene(
+        ground_height_m=np.maximum(np.asarray(heights_rel_m, np.float32) + np.float32(settings["altitude_m"]), 0).astype(
+            np.float32
+        ),
+        spacing_m=float(settings["spacing_m"]),
+        altitude_m=float(settings["altitude_m"]),
+        frequency_hz=float(settings["frequency_hz"] or 8e8),
+        tx_power_dbm=float(settings["tx_power_dbm"] if settings["tx_power_dbm"] is not None else 20.0),
+        noise_dbm=float(settings["noise_dbm"] if settings["noise_dbm"] is not None else -104.0),
+        floor_db=float(settings["floor_db"]),
+    )
+
+
+def load_constants(path: str | Path = DEFAULT_PREDICTOR) -> PhysicsConstants:
+    """The predictor's constants from their JSON file (``InputError`` naming it when unreadable or invalid)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "not a file: the predictor's constants (`uavrl fit-predictor` writes them)")
+    if path.stat().st_size > 1 << 20:
+        raise InputError(path, "over 1 MiB: not a predictor's constants")
+    try:
+        return PhysicsConstants.model_validate_json(path.read_bytes())
+    except ValidationError as exc:
+        where, message = validation_message(exc)
+        raise InputError(path, message, field=where) from None

@@ -1,0 +1,170 @@
+"""What a policy may read: the UAV's own knowledge, apart from the environment that also holds the users' maps.
+
+``BatchedEnv`` holds every user's SINR map, dead cells and the genie's distances. A policy other than the genie
+and the oracles receives an ``AgentView`` instead (``view_for``): per row, the UAV's position, the step, its own
+measurements (the SINR memory and the visit counts), the key of its episode's random draws, and the ``PublicMaps``
+of the canvas it flies over (the buildings, the grid and the bundle's public settings). Nothing in it leads back to
+a user's map: the view holds no reference to the env or its ``MapSet``, and which canvas a row flies over
+(``canvas``) names a city under a symmetry, not a user.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from uavplace.dataset.bundle import Bundle
+from uavplace.rl.config import EnvConfig
+from uavplace.rl.maps import MOVES, MapSet, transform
+
+
+@dataclass(frozen=True)
+class PublicMaps:
+    """The canvases of a ``MapSet`` as the UAV knows them: one per bundle and symmetry (``canvas = S * bundle + k``).
+
+    ``height`` [num_canvases, L, L] (building height minus altitude, clipped), ``blocked`` [num_canvases, L, L] (the
+    UAV may not enter; beyond the edge too), ``shapes`` [num_canvases, 2] (the transformed map's ``(num_y, num_x)``),
+    ``pad`` (the map's offset on the canvas), ``symmetries`` and per bundle its public settings (``bundle_heights``:
+    the untransformed ``height_rel_m``, ``settings``: grid spacing, altitude, noise, floor, transmit power, carrier,
+    version)."""
+
+    height: np.ndarray
+    blocked: np.ndarray
+    shapes: np.ndarray
+    pad: int
+    symmetries: int
+    config: EnvConfig
+    settings: tuple[dict, ...]
+    bundle_heights: tuple[np.ndarray, ...]
+
+    @classmethod
+    def of(cls, maps: MapSet) -> PublicMaps:
+        return cls(
+            height=maps.height,
+            blocked=maps.blocked,
+            shapes=maps.shapes,
+            pad=maps.pad,
+            symmetries=maps.symmetries,
+            config=maps.config,
+            settings=tuple(public_settings(b) for b in maps.bundles),
+            bundle_heights=tuple(b.height_rel_m for b in maps.bundles),
+        )
+
+    def bundle_of(self, canvas: int) -> int:
+        return canvas // self.symmetries
+
+    def symmetry_of(self, canvas: int) -> int:
+        return canvas % self.symmetries
+
+    def map_heights(self, canvas: int) -> np.ndarray:
+        """``[num_y, num_x]`` the canvas's building heights minus altitude (unclipped), under its symmetry."""
+        return transform(self.bundle_heights[self.bundle_of(canvas)], self.symmetry_of(canvas))
+
+    def legal(self, canvas: int) -> np.ndarray:
+        """``[num_y, num_x]`` bool: the map cells the UAV may enter, under the canvas's symmetry."""
+        ny, nx = self.shapes[canvas]
+        p = self.pad
+        return ~self.blocked[canvas, p : p + ny, p : p + nx]
+
+
+def public_settings(bundle: Bundle) -> dict:
+    """A bundle's settings that every UAV of the system knows: none is a user's position or map."""
+    sinr = bundle.manifest.sinr
+    freqs = bundle.users["frequency_hz"].dropna().unique()
+    return {
+        "city": bundle.city,
+        "version": bundle.version,
+        "spacing_m": bundle.spacing_m,
+        "altitude_m": bundle.altitude_m,
+        "noise_dbm": sinr.noise_dbm,
+        "floor_db": sinr.floor_db,
+        "tx_power_dbm": sinr.tx_power_dbm[0] if sinr.tx_power_dbm else None,
+        "frequency_hz": float(freqs[0]) if len(freqs) else None,
+    }
+
+
+class AgentView:
+    """The rows of a ``BatchedEnv`` as their UAVs know them at one step (see the module's docstring): made anew for
+    every ``act``. Arrays are read-only; ``pos`` and the memory are canvas cells ``(y, x)``."""
+
+    def __init__(self, env: object, public: PublicMaps) -> None:
+        self.public = public
+        self.config: EnvConfig = public.config
+        self._pos = env.pos
+        self._t = env.t
+        self._memory = env.memory
+        self._visits = env.visits
+        self._exhausted = env.exhausted
+        # Values, not the env's methods: nothing here leads back to the env (a bound method would, by __self__).
+        self._canvas = env.maps.view_map[env.view]  # a city under a symmetry, not a user
+        self._keys = env.episode_keys()
+
+    @property
+    def num_envs(self) -> int:
+        return len(self._pos)
+
+    @property
+    def pos(self) -> np.ndarray:
+        """[N, 2] canvas cells of the UAVs."""
+        return _frozen(self._pos)
+
+    @property
+    def t(self) -> np.ndarray:
+        """[N] moves made in each episode."""
+        return _frozen(self._t)
+
+    @property
+    def memory(self) -> np.ndarray:
+        """[N, L, L] the SINR measured at visited canvas cells (``P_H`` elsewhere, ``P_L`` at known blocked cells)."""
+        return _frozen(self._memory)
+
+    @property
+    def visits(self) -> np.ndarray:
+        """[N, L, L] times each episode stood in each canvas cell."""
+        return _frozen(self._visits)
+
+    @property
+    def exhausted(self) -> np.ndarray:
+        """[N] bool: rows of an evaluation with no episode left to play."""
+        return _frozen(self._exhausted)
+
+    @property
+    def canvas(self) -> np.ndarray:
+        """[N] the canvas each row flies over (``PublicMaps``: a bundle under a symmetry)."""
+        return _frozen(self._canvas)
+
+    def measured(self) -> np.ndarray:
+        """[N] the SINR each UAV measured where it stands [dB]."""
+        rows = np.arange(self.num_envs)
+        return self._memory[rows, self._pos[:, 0], self._pos[:, 1]]
+
+    def episode_keys(self) -> np.ndarray:
+        """[N] uint64: the keys of the rows' episodes for per-episode draws (``rl.randomness``)."""
+        return _frozen(self._keys)
+
+    def neighbours(self) -> tuple[np.ndarray, np.ndarray]:
+        """Canvas ``(y, x)`` of the 4 cells the actions lead to, each ``[N, 4]``."""
+        return self._pos[:, None, 0] + MOVES[None, :, 0], self._pos[:, None, 1] + MOVES[None, :, 1]
+
+    def neighbour_visits(self) -> np.ndarray:
+        """``[N, 4]``: how often this episode has stood in the cell each move leads to."""
+        ny, nx = self.neighbours()
+        return self._visits[np.arange(self.num_envs)[:, None], ny, nx]
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    v = a.view()
+    v.flags.writeable = False
+    return v
+
+
+def view_for(policy: object, env: object) -> object:
+    """What ``policy`` receives as ``env`` in ``act``: the env itself for a privileged policy (the genie, the oracles:
+    ``privileged = True``), else an ``AgentView`` of it."""
+    if getattr(policy, "privileged", False):
+        return env
+    public = getattr(env, "_public", None)
+    if public is None or public[0] is not env.maps:
+        env._public = public = (env.maps, PublicMaps.of(env.maps))
+    return AgentView(env, public[1])

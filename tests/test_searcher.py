@@ -1,0 +1,137 @@
+"""The map searcher: its predictor against a closed-form knife edge, its belief against Bayes by brute force, the
+episodes named by what they are, and SPL."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.special import fresnel
+
+from tests.conftest import REPO
+from uavplace.dataset.build import build_city
+from uavplace.ingest.pipeline import ingest_city
+from uavplace.rl.config import EnvConfig
+from uavplace.rl.maps import MapSet
+from uavplace.rl.policies import RandomWalkPolicy
+from uavplace.rl.predictor import PhysicsConstants, Scene, fresnel_nu, knife_edge_db, path_features
+from uavplace.rl.rollout import episode_stats, run_episodes
+from uavplace.rl.searcher import MapSearchPolicy, SearchConfig, load_constants
+from uavplace.schemas import InputError
+from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM, BuildConfig
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    root = tmp_path_factory.mktemp("search")
+    ingest_city(REPO / "data" / "raw" / "tiny", root)
+    build_city("tiny", BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=EMBEDDED_NOISE_DBM), root)
+    return root
+
+
+def exact_knife_edge_db(nu: float) -> float:
+    """The knife edge's loss from the Fresnel integrals: -20 log10 |F(nu)|, |F| = |(1 + j) / 2 int_nu^inf
+    exp(-j pi t^2 / 2) dt| (ITU-R P.526-15, eq. 27)."""
+    s, c = fresnel(nu)
+    return -20 * math.log10(math.sqrt(0.5) * math.hypot(0.5 - c, 0.5 - s))
+
+
+@pytest.mark.parametrize("nu", [-0.5, 0.0, 0.7, 2.0, 5.0])
+def test_knife_edge_approximation_is_the_fresnel_integral(nu):
+    assert abs(float(knife_edge_db(np.array([nu]))[0]) - exact_knife_edge_db(nu)) < 0.6
+
+
+def test_one_screen_costs_its_knife_edge():
+    """A wall across open ground between the user and the UAV: the profile's loss is that one edge's, from the
+    geometry in closed form (height above the straight path, distances to the ends)."""
+    ny, nx, spacing = 5, 41, 4.0
+    heights = np.zeros((ny, nx), np.float32)
+    heights[:, 20] = 14.0  # a 14 m wall at x = 80 m
+    scene = Scene(heights, spacing, 10.0, 8e8, 20.0, -75.0, -40.0)
+    f = path_features(scene, (2, 0), 1.5, np.array([[2, 40]]))
+    length = math.hypot(40 * spacing, 8.5)
+    s = 20 / 40  # the wall's cell is halfway
+    h = 14.0 - (1.5 + s * 8.5)
+    nu = float(fresnel_nu(np.float32(h), np.float32(s * length), np.float32((1 - s) * length), scene.wavelength_m))
+    assert f["walls"][0] == 1
+    assert f["diffraction_db"][0] == pytest.approx(exact_knife_edge_db(nu), abs=1.0)
+    open_ground = path_features(Scene(np.zeros_like(heights), spacing, 10.0, 8e8, 20.0, -75.0, -40.0), (2, 0), 1.5,
+                                np.array([[2, 40]]))  # fmt: skip
+    assert open_ground["walls"][0] == 0 and open_ground["diffraction_db"][0] == 0
+
+
+def _constants() -> PhysicsConstants:
+    return PhysicsConstants(intercept_db=-20, log_d_db=-23, wall_db=-9, diffraction_weight=0.1, dead_level_db=-13,
+                            dead_scale_db=4, error_db=10)  # fmt: skip
+
+
+def test_belief_is_bayes_by_brute_force(tiny):
+    """The searcher's belief after a few measurements, one update at a time, equals the posterior computed at once:
+    the product over measurements of each candidate's likelihood (censored at the floor), tempered, normalised."""
+    maps = MapSet.load("tiny", EnvConfig(t_max=50), root=str(tiny))
+    policy = MapSearchPolicy(_constants(), SearchConfig(stride=1, temper=0.7, outlier=0.05))
+    from uavplace.rl.view import PublicMaps
+
+    public = PublicMaps.of(maps)
+    cm = policy.canvas_maps(public, 0)
+    rng = np.random.default_rng(0)
+    columns = rng.choice(len(cm.legal), 6, replace=False)
+    floor = public.settings[0]["floor_db"]
+    measured = [floor, 12.0, -3.5, floor, 30.0, 0.0]
+    log_b = np.zeros(len(cm.cells), np.float32)
+    for col, m in zip(columns, measured, strict=True):
+        log_b = policy.update(cm, log_b, int(col), m, floor)
+    got = np.exp(log_b - log_b.max())
+    got /= got.sum()
+    sigma, eps = policy.constants.error_db, 0.05
+    total = np.zeros(len(cm.cells))
+    for col, m in zip(columns, measured, strict=True):
+        for c in range(len(cm.cells)):
+            mu = float(cm.mu[c, col])
+            dead = 1 / (1 + math.exp((mu + 13) / 4))
+            if m <= floor:
+                like = dead + (1 - dead) * 0.5 * math.erfc(-(floor - mu) / sigma / math.sqrt(2))
+                like = (1 - eps) * like + eps
+            else:
+                density = math.exp(-0.5 * ((m - mu) / sigma) ** 2) / (sigma * math.sqrt(2 * math.pi))
+                like = (1 - eps) * (1 - dead) * density + eps / 100.0
+            total[c] += 0.7 * math.log(like)
+    want = np.exp(total - total.max())
+    want /= want.sum()
+    np.testing.assert_allclose(got, want, atol=2e-4)
+
+
+def test_searcher_finds_users_of_the_tiny_city(tiny):
+    maps = MapSet.load("tiny", EnvConfig(t_max=100), root=str(tiny))
+    episodes = maps.episode_list(20, 0)
+    df = run_episodes(maps, MapSearchPolicy(_constants()), episodes, num_envs=8)
+    assert df["success"].mean() >= 0.9
+
+
+def test_episode_lists_are_prefixes_and_episodes_play_alike_anywhere(tiny):
+    maps = MapSet.load("tiny", EnvConfig(t_max=40), root=str(tiny))
+    long, short = maps.episode_list(30, 3), maps.episode_list(10, 3)
+    np.testing.assert_array_equal(long[:10], short)
+    assert not np.array_equal(maps.episode_list(10, 4), short)
+    walk = RandomWalkPolicy(seed=1)
+    ahead = run_episodes(maps, walk, long, num_envs=7, record=np.arange(30))
+    back = run_episodes(maps, walk, long[::-1].copy(), num_envs=3, record=np.arange(30))
+    for k in range(30):  # episode k of one list is episode 29 - k of the other: the same moves
+        np.testing.assert_array_equal(ahead.attrs["paths"][k], back.attrs["paths"][29 - k])
+
+
+def test_spl_known_answer():
+    steps = np.array([10, 30, 500, 4])
+    success = np.array([True, True, False, True])
+    genie = np.array([10, 10, 7, 8])  # the last one: reached in fewer steps than the genie's count (a start on a target)
+    stats = episode_stats(steps, success, genie)
+    assert stats["spl"] == pytest.approx((1 + 1 / 3 + 0 + 1) / 4)
+
+
+def test_bad_predictor_file_is_refused(tmp_path):
+    bad = tmp_path / "predictor.json"
+    bad.write_text('{"intercept_db": "high"}')
+    with pytest.raises(InputError, match="predictor.json"):
+        load_constants(bad)
+    assert load_constants(REPO / "data" / "agents" / "searcher" / "predictor.json").error_db > 0
