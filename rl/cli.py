@@ -78,6 +78,7 @@ def baselines(
         eps = maps.episode_list(episodes, seed)
         title = f"{dataset}: {episodes} episodes, t_max {t_max}, P_T {p_t_db:g} dB" + (f", {split} users" if split else "")
         table = plain_table("method", *STATS.values(), title=title)
+        table.columns[0].no_wrap = True  # the method's name whole; the statistics' headers wrap in a narrow terminal
         with Progress(console=stdout(), transient=True) as progress:
             for policy in (GeniePolicy(), RandomWalkPolicy(seed=seed), GreedyPolicy(config.p_h_db, seed=seed)):
                 task = progress.add_task(f"{dataset} {policy.name}", total=episodes)
