@@ -73,22 +73,33 @@ class Scene:
         return C_M_S / self.frequency_hz
 
     @classmethod
-    def of(cls, bundle: Bundle, heights_rel_m: np.ndarray | None = None) -> Scene:
-        """The scene of ``bundle``; ``heights_rel_m`` [num_y, num_x] (the bundle's ``height_rel_m`` by default) replaces
-        its buildings, e.g. by open ground (``-altitude`` everywhere) for the map ablation. The carrier is the users'
-        (one for all; a public setting of the system, not a position), the power and noise the manifest's."""
-        rel = bundle.height_rel_m if heights_rel_m is None else heights_rel_m
-        freqs = bundle.users["frequency_hz"].dropna().unique()
-        sinr = bundle.manifest.sinr
+    def from_settings(cls, settings: dict, heights_rel_m: np.ndarray) -> Scene:
+        """The scene of a city's public settings (``rl.view.public_settings``) over heights ``heights_rel_m`` [num_y,
+        num_x] (building height minus altitude; ``-altitude`` everywhere is open ground, the map ablation). Settings a
+        bundle leaves open take the paper's: 800 MHz, 20 dBm, -104 dBm."""
+
+        def given(name: str, default: float) -> float:
+            return float(default if settings[name] is None else settings[name])
+
+        altitude = float(settings["altitude_m"])
+        ground = np.maximum(np.asarray(heights_rel_m, np.float32) + np.float32(altitude), 0).astype(np.float32)
         return cls(
-            ground_height_m=np.maximum(np.asarray(rel, np.float32) + np.float32(bundle.altitude_m), 0).astype(np.float32),
-            spacing_m=bundle.spacing_m,
-            altitude_m=bundle.altitude_m,
-            frequency_hz=float(freqs[0]) if len(freqs) else 8e8,
-            tx_power_dbm=float(sinr.tx_power_dbm[0]) if sinr.tx_power_dbm else 20.0,
-            noise_dbm=float(sinr.noise_dbm) if sinr.noise_dbm is not None else -104.0,
-            floor_db=float(sinr.floor_db),
+            ground_height_m=ground,
+            spacing_m=float(settings["spacing_m"]),
+            altitude_m=altitude,
+            frequency_hz=given("frequency_hz", 8e8),
+            tx_power_dbm=given("tx_power_dbm", 20.0),
+            noise_dbm=given("noise_dbm", -104.0),
+            floor_db=float(settings["floor_db"]),
         )
+
+    @classmethod
+    def of(cls, bundle: Bundle) -> Scene:
+        """The scene of ``bundle`` with its buildings: its public settings (the carrier the users', one for all; the
+        power and noise the manifest's)."""
+        from uavplace.rl.view import public_settings
+
+        return cls.from_settings(public_settings(bundle), bundle.height_rel_m)
 
 
 def path_features(scene: Scene, user: tuple[int, int], user_height_m: float, cells: np.ndarray | None = None) -> dict:

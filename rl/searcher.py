@@ -163,7 +163,7 @@ class MapSearchPolicy:
         heights = public.map_heights(canvas)
         if not cfg.buildings:
             heights = np.full_like(heights, -settings["altitude_m"])
-        scene = scene_of(settings, heights)
+        scene = Scene.from_settings(settings, heights)
         cells = candidate_cells(scene.ground_height_m, cfg.stride, cfg.buildings)
         legal_map = public.legal(canvas)
         legal = np.argwhere(legal_map)
@@ -279,21 +279,6 @@ class MapSearchPolicy:
             move = np.flatnonzero((MOVES[:, 0] == dy) & (MOVES[:, 1] == dx))
             actions[r] = int(move[0]) if len(move) and mask[r, move[0]] else int(np.argmax(mask[r]))
         return actions
-
-
-def scene_of(settings: dict, heights_rel_m: np.ndarray) -> Scene:
-    """The predictor's ``Scene`` from a canvas's public settings (``rl.view.public_settings``) and heights."""
-    return Scene(
-        ground_height_m=np.maximum(np.asarray(heights_rel_m, np.float32) + np.float32(settings["altitude_m"]), 0).astype(
-            np.float32
-        ),
-        spacing_m=float(settings["spacing_m"]),
-        altitude_m=float(settings["altitude_m"]),
-        frequency_hz=float(settings["frequency_hz"] or 8e8),
-        tx_power_dbm=float(settings["tx_power_dbm"] if settings["tx_power_dbm"] is not None else 20.0),
-        noise_dbm=float(settings["noise_dbm"] if settings["noise_dbm"] is not None else -104.0),
-        floor_db=float(settings["floor_db"]),
-    )
 
 
 def load_constants(path: str | Path = DEFAULT_PREDICTOR) -> PhysicsConstants:

@@ -86,71 +86,45 @@ def public_settings(bundle: Bundle) -> dict:
 
 class AgentView:
     """The rows of a ``BatchedEnv`` as their UAVs know them at one step (see the module's docstring): made anew for
-    every ``act``. Arrays are read-only; ``pos`` and the memory are canvas cells ``(y, x)``."""
+    every ``act``. Its arrays are read-only views, canvas cells ``(y, x)``:
+
+    - ``pos`` [N, 2] the UAVs' cells; ``t`` [N] moves made in each episode;
+    - ``memory`` [N, L, L] the SINR measured at visited cells (``P_H`` elsewhere, ``P_L`` at known blocked cells);
+    - ``visits`` [N, L, L] times each episode stood in each cell; ``exhausted`` [N] rows of an evaluation with no
+      episode left to play;
+    - ``canvas`` [N] the canvas each row flies over (``PublicMaps``: a bundle under a symmetry, not a user).
+    """
 
     def __init__(self, env: object, public: PublicMaps) -> None:
         self.public = public
         self.config: EnvConfig = public.config
-        self._pos = env.pos
-        self._t = env.t
-        self._memory = env.memory
-        self._visits = env.visits
-        self._exhausted = env.exhausted
+        self.pos, self.t = _frozen(env.pos), _frozen(env.t)
+        self.memory, self.visits = _frozen(env.memory), _frozen(env.visits)
+        self.exhausted = _frozen(env.exhausted)
         # Values, not the env's methods: nothing here leads back to the env (a bound method would, by __self__).
-        self._canvas = env.maps.view_map[env.view]  # a city under a symmetry, not a user
-        self._keys = env.episode_keys()
+        self.canvas = _frozen(env.maps.view_map[env.view])
+        self._keys = _frozen(env.episode_keys())
 
     @property
     def num_envs(self) -> int:
-        return len(self._pos)
-
-    @property
-    def pos(self) -> np.ndarray:
-        """[N, 2] canvas cells of the UAVs."""
-        return _frozen(self._pos)
-
-    @property
-    def t(self) -> np.ndarray:
-        """[N] moves made in each episode."""
-        return _frozen(self._t)
-
-    @property
-    def memory(self) -> np.ndarray:
-        """[N, L, L] the SINR measured at visited canvas cells (``P_H`` elsewhere, ``P_L`` at known blocked cells)."""
-        return _frozen(self._memory)
-
-    @property
-    def visits(self) -> np.ndarray:
-        """[N, L, L] times each episode stood in each canvas cell."""
-        return _frozen(self._visits)
-
-    @property
-    def exhausted(self) -> np.ndarray:
-        """[N] bool: rows of an evaluation with no episode left to play."""
-        return _frozen(self._exhausted)
-
-    @property
-    def canvas(self) -> np.ndarray:
-        """[N] the canvas each row flies over (``PublicMaps``: a bundle under a symmetry)."""
-        return _frozen(self._canvas)
+        return len(self.pos)
 
     def measured(self) -> np.ndarray:
         """[N] the SINR each UAV measured where it stands [dB]."""
-        rows = np.arange(self.num_envs)
-        return self._memory[rows, self._pos[:, 0], self._pos[:, 1]]
+        return self.memory[np.arange(self.num_envs), self.pos[:, 0], self.pos[:, 1]]
 
     def episode_keys(self) -> np.ndarray:
         """[N] uint64: the keys of the rows' episodes for per-episode draws (``rl.randomness``)."""
-        return _frozen(self._keys)
+        return self._keys
 
     def neighbours(self) -> tuple[np.ndarray, np.ndarray]:
         """Canvas ``(y, x)`` of the 4 cells the actions lead to, each ``[N, 4]``."""
-        return self._pos[:, None, 0] + MOVES[None, :, 0], self._pos[:, None, 1] + MOVES[None, :, 1]
+        return self.pos[:, None, 0] + MOVES[None, :, 0], self.pos[:, None, 1] + MOVES[None, :, 1]
 
     def neighbour_visits(self) -> np.ndarray:
         """``[N, 4]``: how often this episode has stood in the cell each move leads to."""
         ny, nx = self.neighbours()
-        return self._visits[np.arange(self.num_envs)[:, None], ny, nx]
+        return self.visits[np.arange(self.num_envs)[:, None], ny, nx]
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:

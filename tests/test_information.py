@@ -12,27 +12,15 @@ from __future__ import annotations
 import copy
 
 import numpy as np
-import pytest
 
 from tests.conftest import REPO
-from uavplace.dataset.build import build_city
 from uavplace.eval.report import default_agents, load_agent
-from uavplace.ingest.pipeline import ingest_city
 from uavplace.rl.maps import MapSet
 from uavplace.rl.policies import GeniePolicy
 from uavplace.rl.rollout import run_episodes
-from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM, BuildConfig
 
 EPISODES = 12
 T_MAX = 60
-
-
-@pytest.fixture(scope="module")
-def tiny(tmp_path_factory):
-    root = tmp_path_factory.mktemp("info")
-    ingest_city(REPO / "data" / "raw" / "tiny", root)
-    build_city("tiny", BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=EMBEDDED_NOISE_DBM), root)
-    return root
 
 
 def _scrambled(maps: MapSet, view: int, keep: np.ndarray, rng: np.random.Generator) -> MapSet:

@@ -10,8 +10,6 @@ import pytest
 from scipy.special import fresnel
 
 from tests.conftest import REPO
-from uavplace.dataset.build import build_city
-from uavplace.ingest.pipeline import ingest_city
 from uavplace.rl.config import EnvConfig
 from uavplace.rl.maps import MapSet
 from uavplace.rl.policies import RandomWalkPolicy
@@ -19,15 +17,6 @@ from uavplace.rl.predictor import PhysicsConstants, Scene, fresnel_nu, knife_edg
 from uavplace.rl.rollout import episode_stats, run_episodes
 from uavplace.rl.searcher import MapSearchPolicy, SearchConfig, load_constants
 from uavplace.schemas import InputError
-from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM, BuildConfig
-
-
-@pytest.fixture(scope="module")
-def tiny(tmp_path_factory):
-    root = tmp_path_factory.mktemp("search")
-    ingest_city(REPO / "data" / "raw" / "tiny", root)
-    build_city("tiny", BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=EMBEDDED_NOISE_DBM), root)
-    return root
 
 
 def exact_knife_edge_db(nu: float) -> float:
