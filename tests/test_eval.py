@@ -183,7 +183,8 @@ def test_report_end_to_end(tmp_path, two_cities):
     for text in ("PQN + GRU (best)", "genie", "steered random walk", "greedy hill-climbing", "paper: success", "cityb", "citya"):
         assert text in page
     table = pd.read_csv(out / "results.csv")
-    assert list(table["method"]) == ["PQN + GRU (best)", "genie", "steered random walk", "greedy hill-climbing"]
+    assert list(table["method"]) == ["PQN + GRU (best)", "genie", "steered random walk", "greedy hill-climbing", "map searcher",
+                                     "map searcher, no buildings"]  # fmt: skip
     assert table.loc[table.method == "genie", "success"].item() == 1.0
     assert (table["success_lo"] <= table["success"]).all() and (table["success"] <= table["success_hi"]).all()
     eps = pd.read_parquet(out / "episodes.parquet")
