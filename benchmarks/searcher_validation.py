@@ -6,22 +6,40 @@ draws; success, median steps, ratio to the genie's median and SPL with 95 % inte
 the searcher's and its ablation's paired differences against ``best`` and against the searcher. Settings of the
 searcher as ``--set name=value`` (``SearchConfig`` fields).
 
-    python benchmarks/searcher_validation.py [--city oldtown-005] [--episodes 300] [--set temper=0.3]
+    python benchmarks/searcher_validation.py [--city oldtown-005] [--episodes 300] [--set temper=0.3] [--quick]
+        [--predictor data/agents/searcher/unet]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import time
 from pathlib import Path
 
 from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.metrics import bootstrap_table, difference_table
 from uavplace.eval.report import ReportConfig, evaluate, load_agent, markdown_table
 from uavplace.rl.policies import GeniePolicy
-from uavplace.rl.searcher import SEARCHER, MapSearchPolicy, PredictionCache, SearchConfig, load_constants
+from uavplace.rl.searcher import (
+    DEFAULT_PREDICTOR,
+    PREDICTIONS,
+    SEARCHER,
+    MapSearchPolicy,
+    PredictionCache,
+    SearchConfig,
+    load_predictor,
+)
 
 VALIDATION = ("corpus-016", "corpus-017", "oldtown-005", "etoile-val", "florence-val")
+
+
+def _value(text: str) -> object:
+    """A ``--set`` value: JSON if it parses (numbers, true), else the text itself (a word such as hyperbolic)."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
 
 
 def main() -> None:
@@ -34,11 +52,13 @@ def main() -> None:
     ap.add_argument("--agent", type=Path, default=Path("data/agents/best"))
     ap.add_argument("--set", action="append", default=[], help="A SearchConfig field, name=value (JSON value)")
     ap.add_argument("--root", type=Path, default=Path("data/processed"))
+    ap.add_argument("--predictor", type=Path, default=DEFAULT_PREDICTOR, help="Constants' JSON or a learned tier's folder")
+    ap.add_argument("--quick", action="store_true", help="The genie and the searcher only (no best, no ablation)")
     args = ap.parse_args()
-    settings = {k: json.loads(v) for k, v in (s.split("=", 1) for s in args.set)}
+    settings = {k: _value(v) for k, v in (s.split("=", 1) for s in args.set)}
     search = SearchConfig(**settings)
-    constants, cache = load_constants(), PredictionCache(args.root / ".predictions")
-    agent = load_agent(args.agent, epsilon=0.096, seed=args.seed)
+    predictor, cache = load_predictor(args.predictor), PredictionCache(args.root / PREDICTIONS)
+    agents = [] if args.quick else [load_agent(args.agent, epsilon=0.096, seed=args.seed)]
     print(f"searcher settings: {search.model_dump()}")
     for city in args.city or VALIDATION:
         bundle = load_bundle(city, root=args.root)
@@ -46,17 +66,20 @@ def main() -> None:
             ap.error(f"{city} is a test city: release numbers come from `uavrl report`, never a choice")
         config = ReportConfig(dataset=city, episodes=args.episodes, seed=args.seed, predictor=None)
         policies = [GeniePolicy()] + [
-            MapSearchPolicy(constants, search.model_copy(update={"buildings": b}), cache) for b in (True, False)
+            MapSearchPolicy(predictor, search.model_copy(update={"buildings": b}), cache)
+            for b in ((True,) if args.quick else (True, False))
         ]
-        results = evaluate(config, bundle, [agent], baselines=policies)
+        t0 = time.perf_counter()
+        results = evaluate(config, bundle, agents, baselines=policies)
+        wall = time.perf_counter() - t0
         table = bootstrap_table(results, n_boot=1000, seed=args.seed)
         rows = [["method", "success", "median steps", "median / genie's", "SPL"]]
         for r in table.to_dict("records"):
             rows.append([r["method"], f"{100 * r['success']:.1f} % [{100 * r['success_lo']:.1f}, {100 * r['success_hi']:.1f}]",
                          f"{r['median_steps']:g} [{r['median_steps_lo']:g}, {r['median_steps_hi']:g}]",
                          f"{r['medians_ratio']:.2f}", f"{r['spl']:.3f}"])  # fmt: skip
-        print(f"\n{city} ({args.episodes} episodes)\n" + markdown_table(rows))
-        diffs = difference_table(results, [agent.name, SEARCHER], n_boot=1000, seed=args.seed)
+        print(f"\n{city} ({args.episodes} episodes, {wall:.0f} s)\n" + markdown_table(rows), flush=True)
+        diffs = difference_table(results, [a.name for a in agents] + [SEARCHER], n_boot=1000, seed=args.seed)
         for d in diffs.to_dict("records"):
             if d["method"].startswith(SEARCHER) or d["against"] == SEARCHER:
                 scale = 100 if d["stat"] == "success" else 1

@@ -113,17 +113,25 @@ from uavplace.schemas.cli import (
     "hill-climbing) holding its cell while its own measurement is at or above P_T (rl/tracking.py, Holding), as a "
     "row '... + hold' after the method as it is.",
 )
+@click.option(
+    "--predictor",
+    default="data/agents/searcher/unet",
+    show_default=True,
+    help="The map searcher's radio-map predictor (rl/searcher.py): a learned tier's folder (`uavrl train-predictor`), "
+    "the physics tier's constants (data/agents/searcher/predictor.json, `uavrl fit-predictor`), or 'none' "
+    "to leave the searcher and its ablation out. Its predicted maps are cached under ROOT/.predictions/.",
+)
 @root_option
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def report(
     runs: tuple[Path, ...], datasets: tuple[str, ...], out: Path | None, episodes: int, t_max: int, p_t_db: float, test_epsilon: float,
     n_boot: int, trajectories: int, split: str | None, seed: int, groups: tuple[str, ...], agents_dir: Path,
-    markdown: Path | None, task: str, horizon: int, hold: bool, root: Path, quiet: bool,
+    markdown: Path | None, task: str, horizon: int, hold: bool, predictor: str, root: Path, quiet: bool,
 ) -> None:  # fmt: skip
     """Evaluate agents and baselines on the same episodes of a test city; write an HTML report, PNGs, CSV and Parquet.
 
-    Methods: every agent, the genie (shortest path, full knowledge), the steered random walk and greedy
-    hill-climbing. Prints the results table (95 % bootstrap intervals in brackets) and the report's path;
+    Methods: every agent, the genie (shortest path, full knowledge), the steered random walk, greedy
+    hill-climbing, and the map searcher with its ablation shown no building (--predictor). Prints the results table (95 % bootstrap intervals in brackets) and the report's path;
     with several cities, one report folder each, then a summary of success and median steps per method and city, and
     one page with every city (OUT/report.html, OUT/summary.csv; OUT defaults to reports/).
 
@@ -164,6 +172,7 @@ def report(
         config = ReportConfig(
             dataset=dataset, runs=[str(r) for r in chosen], episodes=episodes, t_max=t_max, p_t_db=p_t_db,
             test_epsilon=test_epsilon, seed=seed, n_boot=n_boot, trajectories=trajectories, split=split, groups=grouped,
+            predictor=None if predictor.lower() == "none" else predictor,
         )  # fmt: skip
         city = dataset.split("@")[0]
         folder = out if out and len(datasets) == 1 else (out or Path("reports")) / city

@@ -45,7 +45,7 @@ from uavplace.rl.searcher import (
     MapSearchPolicy,
     PredictionCache,
     SearchConfig,
-    load_constants,
+    load_predictor,
 )
 from uavplace.schemas import InputError
 from uavplace.schemas.base import MAX_SEED, Contract, uavplace_version
@@ -87,7 +87,7 @@ class ReportConfig(Contract):
     )
     predictor: str | None = Field(
         default=str(DEFAULT_PREDICTOR),
-        description="The map searcher's predictor constants (rl.searcher; None: no searcher is played)",
+        description="The map searcher's predictor: the physics tier's constants (a JSON file) or a learned tier (a folder; rl.searcher.load_predictor); None: no searcher is played",
     )
     search: SearchConfig = Field(default_factory=SearchConfig, description="The map searcher's settings")
     prediction_cache: str | None = Field(
@@ -236,10 +236,10 @@ def baseline_policies(config: ReportConfig, env: EnvConfig, cache: str | Path | 
     predicted maps kept in ``cache`` (None: not on disk)."""
     out: list[Policy] = [GeniePolicy(), RandomWalkPolicy(seed=config.seed), GreedyPolicy(env.p_h_db, seed=config.seed)]
     if config.predictor is not None:
-        constants = load_constants(config.predictor)
+        predictor = load_predictor(config.predictor)
         cache = PredictionCache(cache)
         for buildings in (True, False):
-            out.append(MapSearchPolicy(constants, config.search.model_copy(update={"buildings": buildings}), cache))
+            out.append(MapSearchPolicy(predictor, config.search.model_copy(update={"buildings": buildings}), cache))
     return out
 
 

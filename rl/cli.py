@@ -301,7 +301,7 @@ def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out:
     """Fit the map searcher's radio-map predictor (rl/predictor.py: free space, walls crossed and Deygout's knife
     edges on the straight path) on the users of training cities, and score it on validation cities' users."""
     from uavplace.dataset.bundle import load_bundle
-    from uavplace.rl.predictor import fit_constants, prediction_scores
+    from uavplace.rl.predictor import PhysicsPredictor, fit_constants, prediction_scores
     from uavplace.schemas.files import atomic_write_text, check_replaceable_file
 
     check_replaceable_file(out)
@@ -312,7 +312,7 @@ def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out:
     table = plain_table("city", "users", "median |error| [dB]", "p90 |error| [dB]", "dead/live agreement")
     for name in val_datasets:
         b = load_bundle(name, root=root)
-        s = prediction_scores(b, b.user_indices(), constants)
+        s = prediction_scores(b, b.user_indices(), PhysicsPredictor(constants))
         table.add_row(name, str(b.num_users), f"{s['median_error_db']:.1f}", f"{s['p90_error_db']:.1f}",
                       f"{100 * s['dead_live_agreement']:.1f} %")  # fmt: skip
     atomic_write_text(out, constants.model_dump_json(indent=2) + "\n")
@@ -320,3 +320,79 @@ def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out:
         stdout().print(table)
     stdout().print(f"wrote {out}: fitted on {sum(map(len, users))} users of {len(bundles)} cities in "
                    f"{time.perf_counter() - t0:.0f} s; error std {constants.error_db:.1f} dB", highlight=False, soft_wrap=True)  # fmt: skip
+
+
+@click.command("train-predictor")
+@click.option("--dataset", "datasets", multiple=True, required=True, help="Training city (repeatable); a city with a "
+              "declared role gives its train users only.")  # fmt: skip
+@click.option("--val-dataset", "val_datasets", multiple=True, help="Validation city whose users' maps score both tiers "
+              "(repeatable): median and p90 |error| [dB], dead/live agreement, ms per map; in model.json and the card.")  # fmt: skip
+@click.option(
+    "--constants", type=click.Path(dir_okay=False, path_type=Path), default=Path("data/agents/searcher/predictor.json"),
+    show_default=True, help="The physics tier the network corrects (`uavrl fit-predictor` writes it).",
+)  # fmt: skip
+@click.option(
+    "--out", type=click.Path(file_okay=False, path_type=Path), default=Path("data/agents/searcher/unet"),
+    show_default=True, help="Folder of model.json, weights.pt and MODEL_CARD.md (replaced whole, or left as it was).",
+)  # fmt: skip
+@click.option("--steps", type=click.IntRange(1, 1_000_000), default=2000, show_default=True, help="Gradient steps.")
+@click.option("--batch", type=click.IntRange(1, 1024), default=16, show_default=True, help="Crops per step.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the initial weights and the crops.")
+@click.option("--threads", type=click.IntRange(1, 256), default=2, show_default=True, help="torch CPU threads.")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+@root_option
+def train_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], constants: Path, out: Path, steps: int,
+                    batch: int, seed: int, threads: int, quiet: bool, root: Path) -> None:  # fmt: skip
+    """Train the map searcher's learned radio-map predictor (rl/learned.py: a U-Net correcting the physics tier)
+    on the users of training cities, score it and the physics tier on validation cities' users, and write it with
+    its model card."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from uavplace.dataset.bundle import load_bundle
+    from uavplace.rl.learned import MODEL_CARD, MODEL_JSON, LearnedPredictor, UNetConfig, model_card, save_learned, train_learned
+    from uavplace.rl.predictor import PhysicsPredictor, prediction_scores
+    from uavplace.rl.searcher import load_constants
+    from uavplace.schemas.cli import command_line
+    from uavplace.schemas.files import atomic_directory
+
+    physics = load_constants(constants)
+    config = UNetConfig(steps=steps, batch=batch, seed=seed, threads=threads)
+    bundles = [load_bundle(name, root=root) for name in datasets]
+    users = [b.user_indices("train") if b.manifest.config.role else b.user_indices() for b in bundles]
+    columns = (TextColumn("[bold]train-predictor[/] loss {task.fields[loss]:.4f}"), BarColumn(), MofNCompleteColumn(),
+               TextColumn("steps"), TimeElapsedColumn())  # fmt: skip
+    lines = not quiet and not stdout().is_terminal  # a log: a plain line every LINE_SECONDS instead of a bar
+    last_line = [time.monotonic()]
+    with Progress(*columns, console=stdout(), disable=quiet or lines) as bar:
+        task = bar.add_task("train", total=steps, loss=float("nan"))
+
+        def on_progress(done: int, loss: float) -> None:
+            bar.update(task, completed=done, loss=loss)
+            now = time.monotonic()
+            if lines and (now - last_line[0] >= LINE_SECONDS or done >= steps):
+                last_line[0] = now
+                stdout().print(f"train-predictor: step {done:,}/{steps:,} loss {loss:.4f}", highlight=False, soft_wrap=True)
+
+        net, facts = train_learned(bundles, users, physics, config, progress=on_progress)
+    fields = {"config": config, "constants": physics, "fitted_on": [f"{b.city}@{b.version}" for b in bundles], **facts}
+    table = plain_table("city", "tier", "median |error| [dB]", "p90 |error| [dB]", "dead/live agreement", "ms per map")
+    with atomic_directory(out, marker=MODEL_JSON, what="learned predictor") as tmp:
+        model = save_learned(tmp, net, fields)
+        learned = LearnedPredictor(model, net)
+        scores: dict[str, dict[str, float]] = {}
+        for name in val_datasets:
+            b = load_bundle(name, root=root)
+            row = {}
+            for tier, predictor in (("learned", learned), ("physics", PhysicsPredictor(physics))):
+                s = prediction_scores(b, b.user_indices(), predictor)
+                row.update({f"{tier}_{k}": v for k, v in s.items()})
+                table.add_row(name, tier, f"{s['median_error_db']:.1f}", f"{s['p90_error_db']:.1f}",
+                              f"{100 * s['dead_live_agreement']:.1f} %", f"{s['ms_per_map']:.0f}")  # fmt: skip
+            scores[name] = row
+        model = model.model_copy(update={"scores": scores})
+        (tmp / MODEL_JSON).write_text(model.model_dump_json(indent=2) + "\n")
+        (tmp / MODEL_CARD).write_text(model_card(model, command_line()))
+    if val_datasets:
+        stdout().print(table)
+    stdout().print(f"wrote {out}: trained on {facts['users']} users of {len(bundles)} cities in "
+                   f"{facts['train_seconds']:.0f} s; residual std {facts['error_db']:.1f} dB", highlight=False, soft_wrap=True)  # fmt: skip

@@ -22,7 +22,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+import time
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from pydantic import Field
@@ -31,7 +33,7 @@ from uavplace.dataset.bundle import Bundle
 from uavplace.schemas.base import Contract
 
 #: The version of the features' code: a cache of predicted maps is keyed by it and by the constants.
-FEATURES_VERSION = 2
+FEATURES_VERSION = 3
 #: Speed of light [m/s].
 C_M_S = 299_792_458.0
 #: Below this Fresnel parameter a knife edge costs nothing (ITU-R P.526-15, eq. 31's domain).
@@ -105,60 +107,83 @@ class Scene:
 def path_features(scene: Scene, user: tuple[int, int], user_height_m: float, cells: np.ndarray | None = None) -> dict:
     """The profile features of the straight paths from a user at cell ``user`` ``(iy, ix)``, ``user_height_m`` above
     the ground, to the UAV at every cell (or at ``cells`` [M, 2] ``(iy, ix)``): ``log_d``, ``walls`` and
-    ``diffraction_db``, each ``[num_y, num_x]`` (or ``[M]``) float32 (see the module's docstring)."""
+    ``diffraction_db``, each ``[num_y, num_x]`` (or ``[M]``) float32 (see the module's docstring). Each path is
+    sampled once per cell length of its own (``ceil`` of its horizontal length in cells, at least one sample)."""
     h = scene.ground_height_m
     ny, nx = h.shape
     whole = cells is None
     if whole:
         yy, xx = np.mgrid[:ny, :nx]
         cells = np.stack([yy.ravel(), xx.ravel()], axis=1)
-    cells = np.asarray(cells, np.int64)
+    cells = np.asarray(cells, np.int64).reshape(-1, 2)
     uy, ux = float(user[0]), float(user[1])
-    dy, dx = cells[:, 0] - uy, cells[:, 1] - ux
-    horiz_cells = np.hypot(dy, dx).astype(np.float32)
+    horiz = np.hypot(cells[:, 0] - uy, cells[:, 1] - ux).astype(np.float32)
     rise = np.float32(scene.altitude_m - user_height_m)
-    length = np.sqrt((horiz_cells * np.float32(scene.spacing_m)) ** 2 + rise**2).astype(np.float32)  # [M]
-    if not (h > 0).any():  # open ground: no wall, no edge above any path
-        zero = np.zeros(len(cells), np.float32)
-        out = {"log_d": np.log10(np.maximum(length, 1.0)), "walls": zero, "diffraction_db": zero}
-        return {k: v.reshape(ny, nx) for k, v in out.items()} if whole else out
-    k = max(int(np.ceil(horiz_cells.max())), 1)  # one sample per cell length of the longest path
-    s = ((np.arange(k, dtype=np.float32) + 0.5) / k)[None, :]  # [1, K] fractions along the path
-    sy = np.clip(np.rint(uy + s * dy[:, None]), 0, ny - 1).astype(np.int64)  # [M, K]
-    sx = np.clip(np.rint(ux + s * dx[:, None]), 0, nx - 1).astype(np.int64)
-    roof = h[sy, sx]  # [M, K]
-    # Samples at the user's or the UAV's own cell stand for the ends, not obstacles.
-    own = ((sy == int(user[0])) & (sx == int(user[1]))) | ((sy == cells[:, 0:1]) & (sx == cells[:, 1:2]))
-    roof = np.where(own, np.float32(0.0), roof)
-    line = np.float32(user_height_m) + s * rise  # [1, K] the straight path's height
-    above = roof - line  # [M, K] how far each sample's roof stands above the path [m]
+    length = np.sqrt((horiz * np.float32(scene.spacing_m)) ** 2 + rise**2).astype(np.float32)  # [M]
+    zero = np.zeros(len(cells), np.float32)
+    out = {"log_d": np.log10(np.maximum(length, 1.0)), "walls": zero.copy(), "diffraction_db": zero.copy()}
+    if (h > 0).any():  # open ground: no wall, no edge above any path
+        samples = np.maximum(np.ceil(horiz - 1e-4), 1).astype(np.int64)
+        order = np.argsort(samples, kind="stable")
+        # Paths in chunks of similar length, each chunk padded to its longest: about the work of the paths themselves.
+        for chunk in np.array_split(order, max(1, min(16, len(order) // 256))):
+            if len(chunk):
+                walls, diffraction = _profile(scene, user, user_height_m, cells[chunk], samples[chunk], length[chunk])
+                out["walls"][chunk], out["diffraction_db"][chunk] = walls, diffraction
+    return {k: v.reshape(ny, nx) for k, v in out.items()} if whole else out
+
+
+def _profile(
+    scene: Scene, user: tuple[int, int], user_height_m: float, cells: np.ndarray, samples: np.ndarray, length: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(walls, Deygout's loss) [M] of the paths to ``cells`` [M, 2], path ``m`` sampled at ``samples[m]`` points."""
+    h = scene.ground_height_m
+    ny, nx = h.shape
+    uy, ux = int(user[0]), int(user[1])
+    k = int(samples.max())
+    idx = np.arange(k, dtype=np.float32)[None, :]
+    valid = idx < samples[:, None]  # [M, K]
+    s = ((idx + 0.5) / samples[:, None]).astype(np.float32)  # fractions along each path
+    s = np.where(valid, s, np.float32(1.0))
+    dy, dx = (cells[:, 0] - uy).astype(np.float32), (cells[:, 1] - ux).astype(np.float32)
+    sy = np.clip(np.rint(uy + s * dy[:, None]), 0, ny - 1).astype(np.int32)
+    sx = np.clip(np.rint(ux + s * dx[:, None]), 0, nx - 1).astype(np.int32)
+    flat = sy * np.int32(nx) + sx  # [M, K] the samples' cells
+    # Samples at the user's or the UAV's own cell stand for the ends, not obstacles; padding samples are nothing.
+    own = (flat == uy * nx + ux) | (flat == (cells[:, 0] * nx + cells[:, 1]).astype(np.int32)[:, None]) | ~valid
+    roof = np.where(own, np.float32(0.0), h.ravel().take(flat))
+    rise = np.float32(scene.altitude_m - user_height_m)
+    line = np.float32(user_height_m) + s * rise  # [M, K] the straight path's height
+    above = roof - line
     inside = above > 0
     walls = (inside[:, 0].astype(np.int32) + (inside[:, 1:] & ~inside[:, :-1]).sum(axis=1)).astype(np.float32)
+    diffraction = np.zeros(len(cells), np.float32)
     d1 = s * length[:, None]
     d2 = (1 - s) * length[:, None]
     lam = scene.wavelength_m
-    nu = fresnel_nu(above, d1, d2, lam)  # [M, K]
+    nu = np.where(valid, fresnel_nu(above, d1, d2, lam), -np.inf)
     main = np.argmax(nu, axis=1)  # [M] Deygout's principal edge
     rows = np.arange(len(cells))
     nu_main = nu[rows, main]
-    s_main = s[0, main]
-    top = line[0, main] + above[rows, main]  # the edge's height [m]
+    edged = np.flatnonzero(nu_main > NU_MIN)  # only these paths lose anything to an edge
+    if not len(edged):
+        return walls, diffraction
+    s, roof, flat, d1, d2, valid = (a[edged] for a in (s, roof, flat, d1, d2, valid))
+    main, nu_main, length = main[edged], nu_main[edged], length[edged]
+    rows = np.arange(len(edged))
+    s_main = s[rows, main][:, None]
+    top = (line[edged][rows, main] + above[edged][rows, main])[:, None]  # the edge's height [m]
     # The secondary edges: above the lines from each end to the principal edge's top, in other cells than its own
     # (two samples of one cell are one edge).
-    same = (sy == sy[rows, main][:, None]) & (sx == sx[rows, main][:, None])
-    before = (s < s_main[:, None]) & ~same
-    line_a = np.float32(user_height_m) + (s / np.maximum(s_main[:, None], 1e-6)) * (top[:, None] - user_height_m)
-    nu_a = fresnel_nu(roof - line_a, d1, (s_main[:, None] - s) * length[:, None], lam)
-    nu_a = np.where(before, nu_a, -np.inf).max(axis=1)
-    after = (s > s_main[:, None]) & ~same
-    frac = (s - s_main[:, None]) / np.maximum(1 - s_main[:, None], 1e-6)
-    line_b = top[:, None] + frac * (np.float32(scene.altitude_m) - top[:, None])
-    nu_b = fresnel_nu(roof - line_b, (s - s_main[:, None]) * length[:, None], d2, lam)
-    nu_b = np.where(after, nu_b, -np.inf).max(axis=1)
-    secondary = np.where(nu_main > NU_MIN, knife_edge_db(nu_a) + knife_edge_db(nu_b), np.float32(0.0))
-    diffraction = knife_edge_db(nu_main) + secondary
-    out = {"log_d": np.log10(np.maximum(length, 1.0)), "walls": walls, "diffraction_db": diffraction.astype(np.float32)}
-    return {k: v.reshape(ny, nx) for k, v in out.items()} if whole else out
+    same = flat == flat[rows, main][:, None]
+    before = (s < s_main) & ~same & valid
+    line_a = np.float32(user_height_m) + (s / np.maximum(s_main, 1e-6)) * (top - user_height_m)
+    nu_a = np.where(before, fresnel_nu(roof - line_a, d1, (s_main - s) * length[:, None], lam), -np.inf).max(axis=1)
+    after = (s > s_main) & ~same & valid
+    line_b = top + (s - s_main) / np.maximum(1 - s_main, 1e-6) * (np.float32(scene.altitude_m) - top)
+    nu_b = np.where(after, fresnel_nu(roof - line_b, (s - s_main) * length[:, None], d2, lam), -np.inf).max(axis=1)
+    diffraction[edged] = knife_edge_db(nu_main) + knife_edge_db(nu_a) + knife_edge_db(nu_b)
+    return walls, diffraction
 
 
 class PhysicsConstants(Contract):
@@ -203,6 +228,39 @@ def dead_probability(predicted_db: np.ndarray, constants: PhysicsConstants) -> n
     scale))``. Shape kept."""
     z = np.clip((np.asarray(predicted_db, np.float32) - constants.dead_level_db) / constants.dead_scale_db, -60, 60)
     return (1.0 / (1.0 + np.exp(z))).astype(np.float32)
+
+
+class Predictor(Protocol):
+    """What predicts users' maps for the searcher: ``PhysicsPredictor`` or ``rl.learned.LearnedPredictor``."""
+
+    tier: str
+    error_db: float  # the spread of (measured - predicted) SINR on live cells [dB]
+
+    def version(self) -> str: ...
+
+    def predict(self, scene: Scene, users: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+class PhysicsPredictor:
+    """The physics tier as a predictor of many users' maps (the interface ``rl.searcher`` and ``prediction_scores``
+    use; ``rl.learned.LearnedPredictor`` is the other)."""
+
+    tier = "physics"
+
+    def __init__(self, constants: PhysicsConstants) -> None:
+        self.constants = constants
+        self.error_db = constants.error_db
+
+    def version(self) -> str:
+        return self.constants.version()
+
+    def predict(self, scene: Scene, users: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(``mu``, ``p_dead``), each ``[U, M]`` float32: the predicted SINR [dB] of a user at each of ``users`` [U, 2]
+        at the UAV cells ``cells`` [M, 2] (not floored), and the probability that the cell is dead or at the floor."""
+        mu = np.empty((len(users), len(cells)), np.float32)
+        for i, (iy, ix) in enumerate(np.asarray(users, np.int64)):
+            mu[i] = predict_sinr(scene, self.constants, (int(iy), int(ix)), cells)
+        return mu, dead_probability(mu, self.constants)
 
 
 def _fit_rows(bundle: Bundle, users: np.ndarray, user_height_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, Scene]:
@@ -273,19 +331,28 @@ def _fit_logistic(pred: np.ndarray, low: np.ndarray) -> tuple[float, float]:
     return float(w[0] * scale), float(max(scale, 1e-3))
 
 
-def prediction_scores(bundle: Bundle, users: np.ndarray, constants: PhysicsConstants) -> dict[str, float]:
-    """How well the predicted maps match ``users``' maps of ``bundle`` at the legal cells: ``median_error_db`` and
-    ``p90_error_db`` of |predicted - measured| SINR on the live cells (the prediction floored, and the floor's value
-    where it says dead), and ``dead_live_agreement``, the share of cells whose dead-or-live call (dead where
-    ``dead_probability`` > 1/2) is right."""
-    x, sinr, dead, scene = _fit_rows(bundle, users, constants.user_height_m)
-    pred = sinr_from_features({"log_d": x[:, 0], "walls": x[:, 1], "diffraction_db": x[:, 2]}, scene, constants)
-    called_dead = dead_probability(pred, constants) > 0.5
-    shown = np.where(called_dead, scene.floor_db, np.maximum(pred, scene.floor_db))
+def prediction_scores(bundle: Bundle, users: np.ndarray, predictor: PhysicsPredictor) -> dict[str, float]:
+    """How well ``predictor``'s maps (a ``PhysicsPredictor`` or an ``rl.learned.LearnedPredictor``) match ``users``'
+    maps of ``bundle`` at the legal cells: ``median_error_db`` and ``p90_error_db`` of |predicted - measured| SINR on
+    the live cells (the prediction floored, and the floor's value where it says dead), ``dead_live_agreement``, the
+    share of cells whose dead-or-live call (dead where the dead probability > 1/2) is right, and ``ms_per_map``, the
+    milliseconds per predicted map of the legal cells."""
+    scene = Scene.of(bundle)
+    cells = np.argwhere(~bundle.blocked)
+    table = bundle.users.set_index("user")
+    where = np.array([[int(table.at[u, "iy"]), int(table.at[u, "ix"])] for u in users], np.int64).reshape(-1, 2)
+    t0 = time.perf_counter()
+    mu, p_dead = predictor.predict(scene, where, cells)
+    ms = 1000 * (time.perf_counter() - t0) / max(len(users), 1)
+    sinr = bundle.sinr_db[np.asarray(users)[:, None], cells[None, :, 0], cells[None, :, 1]].ravel()
+    dead = bundle.dead[np.asarray(users)[:, None], cells[None, :, 0], cells[None, :, 1]].ravel()
+    called_dead = p_dead.ravel() > 0.5
+    shown = np.where(called_dead, scene.floor_db, np.maximum(mu.ravel(), scene.floor_db))
     err = np.abs(shown - sinr)[~dead]
     return {
         "median_error_db": float(np.median(err)),
         "p90_error_db": float(np.percentile(err, 90)),
         "dead_live_agreement": float((called_dead == dead).mean()),
+        "ms_per_map": float(ms),
         "cells": int(len(sinr)),
     }

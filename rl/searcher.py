@@ -27,6 +27,7 @@ import math
 from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 from pydantic import Field, ValidationError
@@ -35,14 +36,17 @@ from scipy.sparse.csgraph import shortest_path
 from scipy.special import ndtr
 
 from uavplace.rl.maps import MOVES
-from uavplace.rl.predictor import PhysicsConstants, Scene, dead_probability, predict_sinr
+from uavplace.rl.predictor import PhysicsConstants, PhysicsPredictor, Predictor, Scene
 from uavplace.rl.view import AgentView, PublicMaps
 from uavplace.schemas import InputError
 from uavplace.schemas.base import Contract, validation_message
 from uavplace.schemas.files import atomic_write_bytes
+from uavplace.schemas.limits import check_limit
 
-#: Where the shipped predictor's constants live.
-DEFAULT_PREDICTOR = Path("data/agents/searcher/predictor.json")
+#: Where the shipped physics tier's constants live.
+DEFAULT_CONSTANTS = Path("data/agents/searcher/predictor.json")
+#: The shipped predictor the searcher uses: the learned tier (chosen on the validation cities, docs/searcher.md).
+DEFAULT_PREDICTOR = Path("data/agents/searcher/unet")
 #: The span of SINR [dB] over which the likelihood's flat share is spread.
 OUTLIER_SPAN_DB = 100.0
 #: The searcher's name in tables (its ablation's: SEARCHER + ", no buildings").
@@ -56,7 +60,12 @@ class SearchConfig(Contract):
 
     stride: int = Field(default=2, ge=1, le=16, description="Candidate user cells on a lattice of this many cells")
     temper: float = Field(default=0.5, gt=0, le=1, description="Exponent of each measurement's likelihood")
-    reach_cells: float = Field(default=12.0, gt=0, description="Distance over which a cell's score falls by e [cells]")
+    reach_cells: float = Field(default=12.0, gt=0, description="Distance scale of a cell's discount [cells]")
+    discount: Literal["exp", "hyperbolic"] = Field(
+        default="hyperbolic",
+        description="A cell's score is its posterior probability of reaching P_T times exp(-d / reach_cells) ('exp') "
+        "or 1 / (1 + d / reach_cells) ('hyperbolic': a likely cell far away can beat an unlikely one nearby)",
+    )
     buildings: bool = Field(default=True, description="Predict with the city's buildings (False: open ground, the ablation)")
     min_sigma_db: float = Field(default=3.0, gt=0, description="Least spread of the likelihood [dB]")
     outlier: float = Field(
@@ -104,32 +113,29 @@ class PredictionCache:
     def path(self, key: str) -> Path | None:
         return None if self.folder is None else self.folder / f"{key}.npz"
 
-    def load(self, key: str) -> np.ndarray | None:
+    def load(self, key: str, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray] | None:
+        """(mu, p_dead) as float32 if the file is there, whole and of ``shape``; else None (made again)."""
         path = self.path(key)
         if path is None or not path.is_file():
             return None
         try:
             with np.load(path, allow_pickle=False) as z:
-                return z["mu"]
-        except (OSError, ValueError, KeyError):
-            return None  # a damaged cache file is made again
+                mu, p_dead = z["mu"], z["p_dead"]
+        except (OSError, ValueError, KeyError, EOFError):
+            return None  # a damaged or older cache file is made again
+        if mu.shape != shape or p_dead.shape != shape:
+            return None
+        return mu.astype(np.float32), p_dead.astype(np.float32)
 
-    def save(self, key: str, mu: np.ndarray) -> None:
+    def save(self, key: str, mu: np.ndarray, p_dead: np.ndarray) -> None:
+        """Keep ``mu`` and ``p_dead`` [C, M] as float16 (atomically; a cache that can't be written is skipped)."""
         path = self.path(key)
         if path is None:
             return
         path.parent.mkdir(parents=True, exist_ok=True)
         buf = io.BytesIO()
-        np.savez(buf, mu=mu)
+        np.savez(buf, mu=mu.astype(np.float16), p_dead=p_dead.astype(np.float16))
         atomic_write_bytes(path, buf.getvalue())
-
-
-def predict_candidates(scene: Scene, constants: PhysicsConstants, cells: np.ndarray, legal: np.ndarray) -> np.ndarray:
-    """``[C, M]`` float16 predicted SINR of a user at each of ``cells`` [C, 2] at the ``legal`` [M, 2] UAV cells."""
-    out = np.empty((len(cells), len(legal)), np.float16)
-    for i, (iy, ix) in enumerate(cells):
-        out[i] = predict_sinr(scene, constants, (int(iy), int(ix)), legal)
-    return out
 
 
 class MapSearchPolicy:
@@ -137,12 +143,12 @@ class MapSearchPolicy:
 
     def __init__(
         self,
-        constants: PhysicsConstants,
+        predictor: Predictor | PhysicsConstants,
         config: SearchConfig | None = None,
         cache: PredictionCache | None = None,
         name: str | None = None,
     ) -> None:
-        self.constants = constants
+        self.predictor = PhysicsPredictor(predictor) if isinstance(predictor, PhysicsConstants) else predictor
         self.config = config or SearchConfig()
         self.cache = cache or PredictionCache(None)
         self.name = name or (SEARCHER if self.config.buildings else SEARCHER + ", no buildings")
@@ -167,18 +173,20 @@ class MapSearchPolicy:
         cells = candidate_cells(scene.ground_height_m, cfg.stride, cfg.buildings)
         legal_map = public.legal(canvas)
         legal = np.argwhere(legal_map)
+        check_limit("prediction_bytes", 12 * len(cells) * len(legal), settings["city"],
+                    f"predicted maps of {len(cells)} candidates x {len(legal)} cells (a larger stride has fewer)")  # fmt: skip
         index = np.full(legal_map.shape, -1, np.int64)
         index[legal[:, 0], legal[:, 1]] = np.arange(len(legal))
         cache_key = "-".join(
-            [settings["version"], f"k{k}", f"s{cfg.stride}", "b" if cfg.buildings else "open", self.constants.version()]
+            [settings["version"], f"k{k}", f"s{cfg.stride}", "b" if cfg.buildings else "open", self.predictor.version()]
         )
-        mu = self.cache.load(cache_key)
-        if mu is None or mu.shape != (len(cells), len(legal)):
-            mu = predict_candidates(scene, self.constants, cells, legal)
-            self.cache.save(cache_key, mu)
-        mu = mu.astype(np.float32)
-        p_dead = dead_probability(mu, self.constants)
-        sigma = max(self.constants.error_db, self.config.min_sigma_db)
+        hit = self.cache.load(cache_key, (len(cells), len(legal)))
+        if hit is None:
+            mu, p_dead = self.predictor.predict(scene, cells, legal)
+            self.cache.save(cache_key, mu, p_dead)
+            hit = tuple(a.astype(np.float16).astype(np.float32) for a in (mu, p_dead))  # as stored: cold = warm
+        mu, p_dead = hit
+        sigma = max(self.predictor.error_db, self.config.min_sigma_db)
         cover = ((1 - p_dead) * ndtr((mu - public.config.p_t_db) / sigma)).astype(np.float32)
         out = self._canvases[key] = CandidateMaps(cells, legal, index, mu, p_dead, cover)
         return out
@@ -226,7 +234,7 @@ class MapSearchPolicy:
     def update(self, maps: CandidateMaps, log_b: np.ndarray, column: int, measured: float, floor_db: float) -> np.ndarray:
         """``log_b`` [C] after measuring ``measured`` [dB] at legal cell ``column`` (the module's likelihood)."""
         mu, p_dead = maps.mu[:, column], maps.p_dead[:, column]
-        sigma = max(self.constants.error_db, self.config.min_sigma_db)
+        sigma = max(self.predictor.error_db, self.config.min_sigma_db)
         eps = self.config.outlier
         if measured <= floor_db + 1e-3:  # censored: the probability of a value at or below the floor
             like = (1 - eps) * (p_dead + (1 - p_dead) * ndtr((floor_db - mu) / sigma)) + eps
@@ -245,43 +253,64 @@ class MapSearchPolicy:
         measured, visits = env.measured(), env.visits
         actions = np.zeros(n, np.int64)
         p = public.pad
-        for r in range(n):
+        here = np.full(n, -1, np.int64)
+        by_canvas: dict[int, list[int]] = {}
+        for r in range(n):  # the beliefs, row by row
             if env.exhausted[r] or not mask[r].any():
                 continue
             c = int(canvas[r])
             maps = self.canvas_maps(public, c)
-            here = int(maps.index[pos[r, 0] - p, pos[r, 1] - p])
+            here[r] = maps.index[pos[r, 0] - p, pos[r, 1] - p]
             floor_db = float(public.settings[public.bundle_of(c)]["floor_db"])
             if self.belief[r] is None or t[r] == 0 or self.belief_canvas[r] != c:
                 log_b = np.zeros(len(maps.cells), np.float32)
                 # Every cell measured so far (at t = 0 the start), as the memory holds it.
-                seen = np.argwhere(visits[r] > 0)
-                for y, x in seen:
+                for y, x in np.argwhere(visits[r] > 0):
                     log_b = self.update(maps, log_b, int(maps.index[y - p, x - p]), float(env.memory[r, y, x]), floor_db)
                 self.belief_canvas[r] = c
             else:
-                log_b = self.update(maps, self.belief[r], here, float(measured[r]), floor_db)
+                log_b = self.update(maps, self.belief[r], int(here[r]), float(measured[r]), floor_db)
             self.belief[r] = log_b
-            b = np.exp(log_b)
-            b /= b.sum()
-            score = b @ maps.cover  # [M] the posterior probability of reaching P_T
-            dist, pred = self._from(public, c, maps, here)
-            seen_cells = visits[r, maps.legal[:, 0] + p, maps.legal[:, 1] + p] > 0
-            score = np.where(seen_cells | ~np.isfinite(dist), -1.0, score * np.exp(-dist / self.config.reach_cells))
-            target = int(np.argmax(score))
-            if target == here or score[target] < 0:
-                actions[r] = int(np.argmax(mask[r]))
-                continue
-            step = target  # walk back from the target to the cell next to the UAV
-            while pred[step] != here and pred[step] >= 0:
-                step = int(pred[step])
-            dy, dx = maps.legal[step] - maps.legal[here]
-            move = np.flatnonzero((MOVES[:, 0] == dy) & (MOVES[:, 1] == dx))
-            actions[r] = int(move[0]) if len(move) and mask[r, move[0]] else int(np.argmax(mask[r]))
+            by_canvas.setdefault(c, []).append(r)
+        for c, rows in by_canvas.items():  # the plans, a canvas's rows in one product
+            maps = self.canvas_maps(public, c)
+            b = np.exp(np.stack([self.belief[r] for r in rows]))
+            b /= b.sum(axis=1, keepdims=True)
+            scores = b @ maps.cover  # [rows, M] the posterior probability of reaching P_T
+            for i, r in enumerate(rows):
+                seen = visits[r, maps.legal[:, 0] + p, maps.legal[:, 1] + p] > 0
+                actions[r] = self._move(public, c, maps, int(here[r]), scores[i], seen, mask[r])
         return actions
 
+    def _move(self, public: PublicMaps, canvas: int, maps: CandidateMaps, here: int, score: np.ndarray,
+              seen: np.ndarray, mask: np.ndarray) -> int:  # fmt: skip
+        """The first move along a shortest legal path to the unvisited cell of best discounted ``score``."""
+        dist, pred = self._from(public, canvas, maps, here)
+        scale = dist / self.config.reach_cells
+        discount = np.exp(-scale) if self.config.discount == "exp" else 1.0 / (1.0 + scale)
+        score = np.where(seen | ~np.isfinite(dist), -1.0, score * discount)
+        target = int(np.argmax(score))
+        if target == here or score[target] < 0:
+            return int(np.argmax(mask))
+        step = target  # walk back from the target to the cell next to the UAV
+        while pred[step] != here and pred[step] >= 0:
+            step = int(pred[step])
+        dy, dx = maps.legal[step] - maps.legal[here]
+        move = np.flatnonzero((MOVES[:, 0] == dy) & (MOVES[:, 1] == dx))
+        return int(move[0]) if len(move) and mask[move[0]] else int(np.argmax(mask))
 
-def load_constants(path: str | Path = DEFAULT_PREDICTOR) -> PhysicsConstants:
+
+def load_predictor(path: str | Path = DEFAULT_PREDICTOR) -> Predictor:
+    """The predictor at ``path``: a folder is a learned tier (``rl.learned.load_learned``), a file the physics tier's
+    constants (``load_constants``)."""
+    if Path(path).is_dir():
+        from uavplace.rl.learned import load_learned
+
+        return load_learned(path)
+    return PhysicsPredictor(load_constants(path))
+
+
+def load_constants(path: str | Path = DEFAULT_CONSTANTS) -> PhysicsConstants:
     """The predictor's constants from their JSON file (``InputError`` naming it when unreadable or invalid)."""
     path = Path(path)
     if not path.is_file():

@@ -258,6 +258,7 @@ uavdata.help = uavdata.help.format(noise=EMBEDDED_NOISE_DBM)
         "train": "uavplace.rl.cli:train",
         "ensemble": "uavplace.rl.cli:ensemble",
         "fit-predictor": "uavplace.rl.cli:fit_predictor",
+        "train-predictor": "uavplace.rl.cli:train_predictor",
         "report": "uavplace.eval.cli:report",
         "sweep": "uavplace.eval.cli:sweep",
     },

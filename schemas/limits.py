@@ -62,6 +62,9 @@ class Limits(Contract):
     episodes: int = Field(default=1_000_000, ge=1, description="Episodes of one evaluation (report, baselines) per city")
     t_max: int = Field(default=100_000, ge=1, description="Step budget of one evaluation episode (--t-max)")
     bootstrap: int = Field(default=1_000_000, ge=1, description="Bootstrap resamples of a report's intervals (--bootstrap)")
+    prediction_bytes: int = Field(
+        default=4 * GiB, ge=1, description="The map searcher's predicted maps of one city, candidates x legal cells x 12 bytes"
+    )
     train_steps: int = Field(default=10_000_000_000, ge=1, description="Environment steps of one training (--steps, total_steps)")
 
 

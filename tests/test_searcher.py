@@ -55,6 +55,61 @@ def _constants() -> PhysicsConstants:
                             dead_scale_db=4, error_db=10)  # fmt: skip
 
 
+def _one_path(scene: Scene, user: tuple[int, int], cell: tuple[int, int], hu: float) -> tuple[int, float]:
+    """(walls, Deygout's loss) of one path, a sample at a time in float64: the reference for ``path_features``."""
+    h, lam = scene.ground_height_m.astype(np.float64), scene.wavelength_m
+    (uy, ux), (cy, cx) = user, cell
+    horiz = math.hypot(cy - uy, cx - ux)
+    rise = scene.altitude_m - hu
+    length = math.hypot(horiz * scene.spacing_m, rise)
+    k = max(math.ceil(horiz - 1e-4), 1)
+    prof = []  # (s, sample cell, roof, height of the straight path)
+    for i in range(k):
+        s = (i + 0.5) / k
+        y = int(np.clip(np.rint(uy + s * (cy - uy)), 0, h.shape[0] - 1))
+        x = int(np.clip(np.rint(ux + s * (cx - ux)), 0, h.shape[1] - 1))
+        roof = 0.0 if (y, x) in ((uy, ux), (cy, cx)) else float(h[y, x])
+        prof.append((s, (y, x), roof, hu + s * rise))
+    inside = [roof > line for _, _, roof, line in prof]
+    walls = sum(1 for i, v in enumerate(inside) if v and (i == 0 or not inside[i - 1]))
+
+    def nu(height: float, d1: float, d2: float) -> float:
+        return height * math.sqrt(2 / lam * (1 / max(d1, 1e-3) + 1 / max(d2, 1e-3)))
+
+    def loss(v: float) -> float:
+        return 0.0 if v <= -0.78 else 6.9 + 20 * math.log10(math.sqrt((v - 0.1) ** 2 + 1) + v - 0.1)
+
+    nus = [nu(roof - line, s * length, (1 - s) * length) for s, _, roof, line in prof]
+    m = int(np.argmax(nus))
+    if nus[m] <= -0.78:
+        return walls, 0.0
+    sm, cm, roof_m, _ = prof[m]
+    a = [nu(roof - (hu + s / sm * (roof_m - hu)), s * length, (sm - s) * length) for s, c, roof, _ in prof
+         if s < sm and c != cm]  # fmt: skip
+    b = [nu(roof - (roof_m + (s - sm) / (1 - sm) * (scene.altitude_m - roof_m)), (s - sm) * length, (1 - s) * length)
+         for s, c, roof, _ in prof if s > sm and c != cm]  # fmt: skip
+    return walls, loss(nus[m]) + loss(max(a, default=-9.0)) + loss(max(b, default=-9.0))
+
+
+def test_path_features_are_each_path_sampled_by_itself(tiny):
+    """The vectorised profiles (chunked by length, padded) equal a sample-by-sample walk of each path."""
+    from uavplace.dataset.bundle import load_bundle
+
+    scene = Scene.of(load_bundle("tiny", root=tiny))
+    rng = np.random.default_rng(5)
+    ny, nx = scene.ground_height_m.shape
+    for _ in range(4):
+        user = (int(rng.integers(ny)), int(rng.integers(nx)))
+        cells = np.stack([rng.integers(ny, size=300), rng.integers(nx, size=300)], axis=1)
+        f = path_features(scene, user, 1.5, cells)
+        for j, (cy, cx) in enumerate(cells):
+            walls, diffraction = _one_path(scene, user, (int(cy), int(cx)), 1.5)
+            assert f["walls"][j] == walls
+            assert f["diffraction_db"][j] == pytest.approx(diffraction, abs=0.05)
+    whole = path_features(scene, user, 1.5)
+    np.testing.assert_array_equal(whole["walls"][cells[:, 0], cells[:, 1]], f["walls"])
+
+
 def test_belief_is_bayes_by_brute_force(tiny):
     """The searcher's belief after a few measurements, one update at a time, equals the posterior computed at once:
     the product over measurements of each candidate's likelihood (censored at the floor), tempered, normalised."""
@@ -73,7 +128,7 @@ def test_belief_is_bayes_by_brute_force(tiny):
         log_b = policy.update(cm, log_b, int(col), m, floor)
     got = np.exp(log_b - log_b.max())
     got /= got.sum()
-    sigma, eps = policy.constants.error_db, 0.05
+    sigma, eps = policy.predictor.error_db, 0.05
     total = np.zeros(len(cm.cells))
     for col, m in zip(columns, measured, strict=True):
         for c in range(len(cm.cells)):
@@ -103,11 +158,11 @@ def test_episode_lists_are_prefixes_and_episodes_play_alike_anywhere(tiny):
     long, short = maps.episode_list(30, 3), maps.episode_list(10, 3)
     np.testing.assert_array_equal(long[:10], short)
     assert not np.array_equal(maps.episode_list(10, 4), short)
-    walk = RandomWalkPolicy(seed=1)
-    ahead = run_episodes(maps, walk, long, num_envs=7, record=np.arange(30))
-    back = run_episodes(maps, walk, long[::-1].copy(), num_envs=3, record=np.arange(30))
-    for k in range(30):  # episode k of one list is episode 29 - k of the other: the same moves
-        np.testing.assert_array_equal(ahead.attrs["paths"][k], back.attrs["paths"][29 - k])
+    for policy in (RandomWalkPolicy(seed=1), MapSearchPolicy(_constants())):  # the searcher plans rows in batches
+        ahead = run_episodes(maps, policy, long, num_envs=7, record=np.arange(30))
+        back = run_episodes(maps, policy, long[::-1].copy(), num_envs=3, record=np.arange(30))
+        for k in range(30):  # episode k of one list is episode 29 - k of the other: the same moves
+            np.testing.assert_array_equal(ahead.attrs["paths"][k], back.attrs["paths"][29 - k])
 
 
 def test_spl_known_answer():
@@ -124,3 +179,14 @@ def test_bad_predictor_file_is_refused(tmp_path):
     with pytest.raises(InputError, match="predictor.json"):
         load_constants(bad)
     assert load_constants(REPO / "data" / "agents" / "searcher" / "predictor.json").error_db > 0
+
+
+def test_predicted_maps_are_bounded_by_the_limits(tiny, monkeypatch):
+    from uavplace.rl.view import PublicMaps
+    from uavplace.schemas import limits
+
+    monkeypatch.setenv(limits.ENV, "prediction_bytes=1000")
+    monkeypatch.setattr(limits, "_current", None)
+    maps = MapSet.load("tiny", EnvConfig(t_max=50), root=str(tiny))
+    with pytest.raises(InputError, match="prediction_bytes"):
+        MapSearchPolicy(_constants()).canvas_maps(PublicMaps.of(maps), 0)

@@ -1,0 +1,354 @@
+"""The learned tier of the radio-map predictor: a small U-Net that corrects the physics tier.
+
+Input planes of a user at cell ``(iy, ix)``, each ``[num_y, num_x]``, all public (``input_planes``): the building
+height and the cells the UAV may not enter, the user's cell, and the physics tier's features and prediction of
+that user's map (``rl.predictor.path_features``: log distance, walls crossed, Deygout's loss; the predicted SINR over
+the floor and the dead-cell probability). The network (``MapUNet``: ``len(widths)`` levels, two 3 x 3 convolutions
+each, max-pooling down, transposed convolutions up, skip connections) outputs two planes: a correction of the
+physics SINR, in units of ``SCALE_DB``, and a correction of the dead-cell logit. With both corrections zero it is the
+physics tier.
+
+Training (``train_learned``): the legal cells of the training corpus's users, random crops of ``crop`` cells under
+the eight symmetries of the square; the loss is a Huber loss on the live cells above the floor plus the binary
+cross-entropy of the dead-or-at-floor call on every legal cell. The weights are saved as tensors only
+(``weights.pt``, read with ``torch.load(weights_only=True)``) beside ``model.json`` (``LearnedModel``: the settings,
+the physics constants it refines, the residual's spread and the scores it was measured at) and a model card.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import torch
+from pydantic import Field, ValidationError
+from torch import nn
+from torch.nn import functional as F
+
+from uavplace.dataset.bundle import Bundle
+from uavplace.rl.agent.checkpoint import load_tensors, save_tensors
+from uavplace.rl.predictor import PhysicsConstants, Scene, dead_probability, path_features, sinr_from_features
+from uavplace.schemas import InputError
+from uavplace.schemas.base import Contract, validation_message
+
+#: The learned tier's files in its folder.
+MODEL_JSON, WEIGHTS, MODEL_CARD = "model.json", "weights.pt", "MODEL_CARD.md"
+#: The input planes, in order.
+PLANES = ("ground", "blocked", "user", "log_d", "walls", "diffraction", "physics_sinr", "physics_dead")
+#: SINR [dB] per unit of the network's first output plane and of the SINR input plane.
+SCALE_DB = 20.0
+
+
+class UNetConfig(Contract):
+    """The learned tier's network and training settings."""
+
+    widths: list[int] = Field(default=[16, 32, 64, 64], min_length=1, max_length=5, description="Channels per level")
+    crop: int = Field(default=64, ge=16, le=512, description="Training crops [cells] (a multiple of 2^(levels-1))")
+    batch: int = Field(default=16, ge=1, le=1024, description="Crops per gradient step")
+    steps: int = Field(default=2000, ge=1, le=1_000_000, description="Gradient steps")
+    lr: float = Field(default=2e-3, gt=0, le=1, description="Adam's learning rate (cosine decay to 1/20 of it)")
+    dead_weight: float = Field(default=1.0, ge=0, description="Weight of the dead-cell cross-entropy in the loss")
+    seed: int = Field(default=0, description="Seed of the weights' initialisation and of the crops")
+    threads: int = Field(default=2, ge=1, le=256, description="torch CPU threads")
+
+
+class LearnedModel(Contract):
+    """``model.json``: how a learned tier was made and what it scored."""
+
+    config: UNetConfig
+    constants: PhysicsConstants = Field(description="The physics tier whose maps it corrects")
+    error_db: float = Field(gt=0, description="Std of (measured - predicted) SINR on the training users' live cells")
+    fitted_on: list[str] = Field(default_factory=list, description="city@version of the training bundles")
+    users: int = Field(ge=0, description="Training users")
+    train_seconds: float = Field(ge=0)
+    final_loss: float
+    weights_sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
+    scores: dict[str, dict[str, float]] = Field(
+        default_factory=dict, description="Per validation city: prediction_scores of this tier and of the physics tier"
+    )
+
+
+class MapUNet(nn.Module):
+    """A U-Net of ``widths`` channels per level: ``len(PLANES)`` planes in, two out (SINR and dead-logit corrections)."""
+
+    def __init__(self, widths: list[int]) -> None:
+        super().__init__()
+
+        def block(c_in: int, c_out: int) -> nn.Sequential:
+            return nn.Sequential(
+                nn.Conv2d(c_in, c_out, 3, padding=1), nn.ReLU(), nn.Conv2d(c_out, c_out, 3, padding=1), nn.ReLU()
+            )
+
+        self.down = nn.ModuleList()
+        c = len(PLANES)
+        for w in widths:
+            self.down.append(block(c, w))
+            c = w
+        self.up = nn.ModuleList(nn.ConvTranspose2d(widths[i + 1], widths[i], 2, stride=2) for i in range(len(widths) - 1))
+        self.merge = nn.ModuleList(block(2 * widths[i], widths[i]) for i in range(len(widths) - 1))
+        self.head = nn.Conv2d(widths[0], 2, 1)
+        nn.init.zeros_(self.head.weight)  # starts as the physics tier
+        nn.init.zeros_(self.head.bias)
+
+    @property
+    def multiple(self) -> int:
+        """Input sides must be a multiple of this."""
+        return 2 ** (len(self.down) - 1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        skips = []
+        for i, block in enumerate(self.down):
+            if i:
+                x = F.max_pool2d(x, 2)
+            x = block(x)
+            skips.append(x)
+        for i in reversed(range(len(self.up))):
+            x = self.merge[i](torch.cat([skips[i], self.up[i](x)], dim=1))
+        return self.head(x)
+
+
+def input_planes(scene: Scene, constants: PhysicsConstants, user: tuple[int, int]) -> np.ndarray:
+    """``[len(PLANES), num_y, num_x]`` float32: the network's input for a user at cell ``user`` (module docstring)."""
+    f = path_features(scene, user, constants.user_height_m)
+    sinr = sinr_from_features(f, scene, constants)
+    onehot = np.zeros_like(scene.ground_height_m)
+    onehot[int(user[0]), int(user[1])] = 1.0
+    planes = [
+        np.minimum(scene.ground_height_m / 20.0, 5.0),
+        (scene.ground_height_m >= scene.altitude_m).astype(np.float32),
+        onehot,
+        f["log_d"] - 2.0,
+        np.minimum(f["walls"], constants.max_walls) / constants.max_walls,
+        f["diffraction_db"] / SCALE_DB,
+        (sinr - scene.floor_db) / SCALE_DB,
+        dead_probability(sinr, constants),
+    ]
+    return np.stack(planes).astype(np.float32)
+
+
+def _physics_logit(planes: torch.Tensor) -> torch.Tensor:
+    p = planes[:, PLANES.index("physics_dead")].clamp(1e-6, 1 - 1e-6)
+    return torch.log(p) - torch.log1p(-p)
+
+
+def _outputs(net: MapUNet, planes: torch.Tensor, floor_db: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(mu [B, H, W] dB, dead logit [B, H, W]) of a batch of input planes ``[B, P, H, W]``."""
+    out = net(planes)
+    physics = planes[:, PLANES.index("physics_sinr")] * SCALE_DB + floor_db.view(-1, 1, 1)
+    return physics + SCALE_DB * out[:, 0], _physics_logit(planes) + out[:, 1]
+
+
+def _pad_to(a: np.ndarray, ny: int, nx: int) -> np.ndarray:
+    pad = [(0, 0)] * (a.ndim - 2) + [(0, ny - a.shape[-2]), (0, nx - a.shape[-1])]
+    return np.pad(a, pad)
+
+
+class LearnedPredictor:
+    """The learned tier as a predictor of many users' maps (``rl.predictor.PhysicsPredictor``'s interface)."""
+
+    tier = "learned"
+
+    def __init__(self, model: LearnedModel, net: MapUNet, batch: int = 16) -> None:
+        self.model, self.net, self.batch = model, net.eval(), batch
+        self.constants = model.constants
+        self.error_db = model.error_db
+
+    def version(self) -> str:
+        doc = {"tier": self.tier, "weights": self.model.weights_sha256, "constants": self.constants.version(),
+               "config": self.model.config.model_dump(mode="json")}  # fmt: skip
+        return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:12]
+
+    @torch.no_grad()
+    def predict(self, scene: Scene, users: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(``mu``, ``p_dead``), each ``[U, M]`` float32, as ``PhysicsPredictor.predict``."""
+        users, cells = np.asarray(users, np.int64).reshape(-1, 2), np.asarray(cells, np.int64).reshape(-1, 2)
+        ny, nx = scene.ground_height_m.shape
+        m = self.net.multiple
+        py, px = -(-ny // m) * m, -(-nx // m) * m
+        floor = torch.tensor([scene.floor_db], dtype=torch.float32)
+        mu = np.empty((len(users), len(cells)), np.float32)
+        p_dead = np.empty_like(mu)
+        for i in range(0, len(users), self.batch):
+            chunk = users[i : i + self.batch]
+            x = np.stack([_pad_to(input_planes(scene, self.constants, (int(u[0]), int(u[1]))), py, px) for u in chunk])
+            mu_b, logit_b = _outputs(self.net, torch.from_numpy(x), floor.expand(len(chunk)))
+            mu[i : i + len(chunk)] = mu_b[:, cells[:, 0], cells[:, 1]].numpy()
+            p_dead[i : i + len(chunk)] = torch.sigmoid(logit_b[:, cells[:, 0], cells[:, 1]]).numpy()
+        return mu, p_dead
+
+
+def load_learned(folder: str | Path) -> LearnedPredictor:
+    """The learned tier in ``folder`` (``model.json`` and ``weights.pt``); ``InputError`` naming the file when
+    unreadable, invalid, or when the weights are not the ones ``model.json`` names."""
+    folder = Path(folder)
+    path = folder / MODEL_JSON
+    if not path.is_file():
+        raise InputError(path, "not a file: a learned predictor's description (`uavrl train-predictor` writes it)")
+    if path.stat().st_size > 1 << 20:
+        raise InputError(path, "over 1 MiB: not a learned predictor's description")
+    try:
+        model = LearnedModel.model_validate_json(path.read_bytes())
+    except ValidationError as exc:
+        where, message = validation_message(exc)
+        raise InputError(path, message, field=where) from None
+    weights = folder / WEIGHTS
+    if not weights.is_file():
+        raise InputError(weights, "not a file: the learned predictor's weights")
+    digest = hashlib.sha256(weights.read_bytes()).hexdigest()
+    if digest != model.weights_sha256:
+        raise InputError(weights, f"sha256 {digest[:12]}... is not the {model.weights_sha256[:12]}... that "
+                         f"{MODEL_JSON} names: the weights and their description do not belong together")  # fmt: skip
+    state = load_tensors(weights)
+    net = MapUNet(model.config.widths)
+    try:
+        net.load_state_dict(state)
+    except RuntimeError as exc:
+        raise InputError(weights, f"weights do not fit widths {model.config.widths}: {str(exc)[:200]}") from None
+    return LearnedPredictor(model, net)
+
+
+def training_examples(bundles: list[Bundle], users: list[np.ndarray], constants: PhysicsConstants) -> list[tuple]:
+    """Per training user: (planes [P, H, W], sinr [H, W], live-above-floor [H, W], low [H, W], legal [H, W], floor)."""
+    out = []
+    for bundle, chosen in zip(bundles, users, strict=True):
+        scene = Scene.of(bundle)
+        table = bundle.users.set_index("user")
+        legal = ~bundle.blocked
+        for u in chosen:
+            planes = input_planes(scene, constants, (int(table.at[u, "iy"]), int(table.at[u, "ix"])))
+            sinr, dead = bundle.sinr_db[u].astype(np.float32), bundle.dead[u]
+            live = ~dead & (sinr > scene.floor_db + 1e-3) & legal
+            out.append((planes, sinr, live, (~live) & legal, legal, scene.floor_db))
+    return out
+
+
+def _symmetry(a: np.ndarray, k: int) -> np.ndarray:
+    """``a`` [..., H, W] under the k-th of the square's eight symmetries."""
+    a = np.rot90(a, k % 4, axes=(-2, -1))
+    return a[..., ::-1] if k >= 4 else a
+
+
+def _batch(examples: list[tuple], config: UNetConfig, rng: np.random.Generator) -> tuple[torch.Tensor, ...]:
+    c = config.crop
+    xs, ys, lives, lows, legals, floors = [], [], [], [], [], []
+    for _ in range(config.batch):
+        planes, sinr, live, low, legal, floor = examples[int(rng.integers(len(examples)))]
+        h, w = sinr.shape
+        y0, x0 = int(rng.integers(max(h - c, 0) + 1)), int(rng.integers(max(w - c, 0) + 1))
+        k = int(rng.integers(8))
+        for target, a in ((xs, planes), (ys, sinr), (lives, live), (lows, low), (legals, legal)):
+            target.append(_pad_to(_symmetry(a[..., y0 : y0 + c, x0 : x0 + c], k), c, c))
+        floors.append(floor)
+    x, y = torch.from_numpy(np.stack(xs)), torch.from_numpy(np.stack(ys))
+    live_t, low_t, legal_t = (torch.from_numpy(np.stack(a)) for a in (lives, lows, legals))
+    return x, y, live_t, low_t, legal_t, torch.tensor(floors, dtype=torch.float32)
+
+
+def _loss(net: MapUNet, batch: tuple[torch.Tensor, ...], dead_weight: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """(loss, residuals of the live cells [dB])."""
+    x, y, live, low, legal, floor = batch
+    mu, logit = _outputs(net, x, floor)
+    residual = (mu - y)[live]
+    reg = F.huber_loss(residual / SCALE_DB, torch.zeros_like(residual), delta=0.5) if residual.numel() else mu.sum() * 0
+    bce = F.binary_cross_entropy_with_logits(logit[legal], low[legal].float()) if legal.any() else mu.sum() * 0
+    return reg + dead_weight * bce, residual.detach()
+
+
+def train_learned(
+    bundles: list[Bundle],
+    users: list[np.ndarray],
+    constants: PhysicsConstants,
+    config: UNetConfig,
+    progress: Callable[[int, float], None] | None = None,
+) -> tuple[MapUNet, dict]:
+    """Train the U-Net on ``users`` of ``bundles`` (module docstring). Returns (network, facts: ``error_db`` the
+    residual std on the training users' live cells, ``train_seconds``, ``final_loss``, ``users``)."""
+    torch.manual_seed(config.seed)
+    torch.set_num_threads(config.threads)
+    rng = np.random.default_rng(config.seed)
+    examples = training_examples(bundles, users, constants)
+    if not examples:
+        raise ValueError("train_learned: no user to train on")
+    net = MapUNet(config.widths)
+    if config.crop % net.multiple:
+        raise ValueError(f"crop {config.crop} is not a multiple of {net.multiple} ({len(config.widths)} levels)")
+    opt = torch.optim.Adam(net.parameters(), lr=config.lr)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, config.steps, eta_min=config.lr / 20)
+    t0, recent = time.perf_counter(), []
+    for step in range(config.steps):
+        loss, _ = _loss(net, _batch(examples, config, rng), config.dead_weight)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        sched.step()
+        recent = (recent + [loss.item()])[-50:]
+        if progress is not None:
+            progress(step + 1, float(np.mean(recent)))
+    train_s = time.perf_counter() - t0
+    net.eval()
+    residuals = []
+    with torch.no_grad():  # the residual's spread over whole maps (no crop), the searcher's likelihood width
+        for planes, sinr, live, _low, _legal, floor in examples:
+            m = net.multiple
+            h, w = sinr.shape
+            ph, pw = -(-h // m) * m, -(-w // m) * m
+            mu, _ = _outputs(net, torch.from_numpy(_pad_to(planes, ph, pw))[None], torch.tensor([floor]))
+            residuals.append((mu[0, :h, :w].numpy() - sinr)[live])
+    error = float(np.std(np.concatenate(residuals)))
+    return net, {"error_db": error, "train_seconds": train_s, "final_loss": float(np.mean(recent)),
+                 "users": len(examples)}  # fmt: skip
+
+
+def save_learned(folder: Path, net: MapUNet, model_fields: dict) -> LearnedModel:
+    """Write ``weights.pt`` (tensors only) and ``model.json`` into ``folder`` (a fresh folder that the caller
+    publishes); returns the description."""
+    save_tensors({k: v.detach().clone() for k, v in net.state_dict().items()}, folder / WEIGHTS)
+    digest = hashlib.sha256((folder / WEIGHTS).read_bytes()).hexdigest()
+    model = LearnedModel(weights_sha256=digest, **model_fields)
+    (folder / MODEL_JSON).write_text(model.model_dump_json(indent=2) + "\n")
+    return model
+
+
+def model_card(model: LearnedModel, command: str) -> str:
+    """The model card of a learned tier: data, settings, error and speed, from ``model.json``'s facts."""
+    rows = ["| city | tier | median \\|error\\| [dB] | p90 \\|error\\| [dB] | dead/live agreement | ms per map |",
+            "|---|---|---|---|---|---|"]  # fmt: skip
+    for city, s in model.scores.items():
+        for tier in ("learned", "physics"):
+            rows.append(f"| {city} | {tier} | {s[f'{tier}_median_error_db']:.1f} | {s[f'{tier}_p90_error_db']:.1f} | "
+                        f"{100 * s[f'{tier}_dead_live_agreement']:.1f} % | {s[f'{tier}_ms_per_map']:.0f} |")  # fmt: skip
+    params = sum(p.numel() for p in MapUNet(model.config.widths).parameters())
+    return "\n".join([
+        "# Model card: the map searcher's learned radio-map predictor",
+        "",
+        "Written by `uavrl train-predictor` (rl/learned.py); every number below is measured by that command.",
+        "",
+        "- **What it predicts**: the SINR map [dB] at the UAV plane of a ground user at a given cell, and the",
+        "  probability that each cell is dead or at the SINR floor, from public inputs only (building heights, grid,",
+        "  altitude, carrier, transmit power, noise level, floor) and the physics tier's map (rl/predictor.py).",
+        f"- **Network**: a U-Net of widths {model.config.widths} ({params} parameters), {len(PLANES)} input planes "
+        f"({', '.join(PLANES)}), two outputs correcting the physics tier's SINR and dead-cell logit.",
+        f"- **Data**: {model.users} users of {len(model.fitted_on)} training bundles ({', '.join(model.fitted_on)}), "
+        "the legal cells of their ray-traced maps, random crops under the eight symmetries of the square.",
+        f"- **Training**: {model.config.steps} Adam steps of {model.config.batch} crops of {model.config.crop} cells, "
+        f"lr {model.config.lr:g}, seed {model.config.seed}: {model.train_seconds:.0f} s on {model.config.threads} CPU "
+        f"threads; final loss {model.final_loss:.4f}; residual std on the training users' live cells "
+        f"{model.error_db:.1f} dB.",
+        "- **Weights**: `weights.pt`, tensors only (loaded with `torch.load(weights_only=True)`), sha256 "
+        f"`{model.weights_sha256}`.",
+        "",
+        "## Error on the validation cities' users (legal cells; the prediction floored, the floor where it says dead)",
+        "",
+        *rows,
+        "",
+        "## Made by",
+        "",
+        "```bash",
+        command,
+        "```",
+        "",
+    ])  # fmt: skip

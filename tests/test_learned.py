@@ -1,0 +1,144 @@
+"""The learned tier of the radio-map predictor: an untrained network is the physics tier, training lowers its loss,
+its files are data (weights only, bound to their description by a hash), and `uavrl train-predictor` writes them."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+
+from uavplace.dataset.bundle import load_bundle
+from uavplace.rl.learned import (
+    MODEL_CARD,
+    MODEL_JSON,
+    WEIGHTS,
+    LearnedModel,
+    LearnedPredictor,
+    MapUNet,
+    UNetConfig,
+    _batch,
+    _loss,
+    load_learned,
+    save_learned,
+    train_learned,
+    training_examples,
+)
+from uavplace.rl.predictor import PhysicsConstants, PhysicsPredictor, Scene
+from uavplace.rl.searcher import MapSearchPolicy, PredictionCache, SearchConfig, load_predictor
+from uavplace.schemas import InputError
+from uavplace.schemas.cli import uavrl
+
+SMALL = UNetConfig(widths=[4, 8], crop=16, batch=4, steps=40, lr=5e-3, threads=1)
+
+
+def _constants() -> PhysicsConstants:
+    return PhysicsConstants(intercept_db=-20, log_d_db=-23, wall_db=-9, diffraction_weight=0.1, dead_level_db=-13,
+                            dead_scale_db=4, error_db=10, max_walls=3)  # fmt: skip
+
+
+def _fields(constants: PhysicsConstants, config: UNetConfig) -> dict:
+    return {"config": config, "constants": constants, "error_db": 9.0, "users": 1, "train_seconds": 0.0,
+            "final_loss": 0.0}  # fmt: skip
+
+
+def test_untrained_network_is_the_physics_tier(tiny):
+    """The head starts at zero: before training the learned tier predicts the physics tier's maps exactly."""
+    bundle = load_bundle("tiny", root=tiny)
+    scene, constants = Scene.of(bundle), _constants()
+    model = LearnedModel(weights_sha256="0" * 64, **_fields(constants, SMALL))
+    learned = LearnedPredictor(model, MapUNet(SMALL.widths))
+    users = np.argwhere(scene.ground_height_m <= 0)[:5]
+    cells = np.argwhere(~bundle.blocked)
+    mu, p_dead = learned.predict(scene, users, cells)
+    want_mu, want_dead = PhysicsPredictor(constants).predict(scene, users, cells)
+    np.testing.assert_allclose(mu, want_mu, atol=1e-3)
+    np.testing.assert_allclose(p_dead, want_dead, atol=1e-4)
+
+
+def test_training_lowers_the_loss_and_is_seeded(tiny):
+    bundle = load_bundle("tiny", root=tiny)
+    users = [bundle.user_indices()]
+    examples = training_examples([bundle], users, _constants())
+    fixed = _batch(examples, SMALL.model_copy(update={"batch": 16}), np.random.default_rng(123))
+    before = _loss(MapUNet(SMALL.widths), fixed, 1.0)[0].item()
+    net, facts = train_learned([bundle], users, _constants(), SMALL)
+    after = _loss(net, fixed, 1.0)[0].item()
+    assert after < before
+    again, _ = train_learned([bundle], users, _constants(), SMALL)
+    for a, b in zip(net.state_dict().values(), again.state_dict().values(), strict=True):
+        torch.testing.assert_close(a, b)
+    assert facts["users"] == bundle.num_users and facts["error_db"] > 0
+
+
+def test_learned_files_round_trip_and_refuse_foreign_weights(tiny, tmp_path):
+    bundle = load_bundle("tiny", root=tiny)
+    net, facts = train_learned([bundle], [bundle.user_indices()], _constants(), SMALL.model_copy(update={"steps": 3}))
+    folder = tmp_path / "unet"
+    folder.mkdir()
+    save_learned(folder, net, {"config": SMALL, "constants": _constants(), **facts})
+    loaded = load_predictor(folder)
+    scene = Scene.of(bundle)
+    users, cells = np.array([[2, 3], [5, 5]]), np.argwhere(~bundle.blocked)
+    for a, b in zip(loaded.predict(scene, users, cells), LearnedPredictor(loaded.model, net).predict(scene, users, cells),
+                    strict=True):  # fmt: skip
+        np.testing.assert_allclose(a, b, atol=1e-6)
+    other = MapUNet(SMALL.widths)  # weights that are not the ones model.json names
+    torch.save(other.state_dict(), folder / WEIGHTS)
+    with pytest.raises(InputError, match="sha256"):
+        load_learned(folder)
+    (folder / MODEL_JSON).write_text(json.dumps({"config": {"widths": []}}))
+    with pytest.raises(InputError, match="model.json"):
+        load_learned(folder)
+
+
+def test_searcher_with_the_learned_tier_finds_the_tiny_users(tiny, tmp_path):
+    from uavplace.rl.config import EnvConfig
+    from uavplace.rl.maps import MapSet
+    from uavplace.rl.rollout import run_episodes
+
+    bundle = load_bundle("tiny", root=tiny)
+    net, facts = train_learned([bundle], [bundle.user_indices()], _constants(), SMALL.model_copy(update={"steps": 3}))
+    folder = tmp_path / "unet"
+    folder.mkdir()
+    save_learned(folder, net, {"config": SMALL, "constants": _constants(), **facts})
+    maps = MapSet.load("tiny", EnvConfig(t_max=100), root=str(tiny))
+    cache = PredictionCache(tmp_path / "cache")
+    policy = MapSearchPolicy(load_predictor(folder), SearchConfig(), cache)
+    df = run_episodes(maps, policy, maps.episode_list(16, 0), num_envs=8)
+    assert df["success"].mean() >= 0.9
+    warm = run_episodes(
+        maps, MapSearchPolicy(load_predictor(folder), SearchConfig(), cache), maps.episode_list(16, 0), num_envs=8
+    )
+    np.testing.assert_array_equal(df["steps"], warm["steps"])  # the cached maps play as the computed ones
+
+
+def test_train_predictor_cli_writes_weights_model_and_card(tiny, tmp_path):
+    constants = tmp_path / "predictor.json"
+    constants.write_text(_constants().model_dump_json())
+    out = tmp_path / "unet"
+    args = ["train-predictor", "--dataset", "tiny", "--val-dataset", "tiny", "--constants", str(constants), "--out",
+            str(out), "--steps", "2", "--batch", "2", "--threads", "1", "--quiet", "--root", str(tiny)]  # fmt: skip
+    result = CliRunner().invoke(uavrl, args)
+    assert result.exit_code == 0, result.output
+    assert {p.name for p in out.iterdir()} == {MODEL_JSON, WEIGHTS, MODEL_CARD}
+    model = load_learned(out).model
+    assert set(model.scores) == {"tiny"} and model.scores["tiny"]["learned_ms_per_map"] > 0
+    assert "uavrl train-predictor" in (out / MODEL_CARD).read_text()
+    (out / MODEL_JSON).unlink()
+    (out / "notes.txt").write_text("mine")  # a folder that is not a learned predictor's is never replaced
+    result = CliRunner().invoke(uavrl, args)
+    assert result.exit_code != 0 and (out / "notes.txt").read_text() == "mine"
+
+
+def test_shipped_learned_tier_loads_and_says_how_it_was_made():
+    from tests.conftest import REPO
+    from uavplace.rl.searcher import DEFAULT_PREDICTOR
+
+    predictor = load_predictor(REPO / DEFAULT_PREDICTOR)
+    assert predictor.tier == "learned" and predictor.error_db > 0
+    assert predictor.model.users > 0 and predictor.model.scores  # trained on users, scored on validation cities
+    card = (REPO / DEFAULT_PREDICTOR / MODEL_CARD).read_text()
+    assert predictor.model.weights_sha256 in card
