@@ -90,6 +90,11 @@ class ReportConfig(Contract):
         description="The map searcher's predictor: the physics tier's constants (a JSON file) or a learned tier (a folder; rl.searcher.load_predictor); None: no searcher is played",
     )
     search: SearchConfig = Field(default_factory=SearchConfig, description="The map searcher's settings")
+    ablate: bool = Field(
+        default=True,
+        description="Also play every agent that reads the building map with the map blanked (MapSet.show_buildings(None): "
+        "what it sees, not where it may fly), as '<agent>, no buildings', paired on the same episodes",
+    )
     prediction_cache: str | None = Field(
         default=None, description="Folder of the searcher's predicted maps (None: .predictions beside the bundles)"
     )
@@ -252,6 +257,33 @@ def results_table(results: dict[str, pd.DataFrame], config: ReportConfig) -> pd.
     return table
 
 
+#: The suffix of a method played with the building map blanked, and the reference column of its cost.
+NO_BUILDINGS, WITH_BUILDINGS = ", no buildings", "the same with buildings"
+
+
+def _blanked(config: ReportConfig, bundle: Bundle, agents: list[Agent], on_progress) -> dict[str, pd.DataFrame]:  # noqa: ANN001
+    """The agents that read the building map, played again on the same episodes with the map blanked."""
+    readers = [load_agent(a.folder, config.test_epsilon, config.seed) for a in agents if not a.config.env.blind]
+    for reader, agent in zip(readers, [a for a in agents if not a.config.env.blind], strict=True):
+        reader.name = reader.policy.name = agent.name + NO_BUILDINGS
+    if not readers:
+        return {}
+    return evaluate(config, bundle, readers, on_progress, baselines=[], seen=lambda m: m.show_buildings(None))
+
+
+def ablation_table(results: dict[str, pd.DataFrame], config: ReportConfig) -> pd.DataFrame:
+    """The map ablation's cost: for every method ``X`` played also as ``X, no buildings``, the paired difference
+    ``(X, no buildings) - X``, its reference named ``WITH_BUILDINGS`` (a column of its own in the differences)."""
+    parts = []
+    for name in results:
+        if name.endswith(NO_BUILDINGS) and name[: -len(NO_BUILDINGS)] in results:
+            plain = name[: -len(NO_BUILDINGS)]
+            d = difference_table({plain: results[plain], name: results[name]}, [plain], n_boot=config.n_boot,
+                                 seed=config.seed)  # fmt: skip
+            parts.append(d[d["method"] == name].assign(against=WITH_BUILDINGS))
+    return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
+
+
 def references(methods: list[str]) -> list[str]:
     """What every method is compared with, in order: the paper's blind agent (the baseline of the paper's claim), the
     genie (the bound), the shipped best learner and the map searcher (its ablation's cost is the difference)."""
@@ -323,6 +355,8 @@ def _difference_cell(stat: str, r: pd.Series) -> str:
 
 
 def _paper_key(method: str) -> str | None:
+    if method.endswith(NO_BUILDINGS):  # the paper played no method on a blanked map
+        return None
     if method == "genie":
         return "genie"
     if method.startswith(("blind DQN", "blind PQN")):
@@ -735,9 +769,14 @@ def make_report(
     bounds, bound_notes = training_bounds(agents, root, config.p_t_db)
 
     results = evaluate(config, bundle, agents, on_progress)
+    if config.ablate:
+        results |= _blanked(config, bundle, agents, on_progress)
     table = results_table(results, config)
     refs = references(list(results))
-    differences = difference_table(results, refs, n_boot=config.n_boot, seed=config.seed)
+    differences = pd.concat(
+        [difference_table(results, refs, n_boot=config.n_boot, seed=config.seed), ablation_table(results, config)],
+        ignore_index=True,
+    )
     named = groups_of(config, agents)  # the --group runs by their names in the results; references as groups of one
     groups = named | {r: [r] for r in refs}
     grouped = group_tables(results, groups, refs, n_boot=config.n_boot, seed=config.seed) if named else None

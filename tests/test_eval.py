@@ -184,7 +184,11 @@ def test_report_end_to_end(tmp_path, two_cities):
         assert text in page
     table = pd.read_csv(out / "results.csv")
     assert list(table["method"]) == ["PQN + GRU (best)", "genie", "steered random walk", "greedy hill-climbing", "map searcher",
-                                     "map searcher, no buildings"]  # fmt: skip
+                                     "map searcher, no buildings", "PQN + GRU (best), no buildings"]  # fmt: skip
+    diffs = pd.read_csv(out / "differences.csv")  # the map ablation's cost, paired, for the agent and the searcher
+    ablation = diffs[diffs.against == "the same with buildings"]
+    assert set(ablation["method"]) == {"PQN + GRU (best), no buildings", "map searcher, no buildings"}
+    assert "success - the same with buildings" in page
     assert table.loc[table.method == "genie", "success"].item() == 1.0
     assert (table["success_lo"] <= table["success"]).all() and (table["success"] <= table["success_hi"]).all()
     eps = pd.read_parquet(out / "episodes.parquet")
