@@ -287,9 +287,23 @@ def ensemble(runs: tuple[Path, ...], out: Path, root: Path, quiet: bool) -> None
                    f"{row['median_steps']:g} steps", highlight=False, soft_wrap=True)  # fmt: skip
 
 
+#: The predictors' training cities (``uavrl fit-predictor``, ``uavrl train-predictor``).
+training_cities_option = click.option(
+    "--dataset", "datasets", multiple=True, required=True,
+    help="Training city (repeatable); a city with a declared role gives its train users only.",
+)  # fmt: skip
+
+
+def _training_users(datasets: tuple[str, ...], root: Path) -> tuple[list, list]:
+    """(bundles, their training users): a city with a declared role gives its train users only, any other all."""
+    from uavplace.dataset.bundle import load_bundle
+
+    bundles = [load_bundle(name, root=root) for name in datasets]
+    return bundles, [b.user_indices("train") if b.manifest.config.role else b.user_indices() for b in bundles]
+
+
 @click.command("fit-predictor")
-@click.option("--dataset", "datasets", multiple=True, required=True, help="Training city to fit on (repeatable); a city "
-              "with a declared role gives its train users only.")  # fmt: skip
+@training_cities_option
 @click.option("--val-dataset", "val_datasets", multiple=True, help="Validation city whose users' maps score the fit "
               "(repeatable): median and p90 |error| [dB], dead/live agreement.")  # fmt: skip
 @click.option(
@@ -305,8 +319,7 @@ def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out:
     from uavplace.schemas.files import atomic_write_text, check_replaceable_file
 
     check_replaceable_file(out)
-    bundles = [load_bundle(name, root=root) for name in datasets]
-    users = [b.user_indices("train") if b.manifest.config.role else b.user_indices() for b in bundles]
+    bundles, users = _training_users(datasets, root)
     t0 = time.perf_counter()
     constants = fit_constants(bundles, users)
     table = plain_table("city", "users", "median |error| [dB]", "p90 |error| [dB]", "dead/live agreement")
@@ -323,8 +336,7 @@ def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out:
 
 
 @click.command("train-predictor")
-@click.option("--dataset", "datasets", multiple=True, required=True, help="Training city (repeatable); a city with a "
-              "declared role gives its train users only.")  # fmt: skip
+@training_cities_option
 @click.option("--val-dataset", "val_datasets", multiple=True, help="Validation city whose users' maps score both tiers "
               "(repeatable): median and p90 |error| [dB], dead/live agreement, ms per map; in model.json and the card.")  # fmt: skip
 @click.option(
@@ -357,8 +369,7 @@ def train_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], co
 
     physics = load_constants(constants)
     config = UNetConfig(steps=steps, batch=batch, seed=seed, threads=threads)
-    bundles = [load_bundle(name, root=root) for name in datasets]
-    users = [b.user_indices("train") if b.manifest.config.role else b.user_indices() for b in bundles]
+    bundles, users = _training_users(datasets, root)
     columns = (TextColumn("[bold]train-predictor[/] loss {task.fields[loss]:.4f}"), BarColumn(), MofNCompleteColumn(),
                TextColumn("steps"), TimeElapsedColumn())  # fmt: skip
     lines = not quiet and not stdout().is_terminal  # a log: a plain line every LINE_SECONDS instead of a bar

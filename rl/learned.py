@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from pydantic import Field, ValidationError
+from pydantic import Field
 from torch import nn
 from torch.nn import functional as F
 
@@ -33,7 +33,8 @@ from uavplace.dataset.bundle import Bundle
 from uavplace.rl.agent.checkpoint import load_tensors, save_tensors
 from uavplace.rl.predictor import PhysicsConstants, Scene, dead_probability, path_features, sinr_from_features
 from uavplace.schemas import InputError
-from uavplace.schemas.base import Contract, validation_message
+from uavplace.schemas.base import Contract
+from uavplace.schemas.files import read_model_json, sha256_file, write_model_json
 
 #: The learned tier's files in its folder.
 MODEL_JSON, WEIGHTS, MODEL_CARD = "model.json", "weights.pt", "MODEL_CARD.md"
@@ -142,6 +143,11 @@ def _outputs(net: MapUNet, planes: torch.Tensor, floor_db: torch.Tensor) -> tupl
     return physics + SCALE_DB * out[:, 0], _physics_logit(planes) + out[:, 1]
 
 
+def _padded(ny: int, nx: int, multiple: int) -> tuple[int, int]:
+    """The least sides from ``(ny, nx)`` up that are multiples of ``multiple``."""
+    return -(-ny // multiple) * multiple, -(-nx // multiple) * multiple
+
+
 def _pad_to(a: np.ndarray, ny: int, nx: int) -> np.ndarray:
     pad = [(0, 0)] * (a.ndim - 2) + [(0, ny - a.shape[-2]), (0, nx - a.shape[-1])]
     return np.pad(a, pad)
@@ -167,8 +173,7 @@ class LearnedPredictor:
         """(``mu``, ``p_dead``), each ``[U, M]`` float32, as ``PhysicsPredictor.predict``."""
         users, cells = np.asarray(users, np.int64).reshape(-1, 2), np.asarray(cells, np.int64).reshape(-1, 2)
         ny, nx = scene.ground_height_m.shape
-        m = self.net.multiple
-        py, px = -(-ny // m) * m, -(-nx // m) * m
+        py, px = _padded(ny, nx, self.net.multiple)
         floor = torch.tensor([scene.floor_db], dtype=torch.float32)
         mu = np.empty((len(users), len(cells)), np.float32)
         p_dead = np.empty_like(mu)
@@ -185,20 +190,12 @@ def load_learned(folder: str | Path) -> LearnedPredictor:
     """The learned tier in ``folder`` (``model.json`` and ``weights.pt``); ``InputError`` naming the file when
     unreadable, invalid, or when the weights are not the ones ``model.json`` names."""
     folder = Path(folder)
-    path = folder / MODEL_JSON
-    if not path.is_file():
-        raise InputError(path, "not a file: a learned predictor's description (`uavrl train-predictor` writes it)")
-    if path.stat().st_size > 1 << 20:
-        raise InputError(path, "over 1 MiB: not a learned predictor's description")
-    try:
-        model = LearnedModel.model_validate_json(path.read_bytes())
-    except ValidationError as exc:
-        where, message = validation_message(exc)
-        raise InputError(path, message, field=where) from None
+    what = "a learned predictor's description (`uavrl train-predictor` writes it)"
+    model = read_model_json(folder / MODEL_JSON, LearnedModel, what)
     weights = folder / WEIGHTS
     if not weights.is_file():
         raise InputError(weights, "not a file: the learned predictor's weights")
-    digest = hashlib.sha256(weights.read_bytes()).hexdigest()
+    digest = sha256_file(weights)
     if digest != model.weights_sha256:
         raise InputError(weights, f"sha256 {digest[:12]}... is not the {model.weights_sha256[:12]}... that "
                          f"{MODEL_JSON} names: the weights and their description do not belong together")  # fmt: skip
@@ -293,9 +290,8 @@ def train_learned(
     residuals = []
     with torch.no_grad():  # the residual's spread over whole maps (no crop), the searcher's likelihood width
         for planes, sinr, live, _low, _legal, floor in examples:
-            m = net.multiple
             h, w = sinr.shape
-            ph, pw = -(-h // m) * m, -(-w // m) * m
+            ph, pw = _padded(h, w, net.multiple)
             mu, _ = _outputs(net, torch.from_numpy(_pad_to(planes, ph, pw))[None], torch.tensor([floor]))
             residuals.append((mu[0, :h, :w].numpy() - sinr)[live])
     error = float(np.std(np.concatenate(residuals)))
@@ -307,9 +303,8 @@ def save_learned(folder: Path, net: MapUNet, model_fields: dict) -> LearnedModel
     """Write ``weights.pt`` (tensors only) and ``model.json`` into ``folder`` (a fresh folder that the caller
     publishes); returns the description."""
     save_tensors({k: v.detach().clone() for k, v in net.state_dict().items()}, folder / WEIGHTS)
-    digest = hashlib.sha256((folder / WEIGHTS).read_bytes()).hexdigest()
-    model = LearnedModel(weights_sha256=digest, **model_fields)
-    (folder / MODEL_JSON).write_text(model.model_dump_json(indent=2) + "\n")
+    model = LearnedModel(weights_sha256=sha256_file(folder / WEIGHTS), **model_fields)
+    write_model_json(model, folder / MODEL_JSON)
     return model
 
 

@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from pydantic import Field, ValidationError
+from pydantic import Field
 from scipy import sparse
 from scipy.sparse.csgraph import shortest_path
 from scipy.special import ndtr
@@ -38,9 +38,8 @@ from scipy.special import ndtr
 from uavplace.rl.maps import MOVES
 from uavplace.rl.predictor import PhysicsConstants, PhysicsPredictor, Predictor, Scene
 from uavplace.rl.view import AgentView, PublicMaps
-from uavplace.schemas import InputError
-from uavplace.schemas.base import Contract, validation_message
-from uavplace.schemas.files import atomic_write_bytes
+from uavplace.schemas.base import Contract
+from uavplace.schemas.files import atomic_write_bytes, read_model_json
 from uavplace.schemas.limits import check_limit
 
 #: Where the shipped physics tier's constants live.
@@ -209,15 +208,18 @@ class MapSearchPolicy:
         return self._graphs[key]
 
     def _from(self, public: PublicMaps, canvas: int, maps: CandidateMaps, cell: int) -> tuple[np.ndarray, np.ndarray]:
-        """(distances [M] in moves, predecessors [M]) of the shortest legal paths from legal cell ``cell``; kept for
-        the most recent 4096 cells."""
+        """(discount [M], predecessors [M]) of the shortest legal paths from legal cell ``cell``: each cell's discount
+        by its fewest moves (``SearchConfig.discount``; -1 where unreachable); kept for the most recent 4096 cells."""
         key = (canvas, cell, public.settings[public.bundle_of(canvas)]["version"])
         hit = self._paths.get(key)
         if hit is not None:
             self._paths.move_to_end(key)
             return hit
         d, pred = shortest_path(self._graph(public, canvas, maps), unweighted=True, indices=cell, return_predecessors=True)
-        hit = (d.astype(np.float32), pred.astype(np.int32))
+        d = d.astype(np.float32)
+        scale = d / self.config.reach_cells
+        discount = np.exp(-scale) if self.config.discount == "exp" else 1.0 / (1.0 + scale)
+        hit = (np.where(np.isfinite(d), discount, np.float32(-1.0)), pred.astype(np.int32))
         self._paths[key] = hit
         if len(self._paths) > 4096:
             self._paths.popitem(last=False)
@@ -285,10 +287,8 @@ class MapSearchPolicy:
     def _move(self, public: PublicMaps, canvas: int, maps: CandidateMaps, here: int, score: np.ndarray,
               seen: np.ndarray, mask: np.ndarray) -> int:  # fmt: skip
         """The first move along a shortest legal path to the unvisited cell of best discounted ``score``."""
-        dist, pred = self._from(public, canvas, maps, here)
-        scale = dist / self.config.reach_cells
-        discount = np.exp(-scale) if self.config.discount == "exp" else 1.0 / (1.0 + scale)
-        score = np.where(seen | ~np.isfinite(dist), -1.0, score * discount)
+        discount, pred = self._from(public, canvas, maps, here)
+        score = np.where(seen | (discount < 0), -1.0, score * discount)
         target = int(np.argmax(score))
         if target == here or score[target] < 0:
             return int(np.argmax(mask))
@@ -312,13 +312,4 @@ def load_predictor(path: str | Path = DEFAULT_PREDICTOR) -> Predictor:
 
 def load_constants(path: str | Path = DEFAULT_CONSTANTS) -> PhysicsConstants:
     """The predictor's constants from their JSON file (``InputError`` naming it when unreadable or invalid)."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "not a file: the predictor's constants (`uavrl fit-predictor` writes them)")
-    if path.stat().st_size > 1 << 20:
-        raise InputError(path, "over 1 MiB: not a predictor's constants")
-    try:
-        return PhysicsConstants.model_validate_json(path.read_bytes())
-    except ValidationError as exc:
-        where, message = validation_message(exc)
-        raise InputError(path, message, field=where) from None
+    return read_model_json(path, PhysicsConstants, "a predictor's constants (`uavrl fit-predictor` writes them)")

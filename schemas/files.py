@@ -22,10 +22,13 @@ import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TypeVar
 
-from pydantic import BaseModel
+from pydantic import BaseModel, ValidationError
 
-from uavplace.schemas.base import NAME_PATTERN, InputError
+from uavplace.schemas.base import NAME_PATTERN, InputError, validation_message
+
+M = TypeVar("M", bound=BaseModel)
 
 #: Default root of ingested cities and bundles (relative to the working folder).
 DEFAULT_ROOT = Path("data/processed")
@@ -69,6 +72,22 @@ def sha256_file(path: str | Path) -> str:
 def write_model_json(model: BaseModel, path: str | Path) -> None:
     """Write a pydantic model as indented JSON (the caller makes it atomic)."""
     Path(path).write_text(model.model_dump_json(indent=2) + "\n", encoding="utf-8")
+
+
+def read_model_json(path: str | Path, model: type[M], what: str, max_bytes: int = 1 << 20) -> M:
+    """A small JSON file as the pydantic ``model``; ``InputError`` naming the file (and the field) when it is not a
+    file, is over ``max_bytes`` or does not validate. ``what`` says what the file should be ("a predictor's
+    constants (`uavrl fit-predictor` writes them)")."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, f"not a file: {what}")
+    if path.stat().st_size > max_bytes:
+        raise InputError(path, f"over {max_bytes:,} bytes: not {what}")
+    try:
+        return model.model_validate_json(path.read_bytes())
+    except ValidationError as exc:
+        where, message = validation_message(exc)
+        raise InputError(path, message, field=where) from None
 
 
 def write_json(obj: object, path: str | Path) -> None:

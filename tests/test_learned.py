@@ -44,6 +44,14 @@ def _fields(constants: PhysicsConstants, config: UNetConfig) -> dict:
             "final_loss": 0.0}  # fmt: skip
 
 
+def _trained_and_saved(bundle, folder):  # noqa: ANN001, ANN202
+    """(network, folder): three training steps on ``bundle``'s users, saved as a learned tier in ``folder``."""
+    net, facts = train_learned([bundle], [bundle.user_indices()], _constants(), SMALL.model_copy(update={"steps": 3}))
+    folder.mkdir()
+    save_learned(folder, net, {"config": SMALL, "constants": _constants(), **facts})
+    return net, folder
+
+
 def test_untrained_network_is_the_physics_tier(tiny):
     """The head starts at zero: before training the learned tier predicts the physics tier's maps exactly."""
     bundle = load_bundle("tiny", root=tiny)
@@ -75,10 +83,7 @@ def test_training_lowers_the_loss_and_is_seeded(tiny):
 
 def test_learned_files_round_trip_and_refuse_foreign_weights(tiny, tmp_path):
     bundle = load_bundle("tiny", root=tiny)
-    net, facts = train_learned([bundle], [bundle.user_indices()], _constants(), SMALL.model_copy(update={"steps": 3}))
-    folder = tmp_path / "unet"
-    folder.mkdir()
-    save_learned(folder, net, {"config": SMALL, "constants": _constants(), **facts})
+    net, folder = _trained_and_saved(bundle, tmp_path / "unet")
     loaded = load_predictor(folder)
     scene = Scene.of(bundle)
     users, cells = np.array([[2, 3], [5, 5]]), np.argwhere(~bundle.blocked)
@@ -100,10 +105,7 @@ def test_searcher_with_the_learned_tier_finds_the_tiny_users(tiny, tmp_path):
     from uavplace.rl.rollout import run_episodes
 
     bundle = load_bundle("tiny", root=tiny)
-    net, facts = train_learned([bundle], [bundle.user_indices()], _constants(), SMALL.model_copy(update={"steps": 3}))
-    folder = tmp_path / "unet"
-    folder.mkdir()
-    save_learned(folder, net, {"config": SMALL, "constants": _constants(), **facts})
+    _, folder = _trained_and_saved(bundle, tmp_path / "unet")
     maps = MapSet.load("tiny", EnvConfig(t_max=100), root=str(tiny))
     cache = PredictionCache(tmp_path / "cache")
     policy = MapSearchPolicy(load_predictor(folder), SearchConfig(), cache)
