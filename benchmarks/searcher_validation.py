@@ -1,13 +1,13 @@
 """The map searcher on validation cities: the report's methods that matter to it, paired on the same episodes.
 
 Per validation city (never a test city: this is where the searcher's settings are chosen): the genie, the shipped
-``best``, the map searcher (rl/searcher.py) and its ablation shown open ground, on the episodes ``uavrl report``
-draws; success, median steps, ratio to the genie's median and SPL with 95 % intervals over users then episodes, and
-the searcher's and its ablation's paired differences against ``best`` and against the searcher. Settings of the
-searcher as ``--set name=value`` (``SearchConfig`` fields).
+``best`` (or the agents of ``--agent``, the first the reference), the map searcher (rl/searcher.py) and its ablation
+shown open ground, on the episodes ``uavrl report`` draws; success, median steps, ratio to the genie's median and SPL
+with 95 % intervals over users then episodes, and every method's paired differences against the first agent and
+against the searcher. Settings of the searcher as ``--set name=value`` (``SearchConfig`` fields).
 
     python benchmarks/searcher_validation.py [--city oldtown-005] [--episodes 300] [--set temper=0.3] [--quick]
-        [--predictor data/agents/searcher/unet]
+        [--predictor data/agents/searcher/unet] [--agent data/agents/best --agent runs/hybrid/h-s0]
 """
 
 from __future__ import annotations
@@ -49,7 +49,13 @@ def main() -> None:
     )
     ap.add_argument("--episodes", type=int, default=300)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--agent", type=Path, default=Path("data/agents/best"))
+    ap.add_argument(
+        "--agent",
+        type=Path,
+        action="append",
+        default=None,
+        help="Agent folder (repeatable; default: data/agents/best); the first is the reference of the differences",
+    )
     ap.add_argument("--set", action="append", default=[], help="A SearchConfig field, name=value (JSON value)")
     ap.add_argument("--root", type=Path, default=Path("data/processed"))
     ap.add_argument("--predictor", type=Path, default=DEFAULT_PREDICTOR, help="Constants' JSON or a learned tier's folder")
@@ -58,7 +64,11 @@ def main() -> None:
     settings = {k: _value(v) for k, v in (s.split("=", 1) for s in args.set)}
     search = SearchConfig(**settings)
     predictor, cache = load_predictor(args.predictor), PredictionCache(args.root / PREDICTIONS)
-    agents = [] if args.quick else [load_agent(args.agent, epsilon=0.096, seed=args.seed)]
+    folders = args.agent or [Path("data/agents/best")]
+    agents = [] if args.quick else [load_agent(f, epsilon=0.096, seed=args.seed) for f in folders]
+    if len({a.name for a in agents}) != len(agents):  # two runs of one preset: named by their folders
+        for a, f in zip(agents, folders, strict=True):
+            a.name = a.policy.name = f"{a.name} [{f.name}]"
     print(f"searcher settings: {search.model_dump()}")
     for city in args.city or VALIDATION:
         bundle = load_bundle(city, root=args.root)
@@ -79,9 +89,9 @@ def main() -> None:
                          f"{r['median_steps']:g} [{r['median_steps_lo']:g}, {r['median_steps_hi']:g}]",
                          f"{r['medians_ratio']:.2f}", f"{r['spl']:.3f}"])  # fmt: skip
         print(f"\n{city} ({args.episodes} episodes, {wall:.0f} s)\n" + markdown_table(rows), flush=True)
-        diffs = difference_table(results, [a.name for a in agents] + [SEARCHER], n_boot=1000, seed=args.seed)
+        diffs = difference_table(results, [a.name for a in agents[:1]] + [SEARCHER], n_boot=1000, seed=args.seed)
         for d in diffs.to_dict("records"):
-            if d["method"].startswith(SEARCHER) or d["against"] == SEARCHER:
+            if d["method"] != GeniePolicy.name:
                 scale = 100 if d["stat"] == "success" else 1
                 print(f"  {d['method']} - {d['against']}, {d['stat']}: {scale * d['difference']:+.1f} "
                       f"[{scale * d['lo']:+.1f}, {scale * d['hi']:+.1f}]")  # fmt: skip

@@ -263,8 +263,9 @@ NO_BUILDINGS, WITH_BUILDINGS = ", no buildings", "the same with buildings"
 
 def _blanked(config: ReportConfig, bundle: Bundle, agents: list[Agent], on_progress) -> dict[str, pd.DataFrame]:  # noqa: ANN001
     """The agents that read the building map, played again on the same episodes with the map blanked."""
-    readers = [load_agent(a.folder, config.test_epsilon, config.seed) for a in agents if not a.config.env.blind]
-    for reader, agent in zip(readers, [a for a in agents if not a.config.env.blind], strict=True):
+    sighted = [a for a in agents if not a.config.env_config(evaluation=True).blind]  # a blind agent reads no map
+    readers = [load_agent(a.folder, config.test_epsilon, config.seed) for a in sighted]
+    for reader, agent in zip(readers, sighted, strict=True):
         reader.name = reader.policy.name = agent.name + NO_BUILDINGS
     if not readers:
         return {}

@@ -113,11 +113,11 @@ def baselines(
 )
 @click.option(
     "--preset",
-    type=click.Choice(["paper", "fast", "best", "best-pqn", "best-dqn"]),
+    type=click.Choice(["paper", "fast", "best", "hybrid", "best-pqn", "best-dqn"]),
     default="best",
     show_default=True,
     help="Hyperparameters: best (ours: a recurrent Q-network learnt by PQN, 300 k steps: about 10 min on one of 2 CPU "
-    "cores for the 22 training cities of the embedded corpora), best-pqn (the same without the recurrent core: about "
+    "cores for the 22 training cities of the embedded corpora), hybrid (best reading the map searcher's belief as a channel, env.belief_channel; docs/searcher.md), best-pqn (the same without the recurrent core: about "
     "5 min), best-dqn (that one learnt by replay DQN: about 8 min), paper "
     "(docs/method.md, ~7 M steps: days on a CPU), fast (40 k steps: 139-146 s on 2 cores, measured 2026-12-01; for checks). Presets: rl/agent/dqn.py, PRESETS.",
 )

@@ -69,6 +69,19 @@ class EnvConfig(Contract):
     homing_slope_db: float = Field(
         default=1.0, gt=0, description="The homing channel's fall per cell of Euclidean distance [dB / cell]"
     )
+    belief_channel: bool = Field(
+        default=False,
+        description="Add a channel, after the homing channel and before the SINR memory, of the map searcher's "
+        "posterior probability that each cell reaches P_T [%] (0 where the UAV may not go), from its belief over the "
+        "user's position given the episode's measurements and the predicted maps of belief_predictor (rl/searcher.py, "
+        "BeliefTracker): the hybrid learner of docs/searcher.md",
+    )
+    belief_predictor: str | None = Field(
+        default=None,
+        description="The belief channel's predictor: the physics tier's constants (a JSON file) or a learned tier (a "
+        "folder); None: the map searcher's (data/agents/searcher/unet). Its predicted maps are kept beside the bundles "
+        "(.predictions)",
+    )
     context_zoom: int = Field(
         default=0,
         ge=0,
@@ -123,4 +136,5 @@ class EnvConfig(Contract):
 
     @property
     def num_channels(self) -> int:
-        return (1 if self.blind else 2) + self.num_context + int(self.visited_channel) + int(self.homing_channel)
+        extra = int(self.visited_channel) + int(self.homing_channel) + int(self.belief_channel)
+        return (1 if self.blind else 2) + self.num_context + extra

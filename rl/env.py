@@ -14,7 +14,10 @@ shown as P_H. With ``visited_channel`` a channel of the visited cells (P_H where
 visited, 0 elsewhere) comes before the SINR memory, which stays last; with
 ``homing_channel`` the homing cone (the best SINR measured so far less
 ``homing_slope_db`` per cell of distance from where it was measured, clipped at
-P_L) comes between them. With
+P_L) comes between them, and with ``belief_channel`` the map searcher's posterior
+probability [%] that each cell reaches P_T, from its belief over the user's position
+given the episode's measurements (``rl.searcher.BeliefTracker``), just before the SINR
+memory. With
 ``context_zoom`` z, context channels follow the height channel: the window again
 in blocks of z x z cells (z times the span), their mean height and the best SINR
 measured in each (P_H where none is visited, P_L where all blocked or beyond the
@@ -169,3 +172,51 @@ class UavTrackingEnv(gym.Env):
         obs, reward, _, truncated, info = self._env.step(np.array([int(action)]))
         extra = {"covered": bool(info["covered"][0]), "illegal": bool(info["illegal"][0])}
         return obs[0], float(reward[0]), False, bool(truncated[0]), self._info(extra)
+
+
+class UavFleetEnv(gym.Env):
+    """``uavplace/UavFleet-v0``: one episode of the fleet task (``rl.fleet``: K UAVs serve N users of unknown
+    position at once). Observation ``[K, 2 + N, window, window]``, one window per UAV; action ``MultiDiscrete([5] *
+    K)`` (each UAV's 4 moves and stay); ``terminated`` when every user is served at one step, ``truncated`` after
+    ``t_max`` steps. ``info``: ``action_mask`` [K, 5], ``positions`` [K, 2] (map cells), ``sinr_db`` [K, N] (what
+    each UAV measures of each user) and ``served`` [N] (each user served at this step). ``dataset``: a city name or
+    list (or a loaded ``FleetMaps``); ``config``: a ``FleetConfig`` or a dict of its fields; ``**overrides``: its
+    fields."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, dataset, config=None, root: str = "data/processed", **overrides: object) -> None:  # noqa: ANN001
+        from uavplace.dataset.bundle import load_bundle
+        from uavplace.rl.fleet import BatchedFleet, FleetConfig, FleetMaps
+
+        if isinstance(dataset, FleetMaps):
+            maps = dataset
+        else:
+            base = config if isinstance(config, FleetConfig) else FleetConfig(**(config or {}))
+            names = [dataset] if isinstance(dataset, str) else list(dataset)
+            maps = FleetMaps.of([load_bundle(n, root=root) for n in names], base.model_copy(update=overrides))
+        self.config = cfg = maps.config
+        self._env = BatchedFleet(maps, 1)
+        low = min(cfg.p_l_db, -cfg.height_clip_m)
+        high = max(cfg.p_h_db, cfg.height_clip_m, cfg.edge_height_m)
+        self.observation_space = gym.spaces.Box(low, high, (cfg.uavs, cfg.num_channels, cfg.window, cfg.window), np.float32)
+        self.action_space = gym.spaces.MultiDiscrete([5] * cfg.uavs)
+
+    def _info(self) -> dict:
+        e, rows = self._env, np.array([0])
+        values = e.sinr_here(rows)[0]
+        return {"action_mask": e.action_mask(rows)[0].astype(np.int8), "positions": e.pos[0] - e.maps.pad,
+                "sinr_db": values, "served": (values >= self.config.p_t_db).any(axis=0)}  # fmt: skip
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
+        super().reset(seed=seed)
+        maps = self._env.maps
+        episode = None
+        while episode is None:  # all randomness from Gymnasium's seeded generator
+            episode = maps.draw(self.np_random)
+        self._env.begin(np.array([0]), episode[None], np.array([0]))
+        return self._env.observe()[0], self._info()
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        reward, terminated, truncated = self._env.step(np.asarray(action, np.int64).reshape(1, -1))
+        return self._env.observe()[0], float(reward[0]), bool(terminated[0]), bool(truncated[0]), self._info()

@@ -66,6 +66,7 @@ class MapSet:
         if config.window % 2 != 1:
             raise ValueError(f"window {config.window} must be odd")
         self.bundles = bundles
+        self.buildings_shown: bool | str = True  # show_buildings: True (the city's), False (none) or the donor's city
         self.config = config
         self.pad = config.window // 2
         side = max(max(b.shape) for b in bundles)
@@ -139,6 +140,7 @@ class MapSet:
                 raise ValueError(f"{donor.city} is {donor.shape} cells, {b.city} {b.shape}: a donor map needs the same shape")
             height = np.full(b.shape, -b.altitude_m, np.float32) if donor is None else donor.height_rel_m
             self._paint_buildings(i, height, np.zeros(b.shape, bool) if donor is None else donor.blocked, seen_blocked)
+        self.buildings_shown = False if donor is None else donor.city
         memory0, context_height, context_memory0 = self._start_channels(seen_blocked)
         self.memory0[...] = memory0  # in place: an env made from these maps holds views of them
         if self.config.context_zoom:

@@ -35,7 +35,7 @@ from scipy import sparse
 from scipy.sparse.csgraph import shortest_path
 from scipy.special import ndtr
 
-from uavplace.rl.maps import MOVES
+from uavplace.rl.maps import MOVES, MapSet, transform
 from uavplace.rl.predictor import PhysicsConstants, PhysicsPredictor, Predictor, Scene
 from uavplace.rl.view import AgentView, PublicMaps
 from uavplace.schemas.base import Contract
@@ -101,6 +101,15 @@ def candidate_cells(ground_height_m: np.ndarray, stride: int, buildings: bool) -
     if buildings:
         cells = cells[ground_height_m[cells[:, 0], cells[:, 1]] <= 0]
     return cells
+
+
+def posterior_cover(log_b: np.ndarray, cover: np.ndarray) -> np.ndarray:
+    """``[R, M]`` the posterior probability that each cell reaches P_T, ``b @ cover``, for log-beliefs ``log_b`` [R, C]
+    (any offset) over the candidates of ``cover`` [C, M]: the rows in one matrix product, which reads ``cover`` once
+    for them all (the planner's main cost)."""
+    b = np.exp(log_b - log_b.max(axis=1, keepdims=True))
+    b /= b.sum(axis=1, keepdims=True)
+    return b @ cover
 
 
 class PredictionCache:
@@ -276,9 +285,7 @@ class MapSearchPolicy:
             by_canvas.setdefault(c, []).append(r)
         for c, rows in by_canvas.items():  # the plans, a canvas's rows in one product
             maps = self.canvas_maps(public, c)
-            b = np.exp(np.stack([self.belief[r] for r in rows]))
-            b /= b.sum(axis=1, keepdims=True)
-            scores = b @ maps.cover  # [rows, M] the posterior probability of reaching P_T
+            scores = posterior_cover(np.stack([self.belief[r] for r in rows]), maps.cover)
             for i, r in enumerate(rows):
                 seen = visits[r, maps.legal[:, 0] + p, maps.legal[:, 1] + p] > 0
                 actions[r] = self._move(public, c, maps, int(here[r]), scores[i], seen, mask[r])
@@ -313,3 +320,75 @@ def load_predictor(path: str | Path = DEFAULT_PREDICTOR) -> Predictor:
 def load_constants(path: str | Path = DEFAULT_CONSTANTS) -> PhysicsConstants:
     """The predictor's constants from their JSON file (``InputError`` naming it when unreadable or invalid)."""
     return read_model_json(path, PhysicsConstants, "a predictor's constants (`uavrl fit-predictor` writes them)")
+
+
+class BeliefTracker:
+    """The searcher's belief for every row of a ``BatchedEnv``, as an observation channel (``EnvConfig.belief_channel``):
+    the hybrid of docs/searcher.md, a learner that reads where the belief says P_T is likely.
+
+    Per row, ``log_b`` [N, C_max] the log-belief over the candidate cells of its city (the searcher's ``update`` after
+    every measurement, the start's included; -inf past the city's candidates) and ``cover`` [N, L, L] the posterior
+    probability [%] that each legal canvas cell reaches P_T (0 on blocked cells and beyond the map). A canvas under
+    symmetry ``k`` reads its city's predictions at ``k = 0`` through the turned column map (``candidates``): the
+    predicted maps of the unturned city, turned, never predicted again. It is told only what the UAV measures
+    (``start``, ``measure``): the users' maps stay in the env. With ``MapSet.buildings_shown`` False (after
+    ``show_buildings(None)``) the predictor is shown open ground, as in the searcher's ablation.
+    """
+
+    def __init__(self, maps: MapSet, num_envs: int, predictor: Predictor, config: SearchConfig, cache: PredictionCache) -> None:
+        self.maps = maps
+        self.public = PublicMaps.of(maps)
+        self.searchers = {b: MapSearchPolicy(predictor, config.model_copy(update={"buildings": b}), cache) for b in (True, False)}
+        self._columns: dict[tuple[int, bool], np.ndarray] = {}
+        S = self.public.symmetries
+        width = max(len(self.candidates(S * i)[0].cells) for i in range(len(maps.bundles)))
+        self.log_b = np.full((num_envs, width), -np.inf, np.float32)
+        self.canvas = np.zeros(num_envs, np.int64)
+        self.cover = np.zeros((num_envs, maps.side, maps.side), np.float32)
+
+    def candidates(self, canvas: int) -> tuple[CandidateMaps, np.ndarray]:
+        """The predictions of ``canvas``'s city (at symmetry 0, with or without its buildings as the maps show them)
+        and ``[num_y, num_x]`` the column of each cell of the canvas's (turned) map in them (-1 where the UAV may not
+        go)."""
+        public, shown = self.public, self.maps.buildings_shown
+        if not isinstance(shown, bool):
+            raise ValueError(f"the belief channel predicts with the city's buildings or none, not with {shown}'s")
+        k = public.symmetry_of(canvas)
+        cm = self.searchers[shown].canvas_maps(public, canvas - k)
+        if (canvas, shown) not in self._columns:
+            self._columns[canvas, shown] = np.ascontiguousarray(transform(cm.index, k))
+        return cm, self._columns[canvas, shown]
+
+    def start(self, rows: np.ndarray, canvases: np.ndarray, y: np.ndarray, x: np.ndarray, first: np.ndarray) -> None:
+        """Rows ``rows`` begin over ``canvases``, measuring ``first`` at map cells ``(y, x)``: a uniform belief
+        updated by that measurement."""
+        self.canvas[rows] = canvases
+        self.log_b[rows] = -np.inf
+        for r, c in zip(rows, canvases, strict=True):
+            self.log_b[r, : len(self.candidates(int(c))[0].cells)] = 0.0
+        self.measure(rows, y, x, first)
+
+    def measure(self, rows: np.ndarray, y: np.ndarray, x: np.ndarray, values: np.ndarray) -> None:
+        """Rows ``rows`` measured ``values`` [dB] at map cells ``(y, x)``: their beliefs, then their cover canvases."""
+        public, searcher = self.public, self.searchers[self.maps.buildings_shown]
+        for r, yy, xx, v in zip(rows, y, x, values, strict=True):
+            c = int(self.canvas[r])
+            cm, columns = self.candidates(c)
+            floor_db = float(public.settings[public.bundle_of(c)]["floor_db"])
+            n = len(cm.cells)
+            self.log_b[r, :n] = searcher.update(cm, self.log_b[r, :n], int(columns[yy, xx]), float(v), floor_db)
+        self.paint(rows)
+
+    def paint(self, rows: np.ndarray) -> None:
+        """The cover canvases of rows ``rows`` from their beliefs: a canvas's rows in one matrix product."""
+        groups: dict[int, list[int]] = {}
+        for r in rows:
+            groups.setdefault(int(self.canvas[r]), []).append(int(r))
+        p = self.public.pad
+        for c, members in groups.items():
+            cm, columns = self.candidates(c)
+            scores = np.zeros((len(members), cm.cover.shape[1] + 1), np.float32)  # the last column: -1's zero
+            scores[:, :-1] = posterior_cover(self.log_b[members, : len(cm.cells)], cm.cover) * np.float32(100.0)
+            ny, nx = columns.shape
+            self.cover[members] = 0.0  # a turned map of another shape may have painted beyond this one
+            self.cover[members, p : p + ny, p : p + nx] = scores[:, columns]

@@ -5,7 +5,9 @@ blind: the SINR memory only; with ``context_zoom`` the context channels after th
 height channel, the window again in blocks of ``context_zoom`` cells; with
 ``visited_channel`` a channel of the visited cells, then with ``homing_channel`` the
 homing cone (the best SINR measured so far less ``homing_slope_db`` per cell of
-distance from where it was measured), before the SINR memory, which stays last),
+distance from where it was measured), then with ``belief_channel`` the map searcher's
+posterior probability [%] of reaching P_T (``rl.searcher.BeliefTracker``), before the
+SINR memory, which stays last),
 float32, or uint8 with ``compact=True`` (``encode_obs``: 1 dB / 1 m per step, offset
 150; two 61 x 61 uint8 channels are 7.4 kB, so 5e5 transitions that store each
 observation once take 3.5 GiB).
@@ -108,6 +110,21 @@ class BatchedEnv:
             self.context_seen = np.zeros(self.context_memory.shape, bool)
             self._context_memory_windows = np.lib.stride_tricks.sliding_window_view(self.context_memory, (w, w), axis=(1, 2))
             self._context_height_windows = np.lib.stride_tricks.sliding_window_view(maps.context_height, (w, w), axis=(1, 2))
+        self.belief = None
+        if self.config.belief_channel:  # imported here: the predictors (torch) load only for the envs that use them
+            from uavplace.rl.searcher import (
+                DEFAULT_PREDICTOR,
+                PREDICTIONS,
+                BeliefTracker,
+                PredictionCache,
+                SearchConfig,
+                load_predictor,
+            )
+
+            predictor = load_predictor(self.config.belief_predictor or DEFAULT_PREDICTOR)
+            cache = PredictionCache(maps.bundles[0].path.parent.parent / PREDICTIONS)
+            self.belief = BeliefTracker(maps, n, predictor, SearchConfig(), cache)
+            self._belief_windows = np.lib.stride_tricks.sliding_window_view(self.belief.cover, (w, w), axis=(1, 2))
 
     @property
     def state_arrays(self) -> tuple[str, ...]:
@@ -117,7 +134,13 @@ class BatchedEnv:
             ("view", "pos", "t", "episode_id", "start", "memory", "visits")
             + (("best_sinr", "best_pos") if self.config.homing_channel else ())
             + (("context_memory", "context_seen") if self.config.context_zoom else ())
+            + (("belief_log",) if self.config.belief_channel else ())
         )
+
+    @property
+    def belief_log(self) -> np.ndarray:
+        """``[N, C_max]`` the belief channel's log-beliefs (``BeliefTracker.log_b``; a checkpoint restores them in place)."""
+        return self.belief.log_b
 
     def check_state(self, source: object) -> None:
         """``InputError`` (naming ``source``) unless the episode state (``state_arrays``, as a checkpoint restores it)
@@ -133,7 +156,13 @@ class BatchedEnv:
             problems["best_pos"] = ((self.best_pos < 0) | (self.best_pos >= self.maps.side)).any(axis=1)
         if self.config.context_zoom:
             problems["context_memory"] = ~np.isfinite(self.context_memory).all(axis=(1, 2))
+        if self.belief is not None:  # each row's belief: finite somewhere, never NaN or +inf
+            log_b = self.belief.log_b
+            problems["belief_log"] = np.isnan(log_b).any(axis=1) | (log_b == np.inf).any(axis=1) | ~(log_b > -np.inf).any(axis=1)
         refuse_bad_rows(source, problems, self.maps.blocked[self.maps.view_map[self.view], self.pos[:, 0], self.pos[:, 1]])
+        if self.belief is not None:  # the restored beliefs' cover canvases, as the steps that made them left them
+            self.belief.canvas[:] = self.maps.view_map[self.view]
+            self.belief.paint(self._rows)
 
     # -- episodes -----------------------------------------------------------------------------
     def _next_specs(self, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -174,6 +203,8 @@ class BatchedEnv:
             self.context_memory[idx] = self.maps.context_memory0[view]
             self.context_seen[idx] = False
             self._remember_context(idx, y, x, first)
+        if self.belief is not None:
+            self.belief.start(idx, self.maps.view_map[view], y - self.maps.pad, x - self.maps.pad, first)
 
     def _remember_context(self, idx: np.ndarray, y: np.ndarray, x: np.ndarray, sinr: np.ndarray) -> None:
         """Envs ``idx`` measured ``sinr`` at canvas cells ``(y, x)``: their context blocks keep the best."""
@@ -259,9 +290,13 @@ class BatchedEnv:
                 obs[:, 1] = self._context_height_windows[m, cy0, cx0]
             obs[:, 0 if cfg.blind else 2] = self._context_memory_windows[idx, cy0, cx0]
         if cfg.visited_channel:
-            obs[:, -2 - cfg.homing_channel] = (self._visits_windows[idx, y0, x0] > 0) * np.float32(cfg.p_h_db)
+            obs[:, -2 - cfg.homing_channel - cfg.belief_channel] = (self._visits_windows[idx, y0, x0] > 0) * np.float32(
+                cfg.p_h_db
+            )
         if cfg.homing_channel:
-            self._homing(idx, y0, x0, out=obs[:, -2])
+            self._homing(idx, y0, x0, out=obs[:, -2 - cfg.belief_channel])
+        if cfg.belief_channel:
+            obs[:, -2] = self._belief_windows[idx, y0, x0]
         obs[:, -1] = mem
         return encode_obs(obs) if self.compact else obs
 
@@ -286,6 +321,8 @@ class BatchedEnv:
         if self.config.homing_channel:
             better = new > self.best_sinr[rows]  # the first cell of the best SINR stays the best
             self.best_sinr[rows[better]], self.best_pos[rows[better]] = new[better], self.pos[rows[better]]
+        if self.belief is not None:
+            self.belief.measure(rows, y - self.maps.pad, x - self.maps.pad, new)
         return before
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:

@@ -11,7 +11,7 @@ import pytest
 import torch
 from pydantic import ValidationError
 
-from tests.conftest import write_grid_city
+from tests.conftest import REPO, write_grid_city
 from uavplace.dataset.build import build_city
 from uavplace.dataset.bundle import load_bundle
 from uavplace.ingest.pipeline import ingest_city
@@ -235,18 +235,21 @@ def _tiny_config(**env: object) -> DQNConfig:
 
 PQN = {"learner": "pqn", "rollout_steps": 5, "epochs": 2, "layer_norm": True, "aux_genie": 1.0}
 GRU = PQN | {"recurrent": True}
+#: The hybrid's belief channel, its maps predicted by the shipped physics tier (fast on the tiny city).
+HYBRID = {"belief_channel": True, "belief_predictor": str(REPO / "data" / "agents" / "searcher" / "predictor.json")}
 
 
 @pytest.mark.parametrize(
     ("env", "learner"),
-    [({}, {}), ({"context_zoom": 3, "homing_channel": True}, {}), ({}, PQN), ({}, GRU)],
-    ids=["plain", "context-homing", "pqn", "gru"],
+    [({}, {}), ({"context_zoom": 3, "homing_channel": True}, {}), ({}, PQN), ({}, GRU), (HYBRID, GRU)],
+    ids=["plain", "context-homing", "pqn", "gru", "hybrid"],
 )
 @pytest.mark.slow
 def test_resume_continues_exactly(tmp_path, city_root, env, learner):
     """Train 256 steps straight, or stop at 96 and 200 and resume each time: identical networks and next actions
     (with context and homing channels too, whose memory of blocks and of the best cell the checkpoint keeps; with
-    PQN, stopped mid-rollout; and with a recurrent PQN network, whose state in each env the checkpoint keeps)."""
+    PQN, stopped mid-rollout; with a recurrent PQN network, whose state in each env the checkpoint keeps; and with
+    the hybrid's belief channel, whose beliefs the checkpoint keeps)."""
 
     def config() -> DQNConfig:
         return _tiny_config(**env).model_copy(update=learner)
@@ -299,8 +302,10 @@ def test_resume_continues_exactly(tmp_path, city_root, env, learner):
     np.testing.assert_array_equal(straight.agent.act(obs, mask, 0.0, last, rng_a), resumed.agent.act(obs, mask, 0.0, last, rng_b))
     policy, cfg = load_policy(tmp_path / "a" / "checkpoints" / "best.pt")
     assert cfg == straight.config and policy.act(obs, mask, straight.env).shape == (8,)
-    if env:
-        np.testing.assert_array_equal(straight.env.context_memory, resumed.env.context_memory)
+    for name in set(straight.env.state_arrays) - {"visits"}:  # visits: counted from the old checkpoint's cells
+        np.testing.assert_array_equal(getattr(straight.env, name), getattr(resumed.env, name), err_msg=name)
+    if env.get("belief_channel"):
+        np.testing.assert_array_equal(straight.env.belief.cover, resumed.env.belief.cover)
     metrics = tmp_path / "a" / "metrics.parquet"
 
     df = pd.read_parquet(metrics)

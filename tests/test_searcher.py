@@ -190,3 +190,69 @@ def test_predicted_maps_are_bounded_by_the_limits(tiny, monkeypatch):
     maps = MapSet.load("tiny", EnvConfig(t_max=50), root=str(tiny))
     with pytest.raises(InputError, match="prediction_bytes"):
         MapSearchPolicy(_constants()).canvas_maps(PublicMaps.of(maps), 0)
+
+
+def test_belief_channel_is_the_searchers_belief_turned_with_the_map(tiny):
+    """The hybrid's channel (``BeliefTracker``): the belief after a few measurements is the searcher's own, and a
+    canvas turned by a quarter turn, measured at the turned cells, shows the same cover canvas turned."""
+    from uavplace.rl.maps import transform
+    from uavplace.rl.predictor import PhysicsPredictor
+    from uavplace.rl.searcher import BeliefTracker, PredictionCache
+    from uavplace.rl.view import PublicMaps
+
+    maps = MapSet.load("tiny", EnvConfig(t_max=50, rotate=True, symmetries=4), root=str(tiny))
+    policy = MapSearchPolicy(_constants())
+    tracker = BeliefTracker(maps, 2, PhysicsPredictor(_constants()), SearchConfig(), PredictionCache(None))
+    cm = policy.canvas_maps(PublicMaps.of(maps), 0)
+    rng = np.random.default_rng(0)
+    cells = cm.legal[rng.choice(len(cm.legal), 5, replace=False)]
+    floor = float(PublicMaps.of(maps).settings[0]["floor_db"])
+    values = np.array([floor, 8.0, -2.0, 20.0, floor], np.float32)
+    ny, nx = cm.index.shape
+    turned = transform(np.arange(ny * nx).reshape(ny, nx), 1)  # where each cell of the map lies once turned
+    where = {int(v): divmod(int(i), turned.shape[1]) for i, v in enumerate(turned.ravel())}
+    cells1 = np.array([where[int(y) * nx + int(x)] for y, x in cells])
+    tracker.start(np.array([0, 1]), np.array([0, 1]), np.array([cells[0, 0], cells1[0, 0]]),
+                  np.array([cells[0, 1], cells1[0, 1]]), values[:1].repeat(2))  # fmt: skip
+    for (y, x), (y1, x1), v in zip(cells[1:], cells1[1:], values[1:], strict=True):
+        tracker.measure(np.array([0, 1]), np.array([y, y1]), np.array([x, x1]), np.array([v, v]))
+    log_b = np.zeros(len(cm.cells), np.float32)
+    for (y, x), v in zip(cells, values, strict=True):
+        log_b = policy.update(cm, log_b, int(cm.index[y, x]), float(v), floor)
+    np.testing.assert_allclose(tracker.log_b[0], log_b, atol=1e-5)
+    np.testing.assert_allclose(tracker.log_b[1], log_b, atol=1e-5)
+    p = maps.pad
+    plain = tracker.cover[0, p : p + ny, p : p + nx]
+    assert plain.max() > 1.0 and (plain[~maps_legal(cm)] == 0).all()
+    np.testing.assert_allclose(tracker.cover[1, p : p + nx, p : p + ny], transform(plain, 1), atol=1e-3)
+
+
+def maps_legal(cm) -> np.ndarray:  # noqa: ANN001
+    return cm.index >= 0
+
+
+def test_belief_channel_in_the_observation(tiny):
+    """``EnvConfig.belief_channel`` adds the tracker's cover window before the SINR memory; blanking the buildings
+    (the ablation) changes it, as it changes the predicted maps."""
+    from uavplace.rl.vec_env import BatchedEnv
+
+    constants = str(REPO / "data" / "agents" / "searcher" / "predictor.json")
+    cfg = EnvConfig(t_max=50, homing_channel=True, belief_channel=True, belief_predictor=constants)
+    maps = MapSet.load("tiny", cfg, root=str(tiny))
+    env = BatchedEnv(maps, 3)
+    obs, info = env.reset(seed=0)
+    assert obs.shape[1] == cfg.num_channels == EnvConfig(homing_channel=True).num_channels + 1
+    for _ in range(5):
+        obs, *_, info = env.step(np.argmax(info["action_mask"], axis=1))
+    w = cfg.window // 2
+    y, x = env.pos[:, 0], env.pos[:, 1]
+    for r in range(3):
+        np.testing.assert_array_equal(obs[r, -2], env.belief.cover[r, y[r] - w : y[r] + w + 1, x[r] - w : x[r] + w + 1])
+    assert 0 <= obs[:, -2].min() and obs[:, -2].max() <= 100 and obs[:, -2].max() > 0
+    blank = MapSet.load("tiny", cfg, root=str(tiny))
+    blank.show_buildings(None)
+    other = BatchedEnv(blank, 3)
+    again, info = other.reset(seed=0)
+    for _ in range(5):
+        again, *_, info = other.step(np.argmax(info["action_mask"], axis=1))
+    assert not np.allclose(again[:, -2], obs[:, -2])

@@ -300,6 +300,8 @@ PRESETS["best"] = PRESETS["best-pqn"] | {
     "gamma": 0.98,
     "env": PRESETS["best-pqn"]["env"] | {"homing_channel": True},
 }
+# The hybrid of the map searcher and the learner (docs/searcher.md): best with the searcher's belief as a channel.
+PRESETS["hybrid"] = PRESETS["best"] | {"env": PRESETS["best"]["env"] | {"belief_channel": True}}
 
 
 #: What a preset changes when it learns the tracking task (``preset_config(..., task="tracking")``): a user who moves
