@@ -2,7 +2,8 @@
 
 Importing ``rl`` registers the Gymnasium environments ``uavplace/UavPlacement-v0`` and
 ``uavplace/BlindUavPlacement-v0``: ``gymnasium.make("uavplace/UavPlacement-v0", dataset="cityA")``, and the
-tracking task's ``uavplace/UavTracking-v0`` (a bundle with routes; ``rl.tracking``).
+tracking task's ``uavplace/UavTracking-v0`` (a bundle with routes; ``rl.tracking``) and the fleet task's
+``uavplace/UavFleet-v0`` (several UAVs, several users; ``rl.fleet``).
 """
 
 from gymnasium.envs.registration import register, registry
@@ -12,3 +13,5 @@ for _id, _kwargs in (("uavplace/UavPlacement-v0", {}), ("uavplace/BlindUavPlacem
         register(id=_id, entry_point="uavplace.rl.env:UavPlacementEnv", kwargs=_kwargs)
 if "uavplace/UavTracking-v0" not in registry:
     register(id="uavplace/UavTracking-v0", entry_point="uavplace.rl.env:UavTrackingEnv")
+if "uavplace/UavFleet-v0" not in registry:
+    register(id="uavplace/UavFleet-v0", entry_point="uavplace.rl.env:UavFleetEnv")

@@ -1,0 +1,334 @@
+"""The fleet task: several UAVs serve several users of unknown position at once (the paper's second future work).
+
+K UAVs (``FleetConfig.uavs``, 1-4) start on distinct legal cells of one city and move together, each one cell a
+step or staying (actions 0-3 the placement moves, 4 stay). A UAV never enters a cell another UAV holds at the
+start of the step, and of two UAVs that move into one free cell the first in order enters while the other stays:
+no two ever share a cell, and none pass through each other. N users (``users``, 1-6) are drawn from the city's
+traced users; nobody knows where they are. Every UAV measures every user's SINR at its cell at every step (the
+users are told apart by their pilots) and the fleet shares what it measures. The episode succeeds when, at one
+step, every user has a UAV at SINR >= P_T; it is truncated after ``t_max`` steps.
+
+Episodes (``FleetMaps.episode_list``): episode ``i`` of a list is drawn from its own generator (the list's seed
+and ``i`` hashed, ``rl.randomness``), so any prefix of a list is the shorter list: a city, N distinct users, K
+distinct legal starts from which every user's target cells (SINR >= P_T) are reachable, not every user served at
+the start. ``episode_keys`` names an episode by what it is (the bundle version, its users, its starts) for the
+policies' random draws.
+
+Observation ``[K, 2 + N, window, window]``, one window per UAV centred on it: the building height minus the
+altitude [m] (clipped; ``edge_height_m`` beyond the edge), the fleet channel (P_H where another UAV stands, 0
+elsewhere) and each user's shared SINR memory [dB] (the SINR measured at each visited cell, P_H unvisited, P_L
+blocked or beyond the edge). Reward (for learners): the gain, summed over the users, of the best SINR any UAV
+measures of each user, counted up to P_T, plus ``c_e`` per UAV that enters a cell the fleet never visited, plus
+``success_bonus`` when every user is served.
+
+The oracle (``oracle_steps``) knows every user's map: the fewest steps until every user is served is, over the
+assignments of users to UAVs, the largest of each UAV's fewest moves to a cell that serves all of its users (the
+intersection of their target cells), minimised. It never counts two UAVs that must pass each other in a corridor
+one cell wide (a lower bound there; exact elsewhere: ``tests/test_fleet.py`` checks it against a search over the
+fleet's joint positions).
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+from pydantic import ConfigDict, Field, field_validator
+
+from uavplace.dataset.bundle import Bundle
+from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target
+from uavplace.rl.maps import MOVES
+from uavplace.rl.randomness import combine, stream_key
+from uavplace.schemas.base import Contract
+
+#: The fleet's 5 actions per UAV in map coordinates (dy, dx): the 4 placement moves, then 4 = stay.
+FLEET_MOVES = np.vstack([MOVES, [[0, 0]]])
+STAY = 4
+
+
+class FleetConfig(Contract):
+    """Everything that defines the fleet task (saved with every run and report that uses it)."""
+
+    model_config = ConfigDict(allow_inf_nan=False)
+
+    uavs: int = Field(default=2, ge=1, le=4, description="UAVs K in the fleet")
+    users: int = Field(default=3, ge=1, le=6, description="Users N served at once, drawn from a city's traced users")
+    t_max: int = Field(default=500, ge=1, description="Step budget: truncated after t_max steps")
+    p_t_db: float = Field(default=5.0, description="SINR target P_T: a user is served by a UAV at or above it [dB]")
+    window: int = Field(default=61, ge=3, le=1001, description="Observation side in cells (odd), centred on each UAV")
+    p_h_db: float = Field(default=50.0, description="P_H: the memory value of unvisited cells [dB]")
+    p_l_db: float = Field(default=-150.0, description="P_L: the memory value of blocked cells and beyond the edge [dB]")
+    edge_height_m: float = Field(default=100.0, description="Height channel value beyond the map edge [m above the UAV]")
+    height_clip_m: float = Field(default=100.0, gt=0, description="Height channel clipped to +/- this [m]")
+    c_e: float = Field(default=1.2, description="Reward per UAV entering a cell the fleet never visited")
+    success_bonus: float = Field(default=100.0, description="Reward when every user is served")
+
+    @field_validator("window")
+    @classmethod
+    def _odd(cls, window: int) -> int:
+        if window % 2 != 1:
+            raise ValueError(f"window {window} must be odd")
+        return window
+
+    @property
+    def num_channels(self) -> int:
+        return 2 + self.users
+
+
+@dataclass(frozen=True)
+class FleetCity:
+    """One city's maps for the fleet: ``legal`` [ny, nx] (the UAV may enter), ``height_m`` [ny, nx] (building height
+    minus altitude), ``sinr_db`` [U, ny, nx] and ``target`` [U, ny, nx] (legal, live and at or above P_T) per traced
+    user, ``version`` (what names its episodes)."""
+
+    name: str
+    version: str
+    legal: np.ndarray
+    height_m: np.ndarray
+    sinr_db: np.ndarray
+    target: np.ndarray
+
+    @classmethod
+    def of(cls, bundle: Bundle, p_t_db: float) -> FleetCity:
+        legal = ~bundle.blocked
+        target = legal & ~bundle.dead & (bundle.sinr_db >= p_t_db)
+        return cls(bundle.city, bundle.version, legal, bundle.height_rel_m, bundle.sinr_db, target)
+
+
+class FleetMaps:
+    """The cities of a fleet task on padded canvases (``pad`` = half a window on every side, ``side`` cells):
+    ``height`` [B, L, L], ``blocked`` [B, L, L] (beyond the edge too), ``sinr`` [B, U_max, L, L] (P_L beyond the
+    edge and past a city's users), ``target`` [B, U_max, L, L]."""
+
+    def __init__(self, cities: list[FleetCity], config: FleetConfig) -> None:
+        if not cities:
+            raise ValueError("a fleet needs at least one city")
+        short = [c.name for c in cities if len(c.sinr_db) < config.users]
+        if short:
+            raise ValueError(f"{', '.join(short)}: fewer traced users than the fleet's {config.users}")
+        self.cities, self.config = cities, config
+        self.pad = p = config.window // 2
+        self.side = L = max(max(c.legal.shape) for c in cities) + 2 * p
+        users = max(len(c.sinr_db) for c in cities)
+        self.height = np.full((len(cities), L, L), config.edge_height_m, np.float32)
+        self.blocked = np.ones((len(cities), L, L), bool)
+        self.sinr = np.full((len(cities), users, L, L), config.p_l_db, np.float32)
+        self.target = np.zeros((len(cities), users, L, L), bool)
+        for b, c in enumerate(cities):
+            ny, nx = c.legal.shape
+            inner = (b, slice(p, p + ny), slice(p, p + nx))
+            self.height[inner] = np.clip(c.height_m, -config.height_clip_m, config.height_clip_m)
+            self.blocked[inner] = ~c.legal
+            self.sinr[b, : len(c.sinr_db), p : p + ny, p : p + nx] = c.sinr_db
+            self.target[b, : len(c.sinr_db), p : p + ny, p : p + nx] = c.target
+        self.memory0 = np.where(self.blocked, np.float32(config.p_l_db), np.float32(config.p_h_db))
+        self._reach: dict[tuple[int, int], np.ndarray] = {}
+
+    @classmethod
+    def of(cls, bundles: list[Bundle], config: FleetConfig) -> FleetMaps:
+        return cls([FleetCity.of(b, config.p_t_db) for b in bundles], config)
+
+    def reach(self, city: int, user: int) -> np.ndarray:
+        """``[ny, nx]`` the fewest moves from each cell of ``city`` to a target cell of ``user`` (``UNREACHABLE``
+        where none can be reached)."""
+        key = (city, user)
+        if key not in self._reach:
+            c = self.cities[city]
+            self._reach[key] = steps_to_target(c.legal, c.target[user])
+        return self._reach[key]
+
+    def episode_list(self, n: int, seed: int) -> np.ndarray:
+        """``[n, 1 + N + 2K]`` int64 episodes ``(city, users..., y_1, x_1, ..., y_K, x_K)`` (map cells): episode ``i``
+        drawn from its own generator (``seed`` and ``i`` hashed), so the first ``m`` of a list are the list of ``m``."""
+        cfg = self.config
+        out = np.zeros((n, 1 + cfg.users + 2 * cfg.uavs), np.int64)
+        stream = stream_key("fleet episode list", seed, cfg.users, cfg.uavs, cfg.p_t_db)
+        for i in range(n):
+            rng = np.random.default_rng(int(combine(stream, i)))
+            for _ in range(1000):
+                episode = self.draw(rng)
+                if episode is not None:
+                    out[i] = episode
+                    break
+            else:
+                raise ValueError(f"no fleet episode of {cfg.users} users and {cfg.uavs} UAVs found in 1000 draws: every "
+                                 "user needs a target cell reachable from the starts (fewer users or another P_T)")  # fmt: skip
+        return out
+
+    def draw(self, rng: np.random.Generator) -> np.ndarray | None:
+        """One episode drawn with ``rng``, or None when the draw is not one (the module's docstring)."""
+        cfg = self.config
+        b = int(rng.integers(len(self.cities)))
+        c = self.cities[b]
+        users = rng.choice(len(c.sinr_db), cfg.users, replace=False)
+        open_cells = np.flatnonzero(c.legal)
+        starts = open_cells[rng.choice(len(open_cells), cfg.uavs, replace=False)]
+        y, x = np.divmod(starts, c.legal.shape[1])
+        reach = np.stack([self.reach(b, int(u))[y, x] for u in users])  # [N, K]
+        served = np.stack([c.target[int(u)][y, x] for u in users]).any(axis=1)
+        if (reach >= UNREACHABLE).any() or served.all() or fleet_oracle(c, users, np.stack([y, x], axis=1)) >= UNREACHABLE:
+            return None
+        return np.concatenate([[b], users, np.stack([y, x], axis=1).ravel()])
+
+    def split(self, episodes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Episodes as (city [E], users [E, N], starts [E, K, 2] map cells)."""
+        episodes = np.asarray(episodes, np.int64)
+        n = self.config.users
+        return episodes[:, 0], episodes[:, 1 : 1 + n], episodes[:, 1 + n :].reshape(len(episodes), -1, 2)
+
+    def episode_keys(self, episodes: np.ndarray) -> np.ndarray:
+        """``[E]`` uint64: each episode named by what it is: its city's version, its users and its starts."""
+        city, users, starts = self.split(episodes)
+        keys = np.array([stream_key(self.cities[int(b)].version) for b in city], np.uint64)
+        for column in np.concatenate([users, starts.reshape(len(users), -1)], axis=1).T:
+            keys = combine(keys, column.astype(np.uint64))
+        return keys
+
+
+def oracle_steps(maps: FleetMaps, episodes: np.ndarray) -> np.ndarray:
+    """``[E]`` the fewest steps until every user is served (see the module's docstring): for every subset of the
+    users, the fewest moves from each start to a cell that serves them all; then, over the K^N assignments of users to
+    UAVs, the largest of the UAVs' times, minimised (``UNREACHABLE`` when no assignment serves everyone)."""
+    city, users, starts = maps.split(episodes)
+    return np.array([fleet_oracle(maps.cities[int(c)], u, s) for c, u, s in zip(city, users, starts, strict=True)], np.int64)
+
+
+def fleet_oracle(city: FleetCity, users: np.ndarray, starts: np.ndarray) -> int:
+    """``oracle_steps`` of one episode: ``users`` [N] of ``city``, ``starts`` [K, 2] map cells."""
+    n, k = len(users), len(starts)
+    subsets = [s for r in range(1, n + 1) for s in itertools.combinations(range(n), r)]
+    both = np.stack([np.logical_and.reduce(city.target[users[list(s)]]) for s in subsets])
+    dist = steps_to_target(city.legal, both)[:, starts[:, 0], starts[:, 1]].astype(np.int64)  # [subsets, K]
+    time = {s: dist[i] for i, s in enumerate(subsets)}
+    best = UNREACHABLE
+    for owner in itertools.product(range(k), repeat=n):  # user -> UAV
+        worst = 0
+        for uav in range(k):
+            mine = tuple(u for u in range(n) if owner[u] == uav)
+            if mine:
+                worst = max(worst, int(time[mine][uav]))
+        best = min(best, worst)
+    return best
+
+
+class BatchedFleet:
+    """``num_envs`` fleet episodes stepped together in numpy, taken in order from ``episodes`` (``[E, 1 + N + 2K]``,
+    ``FleetMaps.episode_list``); ``exhausted`` tells which slots have none left. Finished episodes stay as they
+    ended until ``refill``; ``results`` holds each played episode's outcome."""
+
+    def __init__(self, maps: FleetMaps, num_envs: int) -> None:
+        cfg = maps.config
+        self.maps, self.config, self.num_envs = maps, cfg, num_envs
+        n, L, K, N = num_envs, maps.side, cfg.uavs, cfg.users
+        self.city = np.zeros(n, np.int64)
+        self.users = np.zeros((n, N), np.int64)
+        self.pos = np.zeros((n, K, 2), np.int64)  # canvas cells
+        self.t = np.zeros(n, np.int64)
+        self.memory = np.zeros((n, N, L, L), np.float32)
+        self.visits = np.zeros((n, L, L), np.uint16)
+        self.best = np.zeros((n, N), np.float32)  # the best SINR of each user measured now by any UAV
+        self.served_at = np.full((n, N), -1, np.int64)  # the first step each user was served (-1: not yet)
+        self.done = np.ones(n, bool)
+        self.episode_id = np.full(n, -1, np.int64)
+        w = cfg.window
+        self._windows = {
+            "memory": np.lib.stride_tricks.sliding_window_view(self.memory, (w, w), axis=(2, 3)),
+            "height": np.lib.stride_tricks.sliding_window_view(maps.height, (w, w), axis=(1, 2)),
+        }
+
+    def begin(self, rows: np.ndarray, episodes: np.ndarray, ids: np.ndarray) -> None:
+        """Start ``episodes`` (ids ``ids``) in ``rows``."""
+        city, users, starts = self.maps.split(episodes)
+        p = self.maps.pad
+        self.city[rows], self.users[rows], self.pos[rows] = city, users, starts + p
+        self.t[rows] = 0
+        self.memory[rows] = self.maps.memory0[city][:, None]
+        self.visits[rows] = 0
+        self.served_at[rows] = -1
+        self.done[rows] = False
+        self.episode_id[rows] = ids
+        self._measure(rows)
+
+    def sinr_here(self, rows: np.ndarray) -> np.ndarray:
+        """``[len(rows), K, N]`` each user's SINR at each UAV's cell."""
+        y, x = self.pos[rows, :, 0], self.pos[rows, :, 1]
+        return self.maps.sinr[self.city[rows, None, None], self.users[rows, None, :], y[:, :, None], x[:, :, None]]
+
+    def _measure(self, rows: np.ndarray) -> np.ndarray:
+        """Rows ``rows`` measure every user at every UAV: the shared memories, the visits, the best SINR and who is
+        served. Returns how many of each row's UAVs stand on a cell never visited before."""
+        values = self.sinr_here(rows)  # [R, K, N]
+        y, x = self.pos[rows, :, 0], self.pos[rows, :, 1]
+        fresh = self.visits[rows[:, None], y, x] == 0
+        self.visits[rows[:, None], y, x] += 1
+        for n in range(self.config.users):
+            self.memory[rows[:, None], n, y, x] = values[:, :, n]
+        self.best[rows] = values.max(axis=1)
+        served = values >= self.config.p_t_db
+        newly = served.any(axis=1) & (self.served_at[rows] < 0)
+        self.served_at[rows] = np.where(newly, self.t[rows, None], self.served_at[rows])
+        return fresh.sum(axis=1)
+
+    def action_mask(self, rows: np.ndarray | None = None) -> np.ndarray:
+        """``[len(rows), K, 5]`` bool: the moves into a legal cell no other UAV holds; staying is always legal."""
+        rows = np.arange(self.num_envs) if rows is None else rows
+        to = self.pos[rows, :, None, :] + FLEET_MOVES[None, None]  # [R, K, 5, 2]
+        ok = ~self.maps.blocked[self.city[rows, None, None], to[..., 0], to[..., 1]]
+        K = self.config.uavs
+        for j in range(K):  # a cell another UAV holds
+            held = (to == self.pos[rows, j][:, None, None, :]).all(axis=-1)  # [R, K, 5]
+            held[:, j] = False
+            ok &= ~held
+        ok[..., STAY] = True
+        return ok
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Move every running row's UAVs by ``actions`` [num_envs, K] (finished rows stay as they are); returns
+        (reward [num_envs], terminated [num_envs], truncated [num_envs])."""
+        cfg, K = self.config, self.config.uavs
+        rows = np.flatnonzero(~self.done)
+        actions = np.asarray(actions, np.int64)[rows]
+        before = np.minimum(self.best[rows], cfg.p_t_db).sum(axis=1)
+        start = self.pos[rows].copy()
+        want = start + FLEET_MOVES[actions]  # [R, K, 2]
+        free = ~self.maps.blocked[self.city[rows, None], want[..., 0], want[..., 1]]
+        new = start.copy()
+        for k in range(K):  # in order: not a cell held at the start of the step, nor one an earlier UAV entered
+            ok = free[:, k].copy()
+            for j in range(K):
+                if j != k:
+                    ok &= ~(want[:, k] == start[:, j]).all(axis=1)
+                if j < k:
+                    ok &= ~(want[:, k] == new[:, j]).all(axis=1)
+            new[:, k] = np.where(ok[:, None], want[:, k], start[:, k])
+        self.pos[rows] = new
+        self.t[rows] += 1
+        fresh = self._measure(rows)
+        terminated = np.zeros(self.num_envs, bool)
+        truncated = np.zeros(self.num_envs, bool)
+        terminated[rows] = (self.sinr_here(rows) >= cfg.p_t_db).any(axis=1).all(axis=1)
+        truncated[rows] = (self.t[rows] >= cfg.t_max) & ~terminated[rows]
+        reward = np.zeros(self.num_envs, np.float32)
+        gain = np.minimum(self.best[rows], cfg.p_t_db).sum(axis=1) - before
+        reward[rows] = gain + cfg.c_e * fresh + cfg.success_bonus * terminated[rows]
+        self.done |= terminated | truncated
+        return reward, terminated, truncated
+
+    def observe(self, rows: np.ndarray | None = None) -> np.ndarray:
+        """``[len(rows), K, 2 + N, w, w]`` the windows of each UAV (see the module's docstring)."""
+        rows = np.arange(self.num_envs) if rows is None else rows
+        cfg, K, N, w = self.config, self.config.uavs, self.config.users, self.config.window
+        obs = np.zeros((len(rows), K, 2 + N, w, w), np.float32)
+        h = w // 2
+        for k in range(K):
+            y0, x0 = self.pos[rows, k, 0] - h, self.pos[rows, k, 1] - h
+            obs[:, k, 0] = self._windows["height"][self.city[rows], y0, x0]
+            for j in range(K):
+                if j == k:
+                    continue
+                dy, dx = self.pos[rows, j, 0] - y0, self.pos[rows, j, 1] - x0
+                inside = (dy >= 0) & (dy < w) & (dx >= 0) & (dx < w)
+                obs[np.flatnonzero(inside), k, 1, dy[inside], dx[inside]] = cfg.p_h_db
+            obs[:, k, 2:] = self._windows["memory"][rows, :, y0, x0]  # [R, N, w, w]
+        return obs

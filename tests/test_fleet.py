@@ -1,0 +1,138 @@
+"""The fleet task (rl/fleet.py): its oracle against a search over the fleet's joint positions, its moves, its
+shared measurements and its episode lists."""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+import pytest
+
+from uavplace.rl.fleet import FLEET_MOVES, BatchedFleet, FleetCity, FleetConfig, FleetMaps, oracle_steps
+
+
+def _city(seed: int, side: int = 7, users: int = 4, walls: int = 6) -> FleetCity:
+    """A small made-up city: a few blocked cells, each user's SINR falling off with distance from its position."""
+    rng = np.random.default_rng(seed)
+    legal = np.ones((side, side), bool)
+    legal.ravel()[rng.choice(side * side, walls, replace=False)] = False
+    yy, xx = np.mgrid[:side, :side]
+    where = np.argwhere(legal)[rng.choice(int(legal.sum()), users, replace=False)]
+    sinr = np.stack([12.0 - 4.0 * np.hypot(yy - y, xx - x) for y, x in where]).astype(np.float32)
+    height = np.where(legal, -10.0, 10.0).astype(np.float32)
+    return FleetCity(f"made-{seed}", f"v{seed}", legal, height, sinr, legal & (sinr >= 5.0))
+
+
+def _joint_search(city: FleetCity, users: np.ndarray, starts: np.ndarray, p_t_db: float) -> int:
+    """The fewest steps until every user is served, by breadth-first search over the fleet's joint positions with
+    the task's move rules (written out again here, independently of ``BatchedFleet``)."""
+    ny, nx = city.legal.shape
+    k = len(starts)
+
+    def served(state: tuple) -> bool:
+        return all(any(city.sinr_db[u][y, x] >= p_t_db for y, x in state) for u in users)
+
+    def moves(state: tuple):  # noqa: ANN202
+        for actions in np.ndindex(*(len(FLEET_MOVES),) * k):
+            new: list[tuple[int, int]] = []
+            for i, a in enumerate(actions):
+                y, x = state[i][0] + FLEET_MOVES[a][0], state[i][1] + FLEET_MOVES[a][1]
+                ok = 0 <= y < ny and 0 <= x < nx and city.legal[y, x]
+                ok = ok and all((y, x) != state[j] for j in range(k) if j != i) and (y, x) not in new[:i]
+                new.append((int(y), int(x)) if ok else state[i])
+            yield tuple(new)
+
+    first = tuple((int(y), int(x)) for y, x in starts)
+    seen, queue = {first: 0}, deque([first])
+    while queue:
+        state = queue.popleft()
+        if served(state):
+            return seen[state]
+        for nxt in moves(state):
+            if nxt not in seen:
+                seen[nxt] = seen[state] + 1
+                queue.append(nxt)
+    raise AssertionError("no joint position serves every user")
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_oracle_is_the_joint_search(seed):
+    config = FleetConfig(uavs=2, users=3, window=3)
+    maps = FleetMaps([_city(seed)], config)
+    episodes = maps.episode_list(6, seed)
+    got = oracle_steps(maps, episodes)
+    city, users, starts = maps.split(episodes)
+    want = [_joint_search(maps.cities[0], users[e], starts[e], config.p_t_db) for e in range(len(episodes))]
+    np.testing.assert_array_equal(got, want)
+    assert (got > 0).all()
+
+
+def test_moves_shared_measurements_and_the_end():
+    config = FleetConfig(uavs=3, users=2, window=5, t_max=40)
+    maps = FleetMaps([_city(7, side=9, users=3, walls=10)], config)
+    episodes = maps.episode_list(8, 0)
+    env = BatchedFleet(maps, 8)
+    env.begin(np.arange(8), episodes, np.arange(8))
+    rng = np.random.default_rng(0)
+    best = oracle_steps(maps, episodes)
+    ended = np.full(8, -1)
+    for t in range(config.t_max):
+        mask = env.action_mask()
+        assert mask[..., 4].all()
+        actions = np.array([[rng.choice(np.flatnonzero(m)) for m in row] for row in mask])
+        running = ~env.done
+        _, terminated, truncated = env.step(actions)
+        ended[terminated] = t + 1
+        for e in np.flatnonzero(running):  # never two UAVs on one cell, never on a blocked one
+            cells = {tuple(c) for c in env.pos[e]}
+            assert len(cells) == config.uavs
+            assert not env.maps.blocked[0, env.pos[e, :, 0], env.pos[e, :, 1]].any()
+        if env.done.all():
+            break
+    assert (ended[ended > 0] >= best[ended > 0]).all()  # nobody beats the oracle
+    for e in range(8):  # every cell the fleet visited holds each user's SINR there, for every UAV's window alike
+        p = maps.pad
+        for n in range(config.users):
+            seen = env.visits[e] > 0
+            want = maps.sinr[0, env.users[e, n]][seen]
+            np.testing.assert_array_equal(env.memory[e, n][seen], want)
+        if ended[e] > 0:
+            assert (env.served_at[e] >= 0).all() and env.served_at[e].max() <= ended[e]
+    obs = env.observe()
+    assert obs.shape == (8, 3, 4, 5, 5)
+    h = config.window // 2
+    y, x = env.pos[0, 0]
+    np.testing.assert_array_equal(obs[0, 0, 2], env.memory[0, 0, y - h : y + h + 1, x - h : x + h + 1])
+    assert p == h
+
+
+def test_episode_lists_are_prefixes_and_keys_name_episodes():
+    config = FleetConfig(uavs=2, users=2, window=3)
+    maps = FleetMaps([_city(1), _city(2)], config)
+    long, short = maps.episode_list(12, 5), maps.episode_list(4, 5)
+    np.testing.assert_array_equal(long[:4], short)
+    assert not np.array_equal(maps.episode_list(4, 6), short)
+    keys = maps.episode_keys(long)
+    assert len(set(keys.tolist())) == len({tuple(e) for e in long.tolist()})
+    np.testing.assert_array_equal(maps.episode_keys(long[::-1]), keys[::-1])
+    with pytest.raises(ValueError, match="fewer traced users"):
+        FleetMaps([_city(1, users=2)], FleetConfig(users=3, window=3))
+
+
+def test_gymnasium_checker_passes(tiny):
+    import gymnasium as gym
+    from gymnasium.utils.env_checker import check_env
+
+    import uavplace.rl  # noqa: F401  (registers the environments)
+
+    env = gym.make("uavplace/UavFleet-v0", dataset="tiny", root=str(tiny), uavs=2, users=2, window=9, t_max=20)
+    check_env(env.unwrapped)
+    obs, info = env.reset(seed=3)
+    again, _ = env.reset(seed=3)
+    np.testing.assert_array_equal(obs, again)
+    assert obs.shape == (2, 4, 9, 9) and info["action_mask"].shape == (2, 5)
+    for _ in range(20):
+        obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        if terminated or truncated:
+            break
+    assert terminated or truncated
