@@ -34,12 +34,13 @@ import itertools
 from dataclasses import dataclass
 
 import numpy as np
+import pandas as pd
 from pydantic import ConfigDict, Field, field_validator
 
 from uavplace.dataset.bundle import Bundle
 from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target
 from uavplace.rl.maps import MOVES
-from uavplace.rl.randomness import combine, stream_key
+from uavplace.rl.randomness import combine, stream_key, uniforms
 from uavplace.schemas.base import Contract
 
 #: The fleet's 5 actions per UAV in map coordinates (dy, dx): the 4 placement moves, then 4 = stay.
@@ -231,6 +232,7 @@ class BatchedFleet:
         self.served_at = np.full((n, N), -1, np.int64)  # the first step each user was served (-1: not yet)
         self.done = np.ones(n, bool)
         self.episode_id = np.full(n, -1, np.int64)
+        self.keys = np.zeros(n, np.uint64)  # each row's episode key (FleetMaps.episode_keys)
         w = cfg.window
         self._windows = {
             "memory": np.lib.stride_tricks.sliding_window_view(self.memory, (w, w), axis=(2, 3)),
@@ -248,6 +250,7 @@ class BatchedFleet:
         self.served_at[rows] = -1
         self.done[rows] = False
         self.episode_id[rows] = ids
+        self.keys[rows] = self.maps.episode_keys(episodes)
         self._measure(rows)
 
     def sinr_here(self, rows: np.ndarray) -> np.ndarray:
@@ -332,3 +335,145 @@ class BatchedFleet:
                 obs[np.flatnonzero(inside), k, 1, dy[inside], dx[inside]] = cfg.p_h_db
             obs[:, k, 2:] = self._windows["memory"][rows, :, y0, x0]  # [R, N, w, w]
         return obs
+
+
+@dataclass(frozen=True)
+class FleetView:
+    """What a fleet policy other than the oracle may read: per row, the UAVs' canvas cells (``pos`` [E, K, 2]), the
+    step (``t``), the fleet's shared measurements (``memory`` [E, N, L, L]: each user's SINR at the visited cells,
+    P_H unvisited, P_L blocked) and visits (``visits`` [E, L, L]), the episode's key for random draws (``keys``), its
+    city (``city``), the cities' public maps (``height`` and ``blocked`` [B, L, L]) and the task's settings. No
+    user's map; every array read-only."""
+
+    pos: np.ndarray
+    t: np.ndarray
+    memory: np.ndarray
+    visits: np.ndarray
+    keys: np.ndarray
+    city: np.ndarray
+    height: np.ndarray
+    blocked: np.ndarray
+    config: FleetConfig
+
+    @classmethod
+    def of(cls, env: BatchedFleet) -> FleetView:
+        arrays = (env.pos, env.t, env.memory, env.visits, env.keys, env.city, env.maps.height, env.maps.blocked)
+        frozen = [a.view() for a in arrays]
+        for a in frozen:
+            a.flags.writeable = False
+        return cls(*frozen, config=env.config)
+
+
+class FleetRandomWalk:
+    """The steered random walk per UAV: repeat its last move w.p. ``p_repeat`` (if legal), else a random legal move;
+    never stays. Draws per episode and step (``rl.randomness``)."""
+
+    name = "steered random walk"
+
+    def __init__(self, seed: int = 0, p_repeat: float = 0.4) -> None:
+        self.stream = stream_key("fleet " + self.name, seed)
+        self.p_repeat = p_repeat
+        self.last = np.zeros((0, 0), np.int64)
+
+    def reset(self, rows: np.ndarray, num_envs: int, uavs: int) -> None:
+        if self.last.shape != (num_envs, uavs):
+            self.last = np.full((num_envs, uavs), -1, np.int64)
+        self.last[rows] = -1
+
+    def act(self, mask: np.ndarray, view: FleetView) -> np.ndarray:
+        e, k = mask.shape[:2]
+        u = uniforms(self.stream, view.keys, view.t, 5 * k).reshape(e, k, 5)
+        moves = mask[..., :STAY]
+        a = np.argmax(u[..., :STAY] * moves, axis=2)
+        last = np.maximum(self.last, 0)
+        repeat = (self.last >= 0) & (u[..., STAY] < self.p_repeat) & np.take_along_axis(moves, last[..., None], 2)[..., 0]
+        a = np.where(repeat, self.last, a)
+        a = np.where(moves.any(axis=2), a, STAY)
+        self.last = a
+        return a
+
+
+class FleetGreedy:
+    """Hill-climbing per UAV on the users no other UAV serves now: each UAV scores a cell by the sum, over those
+    users, of the SINR the fleet measured there counted up to P_T. It goes to a random unvisited legal neighbour
+    while it has one (repeating its last move while that raised its score and leads to an unvisited cell), else to
+    the visited neighbour of best score; it stays where its score already serves all of its users. Reads only the
+    fleet's measurements (``FleetView``)."""
+
+    name = "greedy hill-climbing"
+
+    def __init__(self, seed: int = 0) -> None:
+        self.stream = stream_key("fleet " + self.name, seed)
+        self.last = np.zeros((0, 0), np.int64)
+        self.prev = np.zeros((0, 0), np.float32)
+
+    def reset(self, rows: np.ndarray, num_envs: int, uavs: int) -> None:
+        if self.last.shape != (num_envs, uavs):
+            self.last = np.full((num_envs, uavs), -1, np.int64)
+            self.prev = np.full((num_envs, uavs), np.nan, np.float32)
+        self.last[rows] = -1
+        self.prev[rows] = np.nan
+
+    def act(self, mask: np.ndarray, view: FleetView) -> np.ndarray:
+        cfg = view.config
+        e, k = mask.shape[:2]
+        rows = np.arange(e)
+        y, x = view.pos[..., 0], view.pos[..., 1]  # [E, K]
+        here = view.memory[rows[:, None, None], np.arange(cfg.users)[None, None], y[:, :, None], x[:, :, None]]  # [E, K, N]
+        served = here >= cfg.p_t_db
+        to = view.pos[:, :, None, :] + FLEET_MOVES[None, None, :STAY]  # [E, K, 4, 2]
+        seen = view.visits[rows[:, None, None], to[..., 0], to[..., 1]] > 0  # [E, K, 4]
+        value = np.minimum(view.memory[rows[:, None, None, None], np.arange(cfg.users)[None, None, None],
+                                       to[..., 0, None], to[..., 1, None]], cfg.p_t_db)  # fmt: skip  # [E, K, 4, N]
+        u = uniforms(self.stream, view.keys, view.t, 8 * k).reshape(e, k, 8)
+        out = np.full((e, k), STAY, np.int64)
+        for uav in range(k):
+            others = np.delete(served, uav, axis=1).any(axis=1) if k > 1 else np.zeros((e, cfg.users), bool)
+            mine = ~others  # the users this UAV works for
+            score_here = np.where(mine, np.minimum(here[:, uav], cfg.p_t_db), 0).sum(axis=1)
+            score = np.where(mine[:, None], value[:, uav], 0).sum(axis=2)  # [E, 4]
+            legal = mask[:, uav, :STAY]
+            unvisited = legal & ~seen[:, uav]
+            last = np.maximum(self.last[:, uav], 0)
+            keep = (self.last[:, uav] >= 0) & (score_here > self.prev[:, uav]) & unvisited[rows, last]
+            explore = np.argmax(u[:, uav, :STAY] * unvisited, axis=1)
+            best = np.argmax(np.where(legal & seen[:, uav], score, -np.inf) + u[:, uav, STAY:] * 1e-3, axis=1)
+            a = np.where(keep, self.last[:, uav], np.where(unvisited.any(axis=1), explore, best))
+            done = (served[:, uav] | ~mine).all(axis=1)  # every user it works for is served where it stands
+            out[:, uav] = np.where(done | ~legal.any(axis=1), STAY, a)
+            self.prev[:, uav] = score_here
+        self.last = np.where(out == STAY, -1, out)
+        return out
+
+
+def run_fleet(maps: FleetMaps, policy, episodes: np.ndarray, num_envs: int = 64) -> pd.DataFrame:  # noqa: ANN001
+    """Play ``episodes`` with ``policy`` (``reset(rows, num_envs, uavs)``, ``act(mask, FleetView) -> [E, K]``); one
+    row per episode: ``success`` (every user served at one step within ``t_max``), ``steps`` (to that step; ``t_max
+    + 1`` when it failed), ``users_served`` (the share of users served at some step), ``oracle_steps`` and ``spl``
+    (success x oracle steps / max(steps, oracle steps))."""
+    episodes = np.asarray(episodes, np.int64)
+    cfg = maps.config
+    n = min(num_envs, len(episodes))
+    env = BatchedFleet(maps, n)
+    steps = np.full(len(episodes), cfg.t_max + 1, np.int64)
+    success = np.zeros(len(episodes), bool)
+    share = np.zeros(len(episodes))
+    nxt = min(n, len(episodes))
+    env.begin(np.arange(n), episodes[:n], np.arange(n))
+    policy.reset(np.arange(n), n, cfg.uavs)
+    while not env.done.all():
+        _, terminated, truncated = env.step(policy.act(env.action_mask(), FleetView.of(env)))
+        ended = np.flatnonzero(terminated | truncated)
+        for row in ended:
+            i = env.episode_id[row]
+            success[i], share[i] = terminated[row], (env.served_at[row] >= 0).mean()
+            steps[i] = env.t[row] if terminated[row] else cfg.t_max + 1
+        refill = ended[: max(0, len(episodes) - nxt)]
+        if len(refill):
+            env.begin(refill, episodes[nxt : nxt + len(refill)], np.arange(nxt, nxt + len(refill)))
+            policy.reset(refill, n, cfg.uavs)
+            nxt += len(refill)
+    oracle = oracle_steps(maps, episodes)
+    spl = success * oracle / np.maximum(np.maximum(steps, oracle), 1)
+    return pd.DataFrame({"episode": np.arange(len(episodes)), "success": success, "steps": steps,
+                         "users_served": share, "oracle_steps": oracle, "spl": spl})  # fmt: skip

@@ -136,3 +136,57 @@ def test_gymnasium_checker_passes(tiny):
         if terminated or truncated:
             break
     assert terminated or truncated
+
+
+def _scrambled(maps: FleetMaps, city: int, users: np.ndarray, keep: np.ndarray, rng: np.random.Generator) -> FleetMaps:
+    """A copy of ``maps`` whose ``users`` of ``city`` hold random SINR and targets outside ``keep`` [L, L]."""
+    import copy
+
+    out = copy.copy(maps)
+    out.sinr, out.target = maps.sinr.copy(), maps.target.copy()
+    for u in users:
+        out.sinr[city, u][~keep] = rng.uniform(-40, 40, (~keep).sum()).astype(np.float32)
+        out.target[city, u][~keep] = rng.random((~keep).sum()) < 0.3
+    return out
+
+
+def _paths(maps: FleetMaps, policy, episodes: np.ndarray) -> list[np.ndarray]:  # noqa: ANN001
+    """Each episode played alone: the fleet's positions after every step."""
+    from uavplace.rl.fleet import FleetView
+
+    out = []
+    for e in range(len(episodes)):
+        env = BatchedFleet(maps, 1)
+        env.begin(np.array([0]), episodes[e : e + 1], np.array([e]))
+        policy.reset(np.array([0]), 1, maps.config.uavs)
+        path = [env.pos[0].copy()]
+        while not env.done[0]:
+            env.step(policy.act(env.action_mask(), FleetView.of(env)))
+            path.append(env.pos[0].copy())
+        out.append(np.array(path))
+    return out
+
+
+def test_baselines_read_only_what_the_fleet_measured():
+    """The fleet's random walk and greedy hill-climbing move the same when every user's map is scrambled off the
+    cells the fleet visited; they play the same episodes alike in a batch and alone."""
+    from uavplace.rl.fleet import FleetGreedy, FleetRandomWalk, run_fleet
+
+    config = FleetConfig(uavs=2, users=2, window=5, t_max=60)
+    maps = FleetMaps([_city(3, side=10, users=4, walls=12)], config)
+    episodes = maps.episode_list(6, 1)
+    rng = np.random.default_rng(0)
+    for policy in (FleetRandomWalk(seed=2), FleetGreedy(seed=2)):
+        first = _paths(maps, policy, episodes)
+        for e, path in enumerate(first):
+            keep = np.zeros(maps.sinr.shape[2:], bool)
+            keep[path[..., 0].ravel(), path[..., 1].ravel()] = True
+            city, users, _ = maps.split(episodes[e : e + 1])
+            other = _scrambled(maps, int(city[0]), users[0], keep, rng)
+            again = _paths(other, policy, episodes[e : e + 1])[0]
+            np.testing.assert_array_equal(again, path, err_msg=policy.name)
+        table = run_fleet(maps, policy, episodes, num_envs=4)
+        alone = [len(p) - 1 for p in first]
+        won = table["success"].to_numpy()
+        np.testing.assert_array_equal(table["steps"].to_numpy()[won], np.array(alone)[won])
+        assert (table["steps"][won] >= table["oracle_steps"][won]).all() and (table["spl"] <= 1).all()
