@@ -109,6 +109,7 @@ class FleetMaps:
         if short:
             raise ValueError(f"{', '.join(short)}: fewer traced users than the fleet's {config.users}")
         self.cities, self.config = cities, config
+        self.bundles: list[Bundle] | None = None  # FleetMaps.of: the bundles whose public maps a searcher reads
         self.pad = p = config.window // 2
         self.side = L = max(max(c.legal.shape) for c in cities) + 2 * p
         users = max(len(c.sinr_db) for c in cities)
@@ -128,7 +129,9 @@ class FleetMaps:
 
     @classmethod
     def of(cls, bundles: list[Bundle], config: FleetConfig) -> FleetMaps:
-        return cls([FleetCity.of(b, config.p_t_db) for b in bundles], config)
+        out = cls([FleetCity.of(b, config.p_t_db) for b in bundles], config)
+        out.bundles = list(bundles)
+        return out
 
     def reach(self, city: int, user: int) -> np.ndarray:
         """``[ny, nx]`` the fewest moves from each cell of ``city`` to a target cell of ``user`` (``UNREACHABLE``
@@ -477,3 +480,99 @@ def run_fleet(maps: FleetMaps, policy, episodes: np.ndarray, num_envs: int = 64)
     spl = success * oracle / np.maximum(np.maximum(steps, oracle), 1)
     return pd.DataFrame({"episode": np.arange(len(episodes)), "success": success, "steps": steps,
                          "users_served": share, "oracle_steps": oracle, "spl": spl})  # fmt: skip
+
+
+class FleetSearcher:
+    """The map searcher run for the fleet (``rl.searcher``): one belief per user over its candidate cells, updated by
+    every UAV's first measurement of each cell (a cell measured again tells nothing new), and one plan for the fleet.
+
+    Per user ``n`` the posterior probability ``P_n(c)`` that each legal cell ``c`` serves it (1 or 0 at a visited
+    cell: its SINR is known). A set of users ``S`` is served at ``c`` with probability ``prod_{n in S} P_n(c)``. Over
+    the K^N assignments of users to UAVs, each UAV's best cell for its users scores that probability times the
+    searcher's distance discount from the UAV; the assignment of the largest product of its UAVs' scores is
+    followed, each UAV one cell along a shortest legal path to its cell (staying when it stands on it). Needs the
+    bundles' public maps (``FleetMaps.of``)."""
+
+    name = "map searcher"
+
+    def __init__(self, predictor, config=None, cache=None) -> None:  # noqa: ANN001 - rl.searcher's types
+        from uavplace.rl.searcher import MapSearchPolicy
+
+        self.searcher = MapSearchPolicy(predictor, config, cache)
+        self.public = None
+        self.log_b: list[list[np.ndarray]] = []
+
+    def bind(self, maps: FleetMaps) -> FleetSearcher:
+        """Read ``maps``' public maps (its bundles' heights, grid and settings; never a user's map)."""
+        from uavplace.rl.config import EnvConfig
+        from uavplace.rl.maps import MapSet
+        from uavplace.rl.view import PublicMaps
+
+        if maps.bundles is None:
+            raise ValueError("the fleet searcher predicts from bundles: FleetMaps.of(bundles, config)")
+        env = EnvConfig(window=maps.config.window, p_t_db=maps.config.p_t_db, rotate=False)
+        self.public, self.symmetries = PublicMaps.of(MapSet(maps.bundles, env)), env.symmetries
+        return self
+
+    def reset(self, rows: np.ndarray, num_envs: int, uavs: int) -> None:
+        if len(self.log_b) != num_envs:
+            self.log_b = [[] for _ in range(num_envs)]
+        for r in rows:
+            self.log_b[int(r)] = []
+
+    def act(self, mask: np.ndarray, view: FleetView) -> np.ndarray:
+        from uavplace.rl.searcher import posterior_cover
+
+        if self.public is None:
+            raise ValueError("FleetSearcher.bind(maps) first: it predicts from the bundles' public maps")
+        public, cfg, p = self.public, view.config, view.config.window // 2
+        e, k = mask.shape[:2]
+        out = np.full((e, k), STAY, np.int64)
+        for r in range(e):
+            canvas = self.symmetries * int(view.city[r])
+            cm = self.searcher.canvas_maps(public, canvas)
+            floor_db = float(public.settings[int(view.city[r])]["floor_db"])
+            y, x = view.pos[r, :, 0], view.pos[r, :, 1]
+            cols = cm.index[y - p, x - p]
+            if not self.log_b[r]:
+                self.log_b[r] = [np.zeros(len(cm.cells), np.float32) for _ in range(cfg.users)]
+            first = view.visits[r, y, x] == 1  # measured for the first time this step (or at the start)
+            for n in range(cfg.users):
+                for uav in np.flatnonzero(first):
+                    value = float(view.memory[r, n, y[uav], x[uav]])
+                    self.log_b[r][n] = self.searcher.update(cm, self.log_b[r][n], int(cols[uav]), value, floor_db)
+            cover = posterior_cover(np.stack(self.log_b[r]), cm.cover)  # [N, M]
+            seen = view.visits[r, cm.legal[:, 0] + p, cm.legal[:, 1] + p] > 0
+            known = view.memory[r][:, cm.legal[:, 0] + p, cm.legal[:, 1] + p] >= cfg.p_t_db  # [N, M]
+            cover = np.where(seen[None], known.astype(np.float32), cover)
+            paths = [self.searcher.paths_from(public, canvas, cm, int(c)) for c in cols]  # (discount, predecessors) per UAV
+            best, plan = -1.0, None
+            for owner in itertools.product(range(k), repeat=cfg.users):
+                score, targets = 1.0, []
+                for uav in range(k):
+                    mine = [n for n in range(cfg.users) if owner[n] == uav]
+                    if not mine:
+                        targets.append(int(cols[uav]))
+                        continue
+                    discount = paths[uav][0]
+                    value = np.prod(cover[mine], axis=0) * np.where(discount < 0, 0.0, discount)
+                    c = int(np.argmax(value))
+                    score *= float(value[c])
+                    targets.append(c)
+                if score > best:
+                    best, plan = score, targets
+            for uav in range(k):
+                out[r, uav] = self._step(cm, int(cols[uav]), plan[uav], paths[uav][1], mask[r, uav])
+        return out
+
+    @staticmethod
+    def _step(cm, here: int, target: int, pred: np.ndarray, mask: np.ndarray) -> int:  # noqa: ANN001
+        """The move that starts a shortest legal path from legal cell ``here`` to ``target`` (stay at it)."""
+        if target == here:
+            return STAY
+        step = target
+        while pred[step] != here and pred[step] >= 0:
+            step = int(pred[step])
+        dy, dx = cm.legal[step] - cm.legal[here]
+        move = np.flatnonzero((FLEET_MOVES[:STAY, 0] == dy) & (FLEET_MOVES[:STAY, 1] == dx))
+        return int(move[0]) if len(move) and mask[move[0]] else STAY

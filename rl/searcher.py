@@ -216,7 +216,7 @@ class MapSearchPolicy:
             self._graphs[key] = sparse.csr_matrix((np.ones(len(r), np.float32), (r, c)), shape=(len(legal), len(legal)))
         return self._graphs[key]
 
-    def _from(self, public: PublicMaps, canvas: int, maps: CandidateMaps, cell: int) -> tuple[np.ndarray, np.ndarray]:
+    def paths_from(self, public: PublicMaps, canvas: int, maps: CandidateMaps, cell: int) -> tuple[np.ndarray, np.ndarray]:
         """(discount [M], predecessors [M]) of the shortest legal paths from legal cell ``cell``: each cell's discount
         by its fewest moves (``SearchConfig.discount``; -1 where unreachable); kept for the most recent 4096 cells."""
         key = (canvas, cell, public.settings[public.bundle_of(canvas)]["version"])
@@ -294,7 +294,7 @@ class MapSearchPolicy:
     def _move(self, public: PublicMaps, canvas: int, maps: CandidateMaps, here: int, score: np.ndarray,
               seen: np.ndarray, mask: np.ndarray) -> int:  # fmt: skip
         """The first move along a shortest legal path to the unvisited cell of best discounted ``score``."""
-        discount, pred = self._from(public, canvas, maps, here)
+        discount, pred = self.paths_from(public, canvas, maps, here)
         score = np.where(seen | (discount < 0), -1.0, score * discount)
         target = int(np.argmax(score))
         if target == here or score[target] < 0:

@@ -190,3 +190,30 @@ def test_baselines_read_only_what_the_fleet_measured():
         won = table["success"].to_numpy()
         np.testing.assert_array_equal(table["steps"].to_numpy()[won], np.array(alone)[won])
         assert (table["steps"][won] >= table["oracle_steps"][won]).all() and (table["spl"] <= 1).all()
+
+
+def test_fleet_searcher_serves_the_tiny_city_from_what_it_measured(tiny):
+    """The map searcher run for the fleet (one belief per user, physics tier) serves the tiny city's user sets, and
+    moves the same when every user's map is scrambled off the cells the fleet visited."""
+    from tests.conftest import REPO
+    from uavplace.dataset.bundle import load_bundle
+    from uavplace.rl.fleet import FleetSearcher, run_fleet
+    from uavplace.rl.searcher import load_predictor
+
+    config = FleetConfig(uavs=2, users=2, window=9, t_max=60)
+    maps = FleetMaps.of([load_bundle("tiny", root=str(tiny))], config)
+    episodes = maps.episode_list(6, 0)
+    policy = FleetSearcher(load_predictor(REPO / "data" / "agents" / "searcher" / "predictor.json")).bind(maps)
+    table = run_fleet(maps, policy, episodes, num_envs=3)
+    assert table["success"].mean() >= 0.8
+    rng = np.random.default_rng(1)
+    for e, path in enumerate(_paths(maps, policy, episodes[:3])):
+        keep = np.zeros(maps.sinr.shape[2:], bool)
+        keep[path[..., 0].ravel(), path[..., 1].ravel()] = True
+        city, users, _ = maps.split(episodes[e : e + 1])
+        other = _scrambled(maps, int(city[0]), users[0], keep, rng)
+        np.testing.assert_array_equal(_paths(other, policy, episodes[e : e + 1])[0], path)
+    with pytest.raises(ValueError, match="bundles"):
+        FleetSearcher(load_predictor(REPO / "data" / "agents" / "searcher" / "predictor.json")).bind(
+            FleetMaps([_city(0)], FleetConfig(window=3))
+        )
