@@ -91,13 +91,17 @@ from uavplace.schemas.cli import (
 )
 @click.option(
     "--task",
-    type=click.Choice(["placement", "tracking"]),
+    type=click.Choice(["placement", "tracking", "fleet"]),
     default="placement",
     show_default=True,
     help="placement: the paper's task (a user who stays); tracking: a user who moves along the routes of the cities "
     "(bundles simulated with --routes; rl/tracking.py): the oracle, the agents (placement agents run unchanged), the "
-    "re-planning genie and the baselines (eval/tracking.py; OUT defaults to reports/tracking).",
+    "re-planning genie and the baselines (eval/tracking.py; OUT defaults to reports/tracking); fleet: --uavs UAVs "
+    "serve --users users at once (rl/fleet.py): the oracle, the map searcher run for the fleet, greedy hill-climbing "
+    "and the random walk (eval/fleet.py; OUT defaults to reports/fleet; no agents yet: docs/fleet.md).",
 )
+@click.option("--uavs", type=click.IntRange(1, 4), default=2, show_default=True, help="Fleet: UAVs in the fleet.")
+@click.option("--users", type=click.IntRange(1, 6), default=3, show_default=True, help="Fleet: users served at once.")
 @click.option(
     "--horizon",
     type=Counted("t_max"),
@@ -126,7 +130,8 @@ from uavplace.schemas.cli import (
 def report(
     runs: tuple[Path, ...], datasets: tuple[str, ...], out: Path | None, episodes: int, t_max: int, p_t_db: float, test_epsilon: float,
     n_boot: int, trajectories: int, split: str | None, seed: int, groups: tuple[str, ...], agents_dir: Path,
-    markdown: Path | None, task: str, horizon: int, hold: bool, predictor: str, root: Path, quiet: bool,
+    markdown: Path | None, task: str, uavs: int, users: int, horizon: int, hold: bool, predictor: str, root: Path,
+    quiet: bool,
 ) -> None:  # fmt: skip
     """Evaluate agents and baselines on the same episodes of a test city; write an HTML report, PNGs, CSV and Parquet.
 
@@ -143,6 +148,12 @@ def report(
     """
     from uavplace.eval.report import ReportConfig, check_summary_page, default_agents, summary_rows, write_summary_page
 
+    if task == "fleet":
+        if runs or groups or split:
+            raise click.UsageError("--task fleet plays the oracle, the fleet searcher and the baselines: no --run, "
+                                   "--group or --split yet (docs/fleet.md)")  # fmt: skip
+        _fleet_report(datasets, out, episodes, t_max, p_t_db, seed, n_boot, uavs, users, predictor, markdown, root, quiet)
+        return
     chosen = list(runs) or default_agents(agents_dir, None if task == "tracking" else "placement")
     if task == "tracking":
         if groups or split:
@@ -228,6 +239,37 @@ def _tracking_report(datasets: tuple[str, ...], runs: list[Path], out: Path | No
         stdout().print(plain_table(*cells[0], rows=cells[1:], title=SUMMARY_TITLE))
     if markdown is not None:
         atomic_write_text(markdown, (page.parent / "tracking.md").read_text(encoding="utf-8"))
+        stdout().print(f"tables (Markdown): {markdown}", highlight=False, soft_wrap=True)
+    stdout().print(f"report: {page}", highlight=False, soft_wrap=True)
+
+
+def _fleet_report(datasets: tuple[str, ...], out: Path | None, episodes: int, t_max: int, p_t_db: float, seed: int,
+                  n_boot: int, uavs: int, users: int, predictor: str, markdown: Path | None, root: Path,
+                  quiet: bool) -> None:  # fmt: skip
+    from uavplace.eval.fleet import FleetReportConfig, make_fleet_report, table_rows
+    from uavplace.eval.report import difference_rows
+    from uavplace.rl.fleet import FleetConfig
+    from uavplace.schemas.files import atomic_write_text
+
+    config = FleetReportConfig(datasets=list(datasets), episodes=episodes, seed=seed, n_boot=n_boot,
+                               task=FleetConfig(uavs=uavs, users=users, t_max=t_max, p_t_db=p_t_db),
+                               predictor=None if predictor.lower() == "none" else predictor)  # fmt: skip
+    with console.status("[bold]fleet report[/]", spinner="dots") if not quiet else contextlib.nullcontext() as status:
+
+        def on_progress(what: str) -> None:
+            if status is not None:
+                status.update(f"[bold]fleet report[/] {what}")
+
+        table, diff, page = make_fleet_report(config, out or Path("reports") / "fleet", root=root,
+                                              command=command_line(), on_progress=on_progress)  # fmt: skip
+    for city in config.datasets:
+        cells = table_rows(table[table["city"] == city], t_max)
+        title = f"{episodes} fleet episodes in {city} ({uavs} UAVs, {users} users, t_max {t_max}, P_T {p_t_db:g} dB)"
+        stdout().print(plain_table(*cells[0], rows=cells[1:], title=title))
+        cells = difference_rows(diff[diff["city"] == city], t_max)
+        stdout().print(plain_table(*cells[0], rows=cells[1:], title=f"paired differences in {city}, 95 % intervals"))
+    if markdown is not None:
+        atomic_write_text(markdown, page.read_text(encoding="utf-8"))
         stdout().print(f"tables (Markdown): {markdown}", highlight=False, soft_wrap=True)
     stdout().print(f"report: {page}", highlight=False, soft_wrap=True)
 

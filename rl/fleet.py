@@ -453,7 +453,8 @@ def run_fleet(maps: FleetMaps, policy, episodes: np.ndarray, num_envs: int = 64)
     """Play ``episodes`` with ``policy`` (``reset(rows, num_envs, uavs)``, ``act(mask, FleetView) -> [E, K]``); one
     row per episode: ``success`` (every user served at one step within ``t_max``), ``steps`` (to that step; ``t_max
     + 1`` when it failed), ``users_served`` (the share of users served at some step), ``oracle_steps`` and ``spl``
-    (success x oracle steps / max(steps, oracle steps))."""
+    (success x oracle steps / max(steps, oracle steps)); and, for ``eval.metrics``, the oracle's steps as
+    ``genie_steps``, the user set as ``user``, the city, and the first UAV's start."""
     episodes = np.asarray(episodes, np.int64)
     cfg = maps.config
     n = min(num_envs, len(episodes))
@@ -478,8 +479,15 @@ def run_fleet(maps: FleetMaps, policy, episodes: np.ndarray, num_envs: int = 64)
             nxt += len(refill)
     oracle = oracle_steps(maps, episodes)
     spl = success * oracle / np.maximum(np.maximum(steps, oracle), 1)
-    return pd.DataFrame({"episode": np.arange(len(episodes)), "success": success, "steps": steps,
-                         "users_served": share, "oracle_steps": oracle, "spl": spl})  # fmt: skip
+    city, users, starts = maps.split(episodes)
+    return pd.DataFrame({
+        "episode": np.arange(len(episodes)), "success": success, "steps": steps, "users_served": share,
+        "oracle_steps": oracle, "spl": spl,
+        # what the placement report's statistics read: the oracle in the genie's place, the user set as the user
+        "genie_steps": oracle, "city": [maps.cities[int(c)].name for c in city],
+        "user": ["-".join(map(str, sorted(u))) for u in users.tolist()], "view": city,
+        "start_y": starts[:, 0, 0], "start_x": starts[:, 0, 1],
+    })  # fmt: skip
 
 
 class FleetSearcher:

@@ -217,3 +217,29 @@ def test_fleet_searcher_serves_the_tiny_city_from_what_it_measured(tiny):
         FleetSearcher(load_predictor(REPO / "data" / "agents" / "searcher" / "predictor.json")).bind(
             FleetMaps([_city(0)], FleetConfig(window=3))
         )
+
+
+def test_fleet_report_writes_its_tables_and_never_replaces_a_stranger(tiny, tmp_path):
+    from click.testing import CliRunner
+
+    from tests.conftest import REPO
+    from uavplace.schemas.cli import uavrl
+
+    out = tmp_path / "fleet"
+    args = ["report", "--task", "fleet", "--dataset", "tiny", "--root", str(tiny), "--episodes", "12", "--users", "2",
+            "--bootstrap", "200", "--predictor", str(REPO / "data" / "agents" / "searcher" / "predictor.json"), "--quiet"]  # fmt: skip
+    res = CliRunner().invoke(uavrl, [*args, "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    import pandas as pd
+
+    table = pd.read_csv(out / "results.csv")
+    assert list(table["method"]) == ["oracle", "map searcher", "steered random walk", "greedy hill-climbing"]
+    assert table.loc[table.method == "oracle", "spl"].item() == 1.0
+    assert "success - greedy hill-climbing" in (out / "fleet.md").read_text()
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "thesis.tex").write_text("x")
+    res = CliRunner().invoke(uavrl, [*args, "--out", str(mine)])
+    assert res.exit_code != 0 and (mine / "thesis.tex").read_text() == "x"
+    res = CliRunner().invoke(uavrl, [*args, "--out", str(out), "--run", "data/agents/best"])
+    assert res.exit_code != 0 and "--task fleet" in res.output

@@ -1,0 +1,114 @@
+"""``uavrl report --task fleet``: the fleet task (``rl.fleet``) evaluated on the same episodes of each city.
+
+Every method plays the same episodes (``FleetMaps.episode_list`` of the report's seed): the oracle (the fewest steps
+until every user is served, knowing every map: the bound), the map searcher run for the fleet, greedy hill-climbing
+and the steered random walk per UAV. Per method and city the placement report's statistics, with the oracle in the
+genie's place: success (every user served at one step within ``t_max``), median and 75th percentile steps, the
+ratios to the oracle's steps and SPL against the oracle; intervals are paired bootstrap 95 % intervals that resample
+the user sets, then the episodes of each (``eval.metrics``); paired differences against the oracle and against
+greedy hill-climbing (the baseline every fleet method must beat until the independent-``best`` baseline is built:
+docs/fleet.md).
+
+The folder ``OUT`` (default ``reports/fleet``) holds ``fleet.md`` (every table), ``results.csv``,
+``differences.csv``, ``episodes.parquet`` and ``fleet.json`` (the config and the bundle versions), replaced only
+if it is a fleet report (``fleet.json``).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import pandas as pd
+from pydantic import Field
+
+from uavplace.dataset.bundle import load_bundle
+from uavplace.eval.metrics import bootstrap_table, difference_table
+from uavplace.eval.report import difference_rows, markdown_table
+from uavplace.rl.fleet import FleetConfig, FleetGreedy, FleetMaps, FleetRandomWalk, FleetSearcher, run_fleet
+from uavplace.rl.rollout import STATS, format_stat
+from uavplace.rl.searcher import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
+from uavplace.schemas.base import MAX_SEED, Contract, uavplace_version
+from uavplace.schemas.files import atomic_directory, check_replaceable
+
+FLEET_JSON = "fleet.json"
+ORACLE = "oracle"
+#: The baseline every fleet method is compared with, paired.
+REFERENCE = FleetGreedy.name
+
+
+class FleetReportConfig(Contract):
+    """How a fleet report was made (saved in ``fleet.json``)."""
+
+    datasets: list[str] = Field(min_length=1, description="Cities (built datasets)")
+    episodes: int = Field(default=1000, ge=1, description="Episodes a city, the same for every method")
+    seed: int = Field(default=0, ge=0, le=MAX_SEED, description="Seed of the episodes and of every random move")
+    n_boot: int = Field(default=2000, ge=100, description="Bootstrap resamples for the 95 % intervals")
+    task: FleetConfig = Field(default_factory=FleetConfig, description="The fleet task (rl/fleet.py)")
+    predictor: str | None = Field(
+        default=str(DEFAULT_PREDICTOR),
+        description="The fleet searcher's predictor (rl.searcher.load_predictor); None: no searcher",
+    )
+
+
+def fleet_results(config: FleetReportConfig, city: str, root: Path, on_progress: Callable[[str], None] | None = None
+                  ) -> dict[str, pd.DataFrame]:  # fmt: skip
+    """``{method: run_fleet frame}`` of one city, the oracle first."""
+    bundle = load_bundle(city, root=root)
+    maps = FleetMaps.of([bundle], config.task)
+    episodes = maps.episode_list(config.episodes, config.seed)
+    policies = [FleetRandomWalk(config.seed), FleetGreedy(config.seed)]
+    if config.predictor is not None:
+        cache = PredictionCache(Path(root) / PREDICTIONS)
+        policies.insert(0, FleetSearcher(load_predictor(config.predictor), None, cache).bind(maps))
+    results: dict[str, pd.DataFrame] = {}
+    for policy in policies:
+        if on_progress is not None:
+            on_progress(f"{city}: {policy.name}")
+        results[policy.name] = run_fleet(maps, policy, episodes)
+    first = next(iter(results.values()))
+    reached = first["oracle_steps"] <= config.task.t_max
+    oracle = first.assign(success=reached, steps=first["oracle_steps"].where(reached, config.task.t_max + 1))
+    return {ORACLE: oracle.assign(spl=reached.astype(float))} | results
+
+
+def table_rows(table: pd.DataFrame, t_max: int) -> list[list[str]]:
+    """The results table as text cells (header first), the genie's columns named for the oracle."""
+    names = [STATS[s].replace("genie", "oracle") for s in STATS]
+    rows = [["method", *names]]
+    for r in table.to_dict("records"):
+        rows.append([r["method"], *(format_stat(s, r[s], r[f"{s}_lo"], r[f"{s}_hi"], t_max) for s in STATS)])
+    return rows
+
+
+def make_fleet_report(config: FleetReportConfig, out: Path, root: Path, command: str = "",
+                      on_progress: Callable[[str], None] | None = None) -> tuple[pd.DataFrame, pd.DataFrame, Path]:  # fmt: skip
+    """Play every city, tabulate, and write ``out`` (see the module's docstring). Returns (results table, paired
+    differences, the Markdown file), every city in each."""
+    check_replaceable(out, FLEET_JSON, "fleet report")
+    tables, diffs, frames, sections, versions = [], [], [], [], {}
+    for city in config.datasets:
+        results = fleet_results(config, city, root, on_progress)
+        table = bootstrap_table(results, n_boot=config.n_boot, seed=config.seed)
+        diff = difference_table(results, [ORACLE, REFERENCE], n_boot=config.n_boot, seed=config.seed)
+        tables.append(table.assign(city=city))
+        diffs.append(diff.assign(city=city))
+        frames += [df.assign(method=m, city_name=city) for m, df in results.items()]
+        versions[city] = load_bundle(city, root=root).version
+        head = (f"**{city}** ({config.episodes} episodes, {config.task.uavs} UAVs and {config.task.users} users, "
+                f"t_max {config.task.t_max}, P_T {config.task.p_t_db:g} dB; 95 % intervals over user sets, then episodes)")  # fmt: skip
+        sections += [head, markdown_table(table_rows(table, config.task.t_max)),
+                     f"Paired differences in {city}, method minus reference (95 % intervals):",
+                     markdown_table(difference_rows(diff, config.task.t_max))]  # fmt: skip
+    table, diff = pd.concat(tables, ignore_index=True), pd.concat(diffs, ignore_index=True)
+    with atomic_directory(out, marker=FLEET_JSON, what="fleet report") as tmp:
+        (tmp / "fleet.md").write_text("\n\n".join(sections) + "\n", encoding="utf-8")
+        table.to_csv(tmp / "results.csv", index=False)
+        diff.to_csv(tmp / "differences.csv", index=False)
+        pd.concat(frames, ignore_index=True).to_parquet(tmp / "episodes.parquet", index=False)
+        doc = {"config": config.model_dump(mode="json"), "bundles": versions, "command": command,
+               "uavplace_version": uavplace_version(), "created_utc": dt.datetime.now(dt.UTC).isoformat()}  # fmt: skip
+        (tmp / FLEET_JSON).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+    return table, diff, out / "fleet.md"
