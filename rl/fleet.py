@@ -536,7 +536,8 @@ class FleetSearcher:
         public, cfg, p = self.public, view.config, view.config.window // 2
         e, k = mask.shape[:2]
         out = np.full((e, k), STAY, np.int64)
-        for r in range(e):
+        by_canvas: dict[int, list[int]] = {}
+        for r in range(e):  # the beliefs, row by row
             canvas = self.symmetries * int(view.city[r])
             cm = self.searcher.canvas_maps(public, canvas)
             floor_db = float(public.settings[int(view.city[r])]["floor_db"])
@@ -549,29 +550,38 @@ class FleetSearcher:
                 for uav in np.flatnonzero(first):
                     value = float(view.memory[r, n, y[uav], x[uav]])
                     self.log_b[r][n] = self.searcher.update(cm, self.log_b[r][n], int(cols[uav]), value, floor_db)
-            cover = posterior_cover(np.stack(self.log_b[r]), cm.cover)  # [N, M]
-            seen = view.visits[r, cm.legal[:, 0] + p, cm.legal[:, 1] + p] > 0
-            known = view.memory[r][:, cm.legal[:, 0] + p, cm.legal[:, 1] + p] >= cfg.p_t_db  # [N, M]
-            cover = np.where(seen[None], known.astype(np.float32), cover)
-            paths = [self.searcher.paths_from(public, canvas, cm, int(c)) for c in cols]  # (discount, predecessors) per UAV
-            best, plan = -1.0, None
-            for owner in itertools.product(range(k), repeat=cfg.users):
-                score, targets = 1.0, []
-                for uav in range(k):
-                    mine = [n for n in range(cfg.users) if owner[n] == uav]
-                    if not mine:
-                        targets.append(int(cols[uav]))
-                        continue
-                    discount = paths[uav][0]
-                    value = np.prod(cover[mine], axis=0) * np.where(discount < 0, 0.0, discount)
-                    c = int(np.argmax(value))
-                    score *= float(value[c])
-                    targets.append(c)
-                if score > best:
-                    best, plan = score, targets
-            for uav in range(k):
-                out[r, uav] = self._step(cm, int(cols[uav]), plan[uav], paths[uav][1], mask[r, uav])
+            by_canvas.setdefault(canvas, []).append(r)
+        for canvas, rows in by_canvas.items():  # the plans: a city's rows' users in one matrix product
+            cm = self.searcher.canvas_maps(public, canvas)
+            covers = posterior_cover(np.concatenate([np.stack(self.log_b[r]) for r in rows]), cm.cover)
+            for i, r in enumerate(rows):
+                out[r] = self._plan(cm, canvas, covers[i * cfg.users : (i + 1) * cfg.users], view, r, mask[r])
         return out
+
+    def _plan(self, cm, canvas: int, cover: np.ndarray, view: FleetView, r: int, mask: np.ndarray) -> np.ndarray:  # noqa: ANN001
+        """Row ``r``'s moves [K] from its users' posterior covers [N, M] (the class's docstring)."""
+        cfg, p, k = view.config, view.config.window // 2, len(mask)
+        cols = cm.index[view.pos[r, :, 0] - p, view.pos[r, :, 1] - p]
+        seen = view.visits[r, cm.legal[:, 0] + p, cm.legal[:, 1] + p] > 0
+        known = view.memory[r][:, cm.legal[:, 0] + p, cm.legal[:, 1] + p] >= cfg.p_t_db  # [N, M]
+        cover = np.where(seen[None], known.astype(np.float32), cover)
+        paths = [self.searcher.paths_from(self.public, canvas, cm, int(c)) for c in cols]  # (discount, predecessors)
+        best, plan = -1.0, [int(c) for c in cols]
+        for owner in itertools.product(range(k), repeat=cfg.users):
+            score, targets = 1.0, []
+            for uav in range(k):
+                mine = [n for n in range(cfg.users) if owner[n] == uav]
+                if not mine:
+                    targets.append(int(cols[uav]))
+                    continue
+                discount = paths[uav][0]
+                value = np.prod(cover[mine], axis=0) * np.where(discount < 0, 0.0, discount)
+                c = int(np.argmax(value))
+                score *= float(value[c])
+                targets.append(c)
+            if score > best:
+                best, plan = score, targets
+        return np.array([self._step(cm, int(cols[u]), plan[u], paths[u][1], mask[u]) for u in range(k)])
 
     @staticmethod
     def _step(cm, here: int, target: int, pred: np.ndarray, mask: np.ndarray) -> int:  # noqa: ANN001
