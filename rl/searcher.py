@@ -18,6 +18,10 @@ from the UAV, and moves one cell along a shortest path to the best; it plans aga
 It reads only what the UAV knows (an ``rl.view.AgentView``): its position, its own measurements and the public
 maps. The predicted maps of a canvas are computed once and kept on disk (``PredictionCache``), keyed by the bundle
 version, the symmetry, the candidate lattice, the blanked map and the predictor's version.
+
+``BeliefTracker`` keeps the same belief for every row of a ``BatchedEnv`` and paints the posterior probability of
+reaching P_T as an observation channel: the hybrid learner (``EnvConfig.belief_channel``). ``rl.fleet`` runs the
+searcher for a fleet of UAVs, one belief per user.
 """
 
 from __future__ import annotations

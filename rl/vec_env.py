@@ -144,7 +144,8 @@ class BatchedEnv:
 
     def check_state(self, source: object) -> None:
         """``InputError`` (naming ``source``) unless the episode state (``state_arrays``, as a checkpoint restores it)
-        is one this env can be in: views in range, positions on open canvas cells, counters from 0, finite SINR."""
+        is one this env can be in: views in range, positions on open canvas cells, counters from 0, finite SINR, beliefs
+        that are finite somewhere; then the belief channel's canvases are made again from the restored beliefs."""
         problems = {
             "view": (self.view < 0) | (self.view >= self.maps.num_views),
             "pos": ((self.pos < 0) | (self.pos >= self.maps.side)).any(axis=1),
