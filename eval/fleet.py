@@ -9,7 +9,9 @@ the user sets, then the episodes of each (``eval.metrics``); paired differences 
 greedy hill-climbing (the baseline every fleet method must beat until the independent-``best`` baseline is built:
 docs/fleet.md).
 
-The folder ``OUT`` (default ``reports/fleet``) holds ``fleet.md`` (every table), ``results.csv``,
+The folder ``OUT`` (default ``reports/fleet``) holds ``fleet.md`` (every table and figure), per city
+``<city>-episodes.png`` (the first method's episodes at the 10th, 50th and 90th percentiles of its steps on the
+heights: every UAV's path, every user's position), ``results.csv``,
 ``differences.csv``, ``episodes.parquet`` and ``fleet.json`` (the config and the bundle versions), replaced only
 if it is a fleet report (``fleet.json``).
 """
@@ -21,6 +23,7 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 from pydantic import Field
 
@@ -64,14 +67,64 @@ def fleet_results(config: FleetReportConfig, city: str, root: Path, on_progress:
         cache = PredictionCache(Path(root) / PREDICTIONS)
         policies.insert(0, FleetSearcher(load_predictor(config.predictor), None, cache).bind(maps))
     results: dict[str, pd.DataFrame] = {}
-    for policy in policies:
+    for i, policy in enumerate(policies):  # the first method's paths kept: the figure draws three of them
         if on_progress is not None:
             on_progress(f"{city}: {policy.name}")
-        results[policy.name] = run_fleet(maps, policy, episodes)
+        results[policy.name] = run_fleet(maps, policy, episodes, record=np.arange(len(episodes)) if i == 0 else None)
     first = next(iter(results.values()))
     reached = first["oracle_steps"] <= config.task.t_max
     oracle = first.assign(success=reached, steps=first["oracle_steps"].where(reached, config.task.t_max + 1))
+    oracle.attrs = {}
     return {ORACLE: oracle.assign(spl=reached.astype(float))} | results
+
+
+#: The episodes the figure draws: the shown method's steps at these percentiles (failures count as beyond t_max).
+PERCENTILES = (10, 50, 90)
+
+
+def picked_episodes(frame: pd.DataFrame) -> list[tuple[int, int]]:
+    """(percentile, episode) for ``PERCENTILES``: the episode whose steps are the order statistic at each."""
+    order = frame.sort_values(["steps", "episode"], kind="stable")["episode"].to_numpy()
+    return [(q, int(order[min(len(order) - 1, int(q / 100 * len(order)))])) for q in PERCENTILES]
+
+
+def plot_fleet_episodes(bundle, frame: pd.DataFrame, method: str, config: FleetConfig, out: Path) -> str:  # noqa: ANN001
+    """Three of ``method``'s episodes (``picked_episodes``) on the city's heights: every UAV's path and every user's
+    position; saves ``out`` and returns the figure's caption."""
+    from uavplace.eval.report import _pyplot
+
+    plt = _pyplot()
+    g = bundle.manifest.grid
+    extent = (g.x_min_m, g.x_max_m, g.y_min_m, g.y_max_m)
+    picks = picked_episodes(frame)
+    fig, axes = plt.subplots(1, len(picks), figsize=(4.4 * len(picks), 4.6), constrained_layout=True, squeeze=False)
+    colors = ("red", "orange", "magenta", "white")
+    rows = frame.set_index("episode")
+    for ax, (q, ep) in zip(axes[0], picks, strict=True):
+        row = rows.loc[ep]
+        im = ax.imshow(bundle.height_rel_m, origin="lower", extent=extent, cmap="viridis")
+        ax.contour(bundle.blocked, levels=[0.5], origin="lower", extent=extent, colors="black", linewidths=1.0)
+        cells = frame.attrs["paths"][ep]  # [T + 1, K, 2] (iy, ix)
+        for k in range(cells.shape[1]):
+            px = g.x_min_m + (cells[:, k, 1] + 0.5) * g.spacing_m
+            py = g.y_min_m + (cells[:, k, 0] + 0.5) * g.spacing_m
+            ax.plot(px, py, color=colors[k % len(colors)], linewidth=1.4, label=f"UAV {k + 1}")
+            ax.plot(px[0], py[0], "o", color=colors[k % len(colors)], markeredgecolor="black")
+        for u in (int(v) for v in str(row["user"]).split("-")):
+            user = bundle.users.iloc[u]
+            ax.plot(user["x_m"], user["y_m"], "*", color="cyan", markersize=13, markeredgecolor="black")
+        outcome = f"{int(row['steps'])} steps" if row["success"] else f"not all served in {config.t_max} steps"
+        ax.set_title(f"{q}th percentile: episode {ep}, users {row['user']}\n{outcome} (oracle {int(row['oracle_steps'])})",
+                     fontsize=9)  # fmt: skip
+        ax.tick_params(labelsize=7)
+        fig.colorbar(im, ax=ax, shrink=0.8).set_label("building height - altitude [m]", fontsize=7)
+    axes[0][0].legend(fontsize=7, loc="upper left")
+    fig.suptitle(f"{method} in {bundle.city}: {config.uavs} UAVs, {config.users} users", fontsize=10)
+    fig.savefig(out, dpi=100)
+    plt.close(fig)
+    return (f"{method} in {bundle.city}: the episodes at the {', '.join(str(q) for q in PERCENTILES)}th percentiles of "
+            "its steps (chosen by rule, failures counted beyond t_max), on the building heights (black: the edges of "
+            "blocked cells). Lines: each UAV's path from its circle; stars: the users.")  # fmt: skip
 
 
 def table_rows(table: pd.DataFrame, t_max: int) -> list[list[str]]:
@@ -88,9 +141,11 @@ def make_fleet_report(config: FleetReportConfig, out: Path, root: Path, command:
     """Play every city, tabulate, and write ``out`` (see the module's docstring). Returns (results table, paired
     differences, the Markdown file), every city in each."""
     check_replaceable(out, FLEET_JSON, "fleet report")
-    tables, diffs, frames, sections, versions = [], [], [], [], {}
+    tables, diffs, frames, sections, versions, shown_episodes = [], [], [], [], {}, {}
     for city in config.datasets:
         results = fleet_results(config, city, root, on_progress)
+        shown = next(m for m in results if m != ORACLE)
+        shown_episodes[city] = (load_bundle(city, root=root), results[shown], shown)
         table = bootstrap_table(results, n_boot=config.n_boot, seed=config.seed)
         diff = difference_table(results, [ORACLE, REFERENCE], n_boot=config.n_boot, seed=config.seed)
         tables.append(table.assign(city=city))
@@ -104,6 +159,9 @@ def make_fleet_report(config: FleetReportConfig, out: Path, root: Path, command:
                      markdown_table(difference_rows(diff, config.task.t_max))]  # fmt: skip
     table, diff = pd.concat(tables, ignore_index=True), pd.concat(diffs, ignore_index=True)
     with atomic_directory(out, marker=FLEET_JSON, what="fleet report") as tmp:
+        for city, (bundle, frame, method) in shown_episodes.items():
+            caption = plot_fleet_episodes(bundle, frame, method, config.task, tmp / f"{city}-episodes.png")
+            sections.append(f"![{caption}]({city}-episodes.png)\n\n{caption}")
         (tmp / "fleet.md").write_text("\n\n".join(sections) + "\n", encoding="utf-8")
         table.to_csv(tmp / "results.csv", index=False)
         diff.to_csv(tmp / "differences.csv", index=False)

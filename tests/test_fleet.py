@@ -236,6 +236,7 @@ def test_fleet_report_writes_its_tables_and_never_replaces_a_stranger(tiny, tmp_
     assert list(table["method"]) == ["oracle", "map searcher", "steered random walk", "greedy hill-climbing"]
     assert table.loc[table.method == "oracle", "spl"].item() == 1.0
     assert "success - greedy hill-climbing" in (out / "fleet.md").read_text()
+    assert (out / "tiny-episodes.png").stat().st_size > 0 and "tiny-episodes.png" in (out / "fleet.md").read_text()
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "thesis.tex").write_text("x")
