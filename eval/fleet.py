@@ -27,7 +27,7 @@ import numpy as np
 import pandas as pd
 from pydantic import Field
 
-from uavplace.dataset.bundle import load_bundle
+from uavplace.dataset.bundle import Bundle, load_bundle
 from uavplace.eval.metrics import bootstrap_table, difference_table
 from uavplace.eval.report import difference_rows, markdown_table
 from uavplace.rl.fleet import FleetConfig, FleetGreedy, FleetMaps, FleetRandomWalk, FleetSearcher, run_fleet
@@ -56,10 +56,10 @@ class FleetReportConfig(Contract):
     )
 
 
-def fleet_results(config: FleetReportConfig, city: str, root: Path, on_progress: Callable[[str], None] | None = None
+def fleet_results(config: FleetReportConfig, bundle: Bundle, root: Path, on_progress: Callable[[str], None] | None = None
                   ) -> dict[str, pd.DataFrame]:  # fmt: skip
-    """``{method: run_fleet frame}`` of one city, the oracle first."""
-    bundle = load_bundle(city, root=root)
+    """``{method: run_fleet frame}`` of one city's bundle, the oracle first."""
+    city = bundle.city
     maps = FleetMaps.of([bundle], config.task)
     episodes = maps.episode_list(config.episodes, config.seed)
     policies = [FleetRandomWalk(config.seed), FleetGreedy(config.seed)]
@@ -88,7 +88,7 @@ def picked_episodes(frame: pd.DataFrame) -> list[tuple[int, int]]:
     return [(q, int(order[min(len(order) - 1, int(q / 100 * len(order)))])) for q in PERCENTILES]
 
 
-def plot_fleet_episodes(bundle, frame: pd.DataFrame, method: str, config: FleetConfig, out: Path) -> str:  # noqa: ANN001
+def plot_fleet_episodes(bundle: Bundle, frame: pd.DataFrame, method: str, config: FleetConfig, out: Path) -> str:
     """Three of ``method``'s episodes (``picked_episodes``) on the city's heights: every UAV's path and every user's
     position; saves ``out`` and returns the figure's caption."""
     from uavplace.eval.report import _pyplot
@@ -143,15 +143,16 @@ def make_fleet_report(config: FleetReportConfig, out: Path, root: Path, command:
     check_replaceable(out, FLEET_JSON, "fleet report")
     tables, diffs, frames, sections, versions, shown_episodes = [], [], [], [], {}, {}
     for city in config.datasets:
-        results = fleet_results(config, city, root, on_progress)
+        bundle = load_bundle(city, root=root)
+        results = fleet_results(config, bundle, root, on_progress)
         shown = next(m for m in results if m != ORACLE)
-        shown_episodes[city] = (load_bundle(city, root=root), results[shown], shown)
+        shown_episodes[city] = (bundle, results[shown], shown)
         table = bootstrap_table(results, n_boot=config.n_boot, seed=config.seed)
         diff = difference_table(results, [ORACLE, REFERENCE], n_boot=config.n_boot, seed=config.seed)
         tables.append(table.assign(city=city))
         diffs.append(diff.assign(city=city))
         frames += [df.assign(method=m, city_name=city) for m, df in results.items()]
-        versions[city] = load_bundle(city, root=root).version
+        versions[city] = bundle.version
         head = (f"**{city}** ({config.episodes} episodes, {config.task.uavs} UAVs and {config.task.users} users, "
                 f"t_max {config.task.t_max}, P_T {config.task.p_t_db:g} dB; 95 % intervals over user sets, then episodes)")  # fmt: skip
         sections += [head, markdown_table(table_rows(table, config.task.t_max)),

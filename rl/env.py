@@ -66,6 +66,23 @@ from uavplace.rl.maps import MapSet
 from uavplace.rl.vec_env import BatchedEnv
 
 
+def task_bundles(dataset: str | list[str], config: object, kind: type, root: str, overrides: dict) -> tuple[list, object]:
+    """(the bundles of ``dataset``, a city name or list; the task's ``kind`` config from ``config``, a ``kind``, a
+    dict of its fields or None, with ``overrides``): what the tracking and fleet environments are made from."""
+    from uavplace.dataset.bundle import load_bundle
+
+    base = config if isinstance(config, kind) else kind(**(config or {}))
+    names = [dataset] if isinstance(dataset, str) else list(dataset)
+    return [load_bundle(n, root=root) for n in names], base.model_copy(update=overrides)
+
+
+def observation_bounds(config: object, *more_high: float) -> tuple[float, float]:
+    """(low, high) of an observation: P_L and the clipped depth below, P_H, the clipped height, the edge's height
+    (and ``more_high``) above."""
+    low = min(config.p_l_db, -config.height_clip_m)
+    return low, max(config.p_h_db, config.height_clip_m, config.edge_height_m, *more_high)
+
+
 class UavPlacementEnv(gym.Env):
     metadata = {"render_modes": []}
 
@@ -91,8 +108,7 @@ class UavPlacementEnv(gym.Env):
         self.evaluation_info = evaluation_info
         self._env = BatchedEnv(maps, 1, autoreset=False)
         c, w = self.config.num_channels, self.config.window
-        low = min(self.config.p_l_db, -self.config.height_clip_m)
-        high = max(self.config.p_h_db, self.config.height_clip_m, self.config.edge_height_m)
+        low, high = observation_bounds(self.config)
         self.obs_scale = float(obs_scale)
         self.observation_space = gym.spaces.Box(low / self.obs_scale, high / self.obs_scale, (c, w, w), np.float32)
         self.action_space = gym.spaces.Discrete(4)
@@ -140,20 +156,17 @@ class UavTrackingEnv(gym.Env):
     metadata = {"render_modes": []}
 
     def __init__(self, dataset, config=None, root: str = "data/processed", **overrides: object) -> None:  # noqa: ANN001
-        from uavplace.dataset.bundle import load_bundle
         from uavplace.rl.tracking import RouteSet, TrackingConfig, TrackingEnv
 
-        if isinstance(dataset, RouteSet):
-            routes = dataset
-        else:
-            base = config if isinstance(config, TrackingConfig) else TrackingConfig(**(config or {}))
-            names = [dataset] if isinstance(dataset, str) else list(dataset)
-            routes = RouteSet([load_bundle(n, root=root) for n in names], base.model_copy(update=overrides))
+        routes = (
+            dataset
+            if isinstance(dataset, RouteSet)
+            else RouteSet(*task_bundles(dataset, config, TrackingConfig, root, overrides))
+        )
         self.config = routes.config
         self._env = TrackingEnv(routes, 1, autoreset=False)
         c, w = self.config.num_channels, self.config.window
-        low = min(self.config.p_l_db, -self.config.height_clip_m)
-        high = max(self.config.p_h_db, self.config.height_clip_m, self.config.edge_height_m, self.config.age_clip_s)
+        low, high = observation_bounds(self.config, self.config.age_clip_s)
         self.observation_space = gym.spaces.Box(low, high, (c, w, w), np.float32)
         self.action_space = gym.spaces.Discrete(5)
 
@@ -186,19 +199,16 @@ class UavFleetEnv(gym.Env):
     metadata = {"render_modes": []}
 
     def __init__(self, dataset, config=None, root: str = "data/processed", **overrides: object) -> None:  # noqa: ANN001
-        from uavplace.dataset.bundle import load_bundle
         from uavplace.rl.fleet import BatchedFleet, FleetConfig, FleetMaps
 
-        if isinstance(dataset, FleetMaps):
-            maps = dataset
-        else:
-            base = config if isinstance(config, FleetConfig) else FleetConfig(**(config or {}))
-            names = [dataset] if isinstance(dataset, str) else list(dataset)
-            maps = FleetMaps.of([load_bundle(n, root=root) for n in names], base.model_copy(update=overrides))
+        maps = (
+            dataset
+            if isinstance(dataset, FleetMaps)
+            else FleetMaps.of(*task_bundles(dataset, config, FleetConfig, root, overrides))
+        )
         self.config = cfg = maps.config
         self._env = BatchedFleet(maps, 1)
-        low = min(cfg.p_l_db, -cfg.height_clip_m)
-        high = max(cfg.p_h_db, cfg.height_clip_m, cfg.edge_height_m)
+        low, high = observation_bounds(cfg)
         self.observation_space = gym.spaces.Box(low, high, (cfg.uavs, cfg.num_channels, cfg.window, cfg.window), np.float32)
         self.action_space = gym.spaces.MultiDiscrete([5] * cfg.uavs)
 

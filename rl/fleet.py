@@ -30,6 +30,7 @@ fleet's joint positions).
 
 from __future__ import annotations
 
+import functools
 import itertools
 from dataclasses import dataclass
 
@@ -126,6 +127,7 @@ class FleetMaps:
             self.target[b, : len(c.sinr_db), p : p + ny, p : p + nx] = c.target
         self.memory0 = np.where(self.blocked, np.float32(config.p_l_db), np.float32(config.p_h_db))
         self._reach: dict[tuple[int, int], np.ndarray] = {}
+        self._oracle: dict[tuple[int, ...], int] = {}  # episode -> oracle steps (drawing computes them)
 
     @classmethod
     def of(cls, bundles: list[Bundle], config: FleetConfig) -> FleetMaps:
@@ -171,9 +173,18 @@ class FleetMaps:
         y, x = np.divmod(starts, c.legal.shape[1])
         reach = np.stack([self.reach(b, int(u))[y, x] for u in users])  # [N, K]
         served = np.stack([c.target[int(u)][y, x] for u in users]).any(axis=1)
-        if (reach >= UNREACHABLE).any() or served.all() or fleet_oracle(c, users, np.stack([y, x], axis=1)) >= UNREACHABLE:
+        if (reach >= UNREACHABLE).any() or served.all():
             return None
-        return np.concatenate([[b], users, np.stack([y, x], axis=1).ravel()])
+        episode = np.concatenate([[b], users, np.stack([y, x], axis=1).ravel()])
+        return episode if self.oracle(episode) < UNREACHABLE else None
+
+    def oracle(self, episode: np.ndarray) -> int:
+        """``fleet_oracle`` of one episode (a row of ``episode_list``), computed once per ``FleetMaps``."""
+        key = tuple(int(v) for v in episode)
+        if key not in self._oracle:
+            city, users, starts = self.split(np.asarray(episode, np.int64)[None])
+            self._oracle[key] = fleet_oracle(self.cities[int(city[0])], users[0], starts[0])
+        return self._oracle[key]
 
     def split(self, episodes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Episodes as (city [E], users [E, N], starts [E, K, 2] map cells)."""
@@ -190,36 +201,43 @@ class FleetMaps:
         return keys
 
 
+@functools.cache
+def user_subsets(n: int) -> tuple[tuple[int, ...], ...]:
+    """The non-empty subsets of ``n`` users, smallest first."""
+    return tuple(s for r in range(1, n + 1) for s in itertools.combinations(range(n), r))
+
+
+@functools.cache
+def assignments(n: int, k: int) -> tuple[tuple[tuple[int, tuple[int, ...]], ...], ...]:
+    """Every assignment of ``n`` users to ``k`` UAVs (``itertools.product`` order), as the ``(uav, its users)`` of the
+    UAVs that have users, in UAV order: what the oracle minimises over and the fleet searcher maximises over."""
+    return tuple(
+        tuple((uav, mine) for uav in range(k) if (mine := tuple(u for u in range(n) if owner[u] == uav)))
+        for owner in itertools.product(range(k), repeat=n)
+    )
+
+
 def oracle_steps(maps: FleetMaps, episodes: np.ndarray) -> np.ndarray:
     """``[E]`` the fewest steps until every user is served (see the module's docstring): for every subset of the
     users, the fewest moves from each start to a cell that serves them all; then, over the K^N assignments of users to
     UAVs, the largest of the UAVs' times, minimised (``UNREACHABLE`` when no assignment serves everyone)."""
-    city, users, starts = maps.split(episodes)
-    return np.array([fleet_oracle(maps.cities[int(c)], u, s) for c, u, s in zip(city, users, starts, strict=True)], np.int64)
+    return np.array([maps.oracle(e) for e in np.asarray(episodes, np.int64)], np.int64)
 
 
 def fleet_oracle(city: FleetCity, users: np.ndarray, starts: np.ndarray) -> int:
     """``oracle_steps`` of one episode: ``users`` [N] of ``city``, ``starts`` [K, 2] map cells."""
-    n, k = len(users), len(starts)
-    subsets = [s for r in range(1, n + 1) for s in itertools.combinations(range(n), r)]
+    subsets = user_subsets(len(users))
     both = np.stack([np.logical_and.reduce(city.target[users[list(s)]]) for s in subsets])
     dist = steps_to_target(city.legal, both)[:, starts[:, 0], starts[:, 1]].astype(np.int64)  # [subsets, K]
     time = {s: dist[i] for i, s in enumerate(subsets)}
-    best = UNREACHABLE
-    for owner in itertools.product(range(k), repeat=n):  # user -> UAV
-        worst = 0
-        for uav in range(k):
-            mine = tuple(u for u in range(n) if owner[u] == uav)
-            if mine:
-                worst = max(worst, int(time[mine][uav]))
-        best = min(best, worst)
-    return best
+    worst = (max(int(time[mine][uav]) for uav, mine in groups) for groups in assignments(len(users), len(starts)))
+    return min(worst, default=UNREACHABLE)
 
 
 class BatchedFleet:
-    """``num_envs`` fleet episodes stepped together in numpy, taken in order from ``episodes`` (``[E, 1 + N + 2K]``,
-    ``FleetMaps.episode_list``); ``exhausted`` tells which slots have none left. Finished episodes stay as they
-    ended until ``refill``; ``results`` holds each played episode's outcome."""
+    """``num_envs`` fleet episodes stepped together in numpy: ``begin`` starts episodes (rows of
+    ``FleetMaps.episode_list``) in given rows; ``step`` moves the running ones; a finished row stays as it ended
+    (``done``) until ``begin`` starts another episode there (``run_fleet``)."""
 
     def __init__(self, maps: FleetMaps, num_envs: int) -> None:
         cfg = maps.config
@@ -261,9 +279,10 @@ class BatchedFleet:
         y, x = self.pos[rows, :, 0], self.pos[rows, :, 1]
         return self.maps.sinr[self.city[rows, None, None], self.users[rows, None, :], y[:, :, None], x[:, :, None]]
 
-    def _measure(self, rows: np.ndarray) -> np.ndarray:
+    def _measure(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rows ``rows`` measure every user at every UAV: the shared memories, the visits, the best SINR and who is
-        served. Returns how many of each row's UAVs stand on a cell never visited before."""
+        served. Returns how many of each row's UAVs stand on a cell never visited before, and whether every user of
+        the row is served now."""
         values = self.sinr_here(rows)  # [R, K, N]
         y, x = self.pos[rows, :, 0], self.pos[rows, :, 1]
         fresh = self.visits[rows[:, None], y, x] == 0
@@ -274,7 +293,7 @@ class BatchedFleet:
         served = values >= self.config.p_t_db
         newly = served.any(axis=1) & (self.served_at[rows] < 0)
         self.served_at[rows] = np.where(newly, self.t[rows, None], self.served_at[rows])
-        return fresh.sum(axis=1)
+        return fresh.sum(axis=1), served.any(axis=1).all(axis=1)
 
     def action_mask(self, rows: np.ndarray | None = None) -> np.ndarray:
         """``[len(rows), K, 5]`` bool: the moves into a legal cell no other UAV holds; staying is always legal."""
@@ -310,10 +329,10 @@ class BatchedFleet:
             new[:, k] = np.where(ok[:, None], want[:, k], start[:, k])
         self.pos[rows] = new
         self.t[rows] += 1
-        fresh = self._measure(rows)
+        fresh, everyone = self._measure(rows)
         terminated = np.zeros(self.num_envs, bool)
         truncated = np.zeros(self.num_envs, bool)
-        terminated[rows] = (self.sinr_here(rows) >= cfg.p_t_db).any(axis=1).all(axis=1)
+        terminated[rows] = everyone
         truncated[rows] = (self.t[rows] >= cfg.t_max) & ~terminated[rows]
         reward = np.zeros(self.num_envs, np.float32)
         gain = np.minimum(self.best[rows], cfg.p_t_db).sum(axis=1) - before
@@ -582,19 +601,20 @@ class FleetSearcher:
         known = view.memory[r][:, cm.legal[:, 0] + p, cm.legal[:, 1] + p] >= cfg.p_t_db  # [N, M]
         cover = np.where(seen[None], known.astype(np.float32), cover)
         paths = [self.searcher.paths_from(self.public, canvas, cm, int(c)) for c in cols]  # (discount, predecessors)
-        best, plan = -1.0, [int(c) for c in cols]
-        for owner in itertools.product(range(k), repeat=cfg.users):
-            score, targets = 1.0, []
+        discounts = [np.where(d < 0, 0.0, d) for d, _ in paths]
+        best_cell = {}  # (users, UAV) -> (its best cell for those users, the cell's value)
+        for mine in user_subsets(cfg.users):
+            served = np.prod(cover[list(mine)], axis=0)
             for uav in range(k):
-                mine = [n for n in range(cfg.users) if owner[n] == uav]
-                if not mine:
-                    targets.append(int(cols[uav]))
-                    continue
-                discount = paths[uav][0]
-                value = np.prod(cover[mine], axis=0) * np.where(discount < 0, 0.0, discount)
+                value = served * discounts[uav]
                 c = int(np.argmax(value))
-                score *= float(value[c])
-                targets.append(c)
+                best_cell[mine, uav] = c, float(value[c])
+        best, plan = -1.0, [int(c) for c in cols]
+        for groups in assignments(cfg.users, k):
+            score, targets = 1.0, [int(c) for c in cols]  # a UAV without users stays where it is
+            for uav, mine in groups:
+                targets[uav], value = best_cell[mine, uav]
+                score *= value
             if score > best:
                 best, plan = score, targets
         return np.array([self._step(cm, int(cols[u]), plan[u], paths[u][1], mask[u]) for u in range(k)])
