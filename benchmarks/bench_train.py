@@ -17,7 +17,7 @@ by the same function on the same episodes) and prints the wall time each took to
 evaluations included.
 
     pip install -e '.[bench]'      # adds tianshou
-    uavdata ingest data/raw/train/ && uavdata build --city train --grid 4m --alt 10 --noise-dbm -75 --split train=train --val-users 3
+    uavdata ingest data/raw/train/ && uavdata build --city train --grid 4m --alt 10 --split train=train --val-users 3
     python benchmarks/bench_train.py [--steps 20000] [--preset best-dqn]
     python benchmarks/bench_train.py --memory
     python benchmarks/bench_train.py --corpus corpus      # the train city alone against the corpus and it

@@ -1,10 +1,11 @@
 """The fleet task's methods on validation cities: success, median steps against the oracle's, SPL and time.
 
 Per validation city (never a test city), the same episodes (``FleetMaps.episode_list``) for the fleet's steered
-random walk, greedy hill-climbing and the map searcher run for the fleet (rl/fleet.py), scored against the oracle
-by ``run_fleet``. Prints one Markdown row per city.
+random walk, greedy hill-climbing, the shipped ``best`` run independently on every UAV and the map searcher run for
+the fleet (rl/fleet.py), scored against the oracle by ``run_fleet``. Prints one Markdown row per city.
 
     python benchmarks/fleet_validation.py [--city corpus-016] [--episodes 100] [--uavs 2] [--users 3]
+                                          [--agent data/agents/best]
 """
 
 from __future__ import annotations
@@ -16,7 +17,16 @@ from pathlib import Path
 import numpy as np
 
 from uavplace.dataset.bundle import load_bundle
-from uavplace.rl.fleet import FleetConfig, FleetGreedy, FleetMaps, FleetRandomWalk, FleetSearcher, run_fleet
+from uavplace.eval.report import load_agent
+from uavplace.rl.fleet import (
+    FleetConfig,
+    FleetGreedy,
+    FleetMaps,
+    FleetPlacement,
+    FleetRandomWalk,
+    FleetSearcher,
+    run_fleet,
+)
 from uavplace.rl.searcher import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
 
 VALIDATION = ("corpus-016", "corpus-017", "oldtown-005", "etoile-val", "florence-val")
@@ -31,12 +41,15 @@ def main() -> None:
     ap.add_argument("--users", type=int, default=3)
     ap.add_argument("--root", type=Path, default=Path("data/processed"))
     ap.add_argument("--predictor", type=Path, default=DEFAULT_PREDICTOR, help="Constants' JSON or a learned tier's folder")
+    ap.add_argument("--agent", type=Path, default=Path("data/agents/best"), help="Placement agent run on every UAV")
     args = ap.parse_args()
     config = FleetConfig(uavs=args.uavs, users=args.users)
     predictor, cache = load_predictor(args.predictor), PredictionCache(args.root / PREDICTIONS)
     print(f"{args.uavs} UAVs, {args.users} users, {args.episodes} episodes a city; success / median steps / SPL (seconds)")
-    print("| city | oracle median | random walk | greedy | map searcher | searcher median / oracle's |")
-    print("|---|---|---|---|---|---|")
+    agent = load_agent(args.agent, 0.096, args.seed)
+    print(f"| city | oracle median | random walk | greedy | independent {agent.name} | map searcher | "
+          "searcher median / oracle's |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|")
     for city in args.city or VALIDATION:
         bundle = load_bundle(city, root=args.root)
         if bundle.manifest.config.role == "test":
@@ -44,7 +57,9 @@ def main() -> None:
         maps = FleetMaps.of([bundle], config)
         episodes = maps.episode_list(args.episodes, args.seed)
         cells, table = [], None
-        for policy in (FleetRandomWalk(args.seed), FleetGreedy(args.seed), FleetSearcher(predictor, None, cache).bind(maps)):
+        independent = FleetPlacement(agent.policy, agent.config.env_config(evaluation=True), agent.name).bind(maps)
+        for policy in (FleetRandomWalk(args.seed), FleetGreedy(args.seed), independent,
+                       FleetSearcher(predictor, None, cache).bind(maps)):  # fmt: skip
             t0 = time.perf_counter()
             table = run_fleet(maps, policy, episodes)
             wall = time.perf_counter() - t0

@@ -17,7 +17,7 @@ dead/live agreement and the SINR error of the radio map against the exact paths 
     uavdata simulate sionna:florence --crop=364,-88,492,40 --name florence-twin-paths --users 4 --seed 8 \\
         --solver paths --samples 2e6
     uavdata ingest data/raw/florence-twin-map/ && uavdata ingest data/raw/florence-twin-paths/
-    uavdata build --city florence-twin-map --city florence-twin-paths --grid 4m --alt 10 --noise-dbm -75
+    uavdata build --city florence-twin-map --city florence-twin-paths --grid 4m --alt 10
     python benchmarks/twin_city.py --paths florence-twin-paths --radio-map florence-twin-map --p-t-db 20
 """
 

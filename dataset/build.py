@@ -548,7 +548,8 @@ def build_city(
     grid, arrays, users, info, counts, warnings = rasterise(of_users, config)
     routes = None if of_routes is None else rasterise_routes(of_routes, config, grid)
     stage("write")
-    with atomic_directory(final, marker=BUNDLE_MANIFEST, what="map bundle") as tmp:
+    # one lock for every bundle of the city (.<city>.lock beside its folder), not one file per version ever built
+    with atomic_directory(final, marker=BUNDLE_MANIFEST, what="map bundle", lock=final.parent) as tmp:
         np.savez(tmp / "maps.npz", **arrays)
         _write_parquet(CELLS, cells_frame(grid, arrays), tmp / CELLS.filename)
         _write_parquet(USERS, users, tmp / USERS.filename)

@@ -36,7 +36,7 @@ from uavplace.schemas.bundle import (
     BuildConfig,
     BundleManifest,
 )
-from uavplace.schemas.files import atomic_write_text, check_name, sha256_file
+from uavplace.schemas.files import atomic_write_text, check_name, read_small_file, sha256_file
 from uavplace.schemas.limits import check_limit
 
 #: Name of the per-city file holding the version ``load_bundle`` picks by default.
@@ -143,18 +143,17 @@ def list_versions(city: str, root: str | Path = DEFAULT_ROOT) -> list[BundleMani
     out = []
     for p in city_dir(city, root).glob(f"[0-9a-f]*/{BUNDLE_MANIFEST}"):
         try:
-            out.append(BundleManifest.model_validate_json(p.read_text(encoding="utf-8")))
-        except (ValidationError, ValueError, OSError):
+            out.append(BundleManifest.model_validate_json(read_small_file(p, "a bundle manifest")))
+        except (ValidationError, ValueError, OSError, InputError):
             continue
     return sorted(out, key=lambda m: m.created_utc)
 
 
 def read_manifest(folder: Path) -> BundleManifest:
     path = folder / BUNDLE_MANIFEST
+    data = read_small_file(path, "a bundle manifest", missing="no bundle manifest: not a bundle, or a build that did not finish")
     try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError(path, "no bundle manifest: not a bundle, or a build that did not finish") from None
+        text = data.decode("utf-8")
     except UnicodeDecodeError:
         raise InputError(path, "not UTF-8 text: not a bundle manifest") from None
     try:
@@ -205,14 +204,27 @@ def resolve(city: str, version: str | None = None, root: str | Path = DEFAULT_RO
         version = read_latest(city, root)
         if version is None:
             known = sorted(p.name for p in Path(root).glob("*") if (p / LATEST).is_file()) if Path(root).is_dir() else []
-            raise InputError(
-                folder,
-                f"no bundle of city '{city}' (built cities: {', '.join(known) or 'none'}); run `uavdata build --city {city}`",
-            )
+            if (folder / "ingested").is_dir():
+                raise InputError(folder, f"city '{city}' is ingested but not built: run `uavdata build --city {city}`")
+            raise InputError(folder, f"no city '{city}' is built here{nearest_names(city, known)}")
     path = folder / version
     if not path.is_dir():
         raise InputError(path, f"no bundle version '{version}' of city '{city}'")
     return path
+
+
+def nearest_names(name: str, known: list[str], what: str = "built") -> str:
+    """``: did you mean A or B?`` for the names of ``known`` nearest to a mistyped ``name`` (``; built: ...`` when none
+    is near, ``; nothing is built ...`` when ``known`` is empty; ``what``: what ``known`` are)."""
+    import difflib
+
+    near = difflib.get_close_matches(name, known, n=3, cutoff=0.6)
+    if near:
+        return f": did you mean {' or '.join(near)}?"
+    if not known:
+        return f"; nothing is {what}: run `uavdata ingest` and `uavdata build` first"
+    shown = ", ".join(known[:8]) + (f" and {len(known) - 8} more (`uavdata list`)" if len(known) > 8 else "")
+    return f"; {what}: {shown}"
 
 
 def load_bundle(city: str, version: str | None = None, root: str | Path = DEFAULT_ROOT, *, verify: bool = True) -> Bundle:

@@ -9,7 +9,8 @@ from pydantic import ValidationError
 
 from uavplace.schemas import CityManifest, InputError
 from uavplace.schemas.base import validation_message
-from uavplace.schemas.files import DEFAULT_ROOT, check_name, in_corpus
+from uavplace.schemas.bundle import CityRoles
+from uavplace.schemas.files import DEFAULT_ROOT, check_name, in_corpus, read_small_file
 
 INGESTED_MANIFEST = Path("ingested") / "manifest.json"
 
@@ -23,10 +24,9 @@ class CityEntry:
 
 def read_city_manifest(path: str | Path) -> CityManifest:
     path = Path(path)
+    data = read_small_file(path, "an ingest manifest", missing="no such manifest (run `uavdata ingest` first)")
     try:
-        return CityManifest.model_validate_json(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(path, "no such manifest (run `uavdata ingest` first)") from None
+        return CityManifest.model_validate_json(data.decode("utf-8"))
     except UnicodeDecodeError:
         raise InputError(path, "not UTF-8 text: not an ingest manifest") from None
     except ValidationError as exc:
@@ -64,8 +64,30 @@ def expand_datasets(names: list[str] | tuple[str, ...], root: str | Path = DEFAU
         else:
             members = [c for c in cities if in_corpus(c, name)]
             if not members:
-                raise InputError(
-                    Path(root) / name, "no ingested city or corpus of that name (see `uavrl datasets`)", field="dataset"
-                )
+                from uavplace.dataset.bundle import nearest_names
+
+                raise InputError(Path(root) / name, f"no ingested city or corpus of that name{nearest_names(city, cities, 'ingested')}",
+                                 field="dataset")  # fmt: skip
         out += [m for m in members if m not in out]
     return out
+
+
+#: Where the roles of the cities of a data folder are declared (``CityRoles``): beside the cities' folders.
+ROLES_FILE = "cities.toml"
+
+
+def read_roles(path: str | Path) -> CityRoles:
+    """A roles file (``CityRoles``, TOML); ``InputError`` naming the file and the field."""
+    import tomllib
+
+    path = Path(path)
+    data = read_small_file(path, "a cities' roles file (TOML)", missing="no such roles file")
+    try:
+        doc = tomllib.loads(data.decode("utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError, RecursionError) as exc:
+        raise InputError(path, f"not a TOML file ({exc})", field="toml") from None
+    try:
+        return CityRoles.model_validate(doc)
+    except ValidationError as exc:
+        field, message = validation_message(exc)
+        raise InputError(path, message, field=field) from None

@@ -10,7 +10,7 @@ import click
 from pydantic import ValidationError
 from rich.markup import escape
 
-from uavplace.dataset.catalog import list_cities
+from uavplace.dataset.catalog import ROLES_FILE, list_cities
 from uavplace.schemas import InputError
 from uavplace.schemas.base import validation_message
 from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM, BuildConfig
@@ -27,6 +27,15 @@ def _splits(values: tuple[str, ...]) -> dict[str, str | None]:
             raise click.BadParameter(f"{v!r}: expected CITY=train, CITY=val, CITY=test or CITY=none", param_hint="--split")
         out[city] = None if role == "none" else role
     return out
+
+
+def _declared_roles(path: Path):  # noqa: ANN202 - a CityRoles or None
+    """The roles file ``path`` (``read_roles``); None when it is the default file and absent."""
+    from uavplace.dataset.catalog import read_roles
+
+    if not path.exists() and path == Path("data/raw") / ROLES_FILE:
+        return None
+    return read_roles(path)
 
 
 def _latest_role(city: str, root: Path) -> str | None:
@@ -61,10 +70,12 @@ def _latest_role(city: str, root: Path) -> str | None:
 @click.option(
     "--noise-dbm",
     type=Finite(),
-    default=-104.0,
+    default=EMBEDDED_NOISE_DBM,
     show_default=True,
-    help="Noise plus background interference power [dBm] (the paper's combined -104 dBm; the embedded "
-    f"cities are calibrated at {EMBEDDED_NOISE_DBM:g} dBm, see the README).",
+    help="Noise plus background interference power [dBm]. The default is the level the embedded cities are "
+    "calibrated at and the shipped agents were trained at (EMBEDDED_NOISE_DBM in schemas/bundle.py; docs/data.md); "
+    "the paper's combined level is -104 dBm. Agents played on bundles of another level are warned about "
+    "(`uavrl report --strict` refuses them).",
 )
 @click.option(
     "--interference-std-db",
@@ -110,15 +121,25 @@ def _latest_role(city: str, root: Path) -> str | None:
     multiple=True,
     metavar="CITY=ROLE",
     help="Declare a city's role: train, val (a validation city: all its users select checkpoints), test, or none "
-    "(repeatable). Recorded in the bundle. A city whose latest bundle has a role must be named again (a build "
-    "without it would drop the role).",
+    "(repeatable; overrides --roles). Recorded in the bundle. A city whose latest bundle has a role must be given "
+    "one again, here or in --roles (a build without it would drop the role).",
+)
+@click.option(
+    "--roles",
+    "roles_file",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=Path("data/raw") / ROLES_FILE,
+    show_default=True,
+    help="The cities' roles, declared beside the data (TOML: train, val, test and crop lists of city names, and "
+    "val_users; schemas/bundle.py, CityRoles; the embedded cities': data/raw/cities.toml). Applied to the cities "
+    "built; --split, --crop-city and --val-users override it. Skipped when the default file is absent.",
 )
 @click.option(
     "--val-users",
     type=click.IntRange(min=0),
-    default=0,
-    show_default=True,
-    help="Users of each train city held out for validation (seeded).",
+    default=None,
+    help="Users of each train city held out for validation (seeded)  [default: the roles file's val_users for the "
+    "train cities it lists, else 0].",
 )
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the interference draw and of the user split.")
 @click.option(
@@ -144,7 +165,8 @@ def build(
     crop: bool,
     crop_cities: tuple[str, ...],
     splits: tuple[str, ...],
-    val_users: int,
+    roles_file: Path,
+    val_users: int | None,
     seed: int,
     p_t_db: float,
     force: bool,
@@ -167,13 +189,27 @@ def build(
     role = _splits(splits)
     for city in cities:
         check_name(city, "city name")
-    names = list(cities) or [c.name for c in list_cities(root)]
+    ingested = [c.name for c in list_cities(root)]
+    names = list(cities) or ingested
     if not names:
         fail(InputError(root, "no ingested city: run `uavdata ingest data/raw/<city>/` first"))
+    for city in names:  # checked before anything is read: a mistyped name gets the nearest ones
+        if city not in ingested:
+            from uavplace.dataset.bundle import nearest_names
+
+            fail(InputError(root / city, f"no ingested city of that name{nearest_names(city, ingested, 'ingested')}",
+                            field="city"))  # fmt: skip
     for option, given in (("--split", role), ("--crop-city", crop_cities)):
         unknown = sorted(set(given) - set(names))
         if unknown:
             raise click.BadParameter(f"cities {unknown} are not being built", param_hint=option)
+    declared = _declared_roles(roles_file)
+    held_out = dict.fromkeys(names, 0 if val_users is None else val_users)  # validation users of each train city
+    if declared is not None:  # the roles beside the data, for the cities built; the options win
+        role = {n: declared.role_of(n) for n in names if declared.role_of(n) is not None} | role
+        crop_cities = (*crop_cities, *(n for n in declared.crop if n in names))
+        if val_users is None:  # the file's val_users, for the train cities the file lists
+            held_out |= {n: declared.val_users for n in declared.train if n in held_out}
     held = {n: r for n in names if n not in role and (r := _latest_role(n, root)) is not None}
     if held:  # a build without their --split would make new bundles without a role and move `latest` to them
         fail(InputError(root, f"{', '.join(f'{n} (a {r} city)' for n, r in held.items())}: the latest bundle has a role that "
@@ -195,7 +231,7 @@ def build(
                 bounds=bounds,
                 crop=crop or name in crop_cities,
                 role=role.get(name),
-                val_users=val_users if role.get(name) == "train" else 0,
+                val_users=held_out[name] if role.get(name) == "train" else 0,
                 p_t_db=p_t_db,
             )
         except ValidationError as exc:

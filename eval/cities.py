@@ -11,14 +11,31 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from uavplace.dataset.bundle import load_bundle, read_latest
+from uavplace.dataset.bundle import read_latest, read_manifest, resolve
 from uavplace.dataset.catalog import list_cities
 from uavplace.schemas import InputError
 
 
 def city_role(city: str, root: str | Path = "data/processed") -> str | None:
     """The role the city's latest bundle was built with (``train``, ``val``, ``test``), or None."""
-    return load_bundle(city.split("@")[0], root=root).manifest.config.role
+    return read_manifest(resolve(city.split("@")[0], root=root)).config.role
+
+
+def release_cities(root: str | Path = "data/processed", *, routes: bool = False) -> list[str]:
+    """Every built city whose latest bundle has the test role, in name order: those with the tracking task's routes
+    (``routes``) or those without. ``InputError`` when there is none."""
+    found = []
+    for c in list_cities(root):
+        if read_latest(c.name, root) is None:
+            continue
+        manifest = read_manifest(resolve(c.name, root=root))
+        if manifest.config.role == "test" and bool(manifest.num_route_points) == routes:
+            found.append(c.name)
+    if not found:
+        kind = "with routes " if routes else ""
+        raise InputError(root, f"no test city {kind}is built: build some with --split CITY=test (or in data/raw/cities.toml), "
+                         "or name one with --dataset", field="dataset")  # fmt: skip
+    return found
 
 
 def development_cities(cities: list[str] | None, root: str | Path = "data/processed", *, release: bool = False) -> list[str]:

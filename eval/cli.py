@@ -18,6 +18,7 @@ from uavplace.schemas.cli import (
     ray_address_option,
     root_option,
     stdout,
+    warn_or_refuse,
 )
 
 
@@ -34,10 +35,9 @@ from uavplace.schemas.cli import (
     "--dataset",
     "datasets",
     multiple=True,
-    default=("test",),
-    show_default=True,
     help="Test city: a built dataset never used in training or checkpoint selection (repeatable: a report folder per "
-    "city, and OUT/report.html with a summary table and a section per city).",
+    "city, and OUT/report.html with a summary table and a section per city)  [default: every built city of the test "
+    "role (data/raw/cities.toml, or --split CITY=test): those without routes, or with routes for --task tracking].",
 )
 @click.option(
     "--out",
@@ -81,7 +81,7 @@ from uavplace.schemas.cli import (
 )
 @click.option("--agents-dir", type=click.Path(file_okay=False, path_type=Path), default=Path("data/agents"), show_default=True,
               help="Where the default agents are looked for (without --run: those of the report's task; a tracking "
-                   "report plays the placement agents too).")  # fmt: skip
+                   "report plays the placement agents too; a fleet report its 'best' on every UAV).")  # fmt: skip
 @click.option(
     "--markdown",
     type=click.Path(dir_okay=False, path_type=Path),
@@ -97,8 +97,9 @@ from uavplace.schemas.cli import (
     help="placement: the paper's task (a user who stays); tracking: a user who moves along the routes of the cities "
     "(bundles simulated with --routes; rl/tracking.py): the oracle, the agents (placement agents run unchanged), the "
     "re-planning genie and the baselines (eval/tracking.py; OUT defaults to reports/tracking); fleet: --uavs UAVs "
-    "serve --users users at once (rl/fleet.py): the oracle, the map searcher run for the fleet, greedy hill-climbing "
-    "and the random walk (eval/fleet.py; OUT defaults to reports/fleet; no agents yet: docs/fleet.md).",
+    "serve --users users at once (rl/fleet.py): the oracle, the map searcher run for the fleet, the placement agents "
+    "(--run; default: the shipped best under --agents-dir) run independently on every UAV, greedy hill-climbing and "
+    "the random walk (eval/fleet.py; OUT defaults to reports/fleet).",
 )
 @click.option("--uavs", type=click.IntRange(1, 4), default=2, show_default=True, help="Fleet: UAVs in the fleet.")
 @click.option("--users", type=click.IntRange(1, 6), default=3, show_default=True, help="Fleet: users served at once.")
@@ -125,13 +126,26 @@ from uavplace.schemas.cli import (
     "the physics tier's constants (data/agents/searcher/predictor.json, `uavrl fit-predictor`), or 'none' "
     "to leave the searcher and its ablation out. Its predicted maps are cached under ROOT/.predictions/.",
 )
+@click.option(
+    "--overwrite",
+    is_flag=True,
+    help="Replace a report folder that holds a report of other agents (refused by default: `--run X` would otherwise "
+    "write over the main job's reports/<city>/).",
+)
+@click.option(
+    "--strict",
+    is_flag=True,
+    help="Refuse to play an agent on a bundle built with other settings (grid, altitude, noise) than its training "
+    "cities' (run.json's bundle_settings), or at another P_T than it was trained at. Without it: one warning line "
+    "for each such agent and city.",
+)
 @root_option
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def report(
     runs: tuple[Path, ...], datasets: tuple[str, ...], out: Path | None, episodes: int, t_max: int, p_t_db: float, test_epsilon: float,
     n_boot: int, trajectories: int, split: str | None, seed: int, groups: tuple[str, ...], agents_dir: Path,
-    markdown: Path | None, task: str, uavs: int, users: int, horizon: int, hold: bool, predictor: str, root: Path,
-    quiet: bool,
+    markdown: Path | None, task: str, uavs: int, users: int, horizon: int, hold: bool, predictor: str, overwrite: bool,
+    strict: bool, root: Path, quiet: bool,
 ) -> None:  # fmt: skip
     """Evaluate agents and baselines on the same episodes of a test city; write an HTML report, PNGs, CSV and Parquet.
 
@@ -146,38 +160,77 @@ def report(
     page OUT/tracking.html with a table per city, the coverage over time and three episodes on the maps
     (eval/tracking.py).
     """
-    from uavplace.eval.report import ReportConfig, check_summary_page, default_agents, summary_rows, write_summary_page
+    from uavplace.eval.report import (
+        ReportConfig,
+        check_summary_page,
+        check_unseen_runs,
+        default_agents,
+        summary_rows,
+        write_summary_page,
+    )
+    from uavplace.schemas.files import check_replaceable_file
+    from uavplace.schemas.limits import check_limit
+
+    if markdown is not None:  # refused before any work: only a regular file or nothing is replaced
+        check_replaceable_file(markdown)
+    if not datasets:  # the release's cities: those built with the test role
+        from uavplace.eval.cities import release_cities
+
+        datasets = tuple(release_cities(root, routes=task == "tracking"))
+    budget, option = (horizon, "--horizon") if task == "tracking" else (t_max, "--t-max")
+    check_limit("episode_steps", episodes * budget, None, f"--episodes x {option}", field="episodes")
+    cities = [d.split("@")[0] for d in datasets]
+    twice = sorted({c for c in cities if cities.count(c) > 1})
+    if twice:  # one folder, table and summary row per city: two versions of one city would overwrite each other
+        given = ", ".join(d for d in datasets if d.split("@")[0] in twice)
+        raise click.UsageError(f"--dataset names {', '.join(twice)} more than once ({given}): one report per city; "
+                               "report each version with its own --out")  # fmt: skip
 
     if task == "fleet":
-        if runs or groups or split:
-            raise click.UsageError("--task fleet plays the oracle, the fleet searcher and the baselines: no --run, "
-                                   "--group or --split yet (docs/fleet.md)")  # fmt: skip
-        _fleet_report(datasets, out, episodes, t_max, p_t_db, seed, n_boot, uavs, users, predictor, markdown, root, quiet)
+        from uavplace.eval.fleet import DEFAULT_AGENT
+
+        if groups or split:
+            raise click.UsageError("--task fleet plays every user set of the cities: it takes no --group or --split")
+        chosen = list(runs) or [p for p in default_agents(agents_dir) if p.name == DEFAULT_AGENT]
+        _check_runs_once(chosen, "--run")
+        check_unseen_runs(chosen, list(datasets), root)
+        _check_training_settings(chosen, datasets, p_t_db, root, strict)
+        _fleet_report(datasets, chosen, out, episodes, t_max, p_t_db, test_epsilon, seed, n_boot, uavs, users, predictor,
+                      markdown, root, quiet)  # fmt: skip
         return
     chosen = list(runs) or default_agents(agents_dir, None if task == "tracking" else "placement")
     if task == "tracking":
+        _check_runs_once(chosen, "--run")
+        _check_training_settings(chosen, datasets, p_t_db, root, strict)
         if groups or split:
             raise click.UsageError("--task tracking plays every route of the cities: it takes no --group or --split")
         _tracking_report(datasets, chosen, out, episodes, horizon, p_t_db, test_epsilon, seed, n_boot, trajectories,
                          hold, markdown, root, quiet)  # fmt: skip
         return
 
+    _check_runs_once(chosen, "--run")
     grouped: dict[str, list[str]] = {}
     for text in groups:
         name, _, members = text.partition("=")
         folders = [m for m in members.split(",") if m]
         if not name or not folders:
             raise click.UsageError(f"--group {text!r}: expected NAME=RUN,RUN,...")
+        if name in grouped:
+            raise click.UsageError(f"--group {name} is given twice: one group of each name")
+        if name in _method_names():
+            raise click.UsageError(f"--group {name}: the name of a method of the report; call the group otherwise")
+        _check_runs_once([Path(f) for f in folders], f"--group {name}")
         grouped[name] = [str(Path(f)) for f in folders]
-        chosen += [Path(f) for f in folders if Path(f) not in chosen]
-    cities = [d.split("@")[0] for d in datasets]
-    twice = sorted({c for c in cities if cities.count(c) > 1})
-    if twice:  # one folder and one summary row per city: two versions of one city would overwrite each other
-        given = ", ".join(d for d in datasets if d.split("@")[0] in twice)
-        raise click.UsageError(f"--dataset names {', '.join(twice)} more than once ({given}): one report per city; "
-                               "report each version with its own --out")  # fmt: skip
+        chosen += [Path(f) for f in folders if Path(f).resolve() not in {c.resolve() for c in chosen}]
+    _check_runs_once(chosen, "--run and --group")
+    check_unseen_runs(chosen, list(datasets), root)  # every city before the first city's report
+    _check_training_settings(chosen, datasets, p_t_db, root, strict)
     if len(datasets) > 1:
         check_summary_page(out or Path("reports"))
+    folders = {d: out if out and len(datasets) == 1 else (out or Path("reports")) / d.split("@")[0] for d in datasets}
+    if not overwrite:
+        for folder in folders.values():
+            _check_same_agents(folder, chosen)
     reports = []
     for dataset in datasets:
         config = ReportConfig(
@@ -185,9 +238,7 @@ def report(
             test_epsilon=test_epsilon, seed=seed, n_boot=n_boot, trajectories=trajectories, split=split, groups=grouped,
             predictor=None if predictor.lower() == "none" else predictor,
         )  # fmt: skip
-        city = dataset.split("@")[0]
-        folder = out if out and len(datasets) == 1 else (out or Path("reports")) / city
-        result = _one_report(config, folder, root, quiet)
+        result = _one_report(config, folders[dataset], root, quiet)
         reports.append(result)
         title = f"{episodes} episodes in {dataset} (t_max {t_max}, P_T {p_t_db:g} dB)"
         stdout().print(plain_table(*result.rows[0], rows=result.rows[1:], title=title))
@@ -210,6 +261,58 @@ def report(
 
         atomic_write_text(markdown, markdown_tables(reports, t_max))
         stdout().print(f"tables (Markdown): {markdown}", highlight=False, soft_wrap=True)
+
+
+def _check_same_agents(folder: Path, runs: list[Path]) -> None:
+    """Refuse to replace a report folder that holds a report of other agents (``--overwrite`` replaces it)."""
+    import json
+
+    from uavplace.schemas import InputError
+    from uavplace.schemas.files import read_small_file
+
+    record = folder / "report.json"
+    if not record.is_file():
+        return
+    try:
+        held = json.loads(read_small_file(record, "a report's record"))["report_config"]["runs"]
+    except (InputError, ValueError, KeyError, TypeError):
+        return  # not a report this uavplace reads: check_replaceable decides
+    if sorted(str(Path(r).resolve()) for r in held) != sorted(str(r.resolve()) for r in runs):
+        names = ", ".join(Path(r).name for r in held) or "no agent"
+        raise click.UsageError(f"{folder} holds a report of other agents ({names}): give another --out, or --overwrite "
+                               "to replace it")  # fmt: skip
+
+
+def _check_runs_once(runs: list[Path], option: str) -> None:
+    """Refuse a run given twice (by two spellings or a link to it), and two runs of one folder name (their methods
+    would share a name in every table)."""
+    seen: dict[Path, Path] = {}
+    names: dict[str, Path] = {}
+    for run in runs:
+        real = run.resolve()
+        if real in seen:
+            twice = f"{run} is given twice" if run == seen[real] else f"{run} and {seen[real]} are one run"
+            raise click.UsageError(f"{option}: {twice}: give each run once")
+        if run.name in names:
+            raise click.UsageError(f"{option}: {names[run.name]} and {run} are both named {run.name}: their methods would "
+                                   "share a name; rename one folder")  # fmt: skip
+        seen[real], names[run.name] = run, run
+
+
+def _method_names() -> set[str]:
+    """The names of the report's methods other than agents (a group may not take one)."""
+    from uavplace.rl.policies import GeniePolicy, GreedyPolicy, RandomWalkPolicy
+    from uavplace.rl.searcher import SEARCHER
+
+    return {GeniePolicy.name, RandomWalkPolicy.name, GreedyPolicy.name, SEARCHER, "oracle"}
+
+
+def _check_training_settings(runs: list[Path], datasets: tuple[str, ...], p_t_db: float, root: Path, strict: bool) -> None:
+    """Name every agent and city where the agent would play outside its training settings (``unlike_training``): one
+    warning line each, or a refusal with ``--strict``."""
+    from uavplace.eval.report import unlike_training
+
+    warn_or_refuse(unlike_training(runs, list(datasets), root, p_t_db), strict)
 
 
 def _tracking_report(datasets: tuple[str, ...], runs: list[Path], out: Path | None, episodes: int, horizon: int, p_t_db: float,
@@ -243,15 +346,16 @@ def _tracking_report(datasets: tuple[str, ...], runs: list[Path], out: Path | No
     stdout().print(f"report: {page}", highlight=False, soft_wrap=True)
 
 
-def _fleet_report(datasets: tuple[str, ...], out: Path | None, episodes: int, t_max: int, p_t_db: float, seed: int,
-                  n_boot: int, uavs: int, users: int, predictor: str, markdown: Path | None, root: Path,
-                  quiet: bool) -> None:  # fmt: skip
-    from uavplace.eval.fleet import FleetReportConfig, make_fleet_report, table_rows
+def _fleet_report(datasets: tuple[str, ...], runs: list[Path], out: Path | None, episodes: int, t_max: int, p_t_db: float,
+                  test_epsilon: float, seed: int, n_boot: int, uavs: int, users: int, predictor: str,
+                  markdown: Path | None, root: Path, quiet: bool) -> None:  # fmt: skip
+    from uavplace.eval.fleet import SUMMARY_TITLE, FleetReportConfig, make_fleet_report, summary_rows, table_rows
     from uavplace.eval.report import difference_rows
     from uavplace.rl.fleet import FleetConfig
     from uavplace.schemas.files import atomic_write_text
 
-    config = FleetReportConfig(datasets=list(datasets), episodes=episodes, seed=seed, n_boot=n_boot,
+    config = FleetReportConfig(datasets=list(datasets), runs=[str(r) for r in runs], test_epsilon=test_epsilon,
+                               episodes=episodes, seed=seed, n_boot=n_boot,
                                task=FleetConfig(uavs=uavs, users=users, t_max=t_max, p_t_db=p_t_db),
                                predictor=None if predictor.lower() == "none" else predictor)  # fmt: skip
     with console.status("[bold]fleet report[/]", spinner="dots") if not quiet else contextlib.nullcontext() as status:
@@ -268,6 +372,9 @@ def _fleet_report(datasets: tuple[str, ...], out: Path | None, episodes: int, t_
         stdout().print(plain_table(*cells[0], rows=cells[1:], title=title))
         cells = difference_rows(diff[diff["city"] == city], t_max)
         stdout().print(plain_table(*cells[0], rows=cells[1:], title=f"paired differences in {city}, 95 % intervals"))
+    if len(config.datasets) > 1:
+        cells = summary_rows(table, diff, t_max)
+        stdout().print(plain_table(*cells[0], rows=cells[1:], title=SUMMARY_TITLE))
     if markdown is not None:
         atomic_write_text(markdown, page.read_text(encoding="utf-8"))
         stdout().print(f"tables (Markdown): {markdown}", highlight=False, soft_wrap=True)
@@ -336,13 +443,14 @@ def sweep(spec_file: Path, out: Path | None, ray_address: str | None, cpus_per_t
     """
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from uavplace.eval.sweep import read_spec, run_sweep, validation_table, write_table
+    from uavplace.eval.sweep import check_held_out, read_spec, run_sweep, validation_table, write_table
     from uavplace.schemas import InputError
 
     out = out or Path("runs") / spec_file.stem
     say = stdout()
     try:
         spec = read_spec(spec_file)
+        check_held_out(spec, spec_file, root)
         if not table_only:
             failed = run_sweep(spec, out, root=root, address=ray_address, cpus_per_trial=cpus_per_trial,
                                command=command_line(), on_line=lambda line: say.print(line, highlight=False, markup=False))  # fmt: skip

@@ -1,13 +1,13 @@
 """``uavrl report --task fleet``: the fleet task (``rl.fleet``) evaluated on the same episodes of each city.
 
 Every method plays the same episodes (``FleetMaps.episode_list`` of the report's seed): the oracle (the fewest steps
-until every user is served, knowing every map: the bound), the map searcher run for the fleet, greedy hill-climbing
-and the steered random walk per UAV. Per method and city the placement report's statistics, with the oracle in the
+until every user is served, knowing every map: the bound), the map searcher run for the fleet, placement agents run
+independently on every UAV (``FleetPlacement``: by default the shipped ``best``), greedy hill-climbing and the steered
+random walk per UAV. Per method and city the placement report's statistics, with the oracle in the
 genie's place: success (every user served at one step within ``t_max``), median and 75th percentile steps, the
 ratios to the oracle's steps and SPL against the oracle; intervals are paired bootstrap 95 % intervals that resample
 the user sets, then the episodes of each (``eval.metrics``); paired differences against the oracle and against
-greedy hill-climbing (the baseline every fleet method must beat until the independent-``best`` baseline is built:
-docs/fleet.md).
+the first independent agent (greedy hill-climbing without one): the baseline every fleet method must beat.
 
 The folder ``OUT`` (default ``reports/fleet``) holds ``fleet.md`` (every table and figure), per city
 ``<city>-episodes.png`` (the first method's episodes at the 10th, 50th and 90th percentiles of its steps on the
@@ -29,8 +29,16 @@ from pydantic import Field
 
 from uavplace.dataset.bundle import Bundle, load_bundle
 from uavplace.eval.metrics import bootstrap_table, difference_table
-from uavplace.eval.report import difference_rows, markdown_table
-from uavplace.rl.fleet import FleetConfig, FleetGreedy, FleetMaps, FleetRandomWalk, FleetSearcher, run_fleet
+from uavplace.eval.report import difference_rows, load_agent, markdown_table
+from uavplace.rl.fleet import (
+    FleetConfig,
+    FleetGreedy,
+    FleetMaps,
+    FleetPlacement,
+    FleetRandomWalk,
+    FleetSearcher,
+    run_fleet,
+)
 from uavplace.rl.rollout import STATS, format_stat
 from uavplace.rl.searcher import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
 from uavplace.schemas.base import MAX_SEED, Contract, uavplace_version
@@ -38,8 +46,8 @@ from uavplace.schemas.files import atomic_directory, check_replaceable
 
 FLEET_JSON = "fleet.json"
 ORACLE = "oracle"
-#: The baseline every fleet method is compared with, paired.
-REFERENCE = FleetGreedy.name
+#: The agent each UAV runs by default (``uavrl report --task fleet`` without ``--run``), from ``--agents-dir``.
+DEFAULT_AGENT = "best"
 
 
 class FleetReportConfig(Contract):
@@ -50,6 +58,8 @@ class FleetReportConfig(Contract):
     seed: int = Field(default=0, ge=0, le=MAX_SEED, description="Seed of the episodes and of every random move")
     n_boot: int = Field(default=2000, ge=100, description="Bootstrap resamples for the 95 % intervals")
     task: FleetConfig = Field(default_factory=FleetConfig, description="The fleet task (rl/fleet.py)")
+    runs: list[str] = Field(default_factory=list, description="Placement agents' run folders, each run on every UAV")
+    test_epsilon: float = Field(default=0.096, ge=0, le=1, description="Random legal move rate of the agents")
     predictor: str | None = Field(
         default=str(DEFAULT_PREDICTOR),
         description="The fleet searcher's predictor (rl.searcher.load_predictor); None: no searcher",
@@ -62,10 +72,14 @@ def fleet_results(config: FleetReportConfig, bundle: Bundle, root: Path, on_prog
     city = bundle.city
     maps = FleetMaps.of([bundle], config.task)
     episodes = maps.episode_list(config.episodes, config.seed)
-    policies = [FleetRandomWalk(config.seed), FleetGreedy(config.seed)]
+    policies = []
     if config.predictor is not None:
         cache = PredictionCache(Path(root) / PREDICTIONS)
-        policies.insert(0, FleetSearcher(load_predictor(config.predictor), None, cache).bind(maps))
+        policies.append(FleetSearcher(load_predictor(config.predictor), None, cache).bind(maps))
+    for run in config.runs:
+        agent = load_agent(run, config.test_epsilon, config.seed)
+        policies.append(FleetPlacement(agent.policy, agent.config.env_config(evaluation=True), agent.name).bind(maps))
+    policies += [FleetRandomWalk(config.seed), FleetGreedy(config.seed)]
     results: dict[str, pd.DataFrame] = {}
     for i, policy in enumerate(policies):  # the first method's paths kept: the figure draws three of them
         if on_progress is not None:
@@ -76,6 +90,11 @@ def fleet_results(config: FleetReportConfig, bundle: Bundle, root: Path, on_prog
     oracle = first.assign(success=reached, steps=first["oracle_steps"].where(reached, config.task.t_max + 1))
     oracle.attrs = {}
     return {ORACLE: oracle.assign(spl=reached.astype(float))} | results
+
+
+def reference(results: dict[str, pd.DataFrame]) -> str:
+    """The baseline every fleet method is compared with, paired: the first independent agent, else greedy."""
+    return next((m for m in results if m.startswith(FleetPlacement.prefix)), FleetGreedy.name)
 
 
 #: The episodes the figure draws: the shown method's steps at these percentiles (failures count as beyond t_max).
@@ -136,6 +155,35 @@ def table_rows(table: pd.DataFrame, t_max: int) -> list[list[str]]:
     return rows
 
 
+#: The summary's title: what each cell holds.
+SUMMARY_TITLE = ("success / median steps (median of per-episode steps / the oracle's) per method and city; then each "
+                 "method minus the reference, paired")  # fmt: skip
+
+
+def summary_rows(table: pd.DataFrame, diff: pd.DataFrame, t_max: int) -> list[list[str]]:
+    """Header then one row per method: in each city, ``success / median steps (steps / oracle)``, then its paired
+    difference from the city's reference (``reference``: success, median steps), with 95 % intervals."""
+    from uavplace.eval.report import _difference_cell
+
+    cities = list(dict.fromkeys(table["city"]))
+    refs = {c: str(diff[(diff["city"] == c) & (diff["against"] != ORACLE)]["against"].iloc[0]) for c in cities}
+    header = ["method", *(f"{c}: success / median steps (x oracle)" for c in cities),
+              *(f"{c}: minus {refs[c]}" for c in cities)]  # fmt: skip
+    rows = [header]
+    for method in dict.fromkeys(table["method"]):
+        cells = [str(method)]
+        for c in cities:
+            r = table[(table["city"] == c) & (table["method"] == method)].iloc[0]
+            shown = [format_stat(s, r[s], r[f"{s}_lo"], r[f"{s}_hi"], t_max) for s in ("success", "median_steps")]
+            cells.append(f"{shown[0]} / {shown[1]} ({format_stat('steps_over_genie', r['steps_over_genie'], t_max=t_max)})")
+        for c in cities:
+            d = diff[(diff["city"] == c) & (diff["method"] == method) & (diff["against"] == refs[c])]
+            cells.append("-" if d.empty else " / ".join(_difference_cell(s, d[d["stat"] == s].iloc[0])
+                                                         for s in ("success", "median_steps")))  # fmt: skip
+        rows.append(cells)
+    return rows
+
+
 def make_fleet_report(config: FleetReportConfig, out: Path, root: Path, command: str = "",
                       on_progress: Callable[[str], None] | None = None) -> tuple[pd.DataFrame, pd.DataFrame, Path]:  # fmt: skip
     """Play every city, tabulate, and write ``out`` (see the module's docstring). Returns (results table, paired
@@ -148,7 +196,7 @@ def make_fleet_report(config: FleetReportConfig, out: Path, root: Path, command:
         shown = next(m for m in results if m != ORACLE)
         shown_episodes[city] = (bundle, results[shown], shown)
         table = bootstrap_table(results, n_boot=config.n_boot, seed=config.seed)
-        diff = difference_table(results, [ORACLE, REFERENCE], n_boot=config.n_boot, seed=config.seed)
+        diff = difference_table(results, [ORACLE, reference(results)], n_boot=config.n_boot, seed=config.seed)
         tables.append(table.assign(city=city))
         diffs.append(diff.assign(city=city))
         frames += [df.assign(method=m, city_name=city) for m, df in results.items()]
@@ -159,6 +207,11 @@ def make_fleet_report(config: FleetReportConfig, out: Path, root: Path, command:
                      f"Paired differences in {city}, method minus reference (95 % intervals):",
                      markdown_table(difference_rows(diff, config.task.t_max))]  # fmt: skip
     table, diff = pd.concat(tables, ignore_index=True), pd.concat(diffs, ignore_index=True)
+    if len(config.datasets) > 1:
+        sections += [
+            f"Every city: {SUMMARY_TITLE} (95 % intervals).",
+            markdown_table(summary_rows(table, diff, config.task.t_max)),
+        ]
     with atomic_directory(out, marker=FLEET_JSON, what="fleet report") as tmp:
         for city, (bundle, frame, method) in shown_episodes.items():
             caption = plot_fleet_episodes(bundle, frame, method, config.task, tmp / f"{city}-episodes.png")

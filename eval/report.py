@@ -28,12 +28,19 @@ import pandas as pd
 import torch
 from pydantic import Field
 
-from uavplace.dataset.bundle import Bundle, load_bundle
+from uavplace.dataset.bundle import Bundle, load_bundle, read_manifest, resolve
 from uavplace.dataset.difficulty import valid_starts
 from uavplace.eval.metrics import STATS, bootstrap_table, difference_table, ecdf, format_stat, group_tables
 from uavplace.rl.agent.checkpoint import load_tensors
 from uavplace.rl.agent.dqn import DQNConfig
-from uavplace.rl.agent.train import RUN_JSON, RunRecord, policy_from_checkpoint, read_run_json, training_users
+from uavplace.rl.agent.train import (
+    RUN_JSON,
+    RunRecord,
+    policy_from_checkpoint,
+    read_run_json,
+    settings_unlike,
+    training_users,
+)
 from uavplace.rl.config import EnvConfig
 from uavplace.rl.maps import MapSet
 from uavplace.rl.policies import GeniePolicy, GreedyPolicy, Policy, RandomWalkPolicy
@@ -49,6 +56,7 @@ from uavplace.rl.searcher import (
 )
 from uavplace.schemas import InputError
 from uavplace.schemas.base import MAX_SEED, Contract, uavplace_version
+from uavplace.schemas.bundle import BundleManifest
 from uavplace.schemas.files import atomic_directory, atomic_write_text, check_replaceable
 
 #: The paper's test-city results (docs/method.md, "The paper's results"): success within t_max = 500, median steps.
@@ -182,6 +190,24 @@ def default_agents(root: str | Path = "data/agents", task: str | None = "placeme
     root = Path(root)
     found = sorted(p for p in root.iterdir() if (p / "checkpoints" / "best.pt").is_file()) if root.is_dir() else []
     return [p for p in found if task is None or not (p / RUN_JSON).is_file() or read_run_json(p).config.task == task]
+
+
+def unlike_training(runs: list[Path], datasets: list[str], root: str | Path, p_t_db: float) -> list[str]:
+    """One line per (run, city) where the run's agent would play a bundle built with settings none of its training
+    cities had (grid, altitude, noise: ``run.json``'s ``bundle_settings``), or at another P_T than it was trained
+    at. A run that records no settings (older than the record, or a bare checkpoint) is not judged."""
+    manifests = [read_manifest(resolve(d, root=root)) for d in datasets]
+    lines = []
+    for run in runs:
+        record = read_run_json(run) if (Path(run) / RUN_JSON).is_file() else None
+        if record is None or not record.bundle_settings:
+            continue
+        for manifest in manifests:
+            unlike = settings_unlike(record, manifest, p_t_db)
+            if unlike:
+                lines.append(f"{Path(run).name} on {manifest.city}@{manifest.version}: {'; '.join(unlike)}: the agent "
+                             "plays outside what it was trained on")  # fmt: skip
+    return lines
 
 
 def evaluate(
@@ -389,9 +415,11 @@ def upper_bound_db(bundles: list[Bundle], p_t_db: float) -> float:
 
 # -- figures --------------------------------------------------------------------------------------
 def _pyplot():
+    """pyplot off-screen, with text taken as it is: a name with ``$`` (a run folder's) is never parsed as mathtext."""
     import matplotlib
 
     matplotlib.use("Agg")
+    matplotlib.rcParams["text.parse_math"] = False
     import matplotlib.pyplot as plt
 
     return plt
@@ -722,7 +750,25 @@ def render_page(
     )  # fmt: skip
 
 
-def check_unseen(agents: list[Agent], bundle: Bundle) -> None:
+@dataclass(frozen=True)
+class _Record:
+    """What ``check_unseen`` reads of an agent, from its ``run.json`` alone."""
+
+    folder: Path
+    trained_on: dict[str, str]
+    selected_on: dict[str, str]
+
+
+def check_unseen_runs(runs: list[Path], datasets: list[str], root: str | Path) -> None:
+    """``check_unseen`` of every run against every city, from the runs' ``run.json`` and the bundles' manifests only:
+    a several-city command refuses before its first city's work (a run without ``run.json`` is judged when loaded)."""
+    records = {Path(r): read_run_json(r) for r in runs if (Path(r) / RUN_JSON).is_file()}
+    seen = [_Record(r, dict(x.datasets), dict(x.val_datasets)) for r, x in records.items()]
+    for d in datasets:
+        check_unseen(seen, read_manifest(resolve(d, root=root)))
+
+
+def check_unseen(agents: list[Agent] | list[_Record], bundle: Bundle | BundleManifest) -> None:
     """``InputError`` unless every agent is new to ``bundle``'s city: neither trained nor selected there, by name or
     by bundle version (a copied or renamed test city has the same version)."""
     for a in agents:

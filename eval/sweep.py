@@ -39,7 +39,9 @@ from uavplace.rl.policies import GeniePolicy
 from uavplace.rl.rollout import format_stat
 from uavplace.schemas import InputError
 from uavplace.schemas.base import MAX_SEED, Contract, validation_message
-from uavplace.schemas.files import atomic_write_text, check_name
+from uavplace.schemas.cluster import start_ray
+from uavplace.schemas.files import atomic_write_text, check_name, read_small_file
+from uavplace.schemas.limits import check_limit
 
 #: The spec, as it was given, beside the runs it made.
 SPEC_COPY = "sweep.toml"
@@ -139,22 +141,58 @@ def read_spec(path: str | Path) -> SweepSpec:
     """A sweep file, validated (every config made once, so that a bad setting is refused before Ray starts);
     ``InputError`` naming the file and the field."""
     path = Path(path)
+    data = read_small_file(path, "a sweep file", missing="no such sweep file")
     try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(path, "no such sweep file") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        doc = tomllib.loads(data.decode("utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError, RecursionError) as exc:
         raise InputError(path, f"not a TOML file ({exc})", field="toml") from None
     try:
         spec = SweepSpec.model_validate(doc)
     except ValidationError as exc:
         field, message = validation_message(exc)
         raise InputError(path, message, field=field) from None
+    check_limit("sweep_runs", len(spec.run_names()), path, "runs (trials x seeds)", field="trials")
     try:
         spec.configs()
     except InputError as err:
         raise InputError(path, err.message, field=f"settings.{err.field}" if err.field else "settings") from None
     return spec
+
+
+#: What a training run writes in its folder: a trial's folder holding anything else is not one the sweep made.
+RUN_ENTRIES = frozenset({"run.json", "metrics.parquet", "eval.parquet", "checkpoints"})
+
+
+def _remove_unstarted(run_dir: Path, config: DQNConfig, remove: bool = True) -> None:
+    """Remove a trial's folder that a sweep started but never checkpointed (nothing to continue), and only that: a
+    folder that is not a training run of ``config`` (no ``run.json``, another config, or other files beside the run's)
+    is refused (``InputError``), never removed. ``remove=False``: only the refusal."""
+    from uavplace.rl.agent.train import read_run_json
+
+    if run_dir.is_symlink() or not run_dir.is_dir() or not (run_dir / "run.json").is_file():
+        raise InputError(run_dir, "exists and is not a training run: a sweep removes only what it made; move it away, "
+                         "or rename the trial")  # fmt: skip
+    if read_run_json(run_dir).config.model_dump() != config.model_dump():
+        raise InputError(run_dir, "holds a run of other settings than the sweep's: move it away, or rename the trial")
+    strangers = sorted(p.name for p in run_dir.iterdir() if p.name not in RUN_ENTRIES)
+    if strangers:
+        raise InputError(run_dir, f"holds files a run does not write ({', '.join(strangers[:3])}): a sweep removes only "
+                         "what it made; move them away")  # fmt: skip
+    if remove:
+        shutil.rmtree(run_dir)  # started but never checkpointed: nothing to continue
+
+
+def check_held_out(spec: SweepSpec, path: Path, root: Path) -> None:
+    """Refuse (``InputError`` naming the sweep file) a validation city of the sweep (``val_datasets``, ``cities``)
+    that is also one of its training cities: the table would score the runs where they learnt."""
+    from uavplace.dataset.catalog import expand_datasets
+
+    trained = set(expand_datasets(spec.datasets, root))
+    for field in ("val_datasets", "cities"):
+        both = sorted(trained & set(expand_datasets(getattr(spec, field), root)))
+        if both:
+            raise InputError(path, f"{', '.join(both)}: a training city of the sweep is also a validation city: the "
+                             "table would score the runs where they learnt", field=field)  # fmt: skip
 
 
 def _trial(tune_config: dict) -> None:
@@ -163,7 +201,7 @@ def _trial(tune_config: dict) -> None:
     import torch
     from ray import tune
 
-    from uavplace.rl.agent.train import read_run_json, run_finished, start_run
+    from uavplace.rl.agent.train import run_finished, start_run
     from uavplace.schemas.files import exclusive_folder
 
     params = tune_config["trial"]
@@ -173,12 +211,8 @@ def _trial(tune_config: dict) -> None:
     with exclusive_folder(run_dir, "training run"):
         if not run_finished(run_dir):
             resume = (run_dir / "checkpoints" / "last").is_dir()
-            if run_dir.exists():
-                held = read_run_json(run_dir).config if (run_dir / "run.json").is_file() else None
-                if held is not None and held.model_dump() != config.model_dump():
-                    raise InputError(run_dir, "holds a run of other settings than the sweep's: move it away, or rename the trial")
-                if not resume:
-                    shutil.rmtree(run_dir)  # started but never checkpointed: nothing to continue
+            if run_dir.exists() and not resume:
+                _remove_unstarted(run_dir, config)
             trainer = start_run(run_dir, config, params["datasets"], params["val_datasets"], params["root"], resume=resume,
                                 command=params["command"])  # fmt: skip
             trainer.run(resume=resume)
@@ -213,15 +247,16 @@ def run_sweep(
     out, root = out.resolve(), root.resolve()  # trials run in Tune's working folders
     configs = spec.configs()
     todo = [name for name in configs if not run_finished(out / name)]
+    for name in todo:  # refused before Ray starts: a trial's folder that the sweep did not make
+        if (out / name).exists() and not (out / name / "checkpoints" / "last").is_dir():
+            _remove_unstarted(out / name, configs[name], remove=False)
     on_line(
         f"sweep: {len(configs)} trials, {len(configs) - len(todo)} finished before"
         + (f"; training {', '.join(todo)}" if todo else "")
     )
     failed: list[str] = []
     if todo:
-        started = not ray.is_initialized()
-        if started:
-            ray.init(address=address, include_dashboard=False, log_to_driver=False, configure_logging=False)
+        started = start_ray(address, cpus_per_trial, "--cpus-per-trial")
         try:
             # corpus names (``corpus`` -> corpus-000, ...) expanded here, as ``uavrl train`` does
             common = {"out": str(out), "root": str(root), "datasets": expand_datasets(spec.datasets, root),

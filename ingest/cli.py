@@ -38,6 +38,14 @@ def ingest(folders: tuple[Path, ...], out_root: Path, name: str | None, verbose:
         raise click.BadParameter("--name names one city: give one FOLDER", param_hint="--name")
     if name is not None:
         check_name(name, "city name")
+    seen: dict[str, Path] = {}
+    for folder in folders:  # one city a name: the second folder of a name would replace the first's tables
+        city = folder.resolve().name
+        if city in seen:
+            same = folder.resolve() == seen[city].resolve()
+            raise click.UsageError(f"{folder} is given twice" if same else f"{seen[city]} and {folder} are both city "
+                                   f"'{city}': ingest them in two commands, one with --name")  # fmt: skip
+        seen[city] = folder
     for folder in folders:
         _ingest_one(folder, out_root, name, verbose, quiet)
 

@@ -22,7 +22,7 @@ import shapely
 
 from uavplace.schemas import ROUTES, InputError
 from uavplace.schemas.limits import check_limit
-from uavplace.schemas.tables import ROUTE_KINDS, ROUTE_MAX_STEP_M
+from uavplace.schemas.tables import ROUTE_KINDS, ROUTE_MAX_SPEED_MPS, ROUTE_MAX_STEP_M
 
 #: The header of a routes file, in order.
 CSV_COLUMNS = ("route", "order", "time_s", "tx_set", "tx_point", "x_m", "y_m", "kind", "speed_mps")
@@ -42,21 +42,35 @@ def _number(text: str, kind: type, source: str, line: int, field: str) -> float:
     return value
 
 
+def _rows(reader, source: str):  # noqa: ANN001, ANN202 - a csv.reader; yields its rows
+    """``reader``'s rows; a row the csv module refuses (a field over its size limit, a NUL) is an ``InputError`` naming
+    its line."""
+    while True:
+        try:
+            row = next(reader)
+        except StopIteration:
+            return
+        except csv.Error as exc:
+            raise InputError(source, f"not a CSV row ({exc})", line=reader.line_num, field="row") from None
+        yield row
+
+
 def read_routes(path: Path, source: str, transmitters: pa.Table, footprints: list[shapely.Geometry]) -> pa.Table:
     """The ``ROUTES`` table of a routes file; ``InputError`` naming the file, line and field of the first problem.
     ``transmitters``: the ingest's transmitters table; ``footprints``: the building footprints at ground level."""
     data = path.read_bytes()
     try:
-        text = data.decode("utf-8")
+        text = data.decode("utf-8-sig")  # a byte-order mark is accepted, as in every other export
     except UnicodeDecodeError as exc:
         raise InputError(source, f"not UTF-8 text ({exc.reason} at byte {exc.start})", field="encoding") from None
     reader = csv.reader(io.StringIO(text, newline=""))
-    header = next(reader, None)
+    rows = _rows(reader, source)
+    header = next(rows, None)
     if header is None or tuple(h.strip() for h in header) != CSV_COLUMNS:
         raise InputError(source, f"header {header}: expected {', '.join(CSV_COLUMNS)}", line=1, field="header")
     columns: dict[str, list] = {c: [] for c in CSV_COLUMNS}
     lines: list[int] = []
-    for row in reader:
+    for row in rows:
         line = reader.line_num
         if not row or all(not c.strip() for c in row):
             continue
@@ -108,6 +122,11 @@ def _check_routes(a: dict[str, np.ndarray], lines: np.ndarray, source: str) -> N
             if len(other):
                 k = s + int(other[0])
                 raise InputError(source, f"route {route} changes its {c}", line=int(lines[k]), field=c)
+        kind, speed = str(a["kind"][s]), float(a["speed_mps"][s])
+        if speed > ROUTE_MAX_SPEED_MPS[kind]:
+            raise InputError(source, f"route {route}: a {kind} at {speed:g} m/s, faster than a {kind} moves (at most "
+                             f"{ROUTE_MAX_SPEED_MPS[kind]:g} m/s): its kind or speed is wrong", line=int(lines[s]),
+                             field="speed_mps")  # fmt: skip
         xy = np.c_[a["x_m"][s:e], a["y_m"][s:e]]
         step = np.linalg.norm(np.diff(xy, axis=0), axis=1)
         far = np.flatnonzero(step > ROUTE_MAX_STEP_M + STEP_TOL_M)

@@ -10,7 +10,7 @@ import click
 from uavplace.dataset.bundle import list_versions, read_latest
 from uavplace.dataset.catalog import list_cities
 from uavplace.rl.rollout import STATS, format_stat, summarise
-from uavplace.schemas.cli import SEED, Counted, Finite, fail, plain_table, root_option, stdout
+from uavplace.schemas.cli import SEED, Counted, Finite, fail, plain_table, root_option, stdout, warn_or_refuse
 
 #: Seconds between the plain progress lines ``uavrl train`` prints when its output is not a terminal.
 LINE_SECONDS = 30.0
@@ -71,7 +71,9 @@ def baselines(
     from uavplace.rl.maps import MapSet
     from uavplace.rl.policies import GeniePolicy, GreedyPolicy, RandomWalkPolicy
     from uavplace.rl.rollout import run_episodes
+    from uavplace.schemas.limits import check_limit
 
+    check_limit("episode_steps", episodes * t_max, None, "--episodes x --t-max", field="episodes")
     config = EnvConfig(t_max=t_max, p_t_db=p_t_db, split=split, rotate=False)
     for dataset in datasets:  # one table per city: cities are never pooled
         maps = MapSet.load(dataset, config, root=str(root))
@@ -116,10 +118,10 @@ def baselines(
     type=click.Choice(["paper", "fast", "best", "hybrid", "best-pqn", "best-dqn"]),
     default="best",
     show_default=True,
-    help="Hyperparameters: best (ours: a recurrent Q-network learnt by PQN, 300 k steps: about 10 min on one of 2 CPU "
-    "cores for the 22 training cities of the embedded corpora), hybrid (best reading the map searcher's belief as a channel, env.belief_channel; docs/searcher.md), best-pqn (the same without the recurrent core: about "
-    "5 min), best-dqn (that one learnt by replay DQN: about 8 min), paper "
-    "(docs/method.md, ~7 M steps: days on a CPU), fast (40 k steps: 139-146 s on 2 cores, measured 2026-12-01; for checks). Presets: rl/agent/dqn.py, PRESETS.",
+    help="Hyperparameters: best (ours: a recurrent Q-network learnt by PQN, 300 k steps), hybrid (best reading the map "
+    "searcher's belief as a channel, env.belief_channel; docs/searcher.md), best-pqn (best without the recurrent core), "
+    "best-dqn (that one learnt by replay DQN), paper (docs/method.md, about 7 M steps: days on a CPU), fast (40 k "
+    "steps, for checks). Their settings: rl/agent/dqn.py, PRESETS; what each costs: the README, Training and reporting.",
 )
 @click.option(
     "--task",
@@ -171,11 +173,17 @@ def baselines(
     default=None,
     help="Continue the run in this folder exactly where its last checkpoint left it.",
 )
+@click.option(
+    "--strict",
+    is_flag=True,
+    help="With --resume: refuse when a training city's bundle is now built with other settings (grid, altitude, "
+    "noise) than the run was trained on (run.json's bundle_settings). Without it: one warning line per city.",
+)
 @root_option
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def train(
     datasets, val_datasets, agent: str, preset: str, task: str, steps: int | None, settings, seed: int, eval_every: int | None,
-    runs: Path, name: str | None, until: int | None, resume: Path | None, root: Path, quiet: bool,
+    runs: Path, name: str | None, until: int | None, resume: Path | None, strict: bool, root: Path, quiet: bool,
 ) -> None:  # fmt: skip
     """Train the DQN agent (or its blind twin) on built cities, for placement or tracking; write config, metrics and
     checkpoints to a run folder."""
@@ -188,6 +196,7 @@ def train(
     if resume is not None:
         doc = read_run_json(resume)
         config, datasets, val_datasets, run_dir = doc.config, list(doc.datasets), list(doc.val_datasets), resume
+        _check_resumed_bundles(doc, datasets, root, strict)
     elif not datasets:
         raise click.UsageError("give --dataset CITY (or --resume RUN_FOLDER)")
     else:
@@ -212,6 +221,21 @@ def train(
             _train_in(run_dir, resume, config, datasets, val_datasets, root, until, quiet)
     except InputError as err:
         fail(err)
+
+
+def _check_resumed_bundles(doc, datasets: list[str], root: Path, strict: bool) -> None:  # noqa: ANN001 - a RunRecord
+    """The training cities' bundles a resumed run reads now, against the settings it was trained on: one warning
+    line per city that differs, or a refusal with ``--strict``."""
+    from uavplace.dataset.bundle import read_manifest, resolve
+    from uavplace.rl.agent.train import settings_unlike
+
+    lines = []
+    for city in datasets:
+        manifest = read_manifest(resolve(city, root=root))
+        unlike = settings_unlike(doc, manifest)
+        if unlike:
+            lines.append(f"{city}@{manifest.version}: {'; '.join(unlike)}: the run continues on other maps")
+    warn_or_refuse(lines, strict)
 
 
 def _train_in(run_dir: Path, resume, config, datasets, val_datasets, root: Path, until: int | None, quiet: bool) -> None:  # noqa: ANN001

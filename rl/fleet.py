@@ -40,9 +40,11 @@ from pydantic import ConfigDict, Field, field_validator
 
 from uavplace.dataset.bundle import Bundle
 from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target
+from uavplace.rl.config import EnvConfig
 from uavplace.rl.maps import MOVES
 from uavplace.rl.randomness import combine, stream_key, uniforms
-from uavplace.schemas.base import Contract
+from uavplace.rl.vec_env import BatchedEnv
+from uavplace.schemas.base import Contract, InputError
 
 #: The fleet's 5 actions per UAV in map coordinates (dy, dx): the 4 placement moves, then 4 = stay.
 FLEET_MOVES = np.vstack([MOVES, [[0, 0]]])
@@ -108,7 +110,7 @@ class FleetMaps:
             raise ValueError("a fleet needs at least one city")
         short = [c.name for c in cities if len(c.sinr_db) < config.users]
         if short:
-            raise ValueError(f"{', '.join(short)}: fewer traced users than the fleet's {config.users}")
+            raise InputError(", ".join(short), f"fewer traced users than the fleet's {config.users} (--users)", field="users")
         self.cities, self.config = cities, config
         self.bundles: list[Bundle] | None = None  # FleetMaps.of: the bundles whose public maps a searcher reads
         self.pad = p = config.window // 2
@@ -158,8 +160,10 @@ class FleetMaps:
                     out[i] = episode
                     break
             else:
-                raise ValueError(f"no fleet episode of {cfg.users} users and {cfg.uavs} UAVs found in 1000 draws: every "
-                                 "user needs a target cell reachable from the starts (fewer users or another P_T)")  # fmt: skip
+                names = ", ".join(c.name for c in self.cities)
+                raise InputError(names, f"no fleet episode of {cfg.users} users and {cfg.uavs} UAVs found in 1000 draws at "
+                                 f"P_T = {cfg.p_t_db:g} dB: every user needs a target cell reachable from the starts "
+                                 "(fewer --users or another --p-t-db)", field="p_t_db")  # fmt: skip
         return out
 
     def draw(self, rng: np.random.Generator) -> np.ndarray | None:
@@ -466,6 +470,142 @@ class FleetGreedy:
             self.prev[:, uav] = score_here
         self.last = np.where(out == STAY, -1, out)
         return out
+
+
+class _DealtEnv(BatchedEnv):
+    """A placement env that keeps an agent's channels for ``FleetPlacement``: its rows' episodes are named (for the
+    agent's random draws, ``rl.randomness``) by the fleet episode's key and the UAV (``keys``)."""
+
+    def __init__(self, maps, num_envs: int, autoreset: bool = False) -> None:  # noqa: ANN001 - a MapSet
+        super().__init__(maps, num_envs, autoreset=autoreset)
+        self.keys = np.zeros(num_envs, np.uint64)
+
+    def episode_keys(self) -> np.ndarray:
+        return self.keys.copy()
+
+
+class FleetPlacement:
+    """Independent placement agents: every UAV runs one trained placement agent (``policy`` with its ``EnvConfig``,
+    e.g. the shipped ``best``) unchanged on the users dealt to it, as ``rl.tracking.PlacementInTracking`` runs one in
+    the tracking env.
+
+    The deal, at every step and in the UAVs' order: each UAV keeps the users it serves where it stands (those no
+    earlier UAV keeps); the users nobody serves are then dealt one at a time, each to the UAV that holds the fewest
+    users (the first in order on a tie), which takes the one it measures strongest where it stands (the nearest by
+    what it hears). A UAV's users are served at a cell when the weakest of them is, so its agent plays the placement
+    task of that weakest SINR: its memory is, at every cell the fleet visited, the lowest of its users' shared
+    measurements there (P_H unvisited, P_L blocked), its visits are the fleet's and its homing cone starts from the
+    best of those. A UAV stays when it has no user or serves all of its users, and when every move is held by another
+    UAV; otherwise it moves by its agent's rule. Reads only the fleet's measurements (``FleetView``)."""
+
+    prefix = "independent "
+
+    def __init__(self, policy, env: EnvConfig, name: str | None = None) -> None:  # noqa: ANN001 - a rl.policies.Policy
+        name = name or policy.name
+        if env.belief_channel or env.context_zoom:
+            raise ValueError(f"{name}: an agent with a belief or context channel reads one user's measurements as they "
+                             "come; the fleet deals each UAV a changing set of users")  # fmt: skip
+        self.policy, self.name = policy, self.prefix + name
+        self.env_config = env.model_copy(update={"rotate": False, "city_weights": {}, "split": None})
+        self.maps: FleetMaps | None = None
+        self.mirror = None
+
+    def bind(self, maps: FleetMaps) -> FleetPlacement:
+        """Play on ``maps``' cities: a placement env (``BatchedEnv``) row per UAV and episode row keeps its agent's
+        channels; that env's maps hold no user's map (SINR, dead cells and the genie's distances blanked)."""
+        from uavplace.rl.maps import MapSet
+
+        if maps.bundles is None:
+            raise ValueError("independent placement agents read the bundles: FleetMaps.of(bundles, config)")
+        self.maps, self.placement = maps, MapSet(maps.bundles, self.env_config)
+        # no user's map: what the agents see comes from the fleet's measurements alone
+        self.placement.sinr[...], self.placement.dead[...] = self.env_config.p_l_db, True
+        self.placement.steps[...] = UNREACHABLE
+        # per city, the view of its identity symmetry; the placement canvas's cell of the fleet canvas's cell 0
+        self.views = np.array([np.flatnonzero(self.placement.view_map == self.placement.symmetries * b)[0]
+                               for b in range(len(maps.cities))])  # fmt: skip
+        self.shift = self.placement.pad - maps.pad
+        return self
+
+    def reset(self, rows: np.ndarray, num_envs: int, uavs: int) -> None:
+        if self.maps is None:
+            raise ValueError("FleetPlacement.bind(maps) first: its agents play on the bundles' maps")
+        if self.mirror is None or self.mirror.num_envs != num_envs * uavs:
+            self.mirror = _DealtEnv(self.placement, num_envs * uavs, autoreset=False)
+            self.groups = np.zeros((num_envs, uavs, self.maps.config.users), bool)
+            self.fresh = np.ones(num_envs, bool)
+        self.policy.reset((np.asarray(rows)[:, None] * uavs + np.arange(uavs)).ravel(), num_envs * uavs)
+        self.groups[rows] = False
+        self.fresh[rows] = True
+
+    def deal(self, view: FleetView) -> tuple[np.ndarray, np.ndarray]:
+        """(groups [E, K, N]: the users dealt to each UAV; served [E, K, N]: whom each UAV serves where it stands)."""
+        cfg = view.config
+        e, k, n = len(view.t), cfg.uavs, cfg.users
+        rows = np.arange(e)
+        here = view.memory[rows[:, None, None], np.arange(n), view.pos[..., 0, None], view.pos[..., 1, None]]
+        served = here >= cfg.p_t_db
+        groups = np.zeros((e, k, n), bool)
+        kept = np.zeros((e, n), bool)
+        for uav in range(k):
+            groups[:, uav] = served[:, uav] & ~kept
+            kept |= groups[:, uav]
+        while not kept.all():
+            left = np.flatnonzero(~kept.all(axis=1))
+            uav = np.argmin(groups[left].sum(axis=2) * k + np.arange(k), axis=1)  # the fewest users, first on a tie
+            pick = np.argmax(np.where(kept[left], -np.inf, here[left, uav]), axis=1)
+            groups[left, uav, pick] = kept[left, pick] = True
+        return groups, served
+
+    def _rebuild(self, m: int, view: FleetView, r: int, mine: np.ndarray) -> None:
+        """Placement row ``m`` (fleet row ``r``'s UAV) reads the fleet's measurements of users ``mine`` afresh."""
+        mirror, fleet, s = self.mirror, self.maps, self.shift
+        inner = slice(fleet.pad, fleet.side - fleet.pad)
+        placed = slice(fleet.pad + s, fleet.side - fleet.pad + s)
+        view_id = self.views[int(view.city[r])]
+        visited = view.visits[r, inner, inner] > 0
+        mirror.view[m], mirror.episode_id[m] = view_id, r
+        mirror.memory[m] = self.placement.memory0[view_id]
+        mirror.visits[m] = 0
+        mirror.visits[m, placed, placed] = view.visits[r, inner, inner]
+        mirror.best_sinr[m], mirror.best_pos[m] = self.env_config.p_l_db, mirror.pos[m]
+        if len(mine):
+            weakest = view.memory[r, mine, inner, inner].min(axis=0)
+            mirror.memory[m, placed, placed] = np.where(visited, weakest, mirror.memory[m, placed, placed])
+            at = np.unravel_index(np.argmax(np.where(visited, weakest, -np.inf)), weakest.shape)
+            mirror.best_sinr[m], mirror.best_pos[m] = weakest[at], np.array(at) + fleet.pad + s
+
+    def act(self, mask: np.ndarray, view: FleetView) -> np.ndarray:
+        mirror, s = self.mirror, self.shift
+        e, k = mask.shape[:2]
+        rows = np.arange(e)
+        groups, served = self.deal(view)
+        y, x = view.pos[..., 0], view.pos[..., 1]
+        for uav in range(k):  # the placement rows stand where their UAVs stand
+            m = rows * k + uav
+            mirror.pos[m, 0], mirror.pos[m, 1], mirror.t[m] = y[:, uav] + s, x[:, uav] + s, view.t
+            mirror.keys[m] = combine(view.keys, np.uint64(uav))
+        changed = (groups != self.groups).any(axis=2) | self.fresh[:, None]
+        for r, uav in zip(*np.nonzero(changed), strict=True):
+            self._rebuild(r * k + uav, view, r, np.flatnonzero(groups[r, uav]))
+        for uav in range(k):  # the others: what the fleet measured this step, at every UAV's cell
+            keep = ~changed[:, uav]
+            m, own = (rows * k + uav)[keep], groups[keep, uav]
+            for j in range(k):
+                cy, cx = y[keep, j], x[keep, j]
+                weakest = np.where(own, view.memory[rows[keep], :, cy, cx], np.inf).min(axis=1)
+                mirror.visits[m, cy + s, cx + s] = view.visits[rows[keep], cy, cx]
+                has = own.any(axis=1)
+                mirror.memory[m[has], cy[has] + s, cx[has] + s] = weakest[has]
+                better = has & (weakest > mirror.best_sinr[m])
+                mirror.best_sinr[m[better]] = weakest[better]
+                mirror.best_pos[m[better]] = np.stack([cy[better], cx[better]], axis=1) + s
+        self.groups, self.fresh = groups, np.zeros(e, bool)
+        moves = mask[..., :STAY].reshape(e * k, STAY)
+        free = moves.any(axis=1)
+        actions = self.policy.act(mirror.observe(), np.where(free[:, None], moves, True), mirror).reshape(e, k)
+        idle = ~groups.any(axis=2) | (served | ~groups).all(axis=2) | ~free.reshape(e, k)
+        return np.where(idle, STAY, actions)
 
 
 def run_fleet(maps: FleetMaps, policy, episodes: np.ndarray, num_envs: int = 64,  # noqa: ANN001

@@ -16,6 +16,7 @@ altitude_m``; a cell with no building holds ``-altitude_m``.
 
 from __future__ import annotations
 
+import re
 from typing import Literal
 
 import pyarrow as pa
@@ -66,7 +67,12 @@ class BuildConfig(Contract):
     grid_m: float = Field(gt=0, le=1000, description="Grid spacing [m]")
     altitude_m: float = Field(ge=0, le=10_000, description="UAV altitude above ground [m]; receivers are taken at this height")
     altitude_tol_m: float = Field(default=0.5, ge=0, le=1000, description="Receivers within this of the altitude are used [m]")
-    noise_dbm: float = Field(default=-104.0, ge=-250, le=100, description="Noise plus background interference power [dBm]")
+    noise_dbm: float = Field(
+        default=EMBEDDED_NOISE_DBM,
+        ge=-250,
+        le=100,
+        description="Noise plus background interference power [dBm] (default: the level the shipped agents were trained at)",
+    )
     interference_std_db: float = Field(
         default=0.0, ge=0, le=100, description="Std of a Gaussian per-cell offset of the noise+interference level [dB]"
     )
@@ -168,6 +174,67 @@ class BundleManifest(Contract):
     files: dict[str, str] = Field(description="Bundle file -> sha256")
     inputs: dict[str, str] = Field(description="Ingested file -> sha256 (the tables and terrain the bundle came from)")
     warnings: tuple[str, ...] = ()
+
+
+class CityRoles(Contract):
+    """The roles of the cities of a data folder (``data/raw/cities.toml``): facts about the data, declared beside it,
+    that `uavdata build` applies to the cities it builds (its ``--split``, ``--crop-city`` and ``--val-users`` override
+    them). A city in no list has no role; a city is in one role list at most."""
+
+    train: list[str] = Field(default_factory=list, description="Cities episodes are trained on")
+    val: list[str] = Field(default_factory=list, description="Validation cities: every choice is made on them")
+    test: list[str] = Field(default_factory=list, description="Test cities: release numbers only")
+    crop: list[str] = Field(
+        default_factory=list, description="Cities whose receiver grid covers part of the scene by design (--crop-city)"
+    )
+    val_users: int = Field(default=0, ge=0, description="Users of each train city held out for validation (--val-users)")
+
+    @field_validator("train", "val", "test", "crop")
+    @classmethod
+    def _names(cls, names: list[str]) -> list[str]:
+        bad = [n for n in names if not re.fullmatch(NAME_PATTERN, n)]
+        if bad:
+            raise ValueError(f"{bad[0]!r} is not a city name")
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise ValueError(f"{twice[0]} is listed twice")
+        return names
+
+    @model_validator(mode="after")
+    def _one_role(self) -> CityRoles:
+        seen: dict[str, str] = {}
+        for role in ("train", "val", "test"):
+            for city in getattr(self, role):
+                if city in seen:
+                    raise ValueError(f"{city} is both a {seen[city]} and a {role} city")
+                seen[city] = role
+        return self
+
+    def role_of(self, city: str) -> SplitRole | None:
+        return next((r for r in ("train", "val", "test") if city in getattr(self, r)), None)  # type: ignore[return-value]
+
+
+class BundleSettings(Contract):
+    """The settings of a bundle an agent depends on: a training run records its cities' (``run.json``), and a report
+    names every bundle it plays an agent on whose settings none of the agent's training cities had."""
+
+    grid_m: float = Field(description="Grid spacing [m]")
+    altitude_m: float = Field(description="UAV altitude [m]")
+    noise_dbm: float | None = Field(description="Noise plus interference [dBm]; None when the export gave SINR")
+
+    @classmethod
+    def of(cls, manifest: BundleManifest) -> BundleSettings:
+        return cls(grid_m=manifest.grid.spacing_m, altitude_m=manifest.config.altitude_m, noise_dbm=manifest.sinr.noise_dbm)
+
+    def unlike(self, trained: BundleSettings) -> list[str]:
+        """How these settings differ from ``trained``'s, one phrase each (empty: alike)."""
+
+        def shown(value: float | None, unit: str) -> str:
+            return "the export's SINR" if value is None else f"{value:g} {unit}"
+
+        fields = (("grid", "grid_m", "m"), ("altitude", "altitude_m", "m"), ("noise", "noise_dbm", "dBm"))
+        return [f"{name} {shown(getattr(self, f), unit)} (trained at {shown(getattr(trained, f), unit)})"
+                for name, f, unit in fields if getattr(self, f) != getattr(trained, f)]  # fmt: skip
 
 
 _I32 = pa.int32()

@@ -39,6 +39,15 @@ def stdout() -> Console:
     return Console(width=None if sys.stdout.isatty() else 160)
 
 
+def warn_or_refuse(lines: list[str], strict: bool) -> None:
+    """``lines`` (what a command found unlike what it expects) as one warning line each, or, with ``--strict``, a
+    refusal (exit 2) naming the first."""
+    if lines and strict:
+        raise click.UsageError(f"--strict: {lines[0]}" + (f" (and {len(lines) - 1} more)" if len(lines) > 1 else ""))
+    for line in lines:
+        console.print(f"[yellow]warning:[/] {line} (--strict refuses)", highlight=False, soft_wrap=True)
+
+
 def command_line() -> str:
     return " ".join(shlex.quote(a) for a in [Path(sys.argv[0]).name, *sys.argv[1:]])
 
@@ -240,9 +249,9 @@ def uavdata() -> None:
     \b
     Typical use on a new city:
       uavdata ingest data/raw/cityA/
-      uavdata build --city cityA --grid 4m --alt 10 --noise-dbm {noise:g}
-    ({noise:g} dBm of noise plus interference is the level the embedded cities
-    and the shipped agents are calibrated at; see the README.)
+      uavdata build --city cityA --grid 4m --alt 10
+    (the default noise plus interference, {noise:g} dBm, is the level the
+    embedded cities and the shipped agents are calibrated at; see the README.)
     """
 
 

@@ -19,6 +19,7 @@ import json
 import os
 import re
 import shutil
+import stat
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -74,17 +75,43 @@ def write_model_json(model: BaseModel, path: str | Path) -> None:
     Path(path).write_text(model.model_dump_json(indent=2) + "\n", encoding="utf-8")
 
 
-def read_model_json(path: str | Path, model: type[M], what: str, max_bytes: int = 1 << 20) -> M:
-    """A small JSON file as the pydantic ``model``; ``InputError`` naming the file (and the field) when it is not a
-    file, is over ``max_bytes`` or does not validate. ``what`` says what the file should be ("a predictor's
-    constants (`uavrl fit-predictor` writes them)")."""
+def read_small_file(path: str | Path, what: str, missing: str | None = None, max_bytes: int | None = None) -> bytes:
+    """The bytes of a record or settings file; ``InputError`` naming it when it is missing (``missing``, or "no such
+    file"), is not a regular file (a FIFO, a device, a folder: refused without waiting on it) or is over ``max_bytes``
+    (default: the limits' ``record_bytes``). ``what`` says what the file should be."""
+    from uavplace.schemas.limits import limits
+
     path = Path(path)
-    if not path.is_file():
-        raise InputError(path, f"not a file: {what}")
-    if path.stat().st_size > max_bytes:
-        raise InputError(path, f"over {max_bytes:,} bytes: not {what}")
+    bound = limits().record_bytes if max_bytes is None else max_bytes
     try:
-        return model.model_validate_json(path.read_bytes())
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)  # a FIFO opens at once, and is then refused
+    except FileNotFoundError:
+        raise InputError(path, missing or f"no such file: {what}") from None
+    except OSError as err:
+        raise InputError(path, f"unreadable ({describe_os_error(err)}): {what}") from None
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            raise InputError(path, f"not a regular file: {what}")
+        if info.st_size > bound:
+            raise InputError(path, f"over {bound:,} bytes (limit record_bytes): not {what}")
+        with os.fdopen(os.dup(fd), "rb") as f:
+            data = f.read(bound + 1)
+    finally:
+        os.close(fd)
+    if len(data) > bound:
+        raise InputError(path, f"over {bound:,} bytes (limit record_bytes): not {what}")
+    return data
+
+
+def read_model_json(path: str | Path, model: type[M], what: str, max_bytes: int | None = None) -> M:
+    """A small JSON file as the pydantic ``model``; ``InputError`` naming the file (and the field) when it is not a
+    regular file, is over ``max_bytes`` (``read_small_file``) or does not validate. ``what`` says what the file should
+    be ("a predictor's constants (`uavrl fit-predictor` writes them)")."""
+    path = Path(path)
+    data = read_small_file(path, what, max_bytes=max_bytes)
+    try:
+        return model.model_validate_json(data)
     except ValidationError as exc:
         where, message = validation_message(exc)
         raise InputError(path, message, field=where) from None
@@ -109,8 +136,10 @@ def atomic_write_text(path: str | Path, text: str) -> None:
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
     """Write ``data`` to a temporary file beside ``path``, then rename it into place (never half-written). The file
     gets the mode a plain write would (the umask's, not ``mkstemp``'s private 0600). On any failure (a full disk)
-    the temporary file is removed, and an ``OSError`` names ``path``."""
+    the temporary file is removed, and an ``OSError`` names ``path``. Only a regular file or nothing is replaced:
+    ``InputError`` (``check_replaceable_file``) for a folder, a device, a FIFO, a socket or a link at ``path``."""
     path = Path(path)
+    check_replaceable_file(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     try:
@@ -189,12 +218,17 @@ def check_replaceable(final: str | Path, marker: str, what: str) -> None:
 
 
 @contextlib.contextmanager
-def atomic_directory(final: str | Path, *, marker: str | None = None, what: str = "output") -> Iterator[Path]:
+def atomic_directory(final: str | Path, *, marker: str | None = None, what: str = "output", new: bool = False,
+                     lock: str | Path | None = None) -> Iterator[Path]:  # fmt: skip
     """Yield a fresh temporary folder beside ``final``; on success it replaces ``final``.
 
     ``marker``: the file every folder of this kind holds; an existing ``final``
     without it (and not empty) is refused before anything is written
-    (``check_replaceable``). The whole block runs under ``folder_lock(final)``.
+    (``check_replaceable``). ``new``: a folder written once: an existing
+    ``final`` is refused (``InputError``), also one another process wrote
+    while this one worked. The whole block runs under ``folder_lock(final)``, or
+    ``folder_lock(lock)``: one lock for many folders of one kind (every bundle
+    version of a city), so that lock files do not pile up one per folder.
 
     On any exception the temporary folder is removed and ``final`` is left as
     it was. The swap is two renames on the same file system: the old folder is
@@ -203,8 +237,10 @@ def atomic_directory(final: str | Path, *, marker: str | None = None, what: str 
     folder first (``recover_directory``).
     """
     final = Path(final)
-    with folder_lock(final):
+    with folder_lock(final if lock is None else lock):
         recover_directory(final)
+        if new and (final.exists() or final.is_symlink()):
+            raise InputError(final, f"exists: choose another output (a {what} folder is written once)")
         if marker is not None:
             check_replaceable(final, marker, what)
         tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.tmp-", dir=final.parent))

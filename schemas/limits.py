@@ -31,6 +31,12 @@ class Limits(Contract):
         default=256 * 2**20, ge=1, description="Size of one mesh file (PLY, OBJ, glTF) read by ingest or simulate [bytes]"
     )
     route_points: int = Field(default=100_000, ge=1, description="Rows of one routes table (ingest)")
+    record_bytes: int = Field(
+        default=16 * 2**20,
+        ge=1,
+        description="One record or settings file read whole (a bundle's manifest.json, a run's run.json, a sweep spec, "
+        "a predictor's constants) [bytes]",
+    )
     export_bytes: int = Field(
         default=2**30, ge=1, description="Text of one receiver export (.p2m), decompressed, read by ingest [bytes]"
     )
@@ -61,6 +67,13 @@ class Limits(Contract):
     )
     episodes: int = Field(default=1_000_000, ge=1, description="Episodes of one evaluation (report, baselines) per city")
     t_max: int = Field(default=100_000, ge=1, description="Step budget of one evaluation episode (--t-max)")
+    episode_steps: int = Field(
+        default=50_000_000,
+        ge=1,
+        description="Episodes x step budget of one evaluation per city (--episodes x --t-max or --horizon): the steps "
+        "it plays and, for tracking, the coverage it holds per method",
+    )
+    sweep_runs: int = Field(default=1000, ge=1, description="Runs of one sweep file (its trials x their seeds)")
     bootstrap: int = Field(default=1_000_000, ge=1, description="Bootstrap resamples of a report's intervals (--bootstrap)")
     prediction_bytes: int = Field(
         default=4 * GiB, ge=1, description="The map searcher's predicted maps of one city, candidates x legal cells x 12 bytes"

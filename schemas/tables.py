@@ -348,6 +348,9 @@ BUILDING_PARTS = TableSpec(
 ROUTE_MAX_STEP_M = 2.0
 #: Kinds of route a user can follow, with their speed [m/s] (``uavdata simulate --route-kinds``).
 ROUTE_KINDS = {"pedestrian": 1.4, "vehicle": 10.0}
+#: The fastest a user of each kind moves [m/s]: a route faster than its kind is refused (a running pedestrian, a car
+#: on a motorway are within).
+ROUTE_MAX_SPEED_MPS = {"pedestrian": 4.0, "vehicle": 45.0}
 
 ROUTES = TableSpec(
     name="routes",

@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
 from uavplace.schemas.base import Contract
 
 Vec3 = tuple[float, float, float]
+#: An id or index of a .txrx file: the 32-bit integers InSite writes (the tables store them as int32).
+Id32 = Annotated[int, Field(ge=-(2**31), le=2**31 - 1)]
+#: The most receivers along one side of a grid set (side / spacing + 1): beyond it, not a receiver grid.
+MAX_GRID_SIDE = 10**7
 
 
 class TxRxSet(Contract):
@@ -17,7 +21,7 @@ class TxRxSet(Contract):
 
     kind: str = Field(description="InSite set kind: points, grid, polygon, route, ...")
     name: str
-    project_id: int
+    project_id: Id32
     active: bool = True
     is_transmitter: bool = False
     is_receiver: bool = False
@@ -26,9 +30,9 @@ class TxRxSet(Contract):
     side2_m: float | None = Field(default=None, description="Grid extent along y [m]")
     spacing_m: float | None = Field(default=None, description="Grid or polygon receiver spacing [m]")
     tx_power_dbm: float | None = None
-    tx_antenna: int | None = None
-    tx_waveform: int | None = None
-    rx_antenna: int | None = None
+    tx_antenna: Id32 | None = None
+    tx_waveform: Id32 | None = None
+    rx_antenna: Id32 | None = None
     source: str = Field(description="File and line the set starts at")
 
     @model_validator(mode="after")
@@ -38,6 +42,9 @@ class TxRxSet(Contract):
                 raise ValueError(f"grid '{self.name}' needs side1, side2, spacing and a corner vertex")
             if not self.spacing_m > 0:
                 raise ValueError(f"grid '{self.name}' has spacing {self.spacing_m}, must be > 0")
+            if not max(abs(self.side1_m), abs(self.side2_m)) / self.spacing_m < MAX_GRID_SIDE:
+                raise ValueError(f"grid '{self.name}' has spacing {self.spacing_m:g} m for sides {self.side1_m:g} x "
+                                 f"{self.side2_m:g} m: over {MAX_GRID_SIDE:,} receivers a side")  # fmt: skip
         return self
 
     @property

@@ -15,6 +15,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from uavplace.schemas import InputError
+from uavplace.schemas.cluster import start_ray
 from uavplace.simulate.pipeline import PROVENANCE, SimulationSpec, simulate_city, spec_record
 from uavplace.simulate.raytrace import RayTraceConfig, raytrace_record
 
@@ -87,9 +88,7 @@ def simulate_corpus(
     skipped = [s.name for s in specs if s not in todo]
     if not todo:
         return [], skipped
-    started = not ray.is_initialized()
-    if started:
-        ray.init(address=address, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    started = start_ray(address, cpus_per_city, "--cpus-per-city")
     try:
         task = ray.remote(num_cpus=cpus_per_city, max_retries=0)(_simulate_task)
         cache = None if trace_cache is None else str(Path(trace_cache).resolve())

@@ -27,15 +27,15 @@ def fixture_dir(name: str) -> Path:
 
 @pytest.fixture(scope="session")
 def tiny(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The embedded tiny city ingested and built at the embedded noise level: the root of its bundle (one build for the
-    whole session; tests only read it)."""
+    """The embedded tiny city ingested and built with the build's defaults (the embedded noise level): the root of its
+    bundle (one build for the whole session; tests only read it)."""
     from uavplace.dataset.build import build_city
     from uavplace.ingest.pipeline import ingest_city
-    from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM, BuildConfig
+    from uavplace.schemas.bundle import BuildConfig
 
     root = tmp_path_factory.mktemp("tiny")
     ingest_city(REPO / "data" / "raw" / "tiny", root)
-    build_city("tiny", BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=EMBEDDED_NOISE_DBM), root)
+    build_city("tiny", BuildConfig(grid_m=4.0, altitude_m=10.0), root)
     return root
 
 

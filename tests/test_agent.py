@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 import time
 
 import numpy as np
@@ -356,6 +357,14 @@ def test_uavrl_train_cli(tmp_path, city_root):
         assert res.exit_code == 2 and "another process is working on this training run now" in res.output
     res = run(uavrl, ["train", "--dataset", "nowhere", "--root", str(city_root), "--out", str(tmp_path)])
     assert res.exit_code != 0 and "nowhere: dataset: no ingested city or corpus" in res.output
+    # the city rebuilt at another noise level: a resume names it, and refuses it with --strict
+    import shutil
+
+    other = tmp_path / "rebuilt"
+    shutil.copytree(city_root, other)
+    build_city("tiny", BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=-60.0, role="train", val_users=1), other)
+    res = run(uavrl, ["train", "--resume", str(run_dir), "--root", str(other), "--strict", "--quiet"])
+    assert res.exit_code == 2 and "noise -60 dBm (trained at -58 dBm)" in res.output, res.output
 
 
 def test_folded_batch_norm_gives_the_same_q_values():
@@ -595,6 +604,16 @@ def test_report_refuses_a_city_an_agent_was_selected_on(tmp_path, corpus_root):
             ReportConfig(dataset="c-002", runs=[str(tmp_path / "run")], episodes=8), tmp_path / "report", root=corpus_root
         )
     assert not (tmp_path / "report").exists()
+    from click.testing import CliRunner
+
+    from uavplace.schemas.cli import uavrl
+
+    for task in ("placement", "fleet"):  # several cities: refused before the first city's report is written
+        res = CliRunner().invoke(uavrl, ["report", "--task", task, "--dataset", "held", "--dataset", "c-002", "--run",
+                                         str(tmp_path / "run"), "--root", str(corpus_root), "--episodes", "4",
+                                         "--out", str(tmp_path / "reports"), "--quiet"])  # fmt: skip
+        assert res.exit_code == 2 and "selected its checkpoint in c-002" in res.output, res.output
+        assert not (tmp_path / "reports").exists()
 
 
 class BackToVisitedNet(torch.nn.Module):
@@ -704,6 +723,10 @@ def test_aux_genie_head_learns_the_genie_moves(tmp_path, city_root):
         DQNPolicy(FoveaQNetwork(2, 21, hidden=8, fovea=7), aux_weight=1.0)  # no head
 
 
+def snapshot_bytes(folder):
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
 def test_ensemble_acts_on_the_mean_q_and_plays_like_a_run(tmp_path, corpus_root):
     """``uavrl ensemble`` of two recurrent runs (seeds 0 and 1): each member keeps its own state and the Q values are
     the mean of theirs; the folder reads as an agent, evaluated on the members' validation episodes, and the report
@@ -765,11 +788,11 @@ def test_ensemble_acts_on_the_mean_q_and_plays_like_a_run(tmp_path, corpus_root)
     with pytest.raises(InputError, match="selected its checkpoint in c-002"):
         make_report(ReportConfig(dataset="c-002", runs=[str(tmp_path / "e")], episodes=8), tmp_path / "r2", root=corpus_root)
     # Refused, with nothing written: a member of another config, the same seed twice, one run, an existing --out.
-    config = _tiny_config().model_copy(update=GRU | {"seed": 2, "gamma": 0.9})
+    config = _tiny_config().model_copy(update=GRU | {"seed": 0, "gamma": 0.9})  # s0's seed: it differs all the same
     Trainer(config, ["c-000"], corpus_root, tmp_path / "g", val_datasets=["c-002"]).run()
     for runs, match in (
         (["s0", "g"], "config.gamma: differs from"),
-        (["s0", "s0"], "config.seed: the same seed as"),
+        (["s0", "s0"], "config.seed: the same settings and seed as"),
         (["s0"], "at least two runs"),
         (["s0", "e"], "already an ensemble"),
     ):
@@ -778,6 +801,14 @@ def test_ensemble_acts_on_the_mean_q_and_plays_like_a_run(tmp_path, corpus_root)
         assert not (tmp_path / "bad").exists()
     with pytest.raises(InputError, match="exists"):
         build_ensemble([tmp_path / "s0", tmp_path / "s1"], tmp_path / "e", corpus_root)
+
+    def another_wrote(done: int, total: int) -> None:  # a second `uavrl ensemble --out e2` finishes while this one plays
+        if not (tmp_path / "e2").exists():
+            shutil.copytree(tmp_path / "e", tmp_path / "e2")
+
+    with pytest.raises(InputError, match="written once"):
+        build_ensemble([tmp_path / "s0", tmp_path / "s1"], tmp_path / "e2", corpus_root, on_progress=another_wrote)
+    assert snapshot_bytes(tmp_path / "e2") == snapshot_bytes(tmp_path / "e")  # the other's ensemble is kept
     with pytest.raises(InputError, match="uavrl ensemble"):
         Trainer(_tiny_config().model_copy(update={"ensemble": 2}), ["c-000"], corpus_root, tmp_path / "t")
 
@@ -813,3 +844,13 @@ def test_ctrl_c_checkpoints_and_only_resumes_that_ran_are_recorded(tmp_path, cit
     Trainer(_tiny_config(), ["tiny"], city_root, run, command="uavrl train --resume r").run(resume=True)
     assert read_run_json(run).resumed == [f"uavrl train --resume r (from step {stop.value.step})"]
     assert signal.getsignal(signal.SIGINT) is before  # the handler is put back
+    # killed before its first checkpoint (only run.json written): `--resume` starts it over in its folder
+    from click.testing import CliRunner
+
+    from uavplace.schemas.cli import uavrl
+
+    early = tmp_path / "early"
+    Trainer(_tiny_config(), ["tiny"], city_root, early, command="uavrl train").write_run_json()
+    res = CliRunner().invoke(uavrl, ["train", "--resume", str(early), "--root", str(city_root), "--quiet"])
+    assert res.exit_code == 0, res.output
+    assert (early / "checkpoints" / "best.pt").is_file() and read_run_json(early).config == _tiny_config()

@@ -21,10 +21,10 @@ from uavplace.dataset.build import build_city
 from uavplace.dataset.bundle import load_bundle, read_latest
 from uavplace.ingest.pipeline import ingest_city
 from uavplace.schemas import InputError
-from uavplace.schemas.bundle import BuildConfig
+from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM, BuildConfig
 from uavplace.schemas.cli import uavdata
 
-NOISE = -104.0
+NOISE = EMBEDDED_NOISE_DBM  # the build's default
 FLOOR = -40.0
 
 
@@ -143,9 +143,11 @@ def test_versions_noop_latest_and_old_versions(tmp_path):
     first = build_city("city", cfg(), root)
     again = build_city("city", cfg(), root)
     assert first.built and not again.built and again.manifest == first.manifest
-    other = build_city("city", cfg(noise_dbm=-100.0), root)
+    other = build_city("city", cfg(noise_dbm=NOISE + 4.0), root)
     assert other.built and other.manifest.version != first.manifest.version
     assert read_latest("city", root) == other.manifest.version
+    locks = sorted(p.name for p in root.rglob(".*.lock"))  # one lock for the city's bundles, none per version
+    assert not any(v in name for name in locks for v in (first.manifest.version, other.manifest.version)), locks
     old = load_bundle(f"city@{first.manifest.version}", root=root)
     np.testing.assert_allclose(old.sinr_db[~old.dead], load_bundle("city", root=root).sinr_db[~old.dead] + 4.0, atol=1e-3)
     # Re-ingesting the same exports gives the same tables, hence the same version.
@@ -411,3 +413,44 @@ def test_p2m_without_txrx_puts_one_cell_on_each_receiver(tmp_path, deepmimo):
     assert without.dead.sum() == with_txrx.dead.sum() == 4160
     assert without.num_rx.max() == 1 and without.manifest.sinr.export_spacing_m == pytest.approx(2.5)
     np.testing.assert_allclose(without.sinr_db, with_txrx.sinr_db, atol=1e-4)
+
+
+def test_roles_declared_beside_the_data_and_overridden_by_options(tmp_path):
+    """A roles file gives the cities it lists their role, crop and validation users, exactly as the options do (the
+    same bundle version); an option overrides it; a bad file is one line naming it and the field."""
+    root = tmp_path / "p"
+    ingest(write_grid_city(tmp_path / "raw" / "alpha"), root, name="alpha")
+    ingest(write_grid_city(tmp_path / "raw" / "beta", seed=3), root, name="beta")
+    roles = tmp_path / "raw" / "cities.toml"
+    roles.write_text('train = ["alpha"]\ntest = ["beta", "elsewhere"]\ncrop = ["beta"]\nval_users = 1\n')
+    run = CliRunner().invoke
+    base = ["build", "--root", str(root), "--grid", "4m", "--alt", "10", "--quiet"]
+    res = run(uavdata, [*base, "--roles", str(roles)])  # a city listed but not ingested here is no matter
+    assert res.exit_code == 0, res.output
+    alpha, beta = (load_bundle(c, root=root).manifest for c in ("alpha", "beta"))
+    assert (alpha.config.role, alpha.config.val_users, alpha.config.crop) == ("train", 1, False)
+    assert (beta.config.role, beta.config.val_users, beta.config.crop) == ("test", 0, True)
+    from uavplace.eval.cities import release_cities
+
+    assert release_cities(root) == ["beta"]  # what `uavrl report` plays without --dataset
+    with pytest.raises(InputError, match="no test city with routes is built"):
+        release_cities(root, routes=True)
+    other = tmp_path / "q"
+    ingest(tmp_path / "raw" / "alpha", other, name="alpha")
+    ingest(tmp_path / "raw" / "beta", other, name="beta")
+    flags = ["--split", "alpha=train", "--split", "beta=test", "--crop-city", "beta", "--val-users", "1"]
+    res = run(
+        uavdata,
+        ["build", "--root", str(other), "--grid", "4m", "--alt", "10", "--quiet", "--roles", str(tmp_path / "none.toml"), *flags],
+    )
+    assert res.exit_code == 2 and "no such roles file" in res.output
+    res = run(uavdata, ["build", "--root", str(other), "--grid", "4m", "--alt", "10", "--quiet", *flags])
+    assert res.exit_code == 0, res.output
+    assert read_latest("alpha", other) == alpha.version and read_latest("beta", other) == beta.version  # the same bundles
+    res = run(uavdata, [*base, "--roles", str(roles), "--split", "beta=val", "--city", "beta"])  # the option wins
+    assert res.exit_code == 0 and load_bundle("beta", root=root).manifest.config.role == "val"
+    for text, message in (('train = ["alpha"]\nval = ["alpha"]\n', "alpha is both a train and a val city"),
+                          ('tests = ["beta"]\n', "tests: Extra inputs are not permitted")):  # fmt: skip
+        roles.write_text(text)
+        res = run(uavdata, [*base, "--roles", str(roles)])
+        assert res.exit_code == 2 and str(roles) in res.output and message in res.output, res.output

@@ -379,3 +379,56 @@ def test_training_curves_order_episodes_by_their_start():
                             "success": [True] * 5 + [False, True, True]})  # fmt: skip
     out = by_episode_start(metrics, num_envs=1, t_max=10)
     assert out["start"].tolist() == [0, 1, 2, 3, 4, 5] and not out["success"].iloc[0]  # 23 and 29 begin after 30 - 10
+
+
+def test_a_default_build_is_what_the_shipped_agents_expect_and_another_is_named(tiny, tmp_path):
+    """Every shipped agent records the settings of its training bundles, which a default build has; a report names
+    a bundle of another noise level, or another P_T, in one line per agent and city, and refuses it with --strict."""
+    import shutil
+
+    from click.testing import CliRunner
+
+    from tests.conftest import REPO
+    from uavplace.dataset.build import build_city
+    from uavplace.eval.report import unlike_training
+    from uavplace.rl.agent.train import read_run_json
+    from uavplace.schemas.bundle import BuildConfig
+    from uavplace.schemas.cli import uavrl
+
+    agents = sorted(p.parent for p in (REPO / "data" / "agents").glob("*/run.json"))
+    assert len(agents) >= 5
+    default = BuildConfig(grid_m=4.0, altitude_m=10.0)
+    for folder in agents:
+        settings = read_run_json(folder).bundle_settings
+        assert settings and {s.noise_dbm for s in settings.values()} == {default.noise_dbm}, folder.name
+    best = REPO / "data" / "agents" / "best"
+    assert unlike_training(agents, ["tiny"], tiny, 5.0) == []
+
+    root = tmp_path / "processed"
+    shutil.copytree(tiny, root)
+    other = build_city("tiny", BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=-104.0), root).path.name
+    lines = unlike_training([best], [f"tiny@{other}"], root, 5.0)
+    assert lines == [f"best on tiny@{other}: noise -104 dBm (trained at -75 dBm): the agent plays outside what it was "
+                     "trained on"]  # fmt: skip
+    assert unlike_training([best], ["tiny@" + other], root, 3.0)[0].count("; P_T 3 dB (trained at 5 dB)") == 1
+    res = CliRunner().invoke(uavrl, ["report", "--dataset", f"tiny@{other}", "--root", str(root), "--run", str(best),
+                                     "--out", str(tmp_path / "r"), "--strict", "--quiet"])  # fmt: skip
+    assert res.exit_code == 2 and "noise -104 dBm (trained at -75 dBm)" in res.output and not (tmp_path / "r").exists()
+
+
+def test_evaluations_over_the_step_limit_are_refused_before_any_work(tiny):
+    """The limits bound the product that costs time and memory (episodes x step budget), not only each factor."""
+    from click.testing import CliRunner
+
+    from uavplace.schemas.cli import uavrl
+
+    for args in (
+        ["report", "--dataset", "tiny", "--episodes", "1000000"],
+        ["report", "--task", "tracking", "--dataset", "tiny", "--horizon", "100000"],
+        ["report", "--task", "fleet", "--dataset", "tiny", "--episodes", "200000"],
+        ["baselines", "--dataset", "tiny", "--episodes", "1000000"],
+    ):
+        res = CliRunner().invoke(
+            uavrl, [*args, "--root", str(tiny), "--quiet"] if args[0] == "report" else [*args, "--root", str(tiny)]
+        )
+        assert res.exit_code == 2 and "over the limit episode_steps" in res.output, (args, res.output)

@@ -115,8 +115,14 @@ def test_episode_lists_are_prefixes_and_keys_name_episodes():
     keys = maps.episode_keys(long)
     assert len(set(keys.tolist())) == len({tuple(e) for e in long.tolist()})
     np.testing.assert_array_equal(maps.episode_keys(long[::-1]), keys[::-1])
-    with pytest.raises(ValueError, match="fewer traced users"):
+    from uavplace.schemas import InputError
+
+    with pytest.raises(InputError, match="made-1: users: fewer traced users"):
         FleetMaps([_city(1, users=2)], FleetConfig(users=3, window=3))
+    c = _city(1)
+    unserved = FleetCity(c.name, c.version, c.legal, c.height_m, c.sinr_db, np.zeros_like(c.target))  # no target cell
+    with pytest.raises(InputError, match="p_t_db: no fleet episode of 2 users and 2 UAVs found in 1000 draws at P_T = 5"):
+        FleetMaps([unserved], FleetConfig(users=2, window=3)).episode_list(1, 0)
 
 
 def test_gymnasium_checker_passes(tiny):
@@ -219,6 +225,58 @@ def test_fleet_searcher_serves_the_tiny_city_from_what_it_measured(tiny):
         )
 
 
+def test_independent_agents_deal_users_and_read_only_what_the_fleet_measured(tiny):
+    """Every UAV runs the shipped placement agent on the users dealt to it: a UAV keeps whom it serves, the others
+    are dealt to the UAV holding the fewest, which takes the one it hears strongest; its agent moves the same when
+    every user's map is scrambled off the cells the fleet visited, and alike in a batch and alone."""
+    from tests.conftest import REPO
+    from uavplace.dataset.bundle import load_bundle
+    from uavplace.eval.report import load_agent
+    from uavplace.rl.fleet import FleetPlacement, FleetView, run_fleet
+
+    agent = load_agent(REPO / "data" / "agents" / "best", 0.096, 0)
+    config = FleetConfig(uavs=2, users=3, window=9, t_max=60)
+    maps = FleetMaps.of([load_bundle("tiny", root=str(tiny))], config)
+    policy = FleetPlacement(agent.policy, agent.config.env_config(evaluation=True), agent.name).bind(maps)
+    assert policy.name == f"independent {agent.name}"
+    episodes = maps.episode_list(6, 0)
+
+    env = BatchedFleet(maps, len(episodes))  # the deal, written out again: at the starts, then after random moves
+    env.begin(np.arange(len(episodes)), episodes, np.arange(len(episodes)))
+    rng = np.random.default_rng(0)
+    for _ in range(4):
+        here = env.sinr_here(np.arange(len(episodes)))  # [E, K, N]
+        groups, served = policy.deal(FleetView.of(env))
+        np.testing.assert_array_equal(served, here >= config.p_t_db)
+        for e in range(len(episodes)):
+            want = np.zeros((2, 3), bool)
+            for uav in range(2):
+                for user in range(3):
+                    want[uav, user] = here[e, uav, user] >= config.p_t_db and not want[:, user].any()
+            while not want.any(axis=0).all():
+                uav = min(range(2), key=lambda k: (want[k].sum(), k))
+                left = [u for u in range(3) if not want[:, u].any()]
+                want[uav, max(left, key=lambda u: here[e, uav, u])] = True
+            np.testing.assert_array_equal(groups[e], want)
+        env.step(np.where(env.action_mask(), rng.random((len(episodes), 2, 5)), -1).argmax(axis=2))
+
+    table = run_fleet(maps, policy, episodes, num_envs=3)
+    alone = _paths(maps, policy, episodes)
+    won = table["success"].to_numpy()
+    assert won.any()
+    np.testing.assert_array_equal(table["steps"].to_numpy()[won], np.array([len(p) - 1 for p in alone])[won])
+    rng = np.random.default_rng(2)
+    for e, path in enumerate(alone[:3]):
+        keep = np.zeros(maps.sinr.shape[2:], bool)
+        keep[path[..., 0].ravel(), path[..., 1].ravel()] = True
+        city, users, _ = maps.split(episodes[e : e + 1])
+        other = _scrambled(maps, int(city[0]), users[0], keep, rng)
+        np.testing.assert_array_equal(_paths(other, policy, episodes[e : e + 1])[0], path)
+    with pytest.raises(ValueError, match="belief"):
+        hybrid = load_agent(REPO / "data" / "agents" / "hybrid", 0.096, 0)
+        FleetPlacement(hybrid.policy, hybrid.config.env_config(evaluation=True), hybrid.name)
+
+
 def test_fleet_report_writes_its_tables_and_never_replaces_a_stranger(tiny, tmp_path):
     from click.testing import CliRunner
 
@@ -233,14 +291,24 @@ def test_fleet_report_writes_its_tables_and_never_replaces_a_stranger(tiny, tmp_
     import pandas as pd
 
     table = pd.read_csv(out / "results.csv")
-    assert list(table["method"]) == ["oracle", "map searcher", "steered random walk", "greedy hill-climbing"]
+    best = "independent PQN + GRU x 3 (best)"  # the shipped agent, run on every UAV by default
+    assert list(table["method"]) == ["oracle", "map searcher", best, "steered random walk", "greedy hill-climbing"]
     assert table.loc[table.method == "oracle", "spl"].item() == 1.0
-    assert "success - greedy hill-climbing" in (out / "fleet.md").read_text()
+    assert f"success - {best}" in (out / "fleet.md").read_text()
+    from uavplace.eval.fleet import summary_rows
+
+    rows = summary_rows(table, pd.read_csv(out / "differences.csv"), 60)
+    assert rows[0] == ["method", "tiny: success / median steps (x oracle)", f"tiny: minus {best}"]
+    assert [r[0] for r in rows[1:]] == list(table["method"]) and rows[3][2] == "-"  # the reference against itself
+    oracle = table[table.method == "oracle"].iloc[0]
+    assert rows[1][1].startswith("100.0 % [100.0, 100.0 %] / ") and rows[1][1].endswith("(1.00)") and oracle.success == 1
     assert (out / "tiny-episodes.png").stat().st_size > 0 and "tiny-episodes.png" in (out / "fleet.md").read_text()
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "thesis.tex").write_text("x")
     res = CliRunner().invoke(uavrl, [*args, "--out", str(mine)])
     assert res.exit_code != 0 and (mine / "thesis.tex").read_text() == "x"
-    res = CliRunner().invoke(uavrl, [*args, "--out", str(out), "--run", "data/agents/best"])
+    res = CliRunner().invoke(uavrl, [*args, "--out", str(out), "--split", "test"])
     assert res.exit_code != 0 and "--task fleet" in res.output
+    res = CliRunner().invoke(uavrl, [*args, "--out", str(out), "--run", str(REPO / "data" / "agents" / "hybrid")])
+    assert res.exit_code != 0 and "belief" in res.output

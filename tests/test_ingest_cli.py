@@ -177,6 +177,16 @@ def test_empty_and_unknown_only_folders(tmp_path):
     assert not (tmp_path / "proc").exists() or not any((tmp_path / "proc").rglob("*.parquet"))
 
 
+def test_two_folders_of_one_city_name_are_refused_before_any_work(tmp_path):
+    """`uavdata ingest tiny other/tiny`: the second would silently replace the first's tables."""
+    one, two = write_grid_city(tmp_path / "tiny"), write_grid_city(tmp_path / "other" / "tiny")
+    res = run("ingest", str(one), str(two), "--out", str(tmp_path / "proc"))
+    assert res.exit_code == 2 and "are both city 'tiny'" in res.output, res.output
+    res = run("ingest", str(one), str(tmp_path / "tiny" / "."), "--out", str(tmp_path / "proc"))
+    assert res.exit_code == 2 and "given twice" in res.output, res.output
+    assert not (tmp_path / "proc").exists()
+
+
 def test_quantity_given_twice(tmp_path):
     city = write_grid_city(tmp_path / "tiny")
     shutil.copy(city / "city.pl.t001_01.r002.p2m", city / "other.pl.t001_01.r002.p2m")
@@ -258,7 +268,7 @@ def test_versions_units_and_bracketed_names_are_shown(tmp_path):
     for cli, name in ((uavdata, "uavdata"), (uavrl, "uavrl")):
         res = CliRunner().invoke(cli, ["--version"])
         assert res.exit_code == 0 and res.output.strip() == f"{name}, version {version('uavplace')}"
-    assert "--noise-dbm -75" in run("--help").output
+    assert "default noise plus interference, -75 dBm" in " ".join(run("--help").output.split())
     city = write_grid_city(tmp_path / "city")
     (city / "notes [draft].txt").write_text("x")
     res = run("ingest", str(city), "--out", str(tmp_path / "proc"))
@@ -298,3 +308,21 @@ def test_every_help_names_its_ranges_without_none():
             res = CliRunner().invoke(group, [name, "--help"], terminal_width=200)
             assert res.exit_code == 0, (group.name, name, res.output)
             assert "None]" not in res.output and "x<=None" not in res.output, (group.name, name)
+
+
+def test_no_help_text_carries_a_date():
+    """The product says what is true now: no `--help` of either CLI, nor any package file, dates a measurement (the
+    history lives in docs/learner.md and the dated write-ups)."""
+    import re
+
+    from tests.conftest import REPO
+
+    dated = re.compile(r"\b20\d\d-[01]\d-[0-3]\d\b")
+    for cli in (uavdata, uavrl):
+        for name in ["", *cli.list_commands(None)]:
+            text = CliRunner().invoke(cli, [name, "--help"] if name else ["--help"]).output
+            assert not dated.search(text), (name, dated.search(text))
+    for package in ("schemas", "ingest", "dataset", "simulate", "rl", "eval"):
+        for path in (REPO / package).rglob("*.py"):
+            lines = [n for n, line in enumerate(path.read_text().splitlines(), 1) if dated.search(line)]
+            assert not lines, f"{path.relative_to(REPO)}:{lines[0]} dates a measurement"

@@ -120,3 +120,41 @@ def test_atomic_outputs_take_the_umask_not_a_private_mode(tmp_path):
             assert (tmp_path / f"d{mask}").stat().st_mode & 0o777 == dir_mode
     finally:
         os.umask(old)
+
+
+@pytest.mark.parametrize(
+    ("command", "model"),
+    [
+        ("uavplace.dataset.cli:build", "uavplace.schemas.bundle:BuildConfig"),
+        ("uavplace.eval.cli:report", "uavplace.eval.report:ReportConfig"),
+    ],  # fmt: skip
+    ids=["build", "report"],
+)
+def test_options_default_to_their_models_fields(command, model):
+    """An option named like a field of the model it fills defaults to that field's default: the two cannot drift
+    (as the noise level once did between `uavdata build` and BuildConfig)."""
+    import importlib
+
+    from pydantic_core import PydanticUndefined
+
+    def load(ref: str):  # noqa: ANN202
+        module, _, name = ref.partition(":")
+        return getattr(importlib.import_module(module), name)
+
+    cmd, fields = load(command), load(model).model_fields
+    compared = 0
+    for param in cmd.params:
+        field = fields.get(param.name)
+        if field is None or field.default is PydanticUndefined or param.multiple:
+            continue
+        if param.default is None and field.default is not None:  # taken from elsewhere (a roles file), said in its help
+            assert "[default:" in (param.help or ""), param.name
+            continue
+        default = param.default if param.default is not None else None
+        if param.is_flag:
+            default = bool(param.default) if isinstance(param.default, bool) else False
+        elif isinstance(default, str) and not isinstance(field.default, str):
+            default = param.type.convert(default, param, None)
+        assert default == field.default or str(default) == str(field.default), (param.name, default, field.default)
+        compared += 1
+    assert compared >= 5

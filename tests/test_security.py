@@ -84,10 +84,18 @@ def test_outputs_replace_only_what_uavplace_made(tmp_path, shared):  # noqa: F81
     after = snapshot(tmp_path)
     assert {k: after[k] for k in before} == before
     # a report folder is replaced by the next report
-    res = invoke(uavrl, *w.report("--run", str(w.agent()), "--out", str(tmp_path / "rep")))
+    agent = w.agent()
+    res = invoke(uavrl, *w.report("--run", str(agent), "--out", str(tmp_path / "rep")))
     assert res.exit_code == 0, res.output
-    res = invoke(uavrl, *w.report("--run", str(w.agent()), "--out", str(tmp_path / "rep")))
+    res = invoke(uavrl, *w.report("--run", str(agent), "--out", str(tmp_path / "rep")))
     assert res.exit_code == 0 and (tmp_path / "rep" / "report.json").is_file()
+    # a report of other agents is not replaced without --overwrite
+    before = snapshot(tmp_path / "rep")
+    other = w.agent()
+    res = invoke(uavrl, *w.report("--run", str(other), "--out", str(tmp_path / "rep")))
+    assert res.exit_code == 2 and "holds a report of other agents" in res.output and snapshot(tmp_path / "rep") == before
+    res = invoke(uavrl, *w.report("--run", str(other), "--out", str(tmp_path / "rep"), "--overwrite"))
+    assert res.exit_code == 0 and str(other) in (tmp_path / "rep" / "report.json").read_text()
 
 
 def test_symlinks_out_of_the_city_are_not_read(tmp_path):
@@ -292,3 +300,93 @@ def test_a_full_disk_is_one_line_and_leaves_nothing_half_written(tmp_path, small
     lines = [x for x in done.stderr.splitlines() if x.strip()]
     assert done.returncode == 2 and len(lines) == 1 and "no space left" in lines[0].lower(), done.stderr
     assert not [p for p in small_disk.rglob("*") if ".tmp" in p.name], list(small_disk.rglob("*"))
+
+
+def test_an_output_file_path_that_is_not_a_regular_file_is_never_replaced(tmp_path, shared):  # noqa: F811
+    """`--markdown` (and every file written whole) replaces a regular file or nothing: a FIFO, a folder, a link or a
+    device node made here is refused in one line before any work, and stays what it was."""
+    from uavplace.schemas.files import atomic_write_text
+
+    w = Workspace(tmp_path, shared)
+    fifo, folder, link = tmp_path / "fifo", tmp_path / "folder", tmp_path / "link"
+    os.mkfifo(fifo)
+    folder.mkdir()
+    (tmp_path / "target.md").write_text("mine")
+    link.symlink_to(tmp_path / "target.md")
+    paths = [fifo, folder, link]
+    if os.geteuid() == 0:  # a character device of our own, in our folder (the machine's /dev/null is never touched)
+        device = tmp_path / "null"
+        os.mknod(device, 0o666 | 0o020000, os.makedev(1, 3))
+        paths.append(device)
+    for path in paths:
+        kind = os.lstat(path).st_mode
+        with pytest.raises(InputError, match="not a regular file"):
+            atomic_write_text(path, "x")
+        res = invoke(uavrl, *w.report("--run", str(w.agent()), "--out", str(tmp_path / "rep"), "--markdown", str(path)))
+        assert res.exit_code == 2 and ("not a regular file" in res.output or "is a directory" in res.output), res.output
+        assert os.lstat(path).st_mode == kind and not (tmp_path / "rep").exists()
+    assert (tmp_path / "target.md").read_text() == "mine"
+
+
+def _within(seconds: float, fn, *args):  # noqa: ANN001, ANN202
+    """``fn(*args)``'s outcome (its result or the exception it raised), failing the test if it is still running after
+    ``seconds`` (it would block forever)."""
+    import threading
+
+    box: list = []
+
+    def run() -> None:
+        try:
+            box.append(fn(*args))
+        except BaseException as exc:  # noqa: BLE001 - handed to the test
+            box.append(exc)
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    thread.join(seconds)
+    assert not thread.is_alive(), f"{fn.__name__} still blocks after {seconds} s"
+    return box[0]
+
+
+def test_records_that_are_fifos_or_devices_are_refused_at_once(tmp_path, tiny):
+    """A bundle whose manifest.json is a FIFO, a sweep spec or a run.json that is a FIFO or an endless device: each is
+    refused in one line within seconds (never waited on, never read to the end)."""
+    import shutil
+
+    from uavplace.dataset.bundle import read_manifest, resolve
+    from uavplace.eval.sweep import read_spec
+    from uavplace.rl.agent.train import read_run_json
+
+    root = tmp_path / "p"
+    shutil.copytree(tiny, root)
+    folder = resolve("tiny", root=root)
+    (folder / "manifest.json").unlink()
+    os.mkfifo(folder / "manifest.json")
+    err = _within(10, read_manifest, folder)
+    assert isinstance(err, InputError) and "not a regular file" in str(err)
+    _within(30, invoke, uavdata, "list", "--root", str(root))  # lists what it can read, never waits on the FIFO
+    res = _within(30, invoke, uavrl, "baselines", "--dataset", "tiny", "--root", str(root))
+    assert res.exit_code == 2 and "manifest.json" in res.output and "not a regular file" in res.output, res.output
+    os.mkfifo(tmp_path / "spec.toml")
+    (tmp_path / "run").mkdir()
+    os.mkfifo(tmp_path / "run" / "run.json")
+    for fn, path in ((read_spec, tmp_path / "spec.toml"), (read_run_json, tmp_path / "run")):
+        err = _within(10, fn, path)
+        assert isinstance(err, InputError) and "not a regular file" in str(err), err
+    if os.geteuid() == 0:  # an endless device of our own (like /dev/zero), in our folder
+        os.mknod(tmp_path / "zero.toml", 0o666 | 0o020000, os.makedev(1, 5))
+        err = _within(10, read_spec, tmp_path / "zero.toml")
+        assert isinstance(err, InputError) and "not a regular file" in str(err)
+    (tmp_path / "big.toml").write_bytes(b"#" * (17 * 2**20))
+    err = _within(10, read_spec, tmp_path / "big.toml")
+    assert isinstance(err, InputError) and "record_bytes" in str(err)
+
+
+def test_names_are_drawn_as_they_are_never_as_mathtext(tmp_path, shared):  # noqa: F811
+    """A run folder named like a broken TeX formula is a method's name in the figures, drawn as text."""
+    w = Workspace(tmp_path, shared)
+    weird = tmp_path / "$\\frac{a}{$"
+    w.agent().rename(weird)
+    res = invoke(uavrl, *w.report("--run", str(weird), "--out", str(tmp_path / "rep")))
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "rep" / "report.html").is_file()

@@ -19,7 +19,7 @@ from uavplace.dataset.bundle import load_bundle
 from uavplace.ingest.pipeline import ingest_city
 from uavplace.ingest.wireless_insite.city import read_city
 from uavplace.schemas import InputError
-from uavplace.schemas.bundle import BuildConfig
+from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM, BuildConfig
 from uavplace.schemas.cli import uavdata
 from uavplace.simulate.pipeline import SimulationSpec, load_geometry, place_users, receiver_grid
 from uavplace.simulate.procedural import PRESETS, generate_city
@@ -387,7 +387,7 @@ def test_simulate_with_exact_paths_at_every_open_cell(tmp_path):
     job = RadioMapJob(str(xml), ((70.0, 46.0, 1.5),), (64.0, 46.0, 10.0), (24.0, 16.0), 4.0)
     gain = exact_path_maps(job, RayTraceConfig(samples_per_tx=100_000, seed=4, solver="paths"), opened)[0]
     assert (gain[~opened] == 0).all() and (gain[opened] > 0).all()
-    expected = np.maximum(20.0 + 10 * np.log10(np.where(opened, gain, 1.0)) + 104.0, -40.0)
+    expected = np.maximum(20.0 + 10 * np.log10(np.where(opened, gain, 1.0)) - EMBEDDED_NOISE_DBM, -40.0)
     np.testing.assert_allclose(b.sinr_db[0][opened], expected[opened], atol=0.01)
     np.testing.assert_array_equal(b.dead[0], ~opened)
 
@@ -421,7 +421,7 @@ def test_simulate_ingest_build_round_trip(tmp_path):
     maps = path_gain_maps_isolated(job, cfg) | direct_maps(job, cfg)
     gain, _ = fill(maps, cfg, open_cells(blocks, grid), squared_distances(users, grid))
     live = gain > 0
-    expected = 20.0 + 10 * np.log10(np.where(live, gain, 1.0)) + 104.0
+    expected = 20.0 + 10 * np.log10(np.where(live, gain, 1.0)) - EMBEDDED_NOISE_DBM  # the build's default noise
     cells = [(0, 3, 4), (1, 10, 12), (2, 17, 20), (0, 0, 0)]
     for u, iy, ix in cells:
         if live[u, iy, ix]:

@@ -110,8 +110,9 @@ def test_sweep_trains_resumes_and_tables(tmp_path, root):
         ('datasets = ["tiny"]\n[[trials]]\nname = "a"\nseeds = [0, 0]\n', "repeat a seed"),
         ('datasets = ["tiny"\n', "not a TOML file"),
         ('datasets = ["tiny"]\n[[trials]]\nname = "a"\nsettings = {seed = 3}\n', "seed (use the trial's seeds)"),
+        ("a = " + "[" * 100_000 + "]" * 100_000, "not a TOML file (maximum recursion depth exceeded)"),
     ],
-    ids=["unknown-field", "unknown-setting", "unknown-member", "seed-twice", "not-toml", "seed-as-a-setting"],
+    ids=["unknown-field", "unknown-setting", "unknown-member", "seed-twice", "not-toml", "seed-as-a-setting", "deep"],
 )
 def test_sweep_refuses_bad_specs(tmp_path, text, message):
     """A bad sweep file is one error line naming the file and the field, before Ray starts or anything is written."""
@@ -135,3 +136,78 @@ def test_shipped_sweep_files_validate():
     best = specs["best"].configs()
     assert list(best) == [f"best-s{s}" for s in range(9)] and best["best-s4"] == preset_config("best", seed=4)
     assert json.loads(json.dumps([e.members for e in specs["best"].ensembles]))[1] == ["best-s3", "best-s4", "best-s5"]
+
+
+def test_sweep_removes_only_what_it_made(tmp_path, root):
+    """A folder under --out that bears a trial's name but is not a run the sweep started is refused before Ray
+    starts, never removed; a run of the trial's settings that never checkpointed is removed (nothing to continue)."""
+    from uavplace.eval.sweep import _remove_unstarted, read_spec
+    from uavplace.rl.agent.train import RunRecord
+    from uavplace.schemas import InputError
+    from uavplace.schemas.files import write_model_json
+
+    spec_file = tmp_path / "s.toml"
+    spec_file.write_text(TINY)
+    out = tmp_path / "O"
+    (out / "t-s0").mkdir(parents=True)
+    (out / "t-s0" / "thesis.tex").write_text("x")
+    res = CliRunner().invoke(uavrl, ["sweep", str(spec_file), "--out", str(out), "--root", str(root)])
+    assert res.exit_code != 0 and "a sweep removes only what it made" in res.output, res.output
+    assert (out / "t-s0" / "thesis.tex").read_text() == "x"
+
+    config = read_spec(spec_file).configs()["t-s0"]
+    record = RunRecord(config=config, datasets={}, train_split=None, eval_split=None, command="", uavplace_version="0",
+                       torch_version="0", created_utc="0")  # fmt: skip
+    write_model_json(record, out / "t-s0" / "run.json")
+    with pytest.raises(InputError, match="thesis.tex"):  # a run's folder with the user's file in it
+        _remove_unstarted(out / "t-s0", config)
+    assert (out / "t-s0" / "thesis.tex").is_file()
+    (out / "t-s0" / "thesis.tex").unlink()
+    with pytest.raises(InputError, match="other settings"):
+        _remove_unstarted(out / "t-s0", read_spec(spec_file).configs()["t-s1"])
+    _remove_unstarted(out / "t-s0", config)
+    assert not (out / "t-s0").exists()
+
+
+def test_sweep_refuses_what_would_wait_forever(tmp_path, root):
+    """More CPUs a trial than the machine has, a Ray address nothing answers and one that is not an address: one
+    line each, within seconds, before any trial starts."""
+    import time
+
+    spec_file = tmp_path / "s.toml"
+    spec_file.write_text(TINY)
+    base = ["sweep", str(spec_file), "--out", str(tmp_path / "O"), "--root", str(root)]
+    for extra, message in (
+        (["--cpus-per-trial", "100000"], "--cpus-per-trial: 100000: this machine has"),
+        (["--ray-address", "127.0.0.1:1"], "--ray-address: 127.0.0.1:1: nothing answers there"),
+        (["--ray-address", "head-without-port"], "expected HOST:PORT, ray://HOST:PORT or auto"),
+    ):
+        t0 = time.monotonic()
+        res = CliRunner().invoke(uavrl, [*base, *extra])
+        assert res.exit_code == 2 and message in res.output, res.output
+        assert time.monotonic() - t0 < 30
+    assert not any((tmp_path / "O").glob("t-*"))
+
+
+def test_a_sweep_of_a_million_seeds_is_refused_by_the_limit(tmp_path):
+    """The limits bound what costs memory: the runs of a sweep file (trials x seeds), refused before one config is
+    made."""
+    import resource
+
+    from uavplace.eval.sweep import read_spec
+    from uavplace.schemas import InputError
+
+    spec_file = tmp_path / "s.toml"
+    spec_file.write_text(TINY.replace("seeds = [0, 1]", f"seeds = [{', '.join(map(str, range(1_000_000)))}]"))
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    with pytest.raises(InputError, match="sweep_runs"):
+        read_spec(spec_file)
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before < 2 * 2**20  # KiB: under 2 GB more at the peak
+
+
+def test_a_sweep_validated_on_its_own_training_city_is_refused(tmp_path, root):
+    spec_file = tmp_path / "s.toml"
+    spec_file.write_text(TINY.replace('cities = ["tiny-val"]', 'cities = ["tiny-val", "tiny"]'))
+    res = CliRunner().invoke(uavrl, ["sweep", str(spec_file), "--out", str(tmp_path / "O"), "--root", str(root)])
+    assert res.exit_code == 2 and "cities: tiny: a training city of the sweep is also a validation city" in res.output
+    assert not (tmp_path / "O").exists()

@@ -89,8 +89,20 @@ def test_routes_travel_from_export_to_bundle(root):
             "city.routes.csv:3: tx_point: no transmitter t099_03",
         ),
         (lambda rows: [*rows[:2], rows[2].replace("pedestrian", "horse"), *rows[3:]], "city.routes.csv:3: kind: 'horse'"),
+        (
+            lambda rows: [*rows[:2], rows[2] + "," + "9" * 200_000, *rows[3:]],
+            "city.routes.csv:3: row: not a CSV row (field larger",
+        ),
+        (
+            lambda rows: ["\ufeff" + rows[0], *rows[1:3], rows[3].replace("pedestrian", "horse"), *rows[4:]],
+            "city.routes.csv:4: kind: 'horse'",
+        ),  # a byte-order mark is read past, as in every export
+        (
+            lambda rows: [rows[0], *(r.replace(",pedestrian,1.4", ",pedestrian,100") for r in rows[1:])],
+            "city.routes.csv:2: speed_mps: route 0: a pedestrian at 100 m/s",
+        ),
     ],
-    ids=["order-gap", "wrong-time", "unknown-point", "unknown-kind"],
+    ids=["order-gap", "wrong-time", "unknown-point", "unknown-kind", "huge-field", "bom", "running-at-100"],
 )
 def test_bad_routes_are_refused_with_their_line(tmp_path, edit, message):
     """A routes file that breaks the contract is refused by ingest, naming the file, the line and the field."""

@@ -18,6 +18,7 @@ from uavplace.ingest.wireless_insite.keyword import Block, parse_keyword_file
 from uavplace.schemas import InputError, TxRxSet
 from uavplace.schemas.base import validation_message
 from uavplace.schemas.tables import TRANSMITTERS, XY_RANGE_M
+from uavplace.schemas.txrx import MAX_GRID_SIDE
 
 #: Block kinds that define transmitter/receiver sets.
 SET_KINDS = ("points", "grid", "polygon", "route", "trajectory", "arc", "cylinder", "sphere", "xyzgrid", "areagrid")
@@ -57,6 +58,11 @@ def parse_txrx_set(block: Block) -> TxRxSet:
             line = loc_block.find_entry(key)[0]  # type: ignore[index]
             what = "> 0" if key == "spacing" else ">= 0"
             raise InputError(block.path, f"{key} {value:g} m: must be {what} and finite", line=line, field=key)
+    spacing, sides = lengths["spacing"], [v for k, v in lengths.items() if k != "spacing" and v is not None]
+    if spacing is not None and sides and not max(sides) / spacing < MAX_GRID_SIDE:
+        line = loc_block.find_entry("spacing")[0]  # type: ignore[index]
+        raise InputError(block.path, f"spacing {spacing:g} m for a side of {max(sides):g} m: over {MAX_GRID_SIDE:,} "
+                         "receivers a side: not a receiver grid", line=line, field="spacing")  # fmt: skip
     try:
         return TxRxSet(
             kind=block.kind,

@@ -234,18 +234,10 @@ PRESETS: dict[str, dict] = {
         "eval_episodes": 100,
         "env": {"t_max": 200, "rotate": True},
     },
-    # Ours until PQN (A1L in the README; benchmarks/bench_train.py compares its learner with Tianshou's DQN), trained
-    # on a corpus of cities in about 10 minutes on 2 CPU cores (the lever table in the README; without the genie-move
-    # head a 500 k schedule gave the same validation success as 150 k over 3 seeds, with it 300 k gave 2 points more
-    # than 150 k):
-    # the foveated network (about a tenth of the paper network's time per update on a CPU), 64 envs acting in one batch,
-    # 3-step returns, batches of 128 every 16 env steps (8 replayed samples per env step), no dropout, a channel of
-    # the visited cells (the route stays visible in the pooled surround), and a success bonus of 100 (ending the
-    # search is worth more than wandering on for new-cell bonuses: a quarter fewer steps at the same success, the
-    # lever table's B rows); best.pt chosen on 1000 fixed episodes; acting, a revisit penalty of 1 per earlier visit
-    # (+6.8 points of validation success over 3 seeds and 3 validation cities, benchmarks/revisit_sweep.py); an auxiliary
-    # head that learns the genie's move from the same features (training only; at 150 k steps +1.2 points of
-    # validation success over 3 seeds, the README's A rows).
+    # The foveated network, 64 envs acting in one batch, 3-step returns, batches of 128 every 16 env steps, no
+    # dropout, the visited-cells channel, a success bonus of 100, best.pt chosen on 1000 fixed validation episodes, a
+    # revisit penalty of 1 per earlier visit when acting, and an auxiliary head that learns the genie's move (training
+    # only). How each setting was chosen: docs/learner.md, "How the presets came to be".
     "best-dqn": {
         "total_steps": 300_000,
         "num_envs": 64,
@@ -269,11 +261,9 @@ PRESETS: dict[str, dict] = {
         "env": {"t_max": 300, "rotate": True, "visited_channel": True, "success_bonus": 100.0},
     },
 }
-# Ours before the recurrent core: best-dqn's network, reward, schedule and acting rule, learnt by PQN (rl/agent/pqn.py)
-# instead of replay DQN: rollouts of 128 envs x 16 moves, Q(lambda 0.65) returns, 4 epochs of batches of 128, layer
-# norm, no replay and no target network (best-dqn's replay fields stay, unread). Over 3 seeds, against best-dqn's 3:
-# validation success 88.5 against 87.3 %, 11-21 % fewer median steps in each validation city, 261-355 s a run against
-# 464-471 s (README, "PQN: the learner").
+# best-dqn learnt by PQN (rl/agent/pqn.py) instead of replay DQN: rollouts of 128 envs x 16 moves, Q(lambda 0.65)
+# returns, 4 epochs of batches of 128, layer norm, no replay and no target network (best-dqn's replay fields stay,
+# unread).
 PRESETS["best-pqn"] = PRESETS["best-dqn"] | {
     "learner": "pqn",
     "num_envs": 128,
@@ -281,17 +271,9 @@ PRESETS["best-pqn"] = PRESETS["best-dqn"] | {
     "epochs": 4,
     "layer_norm": True,
 }
-# Ours: best-pqn with a GRU cell before the heads (a memory of the episode beyond the window), the homing channel and
-# the revisit penalty in its training moves, learnt on rollouts of 32 moves in 64 envs (the same 2048 env steps and 64
-# minibatches of 128 samples a round). The core with best-pqn's 16-move rollouts, over 3 seeds against best-pqn's 3:
-# validation success 88.2 against 88.5 % (level), median steps 60 / 34 / 87 against 71 / 36 / 87 in the 3 validation
-# cities (README, "The recurrent core"). The 32-move rollouts, over 3 seeds against those 3: 89.5 against 88.2 %,
-# medians 55 / 31 / 81 against 60 / 34 / 87 (README, "Longer rollouts for the core"). The homing channel (the best
-# SINR measured so far as a cone around its cell), over 3 seeds against those 3: validation success 93.1 against
-# 89.5 %, the old-town validation city 85.3 against 75.2 %; with the test rule's revisit penalty in the training moves
-# as well, 94.4 % and 87.4 %, with fewer median steps than the homing channel alone in each validation city (README,
-# "The homing channel"). Discounting at 0.98 instead of 0.99, over 9 seeds against 6: see README, "Gamma 0.98 and
-# three seeds as one agent". The shipped agent is three seeds of it as one (`uavrl ensemble`).
+# Ours: best-pqn with a GRU cell before the heads (a memory of the episode beyond the window), the homing channel (the
+# best SINR measured so far as a cone around its cell), the revisit penalty in its training moves too, discounting at
+# 0.98, learnt on rollouts of 32 moves in 64 envs. The shipped agent is three seeds of it as one (`uavrl ensemble`).
 PRESETS["best"] = PRESETS["best-pqn"] | {
     "recurrent": True,
     "num_envs": 64,

@@ -79,14 +79,15 @@ def check_members(members: list[Member]) -> None:
     seen: dict[int, Path] = {}
     for m in members:
         where = m.folder / RUN_JSON
-        if m.config.seed in seen:
-            raise InputError(where, f"the same seed as {seen[m.config.seed]}: the same network twice", field="config.seed")
-        seen[m.config.seed] = m.folder
         other = m.config.model_dump(exclude=FREE_FIELDS)
         diff = [k for k in base if base[k] != other[k]]
-        if diff:
+        if diff:  # first: runs that differ are never called the same network
             raise InputError(where, f"differs from {first.folder} ({base[diff[0]]!r} there, {other[diff[0]]!r} here)",
                              field=f"config.{diff[0]}")  # fmt: skip
+        if m.config.seed in seen:
+            raise InputError(where, f"the same settings and seed as {seen[m.config.seed]}: the same network twice",
+                             field="config.seed")  # fmt: skip
+        seen[m.config.seed] = m.folder
         for name in ("datasets", "val_datasets", "train_split", "eval_split"):
             if getattr(m.run, name) != getattr(first.run, name):
                 raise InputError(where, f"differs from {first.folder}: trained or selected on other cities", field=name)
@@ -129,6 +130,7 @@ def build_ensemble(
     record = RunRecord(
         config=config,
         datasets=first.run.datasets,
+        bundle_settings=first.run.bundle_settings,
         val_datasets=first.run.val_datasets,
         train_split=first.run.train_split,
         eval_split=first.run.eval_split,
@@ -138,7 +140,7 @@ def build_ensemble(
         created_utc=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         members={str(m.folder): m.run for m in members},
     )
-    with atomic_directory(out, marker=RUN_JSON, what="ensemble") as tmp:
+    with atomic_directory(out, marker=RUN_JSON, what="ensemble", new=True) as tmp:  # not one another process wrote
         (tmp / "checkpoints").mkdir()
         best = {"online": net.state_dict(), "config": config.model_dump(mode="json"), "eval": row}
         save_tensors(best, tmp / "checkpoints" / "best.pt")

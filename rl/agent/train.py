@@ -43,11 +43,13 @@ from uavplace.rl.tracking import RouteSet, TrackingEnv, run_tracking
 from uavplace.rl.vec_env import BatchedEnv
 from uavplace.schemas import InputError
 from uavplace.schemas.base import Contract, uavplace_version, validation_message
+from uavplace.schemas.bundle import BundleManifest, BundleSettings
 from uavplace.schemas.files import (
     atomic_directory,
     atomic_write_bytes,
     atomic_write_text,
     in_corpus,
+    read_small_file,
     recover_directory,
     write_model_json,
 )
@@ -67,6 +69,11 @@ class RunRecord(Contract):
     datasets: dict[str, str] = Field(description="Training city -> bundle version")
     val_datasets: dict[str, str] = Field(
         default_factory=dict, description="Validation city -> bundle version: the cities best.pt was selected on"
+    )
+    bundle_settings: dict[str, BundleSettings] = Field(
+        default_factory=dict,
+        description="Training city -> the settings its bundle was built with (grid, altitude, noise): a report warns "
+        "when it plays the agent on a bundle of other settings",
     )
     train_split: str | None = Field(description="Users episodes were drawn from (None: all users)")
     eval_split: str | None = Field(description="Users the periodic evaluation (and best.pt) used")
@@ -89,13 +96,24 @@ class RunRecord(Contract):
         return [*(c for m in self.members.values() for c in m.commands), self.command, *self.resumed]
 
 
+def settings_unlike(record: RunRecord, manifest: BundleManifest, p_t_db: float | None = None) -> list[str]:
+    """How ``manifest``'s bundle differs from every bundle the run was trained on (``BundleSettings.unlike`` against
+    its most common training settings; empty when one of them is alike or none is recorded), and ``p_t_db`` from the
+    P_T a placement agent was trained at, one phrase each."""
+    trained = list(record.bundle_settings.values())
+    mine = BundleSettings.of(manifest)
+    unlike = [] if not trained or mine in trained else mine.unlike(max(trained, key=trained.count))
+    if p_t_db is not None and record.config.task == "placement" and p_t_db != record.config.env.p_t_db:
+        unlike.append(f"P_T {p_t_db:g} dB (trained at {record.config.env.p_t_db:g} dB)")
+    return unlike
+
+
 def read_run_json(folder: str | Path) -> RunRecord:
     """A run folder's ``run.json``; ``InputError`` naming the file when it is missing or malformed."""
     path = Path(folder) / RUN_JSON
+    data = read_small_file(path, "a run's record", missing="no run.json: not a folder written by `uavrl train`")
     try:
-        return RunRecord.model_validate_json(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(path, "no run.json: not a folder written by `uavrl train`") from None
+        return RunRecord.model_validate_json(data)
     except (ValidationError, UnicodeDecodeError, ValueError) as exc:
         if isinstance(exc, ValidationError):
             field, message = validation_message(exc)
@@ -341,6 +359,7 @@ class Trainer:
         record = RunRecord(
             config=self.config,
             datasets=trained,
+            bundle_settings={b.city: BundleSettings.of(b.manifest) for b in self.train_bundles},
             val_datasets={b.city: b.version for b in self.val_bundles if b.city not in trained},
             train_split=self.train_split,
             eval_split=self.eval_split,
@@ -402,6 +421,13 @@ class Trainer:
             (tmp / CHECKPOINT_JSON).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
         _atomic_parquet(metrics, self.run_dir / "metrics.parquet")
         _atomic_parquet(evals, self.run_dir / "eval.parquet")
+
+    def resumable(self) -> bool:
+        """Whether the run folder holds a checkpoint to continue from (or an old one that ``load`` names); a run killed
+        before its first checkpoint has none, and a resume starts it over."""
+        last = self.checkpoints / LAST
+        recover_directory(last)
+        return (last / CHECKPOINT_JSON).is_file() or (self.checkpoints / "last.pt").exists()
 
     def load(self) -> None:
         """Restore everything from ``checkpoints/last/`` (``InputError`` if it is missing, partial or not data)."""
@@ -505,6 +531,7 @@ class Trainer:
         step (the first multiple of ``num_envs`` at or past it) and checkpoints there."""
         cfg, env, s = self.config, self.env, self.state
         n = cfg.num_envs
+        resume = resume and (self.loaded or self.resumable())  # killed before its first checkpoint: start over
         if resume:
             if not self.loaded:
                 self.load()
@@ -680,7 +707,7 @@ def start_run(
         if claimed and not any(run_dir.iterdir()):
             run_dir.rmdir()  # nothing was written: give the name back
         raise
-    if resume:
+    if resume and trainer.resumable():
         trainer.load()
     return trainer
 

@@ -366,6 +366,18 @@ CASES: list[Case] = [
         "city.txrx:25: spacing: spacing 0 m: must be > 0 and finite",
     ),
     Case(
+        "txrx spacing 1e-300",
+        "uavdata",
+        lambda w: w.edit("city.txrx", "spacing 4.000000", "spacing 1e-300"),
+        "city.txrx:25: spacing: spacing 1e-300 m for a side of 20 m: over 10,000,000 receivers a side",
+    ),
+    Case(
+        "txrx project id 1e30",
+        "uavdata",
+        lambda w: w.edit("city.txrx", "project_id 1\n", "project_id 1000000000000000000000000000000\n"),
+        "city.txrx:1: project_id: Input should be less than or equal to 2147483647",
+    ),
+    Case(
         "txrx negative spacing",
         "uavdata",
         lambda w: w.edit("city.txrx", "spacing 4.000000", "spacing -4"),
@@ -746,7 +758,13 @@ CASES: list[Case] = [
         "show unknown city",
         "uavdata",
         lambda w: ["show", "nosuchcity", "--root", str(w.root())],
-        "no bundle of city 'nosuchcity'",
+        "no city 'nosuchcity' is built here",
+    ),
+    Case(
+        "show a mistyped city",
+        "uavdata",
+        lambda w: ["show", "cyty", "--root", str(w.root())],
+        "no city 'cyty' is built here: did you mean city?",
     ),
     Case(
         "show city@../..",
@@ -939,7 +957,7 @@ CASES: list[Case] = [
             "--out",
             str(w.tmp / "r"),
         ],
-        "no bundle of city 'nosuchcity'",
+        "no city 'nosuchcity' is built here",
     ),
     Case(
         "report run without best.pt",
@@ -1075,7 +1093,7 @@ CASES: list[Case] = [
         "baselines unknown dataset",
         "uavrl",
         lambda w: ["baselines", "--dataset", "nosuch", "--root", str(w.root())],
-        "no bundle of city 'nosuch'",
+        "no city 'nosuch' is built here",
     ),
     # found by the second probe pass (benchmarks/probe_pass.py, docs/probes.md)
     Case(

@@ -1,0 +1,56 @@
+"""Ray, the distributed engine of ``uavdata simulate`` (a corpus) and ``uavrl sweep``: started or joined here, with
+the two checks that keep a command from waiting forever without a word: an address nothing answers, and tasks that
+ask for more CPUs than the cluster has."""
+
+from __future__ import annotations
+
+import os
+import socket
+
+from uavplace.schemas.base import InputError
+
+#: Seconds to wait for a Ray head at ``--ray-address`` to answer before refusing it.
+CONNECT_TIMEOUT_S = 10.0
+
+
+def head_endpoint(address: str) -> tuple[str, int] | None:
+    """``(host, port)`` of a ``HOST:PORT`` or ``ray://HOST:PORT`` address; None for ``auto`` (Ray finds its own);
+    ``InputError`` on the ``--ray-address`` field for anything else."""
+    if address == "auto":
+        return None
+    host, sep, port = address.removeprefix("ray://").rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise InputError(None, f"{address!r}: expected HOST:PORT, ray://HOST:PORT or auto", field="--ray-address")
+    return host.strip("[]"), int(port)
+
+
+def start_ray(address: str | None, cpus_per_task: float, cpus_option: str) -> bool:
+    """Start a local Ray (``address`` None) or join the cluster at ``address``, for tasks of ``cpus_per_task`` CPUs;
+    True when this call started it (the caller shuts it down). Refused in one line (``InputError``): an address that
+    does not answer within ``CONNECT_TIMEOUT_S``, and tasks larger than every CPU the machine or cluster has (they
+    would wait forever)."""
+    import ray
+
+    if ray.is_initialized():
+        return False
+    if address is None:
+        have = os.cpu_count() or 1
+        if cpus_per_task > have:
+            raise InputError(None, f"{cpus_per_task:g}: this machine has {have} CPUs: a task would wait for them forever",
+                             field=cpus_option)  # fmt: skip
+    else:
+        endpoint = head_endpoint(address)
+        if endpoint is not None:
+            try:
+                socket.create_connection(endpoint, timeout=CONNECT_TIMEOUT_S).close()
+            except OSError as err:
+                reason = "no answer" if isinstance(err, TimeoutError) else (err.strerror or type(err).__name__)
+                raise InputError(None, f"{address}: nothing answers there ({reason} within {CONNECT_TIMEOUT_S:g} s)",
+                                 field="--ray-address") from None  # fmt: skip
+    ray.init(address=address, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    have = float(ray.cluster_resources().get("CPU", 0))
+    if cpus_per_task > have:
+        ray.shutdown()
+        raise InputError(None, f"{cpus_per_task:g}: the Ray cluster has {have:g} CPUs: a task would wait for them forever",
+                         field=cpus_option)  # fmt: skip
+    return True
