@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
 import pyarrow.parquet as pq
 from pydantic import ValidationError
 
@@ -206,7 +207,9 @@ def resolve(city: str, version: str | None = None, root: str | Path = DEFAULT_RO
             known = sorted(p.name for p in Path(root).glob("*") if (p / LATEST).is_file()) if Path(root).is_dir() else []
             if (folder / "ingested").is_dir():
                 raise InputError(folder, f"city '{city}' is ingested but not built: run `uavdata build --city {city}`")
-            raise InputError(folder, f"no city '{city}' is built here{nearest_names(city, known)}")
+            ingested = sorted(p.parent.name for p in Path(root).glob("*/ingested")) if Path(root).is_dir() else []
+            near = nearest_names(city, sorted(set(known) | set(ingested)), "built or ingested")
+            raise InputError(folder, f"no city '{city}' is built here{near}")
     path = folder / version
     if not path.is_dir():
         raise InputError(path, f"no bundle version '{version}' of city '{city}'")
@@ -243,6 +246,8 @@ def load_bundle(city: str, version: str | None = None, root: str | Path = DEFAUL
         verify_files(folder, manifest)
     arrays = read_arrays(folder / "maps.npz", expected_shapes(manifest), MAP_ARRAYS)
     check_values(folder / "maps.npz", manifest, arrays)
+    if verify:
+        check_cells(folder / CELLS.filename, arrays)
     users = _read_table(folder, USERS)
     check_users(folder / USERS.filename, manifest, users)
     routes = read_routes(folder, manifest) if manifest.num_route_points else {}
@@ -292,6 +297,36 @@ def read_routes(folder: Path, manifest: BundleManifest) -> dict:
     for a in arrays.values():
         a.setflags(write=False)
     return {"routes": table, "route_sinr_db": sinr, "route_dead": dead}
+
+
+def check_cells(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """``InputError`` naming ``cells.parquet``'s first row that disagrees with ``maps.npz`` (the two copies of one
+    bundle's maps: SINR, dead, blocked and height at each user and cell), or that is missing or out of the grid."""
+    columns = ["user", "iy", "ix", "sinr_db", "dead", "blocked", "height_rel_m"]
+    try:
+        table = pq.read_table(path, columns=columns)
+    except (OSError, ValueError, pa.ArrowException) as exc:
+        raise InputError(path, f"unreadable ({str(exc)[:160]})") from None
+    users, ny, nx = arrays["sinr_db"].shape
+    if table.num_rows != users * ny * nx:
+        raise InputError(path, f"{table.num_rows} rows, maps.npz holds {users} users x {ny} x {nx} cells", field="rows")
+    user, iy, ix = (table.column(c).to_numpy().astype(np.int64) for c in ("user", "iy", "ix"))
+    outside = (user < 0) | (user >= users) | (iy < 0) | (iy >= ny) | (ix < 0) | (ix >= nx)
+    if outside.any():
+        k = int(np.argmax(outside))
+        raise InputError(path, f"row {k}: user {user[k]}, cell ({iy[k]}, {ix[k]}) is not in maps.npz", field="user")
+    expected = {
+        "sinr_db": arrays["sinr_db"][user, iy, ix], "dead": arrays["dead"][user, iy, ix],
+        "blocked": arrays["blocked"][iy, ix], "height_rel_m": arrays["height_rel_m"][iy, ix],
+    }  # fmt: skip
+    for name, want in expected.items():
+        got = table.column(name).to_numpy(zero_copy_only=False)
+        bad = got != want
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise InputError(path, f"row {k} (user {user[k]}, cell ({iy[k]}, {ix[k]})): {got[k]}, but maps.npz holds "
+                             f"{want[k]}: the bundle's two copies disagree; rebuild it (`uavdata build --force`)",
+                             field=name)  # fmt: skip
 
 
 def check_identity(folder: Path, manifest: BundleManifest) -> None:

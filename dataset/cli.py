@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import re
 import sys
 from pathlib import Path
 
@@ -217,6 +218,7 @@ def build(
                         "drop it with --split CITY=none, or build other cities with --city", field="split"))  # fmt: skip
     out = stdout()
     errors = 0
+    warned: list[tuple[str, str]] = []
     for name in names:
         try:
             config = BuildConfig(
@@ -250,9 +252,7 @@ def build(
             errors += 1
             continue
         m = result.manifest
-        if not quiet:
-            for w in m.warnings:
-                console.print(f"[yellow]warning:[/] {name}: {w}", highlight=False, soft_wrap=True)
+        warned += [(name, w) for w in m.warnings]
         what = "built" if result.built else "up to date (nothing to do)"
         out.print(
             f"{what} {name}@{m.version}: {m.grid.num_x} x {m.grid.num_y} cells of {m.grid.spacing_m:g} m at "
@@ -269,8 +269,38 @@ def build(
                 highlight=False,
                 soft_wrap=True,
             )
+    if not quiet:
+        for line in warning_lines(warned):
+            console.print(f"[yellow]warning:[/] {escape(line)}", highlight=False, soft_wrap=True)
     if errors:
         sys.exit(2)
+
+
+def warning_lines(warned: list[tuple[str, str]]) -> list[str]:
+    """The build's warnings (city, text), one line per kind: a kind is the text less its numbers and the ids it
+    lists; a kind met in several cities is one line, its first city's text, then the others with their counts."""
+
+    def kind(text: str) -> str:
+        text = re.sub(r"\[[^\]]*\]|\([^)]*building_[^)]*\)", "", text)  # the ids and names it lists
+        return re.sub(r"\d+(\.\d+)?", "#", text)
+
+    groups: dict[str, list[tuple[str, str]]] = {}
+    for city, text in warned:
+        groups.setdefault(kind(text), []).append((city, text))
+    lines = []
+    for members in groups.values():
+        (city, text), others = members[0], members[1:]
+        line = f"{city}: {text}"
+        if others:
+            counts = ", ".join(f"{c} ({_first_number(t)})" for c, t in others)
+            line += f"; the same in {len(others)} more {'city' if len(others) == 1 else 'cities'}: {counts}"
+        lines.append(line)
+    return lines
+
+
+def _first_number(text: str) -> str:
+    found = re.search(r"\d+", text)
+    return found.group() if found else "-"
 
 
 def format_difficulty(d: dict[str, float | None]) -> str:

@@ -8,6 +8,14 @@ from pathlib import Path
 import numpy as np
 
 from uavplace.dataset.bundle import Bundle
+from uavplace.schemas.files import atomic_write_bytes
+
+
+def sinr_panel(bundle: Bundle, user: int) -> tuple[np.ma.MaskedArray, int]:
+    """What `uavdata show` draws of ``user``'s SINR: the map with dead and blocked cells masked (blocked ones drawn
+    apart), and the count of dead cells the UAV may enter (a cell inside a building is not counted as dead)."""
+    blocked = bundle.blocked
+    return np.ma.masked_array(bundle.sinr_db[user], mask=bundle.dead[user] | blocked), int((bundle.dead[user] & ~blocked).sum())
 
 
 def render_bundle(bundle: Bundle, user: int, out: str | Path) -> Path:
@@ -24,29 +32,29 @@ def render_bundle(bundle: Bundle, user: int, out: str | Path) -> Path:
     fig, axes = plt.subplots(1, 2, figsize=(12, 5.2), constrained_layout=True)
     ax = axes[0]
     im = ax.imshow(bundle.height_rel_m, origin="lower", extent=extent, cmap="viridis")
-    ax.contour(bundle.blocked, levels=[0.5], origin="lower", extent=extent, colors="white", linewidths=0.6)
+    for color, width in (("black", 1.6), ("white", 0.6)):  # a white line on a black halo: seen on dark and on yellow
+        ax.contour(bundle.blocked, levels=[0.5], origin="lower", extent=extent, colors=color, linewidths=width)
     fig.colorbar(im, ax=ax, label=f"building height - altitude ({bundle.altitude_m:g} m) [m]")
-    ax.set_title(f"{bundle.city}: height map (white: blocked, {int(bundle.blocked.sum())} cells)")
+    ax.set_title(f"{bundle.city}: height map (outlined: blocked, {int(bundle.blocked.sum())} cells)")
     ax = axes[1]
-    sinr = np.ma.masked_array(bundle.sinr_db[user], mask=bundle.dead[user])
+    blocked = bundle.blocked
+    sinr, dead_open = sinr_panel(bundle, user)
     cmap = matplotlib.colormaps["magma"].with_extremes(bad="0.75")
     im = ax.imshow(sinr, origin="lower", extent=extent, cmap=cmap)
-    ax.contour(bundle.blocked, levels=[0.5], origin="lower", extent=extent, colors="cyan", linewidths=0.5)
-    fig.colorbar(im, ax=ax, label="SINR [dB] (grey: dead, no path)")
+    shade = matplotlib.colors.ListedColormap(["#4a90c2"])  # blocked cells in a colour magma never takes
+    ax.imshow(np.ma.masked_array(blocked, mask=~blocked), origin="lower", extent=extent, cmap=shade, vmin=0, vmax=1)
+    fig.colorbar(im, ax=ax, label="SINR [dB] (grey: dead, no path; blue: blocked)")
     row = bundle.users.iloc[user]
     if np.isfinite(row["x_m"]) and np.isfinite(row["y_m"]):
         ax.plot(row["x_m"], row["y_m"], marker="*", color="cyan", markersize=14, markeredgecolor="black")
-    ax.set_title(f"user {user} (t{row['tx_point']:03d}_{row['tx_set_id']:02d}): SINR, {int(bundle.dead[user].sum())} dead cells")
+    ax.set_title(f"user {user} (t{row['tx_point']:03d}_{row['tx_set_id']:02d}): SINR, {dead_open} dead open cells")
     for ax in axes:
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")
     fig.suptitle(f"{bundle.city} @ {bundle.version}: {g.num_x} x {g.num_y} cells of {g.spacing_m:g} m", fontsize=10)
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
     png = io.BytesIO()
     fig.savefig(png, format="png", dpi=110)
     plt.close(fig)
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_bytes(png.getvalue())  # a plain write: its errors (a full disk) surface here, not inside matplotlib
+    atomic_write_bytes(out, png.getvalue())  # its errors (a full disk) surface here, not inside matplotlib
     return out

@@ -11,6 +11,7 @@ from uavplace.rl.cli import episode_options
 from uavplace.schemas.cli import (
     Counted,
     Finite,
+    LogLines,
     command_line,
     console,
     fail,
@@ -160,6 +161,16 @@ def report(
     page OUT/tracking.html with a table per city, the coverage over time and three episodes on the maps
     (eval/tracking.py).
     """
+    from uavplace.dataset.bundle import resolve
+
+    cities = [d.split("@")[0] for d in datasets]
+    twice = sorted({c for c in cities if cities.count(c) > 1})
+    if twice:  # one folder, table and summary row per city: two versions of one city would overwrite each other
+        given = ", ".join(d for d in datasets if d.split("@")[0] in twice)
+        raise click.UsageError(f"--dataset names {', '.join(twice)} more than once ({given}): one report per city; "
+                               "report each version with its own --out")  # fmt: skip
+    for dataset in datasets:  # a mistyped city is named, with the nearest ones, before anything heavy is loaded
+        resolve(dataset, root=root)
     from uavplace.eval.report import (
         ReportConfig,
         check_summary_page,
@@ -179,12 +190,6 @@ def report(
         datasets = tuple(release_cities(root, routes=task == "tracking"))
     budget, option = (horizon, "--horizon") if task == "tracking" else (t_max, "--t-max")
     check_limit("episode_steps", episodes * budget, None, f"--episodes x {option}", field="episodes")
-    cities = [d.split("@")[0] for d in datasets]
-    twice = sorted({c for c in cities if cities.count(c) > 1})
-    if twice:  # one folder, table and summary row per city: two versions of one city would overwrite each other
-        given = ", ".join(d for d in datasets if d.split("@")[0] in twice)
-        raise click.UsageError(f"--dataset names {', '.join(twice)} more than once ({given}): one report per city; "
-                               "report each version with its own --out")  # fmt: skip
 
     if task == "fleet":
         from uavplace.eval.fleet import DEFAULT_AGENT
@@ -241,7 +246,11 @@ def report(
         result = _one_report(config, folders[dataset], root, quiet)
         reports.append(result)
         title = f"{episodes} episodes in {dataset} (t_max {t_max}, P_T {p_t_db:g} dB)"
-        stdout().print(plain_table(*result.rows[0], rows=result.rows[1:], title=title))
+        rows = result.rows
+        if stdout().is_terminal:  # a terminal gets the columns that fit; the full table is in the report and --markdown
+            rows = terminal_columns(rows)
+            title += f"; every column: {result.out / 'report.html'}"
+        stdout().print(plain_table(*rows[0], rows=rows[1:], title=title))
         if len(result.diff_rows) > 1:
             stdout().print(plain_table(*result.diff_rows[0], rows=result.diff_rows[1:],
                                        title=f"paired differences in {dataset}, method minus reference, 95 % intervals"))  # fmt: skip
@@ -261,6 +270,16 @@ def report(
 
         atomic_write_text(markdown, markdown_tables(reports, t_max))
         stdout().print(f"tables (Markdown): {markdown}", highlight=False, soft_wrap=True)
+
+
+#: The columns of a report's table that a terminal shows (they fit 120 columns).
+TERMINAL_COLUMNS = ("method", "success", "median steps", "median of per-episode steps / genie")
+
+
+def terminal_columns(rows: list[list[str]]) -> list[list[str]]:
+    """``rows`` (header first) with only ``TERMINAL_COLUMNS``."""
+    keep = [i for i, name in enumerate(rows[0]) if name in TERMINAL_COLUMNS]
+    return [[r[i] for i in keep] for r in rows]
 
 
 def _check_same_agents(folder: Path, runs: list[Path]) -> None:
@@ -325,11 +344,13 @@ def _tracking_report(datasets: tuple[str, ...], runs: list[Path], out: Path | No
     config = TrackingReportConfig(datasets=list(datasets), runs=[str(r) for r in runs], episodes=episodes, seed=seed,
                                   test_epsilon=test_epsilon, n_boot=n_boot, trajectories=trajectories, hold=hold,
                                   task=TrackingConfig(horizon=horizon, p_t_db=p_t_db))  # fmt: skip
+    log = LogLines(quiet)
     with console.status("[bold]tracking report[/]", spinner="dots") if not quiet else contextlib.nullcontext() as status:
 
         def on_progress(city: str, method: str) -> None:
             if status is not None:
                 status.update(f"[bold]tracking report[/] {city}: {method}")
+            log(f"tracking report {city}: {method}", last=True)
 
         table, page = make_tracking_report(config, out or Path("reports") / "tracking", root=root, command=command_line(),
                                            on_progress=on_progress)  # fmt: skip
@@ -358,11 +379,13 @@ def _fleet_report(datasets: tuple[str, ...], runs: list[Path], out: Path | None,
                                episodes=episodes, seed=seed, n_boot=n_boot,
                                task=FleetConfig(uavs=uavs, users=users, t_max=t_max, p_t_db=p_t_db),
                                predictor=None if predictor.lower() == "none" else predictor)  # fmt: skip
+    log = LogLines(quiet)
     with console.status("[bold]fleet report[/]", spinner="dots") if not quiet else contextlib.nullcontext() as status:
 
         def on_progress(what: str) -> None:
             if status is not None:
                 status.update(f"[bold]fleet report[/] {what}")
+            log(f"fleet report {what}", last=True)
 
         table, diff, page = make_fleet_report(config, out or Path("reports") / "fleet", root=root,
                                               command=command_line(), on_progress=on_progress)  # fmt: skip
@@ -392,12 +415,15 @@ def _one_report(config, out: Path, root: Path, quiet: bool):
         TextColumn("[bold]report[/] {task.description:<20}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
         TextColumn("eta"), TimeRemainingColumn(),
     )  # fmt: skip
-    with Progress(*columns, console=stdout(), disable=quiet) as bar:
+    log = LogLines(quiet)  # a log: a plain line every LINE_SECONDS (and at each method's start and end), not a bar
+    with Progress(*columns, console=stdout(), disable=quiet or log.enabled) as bar:
 
         def on_progress(method: str, done: int, total: int) -> None:
-            if method not in tasks:
+            new = method not in tasks
+            if new:
                 tasks[method] = bar.add_task(f"{config.dataset} {method}", total=total)
             bar.update(tasks[method], completed=done)
+            log(f"report {config.dataset}: {method} {done}/{total} episodes", last=new or done >= total)
 
         return make_report(config, out, root=root, command=command_line(), on_progress=on_progress)
 

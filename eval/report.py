@@ -386,11 +386,9 @@ def _paper_key(method: str) -> str | None:
         return None
     if method == "genie":
         return "genie"
-    if method.startswith(("blind DQN", "blind PQN")):
-        return "blind"
-    if method.startswith(("DQN", "PQN")):  # the paper's proposed agent, or ours trained by another learner
-        return "dqn"
-    return None
+    if not method.endswith("(paper)"):  # the paper's numbers stand beside the paper's agents only
+        return None
+    return "blind" if method.startswith("blind ") else "dqn"
 
 
 def shown_method(agents: list[Agent]) -> str:
@@ -573,7 +571,7 @@ def plot_trajectories(
         for i, ax in enumerate(axes[:, j]):
             if i == 0:
                 im = ax.imshow(bundle.height_rel_m, origin="lower", extent=extent, cmap="viridis")
-                ax.set_title(f"{rule}: episode {ep}, user {user}\n{outcome} (genie {int(row['genie_steps'])})", fontsize=9)
+                ax.set_title(f"{rule}: episode {ep}, user {user}\n{outcome} (genie {int(row['genie_steps'])})", fontsize=10)
                 label = "building height - altitude [m]"
             else:
                 # Open cells only: dead ones grey (masked), blocked ones drawn apart in black, never as flyable SINR.
@@ -591,10 +589,10 @@ def plot_trajectories(
             ax.plot(px[-1], py[-1], "s", color="red", markeredgecolor="black")
             if np.isfinite(urow["x_m"]) and np.isfinite(urow["y_m"]):
                 ax.plot(urow["x_m"], urow["y_m"], "*", color="cyan", markersize=13, markeredgecolor="black")
-            ax.set_xlabel("x [m]", fontsize=8)
-            ax.set_ylabel("y [m]", fontsize=8)
-            ax.tick_params(labelsize=7)
-            fig.colorbar(im, ax=ax, shrink=0.8).set_label(label, fontsize=7)
+            ax.set_xlabel("x [m]", fontsize=10)
+            ax.set_ylabel("y [m]", fontsize=10)
+            ax.tick_params(labelsize=9)
+            fig.colorbar(im, ax=ax, shrink=0.8).set_label(label, fontsize=9)
     handles = [
         Line2D([], [], color="red", linewidth=1.4, label="UAV path"),
         Line2D([], [], marker="o", color="lime", markeredgecolor="black", linestyle="", label="start"),
@@ -610,9 +608,9 @@ def plot_trajectories(
         ),
         Line2D([], [], color="cyan", linewidth=1, label=f"P_T = {p_t_db:g} dB contour"),
     ]
-    legend = fig.legend(handles=handles, loc="outside lower center", ncol=6, fontsize=8, facecolor="0.85")
+    legend = fig.legend(handles=handles, loc="outside lower center", ncol=6, fontsize=10, facecolor="0.85")
     legend.get_frame().set_edgecolor("0.5")
-    fig.suptitle(f"{agent} in {bundle.city}", fontsize=10)
+    fig.suptitle(f"{agent} in {bundle.city}", fontsize=12)
     fig.savefig(out, dpi=100)
     plt.close(fig)
     n = len(df)
@@ -673,7 +671,8 @@ def table_rows(table: pd.DataFrame, t_max: int) -> list[list[str]]:
 
 
 _CSS = """body{font-family:system-ui,sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;color:#222}
-table{border-collapse:collapse;margin:1em 0;font-size:14px}td,th{border:1px solid #ccc;padding:4px 8px;text-align:right}
+table{border-collapse:collapse;margin:1em 0;font-size:14px;display:block;overflow-x:auto;max-width:100%}
+td,th{border:1px solid #ccc;padding:4px 8px;text-align:right}td{white-space:nowrap}.prov td{white-space:normal}
 td:first-child,th:first-child{text-align:left}th{background:#f3f3f3}img{max-width:100%}
 figure{margin:1.5em 0}figcaption{font-size:14px;color:#333;max-width:1000px}
 pre{background:#f7f7f7;padding:8px;overflow-x:auto;font-size:12px}.prov td,.prov th{text-align:left;vertical-align:top}"""
@@ -705,7 +704,8 @@ def provenance_rows(provenances: list[dict]) -> list[list[str]]:
     first = provenances[0]
     rows = [["what", "value"]]
     rows.append(["report command", first["command"]])
-    made = f"{first['created_utc']}, uavplace {first['uavplace_version']}"
+    when = first["created_utc"] if len(provenances) == 1 else f"{first['created_utc']} to {provenances[-1]['created_utc']}"
+    made = f"{when}, uavplace {first['uavplace_version']}"  # several cities: from the first city's report to the last's
     if "torch" in first:  # reports from before the threads were recorded lack it
         made += f", torch {first['torch']['version']} on {first['torch']['threads']} threads"
     rows.append(["made", made])

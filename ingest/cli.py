@@ -59,7 +59,7 @@ def _ingest_one(folder: Path, out_root: Path, name: str | None, verbose: bool, q
         MofNCompleteColumn(),
         TimeElapsedColumn(),
         console=console,
-        disable=quiet,
+        disable=quiet or not console.is_terminal,  # a log gets the summary line only (no blank line per city)
         transient=True,
     ) as progress:
         task = progress.add_task(str(folder), total=None)

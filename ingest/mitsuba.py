@@ -92,13 +92,17 @@ def _scene_shapes(xml_path: Path, name: str) -> tuple[list[tuple[str, Path]], li
         raise InputError(name, f"not a Mitsuba XML scene ({exc})", line=exc.position[0], field="xml") from None
     if root.tag != "scene":
         raise InputError(name, f"root element is <{root.tag}>, a Mitsuba scene's is <scene>", field="xml")
-    for tag in ("shapegroup", "include"):  # an instance's transform, or another file's shapes: neither is applied here
-        found = root.find(f".//{tag}")
-        if found is not None:
-            raise InputError(
-                name, f"<{tag}> is not supported (instances are placed by transforms, includes read other files): "
-                "export the scene with every mesh as a shape of its own", field=found.get("id") or tag,
-            )  # fmt: skip
+    # An instance's transform, or another file's shapes: neither is applied here. Mitsuba 3 writes a group as <shape
+    # type="shapegroup"> and places it with <shape type="instance">; <shapegroup> and <include> are older spellings.
+    groups = [e for e in root.iter() if e.tag in ("shapegroup", "include")]
+    groups += [e for e in root.iter("shape") if e.get("type") in ("shapegroup", "instance")]
+    if groups:
+        found = groups[0]
+        what = f"<{found.tag}>" if found.tag != "shape" else f'<shape type="{found.get("type")}">'
+        raise InputError(
+            name, f"{what} is not supported (instances are placed by transforms, includes read other files): "
+            "export the scene with every mesh as a shape of its own", field=found.get("id") or found.tag,
+        )  # fmt: skip
     folder = xml_path.parent.resolve()
     shapes, rejected = [], []
     for i, shape in enumerate(root.iter("shape")):

@@ -10,10 +10,7 @@ import click
 from uavplace.dataset.bundle import list_versions, read_latest
 from uavplace.dataset.catalog import list_cities
 from uavplace.rl.rollout import STATS, format_stat, summarise
-from uavplace.schemas.cli import SEED, Counted, Finite, fail, plain_table, root_option, stdout, warn_or_refuse
-
-#: Seconds between the plain progress lines ``uavrl train`` prints when its output is not a terminal.
-LINE_SECONDS = 30.0
+from uavplace.schemas.cli import SEED, Counted, Finite, LogLines, fail, plain_table, root_option, stdout, warn_or_refuse
 
 
 @click.command()
@@ -251,21 +248,16 @@ def _train_in(run_dir: Path, resume, config, datasets, val_datasets, root: Path,
         fail(err)
     columns = (TextColumn("[bold]train[/] {task.description}"), BarColumn(), TextColumn("{task.completed:,}/{task.total:,}"),
                TimeElapsedColumn(), TimeRemainingColumn())  # fmt: skip
-    lines = not quiet and not stdout().is_terminal  # a log: a plain line every LINE_SECONDS instead of a bar
-    last_line = [time.monotonic()]
-    with Progress(*columns, console=stdout(), disable=quiet or lines) as bar:
+    log = LogLines(quiet)  # a log: a plain line every LINE_SECONDS instead of a bar
+    with Progress(*columns, console=stdout(), disable=quiet or log.enabled) as bar:
         task = bar.add_task(run_dir.name, total=config.total_steps)
 
         def on_progress(p) -> None:
             best = "-" if p.best is None else f"{100 * p.best:.0f} %"
             text = (f"ep {p.episodes} gain100 {p.gain_mean100:.1f} dB success100 {100 * p.success100:.0f} % "
-                    f"eps {p.epsilon:.2f} loss {p.loss:.3f} best eval {best}")  # fmt: skip
+                    f"eps {p.epsilon:.2f} loss {'-' if p.loss != p.loss else f'{p.loss:.3f}'} best eval {best}")  # fmt: skip
             bar.update(task, completed=p.step, description=text)
-            now = time.monotonic()
-            if lines and (now - last_line[0] >= LINE_SECONDS or p.step >= config.total_steps):
-                last_line[0] = now
-                stdout().print(f"train {run_dir.name}: step {p.step:,}/{config.total_steps:,} {text}", highlight=False,
-                               markup=False, soft_wrap=True)  # fmt: skip
+            log(f"train {run_dir.name}: step {p.step:,}/{config.total_steps:,} {text}", last=p.step >= config.total_steps)
 
         try:
             trainer.run(resume=resume is not None, on_progress=on_progress, stop_at=until)
@@ -396,17 +388,13 @@ def train_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], co
     bundles, users = _training_users(datasets, root)
     columns = (TextColumn("[bold]train-predictor[/] loss {task.fields[loss]:.4f}"), BarColumn(), MofNCompleteColumn(),
                TextColumn("steps"), TimeElapsedColumn())  # fmt: skip
-    lines = not quiet and not stdout().is_terminal  # a log: a plain line every LINE_SECONDS instead of a bar
-    last_line = [time.monotonic()]
-    with Progress(*columns, console=stdout(), disable=quiet or lines) as bar:
+    log = LogLines(quiet)  # a log: a plain line every LINE_SECONDS instead of a bar
+    with Progress(*columns, console=stdout(), disable=quiet or log.enabled) as bar:
         task = bar.add_task("train", total=steps, loss=float("nan"))
 
         def on_progress(done: int, loss: float) -> None:
             bar.update(task, completed=done, loss=loss)
-            now = time.monotonic()
-            if lines and (now - last_line[0] >= LINE_SECONDS or done >= steps):
-                last_line[0] = now
-                stdout().print(f"train-predictor: step {done:,}/{steps:,} loss {loss:.4f}", highlight=False, soft_wrap=True)
+            log(f"train-predictor: step {done:,}/{steps:,} loss {loss:.4f}", last=done >= steps)
 
         net, facts = train_learned(bundles, users, physics, config, progress=on_progress)
     fields = {"config": config, "constants": physics, "fitted_on": [f"{b.city}@{b.version}" for b in bundles], **facts}

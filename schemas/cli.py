@@ -14,6 +14,7 @@ import math
 import os
 import shlex
 import sys
+import time
 from pathlib import Path
 from typing import NoReturn
 
@@ -37,6 +38,26 @@ console = Console(stderr=True)
 def stdout() -> Console:
     """Console for results: the terminal's width, or 160 columns when piped (names stay whole)."""
     return Console(width=None if sys.stdout.isatty() else 160)
+
+
+#: Seconds between the plain progress lines long work prints when its output is not a terminal (a log).
+LINE_SECONDS = 30.0
+
+
+class LogLines:
+    """Progress for a log: when results go to a file or a pipe (not a terminal) and not ``quiet``, long work prints a
+    plain line at most every ``LINE_SECONDS``, plus every line marked ``last`` (a task's end); in a terminal, nothing
+    (its progress bar or status line says it). ``enabled`` tells which."""
+
+    def __init__(self, quiet: bool = False) -> None:
+        self.enabled = not quiet and not stdout().is_terminal
+        self._last = float("-inf")
+
+    def __call__(self, text: str, last: bool = False) -> None:
+        now = time.monotonic()
+        if self.enabled and (last or now - self._last >= LINE_SECONDS):
+            self._last = now
+            stdout().print(text, highlight=False, markup=False, soft_wrap=True)
 
 
 def warn_or_refuse(lines: list[str], strict: bool) -> None:

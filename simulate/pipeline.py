@@ -19,11 +19,14 @@ The recipe:
 from __future__ import annotations
 
 import datetime as dt
+import hashlib
 import json
 import math
 import os
 import tempfile
 import time
+import zipfile
+import zlib
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -416,22 +419,66 @@ def spec_record(spec: SimulationSpec) -> dict:
     return doc if spec.routes else {k: v for k, v in doc.items() if not k.startswith("route")}
 
 
-def _cached_traces(cache: Path | None, spec: SimulationSpec, config: RayTraceConfig, trace) -> tuple[dict, bool]:  # noqa: ANN001
-    """``trace()``'s maps, or those kept in ``cache/<name>.npz`` under the same ``_trace_key`` (arrays only, no
-    pickle); (maps, whether they came from the cache). A new trace is kept there, written atomically."""
-    key = _trace_key(spec, config)
-    path = None if cache is None else Path(cache) / f"{spec.name}.npz"
-    if path is not None and path.is_file():
+def _entry_digest(key: str, arrays: dict[str, np.ndarray]) -> str:
+    """The sha256 a trace cache entry carries: of its key (what made it) and of every array's name, type, shape and
+    bytes."""
+    h = hashlib.sha256(key.encode("utf-8"))
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}|{a.dtype.str}|{a.shape}|".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def read_cache_entry(path: Path, key: str) -> tuple[dict[str, np.ndarray] | None, str]:
+    """A trace cache entry's arrays, or None and why it is not used: not a regular file, not a readable archive, an
+    array over the limits or of objects (read before any is decompressed), another key (other settings), or arrays
+    that do not match the sha256 the entry carries (damaged or altered). Never raises on a damaged entry."""
+    bound = limits().array_bytes
+    try:
+        with zipfile.ZipFile(path) as archive:
+            for info in archive.infolist():
+                with archive.open(info) as member:
+                    version = np.lib.format.read_magic(member)
+                    read_header = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
+                    if version not in read_header:
+                        return None, f"{info.filename}: .npy format {version}"
+                    shape, _, dtype = read_header[version](member)  # the header only, before anything is decompressed
+                if dtype.hasobject or int(np.prod(shape, dtype=np.float64)) * dtype.itemsize > bound:
+                    return None, f"{info.filename}: {dtype} {shape} is over the limit array_bytes or not numbers"
         with np.load(path, allow_pickle=False) as z:
-            if "key" in z.files and str(z["key"]) == key:
-                return {(int(k[1:]) if k[0] == "f" and k[1:].isdigit() else k): z[k] for k in z.files if k != "key"}, True
+            if "key" not in z.files or str(z["key"]) != key:
+                return None, "made with other settings"
+            arrays = {k: z[k] for k in z.files if k not in ("key", "sha256")}
+            carried = str(z["sha256"]) if "sha256" in z.files else ""
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError, zlib.error) as exc:
+        return None, f"unreadable ({type(exc).__name__}: {str(exc)[:120]})"
+    if carried != _entry_digest(key, arrays):
+        return None, "its arrays do not match the sha256 it carries (damaged or altered)"
+    return arrays, "used"
+
+
+def _cached_traces(cache: Path | None, name: str, key: str, trace) -> tuple[dict, str]:  # noqa: ANN001
+    """``trace()``'s maps, or those kept in ``cache/<name>.npz`` under the same key (``_trace_key``; arrays only, no
+    pickle, checked by ``read_cache_entry``); (maps, what became of the entry: ``used``, ``none``, or why it was
+    traced again). A new trace is kept there with its sha256, written atomically."""
+    path = None if cache is None else Path(cache) / f"{name}.npz"
+    status = "none"
+    if path is not None and (path.is_symlink() or (path.exists() and not path.is_file())):  # before minutes of tracing
+        raise InputError(path, "exists and is not a regular file: not a trace cache entry; move it away", field="trace_cache")
+    if path is not None and path.exists():
+        arrays, status = read_cache_entry(path, key)
+        if arrays is not None:
+            return {(int(k[1:]) if k[0] == "f" and k[1:].isdigit() else k): v for k, v in arrays.items()}, status
+        status = f"traced again: the entry was {status}" if status.startswith("made") else f"traced again: {status}"
     maps = trace()
     if path is not None:
+        stored = {(f"f{k}" if isinstance(k, int) else k): v for k, v in maps.items()}
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez_compressed(tmp, key=np.array(key), **{(f"f{k}" if isinstance(k, int) else k): v for k, v in maps.items()})
+        np.savez_compressed(tmp, key=np.array(key), sha256=np.array(_entry_digest(key, stored)), **stored)
         os.replace(tmp, path)
-    return maps, False
+    return maps, status
 
 
 def simulate_city(
@@ -493,7 +540,8 @@ def simulate_city(
                 seconds["direct"] = time.perf_counter() - t
             return maps
 
-        maps, from_cache = _cached_traces(Path(trace_cache) if trace_cache else None, spec, rt_config, trace)
+        maps, cached = _cached_traces(Path(trace_cache) if trace_cache else None, spec.name, _trace_key(spec, rt_config),
+                                      trace)  # fmt: skip
     pos = grid.points()  # [ny * nx, 3], x fastest: the same order as gain[u].ravel()
     gain, filled = fill(maps, rt_config, opened, squared_distances(sources, grid), cell_m=grid.spacing_m)
     with atomic_directory(Path(out_root) / spec.name, marker=PROVENANCE, what="simulated city") as out:
@@ -561,7 +609,8 @@ def simulate_city(
             "gap_filled_cell_share": float(filled.mean()),
             "raytrace_seconds": round(seconds["raytrace"], 2),
             "direct_path_seconds": round(seconds["direct"], 2),
-            "traces_from_cache": from_cache,
+            "traces_from_cache": cached == "used",
+            "trace_cache": cached,
             "wall_seconds": round(time.perf_counter() - t_start, 2),
         }
         (out / PROVENANCE).write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")

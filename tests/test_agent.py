@@ -344,6 +344,7 @@ def test_uavrl_train_cli(tmp_path, city_root):
     assert res.exit_code == 2 and "exists" in res.output
     res = run(uavrl, [*args[:-1], "--name", "logged"])  # not a terminal and not --quiet: plain lines for a log
     assert res.exit_code == 0 and "train logged: step 96/96 ep " in res.output, res.output
+    assert "loss nan" not in res.output  # before the first update: "loss -"
     from uavplace.schemas.files import exclusive_folder
 
     with exclusive_folder(tmp_path / "busy", "training run"):  # another command holds the name (or resumes the run)

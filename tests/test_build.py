@@ -169,6 +169,29 @@ def test_tampered_file_is_detected_and_rebuilt(tmp_path):
     load_bundle("city", root=root)
 
 
+def test_cells_that_disagree_with_the_maps_are_refused(tmp_path):
+    """The bundle's long table and its arrays are two copies of one map: a cells.parquet rewritten with another SINR
+    (its sha256 updated in the manifest, so the file check passes) is refused, naming the row, the user and the cell."""
+    import hashlib
+    import json
+
+    import pyarrow as pa
+
+    root = tmp_path / "p"
+    ingest(write_grid_city(tmp_path / "raw"), root)
+    path = build_city("city", cfg(), root).path
+    cells = path / "cells.parquet"
+    table = pq.read_table(cells)
+    sinr = table.column("sinr_db").to_numpy().copy()
+    sinr[7] += 3.0
+    pq.write_table(table.set_column(table.schema.get_field_index("sinr_db"), "sinr_db", pa.array(sinr)), cells)
+    manifest = json.loads((path / "manifest.json").read_text())
+    manifest["files"]["cells.parquet"] = hashlib.sha256(cells.read_bytes()).hexdigest()
+    (path / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(InputError, match=r"cells.parquet: sinr_db: row 7 \(user 0, cell \(1, 1\)\): .* the bundle's two copies"):
+        load_bundle("city", root=root)
+
+
 def test_tampered_ingested_table_is_refused(tmp_path):
     root = tmp_path / "p"
     ingest(write_grid_city(tmp_path / "raw"), root)
@@ -454,3 +477,29 @@ def test_roles_declared_beside_the_data_and_overridden_by_options(tmp_path):
         roles.write_text(text)
         res = run(uavdata, [*base, "--roles", str(roles)])
         assert res.exit_code == 2 and str(roles) in res.output and message in res.output, res.output
+
+
+def test_build_warnings_are_one_line_per_kind():
+    """A kind of warning met in several cities is one line: the first city's text, then the others with counts."""
+    from uavplace.dataset.cli import warning_lines
+
+    small = "{} building(s) cover no cell centre (smaller than a 4 m cell)"
+    crop = "{} building(s) lie wholly outside the grid x 72..328, y 72..328: ids [{}] (building_{}): dropped (--crop)"
+    warned = [("a", small.format(2)), ("b", crop.format(31, "0, 1", "0, building_1")), ("c", small.format(5)),
+              ("d", crop.format(11, "7", "7")), ("e", small.format(1)), ("f", "the export carries SINR")]  # fmt: skip
+    assert warning_lines(warned) == [
+        f"a: {small.format(2)}; the same in 2 more cities: c (5), e (1)",
+        f"b: {crop.format(31, '0, 1', '0, building_1')}; the same in 1 more city: d (11)",
+        "f: the export carries SINR",
+    ]
+
+
+def test_show_leaves_buildings_out_of_the_sinr_panel_and_the_dead_count(tiny):
+    from uavplace.dataset.preview import sinr_panel
+
+    b = load_bundle("tiny", root=tiny)
+    assert b.blocked.any()
+    for user in range(b.num_users):
+        sinr, dead_open = sinr_panel(b, user)
+        assert sinr.mask[b.blocked].all() and not sinr.mask[~b.blocked & ~b.dead[user]].any()
+        assert dead_open == int((b.dead[user] & ~b.blocked).sum()) <= int(b.dead[user].sum())

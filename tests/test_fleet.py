@@ -286,8 +286,9 @@ def test_fleet_report_writes_its_tables_and_never_replaces_a_stranger(tiny, tmp_
     out = tmp_path / "fleet"
     args = ["report", "--task", "fleet", "--dataset", "tiny", "--root", str(tiny), "--episodes", "12", "--users", "2",
             "--bootstrap", "200", "--predictor", str(REPO / "data" / "agents" / "searcher" / "predictor.json"), "--quiet"]  # fmt: skip
-    res = CliRunner().invoke(uavrl, [*args, "--out", str(out)])
+    res = CliRunner().invoke(uavrl, [a for a in args if a != "--quiet"] + ["--out", str(out)])
     assert res.exit_code == 0, res.output
+    assert "fleet report tiny: map searcher" in res.output  # a log (not a terminal) gets plain progress lines
     import pandas as pd
 
     table = pd.read_csv(out / "results.csv")

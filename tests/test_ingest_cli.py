@@ -326,3 +326,27 @@ def test_no_help_text_carries_a_date():
         for path in (REPO / package).rglob("*.py"):
             lines = [n for n, line in enumerate(path.read_text().splitlines(), 1) if dated.search(line)]
             assert not lines, f"{path.relative_to(REPO)}:{lines[0]} dates a measurement"
+
+
+def test_a_mistyped_city_is_named_with_the_nearest_before_anything_heavy_loads(tmp_path):
+    """`uavrl report --dataset florense` and `uavdata build --city florense`: one line with the nearest names,
+    refused before torch (the agents, the searcher) is imported."""
+    import subprocess
+    import sys
+
+    root = tmp_path / "p"
+    ingest_city(write_grid_city(tmp_path / "florence"), root)
+    script = (
+        "import sys\n"
+        "from click.testing import CliRunner\n"
+        "from uavplace.schemas.cli import uavdata, uavrl\n"
+        f"r = CliRunner().invoke(uavrl, ['report', '--dataset', 'florense', '--root', {str(root)!r}])\n"
+        f"b = CliRunner().invoke(uavdata, ['build', '--city', 'florense', '--root', {str(root)!r}])\n"
+        "print(r.exit_code, b.exit_code, 'torch' in sys.modules)\n"
+        "print(r.output.strip())\n"
+        "print(b.output.strip())\n"
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True).stdout.splitlines()
+    assert out[0] == "2 2 False", out
+    assert "did you mean florence?" in out[1] and "city 'florence' is ingested but not built" not in out[1]
+    assert "no ingested city of that name: did you mean florence?" in out[2]

@@ -69,6 +69,16 @@ def test_a_tower_on_a_podium_is_two_tiers_of_one_building(tmp_path):
             "<shapegroup> is not supported",
         ),
         ('<include filename="other.xml"/>', "<include> is not supported"),
+        (  # Mitsuba 3's own spelling: the group is a shape of type shapegroup, placed by an instance with a transform
+            '<shape type="shapegroup" id="g">' + _shape("x", "meshes/a.ply") + '</shape><shape type="instance" id="i">'
+            '<ref id="g"/><transform name="to_world"><translate x="500"/></transform></shape>',
+            '<shape type="shapegroup"> is not supported',
+        ),
+        (
+            _shape("a", "meshes/a.ply") + '<shape type="instance" id="i"><ref id="a"/>'
+            '<transform name="to_world"><translate x="500"/></transform></shape>',
+            '<shape type="instance"> is not supported',
+        ),
     ],
 )
 def test_unsafe_or_unsupported_scenes_are_refused(tmp_path, shapes, message):

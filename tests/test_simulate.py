@@ -463,3 +463,65 @@ def test_styles_are_seeded_and_varied():
     _, old = styled_city("oldtown", (200.0, 200.0), 5)
     lanes = shapely.box(0, 0, 200, 200).difference(shapely.union_all([p for p, *_ in old]))
     assert 0.3 < lanes.area / 200**2 < 0.6  # dense: narrow lanes and a few piazzas between small blocks
+
+
+def test_trace_cache_entries_are_checked_and_damage_is_traced_again(tmp_path):
+    """A trace cache entry is used only when it is whole and carries the sha256 of what made it and of its arrays: a
+    truncated, random, altered or reshaped entry, one of other settings, or one whose header claims a huge array is
+    traced again (never a crash, nothing decompressed past the limits); a FIFO there is refused before any tracing."""
+    import io
+    import os
+    import zipfile
+
+    from uavplace.simulate.pipeline import _cached_traces
+
+    calls = []
+
+    def trace():  # noqa: ANN202
+        calls.append(1)
+        return {0: np.arange(12.0).reshape(3, 4), "direct": np.ones((2, 3, 4), np.float32)}
+
+    cache = tmp_path / "cache"
+    maps, status = _cached_traces(cache, "c", "settings A", trace)
+    assert status == "none" and len(calls) == 1
+    again, status = _cached_traces(cache, "c", "settings A", trace)
+    assert (
+        status == "used"
+        and len(calls) == 1
+        and np.array_equal(again[0], maps[0])
+        and np.array_equal(again["direct"], maps["direct"])
+    )
+    entry = cache / "c.npz"
+    whole = entry.read_bytes()
+
+    def rewrite(**arrays) -> bytes:  # noqa: ANN003
+        with np.load(io.BytesIO(whole), allow_pickle=False) as z:
+            kept = {k: z[k] for k in z.files} | arrays
+        buffer = io.BytesIO()
+        np.savez_compressed(buffer, **kept)
+        return buffer.getvalue()
+
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, {"descr": "<f8", "fortran_order": False, "shape": (10**9, 10**6)})
+    bomb = io.BytesIO()
+    with zipfile.ZipFile(bomb, "w") as z:
+        z.writestr("f0.npy", header.getvalue())
+    damages = {
+        "truncated": (whole[: len(whole) // 2], "unreadable"),
+        "random": (os.urandom(len(whole)), "unreadable"),
+        "altered": (rewrite(f0=np.arange(12.0).reshape(3, 4) + 1), "do not match the sha256"),
+        "reshaped": (rewrite(f0=np.arange(12.0).reshape(4, 3)), "do not match the sha256"),
+        "other settings": (rewrite(key=np.array("settings B")), "made with other settings"),
+        "huge header": (bomb.getvalue(), "over the limit array_bytes"),
+    }
+    for what, (data, message) in damages.items():
+        entry.write_bytes(data)
+        before = len(calls)
+        maps, status = _cached_traces(cache, "c", "settings A", trace)
+        assert len(calls) == before + 1 and status.startswith("traced again") and message in status, (what, status)
+        assert _cached_traces(cache, "c", "settings A", trace)[1] == "used"  # the new trace was kept, whole
+    entry.unlink()
+    os.mkfifo(entry)
+    with pytest.raises(InputError, match="not a regular file"):
+        _cached_traces(cache, "c", "settings A", trace)
+    assert entry.is_fifo()

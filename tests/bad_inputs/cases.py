@@ -979,6 +979,52 @@ CASES: list[Case] = [
         "trained or selected on bundle",
     ),
     Case(
+        "report a run twice",
+        "uavrl",
+        lambda w: (lambda a: w.report("--run", str(a), "--run", str(a) + "/"))(w.agent()),
+        "is given twice: give each run once",
+    ),
+    Case(
+        "report a run and a link to it",
+        "uavrl",
+        lambda w: (lambda a: (w.tmp / "link").symlink_to(a) or w.report("--run", str(a), "--run", str(w.tmp / "link")))(
+            w.agent()
+        ),
+        "are one run: give each run once",
+    ),
+    Case(
+        "report two runs of one folder name",
+        "uavrl",
+        lambda w: (lambda a, b: w.report("--run", str(a), "--run", str(b)))(
+            w.agent(), __import__("shutil").copytree(w.agent(), w.tmp / "other" / "agent")
+        ),
+        "are both named agent: their methods would share a name",
+    ),
+    Case(
+        "report a group of one run twice",
+        "uavrl",
+        lambda w: (lambda a: w.report("--run", str(a), "--group", f"g={a},{a}"))(w.agent()),
+        "--group g: ",
+    ),
+    Case(
+        "report a group named genie",
+        "uavrl",
+        lambda w: (lambda a: w.report("--run", str(a), "--group", f"genie={a}"))(w.agent()),
+        "--group genie: the name of a method of the report",
+    ),
+    Case(
+        "report a group given twice",
+        "uavrl",
+        lambda w: (lambda a: w.report("--run", str(a), "--group", f"g={a}", "--group", f"g={a}"))(w.agent()),
+        "--group g is given twice",
+    ),
+    Case(
+        "tracking report one city at two versions",
+        "uavrl",
+        lambda w: w.report("--task", "tracking", "--dataset", "city@0123456789ab"),
+        "--dataset names city more than once (city, city@0123456789ab): one report per city",
+    ),
+    Case(
         "report one city twice",
         "uavrl",
         lambda w: w.report("--dataset", "city@0123456789ab"),
