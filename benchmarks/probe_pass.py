@@ -13,7 +13,12 @@ Issue 34's "independent pass": probes written from the classes of the issue and 
 - ``run``: a trained run's weights, ``run.json``, ``checkpoint.json`` and archives edited;
 - ``race``: two commands at once on the same output (trains of one name, ingest beside build, two builds, two
   reports);
-- ``fs``: outputs that are files, read-only folders, missing roots.
+- ``fs``: outputs that are files, read-only folders, missing roots;
+- ``round3``: issue 50's classes: sweeps and the folders under their ``--out``, sweep specs that are FIFOs or
+  devices, Ray settings that would wait forever, two ensembles at once, ``--markdown`` a FIFO, device or link,
+  records that are FIFOs, Mitsuba instances, routes files, the limits on products, duplicated runs and groups,
+  a run folder named as mathtext. A probe marked ``always_check`` is checked after a refusal too (what the refused
+  command must have left as it was).
 
 Outcomes: ``accepted`` (exit 0 and the result's check passed), ``refused`` (exit 2, ``error:`` lines only, one per
 bad input: ``uavdata build`` of several cities says each city's, no internal error), and the failures ``internal`` (an internal error or a traceback), ``hang`` (past ``--timeout``), ``blowup``
@@ -84,6 +89,8 @@ class Probe:
     timeout: float | None = None
     #: a control: the unspoiled command of a family, which must be accepted (else its probes prove nothing)
     control: bool = False
+    #: run ``check`` after a refusal too: what a refused command must have left as it was (a data-loss probe)
+    always_check: bool = False
     outcome: str = ""
     detail: str = ""
     results: list[Result] = field(default_factory=list)
@@ -158,7 +165,7 @@ def classify(probe: Probe, folder: Path, timeout: float) -> None:
     if worst is not None:
         probe.outcome, probe.detail = worst
         return
-    if probe.check is not None and any(o[0] == "accepted" for o in outcomes):
+    if probe.check is not None and (probe.always_check or any(o[0] == "accepted" for o in outcomes)):
         try:
             problem = probe.check(folder, probe.results)
         except Exception as exc:  # noqa: BLE001 - a result the check cannot read is itself the finding
@@ -180,6 +187,7 @@ class Base:
         self.raw = folder / "raw" / "tiny"
         self.root = folder / "root"
         self.run = folder / "runs" / "r0"
+        self.run1 = folder / "runs" / "r1"  # seed 1: with r0, the members of an ensemble
 
     def make(self, timeout: float) -> None:
         if (self.folder / "ready").is_file():
@@ -192,6 +200,7 @@ class Base:
             ["uavdata", "ingest", str(self.raw), str(self.raw.parent / TWIN.name), "--out", str(self.root)],
             ["uavdata", *build_args(self.root)],
             ["uavrl", *train_args(self.root, self.folder / "runs", "r0", dataset=TWIN.name)],
+            ["uavrl", *train_args(self.root, self.folder / "runs", "r1", "--seed", "1", dataset=TWIN.name)],
         ]
         for args in steps:
             r = finish(start(args, self.folder), time.monotonic(), 600)
@@ -945,8 +954,218 @@ def _chmod_tree(root: Path, mode: int) -> None:
     root.chmod(mode)
 
 
+#: A sweep of one short trial on the base's training city (valid as it is: the third round's control runs it).
+SWEEP = """datasets = ["tiny-routes"]
+cities = ["tiny"]
+episodes = 8
+[[trials]]
+name = "t"
+preset = "fast"
+seeds = [0]
+steps = 128
+eval_every = 64
+settings = {num_envs = 8, buffer_size = 512, batch_size = 16, train_every = 4, learning_starts = 64, eval_episodes = 8, hidden = 16, conv_channels = [4, 8, 8], "env.t_max" = 30, eval_split = "null"}
+"""
+
+
+def _node(path: Path, kind: str) -> Path:
+    """A FIFO or a character device (1, 5: like /dev/zero) of the probe's own, in its folder; never the machine's."""
+    if kind == "fifo":
+        os.mkfifo(path)
+    else:
+        os.mknod(path, 0o666 | 0o020000, os.makedev(1, 5))
+    return path
+
+
+def _unchanged(path: Path, mode: int, data: bytes | None = None) -> Callable[[Path, list[Result]], str | None]:
+    """A check that ``path`` is still the kind of file it was (and holds ``data``)."""
+
+    def check(w: Path, results: list[Result]) -> str | None:
+        if not os.path.lexists(path) or os.lstat(path).st_mode != mode:
+            return f"{path.name} was replaced or removed"
+        if data is not None and path.read_bytes() != data:
+            return f"{path.name} was rewritten"
+        return None
+
+    return check
+
+
+def round3_probes(base: Base) -> list[Probe]:
+    """Issue 50's classes: sweeps and their output folders, ensembles at once, outputs that are devices, FIFOs or
+    links, records that are FIFOs, Mitsuba instances, routes, the limits on products, duplicated runs and groups."""
+    probes: list[Probe] = []
+
+    def spec(w: Path, text: str = SWEEP) -> Path:
+        (w / "s.toml").write_text(text)
+        return w / "s.toml"
+
+    def sweep(w: Path, *extra: str, path: Path | None = None) -> list[str]:
+        return ["uavrl", "sweep", str(path or spec(w)), "--out", str(w / "O"), "--root", str(base.copy_root(w)), *extra]
+
+    def thesis(w: Path) -> list[str]:
+        (w / "O" / "t-s0").mkdir(parents=True)
+        (w / "O" / "t-s0" / "thesis.tex").write_text("x")
+        return sweep(w)
+
+    def kept_thesis(w: Path, results: list[Result]) -> str | None:
+        thesis = w / "O" / "t-s0" / "thesis.tex"
+        return None if thesis.is_file() and thesis.read_text() == "x" else "the user's thesis.tex was removed"
+
+    probes += [
+        Probe("round3", "control: a sweep of one trial", lambda w: sweep(w), timeout=600, control=True),
+        Probe("round3", "sweep: a user's folder named like a trial", thesis, kept_thesis, always_check=True),
+        Probe("round3", "sweep: spec a FIFO", lambda w: sweep(w, path=_node(w / "f.toml", "fifo"))),
+        Probe("round3", "sweep: --cpus-per-trial 100000", lambda w: sweep(w, "--cpus-per-trial", "100000")),
+        Probe("round3", "sweep: --ray-address nothing answers", lambda w: sweep(w, "--ray-address", "127.0.0.1:1")),
+        Probe("round3", "sweep: --ray-address not an address", lambda w: sweep(w, "--ray-address", "head")),
+        Probe(
+            "round3",
+            "sweep: a million seeds",
+            lambda w: sweep(w, path=spec(w, SWEEP.replace("seeds = [0]", f"seeds = [{', '.join(map(str, range(1_000_000)))}]"))),
+        ),  # fmt: skip
+        Probe("round3", "sweep: nested 100000 deep", lambda w: sweep(w, path=spec(w, "a = " + "[" * 100_000 + "]" * 100_000))),
+    ]
+    if os.geteuid() == 0:
+        probes.append(Probe("round3", "sweep: spec a character device", lambda w: sweep(w, path=_node(w / "z.toml", "char"))))
+
+    def markdown(kind: str) -> Probe:
+        def make(w: Path) -> list[str]:
+            if kind == "link":
+                (w / "target.md").write_text("mine")
+                (w / "out.md").symlink_to(w / "target.md")
+            else:
+                _node(w / "out.md", kind)
+            probe.check = _unchanged(w / "out.md", os.lstat(w / "out.md").st_mode)
+            return ["uavrl", *report_args(base.copy_root(w), base.run, w / "rep", "--markdown", str(w / "out.md"))]
+
+        probe = Probe("round3", f"report --markdown a {kind}", make, always_check=True)
+        return probe
+
+    probes += [markdown("fifo"), markdown("link")] + ([markdown("char")] if os.geteuid() == 0 else [])
+
+    def two_ensembles(w: Path) -> list[list[str]]:
+        root = base.copy_root(w)
+        args = ["uavrl", "ensemble", str(base.run), str(base.run1), "--out", str(w / "E"), "--root", str(root)]
+        return [args, args]
+
+    def one_ensemble(w: Path, results: list[Result]) -> str | None:
+        if all(r.rc == 0 for r in results):
+            return "both ensembles into one folder exited 0"
+        return None if (w / "E" / "run.json").is_file() else "no ensemble was kept"
+
+    probes.append(Probe("round3", "two ensembles into one folder", two_ensembles, one_ensemble, timeout=300))
+
+    def fifo_manifest(command: str) -> Callable[[Path], list[str]]:
+        def make(w: Path) -> list[str]:
+            root = base.copy_root(w)
+            manifest = _bundle_dir(root) / "manifest.json"
+            manifest.unlink()
+            _node(manifest, "fifo")
+            if command == "list":
+                return ["uavdata", "list", "--root", str(root)]
+            if command == "baselines":
+                return ["uavrl", "baselines", "--dataset", "tiny", "--root", str(root), "--episodes", "4"]
+            return ["uavrl", *report_args(root, base.run, w / "rep")]
+
+        return make
+
+    probes += [Probe("round3", f"{c}: a bundle's manifest.json a FIFO", fifo_manifest(c), timeout=60)
+               for c in ("list", "baselines", "report")]  # fmt: skip
+
+    def fifo_run_json(w: Path) -> list[str]:
+        run = base.copy_run(w)
+        (run / "run.json").unlink()
+        _node(run / "run.json", "fifo")
+        return ["uavrl", *report_args(base.copy_root(w), run, w / "rep")]
+
+    probes.append(Probe("round3", "report: run.json a FIFO", fifo_run_json, timeout=60))
+
+    def scene(group: str) -> Callable[[Path], list[str]]:
+        def make(w: Path) -> list[str]:
+            import trimesh
+
+            (w / "meshes").mkdir()
+            trimesh.creation.box(extents=(10, 10, 20)).export(w / "meshes" / "a.ply")
+            shape = '<shape type="ply" id="a"><string name="filename" value="meshes/a.ply"/></shape>'
+            body = {"instance": shape + '<shape type="instance" id="i"><ref id="a"/><transform name="to_world">'
+                                        '<translate x="500"/></transform></shape>',
+                    "shapegroup": f'<shape type="shapegroup" id="g">{shape}</shape><shape type="instance" id="i">'
+                                  '<ref id="g"/><transform name="to_world"><translate x="500"/></transform></shape>'}[group]  # fmt: skip
+            (w / "scene.xml").write_text(f'<scene version="2.1.0">{body}</scene>')
+            return ["uavdata", "simulate", str(w / "scene.xml"), "--name", "s", "--out", str(w / "raw")]
+
+        return make
+
+    probes += [
+        Probe("round3", f"simulate: a Mitsuba scene with a {g}", scene(g), timeout=120) for g in ("instance", "shapegroup")
+    ]
+
+    def routes(edit: Callable[[list[str]], list[str]]) -> Callable[[Path], list[str]]:
+        def make(w: Path) -> list[str]:
+            city = w / TWIN.name
+            shutil.copytree(TWIN, city)
+            path = next(city.glob("*.routes.csv"))
+            path.write_text("\n".join(edit(path.read_text().splitlines())) + "\n")
+            return _ingest(w, city)
+
+        return make
+
+    probes += [
+        Probe("round3", "routes: a field over 128 kB", routes(lambda r: [*r[:2], r[2] + "," + "9" * 200_000, *r[3:]])),
+        Probe(
+            "round3",
+            "routes: a byte-order mark",
+            routes(lambda r: ["\ufeff" + r[0], *r[1:]]),
+            lambda w, res: ingest_check(w / "root"),
+        ),  # fmt: skip
+        Probe(
+            "round3",
+            "routes: a pedestrian at 100 m/s",
+            routes(lambda r: [r[0], *(x.replace(",pedestrian,1.4", ",pedestrian,100") for x in r[1:])]),
+        ),  # fmt: skip
+    ]
+
+    def report(w: Path, *extra: str, run: Path | None = None) -> list[str]:
+        return ["uavrl", *report_args(base.copy_root(w), run or base.run, w / "rep", *extra)]
+
+    probes += [
+        Probe("round3", "report: --episodes 1e6", lambda w: report(w, "--episodes", "1000000")),
+        Probe(
+            "round3",
+            "report: tracking --horizon 100000",
+            lambda w: [
+                "uavrl",
+                "report",
+                "--task",
+                "tracking",
+                "--dataset",
+                "tiny-routes",
+                "--root",
+                str(base.copy_root(w)),
+                "--horizon",
+                "100000",
+                "--quiet",
+            ],
+        ),  # fmt: skip
+        Probe("round3", "report: a run twice", lambda w: report(w, "--run", str(base.run) + "/")),
+        Probe(
+            "round3",
+            "report: a run and a link to it",
+            lambda w: (w / "link").symlink_to(base.run) or report(w, "--run", str(w / "link")),
+        ),  # fmt: skip
+        Probe("round3", "report: --group g=X,X", lambda w: report(w, "--group", f"g={base.run},{base.run}")),
+        Probe("round3", "report: --group genie=X", lambda w: report(w, "--group", f"genie={base.run}")),
+        Probe(
+            "round3",
+            "report: a run folder named as mathtext",
+            lambda w: report(w, run=shutil.copytree(base.run, w / "$\\frac{a}{$")),
+        ),  # fmt: skip
+    ]
+    return probes
+
+
 FAMILIES = {"opt": option_probes, "set": set_probes, "raw": raw_probes, "bundle": bundle_probes, "run": run_probes,
-            "race": race_probes, "fs": fs_probes}  # fmt: skip
+            "race": race_probes, "fs": fs_probes, "round3": round3_probes}  # fmt: skip
 
 
 # -- the pass -----------------------------------------------------------------------------------------------------------

@@ -30,6 +30,20 @@ def _splits(values: tuple[str, ...]) -> dict[str, str | None]:
     return out
 
 
+def export_spacing(city: str, root: Path) -> float:
+    """The receiver-grid spacing of ``city``'s export (its .txrx grid sets, as ingest recorded them): the grid a
+    build takes when ``--grid`` is not given. ``InputError`` when the city has no receiver grid or grids of several
+    spacings."""
+    from uavplace.dataset.catalog import INGESTED_MANIFEST, read_city_manifest
+
+    manifest = read_city_manifest(Path(root) / city / INGESTED_MANIFEST)
+    spacings = sorted({s.spacing_m for s in manifest.txrx_sets if s.kind == "grid" and s.is_receiver and s.spacing_m})
+    if len(spacings) != 1:
+        found = "no receiver grid" if not spacings else f"receiver grids of {', '.join(f'{v:g}' for v in spacings)} m"
+        raise InputError(Path(root) / city, f"{found} in its .txrx: give the grid spacing (--grid 4m)", field="grid")
+    return float(spacings[0])
+
+
 def _declared_roles(path: Path):  # noqa: ANN202 - a CityRoles or None
     """The roles file ``path`` (``read_roles``); None when it is the default file and absent."""
     from uavplace.dataset.catalog import read_roles
@@ -50,7 +64,14 @@ def _latest_role(city: str, root: Path) -> str | None:
 
 
 @click.command()
-@click.option("--grid", "grid_m", type=Metres(), default="4m", show_default=True, help="Grid spacing of the maps (e.g. 4m).")
+@click.option(
+    "--grid",
+    "grid_m",
+    type=Metres(),
+    default=None,
+    help="Grid spacing of the maps (e.g. 4m)  [default: each city's receiver-grid spacing from its .txrx; a city "
+    "of point receivers, or of grids of several spacings, needs it given].",
+)
 @click.option(
     "--alt",
     "altitude_m",
@@ -154,7 +175,7 @@ def _latest_role(city: str, root: Path) -> str | None:
 @root_option
 @click.option("--quiet", is_flag=True, help="Only the summary lines.")
 def build(
-    grid_m: float,
+    grid_m: float | None,
     altitude_m: float,
     altitude_tol_m: float,
     cities: tuple[str, ...],
@@ -221,8 +242,14 @@ def build(
     warned: list[tuple[str, str]] = []
     for name in names:
         try:
+            grid = grid_m if grid_m is not None else export_spacing(name, root)
+        except InputError as err:
+            console.print(f"[bold red]error:[/] {escape(name)}: {escape(str(err))}", highlight=False, soft_wrap=True)
+            errors += 1
+            continue
+        try:
             config = BuildConfig(
-                grid_m=grid_m,
+                grid_m=grid,
                 altitude_m=altitude_m,
                 altitude_tol_m=altitude_tol_m,
                 noise_dbm=noise_dbm,

@@ -406,15 +406,13 @@ def _fleet_report(datasets: tuple[str, ...], runs: list[Path], out: Path | None,
 
 def _one_report(config, out: Path, root: Path, quiet: bool):
     """``make_report`` with a progress bar per method."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from uavplace.eval.report import make_report
 
     tasks: dict[str, int] = {}
-    columns = (
-        TextColumn("[bold]report[/] {task.description:<20}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-        TextColumn("eta"), TimeRemainingColumn(),
-    )  # fmt: skip
+    # no time-remaining column: the last episodes of a batch are its longest, so a rate-based ETA sat at 1 s for minutes
+    columns = (TextColumn("[bold]report[/] {task.description:<20}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     log = LogLines(quiet)  # a log: a plain line every LINE_SECONDS (and at each method's start and end), not a bar
     with Progress(*columns, console=stdout(), disable=quiet or log.enabled) as bar:
 

@@ -503,3 +503,24 @@ def test_show_leaves_buildings_out_of_the_sinr_panel_and_the_dead_count(tiny):
         sinr, dead_open = sinr_panel(b, user)
         assert sinr.mask[b.blocked].all() and not sinr.mask[~b.blocked & ~b.dead[user]].any()
         assert dead_open == int((b.dead[user] & ~b.blocked).sum()) <= int(b.dead[user].sum())
+
+
+def test_the_grid_is_the_exports_unless_given(tmp_path):
+    """`uavdata build --alt 10` takes each city's receiver-grid spacing from its .txrx: the same bundle as `--grid`
+    with that spacing; a city of point receivers needs `--grid`, said in one line."""
+    root = tmp_path / "p"
+    ingest(write_grid_city(tmp_path / "raw", spacing=2.0), root)
+    run = CliRunner().invoke
+    res = run(uavdata, ["build", "--root", str(root), "--alt", "10", "--quiet"])
+    assert res.exit_code == 0, res.output
+    assert load_bundle("city", root=root).manifest.config.grid_m == 2.0
+    res = run(uavdata, ["build", "--root", str(root), "--alt", "10", "--grid", "2m", "--quiet"])
+    assert "up to date" in res.output  # the same bundle
+    from uavplace.dataset.cli import export_spacing
+
+    manifest = root / "city" / "ingested" / "manifest.json"
+    doc = json.loads(manifest.read_text())
+    doc["txrx_sets"] = [s for s in doc["txrx_sets"] if s["kind"] != "grid"]
+    manifest.write_text(json.dumps(doc))
+    with pytest.raises(InputError, match="no receiver grid in its .txrx: give the grid spacing"):
+        export_spacing("city", root)

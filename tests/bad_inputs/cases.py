@@ -863,10 +863,13 @@ CASES: list[Case] = [
         "manifest.json: schema_version: bundle schema version None",
     ),
     Case(
-        "show to a full disk",
+        "show to a FIFO",  # never a device of the machine's: a node of the probe's own
         "uavdata",
-        lambda w: ["show", "city", "--root", str(w.root()), "--out", "/dev/full"],
-        "no space left on device",
+        lambda w: (
+            __import__("os").mkfifo(w.tmp / "out.png")
+            or ["show", "city", "--root", str(w.root()), "--out", str(w.tmp / "out.png")]
+        ),
+        "exists and is not a regular file: refusing to replace it",
     ),
     # -- simulate ----------------------------------------------------------------------------------
     Case(
