@@ -234,7 +234,7 @@ def build_args(root: Path, *extra: str) -> list[str]:
 def report_args(root: Path, run: Path, out: Path, *extra: str) -> list[str]:
     """A short report of one run on the tiny city (valid as it is: the control probes check it)."""
     return ["report", "--dataset", "tiny", "--root", str(root), "--run", str(run), "--episodes", "8", "--bootstrap", "100",
-            "--trajectories", "0", "--out", str(out), "--quiet", *extra]  # fmt: skip
+            "--trajectories", "0", "--predictor", "none", "--out", str(out), "--quiet", *extra]  # fmt: skip
 
 
 # -- checks of accepted results ----------------------------------------------------------------------------------------

@@ -19,6 +19,7 @@ import base64
 import datetime as dt
 import functools
 import json
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -156,6 +157,12 @@ def agent_name(config: DQNConfig) -> str:
     return f"{'' if config.agent == 'dqn' else 'blind '}{learner}{core}{members} ({config.preset}{task})"
 
 
+def has_record(folder: Path) -> bool:
+    """Whether ``folder`` holds a ``run.json`` entry of any kind: read (and refused when it is not a regular file) by
+    ``read_run_json``, never taken for a bare checkpoint folder."""
+    return os.path.lexists(folder / RUN_JSON)
+
+
 def load_agent(folder: str | Path, epsilon: float, seed: int, task: str | None = "placement") -> Agent:
     """A run folder (``run.json`` + ``checkpoints/best.pt``) as an evaluable agent; ``InputError`` if it is not one,
     or if it learnt another task than ``task`` (None: either)."""
@@ -163,7 +170,7 @@ def load_agent(folder: str | Path, epsilon: float, seed: int, task: str | None =
     ckpt = folder / "checkpoints" / "best.pt"
     if not ckpt.is_file():
         raise InputError(folder, "no checkpoints/best.pt (not a training run, or it never evaluated)")
-    run = read_run_json(folder) if (folder / RUN_JSON).is_file() else None
+    run = read_run_json(folder) if has_record(folder) else None  # a run.json that is no file is refused there
     ck = load_tensors(ckpt)
     policy, config = policy_from_checkpoint(ck, ckpt, epsilon=epsilon, seed=seed)
     if run is not None and run.config.model_dump() != config.model_dump():
@@ -189,7 +196,7 @@ def default_agents(root: str | Path = "data/agents", task: str | None = "placeme
     learnt ``task`` (by their ``run.json``; None: every agent, as the tracking report plays placement agents too)."""
     root = Path(root)
     found = sorted(p for p in root.iterdir() if (p / "checkpoints" / "best.pt").is_file()) if root.is_dir() else []
-    return [p for p in found if task is None or not (p / RUN_JSON).is_file() or read_run_json(p).config.task == task]
+    return [p for p in found if task is None or not has_record(p) or read_run_json(p).config.task == task]
 
 
 def unlike_training(runs: list[Path], datasets: list[str], root: str | Path, p_t_db: float) -> list[str]:
@@ -199,7 +206,7 @@ def unlike_training(runs: list[Path], datasets: list[str], root: str | Path, p_t
     manifests = [read_manifest(resolve(d, root=root)) for d in datasets]
     lines = []
     for run in runs:
-        record = read_run_json(run) if (Path(run) / RUN_JSON).is_file() else None
+        record = read_run_json(run) if has_record(Path(run)) else None
         if record is None or not record.bundle_settings:
             continue
         for manifest in manifests:
@@ -762,7 +769,7 @@ class _Record:
 def check_unseen_runs(runs: list[Path], datasets: list[str], root: str | Path) -> None:
     """``check_unseen`` of every run against every city, from the runs' ``run.json`` and the bundles' manifests only:
     a several-city command refuses before its first city's work (a run without ``run.json`` is judged when loaded)."""
-    records = {Path(r): read_run_json(r) for r in runs if (Path(r) / RUN_JSON).is_file()}
+    records = {Path(r): read_run_json(r) for r in runs if has_record(Path(r))}
     seen = [_Record(r, dict(x.datasets), dict(x.val_datasets)) for r, x in records.items()]
     for d in datasets:
         check_unseen(seen, read_manifest(resolve(d, root=root)))

@@ -240,7 +240,7 @@ def atomic_directory(final: str | Path, *, marker: str | None = None, what: str 
     with folder_lock(final if lock is None else lock):
         recover_directory(final)
         if new and (final.exists() or final.is_symlink()):
-            raise InputError(final, f"exists: choose another output (a {what} folder is written once)")
+            raise InputError(final, f"exists: choose another output (the {what} folder is written once)")
         if marker is not None:
             check_replaceable(final, marker, what)
         tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.tmp-", dir=final.parent))

@@ -982,6 +982,14 @@ CASES: list[Case] = [
         "trained or selected on bundle",
     ),
     Case(
+        "report a run whose run.json is a FIFO",  # never waited on, never taken for a bare checkpoint folder
+        "uavrl",
+        lambda w: (lambda a: (a / "run.json").unlink() or __import__("os").mkfifo(a / "run.json") or w.report("--run", str(a)))(
+            w.agent()
+        ),
+        "run.json: not a regular file: a run's record",
+    ),
+    Case(
         "report a run twice",
         "uavrl",
         lambda w: (lambda a: w.report("--run", str(a), "--run", str(a) + "/"))(w.agent()),
