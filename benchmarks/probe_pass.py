@@ -1161,7 +1161,67 @@ def round3_probes(base: Base) -> list[Probe]:
             lambda w: report(w, run=shutil.copytree(base.run, w / "$\\frac{a}{$")),
         ),  # fmt: skip
     ]
-    return probes
+    return probes + cache_probes()
+
+
+def cache_probes() -> list[Probe]:
+    """``uavdata simulate --trace-cache``: a cache entry truncated, random, altered (its sha256 kept) or a FIFO. The
+    damaged entries must be traced again (never a crash, the city written whole and the record saying so); the FIFO
+    refused before any tracing."""
+    args = ["procedural:tiny", "--name", "c", "--users", "2", "--samples", "1e5", "--seed", "1"]
+
+    def simulate(w: Path) -> list[str]:
+        return ["uavdata", "simulate", *args, "--out", str(w / "raw"), "--trace-cache", str(w / "cache"), "--quiet"]
+
+    def damaged(edit: Callable[[Path], None]) -> Callable[[Path], list[str]]:
+        def make(w: Path) -> list[str]:
+            r = finish(start(simulate(w), w), time.monotonic(), 300)
+            if r.rc != 0:
+                raise RuntimeError(r.stderr[-500:])
+            shutil.rmtree(w / "raw")
+            edit(w / "cache" / "c.npz")
+            return simulate(w)
+
+        return make
+
+    def traced_again(w: Path, results: list[Result]) -> str | None:
+        record = json.loads((w / "raw" / "c" / "simulation.json").read_text())
+        return (
+            None if str(record.get("trace_cache", "")).startswith("traced again") else f"trace_cache: {record.get('trace_cache')}"
+        )
+
+    def altered(path: Path) -> None:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+        first = next(k for k in arrays if k not in ("key", "sha256"))
+        arrays[first] = arrays[first] * 2
+        np.savez_compressed(path.with_name("x.npz"), **arrays)
+        path.with_name("x.npz").replace(path)
+
+    def fifo(w: Path) -> list[str]:
+        (w / "cache").mkdir()
+        _node(w / "cache" / "c.npz", "fifo")
+        return simulate(w)
+
+    return [
+        Probe("round3", "control: simulate with a trace cache", simulate, timeout=300, control=True),
+        Probe(
+            "round3",
+            "trace cache: an entry truncated",
+            damaged(lambda p: p.write_bytes(p.read_bytes()[: p.stat().st_size // 2])),
+            traced_again,
+            timeout=600,
+        ),  # fmt: skip
+        Probe(
+            "round3",
+            "trace cache: an entry of random bytes",
+            damaged(lambda p: p.write_bytes(os.urandom(p.stat().st_size))),
+            traced_again,
+            timeout=600,
+        ),  # fmt: skip
+        Probe("round3", "trace cache: an entry altered, its sha256 kept", damaged(altered), traced_again, timeout=600),
+        Probe("round3", "trace cache: the entry a FIFO", fifo, timeout=120),
+    ]
 
 
 FAMILIES = {"opt": option_probes, "set": set_probes, "raw": raw_probes, "bundle": bundle_probes, "run": run_probes,

@@ -144,6 +144,28 @@ def test_gymnasium_checker_passes(tiny):
     assert terminated or truncated
 
 
+def test_pettingzoo_parallel_api_test_passes(tiny):
+    """The fleet as a PettingZoo parallel env (rl/zoo.py): PettingZoo's own API test, seeding, one agent a UAV, the
+    shared reward and end, the per-agent action masks; an agent given no action stays."""
+    pytest.importorskip("pettingzoo", reason="PettingZoo missing (pip install -e '.[zoo]')")
+    from pettingzoo.test import parallel_api_test, parallel_seed_test
+
+    from uavplace.rl.zoo import parallel_env
+
+    def make():  # noqa: ANN202
+        return parallel_env("tiny", root=str(tiny), uavs=2, users=2, window=9, t_max=20)
+
+    parallel_api_test(make(), num_cycles=40)
+    parallel_seed_test(make, num_cycles=10)
+    env = make()
+    obs, infos = env.reset(seed=3)
+    assert env.agents == ["uav_0", "uav_1"] and obs["uav_0"].shape == (4, 9, 9) and infos["uav_1"]["action_mask"].shape == (5,)
+    before = infos["uav_1"]["position"].copy()
+    obs, rewards, terms, truncs, infos = env.step({"uav_0": 0})
+    np.testing.assert_array_equal(infos["uav_1"]["position"], before)  # no action: it stays
+    assert len(set(rewards.values())) == 1 and len(set(terms.values())) == 1
+
+
 def _scrambled(maps: FleetMaps, city: int, users: np.ndarray, keep: np.ndarray, rng: np.random.Generator) -> FleetMaps:
     """A copy of ``maps`` whose ``users`` of ``city`` hold random SINR and targets outside ``keep`` [L, L]."""
     import copy
