@@ -30,6 +30,19 @@ def test_embedded_data_is_small_and_complete():
     assert len(corpus) >= 18 and {"train", "test", "tiny", "etoile", "florence"} <= set(CITIES)
 
 
+def test_the_roles_file_declares_the_embedded_cities():
+    """data/raw/cities.toml (what `uavdata build` reads): valid, naming embedded cities only, and its crop list is
+    exactly the cities whose grid covers part of their scene (simulated with an extent)."""
+    from uavplace.dataset.catalog import ROLES_FILE, read_roles
+
+    roles = read_roles(RAW / ROLES_FILE)
+    named = {*roles.train, *roles.val, *roles.test, *roles.crop}
+    assert named <= {p.name for p in RAW.iterdir() if p.is_dir()}
+    windowed = {c for c in CITIES if json.loads((RAW / c / "simulation.json").read_text())["spec"].get("extent_m")}
+    assert set(roles.crop) == windowed
+    assert {"test", "etoile", "florence"} <= set(roles.test) and roles.val_users == 3
+
+
 @pytest.mark.parametrize("city", CITIES)
 def test_embedded_city_ingests_builds_and_is_faithful(tmp_path, city):
     """As documented: the users and grid of its simulation.json, no mosaic above the SINR floor, a genie that
@@ -44,7 +57,7 @@ def test_embedded_city_ingests_builds_and_is_faithful(tmp_path, city):
     record = json.loads((RAW / city / "simulation.json").read_text())
     assert record["spec"]["name"] == city
     ingest_city(RAW / city, tmp_path)
-    window = record["spec"].get("extent_m") is not None  # a grid on part of the scene: the README builds it with --crop-city
+    window = record["spec"].get("extent_m") is not None  # a grid on part of the scene: `crop` in data/raw/cities.toml
     config = BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=EMBEDDED_NOISE_DBM, crop=window)
     b = load_bundle(build_city(city, config, tmp_path).path)
     assert b.num_users == len(record["users_m"]) and b.shape == (record["grid"]["num_y"], record["grid"]["num_x"])
