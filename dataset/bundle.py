@@ -22,7 +22,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from pydantic import ValidationError
 
-from uavplace.dataset.catalog import DEFAULT_ROOT
+from uavplace.dataset.catalog import DEFAULT_ROOT, nearest_names
 from uavplace.dataset.raster import cell_index
 from uavplace.schemas import SCHEMA_VERSION, InputError
 from uavplace.schemas.base import validation_message
@@ -214,20 +214,6 @@ def resolve(city: str, version: str | None = None, root: str | Path = DEFAULT_RO
     if not path.is_dir():
         raise InputError(path, f"no bundle version '{version}' of city '{city}'")
     return path
-
-
-def nearest_names(name: str, known: list[str], what: str = "built") -> str:
-    """``: did you mean A or B?`` for the names of ``known`` nearest to a mistyped ``name`` (``; built: ...`` when none
-    is near, ``; nothing is built ...`` when ``known`` is empty; ``what``: what ``known`` are)."""
-    import difflib
-
-    near = difflib.get_close_matches(name, known, n=3, cutoff=0.6)
-    if near:
-        return f": did you mean {' or '.join(near)}?"
-    if not known:
-        return f"; nothing is {what}: run `uavdata ingest` and `uavdata build` first"
-    shown = ", ".join(known[:8]) + (f" and {len(known) - 8} more (`uavdata list`)" if len(known) > 8 else "")
-    return f"; {what}: {shown}"
 
 
 def load_bundle(city: str, version: str | None = None, root: str | Path = DEFAULT_ROOT, *, verify: bool = True) -> Bundle:

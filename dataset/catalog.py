@@ -10,7 +10,7 @@ from pydantic import ValidationError
 from uavplace.schemas import CityManifest, InputError
 from uavplace.schemas.base import validation_message
 from uavplace.schemas.bundle import CityRoles
-from uavplace.schemas.files import DEFAULT_ROOT, check_name, in_corpus, read_small_file
+from uavplace.schemas.files import DEFAULT_ROOT, check_name, in_corpus, read_model_toml, read_small_file
 
 INGESTED_MANIFEST = Path("ingested") / "manifest.json"
 
@@ -64,12 +64,24 @@ def expand_datasets(names: list[str] | tuple[str, ...], root: str | Path = DEFAU
         else:
             members = [c for c in cities if in_corpus(c, name)]
             if not members:
-                from uavplace.dataset.bundle import nearest_names
-
                 raise InputError(Path(root) / name, f"no ingested city or corpus of that name{nearest_names(city, cities, 'ingested')}",
                                  field="dataset")  # fmt: skip
         out += [m for m in members if m not in out]
     return out
+
+
+def nearest_names(name: str, known: list[str], what: str = "built") -> str:
+    """``: did you mean A or B?`` for the names of ``known`` nearest to a mistyped ``name`` (``; built: ...`` when none
+    is near, ``; nothing is built ...`` when ``known`` is empty; ``what``: what ``known`` are)."""
+    import difflib
+
+    near = difflib.get_close_matches(name, known, n=3, cutoff=0.6)
+    if near:
+        return f": did you mean {' or '.join(near)}?"
+    if not known:
+        return f"; nothing is {what}: run `uavdata ingest` and `uavdata build` first"
+    shown = ", ".join(known[:8]) + (f" and {len(known) - 8} more (`uavdata list`)" if len(known) > 8 else "")
+    return f"; {what}: {shown}"
 
 
 #: Where the roles of the cities of a data folder are declared (``CityRoles``): beside the cities' folders.
@@ -78,16 +90,4 @@ ROLES_FILE = "cities.toml"
 
 def read_roles(path: str | Path) -> CityRoles:
     """A roles file (``CityRoles``, TOML); ``InputError`` naming the file and the field."""
-    import tomllib
-
-    path = Path(path)
-    data = read_small_file(path, "a cities' roles file (TOML)", missing="no such roles file")
-    try:
-        doc = tomllib.loads(data.decode("utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError, RecursionError) as exc:
-        raise InputError(path, f"not a TOML file ({exc})", field="toml") from None
-    try:
-        return CityRoles.model_validate(doc)
-    except ValidationError as exc:
-        field, message = validation_message(exc)
-        raise InputError(path, message, field=field) from None
+    return read_model_toml(path, CityRoles, "a cities' roles file (TOML)", missing="no such roles file")

@@ -11,7 +11,7 @@ import click
 from pydantic import ValidationError
 from rich.markup import escape
 
-from uavplace.dataset.catalog import ROLES_FILE, list_cities
+from uavplace.dataset.catalog import ROLES_FILE, list_cities, nearest_names
 from uavplace.schemas import InputError
 from uavplace.schemas.base import validation_message
 from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM, BuildConfig
@@ -217,8 +217,6 @@ def build(
         fail(InputError(root, "no ingested city: run `uavdata ingest data/raw/<city>/` first"))
     for city in names:  # checked before anything is read: a mistyped name gets the nearest ones
         if city not in ingested:
-            from uavplace.dataset.bundle import nearest_names
-
             fail(InputError(root / city, f"no ingested city of that name{nearest_names(city, ingested, 'ingested')}",
                             field="city"))  # fmt: skip
     for option, given in (("--split", role), ("--crop-city", crop_cities)):

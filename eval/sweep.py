@@ -22,13 +22,12 @@ import json
 import os
 import shutil
 import time
-import tomllib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Literal
 
 import pandas as pd
-from pydantic import Field, ValidationError, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.cities import development_cities
@@ -38,9 +37,9 @@ from uavplace.rl.agent.dqn import DQNConfig, parse_settings, preset_config
 from uavplace.rl.policies import GeniePolicy
 from uavplace.rl.rollout import format_stat
 from uavplace.schemas import InputError
-from uavplace.schemas.base import MAX_SEED, Contract, validation_message
+from uavplace.schemas.base import MAX_SEED, Contract
 from uavplace.schemas.cluster import start_ray
-from uavplace.schemas.files import atomic_write_text, check_name, read_small_file
+from uavplace.schemas.files import atomic_write_text, check_name, read_model_toml
 from uavplace.schemas.limits import check_limit
 
 #: The spec, as it was given, beside the runs it made.
@@ -141,16 +140,7 @@ def read_spec(path: str | Path) -> SweepSpec:
     """A sweep file, validated (every config made once, so that a bad setting is refused before Ray starts);
     ``InputError`` naming the file and the field."""
     path = Path(path)
-    data = read_small_file(path, "a sweep file", missing="no such sweep file")
-    try:
-        doc = tomllib.loads(data.decode("utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError, RecursionError) as exc:
-        raise InputError(path, f"not a TOML file ({exc})", field="toml") from None
-    try:
-        spec = SweepSpec.model_validate(doc)
-    except ValidationError as exc:
-        field, message = validation_message(exc)
-        raise InputError(path, message, field=field) from None
+    spec = read_model_toml(path, SweepSpec, "a sweep file", missing="no such sweep file")
     check_limit("sweep_runs", len(spec.run_names()), path, "runs (trials x seeds)", field="trials")
     try:
         spec.configs()

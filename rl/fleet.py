@@ -381,6 +381,11 @@ class FleetView:
     blocked: np.ndarray
     config: FleetConfig
 
+    def at_uavs(self) -> np.ndarray:
+        """``[E, K, N]`` each user's SINR measured at each UAV's cell (the shared memory there)."""
+        rows, users = np.arange(len(self.t))[:, None, None], np.arange(self.config.users)
+        return self.memory[rows, users, self.pos[..., 0, None], self.pos[..., 1, None]]
+
     @classmethod
     def of(cls, env: BatchedFleet) -> FleetView:
         arrays = (env.pos, env.t, env.memory, env.visits, env.keys, env.city, env.maps.height, env.maps.blocked)
@@ -444,8 +449,7 @@ class FleetGreedy:
         cfg = view.config
         e, k = mask.shape[:2]
         rows = np.arange(e)
-        y, x = view.pos[..., 0], view.pos[..., 1]  # [E, K]
-        here = view.memory[rows[:, None, None], np.arange(cfg.users)[None, None], y[:, :, None], x[:, :, None]]  # [E, K, N]
+        here = view.at_uavs()  # [E, K, N]
         served = here >= cfg.p_t_db
         to = view.pos[:, :, None, :] + FLEET_MOVES[None, None, :STAY]  # [E, K, 4, 2]
         seen = view.visits[rows[:, None, None], to[..., 0], to[..., 1]] > 0  # [E, K, 4]
@@ -542,8 +546,7 @@ class FleetPlacement:
         """(groups [E, K, N]: the users dealt to each UAV; served [E, K, N]: whom each UAV serves where it stands)."""
         cfg = view.config
         e, k, n = len(view.t), cfg.uavs, cfg.users
-        rows = np.arange(e)
-        here = view.memory[rows[:, None, None], np.arange(n), view.pos[..., 0, None], view.pos[..., 1, None]]
+        here = view.at_uavs()
         served = here >= cfg.p_t_db
         groups = np.zeros((e, k, n), bool)
         kept = np.zeros((e, n), bool)

@@ -117,6 +117,25 @@ def read_model_json(path: str | Path, model: type[M], what: str, max_bytes: int 
         raise InputError(path, message, field=where) from None
 
 
+def read_model_toml(path: str | Path, model: type[M], what: str, missing: str | None = None) -> M:
+    """A small TOML file (a sweep spec, a roles file) as the pydantic ``model``; ``InputError`` naming the file (and
+    the field) when it is missing (``missing``), not a regular file or over the limit (``read_small_file``), not TOML,
+    or does not validate."""
+    import tomllib
+
+    path = Path(path)
+    data = read_small_file(path, what, missing=missing)
+    try:
+        doc = tomllib.loads(data.decode("utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError, RecursionError) as exc:
+        raise InputError(path, f"not a TOML file ({exc})", field="toml") from None
+    try:
+        return model.model_validate(doc)
+    except ValidationError as exc:
+        where, message = validation_message(exc)
+        raise InputError(path, message, field=where) from None
+
+
 def write_json(obj: object, path: str | Path) -> None:
     Path(path).write_text(json.dumps(obj, indent=2, sort_keys=True) + "\n", encoding="utf-8")
 
