@@ -150,7 +150,7 @@ def memory(rows: int, repeat: int) -> None:
         t_stream, t_whole = best(streamed, repeat), best(whole, repeat)
         imports = _peak_rss_mb("-", imports="uavplace.ingest.cli, uavplace.ingest.pipeline")
         t = time.perf_counter()
-        peak = _peak_rss_mb("uavplace.schemas.cli", "uavdata", "ingest", str(city), "--out", str(Path(tmp) / "proc"), "--quiet")
+        peak = _peak_rss_mb("uavplace.cli", "uavdata", "ingest", str(city), "--out", str(Path(tmp) / "proc"), "--quiet")
         wall = time.perf_counter() - t
     print(f"uavdata ingest of {rows:,} rows: peak RSS {peak:.0f} MB (imports alone: {imports:.0f} MB), {wall:.1f} s")
     print(f"  streamed reader      {rows / t_stream:>12,.0f} rows/s")

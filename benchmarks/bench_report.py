@@ -2,7 +2,7 @@
 
 For each test city (default: the main job's test, etoile and florence) it draws the report's episodes
 once (``uavrl report``'s seed) and plays them with every shipped agent and baseline through
-``eval.report.evaluate``, one method at a time, timing each. It prints seconds per method and their
+``eval.evaluate.evaluate``, one method at a time, timing each. It prints seconds per method and their
 ratio to the genie's rollout (the cheapest possible player of the same episodes: a table lookup per
 move), then the totals. ``--legacy`` also times each agent the way reports acted before this
 benchmark (every slot of a 256-episode batch through the network, batch norm unfolded), in the same
@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from uavplace.dataset.bundle import load_bundle
-from uavplace.eval.report import ReportConfig, baseline_policies, default_agents, evaluate, load_agent
+from uavplace.eval.evaluate import ReportConfig, baseline_policies, default_agents, evaluate, load_agent
 from uavplace.rl.agent.checkpoint import load_tensors
 from uavplace.rl.agent.dqn import DQNPolicy, make_network, masked_argmax, to_tensor
 from uavplace.rl.config import EnvConfig

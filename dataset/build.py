@@ -34,6 +34,8 @@ from uavplace.dataset.bundle import bundle_version, load_bundle, read_latest, wr
 from uavplace.dataset.catalog import DEFAULT_ROOT, INGESTED_MANIFEST, read_city_manifest
 from uavplace.dataset.difficulty import difficulty
 from uavplace.dataset.raster import cell_centres, cell_index, grid_over, ground_z, height_map
+from uavplace.infra.files import atomic_directory, folder_lock, sha256_file, write_model_json
+from uavplace.infra.limits import check_limit
 from uavplace.schemas import CityManifest, InputError
 from uavplace.schemas.base import uavplace_version
 from uavplace.schemas.bundle import (
@@ -47,8 +49,6 @@ from uavplace.schemas.bundle import (
     SinrInfo,
     SinrSource,
 )
-from uavplace.schemas.files import atomic_directory, folder_lock, sha256_file, write_model_json
-from uavplace.schemas.limits import check_limit
 from uavplace.schemas.tables import BUILDING_PARTS, BUILDINGS, RECEIVERS, ROUTES, TRANSMITTERS
 
 #: How many distinct receiver heights an altitude error lists.

@@ -24,6 +24,8 @@ from pydantic import ValidationError
 
 from uavplace.dataset.catalog import DEFAULT_ROOT, nearest_names
 from uavplace.dataset.raster import cell_index
+from uavplace.infra.files import atomic_write_text, check_name, read_small_file, sha256_file
+from uavplace.infra.limits import check_limit
 from uavplace.schemas import SCHEMA_VERSION, InputError
 from uavplace.schemas.base import validation_message
 from uavplace.schemas.bundle import (
@@ -37,8 +39,6 @@ from uavplace.schemas.bundle import (
     BuildConfig,
     BundleManifest,
 )
-from uavplace.schemas.files import atomic_write_text, check_name, read_small_file, sha256_file
-from uavplace.schemas.limits import check_limit
 
 #: Name of the per-city file holding the version ``load_bundle`` picks by default.
 LATEST = "latest"

@@ -7,10 +7,10 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
+from uavplace.infra.files import DEFAULT_ROOT, check_name, in_corpus, read_model_toml, read_small_file
 from uavplace.schemas import CityManifest, InputError
 from uavplace.schemas.base import validation_message
 from uavplace.schemas.bundle import CityRoles
-from uavplace.schemas.files import DEFAULT_ROOT, check_name, in_corpus, read_model_toml, read_small_file
 
 INGESTED_MANIFEST = Path("ingested") / "manifest.json"
 

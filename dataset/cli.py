@@ -1,4 +1,4 @@
-"""``uavdata build``, ``list`` and ``show``: versioned map bundles from ingested cities (registered in ``schemas.cli``)."""
+"""``uavdata build``, ``list`` and ``show``: versioned map bundles from ingested cities (registered in ``uavplace.cli``)."""
 
 from __future__ import annotations
 
@@ -12,11 +12,11 @@ from pydantic import ValidationError
 from rich.markup import escape
 
 from uavplace.dataset.catalog import ROLES_FILE, list_cities, nearest_names
+from uavplace.infra.console import SEED, Bounds, Finite, Metres, command_line, console, fail, plain_table, root_option, stdout
+from uavplace.infra.files import check_name
 from uavplace.schemas import InputError
 from uavplace.schemas.base import validation_message
 from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM, BuildConfig
-from uavplace.schemas.cli import SEED, Bounds, Finite, Metres, command_line, console, fail, plain_table, root_option, stdout
-from uavplace.schemas.files import check_name
 
 
 def _splits(values: tuple[str, ...]) -> dict[str, str | None]:
@@ -350,16 +350,36 @@ def _size(path: Path) -> str:
 
 @click.command(name="list")
 @root_option
-def list_(root: Path) -> None:
+@click.option(
+    "--table",
+    is_flag=True,
+    help="Instead, one Markdown table of the built cities (each one's latest bundle): source, size, buildings, users, "
+    "role, blocked, target and dead shares, the genie's median steps, and how faithful the maps are (constant 4 x 4 "
+    "patches, dead/live boundaries and SINR steps on the 64 m and 16 m lines of a coarse gap fill; dataset/corpus.py).",
+)
+@click.option(
+    "--raw",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("data/raw"),
+    show_default=True,
+    help="With --table: where each city's raw folder (its simulation.json: source and building tiers) is.",
+)
+def list_(root: Path, table: bool, raw: Path) -> None:
     """List ingested cities and their bundles (versions, grid, altitude, users, size) under ROOT."""
     from uavplace.dataset.bundle import list_versions, read_latest
 
     out = stdout()
+    if table:
+        from uavplace.dataset.corpus import corpus_rows
+        from uavplace.infra.console import markdown_table
+
+        click.echo(markdown_table(corpus_rows(root, raw)))
+        return
     cities = list_cities(root)  # bad input: one error line from UavGroup
     if not cities:
         out.print(f"no ingested city under {root} (run `uavdata ingest data/raw/<city>/`)")
         return
-    table = plain_table(
+    ingested = plain_table(
         "city", "users", "receiver rows", "reached", "buildings", "frequency [MHz]", "ingested (UTC)", title="ingested"
     )
     bundles = plain_table(
@@ -378,7 +398,7 @@ def list_(root: Path) -> None:
     for c in cities:
         k = c.manifest.counts
         f = c.manifest.frequency_hz
-        table.add_row(
+        ingested.add_row(
             c.name,
             str(k["transmitters"]),
             str(k["receiver_rows"]),
@@ -403,7 +423,7 @@ def list_(root: Path) -> None:
                 _size(c.path / m.version),
                 m.created_utc,
             )
-    out.print(table)
+    out.print(ingested)
     if bundles.row_count:
         out.print(bundles)
     else:

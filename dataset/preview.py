@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from uavplace.dataset.bundle import Bundle
-from uavplace.schemas.files import atomic_write_bytes
+from uavplace.infra.files import atomic_write_bytes
 
 
 def sinr_panel(bundle: Bundle, user: int) -> tuple[np.ma.MaskedArray, int]:

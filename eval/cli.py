@@ -1,4 +1,4 @@
-"""``uavrl report``: the evaluation protocol and its HTML report (registered in ``schemas.cli``)."""
+"""``uavrl report``: the evaluation protocol and its HTML report (registered in ``uavplace.cli``)."""
 
 from __future__ import annotations
 
@@ -7,20 +7,22 @@ from pathlib import Path
 
 import click
 
-from uavplace.rl.cli import episode_options
-from uavplace.schemas.cli import (
+from uavplace.infra.console import (
+    SEED,
     Counted,
     Finite,
     LogLines,
     command_line,
     console,
     fail,
+    markdown_table,
     plain_table,
     ray_address_option,
     root_option,
     stdout,
     warn_or_refuse,
 )
+from uavplace.rl.cli import episode_options
 
 
 @click.command()
@@ -82,7 +84,7 @@ from uavplace.schemas.cli import (
 )
 @click.option("--agents-dir", type=click.Path(file_okay=False, path_type=Path), default=Path("data/agents"), show_default=True,
               help="Where the default agents are looked for (without --run: those of the report's task; a tracking "
-                   "report plays the placement agents too; a fleet report its 'best' on every UAV).")  # fmt: skip
+                   "report plays the placement agents too; a fleet report its 'best' on every UAV and the fleet-trained agents).")  # fmt: skip
 @click.option(
     "--markdown",
     type=click.Path(dir_okay=False, path_type=Path),
@@ -98,9 +100,9 @@ from uavplace.schemas.cli import (
     help="placement: the paper's task (a user who stays); tracking: a user who moves along the routes of the cities "
     "(bundles simulated with --routes; rl/tracking.py): the oracle, the agents (placement agents run unchanged), the "
     "re-planning genie and the baselines (eval/tracking.py; OUT defaults to reports/tracking); fleet: --uavs UAVs "
-    "serve --users users at once (rl/fleet.py): the oracle, the map searcher run for the fleet, the placement agents "
-    "(--run; default: the shipped best under --agents-dir) run independently on every UAV, greedy hill-climbing and "
-    "the random walk (eval/fleet.py; OUT defaults to reports/fleet).",
+    "serve --users users at once (rl/fleet.py): the oracle, the map searcher run for the fleet, the agents (--run; "
+    "default: the shipped best and the fleet-trained agents under --agents-dir) run on every UAV on the users dealt "
+    "to it, greedy hill-climbing and the random walk (eval/fleet.py; OUT defaults to reports/fleet).",
 )
 @click.option("--uavs", type=click.IntRange(1, 4), default=2, show_default=True, help="Fleet: UAVs in the fleet.")
 @click.option("--users", type=click.IntRange(1, 6), default=3, show_default=True, help="Fleet: users served at once.")
@@ -171,16 +173,10 @@ def report(
                                "report each version with its own --out")  # fmt: skip
     for dataset in datasets:  # a mistyped city is named, with the nearest ones, before anything heavy is loaded
         resolve(dataset, root=root)
-    from uavplace.eval.report import (
-        ReportConfig,
-        check_summary_page,
-        check_unseen_runs,
-        default_agents,
-        summary_rows,
-        write_summary_page,
-    )
-    from uavplace.schemas.files import check_replaceable_file
-    from uavplace.schemas.limits import check_limit
+    from uavplace.eval.evaluate import ReportConfig, check_unseen_runs, default_agents
+    from uavplace.eval.render import check_summary_page, summary_rows, write_summary_page
+    from uavplace.infra.files import check_replaceable_file
+    from uavplace.infra.limits import check_limit
 
     if markdown is not None:  # refused before any work: only a regular file or nothing is replaced
         check_replaceable_file(markdown)
@@ -196,14 +192,15 @@ def report(
 
         if groups or split:
             raise click.UsageError("--task fleet plays every user set of the cities: it takes no --group or --split")
-        chosen = list(runs) or [p for p in default_agents(agents_dir) if p.name == DEFAULT_AGENT]
+        shipped = [p for p in default_agents(agents_dir) if p.name == DEFAULT_AGENT] + default_agents(agents_dir, "fleet")
+        chosen = list(runs) or shipped
         _check_runs_once(chosen, "--run")
         check_unseen_runs(chosen, list(datasets), root)
         _check_training_settings(chosen, datasets, p_t_db, root, strict)
         _fleet_report(datasets, chosen, out, episodes, t_max, p_t_db, test_epsilon, seed, n_boot, uavs, users, predictor,
                       markdown, root, quiet)  # fmt: skip
         return
-    chosen = list(runs) or default_agents(agents_dir, None if task == "tracking" else "placement")
+    chosen = list(runs) or default_agents(agents_dir, ("placement", "tracking") if task == "tracking" else "placement")
     if task == "tracking":
         _check_runs_once(chosen, "--run")
         _check_training_settings(chosen, datasets, p_t_db, root, strict)
@@ -265,8 +262,8 @@ def report(
         page = write_summary_page(reports, out or Path("reports"), t_max)
         stdout().print(f"report (every city): {page}", highlight=False, soft_wrap=True)
     if markdown is not None:
-        from uavplace.eval.report import markdown_tables
-        from uavplace.schemas.files import atomic_write_text
+        from uavplace.eval.render import markdown_tables
+        from uavplace.infra.files import atomic_write_text
 
         atomic_write_text(markdown, markdown_tables(reports, t_max))
         stdout().print(f"tables (Markdown): {markdown}", highlight=False, soft_wrap=True)
@@ -286,8 +283,8 @@ def _check_same_agents(folder: Path, runs: list[Path]) -> None:
     """Refuse to replace a report folder that holds a report of other agents (``--overwrite`` replaces it)."""
     import json
 
+    from uavplace.infra.files import read_small_file
     from uavplace.schemas import InputError
-    from uavplace.schemas.files import read_small_file
 
     record = folder / "report.json"
     if not record.is_file():
@@ -329,7 +326,7 @@ def _method_names() -> set[str]:
 def _check_training_settings(runs: list[Path], datasets: tuple[str, ...], p_t_db: float, root: Path, strict: bool) -> None:
     """Name every agent and city where the agent would play outside its training settings (``unlike_training``): one
     warning line each, or a refusal with ``--strict``."""
-    from uavplace.eval.report import unlike_training
+    from uavplace.eval.evaluate import unlike_training
 
     warn_or_refuse(unlike_training(runs, list(datasets), root, p_t_db), strict)
 
@@ -338,8 +335,8 @@ def _tracking_report(datasets: tuple[str, ...], runs: list[Path], out: Path | No
                      test_epsilon: float, seed: int, n_boot: int, trajectories: int, hold: bool, markdown: Path | None,
                      root: Path, quiet: bool) -> None:  # fmt: skip
     from uavplace.eval.tracking import SUMMARY_TITLE, TrackingReportConfig, make_tracking_report, summary_rows, table_rows
+    from uavplace.infra.files import atomic_write_text
     from uavplace.rl.tracking import TrackingConfig
-    from uavplace.schemas.files import atomic_write_text
 
     config = TrackingReportConfig(datasets=list(datasets), runs=[str(r) for r in runs], episodes=episodes, seed=seed,
                                   test_epsilon=test_epsilon, n_boot=n_boot, trajectories=trajectories, hold=hold,
@@ -371,9 +368,9 @@ def _fleet_report(datasets: tuple[str, ...], runs: list[Path], out: Path | None,
                   test_epsilon: float, seed: int, n_boot: int, uavs: int, users: int, predictor: str,
                   markdown: Path | None, root: Path, quiet: bool) -> None:  # fmt: skip
     from uavplace.eval.fleet import SUMMARY_TITLE, FleetReportConfig, make_fleet_report, summary_rows, table_rows
-    from uavplace.eval.report import difference_rows
+    from uavplace.eval.render import difference_rows
+    from uavplace.infra.files import atomic_write_text
     from uavplace.rl.fleet import FleetConfig
-    from uavplace.schemas.files import atomic_write_text
 
     config = FleetReportConfig(datasets=list(datasets), runs=[str(r) for r in runs], test_epsilon=test_epsilon,
                                episodes=episodes, seed=seed, n_boot=n_boot,
@@ -450,7 +447,7 @@ def sweep(spec_file: Path, out: Path | None, ray_address: str | None, cpus_per_t
     """Train the runs of a sweep file SPEC on Ray Tune, then compare them on the validation cities.
 
     \b
-    SPEC is a TOML file (eval/sweep.py, SweepSpec), e.g. benchmarks/sweeps/best.toml:
+    SPEC is a TOML file (eval/sweep.py, SweepSpec), e.g. experiments/sweeps/best.toml:
       datasets = ["corpus", "oldtown", "train"]
       [[trials]]                       # runs OUT/best-s0, OUT/best-s1, ...
       name = "best"
@@ -502,3 +499,137 @@ def sweep(spec_file: Path, out: Path | None, ray_address: str | None, cpus_per_t
     path = write_table(table, out, spec_file)
     say.print(path.read_text(encoding="utf-8"), highlight=False, markup=False, soft_wrap=True)
     say.print(f"table: {path} (and sweep.csv); the spec: {out / 'sweep.toml'}", highlight=False, soft_wrap=True)
+
+
+@click.command()
+@click.argument("runs", nargs=-1, required=True, type=click.Path(file_okay=False, exists=True, path_type=Path))
+@click.option("--city", "cities", multiple=True, help="City to play (repeatable; default: every built validation city).")
+@click.option(
+    "--episodes", type=Counted("episodes"), default=1000, show_default=True, help="Episodes a city, the same for every run."
+)
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the episodes and of the agents' random moves.")
+@click.option(
+    "--against",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="One of RUNS: every other run's success and median steps minus its, paired on the same episodes, per city and "
+    "for the cities pooled, with 95 % intervals over users then episodes (whether a change is more than the noise).",
+)
+@click.option("--release", is_flag=True, help="Allow test cities (release numbers only, never to choose).")
+@root_option
+def levers(runs: tuple[Path, ...], cities: tuple[str, ...], episodes: int, seed: int, against: Path | None, release: bool,
+           root: Path) -> None:  # fmt: skip
+    """The lever table of run or ensemble folders RUNS: each one's settings that differ from its preset, the evaluation
+    that chose its best.pt, then best.pt on the episodes `uavrl report` draws in each validation city, with the genie
+    (success and median steps with 95 % intervals over users then episodes, the ratio to the genie's median, the run's
+    wall time): the table `uavrl sweep` ends with, for any runs (eval/sweep.py, validation_table)."""
+    from uavplace.eval.render import difference_rows
+    from uavplace.eval.sweep import markdown, paired_differences, validation_table
+    from uavplace.schemas import InputError
+
+    if against is not None and against.name not in {r.name for r in runs}:
+        raise click.UsageError(f"--against {against}: not one of RUNS")
+    played: dict = {}
+    try:
+        table = validation_table(list(runs), list(cities) or None, root=root, episodes=episodes, seed=seed, release=release,
+                                 played=played)  # fmt: skip
+    except InputError as err:
+        fail(err)
+    click.echo(markdown(table), nl=False)
+    if against is not None:
+        for city, diffs in paired_differences(played, against.name, seed).items():
+            click.echo(f"\n{city}: paired differences (95 % intervals over users, then episodes)\n")
+            click.echo(markdown_table(difference_rows(diffs, 500)))
+
+
+@click.group()
+def peer() -> None:
+    """A peer on the same env: Stable-Baselines3's DQN or PPO (CnnPolicy) trained on the shipped agents' cities and
+    played beside a `best` run (eval/peer.py, docs/peer.md; needs the extra `peer`: pip install -e '.[peer]')."""
+
+
+@peer.command(name="train")
+@click.argument("algo", type=click.Choice(["dqn", "ppo"]))
+@click.option(
+    "--out", type=click.Path(file_okay=False, path_type=Path), required=True, help="The peer's folder (policy.pt, peer.json)."
+)
+@click.option(
+    "--match",
+    type=click.Path(file_okay=False, exists=True, path_type=Path),
+    default=None,
+    help="A finished `best` run whose wall time is the peer's budget of CPU seconds (of this process, on the threads "
+    "OMP_NUM_THREADS allows).",
+)
+@click.option("--cpu-seconds", type=Finite(min=1), default=None, help="The budget of CPU seconds (instead of --match).")
+@click.option(
+    "--max-steps", type=Counted("train_steps"), default=3_000_000, show_default=True,
+    help="Env steps at most (SB3's schedules anneal over them).",
+)  # fmt: skip
+@click.option(
+    "--dataset", "datasets", multiple=True, default=("corpus", "oldtown", "train"), show_default=True,
+    help="Training city or corpus (repeatable): their training users, as a `best` run's.",
+)  # fmt: skip
+@click.option("--n-envs", type=click.IntRange(1, 64), default=8, show_default=True, help="Envs SB3 steps side by side.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of SB3's model and envs.")
+@root_option
+def peer_train(algo: str, out: Path, match: Path | None, cpu_seconds: float | None, max_steps: int, datasets: tuple[str, ...],
+               n_envs: int, seed: int, root: Path) -> None:  # fmt: skip
+    """Train one SB3 algorithm ALGO (dqn or ppo) until its CPU budget or --max-steps is spent, on one torch thread
+    (OMP_NUM_THREADS=N for more); the weights are saved weights-only (never SB3's pickled zip)."""
+    from uavplace.dataset.catalog import expand_datasets
+    from uavplace.eval.peer import run_wall_seconds, train_sb3, training_maps
+    from uavplace.schemas import InputError
+
+    if (match is None) == (cpu_seconds is None):
+        raise click.UsageError("give --match RUN or --cpu-seconds S")
+    import os
+
+    import torch
+
+    torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", "1")))  # one thread unless told otherwise
+    try:
+        budget = cpu_seconds if cpu_seconds is not None else run_wall_seconds(match)
+        maps = training_maps(expand_datasets(list(datasets), root), root)
+        record = train_sb3(algo, maps, out, cpu_seconds=budget, max_steps=max_steps, n_envs=n_envs, seed=seed,
+                           on_progress=lambda step, cpu: click.echo(f"{algo}: step {step:,}, {cpu:.0f} CPU s"))  # fmt: skip
+    except (InputError, RuntimeError) as err:
+        fail(err)
+    click.echo(
+        f"{algo}: {record['steps']:,} steps in {record['cpu_seconds']:.0f} CPU s ({record['wall_seconds']:.0f} s wall) -> {out}"
+    )
+
+
+@peer.command(name="table")
+@click.option(
+    "--best",
+    type=click.Path(file_okay=False, exists=True, path_type=Path),
+    required=True,
+    help="The `best` run (or ensemble) to compare with.",
+)
+@click.option("--peer", "peers", multiple=True, required=True, type=click.Path(file_okay=False, exists=True, path_type=Path),
+              help="A peer folder of `uavrl peer train` (repeatable).")  # fmt: skip
+@click.option("--city", "cities", multiple=True, help="Validation city (repeatable; default: every built validation city).")
+@click.option(
+    "--episodes", type=Counted("episodes"), default=1000, show_default=True, help="Episodes a city, the same for every method."
+)
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the episodes and of the random moves.")
+@click.option("--markdown", "markdown_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Also write the table there (Markdown).")  # fmt: skip
+@root_option
+def peer_table(best: Path, peers: tuple[Path, ...], cities: tuple[str, ...], episodes: int, seed: int,
+               markdown_path: Path | None, root: Path) -> None:  # fmt: skip
+    """The `best` run, the peers and the genie on the same episodes of each validation city: success and median steps
+    with 95 % intervals over users then episodes, and the ratios best / peer (success) and peer / best (median steps).
+    Test cities are refused."""
+    from uavplace.eval.cities import development_cities
+    from uavplace.eval.peer import peer_table as table
+    from uavplace.infra.files import atomic_write_text
+    from uavplace.schemas import InputError
+
+    try:
+        text = markdown_table(table(best, list(peers), development_cities(list(cities) or None, root), root, episodes, seed))
+        if markdown_path is not None:
+            atomic_write_text(markdown_path, text + "\n")
+    except (InputError, RuntimeError) as err:
+        fail(err)
+    click.echo(text)

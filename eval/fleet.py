@@ -28,8 +28,11 @@ import pandas as pd
 from pydantic import Field
 
 from uavplace.dataset.bundle import Bundle, load_bundle
+from uavplace.eval.evaluate import load_agent
 from uavplace.eval.metrics import bootstrap_table, difference_table
-from uavplace.eval.report import difference_rows, load_agent, markdown_table
+from uavplace.eval.render import difference_rows
+from uavplace.infra.console import markdown_table
+from uavplace.infra.files import atomic_directory, check_replaceable
 from uavplace.rl.fleet import (
     FleetConfig,
     FleetGreedy,
@@ -41,12 +44,12 @@ from uavplace.rl.fleet import (
 )
 from uavplace.rl.rollout import STATS, format_stat
 from uavplace.rl.searcher import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
-from uavplace.schemas.base import MAX_SEED, Contract, uavplace_version
-from uavplace.schemas.files import atomic_directory, check_replaceable
+from uavplace.schemas.base import MAX_SEED, Contract, InputError, uavplace_version
 
 FLEET_JSON = "fleet.json"
 ORACLE = "oracle"
-#: The agent each UAV runs by default (``uavrl report --task fleet`` without ``--run``), from ``--agents-dir``.
+#: The placement agent each UAV runs by default (``uavrl report --task fleet`` without ``--run``), from ``--agents-dir``,
+#: beside every shipped agent trained on the fleet task (``uavrl train --task fleet``).
 DEFAULT_AGENT = "best"
 
 
@@ -58,7 +61,9 @@ class FleetReportConfig(Contract):
     seed: int = Field(default=0, ge=0, le=MAX_SEED, description="Seed of the episodes and of every random move")
     n_boot: int = Field(default=2000, ge=100, description="Bootstrap resamples for the 95 % intervals")
     task: FleetConfig = Field(default_factory=FleetConfig, description="The fleet task (rl/fleet.py)")
-    runs: list[str] = Field(default_factory=list, description="Placement agents' run folders, each run on every UAV")
+    runs: list[str] = Field(
+        default_factory=list, description="Agents' run folders (placement or fleet-trained), each run on every UAV"
+    )
     test_epsilon: float = Field(default=0.096, ge=0, le=1, description="Random legal move rate of the agents")
     predictor: str | None = Field(
         default=str(DEFAULT_PREDICTOR),
@@ -77,8 +82,13 @@ def fleet_results(config: FleetReportConfig, bundle: Bundle, root: Path, on_prog
         cache = PredictionCache(Path(root) / PREDICTIONS)
         policies.append(FleetSearcher(load_predictor(config.predictor), None, cache).bind(maps))
     for run in config.runs:
-        agent = load_agent(run, config.test_epsilon, config.seed)
-        policies.append(FleetPlacement(agent.policy, agent.config.env_config(evaluation=True), agent.name).bind(maps))
+        agent = load_agent(run, config.test_epsilon, config.seed, task=None)
+        if agent.config.task == "tracking":
+            raise InputError(run, "a tracking agent: the fleet plays placement agents and fleet-trained ones", field="task")
+        prefix = "" if agent.config.task == "fleet" else None  # its name says it: PQN + GRU (best, fleet)
+        policies.append(
+            FleetPlacement(agent.policy, agent.config.env_config(evaluation=True), agent.name, prefix=prefix).bind(maps)
+        )
     policies += [FleetRandomWalk(config.seed), FleetGreedy(config.seed)]
     results: dict[str, pd.DataFrame] = {}
     for i, policy in enumerate(policies):  # the first method's paths kept: the figure draws three of them
@@ -110,7 +120,7 @@ def picked_episodes(frame: pd.DataFrame) -> list[tuple[int, int]]:
 def plot_fleet_episodes(bundle: Bundle, frame: pd.DataFrame, method: str, config: FleetConfig, out: Path) -> str:
     """Three of ``method``'s episodes (``picked_episodes``) on the city's heights: every UAV's path and every user's
     position; saves ``out`` and returns the figure's caption."""
-    from uavplace.eval.report import _pyplot
+    from uavplace.eval.figures import _pyplot
 
     plt = _pyplot()
     g = bundle.manifest.grid
@@ -163,7 +173,7 @@ SUMMARY_TITLE = ("success / median steps (median of per-episode steps / the orac
 def summary_rows(table: pd.DataFrame, diff: pd.DataFrame, t_max: int) -> list[list[str]]:
     """Header then one row per method: in each city, ``success / median steps (steps / oracle)``, then its paired
     difference from the city's reference (``reference``: success, median steps), with 95 % intervals."""
-    from uavplace.eval.report import _difference_cell
+    from uavplace.eval.render import _difference_cell
 
     cities = list(dict.fromkeys(table["city"]))
     refs = {c: str(diff[(diff["city"] == c) & (diff["against"] != ORACLE)]["against"].iloc[0]) for c in cities}

@@ -5,8 +5,9 @@
 the env's ``obs_scale``) until a budget of CPU seconds of this process, or of steps, is spent; the
 policy's weights are saved as a weights-only torch file (never SB3's zip, whose ``load`` unpickles).
 ``SB3Policy`` plays a model as a ``rl.policies.Policy``, with the test-epsilon random legal moves of
-uavplace's agents drawn per episode, so that ``eval.report.evaluate`` scores it beside them on the
-same episodes. docs/peer.md has the worked example and the benchmark's results.
+uavplace's agents drawn per episode, so that ``eval.evaluate.evaluate`` scores it beside them on the
+same episodes. ``peer_table`` plays a `best` run, the peers and the genie on the same episodes of validation cities.
+``uavrl peer train`` and ``uavrl peer table`` are the commands; docs/peer.md has the worked example and the results.
 """
 
 from __future__ import annotations
@@ -21,14 +22,21 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
+import pandas as pd
 import torch
 
+from uavplace.dataset.bundle import load_bundle
+from uavplace.eval.evaluate import ReportConfig, evaluate, load_agent
+from uavplace.eval.metrics import bootstrap_table
+from uavplace.infra.files import atomic_write_bytes, atomic_write_text
+from uavplace.rl.agent.train import plan_cities
+from uavplace.rl.config import EnvConfig
 from uavplace.rl.maps import MapSet
-from uavplace.rl.policies import episode_draws, pick_legal
+from uavplace.rl.policies import GeniePolicy, episode_draws, pick_legal
 from uavplace.rl.randomness import stream_key
+from uavplace.rl.rollout import format_stat
 from uavplace.rl.vec_env import BatchedEnv, decode_obs
 from uavplace.schemas import InputError
-from uavplace.schemas.files import atomic_write_bytes, atomic_write_text
 
 #: What the env's observations are divided by for SB3 (uavplace's own networks divide by the same).
 OBS_SCALE = 50.0
@@ -128,7 +136,7 @@ def load_peer(folder: Path, maps: MapSet, epsilon: float = 0.096, seed: int = 0)
         record = json.loads((folder / RECORD).read_text(encoding="utf-8"))
         algo = record["algo"]
     except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise InputError(folder / RECORD, f"not a peer record of benchmarks/peer_sb3.py ({str(exc)[:120]})") from None
+        raise InputError(folder / RECORD, f"not a peer record of `uavrl peer train` ({str(exc)[:120]})") from None
     if algo not in HYPERPARAMETERS:
         raise InputError(folder / RECORD, f"unknown algorithm {algo!r}", field="algo")
     with warnings.catch_warnings():  # PPO's batch-size advice is for training, which this model never does
@@ -159,3 +167,45 @@ class SB3Policy:
         greedy, _ = self.model.predict(x / np.float32(OBS_SCALE), deterministic=True)
         u = episode_draws(env, self.stream, 5)
         return np.where(u[:, 0] < self.epsilon, pick_legal(mask, u[:, 1:]), np.asarray(greedy, np.int64))
+
+
+def training_maps(cities: list[str], root: str | Path) -> MapSet:
+    """The maps a `best` run trains on in ``cities`` (their training users; the paper's env: t_max 800)."""
+    plan = plan_cities([load_bundle(c, root=root) for c in cities], [], None)
+    return MapSet(plan.train, EnvConfig(split=plan.train_split), plan.train_users)
+
+
+def peer_table(best: Path, peers: list[Path], cities: list[str], root: str | Path, episodes: int = 1000, seed: int = 0
+               ) -> list[list[str]]:  # fmt: skip
+    """The `best` run ``best``, the peers and the genie on the same ``episodes`` of each city (``evaluate``: t_max 500,
+    test epsilon 0.096 for every learner): text rows (header first) of success and median steps with 95 % intervals over
+    users then episodes, and the ratios best / peer (success) and peer / best (median steps)."""
+    agent = load_agent(best, 0.096, seed)
+    agent.name = agent.policy.name = f"{agent.name} [{best.name}]"
+    bundles = {city: load_bundle(city, root=root) for city in cities}
+    # The peers once: a model is made with an env, but its weights and its moves do not depend on which city's.
+    maps = MapSet([bundles[cities[0]]], EnvConfig(t_max=500, rotate=False))
+    players = [load_peer(folder, maps, seed=seed) for folder in peers]
+    rows = [["city", "method", "success", "median steps", "best / it: success", "it / best: median steps"]]
+    for city, bundle in bundles.items():
+        config = ReportConfig(dataset=city, episodes=episodes, t_max=500, seed=seed, trajectories=0)
+        t = bootstrap_table(evaluate(config, bundle, [agent], baselines=[GeniePolicy(), *players]), seed=seed)
+        t = t.set_index("method")
+        ref = t.loc[agent.name]
+        for name in [agent.name, *(p.name for p in players), GeniePolicy.name]:
+            r = t.loc[name]
+            first = name == agent.name
+            ratio_s = "-" if first or r.success == 0 else f"{ref.success / r.success:.2f}"
+            ratio_m = "-" if first else ("inf" if not np.isfinite(r.median_steps) else f"{r.median_steps / ref.median_steps:.2f}")
+            rows.append([city, name, format_stat("success", r.success, r.success_lo, r.success_hi),
+                         format_stat("median_steps", r.median_steps, r.median_steps_lo, r.median_steps_hi, 500),
+                         ratio_s, ratio_m])  # fmt: skip
+    return rows
+
+
+def run_wall_seconds(run: Path) -> float:
+    """The wall seconds a training run took (its last evaluation's ``wall_s``): a peer's CPU budget."""
+    try:
+        return float(pd.read_parquet(run / "eval.parquet")["wall_s"].iloc[-1])
+    except (OSError, ValueError, KeyError, IndexError) as exc:
+        raise InputError(run / "eval.parquet", f"no wall time of a finished run ({str(exc)[:120]})", field="wall_s") from None

@@ -10,7 +10,7 @@ unfinished trial from its last checkpoint and skips the finished ones. Tune's ow
 ``OUT/.tune/`` and is never read back.
 
 At the end every trial and ensemble is played on the validation cities with the report's evaluation
-(``eval.report.evaluate``: 1000 fixed episodes a city, t_max 500, test epsilon 0.096, the genie beside
+(``eval.evaluate.evaluate``: 1000 fixed episodes a city, t_max 500, test epsilon 0.096, the genie beside
 it), never on a test city, and the table is written to ``OUT/sweep.md`` and ``OUT/sweep.csv``, next to
 the spec it came from (``OUT/sweep.toml``).
 """
@@ -31,16 +31,16 @@ from pydantic import Field, field_validator, model_validator
 
 from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.cities import development_cities
+from uavplace.eval.evaluate import ReportConfig, evaluate, load_agent
 from uavplace.eval.metrics import bootstrap_table, difference_table
-from uavplace.eval.report import ReportConfig, evaluate, load_agent
+from uavplace.infra.cluster import start_ray
+from uavplace.infra.files import atomic_write_text, check_name, read_model_toml
+from uavplace.infra.limits import check_limit
 from uavplace.rl.agent.dqn import DQNConfig, parse_settings, preset_config
 from uavplace.rl.policies import GeniePolicy
 from uavplace.rl.rollout import format_stat
 from uavplace.schemas import InputError
 from uavplace.schemas.base import MAX_SEED, Contract
-from uavplace.schemas.cluster import start_ray
-from uavplace.schemas.files import atomic_write_text, check_name, read_model_toml
-from uavplace.schemas.limits import check_limit
 
 #: The spec, as it was given, beside the runs it made.
 SPEC_COPY = "sweep.toml"
@@ -191,8 +191,8 @@ def _trial(tune_config: dict) -> None:
     import torch
     from ray import tune
 
+    from uavplace.infra.files import exclusive_folder
     from uavplace.rl.agent.train import run_finished, start_run
-    from uavplace.schemas.files import exclusive_folder
 
     params = tune_config["trial"]
     config = DQNConfig.model_validate_json(params["config"])
@@ -308,7 +308,7 @@ def validation_table(
     played: dict[str, dict[str, pd.DataFrame]] | None = None,
 ) -> pd.DataFrame:
     """Every agent folder on ``cities`` (default: every built validation city; a test city only with ``release``),
-    each city's episodes played by all of them and the genie (``eval.report.evaluate``). One row per agent: its
+    each city's episodes played by all of them and the genie (``eval.evaluate.evaluate``). One row per agent: its
     settings, the validation that chose its ``best.pt``, its wall time, and per city the success and median steps
     with 95 % intervals over users then episodes, and the ratio of its median to the genie's. ``played``, when
     given, receives each city's episodes (city -> the folder's name, or the genie's -> ``run_episodes`` frame), for

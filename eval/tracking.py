@@ -26,8 +26,12 @@ import pandas as pd
 from pydantic import ConfigDict, Field
 
 from uavplace.dataset.bundle import load_bundle
+from uavplace.eval.evaluate import Agent, check_unseen, load_agent
+from uavplace.eval.figures import Figure, _pyplot
 from uavplace.eval.metrics import _weighted_quantile, resample_counts
-from uavplace.eval.report import _CSS, Agent, Figure, _figure, _pyplot, _templates, check_unseen, load_agent, markdown_table
+from uavplace.eval.render import _CSS, _figure, _templates
+from uavplace.infra.console import markdown_table
+from uavplace.infra.files import atomic_directory, check_replaceable
 from uavplace.rl.policies import GreedyPolicy, RandomWalkPolicy
 from uavplace.rl.tracking import (
     Holding,
@@ -43,7 +47,6 @@ from uavplace.rl.tracking import (
 )
 from uavplace.schemas import InputError
 from uavplace.schemas.base import MAX_SEED, Contract, uavplace_version
-from uavplace.schemas.files import atomic_directory, check_replaceable
 
 TRACKING_JSON = "tracking.json"
 #: Statistic -> (column header, how episodes are summarised).

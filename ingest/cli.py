@@ -1,4 +1,4 @@
-"""``uavdata ingest``: read, validate and tabulate a city's raw exports (registered in ``schemas.cli``)."""
+"""``uavdata ingest``: read, validate and tabulate a city's raw exports (registered in ``uavplace.cli``)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import click
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.text import Text
 
-from uavplace.schemas.cli import command_line, console, plain_table, stdout
-from uavplace.schemas.files import DEFAULT_ROOT, check_name
+from uavplace.infra.console import command_line, console, plain_table, stdout
+from uavplace.infra.files import DEFAULT_ROOT, check_name
 
 
 @click.command()

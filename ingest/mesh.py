@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 import shapely
 
+from uavplace.infra.limits import check_limit
 from uavplace.ingest.buildings import MIN_AREA_M2, BuildingRecord, Part
 from uavplace.schemas import InputError, Rejection
-from uavplace.schemas.limits import check_limit
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf")
 #: Bodies thinner than this [m] are ground or road surfaces, not buildings.

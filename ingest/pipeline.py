@@ -23,6 +23,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import shapely
 
+from uavplace.infra.files import atomic_directory, check_name, sha256_file, write_model_json
 from uavplace.ingest.buildings import BuildingRecord, buildings_tables
 from uavplace.ingest.geojson import read_geojson
 from uavplace.ingest.mesh import MESH_SUFFIXES, read_mesh
@@ -50,7 +51,6 @@ from uavplace.schemas import (
     TxRxSet,
 )
 from uavplace.schemas.base import uavplace_version
-from uavplace.schemas.files import atomic_directory, check_name, sha256_file, write_model_json
 
 if TYPE_CHECKING:
     import pandas as pd

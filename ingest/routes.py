@@ -20,8 +20,8 @@ import numpy as np
 import pyarrow as pa
 import shapely
 
+from uavplace.infra.limits import check_limit
 from uavplace.schemas import ROUTES, InputError
-from uavplace.schemas.limits import check_limit
 from uavplace.schemas.tables import ROUTE_KINDS, ROUTE_MAX_SPEED_MPS, ROUTE_MAX_STEP_M
 
 #: The header of a routes file, in order.

@@ -1,4 +1,4 @@
-"""``uavrl datasets``, ``baselines`` and ``train``: agents on map bundles built by ``uavdata`` (registered in ``schemas.cli``)."""
+"""``uavrl datasets``, ``baselines`` and ``train``: agents on map bundles built by ``uavdata`` (registered in ``uavplace.cli``)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import click
 
 from uavplace.dataset.bundle import list_versions, read_latest
 from uavplace.dataset.catalog import list_cities
+from uavplace.infra.console import SEED, Counted, Finite, LogLines, fail, plain_table, root_option, stdout, warn_or_refuse
 from uavplace.rl.rollout import STATS, format_stat, summarise
-from uavplace.schemas.cli import SEED, Counted, Finite, LogLines, fail, plain_table, root_option, stdout, warn_or_refuse
 
 
 @click.command()
@@ -64,11 +64,11 @@ def baselines(
     """Play the genie, the steered random walk and greedy hill-climbing on the same episodes; print a table per city."""
     from rich.progress import Progress
 
+    from uavplace.infra.limits import check_limit
     from uavplace.rl.config import EnvConfig
     from uavplace.rl.maps import MapSet
     from uavplace.rl.policies import GeniePolicy, GreedyPolicy, RandomWalkPolicy
     from uavplace.rl.rollout import run_episodes
-    from uavplace.schemas.limits import check_limit
 
     check_limit("episode_steps", episodes * t_max, None, "--episodes x --t-max", field="episodes")
     config = EnvConfig(t_max=t_max, p_t_db=p_t_db, split=split, rotate=False)
@@ -122,13 +122,16 @@ def baselines(
 )
 @click.option(
     "--task",
-    type=click.Choice(["placement", "tracking"]),
+    type=click.Choice(["placement", "tracking", "fleet"]),
     default="placement",
     show_default=True,
     help="placement: find a user who stands still (the paper's task); tracking: keep a user who walks its route "
     "covered (rl/tracking.py; 5 actions, stay the fifth; every --dataset and validation city needs routes, "
     "`uavdata simulate --routes N`; best.pt is the network that covers the most of the horizon on the validation "
-    "cities' routes; the preset's revisit penalties are off).",
+    "cities' routes; the preset's revisit penalties are off); fleet: several UAVs serve several users (rl/fleet.py; "
+    "one network on every UAV, each playing the placement task of the users dealt to it; best.pt is the network that "
+    "serves every user in the most fleet episodes of the validation cities; --set fleet.uavs=2 --set fleet.users=3 "
+    "are the defaults, --set init=data/agents/best starts from a trained network).",
 )
 @click.option("--steps", type=Counted("train_steps"), default=None, help="Environment steps (default: the preset's).")
 @click.option(
@@ -137,8 +140,9 @@ def baselines(
     multiple=True,
     metavar="FIELD=VALUE",
     help="Override one field of the preset's DQNConfig (rl/agent/dqn.py), env fields as env.FIELD "
-    "(rl/config.py), the tracking task's as tracking.FIELD (rl/tracking.py, TrackingConfig), e.g. --set "
-    "env.shaping=1 --set eval_episodes=1000 --set tracking.horizon=200; repeatable.",
+    "(rl/config.py), the tracking task's as tracking.FIELD (rl/tracking.py, TrackingConfig), the fleet task's as "
+    "fleet.FIELD (rl/fleet.py, FleetConfig), e.g. --set env.shaping=1 --set eval_episodes=1000 --set "
+    "tracking.horizon=200; repeatable.",
 )
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the whole run.")
 @click.option(
@@ -156,7 +160,7 @@ def baselines(
     help="Folder of runs; this one goes to OUT/<run-id>/.",
 )
 @click.option(
-    "--name", default=None, help="Run folder name under OUT (default: <time>-<preset>[-tracking]-<agent>-s<seed>); must be new."
+    "--name", default=None, help="Run folder name under OUT (default: <time>-<preset>[-<task>]-<agent>-s<seed>); must be new."
 )
 @click.option(
     "--until",
@@ -185,10 +189,10 @@ def train(
     """Train the DQN agent (or its blind twin) on built cities, for placement or tracking; write config, metrics and
     checkpoints to a run folder."""
     from uavplace.dataset.catalog import expand_datasets
+    from uavplace.infra.files import check_name, exclusive_folder
     from uavplace.rl.agent.dqn import parse_settings, preset_config
     from uavplace.rl.agent.train import new_run_dir, read_run_json
     from uavplace.schemas import InputError
-    from uavplace.schemas.files import check_name, exclusive_folder
 
     if resume is not None:
         doc = read_run_json(resume)
@@ -239,8 +243,8 @@ def _train_in(run_dir: Path, resume, config, datasets, val_datasets, root: Path,
     """``uavrl train``'s work, with ``run_dir``'s lock held."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+    from uavplace.infra.console import command_line
     from uavplace.rl.agent.train import Interrupted, start_run
-    from uavplace.schemas.cli import command_line
 
     try:
         trainer = start_run(run_dir, config, datasets, val_datasets, root, resume=resume is not None, command=command_line())
@@ -290,8 +294,8 @@ def ensemble(runs: tuple[Path, ...], out: Path, root: Path, quiet: bool) -> None
     is, on the members' validation cities (their config's eval_episodes, seeded as a run's), never on a test city."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from uavplace.infra.console import command_line
     from uavplace.rl.agent.ensemble import build_ensemble
-    from uavplace.schemas.cli import command_line
 
     columns = (TextColumn("[bold]ensemble[/] validation"), BarColumn(), MofNCompleteColumn(), TextColumn("episodes"),
                TimeElapsedColumn())  # fmt: skip
@@ -331,8 +335,8 @@ def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out:
     """Fit the map searcher's radio-map predictor (rl/predictor.py: free space, walls crossed and Deygout's knife
     edges on the straight path) on the users of training cities, and score it on validation cities' users."""
     from uavplace.dataset.bundle import load_bundle
+    from uavplace.infra.files import atomic_write_text, check_replaceable_file
     from uavplace.rl.predictor import PhysicsPredictor, fit_constants, prediction_scores
-    from uavplace.schemas.files import atomic_write_text, check_replaceable_file
 
     check_replaceable_file(out)
     bundles, users = _training_users(datasets, root)
@@ -377,11 +381,11 @@ def train_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], co
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from uavplace.dataset.bundle import load_bundle
+    from uavplace.infra.console import command_line
+    from uavplace.infra.files import atomic_directory
     from uavplace.rl.learned import MODEL_CARD, MODEL_JSON, LearnedPredictor, UNetConfig, model_card, save_learned, train_learned
     from uavplace.rl.predictor import PhysicsPredictor, prediction_scores
     from uavplace.rl.searcher import load_constants
-    from uavplace.schemas.cli import command_line
-    from uavplace.schemas.files import atomic_directory
 
     physics = load_constants(constants)
     config = UNetConfig(steps=steps, batch=batch, seed=seed, threads=threads)

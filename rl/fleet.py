@@ -94,10 +94,13 @@ class FleetCity:
     target: np.ndarray
 
     @classmethod
-    def of(cls, bundle: Bundle, p_t_db: float) -> FleetCity:
+    def of(cls, bundle: Bundle, p_t_db: float, users: np.ndarray | None = None) -> FleetCity:
+        """``bundle``'s maps; ``users``: the bundle's users the fleet draws from (default: all)."""
+        picked = np.arange(bundle.num_users) if users is None else np.asarray(users, np.int64)
+        sinr, dead = bundle.sinr_db[picked], bundle.dead[picked]
         legal = ~bundle.blocked
-        target = legal & ~bundle.dead & (bundle.sinr_db >= p_t_db)
-        return cls(bundle.city, bundle.version, legal, bundle.height_rel_m, bundle.sinr_db, target)
+        target = legal & ~dead & (sinr >= p_t_db)
+        return cls(bundle.city, bundle.version, legal, bundle.height_rel_m, sinr, target)
 
 
 class FleetMaps:
@@ -132,8 +135,11 @@ class FleetMaps:
         self._oracle: dict[tuple[int, ...], int] = {}  # episode -> oracle steps (drawing computes them)
 
     @classmethod
-    def of(cls, bundles: list[Bundle], config: FleetConfig) -> FleetMaps:
-        out = cls([FleetCity.of(b, config.p_t_db) for b in bundles], config)
+    def of(cls, bundles: list[Bundle], config: FleetConfig, users: list[np.ndarray] | None = None) -> FleetMaps:
+        """The fleet task on ``bundles``; ``users``: per bundle, the users drawn from (default: all; a learner's
+        training cities offer their training users only)."""
+        picked = users if users is not None else [None] * len(bundles)
+        out = cls([FleetCity.of(b, config.p_t_db, u) for b, u in zip(bundles, picked, strict=True)], config)
         out.bundles = list(bundles)
         return out
 
@@ -144,6 +150,15 @@ class FleetMaps:
         if key not in self._reach:
             c = self.cities[city]
             self._reach[key] = steps_to_target(c.legal, c.target[user])
+        return self._reach[key]
+
+    def group_reach(self, city: int, users: tuple[int, ...]) -> np.ndarray:
+        """``[ny, nx]`` the fewest moves from each cell of ``city`` to a cell that serves every user of ``users`` (the
+        intersection of their target cells; ``UNREACHABLE`` where there is none to reach)."""
+        key = (city, *users)
+        if key not in self._reach:
+            c = self.cities[city]
+            self._reach[key] = steps_to_target(c.legal, np.logical_and.reduce(c.target[list(users)]))
         return self._reach[key]
 
     def episode_list(self, n: int, seed: int) -> np.ndarray:
@@ -480,8 +495,8 @@ class _DealtEnv(BatchedEnv):
     """A placement env that keeps an agent's channels for ``FleetPlacement``: its rows' episodes are named (for the
     agent's random draws, ``rl.randomness``) by the fleet episode's key and the UAV (``keys``)."""
 
-    def __init__(self, maps, num_envs: int, autoreset: bool = False) -> None:  # noqa: ANN001 - a MapSet
-        super().__init__(maps, num_envs, autoreset=autoreset)
+    def __init__(self, maps, num_envs: int, autoreset: bool = False, compact: bool = False) -> None:  # noqa: ANN001
+        super().__init__(maps, num_envs, autoreset=autoreset, compact=compact)
         self.keys = np.zeros(num_envs, np.uint64)
 
     def episode_keys(self) -> np.ndarray:
@@ -504,13 +519,18 @@ class FleetPlacement:
 
     prefix = "independent "
 
-    def __init__(self, policy, env: EnvConfig, name: str | None = None) -> None:  # noqa: ANN001 - a rl.policies.Policy
+    def __init__(self, policy, env: EnvConfig, name: str | None = None, *, prefix: str | None = None,  # noqa: ANN001
+                 compact: bool = False) -> None:  # fmt: skip
+        """``policy``: a ``rl.policies.Policy`` (None: only ``dealt`` is used, as ``FleetTrainEnv`` does); ``prefix``
+        before its name (default ``FleetPlacement.prefix``: a placement agent run as it is); ``compact``: the agent's
+        observations as the learner stores them (``BatchedEnv``'s)."""
         name = name or policy.name
         if env.belief_channel or env.context_zoom:
             raise ValueError(f"{name}: an agent with a belief or context channel reads one user's measurements as they "
                              "come; the fleet deals each UAV a changing set of users")  # fmt: skip
-        self.policy, self.name = policy, self.prefix + name
+        self.policy, self.name = policy, (self.prefix if prefix is None else prefix) + name
         self.env_config = env.model_copy(update={"rotate": False, "city_weights": {}, "split": None})
+        self.compact = compact
         self.maps: FleetMaps | None = None
         self.mirror = None
 
@@ -532,13 +552,17 @@ class FleetPlacement:
         return self
 
     def reset(self, rows: np.ndarray, num_envs: int, uavs: int) -> None:
+        self.reset_deal(rows, num_envs, uavs)
+        self.policy.reset((np.asarray(rows)[:, None] * uavs + np.arange(uavs)).ravel(), num_envs * uavs)
+
+    def reset_deal(self, rows: np.ndarray, num_envs: int, uavs: int) -> None:
+        """Fleet rows ``rows`` begin new episodes: their UAVs' placement rows are read afresh at the next ``dealt``."""
         if self.maps is None:
             raise ValueError("FleetPlacement.bind(maps) first: its agents play on the bundles' maps")
         if self.mirror is None or self.mirror.num_envs != num_envs * uavs:
-            self.mirror = _DealtEnv(self.placement, num_envs * uavs, autoreset=False)
+            self.mirror = _DealtEnv(self.placement, num_envs * uavs, autoreset=False, compact=self.compact)
             self.groups = np.zeros((num_envs, uavs, self.maps.config.users), bool)
             self.fresh = np.ones(num_envs, bool)
-        self.policy.reset((np.asarray(rows)[:, None] * uavs + np.arange(uavs)).ravel(), num_envs * uavs)
         self.groups[rows] = False
         self.fresh[rows] = True
 
@@ -579,6 +603,16 @@ class FleetPlacement:
             mirror.best_sinr[m], mirror.best_pos[m] = weakest[at], np.array(at) + fleet.pad + s
 
     def act(self, mask: np.ndarray, view: FleetView) -> np.ndarray:
+        obs, moves, idle = self.dealt(mask, view)
+        e, k = mask.shape[:2]
+        actions = self.policy.act(obs, moves, self.mirror).reshape(e, k)
+        return np.where(idle, STAY, actions)
+
+    def dealt(self, mask: np.ndarray, view: FleetView) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Deal the users and bring every UAV's placement row up to date (its agent's env, ``mirror``); returns its
+        observations ``[E * K, ...]``, their legal placement moves ``[E * K, 4]`` (all four for a UAV that cannot
+        move: it stays) and ``idle`` ``[E, K]``, the UAVs that stay whatever their agent says (no user, all of
+        their users served, or no free move). Calling it twice on one step changes nothing."""
         mirror, s = self.mirror, self.shift
         e, k = mask.shape[:2]
         rows = np.arange(e)
@@ -606,9 +640,140 @@ class FleetPlacement:
         self.groups, self.fresh = groups, np.zeros(e, bool)
         moves = mask[..., :STAY].reshape(e * k, STAY)
         free = moves.any(axis=1)
-        actions = self.policy.act(mirror.observe(), np.where(free[:, None], moves, True), mirror).reshape(e, k)
         idle = ~groups.any(axis=2) | (served | ~groups).all(axis=2) | ~free.reshape(e, k)
-        return np.where(idle, STAY, actions)
+        return mirror.observe(), np.where(free[:, None], moves, True), idle
+
+
+class FleetTrainEnv:
+    """The fleet task as the learner's environment (``rl.agent.train.FleetTrainer``): a row per UAV of ``num_envs /
+    K`` fleet episodes (row ``e * K + k``), each observing what ``FleetPlacement`` shows a UAV's agent (the placement
+    observation of its dealt users' weakest SINR, from the fleet's shared measurements) and acting with the placement
+    network's 4 moves: one network shared by every UAV, each acting from the shared memory and its own position.
+
+    A UAV that ``FleetPlacement`` keeps still (no user, all of its users served, no free move) stays whatever its row
+    chose. A row's reward is placement's, on the task its UAV was dealt when it moved: the change of its users'
+    weakest SINR at its cell, plus ``c_e`` when it enters a cell the fleet never visited, plus ``success_bonus`` when
+    it comes to serve all its users (times ``reward_scale``); a UAV that stays gets nothing. The rows of an episode end
+    with it (every user served, or ``t_max``); a finished episode starts another, drawn with ``rng`` from the
+    training cities (``FleetMaps.draw``). The genie's moves of a row (the auxiliary head's labels): those that start a
+    shortest path to a cell serving every user dealt to its UAV (``FleetMaps.group_reach``; none where no cell
+    does). The trainer's interface is ``rl.vec_env.EpisodeRows``'s, checkpoints included (``state_arrays``: the
+    fleet's episode state; the dealt rows are read afresh from it)."""
+
+    state_arrays = ("city", "users", "pos", "t", "memory", "visits", "best", "served_at", "done", "episode_id", "keys")
+
+    def __init__(self, maps: FleetMaps, env: EnvConfig, num_envs: int) -> None:
+        k = maps.config.uavs
+        if num_envs % k:
+            raise ValueError(f"num_envs {num_envs} is not a multiple of the fleet's {k} UAVs")
+        self.maps, self.uavs, self.num_envs, self.env_config = maps, k, num_envs, env
+        self.fleet = BatchedFleet(maps, num_envs // k)
+        self.deal = FleetPlacement(None, env, "fleet", compact=True).bind(maps)
+        self.rng = np.random.default_rng()
+        self._episodes_started = 0
+        self._idle = np.zeros((num_envs // k, k), bool)
+        for name in self.state_arrays:  # the fleet's arrays themselves (changed in place), as a checkpoint saves them
+            setattr(self, name, getattr(self.fleet, name))
+
+    def _begin(self, rows: np.ndarray) -> None:
+        episodes, tries = [], 0
+        while len(episodes) < len(rows):
+            drawn = self.maps.draw(self.rng)
+            tries += 1
+            if drawn is not None:
+                episodes.append(drawn)
+            elif tries > 1000 * len(rows):
+                names = ", ".join(c.name for c in self.maps.cities)
+                raise InputError(names, "no fleet episode found in 1000 draws a row: every user needs a target cell "
+                                 "reachable from the starts (fewer fleet.users or another fleet.p_t_db)", field="fleet")  # fmt: skip
+        ids = self._episodes_started + np.arange(len(rows))
+        self._episodes_started += len(rows)
+        self.fleet.begin(rows, np.array(episodes, np.int64), ids)
+        self.deal.reset_deal(rows, self.fleet.num_envs, self.uavs)
+
+    def _dealt(self) -> tuple[np.ndarray, np.ndarray]:
+        obs, moves, self._idle = self.deal.dealt(self.fleet.action_mask(), FleetView.of(self.fleet))
+        return obs, moves
+
+    def reset(self, *, seed: int | None = None) -> tuple[np.ndarray, dict]:
+        self.rng = np.random.default_rng(seed)
+        self._begin(np.arange(self.fleet.num_envs))
+        obs, moves = self._dealt()
+        return obs, {"action_mask": moves}
+
+    def observe(self) -> np.ndarray:
+        return self._dealt()[0]
+
+    def action_mask(self) -> np.ndarray:
+        return self._dealt()[1]
+
+    def check_state(self, source: object) -> None:
+        """``InputError`` (naming ``source``) unless the restored episode state is one of these cities'; then every
+        UAV's row is read afresh from it."""
+        f, cfg = self.fleet, self.maps.config
+        users = np.array([len(c.sinr_db) for c in self.maps.cities])
+        ok = ((f.city >= 0) & (f.city < len(self.maps.cities))).all() and (f.t >= 0).all() and (f.t <= cfg.t_max).all()
+        ok = ok and ((f.users >= 0) & (f.users < users[np.clip(f.city, 0, len(users) - 1), None])).all()
+        ok = ok and ((f.pos >= self.maps.pad) & (f.pos < self.maps.side - self.maps.pad)).all()
+        if not ok or self.maps.blocked[f.city[:, None], f.pos[..., 0], f.pos[..., 1]].any():
+            raise InputError(source, "the fleet's episode state is not one of these cities' (city, users, cells)", field="pos")
+        self.deal.reset_deal(np.arange(f.num_envs), f.num_envs, self.uavs)
+
+    def sinr_here(self) -> np.ndarray:
+        """``[num_envs]`` the weakest user's best SINR in each row's episode (what the training log's gain reads)."""
+        return np.repeat(self.fleet.best.min(axis=1), self.uavs)
+
+    def neighbour_visits(self) -> np.ndarray:
+        """``[num_envs, 4]`` the fleet's visits of the cell each move leads to."""
+        return self.deal.mirror.neighbour_visits()
+
+    def genie_moves(self) -> np.ndarray:
+        """``[num_envs, 4]`` bool: the moves of each UAV that start a shortest path to a cell serving all its users
+        (privileged: a training aid only, never an observation)."""
+        f, p, k = self.fleet, self.maps.pad, self.uavs
+        out = np.zeros((self.num_envs, STAY), bool)
+        for e, uav in zip(*np.nonzero(self.deal.groups.any(axis=2) & ~self._idle), strict=True):
+            reach = self.maps.group_reach(int(f.city[e]), tuple(int(u) for u in np.flatnonzero(self.deal.groups[e, uav])))
+            y, x = f.pos[e, uav] - p
+            here = reach[y, x]
+            if here >= UNREACHABLE:
+                continue
+            ny, nx = y + MOVES[:, 0], x + MOVES[:, 1]
+            inside = (ny >= 0) & (ny < reach.shape[0]) & (nx >= 0) & (nx < reach.shape[1])
+            out[e * k + uav, inside] = reach[ny[inside], nx[inside]] < here
+        return out
+
+    def _weakest(self, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``[E, K]`` each UAV's weakest SINR of the users in ``groups`` [E, K, N] where it stands (0 without users), and
+        whether it serves them all."""
+        here = FleetView.of(self.fleet).at_uavs()
+        weakest = np.where(groups, here, np.inf).min(axis=2)
+        has = groups.any(axis=2)
+        return np.where(has, weakest, 0.0), has & (weakest >= self.maps.config.p_t_db)
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
+        k, cfg, f = self.uavs, self.env_config, self.fleet
+        chosen = np.asarray(actions, np.int64).reshape(-1, k)
+        groups = self.deal.groups.copy()  # the task each UAV moves for
+        before, served_before = self._weakest(groups)
+        moving = ~self._idle & ~f.done[:, None]
+        _, terminated, truncated = f.step(np.where(self._idle, STAY, chosen))
+        after, served_after = self._weakest(groups)
+        rows = np.arange(f.num_envs)[:, None]
+        fresh = f.visits[rows, f.pos[..., 0], f.pos[..., 1]] == 1
+        reward = after - before + cfg.c_e * fresh + cfg.success_bonus * (served_after & ~served_before)
+        reward = np.where(moving, reward, 0.0) * cfg.reward_scale
+        obs, moves = self._dealt()
+        term, trunc = np.repeat(terminated, k), np.repeat(truncated, k)
+        final = np.flatnonzero(trunc)
+        info = {"final_index": final, "final_obs": obs[final], "final_mask": moves[final], "sinr": self.sinr_here(),
+                "steps": np.repeat(self.fleet.t, k)}  # fmt: skip
+        ended = np.flatnonzero(terminated | truncated)
+        if len(ended):
+            self._begin(ended)
+            obs, moves = self._dealt()
+        info["action_mask"] = moves
+        return obs, reward.ravel().astype(np.float32), term, trunc, info
 
 
 def run_fleet(maps: FleetMaps, policy, episodes: np.ndarray, num_envs: int = 64,  # noqa: ANN001

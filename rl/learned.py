@@ -30,11 +30,11 @@ from torch import nn
 from torch.nn import functional as F
 
 from uavplace.dataset.bundle import Bundle
+from uavplace.infra.files import read_model_json, sha256_file, write_model_json
 from uavplace.rl.agent.checkpoint import load_tensors, save_tensors
 from uavplace.rl.predictor import PhysicsConstants, Scene, dead_probability, path_features, sinr_from_features
 from uavplace.schemas import InputError
 from uavplace.schemas.base import Contract
-from uavplace.schemas.files import read_model_json, sha256_file, write_model_json
 
 #: The learned tier's files in its folder.
 MODEL_JSON, WEIGHTS, MODEL_CARD = "model.json", "weights.pt", "MODEL_CARD.md"

@@ -19,10 +19,10 @@ import numpy as np
 
 from uavplace.dataset.bundle import Bundle, load_bundle
 from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target, valid_starts
+from uavplace.infra.files import in_corpus
 from uavplace.rl.config import EnvConfig
 from uavplace.rl.randomness import stream_key, uniforms
 from uavplace.schemas import InputError
-from uavplace.schemas.files import in_corpus
 
 #: Moves of the 4 actions in canvas coordinates (dy, dx): 0 north (+y), 1 east (+x), 2 south (-y), 3 west (-x).
 MOVES = np.array([[1, 0], [0, 1], [-1, 0], [0, -1]], dtype=np.int64)
@@ -133,7 +133,7 @@ class MapSet:
         """Let the agent see ``donor``'s buildings instead of its city's (None: no building at all), in place: the
         height channel, the context channels and the SINR memory's blocked cells at the start of an episode. The
         moves (which cells are blocked), the SINR and the genie stay the city's: the experiment that asks whether
-        an agent uses the map (docs/map_claim.md). ``donor`` must have the city's grid shape."""
+        an agent uses the map (experiments/log/map_claim.md). ``donor`` must have the city's grid shape."""
         seen_blocked = np.ones_like(self.blocked)  # beyond the edge: blocked, as in ``blocked``
         for i, b in enumerate(self.bundles):
             if donor is not None and donor.shape != b.shape:

@@ -39,12 +39,12 @@ from scipy import sparse
 from scipy.sparse.csgraph import shortest_path
 from scipy.special import ndtr
 
+from uavplace.infra.files import atomic_write_bytes, read_model_json
+from uavplace.infra.limits import check_limit
 from uavplace.rl.maps import MOVES, MapSet, transform
 from uavplace.rl.predictor import PhysicsConstants, PhysicsPredictor, Predictor, Scene
 from uavplace.rl.view import AgentView, PublicMaps
 from uavplace.schemas.base import Contract
-from uavplace.schemas.files import atomic_write_bytes, read_model_json
-from uavplace.schemas.limits import check_limit
 
 #: Where the shipped physics tier's constants live.
 DEFAULT_CONSTANTS = Path("data/agents/searcher/predictor.json")

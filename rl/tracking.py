@@ -37,7 +37,7 @@ from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target
 from uavplace.rl.config import EnvConfig
 from uavplace.rl.maps import MOVES, MapSet, transform
 from uavplace.rl.randomness import combine, stream_key
-from uavplace.rl.vec_env import encode_obs, refuse_bad_rows
+from uavplace.rl.vec_env import EpisodeRows, encode_obs, refuse_bad_rows
 from uavplace.schemas.base import Contract
 
 #: The 5 tracking actions in canvas coordinates (dy, dx): the 4 placement moves, then 4 = stay.
@@ -247,16 +247,16 @@ class TrackingEpisodes:
     points: np.ndarray | None = None
 
 
-class TrackingEnv:
+class TrackingEnv(EpisodeRows):
     """``num_envs`` tracking episodes stepped together in numpy, played from ``queue`` (``[K, 4]`` specs of
     ``RouteSet.sample_episodes``) or drawn with the generator of ``reset(seed)``; a finished episode restarts at once
     (``info["final_index"]``, with the ended rows' last observation, mask, cell and route point) unless the queue has
     run out (``exhausted``), or unless ``autoreset`` is False (the single Gymnasium env). ``compact``: uint8
     observations (``rl.vec_env.encode_obs``, 1 dB / 1 m / 1 s a step), as the trainer stores them.
 
-    The trainer's interface is placement's ``BatchedEnv``'s: ``state_arrays`` and ``check_state`` (what a checkpoint
-    keeps), ``genie_moves`` (a training aid), ``info["sinr"]``, ``info["steps"]`` and ``info["covered_share"]``
-    (each row's episode so far; at its end, the ended episode's)."""
+    The trainer's interface is placement's (``rl.vec_env.EpisodeRows``, which it shares with ``BatchedEnv``), with
+    ``info["sinr"]``, ``info["steps"]`` and ``info["covered_share"]`` (each row's episode so far; at its end, the
+    ended episode's)."""
 
     def __init__(
         self,
@@ -267,21 +267,18 @@ class TrackingEnv:
         autoreset: bool = True,
         compact: bool = False,
     ) -> None:
+        self._init_rows(num_envs, queue, np.float64)
         self.routes, self.config, self.maps, self.autoreset = routes, routes.config, routes.maps, autoreset
-        self.num_envs, self.queue, self.queue_pos, self.compact = num_envs, queue, 0, compact
+        self.compact = compact
         n, L, w = num_envs, self.maps.side, routes.config.window
         self.route = np.zeros(n, np.int64)
         self.start_s = np.zeros(n)
         self.pos = np.zeros((n, 2), np.int64)
         self.t = np.zeros(n, np.int64)
         self.episode_id = np.full(n, -1, np.int64)
-        self.exhausted = np.zeros(n, bool)
         self.memory = np.zeros((n, L, L), np.float32)
         self.seen_at = np.zeros((n, L, L), np.float32)  # when each cell was last measured [s]; -inf never
         self.covered_steps = np.zeros(n, np.int64)  # steps of this episode at or above P_T so far
-        self.rng = np.random.default_rng()
-        self._episodes_started = 0
-        self._rows = np.arange(n)
         self._memory_windows = np.lib.stride_tricks.sliding_window_view(self.memory, (w, w), axis=(1, 2))
         self._seen_windows = np.lib.stride_tricks.sliding_window_view(self.seen_at, (w, w), axis=(1, 2))
         self._height_windows = np.lib.stride_tricks.sliding_window_view(self.maps.height, (w, w), axis=(1, 2))
@@ -298,17 +295,11 @@ class TrackingEnv:
     def sinr_here(self) -> np.ndarray:
         return self.routes.sinr[self.point(), self.pos[:, 0], self.pos[:, 1]]
 
+    def _sample(self, k: int) -> np.ndarray:
+        return self.routes.sample_episodes(k, self.rng)
+
     def _start(self, idx: np.ndarray) -> None:
-        k = len(idx)
-        if self.queue is None:
-            specs, ids = self.routes.sample_episodes(k, self.rng), self._episodes_started + np.arange(k)
-            self._episodes_started += k
-        else:
-            take = min(k, len(self.queue) - self.queue_pos)
-            specs = np.repeat(self.queue[:1], k, axis=0)
-            specs[:take] = self.queue[self.queue_pos : self.queue_pos + take]
-            ids = np.where(np.arange(k) < take, self.queue_pos + np.arange(k), -1)
-            self.queue_pos += take
+        specs, ids = self._next_specs(len(idx))
         self.route[idx], self.start_s[idx] = specs[:, 0].astype(np.int64), specs[:, 1]
         self.pos[idx] = specs[:, 2:].astype(np.int64)
         self.t[idx], self.episode_id[idx], self.exhausted[idx], self.covered_steps[idx] = 0, ids, ids < 0, 0
@@ -324,12 +315,8 @@ class TrackingEnv:
         self.seen_at[idx, y, x] = self.t[idx] * self.routes.step_s[self.route[idx]]
         return sinr
 
-    def reset(self, seed: int | None = None) -> tuple[np.ndarray, dict]:
-        if seed is not None:
-            self.rng = np.random.default_rng(seed)
-        self._episodes_started, self.queue_pos = 0, 0
-        self._start(self._rows)
-        return self.observe(), {"action_mask": self.action_mask()}
+    def info(self) -> dict:
+        return {"action_mask": self.action_mask()}
 
     @property
     def state_arrays(self) -> tuple[str, ...]:
@@ -360,11 +347,6 @@ class TrackingEnv:
         # Blocked and off-map cells hold UNREACHABLE, never below a reachable cell's distance: no legality mask needed.
         moves = self.routes.steps[point[:, None], ny, nx] < here[:, None]
         return np.c_[moves & (here > 0)[:, None], here == 0]
-
-    def neighbours(self, idx: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Canvas ``(y, x)`` of the 4 cells the moves lead to, each ``[len(idx), 4]`` (placement's interface)."""
-        idx = self._rows if idx is None else idx
-        return self.pos[idx, None, 0] + MOVES[None, :, 0], self.pos[idx, None, 1] + MOVES[None, :, 1]
 
     def action_mask(self) -> np.ndarray:
         """``[N, 5]`` bool: the moves into a legal cell, and staying (always legal)."""

@@ -59,7 +59,65 @@ def decode_obs(obs: np.ndarray) -> np.ndarray:
     return obs.astype(np.float32) - OBS_OFFSET
 
 
-class BatchedEnv:
+class EpisodeRows:
+    """What the batched environments share: ``num_envs`` rows of episodes (placement's ``BatchedEnv``, the tracking
+    task's ``rl.tracking.TrackingEnv``), drawn with the generator seeded by ``reset(seed)`` (``_sample``) or taken in
+    order from ``queue`` (episode specs, one row each) when one is given: evaluation then plays exactly those, and
+    ``exhausted`` tells which rows have no episode left. A subclass starts the episodes (``_start``) and observes them.
+
+    The trainer (``rl.agent.train``) reads every environment through one interface: ``reset(seed)``, ``step(actions)``
+    (``info["final_index"]``, ``final_obs`` and ``final_mask`` of the rows whose episodes were cut short, then
+    ``action_mask`` for the next move), ``observe``, ``action_mask``, ``sinr_here``, ``genie_moves`` (a training aid),
+    ``neighbour_visits`` where the revisit penalty is trained, and ``state_arrays``, ``check_state``,
+    ``_episodes_started`` and ``rng``, what a checkpoint keeps (``rl.fleet.FleetTrainEnv`` offers the same)."""
+
+    def _init_rows(self, num_envs: int, queue: np.ndarray | None, dtype: type = np.int64) -> None:
+        self.num_envs = num_envs
+        self.queue = None if queue is None else np.asarray(queue, dtype)
+        self.queue_pos = 0
+        self.exhausted = np.zeros(num_envs, bool)
+        self.rng = np.random.default_rng()
+        self._episodes_started = 0
+        self._rows = np.arange(num_envs)
+
+    def _sample(self, k: int) -> np.ndarray:
+        """``k`` episode specs drawn with ``rng``."""
+        raise NotImplementedError
+
+    def _start(self, idx: np.ndarray) -> None:
+        """Begin the next episodes in rows ``idx`` (``_next_specs``)."""
+        raise NotImplementedError
+
+    def _next_specs(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """``k`` episode specs and their episode ids (-1 where a queue has run out: those rows replay the queue's first
+        episode as a placeholder and are ``exhausted``)."""
+        if self.queue is None:
+            ids = self._episodes_started + np.arange(k)
+            self._episodes_started += k
+            return self._sample(k), ids
+        take = min(k, len(self.queue) - self.queue_pos)
+        specs = np.zeros((k, self.queue.shape[1]), self.queue.dtype)
+        specs[:] = self.queue[0] if len(self.queue) else 0
+        specs[:take] = self.queue[self.queue_pos : self.queue_pos + take]
+        ids = np.where(np.arange(k) < take, self.queue_pos + np.arange(k), -1)
+        self.queue_pos += take
+        return specs, ids
+
+    def reset(self, seed: int | None = None) -> tuple[np.ndarray, dict]:
+        if seed is not None:
+            self.rng = np.random.default_rng(seed)
+        self._episodes_started = 0
+        self.queue_pos = 0
+        self._start(self._rows)
+        return self.observe(), self.info()
+
+    def neighbours(self, idx: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Canvas ``(y, x)`` of the 4 cells the moves lead to, each ``[len(idx), 4]``."""
+        idx = self._rows if idx is None else idx
+        return self.pos[idx, None, 0] + MOVES[None, :, 0], self.pos[idx, None, 1] + MOVES[None, :, 1]
+
+
+class BatchedEnv(EpisodeRows):
     """``num_envs`` UAV placement episodes over a ``MapSet``, stepped with whole-array numpy operations.
 
     Episodes are drawn from ``maps.sample_episodes`` with the generator seeded by ``reset(seed)``,
@@ -71,28 +129,22 @@ class BatchedEnv:
     def __init__(
         self, maps: MapSet, num_envs: int, *, compact: bool = False, queue: np.ndarray | None = None, autoreset: bool = True
     ) -> None:
+        self._init_rows(num_envs, queue)
         self.maps = maps
         self.autoreset = autoreset
         self.config: EnvConfig = maps.config
-        self.num_envs = num_envs
         self.compact = compact
-        self.queue = None if queue is None else np.asarray(queue, np.int64)
-        self.queue_pos = 0
         n, L = num_envs, maps.side
         self.view = np.zeros(n, np.int64)
         self.pos = np.zeros((n, 2), np.int64)
         self.t = np.zeros(n, np.int64)
         self.episode_id = np.full(n, -1, np.int64)
         self.start = np.zeros((n, 2), np.int64)  # each episode's start cell in its view's map (canvas less the pad)
-        self.exhausted = np.zeros(n, bool)
         self.memory = np.zeros((n, L, L), np.float32)
         self.visits = np.zeros((n, L, L), np.uint16)  # times this episode stood in each canvas cell (the start counted)
         self.best_sinr = np.zeros(n, np.float32)  # the best SINR this episode measured, and where (canvas cell)
         self.best_pos = np.zeros((n, 2), np.int64)
-        self.rng = np.random.default_rng()
-        self._episodes_started = 0
         w = self.config.window
-        self._rows = np.arange(n)
         # [n or M, L - w + 1, L - w + 1, w, w] views: window (y0, x0) is [.., y0, x0] (no copy until indexed).
         self._memory_windows = np.lib.stride_tricks.sliding_window_view(self.memory, (w, w), axis=(1, 2))
         self._height_windows = np.lib.stride_tricks.sliding_window_view(maps.height, (w, w), axis=(1, 2))
@@ -166,20 +218,8 @@ class BatchedEnv:
             self.belief.paint(self._rows)
 
     # -- episodes -----------------------------------------------------------------------------
-    def _next_specs(self, k: int) -> tuple[np.ndarray, np.ndarray]:
-        """``k`` episode specs and their episode ids (-1 where a queue has run out)."""
-        if self.queue is None:
-            ids = self._episodes_started + np.arange(k)
-            self._episodes_started += k
-            return self.maps.sample_episodes(k, self.rng), ids
-        take = min(k, len(self.queue) - self.queue_pos)
-        specs = np.zeros((k, 3), np.int64)
-        ids = np.full(k, -1, np.int64)
-        specs[:take] = self.queue[self.queue_pos : self.queue_pos + take]
-        ids[:take] = self.queue_pos + np.arange(take)
-        specs[take:] = self.queue[0] if len(self.queue) else 0  # placeholders for exhausted slots
-        self.queue_pos += take
-        return specs, ids
+    def _sample(self, k: int) -> np.ndarray:
+        return self.maps.sample_episodes(k, self.rng)
 
     def _start(self, idx: np.ndarray) -> None:
         specs, ids = self._next_specs(len(idx))
@@ -214,23 +254,10 @@ class BatchedEnv:
         self.context_memory[idx, cy, cx] = np.where(seen, np.maximum(self.context_memory[idx, cy, cx], sinr), sinr)
         self.context_seen[idx, cy, cx] = True
 
-    def reset(self, seed: int | None = None) -> tuple[np.ndarray, dict]:
-        if seed is not None:
-            self.rng = np.random.default_rng(seed)
-        self._episodes_started = 0
-        self.queue_pos = 0
-        self._start(self._rows)
-        return self.observe(), self.info()
-
     # -- state queries --------------------------------------------------------------------------
     def sinr_here(self) -> np.ndarray:
         """SINR [dB] at each UAV position, ``[N]``."""
         return self.maps.sinr[self.view, self.pos[:, 0], self.pos[:, 1]]
-
-    def neighbours(self, idx: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Canvas ``(y, x)`` of the 4 cells the actions lead to, each ``[len(idx), 4]``."""
-        idx = self._rows if idx is None else idx
-        return self.pos[idx, None, 0] + MOVES[None, :, 0], self.pos[idx, None, 1] + MOVES[None, :, 1]
 
     def action_mask(self, idx: np.ndarray | None = None) -> np.ndarray:
         """``[len(idx), 4]`` bool (all envs by default): the moves into a legal cell (not blocked, on the map)."""

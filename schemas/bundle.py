@@ -54,7 +54,7 @@ ROUTE_ARRAYS: dict[str, tuple[str, str]] = {
 }
 
 #: The noise-plus-interference level [dBm] the embedded cities (data/raw/) and the shipped agents are calibrated at:
-#: where the embedded test city's genie needs the paper's 14 moves (README, benchmarks/calibrate_difficulty.py).
+#: where the embedded test city's genie needs the paper's 14 moves (README, experiments/calibrate_difficulty.py).
 EMBEDDED_NOISE_DBM = -75.0
 
 

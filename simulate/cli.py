@@ -1,4 +1,4 @@
-"""``uavdata simulate``: ray-trace procedural or open cities into Wireless InSite exports (registered in ``schemas.cli``)."""
+"""``uavdata simulate``: ray-trace procedural or open cities into Wireless InSite exports (registered in ``uavplace.cli``)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from pathlib import Path
 import click
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from uavplace.schemas.cli import SEED, Bounds, Finite, Metres, command_line, console, fail, ray_address_option, stdout
-from uavplace.schemas.files import check_name
+from uavplace.infra.console import SEED, Bounds, Finite, Metres, command_line, console, fail, ray_address_option, stdout
+from uavplace.infra.files import check_name
 
 
 class Point(click.ParamType):

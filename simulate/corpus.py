@@ -14,8 +14,8 @@ from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
+from uavplace.infra.cluster import start_ray
 from uavplace.schemas import InputError
-from uavplace.schemas.cluster import start_ray
 from uavplace.simulate.pipeline import PROVENANCE, SimulationSpec, simulate_city, spec_record
 from uavplace.simulate.raytrace import RayTraceConfig, raytrace_record
 

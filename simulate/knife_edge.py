@@ -5,7 +5,7 @@ ground) and returns its job: the user 50 m in front of the screen at 1.5 m, the 
 at 10 m behind it; ``BEHIND_M`` are the checked distances behind the screen (``points`` places
 receivers there), ``EXACT_CONFIG`` the exact-path settings, and ``p526_path_gain_db`` gives what
 P.526's single knife-edge loss predicts there.
-Used by ``tests/test_simulate.py`` (exact paths) and ``benchmarks/knife_edge.py`` (exact paths
+Used by ``tests/test_simulate.py`` (exact paths) and ``experiments/knife_edge.py`` (exact paths
 and the radio map).
 """
 

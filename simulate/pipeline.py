@@ -33,11 +33,12 @@ from pathlib import Path
 
 import numpy as np
 import shapely
+from pydantic import Field
 
+from uavplace.infra.files import atomic_directory, check_name, check_replaceable
+from uavplace.infra.limits import check_limit, limits, shown
 from uavplace.schemas import InputError
-from uavplace.schemas.base import uavplace_version
-from uavplace.schemas.files import atomic_directory, check_name, check_replaceable
-from uavplace.schemas.limits import check_limit, limits, shown
+from uavplace.schemas.base import Contract, uavplace_version
 from uavplace.simulate.fidelity import lattice_boundary_shares, lattice_step_ratios
 from uavplace.simulate.insite import UNREACHED_POWER_DBM, ReceiverGrid, write_city, write_p2m, write_setup, write_txrx
 from uavplace.simulate.procedural import PRESETS, USER_HEIGHT_M, generate_city, sample_users
@@ -108,28 +109,38 @@ def _size(text: str, source: str) -> tuple[float, float]:
     return (w, h)
 
 
-#: Valid ranges of one ``uavdata simulate`` call's settings, checked before any work (``check_simulation``); each
-#: error names its option. An upper bound of None is the resource limit of the same name (``schemas.limits.Limits``,
-#: raised with ``--limit NAME=VALUE``): what the machine can afford, not what physics allows.
-RANGES = {
-    "cities": (1, None),  # cities of one call (--count)
-    "users": (1, None),  # users per city
-    "grid_m": (0.5, 100.0),  # cell side [m]
-    "altitude_m": (2.0, 1000.0),  # above the users' 1.5 m
-    "tx_dbm": (-50.0, 70.0),
-    "frequency_hz": (1e8, 1e11),
-    "samples": (1e3, None),  # rays per user
-    "depth": (0, 10),
-    "extent_m": (0.0, None),  # side of an --extent or --crop box [m]
-    "user_cells": (1, None),  # users x grid cells: the maps held in memory (8 bytes each)
-    "routes": (0, None),  # routes per city
-    "route_length_m": (4.0, None),
-    "simulated_route_points": (0, None),  # route points per city, each traced as a user
-}
+class SimulationRanges(Contract):
+    """The valid ranges of one ``uavdata simulate`` call's settings, checked before any work (``check_simulation``; each
+    error names its option). A field without an upper bound is bounded by the resource limit of the same name
+    (``infra.limits.Limits``, raised with ``--limit NAME=VALUE``): what the machine can afford, not what physics
+    allows."""
+
+    cities: int = Field(ge=1, description="Cities of one call (--count)")
+    users: int = Field(ge=1, description="Users per city (--users, --user)")
+    grid_m: float = Field(ge=0.5, le=100.0, description="Cell side [m] (--grid)")
+    altitude_m: float = Field(ge=2.0, le=1000.0, description="UAV altitude [m], above the users' 1.5 m (--alt)")
+    tx_dbm: float = Field(ge=-50.0, le=70.0, description="Users' transmit power [dBm] (--tx-dbm)")
+    frequency_hz: float = Field(ge=1e8, le=1e11, description="Carrier [Hz] (--freq)")
+    samples: float = Field(ge=1e3, description="Rays per user (--samples)")
+    depth: int = Field(ge=0, le=10, description="Interactions per path (--depth)")
+    extent_m: float = Field(ge=0.0, description="Side of an --extent or --crop box [m]")
+    user_cells: int = Field(ge=1, description="Users x grid cells: the maps held in memory (8 bytes each)")
+    routes: int = Field(ge=0, description="Routes per city (--routes)")
+    route_length_m: float = Field(ge=4.0, description="Length of a route [m] (--route-length)")
+    simulated_route_points: int = Field(ge=0, description="Route points per city, each traced as a user")
+
+
+def _range(name: str) -> tuple[float, float | None]:
+    """``(lower, upper)`` of ``SimulationRanges``' field ``name`` (upper None: the resource limit of that name)."""
+    lo = hi = None
+    for m in SimulationRanges.model_fields[name].metadata:
+        lo = getattr(m, "ge", lo)
+        hi = getattr(m, "le", hi)
+    return lo, hi
 
 
 def _bounded(value: float, name: str, option: str) -> None:
-    lo, hi = RANGES[name]
+    lo, hi = _range(name)
     value = float(value)  # an integer option may be of any size (1e300 rays as an int)
     if not (math.isfinite(value) and lo <= value <= (math.inf if hi is None else hi)):
         upto = f"to {hi:g}" if hi is not None else f"up (and at most the limit {name} = {shown(getattr(limits(), name))})"
@@ -139,7 +150,7 @@ def _bounded(value: float, name: str, option: str) -> None:
 
 
 def check_simulation(spec: SimulationSpec, config: RayTraceConfig, count: int = 1) -> None:
-    """``InputError`` naming the option unless every setting of the call is finite, in ``RANGES`` and within the resource
+    """``InputError`` naming the option unless every setting of the call is finite, in ``SimulationRanges`` and within the resource
     limits (also the box of ``--extent``/``--crop`` and the ``--user`` positions), before any geometry is loaded or any
     memory allocated."""
     _bounded(count, "cities", "--count")

@@ -51,7 +51,7 @@ class RayTraceConfig:
     #: variation of the nearest hit cells, see ``fill_smooth``) or "parent" (the coarse cell's mean, copied: a mosaic).
     gap_fill_method: str = "geodesic"
     #: ``geodesic``: how far from a hit cell [m] a cell no ray hit is walked to, and the decay on the way [dB/m]
-    #: (chosen on the validation cities' exact paths, ``benchmarks/bench_fidelity.py``); reach 0: direct paths only.
+    #: (chosen on the validation cities' exact paths, ``experiments/fidelity.py``); reach 0: direct paths only.
     gap_fill_reach_m: float = 24.0
     gap_fill_decay_db_per_m: float = 3.0
     #: ``SOLVERS``: "radio-map" (the default), or "paths": every open cell from exact paths, no radio map and no fill

@@ -13,8 +13,12 @@ from uavplace.simulate.insite import ReceiverGrid, write_p2m, write_setup, write
 
 REPO = Path(__file__).resolve().parents[1]
 #: ``uavdata`` in a child process of this interpreter (the console script without depending on PATH).
-UAVDATA = [sys.executable, "-m", "uavplace.schemas.cli", "uavdata"]
+UAVDATA = [sys.executable, "-m", "uavplace.cli", "uavdata"]
 FIXTURES = Path(os.environ.get("UAVPLACE_FIXTURES", REPO.parent / "shared" / "fixtures" / "wireless-insite"))
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption("--probes", action="store_true", help="Also run the probe suite (tests/probes.py: ~25 min on 2 cores).")
 
 
 def fixture_dir(name: str) -> Path:

@@ -316,7 +316,7 @@ def test_resume_continues_exactly(tmp_path, city_root, env, learner):
 def test_uavrl_train_cli(tmp_path, city_root):
     from click.testing import CliRunner
 
-    from uavplace.schemas.cli import uavrl
+    from uavplace.cli import uavrl
 
     run = CliRunner().invoke
     assert "--resume" in run(uavrl, ["train", "--help"]).output
@@ -345,7 +345,7 @@ def test_uavrl_train_cli(tmp_path, city_root):
     res = run(uavrl, [*args[:-1], "--name", "logged"])  # not a terminal and not --quiet: plain lines for a log
     assert res.exit_code == 0 and "train logged: step 96/96 ep " in res.output, res.output
     assert "loss nan" not in res.output  # before the first update: "loss -"
-    from uavplace.schemas.files import exclusive_folder
+    from uavplace.infra.files import exclusive_folder
 
     with exclusive_folder(tmp_path / "busy", "training run"):  # another command holds the name (or resumes the run)
         res = run(uavrl, [*args, "--name", "busy"])
@@ -551,7 +551,7 @@ def corpus_root(tmp_path_factory):
 def test_train_on_a_corpus_selects_on_val_cities_and_refuses_test_cities(tmp_path, corpus_root):
     from click.testing import CliRunner
 
-    from uavplace.schemas.cli import uavrl
+    from uavplace.cli import uavrl
 
     run = CliRunner().invoke
     base = ["train", "--root", str(corpus_root), "--preset", "fast", "--steps", "64", "--out", str(tmp_path), "--quiet"]
@@ -596,7 +596,8 @@ def test_city_weights_draw_cities_in_proportion(corpus_root, weights, share):
 
 
 def test_report_refuses_a_city_an_agent_was_selected_on(tmp_path, corpus_root):
-    from uavplace.eval.report import ReportConfig, make_report
+    from uavplace.eval.evaluate import ReportConfig
+    from uavplace.eval.report import make_report
 
     config = preset_config("fast", num_envs=4, total_steps=64, eval_every=64, eval_episodes=8, env={"t_max": 20})
     Trainer(config, ["c-000"], corpus_root, tmp_path / "run", val_datasets=["c-002"]).run()
@@ -607,7 +608,7 @@ def test_report_refuses_a_city_an_agent_was_selected_on(tmp_path, corpus_root):
     assert not (tmp_path / "report").exists()
     from click.testing import CliRunner
 
-    from uavplace.schemas.cli import uavrl
+    from uavplace.cli import uavrl
 
     for task in ("placement", "fleet"):  # several cities: refused before the first city's report is written
         res = CliRunner().invoke(uavrl, ["report", "--task", task, "--dataset", "held", "--dataset", "c-002", "--run",
@@ -735,9 +736,10 @@ def test_ensemble_acts_on_the_mean_q_and_plays_like_a_run(tmp_path, corpus_root)
     refused before anything is written."""
     from click.testing import CliRunner
 
-    from uavplace.eval.report import ReportConfig, load_agent, make_report
+    from uavplace.cli import uavrl
+    from uavplace.eval.evaluate import ReportConfig, load_agent
+    from uavplace.eval.report import make_report
     from uavplace.rl.agent.ensemble import build_ensemble
-    from uavplace.schemas.cli import uavrl
 
     for seed in (0, 1):
         config = _tiny_config().model_copy(update=GRU | {"seed": seed})
@@ -848,7 +850,7 @@ def test_ctrl_c_checkpoints_and_only_resumes_that_ran_are_recorded(tmp_path, cit
     # killed before its first checkpoint (only run.json written): `--resume` starts it over in its folder
     from click.testing import CliRunner
 
-    from uavplace.schemas.cli import uavrl
+    from uavplace.cli import uavrl
 
     early = tmp_path / "early"
     Trainer(_tiny_config(), ["tiny"], city_root, early, command="uavrl train").write_run_json()

@@ -11,10 +11,10 @@ from click.testing import CliRunner
 from tests.bad_inputs.cases import CASES
 from tests.bad_inputs.workspace import Workspace
 from tests.conftest import write_grid_city
+from uavplace.cli import uavdata, uavrl
 from uavplace.dataset.build import build_city
 from uavplace.ingest.pipeline import ingest_city
 from uavplace.schemas.bundle import BuildConfig
-from uavplace.schemas.cli import uavdata, uavrl
 
 CLIS = {"uavdata": uavdata, "uavrl": uavrl}
 

@@ -17,12 +17,12 @@ import pytest
 from click.testing import CliRunner
 
 from tests.conftest import REPO, UAVDATA, write_grid_city
+from uavplace.cli import uavdata
 from uavplace.dataset.build import build_city
 from uavplace.dataset.bundle import load_bundle, read_latest
 from uavplace.ingest.pipeline import ingest_city
 from uavplace.schemas import InputError
 from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM, BuildConfig
-from uavplace.schemas.cli import uavdata
 
 NOISE = EMBEDDED_NOISE_DBM  # the build's default
 FLOOR = -40.0

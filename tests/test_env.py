@@ -434,7 +434,7 @@ def test_summary_counts_failures_as_infinite():
 def test_uavrl_baselines_cli(root):
     from click.testing import CliRunner
 
-    from uavplace.schemas.cli import uavrl
+    from uavplace.cli import uavrl
 
     res = CliRunner().invoke(uavrl, ["baselines", "--dataset", "tiny", "--root", str(root), "--episodes", "40", "--t-max", "60"])
     assert res.exit_code == 0, res.output

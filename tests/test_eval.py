@@ -10,6 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from tests.conftest import write_grid_city
+from uavplace.cli import uavrl
 from uavplace.dataset.build import build_city
 from uavplace.eval.metrics import bootstrap_table, difference_table, ecdf, format_stat, group_tables
 from uavplace.ingest.pipeline import ingest_city
@@ -17,7 +18,6 @@ from uavplace.rl.agent.dqn import preset_config
 from uavplace.rl.agent.train import Trainer
 from uavplace.rl.rollout import summarise
 from uavplace.schemas.bundle import BuildConfig
-from uavplace.schemas.cli import uavrl
 
 
 def episodes(steps, success, genie=None, user=None) -> pd.DataFrame:
@@ -284,7 +284,7 @@ def test_an_agent_of_another_window_plays_the_same_episodes(tmp_path, two_cities
     """Canvas coordinates depend on the window (its pad); an agent trained with a 21-cell window starts each
     episode on the very cells the genie and a 61-cell agent start on (same map cell, same genie distance)."""
     from uavplace.dataset.bundle import load_bundle
-    from uavplace.eval.report import ReportConfig, evaluate, load_agent
+    from uavplace.eval.evaluate import ReportConfig, evaluate, load_agent
 
     root, run = two_cities
     config = preset_config(
@@ -305,7 +305,7 @@ def test_twin_cities_play_the_same_episodes_where_both_can_start(two_cities):
     """Episodes drawn on one city and kept where another of the same grid and users ``can_start`` them play from the
     same cells in both (``evaluate(episodes=...)``, the exact-path twin's benchmark); one that cannot start is refused."""
     from uavplace.dataset.bundle import load_bundle
-    from uavplace.eval.report import ReportConfig, evaluate
+    from uavplace.eval.evaluate import ReportConfig, evaluate
     from uavplace.rl.config import EnvConfig
     from uavplace.rl.maps import MapSet
     from uavplace.rl.policies import GeniePolicy
@@ -336,7 +336,7 @@ def test_report_refuses_the_training_city(tmp_path, two_cities):
 
 
 def test_trajectories_are_picked_by_the_stated_rule():
-    from uavplace.eval.report import pick_trajectories
+    from uavplace.eval.figures import pick_trajectories
 
     # 10 episodes: successes in 5, 9, 12, 20, 30, 40, 60 steps and 3 failures; median steps to P_T (failures
     # infinite) is the 5th order statistic, 30; the successes' 90th percentile is their 7th, 60.
@@ -374,7 +374,7 @@ def test_development_scripts_see_validation_cities_and_test_cities_only_for_a_re
 def test_training_curves_order_episodes_by_their_start():
     """One env, t_max 10: a failure begun at step 0 ends at 10, after quick successes begun at 1-5. Ordered by start it
     comes first (by end, the curve would open on successes only); episodes begun in the last t_max steps are left out."""
-    from uavplace.eval.report import by_episode_start
+    from uavplace.eval.figures import by_episode_start
 
     metrics = pd.DataFrame({"step": [2, 3, 4, 5, 6, 10, 25, 30], "length": [1, 1, 1, 1, 1, 10, 2, 1],
                             "success": [True] * 5 + [False, True, True]})  # fmt: skip
@@ -390,11 +390,11 @@ def test_a_default_build_is_what_the_shipped_agents_expect_and_another_is_named(
     from click.testing import CliRunner
 
     from tests.conftest import REPO
+    from uavplace.cli import uavrl
     from uavplace.dataset.build import build_city
-    from uavplace.eval.report import unlike_training
+    from uavplace.eval.evaluate import unlike_training
     from uavplace.rl.agent.train import read_run_json
     from uavplace.schemas.bundle import BuildConfig
-    from uavplace.schemas.cli import uavrl
 
     agents = sorted(p.parent for p in (REPO / "data" / "agents").glob("*/run.json"))
     assert len(agents) >= 5
@@ -421,7 +421,7 @@ def test_evaluations_over_the_step_limit_are_refused_before_any_work(tiny):
     """The limits bound the product that costs time and memory (episodes x step budget), not only each factor."""
     from click.testing import CliRunner
 
-    from uavplace.schemas.cli import uavrl
+    from uavplace.cli import uavrl
 
     for args in (
         ["report", "--dataset", "tiny", "--episodes", "1000000"],

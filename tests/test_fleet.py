@@ -8,7 +8,8 @@ from collections import deque
 import numpy as np
 import pytest
 
-from uavplace.rl.fleet import FLEET_MOVES, BatchedFleet, FleetCity, FleetConfig, FleetMaps, oracle_steps
+from uavplace.rl.fleet import FLEET_MOVES, BatchedFleet, FleetCity, FleetConfig, FleetMaps, FleetView, oracle_steps
+from uavplace.rl.maps import MOVES
 
 
 def _city(seed: int, side: int = 7, users: int = 4, walls: int = 6) -> FleetCity:
@@ -253,7 +254,7 @@ def test_independent_agents_deal_users_and_read_only_what_the_fleet_measured(tin
     every user's map is scrambled off the cells the fleet visited, and alike in a batch and alone."""
     from tests.conftest import REPO
     from uavplace.dataset.bundle import load_bundle
-    from uavplace.eval.report import load_agent
+    from uavplace.eval.evaluate import load_agent
     from uavplace.rl.fleet import FleetPlacement, FleetView, run_fleet
 
     agent = load_agent(REPO / "data" / "agents" / "best", 0.096, 0)
@@ -303,7 +304,7 @@ def test_fleet_report_writes_its_tables_and_never_replaces_a_stranger(tiny, tmp_
     from click.testing import CliRunner
 
     from tests.conftest import REPO
-    from uavplace.schemas.cli import uavrl
+    from uavplace.cli import uavrl
 
     out = tmp_path / "fleet"
     args = ["report", "--task", "fleet", "--dataset", "tiny", "--root", str(tiny), "--episodes", "12", "--users", "2",
@@ -335,3 +336,106 @@ def test_fleet_report_writes_its_tables_and_never_replaces_a_stranger(tiny, tmp_
     assert res.exit_code != 0 and "--task fleet" in res.output
     res = CliRunner().invoke(uavrl, [*args, "--out", str(out), "--run", str(REPO / "data" / "agents" / "hybrid")])
     assert res.exit_code != 0 and "belief" in res.output
+
+
+def _fleet_run_config(**update):
+    from uavplace.rl.agent.dqn import preset_config
+
+    tiny = {"total_steps": 256, "num_envs": 8, "rollout_steps": 8, "batch_size": 32, "epochs": 2, "hidden": 16,
+            "fovea": 5, "eval_every": 128, "eval_episodes": 6}  # fmt: skip
+    fleet = {"uavs": 2, "users": 2, "window": 9, "t_max": 30}
+    return preset_config("best", task="fleet", fleet=fleet, env={"window": 9}, **(tiny | update))
+
+
+def test_fleet_env_for_the_learner_rewards_each_uav_for_its_own_users(tiny):
+    """``FleetTrainEnv``: a row per UAV, observed as ``FleetPlacement`` deals; a row's reward is placement's on its
+    UAV's dealt users (their weakest SINR's change, c_e on a cell the fleet never visited, the bonus when it comes to
+    serve them all), nothing when it stays; a UAV kept still stays whatever it chose; the genie's moves shorten the way
+    to a cell serving all its users."""
+    from uavplace.dataset.bundle import load_bundle
+    from uavplace.rl.fleet import FleetTrainEnv
+
+    config = _fleet_run_config()
+    env_config = config.env_config()
+    maps = FleetMaps.of([load_bundle("tiny", root=str(tiny))], config.fleet)
+    env = FleetTrainEnv(maps, env_config, 8)
+    obs, info = env.reset(seed=3)
+    assert obs.shape[0] == 8 and info["action_mask"].shape == (8, 4)
+    rng = np.random.default_rng(0)
+    checked = 0
+    for _ in range(25):
+        f = env.fleet
+        groups, idle = env.deal.groups.copy(), env._idle.copy()
+        before = FleetView.of(f).at_uavs()
+        pos, visits = f.pos.copy(), f.visits.copy()
+        genie = env.genie_moves()
+        actions = rng.integers(0, 4, 8)
+        _, reward, term, trunc, info = env.step(actions)
+        for e in np.flatnonzero(~(term | trunc)[::2]):
+            for k in range(2):
+                r = reward[2 * e + k]
+                if idle[e, k]:
+                    assert r == 0 and (f.pos[e, k] == pos[e, k]).all()
+                    continue
+                mine = groups[e, k]
+                y, x = f.pos[e, k]
+                after = f.memory[e, mine, y, x]
+                fresh = visits[e, y, x] == 0
+                served = (after >= config.fleet.p_t_db).all() and not (before[e, k, mine] >= config.fleet.p_t_db).all()
+                want = after.min() - before[e, k, mine].min() + env_config.c_e * fresh + env_config.success_bonus * served
+                assert r == pytest.approx(want, abs=1e-4)
+                reach = maps.group_reach(int(f.city[e]), tuple(np.flatnonzero(mine)))
+                py, px = pos[e, k] - maps.pad
+                for a in np.flatnonzero(genie[2 * e + k]):
+                    assert reach[py + MOVES[a, 0], px + MOVES[a, 1]] < reach[py, px]
+                checked += 1
+    assert checked > 50
+
+
+def test_fleet_agent_trains_resumes_exactly_and_reports(tiny, tmp_path):
+    """`uavrl train --task fleet`: one network for every UAV, learnt on fleet episodes, chosen on fixed validation
+    episodes of the fleet; started from a trained network's weights (`init`); stopped and resumed it ends where a
+    straight run ends; the fleet report plays it as a fleet-trained agent."""
+    import pandas as pd
+    import torch
+    from click.testing import CliRunner
+
+    from uavplace.cli import uavrl
+    from uavplace.rl.agent.train import FleetTrainer, read_run_json
+    from uavplace.schemas import InputError
+
+    straight = FleetTrainer(_fleet_run_config(), ["tiny"], tiny, tmp_path / "a")
+    straight.run()
+    evals = pd.read_parquet(tmp_path / "a" / "eval.parquet")
+    assert evals["step"].tolist() == [128, 256] and evals["success"].between(0, 1).all()
+    assert read_run_json(tmp_path / "a").config.task == "fleet"
+    half = FleetTrainer(_fleet_run_config(), ["tiny"], tiny, tmp_path / "b")
+    half.run(stop_at=96)
+    resumed = FleetTrainer(_fleet_run_config(), ["tiny"], tiny, tmp_path / "b")
+    resumed.load()
+    resumed.run(resume=True)
+    for a, b in zip(straight.agent.online.state_dict().values(), resumed.agent.online.state_dict().values(), strict=True):
+        assert torch.equal(a, b)
+
+    started = FleetTrainer(_fleet_run_config(init=str(tmp_path / "a")), ["tiny"], tiny, tmp_path / "c")
+    best = torch.load(tmp_path / "a" / "checkpoints" / "best.pt", weights_only=True)["online"]
+    for name, value in started.agent.online.state_dict().items():
+        assert torch.equal(value, best[name])
+    with pytest.raises(InputError, match="do not fit"):
+        FleetTrainer(_fleet_run_config(init=str(tmp_path / "a"), hidden=8), ["tiny"], tiny, tmp_path / "d")
+
+    # A city it never saw: a synthetic grid city.
+    from tests.conftest import write_grid_city
+    from uavplace.dataset.build import build_city
+    from uavplace.ingest.pipeline import ingest_city
+    from uavplace.schemas.bundle import BuildConfig
+
+    root = tmp_path / "root"
+    ingest_city(write_grid_city(tmp_path / "raw", nx=8, ny=7, n_tx=3, seed=5, dead_share=0.0), root, name="unseen")
+    build_city("unseen", BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=-45.0), root)
+    out = tmp_path / "report"
+    args = ["report", "--task", "fleet", "--dataset", "unseen", "--root", str(root), "--run", str(tmp_path / "a"), "--uavs",
+            "2", "--users", "2", "--episodes", "6", "--t-max", "30", "--bootstrap", "100", "--out", str(out), "--quiet"]  # fmt: skip
+    result = CliRunner().invoke(uavrl, args)
+    assert result.exit_code == 0, result.output
+    assert "PQN + GRU (best, fleet)" in result.output

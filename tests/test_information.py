@@ -14,7 +14,7 @@ import copy
 import numpy as np
 
 from tests.conftest import REPO
-from uavplace.eval.report import default_agents, load_agent
+from uavplace.eval.evaluate import default_agents, load_agent
 from uavplace.rl.maps import MapSet
 from uavplace.rl.policies import GeniePolicy
 from uavplace.rl.rollout import run_episodes
@@ -85,7 +85,7 @@ def test_report_methods_read_only_what_they_measured(tiny):
     """Every method the report plays beside the agents, but the genie (privileged), receives only the UAV's view
     (``rl.view.AgentView``) and moves the same when the user's map is scrambled off its route: the random walk, greedy
     hill-climbing, the map searcher and its ablation."""
-    from uavplace.eval.report import ReportConfig, baseline_policies
+    from uavplace.eval.evaluate import ReportConfig, baseline_policies
     from uavplace.rl.config import EnvConfig
     from uavplace.rl.view import AgentView, view_for
 

@@ -12,10 +12,10 @@ import pytest
 from click.testing import CliRunner
 
 from tests.conftest import write_grid_city
+from uavplace.cli import uavdata, uavrl
+from uavplace.infra.files import sha256_file
 from uavplace.ingest.pipeline import ingest_city
 from uavplace.schemas import CityManifest, IngestReport
-from uavplace.schemas.cli import uavdata, uavrl
-from uavplace.schemas.files import sha256_file
 
 
 def run(*args: str):
@@ -312,7 +312,7 @@ def test_every_help_names_its_ranges_without_none():
 
 def test_no_help_text_carries_a_date():
     """The product says what is true now: no `--help` of either CLI, nor any package file, dates a measurement (the
-    history lives in docs/learner.md and the dated write-ups)."""
+    history lives in experiments/log/)."""
     import re
 
     from tests.conftest import REPO
@@ -322,7 +322,7 @@ def test_no_help_text_carries_a_date():
         for name in ["", *cli.list_commands(None)]:
             text = CliRunner().invoke(cli, [name, "--help"] if name else ["--help"]).output
             assert not dated.search(text), (name, dated.search(text))
-    for package in ("schemas", "ingest", "dataset", "simulate", "rl", "eval"):
+    for package in ("schemas", "infra", "ingest", "dataset", "simulate", "rl", "eval", "cli"):
         for path in (REPO / package).rglob("*.py"):
             lines = [n for n, line in enumerate(path.read_text().splitlines(), 1) if dated.search(line)]
             assert not lines, f"{path.relative_to(REPO)}:{lines[0]} dates a measurement"
@@ -339,7 +339,7 @@ def test_a_mistyped_city_is_named_with_the_nearest_before_anything_heavy_loads(t
     script = (
         "import sys\n"
         "from click.testing import CliRunner\n"
-        "from uavplace.schemas.cli import uavdata, uavrl\n"
+        "from uavplace.cli import uavdata, uavrl\n"
         f"r = CliRunner().invoke(uavrl, ['report', '--dataset', 'florense', '--root', {str(root)!r}])\n"
         f"b = CliRunner().invoke(uavdata, ['build', '--city', 'florense', '--root', {str(root)!r}])\n"
         "print(r.exit_code, b.exit_code, 'torch' in sys.modules)\n"

@@ -10,6 +10,7 @@ import pytest
 import torch
 from click.testing import CliRunner
 
+from uavplace.cli import uavrl
 from uavplace.dataset.bundle import load_bundle
 from uavplace.rl.learned import (
     MODEL_CARD,
@@ -29,7 +30,6 @@ from uavplace.rl.learned import (
 from uavplace.rl.predictor import PhysicsConstants, PhysicsPredictor, Scene
 from uavplace.rl.searcher import MapSearchPolicy, PredictionCache, SearchConfig, load_predictor
 from uavplace.schemas import InputError
-from uavplace.schemas.cli import uavrl
 
 SMALL = UNetConfig(widths=[4, 8], crop=16, batch=4, steps=40, lr=5e-3, threads=1)
 

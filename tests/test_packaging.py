@@ -8,7 +8,7 @@ from pathlib import Path
 
 from tests.conftest import REPO
 
-STAGES = ("schemas", "ingest", "simulate", "dataset", "rl", "eval")
+STAGES = ("schemas", "infra", "ingest", "simulate", "dataset", "rl", "eval", "cli")
 
 
 def _python(code: str, cwd: Path) -> str:
@@ -52,7 +52,7 @@ def test_a_command_loads_only_its_own_stage(tmp_path):
     """``uavdata ingest --help`` loads the ingest stage's command, not the ray tracer, the bundles or the agents."""
     out = _python(
         "import sys\n"
-        "from uavplace.schemas.cli import uavdata\n"
+        "from uavplace.cli import uavdata\n"
         "try:\n"
         "    uavdata.main(['ingest', '--help'], standalone_mode=False)\n"
         "finally:\n"
@@ -62,3 +62,51 @@ def test_a_command_loads_only_its_own_stage(tmp_path):
     loaded = set(out.splitlines()[-1].split())
     assert "uavplace.ingest.cli" in loaded
     assert not loaded & {"uavplace.simulate.cli", "uavplace.dataset.cli", "uavplace.rl.cli", "uavplace.eval.cli", "torch", "ray"}
+
+
+#: The package's layers, lowest first: a module imports its own layer's and lower ones' only.
+LAYERS = ("schemas", "infra", "ingest", "simulate", "dataset", "rl", "eval", "cli")
+
+
+def _imports() -> dict[str, set[str]]:
+    """Every package module and the ``uavplace`` modules it imports (at the top or inside functions)."""
+    import ast
+
+    graph: dict[str, set[str]] = {}
+    for layer in LAYERS:
+        for path in sorted((REPO / layer).rglob("*.py")):
+            parts = path.relative_to(REPO).with_suffix("").parts
+            name = "uavplace." + ".".join(p for p in parts if p != "__init__")
+            found = set()
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("uavplace."):
+                    found.add(node.module)
+                elif isinstance(node, ast.Import):
+                    found |= {a.name for a in node.names if a.name.startswith("uavplace.")}
+            graph[name] = found
+    return graph
+
+
+def test_imports_flow_one_way_without_a_cycle():
+    """schemas <- infra <- ingest <- simulate <- dataset <- rl <- eval <- cli: no module imports a higher layer (the
+    command groups of ``uavplace.cli`` load the stages' commands by name, never by import), and the modules' imports
+    form no cycle."""
+    graph = _imports()
+    assert len(graph) > 60
+    upward = [(m, i) for m, found in graph.items() for i in found
+              if LAYERS.index(i.split(".")[1]) > LAYERS.index(m.split(".")[1])]  # fmt: skip
+    assert not upward
+    state: dict[str, int] = {}
+
+    def visit(m: str, path: list[str]) -> None:
+        state[m] = 1
+        for i in sorted(graph.get(m, ())):
+            if i in graph and i != m:
+                assert state.get(i) != 1, " -> ".join([*path, m, i])
+                if i not in state:
+                    visit(i, [*path, m])
+        state[m] = 2
+
+    for m in graph:
+        if m not in state:
+            visit(m, [])

@@ -55,8 +55,8 @@ def test_sb3_trains_and_plays_in_the_report_evaluation(tmp_path, root, algo):
     episodes beside the genie, the same moves each time (its random moves drawn per episode); a file that holds Python
     objects is refused, not unpickled."""
     from uavplace.dataset.bundle import load_bundle
+    from uavplace.eval.evaluate import ReportConfig, evaluate
     from uavplace.eval.peer import load_peer, train_sb3
-    from uavplace.eval.report import ReportConfig, evaluate
     from uavplace.rl.config import EnvConfig
     from uavplace.rl.maps import MapSet
     from uavplace.rl.policies import GeniePolicy

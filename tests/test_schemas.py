@@ -73,7 +73,7 @@ def test_every_limit_is_documented_with_its_default():
     """docs/security.md's table of resource limits lists each limit of ``Limits`` with its default (no drift)."""
     from pathlib import Path
 
-    from uavplace.schemas.limits import Limits, shown
+    from uavplace.infra.limits import Limits, shown
 
     doc = (Path(__file__).resolve().parents[1] / "docs" / "security.md").read_text()
     for name, field in Limits.model_fields.items():
@@ -83,7 +83,7 @@ def test_every_limit_is_documented_with_its_default():
 def test_limits_parse_override_and_name_the_option(monkeypatch):
     """--limit NAME=VALUE and UAVPLACE_LIMITS set the limits of this process and its children; a value past a limit is
     one InputError naming the limit and how to raise it; bad pairs are refused."""
-    from uavplace.schemas import limits as lim
+    from uavplace.infra import limits as lim
 
     monkeypatch.setattr(lim, "_current", None)
     monkeypatch.setenv(lim.ENV, "grid_cells=100")
@@ -107,7 +107,7 @@ def test_atomic_outputs_take_the_umask_not_a_private_mode(tmp_path):
     0700 under 077 (mkstemp's and mkdtemp's private modes must not leak into reports and runs)."""
     import os
 
-    from uavplace.schemas.files import atomic_directory, atomic_write_text
+    from uavplace.infra.files import atomic_directory, atomic_write_text
 
     old = os.umask(0o022)
     try:
@@ -126,9 +126,11 @@ def test_atomic_outputs_take_the_umask_not_a_private_mode(tmp_path):
     ("command", "model"),
     [
         ("uavplace.dataset.cli:build", "uavplace.schemas.bundle:BuildConfig"),
-        ("uavplace.eval.cli:report", "uavplace.eval.report:ReportConfig"),
+        ("uavplace.eval.cli:report", "uavplace.eval.evaluate:ReportConfig"),
+        ("uavplace.simulate.cli:simulate", "uavplace.simulate.pipeline:SimulationSpec"),
+        ("uavplace.simulate.cli:simulate", "uavplace.simulate.raytrace:RayTraceConfig"),
     ],  # fmt: skip
-    ids=["build", "report"],
+    ids=["build", "report", "simulate-spec", "simulate-raytrace"],
 )
 def test_options_default_to_their_models_fields(command, model):
     """An option named like a field of the model it fills defaults to that field's default: the two cannot drift
@@ -141,20 +143,40 @@ def test_options_default_to_their_models_fields(command, model):
         module, _, name = ref.partition(":")
         return getattr(importlib.import_module(module), name)
 
-    cmd, fields = load(command), load(model).model_fields
+    import dataclasses
+
+    cmd, kind = load(command), load(model)
+    if dataclasses.is_dataclass(kind):
+        fields = {f.name: f.default for f in dataclasses.fields(kind) if f.default is not dataclasses.MISSING}
+    else:
+        fields = {k: f.default for k, f in kind.model_fields.items() if f.default is not PydanticUndefined}
     compared = 0
     for param in cmd.params:
-        field = fields.get(param.name)
-        if field is None or field.default is PydanticUndefined or param.multiple:
+        if param.name not in fields or param.multiple:
             continue
-        if param.default is None and field.default is not None:  # taken from elsewhere (a roles file), said in its help
+        field_default = fields[param.name]
+        if param.default is None and field_default is not None:  # taken from elsewhere (a roles file), said in its help
             assert "[default:" in (param.help or ""), param.name
             continue
         default = param.default if param.default is not None else None
         if param.is_flag:
             default = bool(param.default) if isinstance(param.default, bool) else False
-        elif isinstance(default, str) and not isinstance(field.default, str):
+        elif isinstance(default, str) and not isinstance(field_default, str):
             default = param.type.convert(default, param, None)
-        assert default == field.default or str(default) == str(field.default), (param.name, default, field.default)
+        if isinstance(field_default, tuple) and isinstance(default, list | str):
+            default = tuple(default.split(",") if isinstance(default, str) else default)
+        assert default == field_default or str(default) == str(field_default), (param.name, default, field_default)
         compared += 1
     assert compared >= 5
+
+
+def test_simulate_ranges_live_in_a_pydantic_model_bounded_by_the_limits():
+    """`uavdata simulate`'s ranges are a pydantic model (simulate/pipeline.py, SimulationRanges), as every stage's
+    settings are; each range without an upper bound is bounded by the resource limit of its name."""
+    from uavplace.infra.limits import Limits
+    from uavplace.simulate.pipeline import SimulationRanges, _range
+
+    for name in SimulationRanges.model_fields:
+        lo, hi = _range(name)
+        assert lo is not None, name
+        assert hi is not None or name in Limits.model_fields, name

@@ -182,8 +182,8 @@ def test_bad_predictor_file_is_refused(tmp_path):
 
 
 def test_predicted_maps_are_bounded_by_the_limits(tiny, monkeypatch):
+    from uavplace.infra import limits
     from uavplace.rl.view import PublicMaps
-    from uavplace.schemas import limits
 
     monkeypatch.setenv(limits.ENV, "prediction_bytes=1000")
     monkeypatch.setattr(limits, "_current", None)

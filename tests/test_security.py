@@ -14,9 +14,10 @@ from click.testing import CliRunner
 from tests.bad_inputs.workspace import Workspace
 from tests.conftest import REPO, UAVDATA, write_grid_city
 from tests.test_bad_inputs import shared  # noqa: F401 - the module-scoped fixture of built data
-from uavplace.eval.report import ReportConfig, make_report
+from uavplace.cli import uavdata, uavrl
+from uavplace.eval.evaluate import ReportConfig
+from uavplace.eval.report import make_report
 from uavplace.schemas import InputError
-from uavplace.schemas.cli import uavdata, uavrl
 
 
 def invoke(cli, *args: str):
@@ -292,7 +293,7 @@ def test_a_full_disk_is_one_line_and_leaves_nothing_half_written(tmp_path, small
     subprocess.run([*UAVDATA, "ingest", str(city), "--out", str(tmp_path / "root"), "--quiet"], check=True)
     subprocess.run([*UAVDATA, "build", "--root", str(tmp_path / "root"), "--grid", "4m", "--alt", "10", "--noise-dbm", "-60",
                     "--quiet"], check=True)  # fmt: skip
-    uavrl_cli = [sys.executable, "-m", "uavplace.schemas.cli", "uavrl"]
+    uavrl_cli = [sys.executable, "-m", "uavplace.cli", "uavrl"]
     done = subprocess.run([*uavrl_cli, "train", "--dataset", "city", "--root", str(tmp_path / "root"), "--preset", "fast",
                            "--steps", "64", "--eval-every", "32", "--out", str(small_disk / "runs"), "--name", "r", "--quiet",
                            "--set", "buffer_size=128", "--set", "learning_starts=16", "--set", "eval_episodes=4"],
@@ -305,7 +306,7 @@ def test_a_full_disk_is_one_line_and_leaves_nothing_half_written(tmp_path, small
 def test_an_output_file_path_that_is_not_a_regular_file_is_never_replaced(tmp_path, shared):  # noqa: F811
     """`--markdown` (and every file written whole) replaces a regular file or nothing: a FIFO, a folder, a link or a
     device node made here is refused in one line before any work, and stays what it was."""
-    from uavplace.schemas.files import atomic_write_text
+    from uavplace.infra.files import atomic_write_text
 
     w = Workspace(tmp_path, shared)
     fifo, folder, link = tmp_path / "fifo", tmp_path / "folder", tmp_path / "link"

@@ -14,13 +14,13 @@ import shapely
 from click.testing import CliRunner
 
 from tests.conftest import REPO, UAVDATA
+from uavplace.cli import uavdata
 from uavplace.dataset.build import build_city
 from uavplace.dataset.bundle import load_bundle
 from uavplace.ingest.pipeline import ingest_city
 from uavplace.ingest.wireless_insite.city import read_city
 from uavplace.schemas import InputError
 from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM, BuildConfig
-from uavplace.schemas.cli import uavdata
 from uavplace.simulate.pipeline import SimulationSpec, load_geometry, place_users, receiver_grid
 from uavplace.simulate.procedural import PRESETS, generate_city
 from uavplace.simulate.raytrace import LLVM_19, fill_gaps

@@ -10,10 +10,10 @@ import pytest
 from click.testing import CliRunner
 
 from tests.conftest import write_grid_city
+from uavplace.cli import uavrl
 from uavplace.dataset.build import build_city
 from uavplace.ingest.pipeline import ingest_city
 from uavplace.schemas.bundle import BuildConfig
-from uavplace.schemas.cli import uavrl
 
 pytest.importorskip("ray.tune", reason="Ray Tune missing (pip install -e '.[sweep]')")
 
@@ -124,7 +124,7 @@ def test_sweep_refuses_bad_specs(tmp_path, text, message):
 
 
 def test_shipped_sweep_files_validate():
-    """The sweep files in benchmarks/sweeps/ validate, and the `best` one trains what train_agents.sh trained."""
+    """The sweep files in experiments/sweeps/ validate, and the `best` one trains what train_agents.sh trained."""
     from pathlib import Path
 
     from uavplace.eval.sweep import read_spec
@@ -142,9 +142,9 @@ def test_sweep_removes_only_what_it_made(tmp_path, root):
     """A folder under --out that bears a trial's name but is not a run the sweep started is refused before Ray
     starts, never removed; a run of the trial's settings that never checkpointed is removed (nothing to continue)."""
     from uavplace.eval.sweep import _remove_unstarted, read_spec
+    from uavplace.infra.files import write_model_json
     from uavplace.rl.agent.train import RunRecord
     from uavplace.schemas import InputError
-    from uavplace.schemas.files import write_model_json
 
     spec_file = tmp_path / "s.toml"
     spec_file.write_text(TINY)

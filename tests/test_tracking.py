@@ -324,7 +324,7 @@ def test_tracking_report_from_the_command_line(root, tmp_path):
 
     from click.testing import CliRunner
 
-    from uavplace.schemas.cli import uavrl
+    from uavplace.cli import uavrl
 
     out = tmp_path / "trk"
     args = ["report", "--task", "tracking", "--dataset", "walk", "--root", str(root), "--episodes", "12", "--horizon",
@@ -397,8 +397,8 @@ def test_tracking_agent_trains_selects_on_validation_routes_and_reports(val_root
     import torch
     from click.testing import CliRunner
 
+    from uavplace.cli import uavrl
     from uavplace.rl.agent.train import TrackingTrainer, load_policy, read_run_json
-    from uavplace.schemas.cli import uavrl
 
     args = ["train", "--task", "tracking", "--dataset", "walk", "--dataset", "walk-val", "--root", str(val_root),
             "--out", str(tmp_path), "--steps", "512", "--eval-every", "256", "--quiet"]  # fmt: skip
@@ -444,7 +444,7 @@ def test_tracking_agent_trains_selects_on_validation_routes_and_reports(val_root
     # Shipped beside a placement agent: the placement report's default agents leave it out, the tracking report's not.
     import shutil
 
-    from uavplace.eval.report import default_agents
+    from uavplace.eval.evaluate import default_agents
 
     shipped = tmp_path / "agents"
     shutil.copytree(run, shipped / "tracker")
@@ -490,7 +490,7 @@ def test_tracking_agents_read_only_what_they_measured(root):
     genie, which reads those maps, changes somewhere (so that the test can fail)."""
     import copy
 
-    from uavplace.eval.report import default_agents, load_agent
+    from uavplace.eval.evaluate import default_agents, load_agent
     from uavplace.rl.agent.dqn import DQNPolicy, make_network
     from uavplace.rl.tracking import TrackingAgent
 

@@ -29,8 +29,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pacsv
 
+from uavplace.infra.limits import check_limit, limits
 from uavplace.schemas import InputError, ReceiverSet
-from uavplace.schemas.limits import check_limit, limits
 from uavplace.schemas.receivers import QUANTITIES, RECEIVER_OUTPUTS, SKIPPED_OUTPUTS
 from uavplace.schemas.tables import RECEIVERS, Column
 

@@ -13,7 +13,7 @@ Formats:
 - ``checkpoints/best.pt``: ``{"online": state_dict, "config": DQNConfig as JSON
   values, "eval": the evaluation row}``; the agent a report evaluates.
 - ``checkpoints/last/``: the resumable state, one folder published by a
-  rename (``schemas.files.atomic_directory``), so it is whole or absent:
+  rename (``infra.files.atomic_directory``), so it is whole or absent:
   ``networks.pt`` (networks, optimiser, torch RNG), ``env.npz`` (environment
   and run arrays), ``replay.npz``, ``metrics.parquet`` and ``eval.parquet``
   (the rows up to this step) and, written last, ``checkpoint.json`` (step,
@@ -32,9 +32,9 @@ from typing import Any
 import torch
 from pydantic import Field, model_validator
 
+from uavplace.infra.files import atomic_write_bytes
 from uavplace.schemas import InputError
 from uavplace.schemas.base import Contract
-from uavplace.schemas.files import atomic_write_bytes
 
 #: The reason inside ``torch.load(weights_only=True)``'s refusal ("Unsupported global: GLOBAL os.system ...").
 _UNPICKLER_ERROR = re.compile(r"WeightsUnpickler error:\s*(\S[^\n]*)")

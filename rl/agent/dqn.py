@@ -23,16 +23,17 @@ import torch
 from pydantic import ConfigDict, Field, ValidationError, model_validator
 from torch import nn
 
+from uavplace.infra.limits import check_limit, limits, over_limit
 from uavplace.rl.agent.network import FoveaQNetwork, MeanQ, QNetwork
 from uavplace.rl.agent.replay import Batch
 from uavplace.rl.config import EnvConfig
+from uavplace.rl.fleet import FleetConfig
 from uavplace.rl.policies import episode_draws, pick_legal, random_legal
 from uavplace.rl.randomness import stream_key
 from uavplace.rl.tracking import TRACK_MOVES, TrackingConfig
 from uavplace.rl.vec_env import OBS_OFFSET, BatchedEnv
 from uavplace.schemas import InputError
 from uavplace.schemas.base import MAX_SEED, Contract, validation_message
-from uavplace.schemas.limits import check_limit, limits, over_limit
 
 
 class DQNConfig(Contract):
@@ -139,15 +140,25 @@ class DQNConfig(Contract):
         default="auto", description="Where the networks train: auto (CUDA if present, else CPU), cpu, cuda, cuda:N"
     )
     env: EnvConfig = Field(default_factory=lambda: EnvConfig(t_max=800, rotate=True), description="Training environment")
-    task: Literal["placement", "tracking"] = Field(
+    task: Literal["placement", "tracking", "fleet"] = Field(
         default="placement",
         description="placement: find a user who stands still (the paper's task, 4 moves; the env is `env`); tracking: "
         "keep a user who moves along its route covered (rl/tracking.py: 5 actions, stay the fifth; the task is "
-        "`tracking`, `env` is not read)",
+        "`tracking`, `env` is not read); fleet: several UAVs serve several users (rl/fleet.py, `fleet`: one network on "
+        "every UAV, each playing `env`'s placement observation of the users dealt to it)",
     )
     tracking: TrackingConfig | None = Field(
         default=None, description="The tracking task (horizon, P_T, speeds, observation) of a tracking run; None otherwise"
     )
+    fleet: FleetConfig | None = Field(
+        default=None, description="The fleet task (UAVs, users, step budget, reward) of a fleet run; None otherwise"
+    )
+    init: str | None = Field(
+        default=None,
+        description="A trained network whose weights start the run (a run or ensemble folder, or its best.pt; the "
+        "same network as this config's); None: random weights",
+    )
+    init_member: int = Field(default=0, ge=0, description="With init an ensemble: the member whose weights start the run")
 
     @model_validator(mode="after")
     def _rollout_holds_a_batch(self) -> DQNConfig:
@@ -162,6 +173,10 @@ class DQNConfig(Contract):
             raise ValueError("test_aux_weight needs a network with a genie-move head (trained with aux_genie > 0)")
         if (self.task == "tracking") != (self.tracking is not None):
             raise ValueError("a tracking run needs its task config (tracking), and only a tracking run has one")
+        if (self.task == "fleet") != (self.fleet is not None):
+            raise ValueError("a fleet run needs its task config (fleet), and only a fleet run has one")
+        if self.task == "fleet" and (self.env.belief_channel or self.env.context_zoom):
+            raise ValueError("a fleet run deals each UAV a changing set of users: no belief or context channel")
         if self.task == "tracking" and (self.train_revisit_penalty or self.test_revisit_penalty):
             # A user who moves brings the UAV back to cells it has stood in: placement's loop breaker is wrong here.
             raise ValueError("train_revisit_penalty and test_revisit_penalty are placement's: 0 in a tracking run")
@@ -169,10 +184,11 @@ class DQNConfig(Contract):
 
     @model_validator(mode="after")
     def _within_limits(self) -> DQNConfig:
-        """The loops a config drives are bounded by the resource limits (``schemas.limits``), checked when it is made
+        """The loops a config drives are bounded by the resource limits (``infra.limits``), checked when it is made
         or read from a run.json, before any work; the network's and the replay's sizes are checked where they are built."""
         for field, limit, value in (("total_steps", "train_steps", self.total_steps), ("eval_episodes", "episodes", self.eval_episodes),
-                                    ("eval_t_max", "t_max", self.eval_t_max), ("env.t_max", "t_max", self.env.t_max)):  # fmt: skip
+                                    ("eval_t_max", "t_max", self.eval_t_max), ("env.t_max", "t_max", self.env.t_max),
+                                    ("fleet.t_max", "t_max", self.fleet.t_max if self.fleet else 0)):  # fmt: skip
             if value > getattr(limits(), limit):
                 raise ValueError(over_limit(limit, value, field))
         return self
@@ -237,7 +253,7 @@ PRESETS: dict[str, dict] = {
     # The foveated network, 64 envs acting in one batch, 3-step returns, batches of 128 every 16 env steps, no
     # dropout, the visited-cells channel, a success bonus of 100, best.pt chosen on 1000 fixed validation episodes, a
     # revisit penalty of 1 per earlier visit when acting, and an auxiliary head that learns the genie's move (training
-    # only). How each setting was chosen: docs/learner.md, "How the presets came to be".
+    # only). How each setting was chosen: experiments/log/learner.md.
     "best-dqn": {
         "total_steps": 300_000,
         "num_envs": 64,
@@ -290,7 +306,7 @@ PRESETS["hybrid"] = PRESETS["best"] | {"env": PRESETS["best"]["env"] | {"belief_
 #: brings the UAV back to cells it has stood in, so placement's revisit penalty is off.
 TRACKING_OVERRIDES = {"train_revisit_penalty": 0.0, "test_revisit_penalty": 0.0}
 #: The nested configs ``--set PART.FIELD=VALUE`` reaches.
-NESTED = {"env": EnvConfig.model_fields, "tracking": TrackingConfig.model_fields}
+NESTED = {"env": EnvConfig.model_fields, "tracking": TrackingConfig.model_fields, "fleet": FleetConfig.model_fields}
 
 
 def parse_settings(settings: list[str] | tuple[str, ...]) -> dict:
@@ -303,7 +319,8 @@ def parse_settings(settings: list[str] | tuple[str, ...]) -> dict:
         known = DQNConfig.model_fields if len(parts) == 1 else NESTED.get(parts[0], {})
         if not sep or len(parts) > 2 or parts[-1] not in known:
             raise InputError(
-                None, f"{item!r}: expected FIELD=VALUE, env.FIELD=VALUE or tracking.FIELD=VALUE with a known field",
+                None, f"{item!r}: expected FIELD=VALUE, env.FIELD=VALUE, tracking.FIELD=VALUE or fleet.FIELD=VALUE with a "
+                "known field",
                 field="set",
             )  # fmt: skip
         try:
@@ -321,13 +338,17 @@ def preset_config(name: str, **overrides: object) -> DQNConfig:
         raise ValueError(f"unknown preset {name!r} (known: {', '.join(PRESETS)})")
     default_env = DQNConfig.model_fields["env"].default_factory().model_dump()  # type: ignore[misc]
     env = default_env | dict(PRESETS[name].get("env", {})) | dict(overrides.pop("env", None) or {})  # type: ignore[arg-type]
-    tracking = overrides.pop("tracking", None)
+    tracking, fleet = overrides.pop("tracking", None), overrides.pop("fleet", None)
     values = dict(PRESETS[name]) | {"preset": name} | overrides | {"env": env}
     if values.get("task") == "tracking":  # the preset's learner on the tracking task, without placement's loop breaker
         values = values | TRACKING_OVERRIDES | {k: overrides[k] for k in TRACKING_OVERRIDES if k in overrides}
     elif tracking:
         raise InputError(None, "tracking settings are for --task tracking", field="tracking")
+    if fleet and values.get("task") != "fleet":
+        raise InputError(None, "fleet settings are for --task fleet", field="fleet")
     try:
+        if values.get("task") == "fleet":
+            values["fleet"] = FleetConfig(**(fleet or {}))
         if values.get("task") == "tracking":
             # the preset's training rotation (env.rotate) for the routes too, unless tracking.rotate says otherwise
             values["tracking"] = TrackingConfig(**({"rotate": env["rotate"]} | (tracking or {})))

@@ -25,6 +25,7 @@ import pandas as pd
 import torch
 
 from uavplace.dataset.bundle import load_bundle
+from uavplace.infra.files import atomic_directory, write_model_json
 from uavplace.rl.agent.checkpoint import load_tensors, save_tensors
 from uavplace.rl.agent.dqn import DQNConfig, DQNPolicy
 from uavplace.rl.agent.network import MeanQ
@@ -39,7 +40,6 @@ from uavplace.rl.agent.train import (
 )
 from uavplace.schemas import InputError
 from uavplace.schemas.base import uavplace_version
-from uavplace.schemas.files import atomic_directory, write_model_json
 
 #: Config fields members may differ in: the seed (what makes them members) and where they trained.
 FREE_FIELDS = {"seed", "device"}

@@ -16,7 +16,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from uavplace.schemas.limits import check_limit
+from uavplace.infra.limits import check_limit
 
 
 class Batch(NamedTuple):

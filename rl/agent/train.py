@@ -33,18 +33,7 @@ from pydantic import Field, ValidationError
 from torch import nn
 
 from uavplace.dataset.bundle import Bundle, load_bundle
-from uavplace.rl.agent.checkpoint import CHECKPOINT_JSON, CheckpointState, load_tensors, require, save_tensors
-from uavplace.rl.agent.dqn import DQN, DQNConfig, DQNPolicy, make_network
-from uavplace.rl.agent.pqn import Rollout, pqn_round
-from uavplace.rl.agent.replay import ReplayBuffer
-from uavplace.rl.maps import MapSet
-from uavplace.rl.rollout import run_episodes, summarise
-from uavplace.rl.tracking import RouteSet, TrackingEnv, run_tracking
-from uavplace.rl.vec_env import BatchedEnv
-from uavplace.schemas import InputError
-from uavplace.schemas.base import Contract, uavplace_version, validation_message
-from uavplace.schemas.bundle import BundleManifest, BundleSettings
-from uavplace.schemas.files import (
+from uavplace.infra.files import (
     atomic_directory,
     atomic_write_bytes,
     atomic_write_text,
@@ -53,6 +42,18 @@ from uavplace.schemas.files import (
     recover_directory,
     write_model_json,
 )
+from uavplace.rl.agent.checkpoint import CHECKPOINT_JSON, CheckpointState, load_tensors, require, save_tensors
+from uavplace.rl.agent.dqn import DQN, DQNConfig, DQNPolicy, make_network
+from uavplace.rl.agent.pqn import Rollout, pqn_round
+from uavplace.rl.agent.replay import ReplayBuffer
+from uavplace.rl.fleet import FleetMaps, FleetPlacement, FleetTrainEnv, run_fleet
+from uavplace.rl.maps import MapSet
+from uavplace.rl.rollout import run_episodes, summarise
+from uavplace.rl.tracking import RouteSet, TrackingEnv, run_tracking
+from uavplace.rl.vec_env import BatchedEnv
+from uavplace.schemas import InputError
+from uavplace.schemas.base import Contract, uavplace_version, validation_message
+from uavplace.schemas.bundle import BundleManifest, BundleSettings
 
 #: The resumable checkpoint folder under ``checkpoints/``.
 LAST = "last"
@@ -300,6 +301,8 @@ class Trainer:
         c, w = config.observation()
         a = config.n_actions
         self.agent = DQN(config, c, w, fast=fast)
+        if config.init is not None:
+            start_from(self.agent, config)
         # What the learner learns from, saved with every checkpoint: the replay, or PQN's rollout so far.
         self.replay: ReplayBuffer | None = None
         self.rollout: Rollout | None = None
@@ -668,6 +671,52 @@ class TrackingTrainer(Trainer):
         return {"success": share > 0, "covered_share": share}
 
 
+class FleetTrainer(Trainer):
+    """A run of the fleet task (``DQNConfig.task == "fleet"``, ``rl.fleet``): placement's network, learner, loop,
+    checkpoints and run folder; the env is ``FleetTrainEnv`` over fleet episodes of the training cities' training
+    users (a row per UAV), and ``best.pt`` is the network that, run on every UAV of fixed fleet episodes of the
+    validation cities (``FleetPlacement``), served every user in the most of them (ties: the fewer median steps)."""
+
+    def setup_task(self, cities: Cities) -> None:
+        task, env = self.config.fleet, self.config.env_config()
+        self.maps = FleetMaps.of(cities.train, task, cities.train_users)
+        self.eval_maps = FleetMaps.of(cities.val, task, cities.val_users)
+        self.eval_episodes = self.eval_maps.episode_list(self.config.eval_episodes, self.config.seed)
+        self.env = FleetTrainEnv(self.maps, env, self.config.num_envs)
+        self.train_bundles, self.val_bundles = cities.train, cities.val
+
+    @property
+    def t_max(self) -> int:
+        return self.config.fleet.t_max
+
+    def validate(self, policy: DQNPolicy) -> tuple[dict, tuple[float, float]]:
+        fleet = FleetPlacement(policy, self.config.env_config(evaluation=True), prefix="").bind(self.eval_maps)
+        table = run_fleet(self.eval_maps, fleet, self.eval_episodes)
+        row = {"success": float(table["success"].mean()), "median_steps": float(np.median(table["steps"])),
+               "spl": float(table["spl"].mean())}  # fmt: skip
+        return row, (row["success"], -row["median_steps"])
+
+
+def start_from(agent: DQN, config: DQNConfig) -> None:
+    """Load ``config.init``'s weights (member ``init_member`` of an ensemble) into ``agent``'s networks; ``InputError``
+    naming the checkpoint when it holds no such network."""
+    path = Path(config.init)
+    ckpt = path / "checkpoints" / "best.pt" if path.is_dir() else path
+    ck = load_tensors(ckpt)
+    require(ck, ckpt, "online")
+    state = ck["online"]
+    if any(k.startswith("nets.") for k in state):  # an ensemble (MeanQ): its members side by side
+        prefix = f"nets.{config.init_member}."
+        state = {k[len(prefix) :]: v for k, v in state.items() if k.startswith(prefix)}
+        if not state:
+            raise InputError(ckpt, f"an ensemble without a member {config.init_member}", field="init_member")
+    try:
+        agent.online.load_state_dict(state)
+    except (RuntimeError, TypeError, AttributeError) as exc:
+        raise InputError(ckpt, f"its weights do not fit this run's network ({str(exc)[:200]})", field="init") from None
+    agent.target.load_state_dict(agent.online.state_dict())
+
+
 def tracking_summary(table: pd.DataFrame) -> dict:
     """An evaluation row of tracking episodes (``run_tracking``'s table): the mean share of the horizon covered, the
     mean coverage after the first reach, the share of episodes that reached P_T (``success``) and the median steps
@@ -700,7 +749,7 @@ def start_run(
             raise FileExistsError(f"{run_dir} exists: choose another --name, or continue it with --resume {run_dir}")
         run_dir.mkdir(parents=True)
         claimed = True
-    kind = TrackingTrainer if config.task == "tracking" else Trainer
+    kind = {"tracking": TrackingTrainer, "fleet": FleetTrainer}.get(config.task, Trainer)
     try:
         trainer = kind(config, list(datasets), root, run_dir, command=command, val_datasets=list(val_datasets))
     except BaseException:
@@ -733,7 +782,7 @@ def with_running_means(df: pd.DataFrame) -> pd.DataFrame:
 
 def new_run_dir(runs: str | Path, config: DQNConfig) -> Path:
     stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
-    task = "-tracking" if config.task == "tracking" else ""
+    task = "" if config.task == "placement" else f"-{config.task}"
     return Path(runs) / f"{stamp}-{config.preset}{task}-{config.agent}-s{config.seed}"
 
 

@@ -1152,7 +1152,7 @@ CASES: list[Case] = [
         lambda w: ["baselines", "--dataset", "nosuch", "--root", str(w.root())],
         "no city 'nosuch' is built here",
     ),
-    # found by the second probe pass (benchmarks/probe_pass.py, docs/probes.md)
+    # found by the second probe pass (tests/probes.py, experiments/log/probes.md)
     Case(
         "build a grid past the limit grid_cells",
         "uavdata",

@@ -1,0 +1,102 @@
+"""The map searcher on validation cities: the report's methods that matter to it, paired on the same episodes.
+
+Per validation city (never a test city: this is where the searcher's settings are chosen): the genie, the shipped
+``best`` (or the agents of ``--agent``, the first the reference), the map searcher (rl/searcher.py) and its ablation
+shown open ground, on the episodes ``uavrl report`` draws; success, median steps, ratio to the genie's median and SPL
+with 95 % intervals over users then episodes, and every method's paired differences against the first agent and
+against the searcher. Settings of the searcher as ``--set name=value`` (``SearchConfig`` fields).
+
+    python experiments/searcher_validation.py [--city oldtown-005] [--episodes 300] [--set temper=0.3] [--quick]
+        [--predictor data/agents/searcher/unet] [--agent data/agents/best --agent runs/hybrid/h-s0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+from uavplace.dataset.bundle import load_bundle
+from uavplace.eval.evaluate import ReportConfig, evaluate, load_agent
+from uavplace.eval.metrics import bootstrap_table, difference_table
+from uavplace.infra.console import markdown_table
+from uavplace.rl.policies import GeniePolicy
+from uavplace.rl.searcher import (
+    DEFAULT_PREDICTOR,
+    PREDICTIONS,
+    SEARCHER,
+    MapSearchPolicy,
+    PredictionCache,
+    SearchConfig,
+    load_predictor,
+)
+
+VALIDATION = ("corpus-016", "corpus-017", "oldtown-005", "etoile-val", "florence-val")
+
+
+def _value(text: str) -> object:
+    """A ``--set`` value: JSON if it parses (numbers, true), else the text itself (a word such as hyperbolic)."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument(
+        "--city", action="append", default=None, help=f"Validation city (repeatable; default: {', '.join(VALIDATION)})"
+    )
+    ap.add_argument("--episodes", type=int, default=300)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--agent",
+        type=Path,
+        action="append",
+        default=None,
+        help="Agent folder (repeatable; default: data/agents/best); the first is the reference of the differences",
+    )
+    ap.add_argument("--set", action="append", default=[], help="A SearchConfig field, name=value (JSON value)")
+    ap.add_argument("--root", type=Path, default=Path("data/processed"))
+    ap.add_argument("--predictor", type=Path, default=DEFAULT_PREDICTOR, help="Constants' JSON or a learned tier's folder")
+    ap.add_argument("--quick", action="store_true", help="The genie and the searcher only (no best, no ablation)")
+    args = ap.parse_args()
+    settings = {k: _value(v) for k, v in (s.split("=", 1) for s in args.set)}
+    search = SearchConfig(**settings)
+    predictor, cache = load_predictor(args.predictor), PredictionCache(args.root / PREDICTIONS)
+    folders = args.agent or [Path("data/agents/best")]
+    agents = [] if args.quick else [load_agent(f, epsilon=0.096, seed=args.seed) for f in folders]
+    if len({a.name for a in agents}) != len(agents):  # two runs of one preset: named by their folders
+        for a, f in zip(agents, folders, strict=True):
+            a.name = a.policy.name = f"{a.name} [{f.name}]"
+    print(f"searcher settings: {search.model_dump()}")
+    for city in args.city or VALIDATION:
+        bundle = load_bundle(city, root=args.root)
+        if bundle.manifest.config.role == "test":
+            ap.error(f"{city} is a test city: release numbers come from `uavrl report`, never a choice")
+        config = ReportConfig(dataset=city, episodes=args.episodes, seed=args.seed, predictor=None)
+        policies = [GeniePolicy()] + [
+            MapSearchPolicy(predictor, search.model_copy(update={"buildings": b}), cache)
+            for b in ((True,) if args.quick else (True, False))
+        ]
+        t0 = time.perf_counter()
+        results = evaluate(config, bundle, agents, baselines=policies)
+        wall = time.perf_counter() - t0
+        table = bootstrap_table(results, n_boot=1000, seed=args.seed)
+        rows = [["method", "success", "median steps", "median / genie's", "SPL"]]
+        for r in table.to_dict("records"):
+            rows.append([r["method"], f"{100 * r['success']:.1f} % [{100 * r['success_lo']:.1f}, {100 * r['success_hi']:.1f}]",
+                         f"{r['median_steps']:g} [{r['median_steps_lo']:g}, {r['median_steps_hi']:g}]",
+                         f"{r['medians_ratio']:.2f}", f"{r['spl']:.3f}"])  # fmt: skip
+        print(f"\n{city} ({args.episodes} episodes, {wall:.0f} s)\n" + markdown_table(rows), flush=True)
+        diffs = difference_table(results, [a.name for a in agents[:1]] + [SEARCHER], n_boot=1000, seed=args.seed)
+        for d in diffs.to_dict("records"):
+            if d["method"] != GeniePolicy.name:
+                scale = 100 if d["stat"] == "success" else 1
+                print(f"  {d['method']} - {d['against']}, {d['stat']}: {scale * d['difference']:+.1f} "
+                      f"[{scale * d['lo']:+.1f}, {scale * d['hi']:+.1f}]")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()

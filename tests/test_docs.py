@@ -1,0 +1,122 @@
+"""The commands the README, docs/ and experiments/README.md give stay runnable: every `uavdata` and `uavrl` command
+names a command that exists and options it has; every script or module they run exists and has the options given."""
+
+from __future__ import annotations
+
+import re
+import shlex
+from pathlib import Path
+
+import click
+import pytest
+
+from uavplace.cli import uavdata, uavrl
+
+REPO = Path(__file__).resolve().parents[1]
+PAGES = [REPO / "README.md", REPO / "experiments" / "README.md", *sorted((REPO / "docs").glob("*.md"))]
+GROUPS = {"uavdata": uavdata, "uavrl": uavrl}
+#: How a command line starts that this test checks, and what it runs.
+STARTS = re.compile(
+    r"(?:^|\s|\()(?P<cmd>(?:OMP_NUM_THREADS=\d+ )?(?:uavdata|uavrl|python3? (?:-m tests\.\w+|\S+\.py)|bash \S+\.sh)\b.*)"
+)
+
+
+def commands(text: str) -> list[str]:
+    """Command lines in ``text``: each line of a fenced code block (``\\`` continuations joined, `` # `` comments cut)
+    and each inline code span, its line breaks made spaces."""
+    out = []
+    for language, block in re.findall(r"```(\w*)\n(.*?)```", text, re.S):
+        if language not in ("", "bash", "sh"):
+            continue
+        for line in block.replace("\\\n", " ").splitlines():
+            out.append(re.split(r"\s#\s", line)[0])
+    for span in re.findall(r"`([^`]+)`", re.sub(r"```.*?```", "", text, flags=re.S)):
+        out.append(" ".join(span.split()))
+    found = []
+    for line in out:
+        for part in re.split(r"\s(?:&&|\|\||;)\s", line):
+            m = STARTS.search(part)
+            if m:
+                found.append(m.group("cmd").strip())
+    return found
+
+
+def options_of(command: click.Command) -> set[str]:
+    return {opt for p in command.params for opt in (*p.opts, *p.secondary_opts)} | {"--help", "-h"}
+
+
+def check_cli(words: list[str]) -> None:
+    """``words`` (``uavdata ...`` or ``uavrl ...``) name a command and only options it or its group has."""
+    group: click.Command = GROUPS[words[0]]
+    allowed = options_of(group)
+    rest = words[1:]
+    ctx = click.Context(group)
+    while isinstance(group, click.Group):
+        name = next((w for w in rest if not w.startswith("-")), None)
+        if name is None or not re.fullmatch(r"[a-z][a-z-]*", name):
+            return  # the group alone (its --help, --version or --limit)
+        sub = group.get_command(ctx, name)
+        assert sub is not None, f"{' '.join(words)}: no command {name!r}"
+        rest = rest[rest.index(name) + 1 :]
+        group = sub
+        allowed |= options_of(sub)
+    for w in rest:
+        if w.startswith("--"):
+            opt = w.split("=", 1)[0]
+            assert opt in allowed, f"{' '.join(words)}: {opt} is not an option of {group.name}"
+
+
+def check_script(words: list[str]) -> None:
+    """``python SCRIPT ...``, ``python -m tests.X ...`` or ``bash SCRIPT ...``: the file exists and holds every option."""
+    if words[1] == "-m":
+        path = REPO / (words[2].replace(".", "/") + ".py")
+        rest = words[3:]
+    else:
+        path, rest = REPO / words[1], words[2:]
+    assert path.is_file(), f"{' '.join(words)}: no {path.relative_to(REPO)}"
+    source = path.read_text(encoding="utf-8")
+    for w in rest:
+        if w.startswith("--"):
+            opt = w.split("=", 1)[0]
+            assert f'"{opt}"' in source or f"'{opt}'" in source or f"{opt} " in source, f"{' '.join(words)}: {opt}?"
+
+
+def page_commands() -> list[tuple[str, str]]:
+    return [(p.relative_to(REPO).as_posix(), c) for p in PAGES for c in commands(p.read_text(encoding="utf-8"))]
+
+
+@pytest.mark.parametrize(("page", "line"), page_commands())
+def test_commands_in_the_docs_run(page: str, line: str) -> None:
+    try:
+        words = shlex.split(re.sub(r"[\[\]]", " ", line))
+    except ValueError:
+        words = re.sub(r"[\[\]]", " ", line).split()
+    words = [w for w in words if not re.fullmatch(r"OMP_NUM_THREADS=\d+|\.\.\.|\|", w)]
+    if words[0] in GROUPS:
+        check_cli(words)
+    else:
+        check_script(words)
+
+
+def test_the_pages_hold_commands() -> None:
+    """The extraction finds the README's main job and the pages' commands (so the test above cannot pass empty)."""
+    found = page_commands()
+    assert len(found) > 100
+    assert any(c.startswith("uavdata build --grid 4m --alt 10") for _, c in found)
+    assert commands("run `uavrl report --bogus` and\n```bash\nuavdata build \\\n  --grid 4m # a comment\n```") == [
+        "uavdata build    --grid 4m",
+        "uavrl report --bogus",
+    ]
+    with pytest.raises(AssertionError, match="--bogus"):
+        check_cli(["uavrl", "report", "--bogus"])
+    with pytest.raises(AssertionError, match="no command"):
+        check_cli(["uavrl", "reprot"])
+
+
+def test_the_docs_and_the_readme_are_undated():
+    """docs/ and the README say what is true now: no page dates a measurement (the history lives in experiments/log/
+    and the CHANGELOG)."""
+    dated = re.compile(r"\b20\d\d-[01]\d-[0-3]\d\b")
+    for page in [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]:
+        lines = [n for n, line in enumerate(page.read_text(encoding="utf-8").splitlines(), 1) if dated.search(line)]
+        assert not lines, f"{page.relative_to(REPO)}:{lines[0]} is dated"
