@@ -12,18 +12,18 @@ For the searcher, each episode also records the step at which its belief first h
 ``--near`` cells (Chebyshev) of the user: its steps split into searching (before) and approaching (after). The
 position is read only to record this; the moves are the searcher's (its row ``map searcher`` is the report's).
 
-    python experiments/searcher_steps.py [--city etoile-val] [--episodes 300] [--near 2]
+    python experiments/searcher_steps.py [--city etoile-val] [--episodes 300] [--near 4]
 
 Test cities are refused: nothing is learnt from them.
 """
 
 from __future__ import annotations
 
-import argparse
 import time
 
 import numpy as np
 import pandas as pd
+from common import VALIDATION, validation_parser
 from scipy.special import ndtr
 
 from uavplace.dataset.bundle import load_bundle
@@ -35,7 +35,6 @@ from uavplace.rl.predictor import Scene
 from uavplace.rl.searcher import DEFAULT_PREDICTOR, PREDICTIONS, MapSearchPolicy, PredictionCache, load_predictor
 from uavplace.rl.view import AgentView, PublicMaps
 
-VALIDATION = ("corpus-016", "corpus-017", "oldtown-005", "etoile-val", "florence-val")
 KNOWN = "searcher told where the user is"
 
 
@@ -118,13 +117,8 @@ class RecordedSearch(MapSearchPolicy):
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument(
-        "--city", action="append", default=None, help=f"Validation city (repeatable; default: {', '.join(VALIDATION)})"
-    )
-    ap.add_argument("--episodes", type=int, default=300)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--near", type=int, default=2, help="Cells (Chebyshev) within which the belief's mass counts as located")
+    ap = validation_parser(__doc__, episodes=300)
+    ap.add_argument("--near", type=int, default=4, help="Cells (Chebyshev) within which the belief's mass counts as located")
     ap.add_argument("--root", default="data/processed")
     args = ap.parse_args()
     predictor = load_predictor(DEFAULT_PREDICTOR)

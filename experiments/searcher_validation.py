@@ -12,10 +12,11 @@ against the searcher. Settings of the searcher as ``--set name=value`` (``Search
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from pathlib import Path
+
+from common import VALIDATION, validation_parser
 
 from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.evaluate import ReportConfig, evaluate, load_agent
@@ -32,8 +33,6 @@ from uavplace.rl.searcher import (
     load_predictor,
 )
 
-VALIDATION = ("corpus-016", "corpus-017", "oldtown-005", "etoile-val", "florence-val")
-
 
 def _value(text: str) -> object:
     """A ``--set`` value: JSON if it parses (numbers, true), else the text itself (a word such as hyperbolic)."""
@@ -44,12 +43,7 @@ def _value(text: str) -> object:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument(
-        "--city", action="append", default=None, help=f"Validation city (repeatable; default: {', '.join(VALIDATION)})"
-    )
-    ap.add_argument("--episodes", type=int, default=300)
-    ap.add_argument("--seed", type=int, default=0)
+    ap = validation_parser(__doc__, episodes=300)
     ap.add_argument(
         "--agent",
         type=Path,

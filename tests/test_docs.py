@@ -75,6 +75,9 @@ def check_script(words: list[str]) -> None:
         path, rest = REPO / words[1], words[2:]
     assert path.is_file(), f"{' '.join(words)}: no {path.relative_to(REPO)}"
     source = path.read_text(encoding="utf-8")
+    for local in re.findall(r"^from (\w+) import", source, re.M):  # a module beside it (experiments/common.py)
+        if (path.parent / f"{local}.py").is_file():
+            source += (path.parent / f"{local}.py").read_text(encoding="utf-8")
     for w in rest:
         if w.startswith("--"):
             opt = w.split("=", 1)[0]

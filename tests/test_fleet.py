@@ -315,8 +315,9 @@ def test_fleet_report_writes_its_tables_and_never_replaces_a_stranger(tiny, tmp_
     import pandas as pd
 
     table = pd.read_csv(out / "results.csv")
-    best = "independent PQN + GRU x 3 (best)"  # the shipped agent, run on every UAV by default
-    assert list(table["method"]) == ["oracle", "map searcher", best, "steered random walk", "greedy hill-climbing"]
+    best = "independent PQN + GRU x 3 (best)"  # the shipped agents, run on every UAV by default
+    fleet = "PQN + GRU (best, fleet)"
+    assert list(table["method"]) == ["oracle", "map searcher", best, fleet, "steered random walk", "greedy hill-climbing"]
     assert table.loc[table.method == "oracle", "spl"].item() == 1.0
     assert f"success - {best}" in (out / "fleet.md").read_text()
     from uavplace.eval.fleet import summary_rows

@@ -130,7 +130,7 @@ def test_shipped_sweep_files_validate():
     from uavplace.eval.sweep import read_spec
     from uavplace.rl.agent.dqn import preset_config
 
-    files = sorted(Path(__file__).parents[1].joinpath("benchmarks", "sweeps").glob("*.toml"))
+    files = sorted(Path(__file__).parents[1].joinpath("experiments", "sweeps").glob("*.toml"))
     assert files
     specs = {f.stem: read_spec(f) for f in files}
     best = specs["best"].configs()
