@@ -501,13 +501,22 @@ def sweep(spec_file: Path, out: Path | None, ray_address: str | None, cpus_per_t
     say.print(f"table: {path} (and sweep.csv); the spec: {out / 'sweep.toml'}", highlight=False, soft_wrap=True)
 
 
+def validation_options(command):  # noqa: ANN001, ANN201 - a click command
+    """``--city`` (default: every built validation city), ``--episodes`` and ``--seed``: the options of the commands
+    that compare runs on the validation cities (``levers``, ``peer table``)."""
+    options = (
+        click.option("--city", "cities", multiple=True, help="City to play (repeatable; default: every built validation city)."),
+        click.option("--episodes", type=Counted("episodes"), default=1000, show_default=True, help="Episodes a city, the same for every method."),
+        click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the episodes and of every random move."),
+    )  # fmt: skip
+    for option in reversed(options):
+        command = option(command)
+    return command
+
+
 @click.command()
 @click.argument("runs", nargs=-1, required=True, type=click.Path(file_okay=False, exists=True, path_type=Path))
-@click.option("--city", "cities", multiple=True, help="City to play (repeatable; default: every built validation city).")
-@click.option(
-    "--episodes", type=Counted("episodes"), default=1000, show_default=True, help="Episodes a city, the same for every run."
-)
-@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the episodes and of the agents' random moves.")
+@validation_options
 @click.option(
     "--against",
     type=click.Path(file_okay=False, path_type=Path),
@@ -608,11 +617,7 @@ def peer_train(algo: str, out: Path, match: Path | None, cpu_seconds: float | No
 )
 @click.option("--peer", "peers", multiple=True, required=True, type=click.Path(file_okay=False, exists=True, path_type=Path),
               help="A peer folder of `uavrl peer train` (repeatable).")  # fmt: skip
-@click.option("--city", "cities", multiple=True, help="Validation city (repeatable; default: every built validation city).")
-@click.option(
-    "--episodes", type=Counted("episodes"), default=1000, show_default=True, help="Episodes a city, the same for every method."
-)
-@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the episodes and of the random moves.")
+@validation_options
 @click.option("--markdown", "markdown_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Also write the table there (Markdown).")  # fmt: skip
 @root_option

@@ -24,7 +24,6 @@ import time
 import numpy as np
 import pandas as pd
 from common import VALIDATION, validation_parser
-from scipy.special import ndtr
 
 from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.evaluate import ReportConfig, evaluate
@@ -33,31 +32,23 @@ from uavplace.rl.maps import transform
 from uavplace.rl.policies import GeniePolicy
 from uavplace.rl.predictor import Scene
 from uavplace.rl.searcher import DEFAULT_PREDICTOR, PREDICTIONS, MapSearchPolicy, PredictionCache, load_predictor
-from uavplace.rl.view import AgentView, PublicMaps
+from uavplace.rl.view import AgentView, public_maps
 
 KNOWN = "searcher told where the user is"
 
 
-def user_cells(env: object) -> np.ndarray:
-    """[N, 2] each row's user cell in its (turned) map: read off the scenario, for the oracles of this script only."""
+def user_cells(env: object, known: dict[int, np.ndarray]) -> np.ndarray:
+    """[N, 2] each row's user cell in its (turned) map, read off the scenario (for the oracles of this script only) once
+    per view and kept in ``known``."""
     maps = env.maps
-    out = np.zeros((env.num_envs, 2), np.int64)
-    for r, v in enumerate(env.view):
+    for v in set(env.view.tolist()) - known.keys():
         sc = maps.scenarios[int(maps.scenario_of(v))]
         b = maps.bundles[sc.bundle]
         row = b.users.loc[b.users["user"] == sc.user].iloc[0]
         one = np.zeros(b.sinr_db.shape[1:], bool)
         one[int(row["iy"]), int(row["ix"])] = True
-        out[r] = np.argwhere(transform(one, int(maps.symmetry_of(v))))[0]
-    return out
-
-
-def public_of(env: object) -> PublicMaps:
-    """The public maps of ``env``'s MapSet, as ``rl.view.view_for`` keeps them on the env."""
-    kept = getattr(env, "_public", None)
-    if kept is None or kept[0] is not env.maps:
-        env._public = kept = (env.maps, PublicMaps.of(env.maps))
-    return kept[1]
+        known[v] = np.argwhere(transform(one, int(maps.symmetry_of(v))))[0]
+    return np.stack([known[v] for v in env.view.tolist()])
 
 
 class KnownUserSearch(MapSearchPolicy):
@@ -68,11 +59,12 @@ class KnownUserSearch(MapSearchPolicy):
     def __init__(self, *args: object, **kwargs: object) -> None:
         super().__init__(*args, name=KNOWN, **kwargs)
         self._cover: dict[tuple, np.ndarray] = {}
+        self._users: dict[int, np.ndarray] = {}
 
     def act(self, obs: np.ndarray, mask: np.ndarray, env: object) -> np.ndarray:
-        public = public_of(env)
+        public = public_maps(env)
         view = AgentView(env, public)
-        users, p = user_cells(env), public.pad
+        users, p = user_cells(env, self._users), public.pad
         actions = np.zeros(len(mask), np.int64)
         for r in np.flatnonzero(~view.exhausted & mask.any(axis=1)):
             c = int(view.canvas[r])
@@ -82,8 +74,7 @@ class KnownUserSearch(MapSearchPolicy):
                 settings = public.settings[public.bundle_of(c)]
                 scene = Scene.from_settings(settings, public.map_heights(c))
                 mu, p_dead = self.predictor.predict(scene, users[r][None], maps.legal)
-                sigma = max(self.predictor.error_db, self.config.min_sigma_db)
-                self._cover[key] = ((1 - p_dead) * ndtr((mu - public.config.p_t_db) / sigma))[0]
+                self._cover[key] = self.cover(mu, p_dead, public.config.p_t_db)[0]
             here = int(maps.index[view.pos[r, 0] - p, view.pos[r, 1] - p])
             seen = view.visits[r, maps.legal[:, 0] + p, maps.legal[:, 1] + p] > 0
             actions[r] = self._move(public, c, maps, here, self._cover[key], seen, mask[r])
@@ -99,11 +90,12 @@ class RecordedSearch(MapSearchPolicy):
         super().__init__(*args, **kwargs)
         self.near = near
         self.located: dict[int, int] = {}
+        self._users: dict[int, np.ndarray] = {}
 
     def act(self, obs: np.ndarray, mask: np.ndarray, env: object) -> np.ndarray:
-        public = public_of(env)
+        public = public_maps(env)
         actions = super().act(obs, mask, AgentView(env, public))
-        users = user_cells(env)
+        users = user_cells(env, self._users)
         for r in np.flatnonzero(~env.exhausted):
             episode = int(env.episode_id[r])
             if episode in self.located or self.belief[r] is None:

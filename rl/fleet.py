@@ -763,15 +763,16 @@ class FleetTrainEnv:
         fresh = f.visits[rows, f.pos[..., 0], f.pos[..., 1]] == 1
         reward = after - before + cfg.c_e * fresh + cfg.success_bonus * (served_after & ~served_before)
         reward = np.where(moving, reward, 0.0) * cfg.reward_scale
-        obs, moves = self._dealt()
         term, trunc = np.repeat(terminated, k), np.repeat(truncated, k)
         final = np.flatnonzero(trunc)
-        info = {"final_index": final, "final_obs": obs[final], "final_mask": moves[final], "sinr": self.sinr_here(),
-                "steps": np.repeat(self.fleet.t, k)}  # fmt: skip
+        info = {"final_index": final, "sinr": self.sinr_here(), "steps": np.repeat(self.fleet.t, k)}
+        if len(final):  # the last observation of the rows cut short, before their next episodes begin
+            obs, moves = self._dealt()
+            info["final_obs"], info["final_mask"] = obs[final], moves[final]
         ended = np.flatnonzero(terminated | truncated)
         if len(ended):
             self._begin(ended)
-            obs, moves = self._dealt()
+        obs, moves = self._dealt()  # a second deal in one step (after a cut) changes nothing but the begun rows
         info["action_mask"] = moves
         return obs, reward.ravel().astype(np.float32), term, trunc, info
 

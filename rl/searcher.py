@@ -198,10 +198,17 @@ class MapSearchPolicy:
             self.cache.save(cache_key, mu, p_dead)
             hit = tuple(a.astype(np.float16).astype(np.float32) for a in (mu, p_dead))  # as stored: cold = warm
         mu, p_dead = hit
-        sigma = max(self.predictor.error_db, self.config.min_sigma_db)
-        cover = ((1 - p_dead) * ndtr((mu - public.config.p_t_db) / sigma)).astype(np.float32)
-        out = self._canvases[key] = CandidateMaps(cells, legal, index, mu, p_dead, cover)
+        out = self._canvases[key] = CandidateMaps(cells, legal, index, mu, p_dead, self.cover(mu, p_dead, public.config.p_t_db))
         return out
+
+    @property
+    def sigma(self) -> float:
+        """The likelihood's spread [dB]: the predictor's measured error, at least ``min_sigma_db``."""
+        return max(self.predictor.error_db, self.config.min_sigma_db)
+
+    def cover(self, mu: np.ndarray, p_dead: np.ndarray, p_t_db: float) -> np.ndarray:
+        """The probability that a predicted map ``mu`` [dB] with dead-cell probability ``p_dead`` reaches ``p_t_db``."""
+        return ((1 - p_dead) * ndtr((mu - p_t_db) / self.sigma)).astype(np.float32)
 
     def _graph(self, public: PublicMaps, canvas: int, maps: CandidateMaps) -> sparse.csr_matrix:
         key = (public.settings[public.bundle_of(canvas)]["version"], public.symmetry_of(canvas))
@@ -249,7 +256,7 @@ class MapSearchPolicy:
     def update(self, maps: CandidateMaps, log_b: np.ndarray, column: int, measured: float, floor_db: float) -> np.ndarray:
         """``log_b`` [C] after measuring ``measured`` [dB] at legal cell ``column`` (the module's likelihood)."""
         mu, p_dead = maps.mu[:, column], maps.p_dead[:, column]
-        sigma = max(self.predictor.error_db, self.config.min_sigma_db)
+        sigma = self.sigma
         eps = self.config.outlier
         if measured <= floor_db + 1e-3:  # censored: the probability of a value at or below the floor
             like = (1 - eps) * (p_dead + (1 - p_dead) * ndtr((floor_db - mu) / sigma)) + eps

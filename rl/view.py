@@ -138,7 +138,12 @@ def view_for(policy: object, env: object) -> object:
     ``privileged = True``), else an ``AgentView`` of it."""
     if getattr(policy, "privileged", False):
         return env
-    public = getattr(env, "_public", None)
-    if public is None or public[0] is not env.maps:
-        env._public = public = (env.maps, PublicMaps.of(env.maps))
-    return AgentView(env, public[1])
+    return AgentView(env, public_maps(env))
+
+
+def public_maps(env: object) -> PublicMaps:
+    """The public maps of ``env``'s MapSet, made once and kept on the env while it flies over the same maps."""
+    kept = getattr(env, "_public", None)
+    if kept is None or kept[0] is not env.maps:
+        env._public = kept = (env.maps, PublicMaps.of(env.maps))
+    return kept[1]
