@@ -36,11 +36,12 @@ from uavplace.dataset.difficulty import difficulty
 from uavplace.dataset.raster import cell_centres, cell_index, grid_over, ground_z, height_map
 from uavplace.infra.files import atomic_directory, folder_lock, sha256_file, write_model_json
 from uavplace.infra.limits import check_limit
-from uavplace.schemas import CityManifest, InputError
+from uavplace.schemas import SCHEMA_VERSION, CityManifest, InputError
 from uavplace.schemas.base import uavplace_version
 from uavplace.schemas.bundle import (
     BUNDLE_MANIFEST,
     CELLS,
+    ROUTE_ARRAYS,
     ROUTE_POINTS,
     USERS,
     BuildConfig,
@@ -49,8 +50,11 @@ from uavplace.schemas.bundle import (
     SinrInfo,
     SinrSource,
 )
+from uavplace.schemas.provenance import CODES, NEAREST_RECEIVER, NO_RECEIVER, TRUST, UNREACHED, code_name
 from uavplace.schemas.tables import BUILDING_PARTS, BUILDINGS, RECEIVERS, ROUTES, TRANSMITTERS
 
+#: Each receiver code's place in ``TRUST`` (-1: not a live code): a cell takes its least trusted reached receiver's.
+TRUST_RANK = np.array([TRUST.index(c) if c in TRUST else -1 for c in range(max(CODES) + 1)])
 #: How many distinct receiver heights an altitude error lists.
 _HEIGHTS_SHOWN = 8
 #: Order in which export quantities are used to make SINR.
@@ -98,6 +102,10 @@ def read_ingested(city: str, root: str | Path = DEFAULT_ROOT) -> Ingested:
         read_city_manifest(folder / INGESTED_MANIFEST.name)  # the error: run `uavdata ingest` first
     with folder_lock(folder):
         manifest = read_city_manifest(folder / INGESTED_MANIFEST.name)
+        if manifest.schema_version != SCHEMA_VERSION:
+            raise InputError(folder / INGESTED_MANIFEST.name, f"ingested with schema version {manifest.schema_version!r}, "
+                             f"this uavplace reads {SCHEMA_VERSION!r}: run `uavdata ingest` again",
+                             field="schema_version")  # fmt: skip
         files = {spec.name: spec.filename for spec in (RECEIVERS, TRANSMITTERS, BUILDINGS, BUILDING_PARTS, ROUTES)}
         files["terrain"] = "terrain.npz"
         hashes: dict[str, str] = {}
@@ -180,7 +188,7 @@ def rasterise_routes(ing: Ingested, config: BuildConfig, grid: GridSpec) -> tupl
         "tx_set_id": routes["tx_set_id"], "tx_point": routes["tx_point"], "x_m": routes["x_m"], "y_m": routes["y_m"],
         "ix": np.where(inside, ix, -1), "iy": np.where(inside, iy, -1), "kind": routes["kind"], "speed_mps": routes["speed_mps"],
     })  # fmt: skip
-    return {"sinr_db": arrays["sinr_db"][order], "dead": arrays["dead"][order]}, table
+    return {k: arrays[k][order] for k in ROUTE_ARRAYS}, table
 
 
 def _receivers_at_altitude(ing: Ingested, config: BuildConfig) -> pd.DataFrame:
@@ -364,6 +372,10 @@ def rasterise(
     num_rx = np.bincount(flat, minlength=size).reshape(len(users), ny, nx)
     num_reached = np.bincount(flat, weights=reached, minlength=size).reshape(len(users), ny, nx)
     mean_mw = np.bincount(flat, weights=lin, minlength=size).reshape(len(users), ny, nx) / np.maximum(num_rx, 1)
+    # The cell's provenance: the least trusted of its reached receivers' (schemas.provenance.TRUST)
+    rank = np.full(size, -1)
+    np.maximum.at(rank, flat[reached], TRUST_RANK[rx["provenance"].to_numpy(np.int64)[inside][reached]])
+    rank = rank.reshape(len(users), ny, nx)
 
     if export_spacing is not None and export_spacing > config.grid_m * (1 + 1e-6):
         # Export coarser than the grid: cells between receivers take their nearest sampled cell.
@@ -377,6 +389,11 @@ def rasterise(
             num_reached[k][fill] = num_reached[k][jy[fill], jx[fill]]
         warnings.append(f"export spacing {export_spacing:g} m is coarser than the grid: cells filled from the nearest receiver")
     dead = num_reached == 0
+    provenance = np.select(
+        [(num_rx == 0) & dead, num_rx == 0, dead],
+        [NO_RECEIVER, NEAREST_RECEIVER, UNREACHED],
+        np.array(TRUST)[np.maximum(rank, 0)],
+    ).astype(np.uint8)
 
     rng = np.random.default_rng(config.seed)
     with np.errstate(divide="ignore"):
@@ -441,6 +458,7 @@ def rasterise(
         "sinr_db": sinr,
         "dead": dead,
         "num_rx": np.minimum(num_rx, np.iinfo(np.uint16).max).astype(np.uint16),
+        "provenance": provenance,
     }
     info = SinrInfo(
         source=source,
@@ -456,6 +474,10 @@ def rasterise(
         "blocked_cells": int(blocked.sum()),
         "building_cells": int((hm.building_id >= 0).sum()),
         "dead_cells": int(dead.sum()),
+        **{
+            f"cells_{code_name(c).replace(' ', '_')}": int(n)
+            for c, n in enumerate(np.bincount(provenance.ravel(), minlength=len(CODES)))
+        },
         "clipped_to_floor_cells": clipped,
         "receivers_used": int(inside.sum()),
         "receivers_outside_grid": outside,
@@ -502,6 +524,7 @@ def cells_frame(grid: GridSpec, arrays: dict[str, np.ndarray]) -> pd.DataFrame:
             "y_m": np.tile(arrays["y_m"][iy], num_users),
             "sinr_db": arrays["sinr_db"].ravel(),
             "dead": arrays["dead"].ravel(),
+            "provenance": arrays["provenance"].ravel(),
             "blocked": np.tile(arrays["blocked"].ravel(), num_users),
             "height_rel_m": np.tile(arrays["height_rel_m"].ravel(), num_users),
         }

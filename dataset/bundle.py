@@ -39,6 +39,7 @@ from uavplace.schemas.bundle import (
     BuildConfig,
     BundleManifest,
 )
+from uavplace.schemas.provenance import CODES, DEAD, NEAREST_RECEIVER, NO_RECEIVER, code_name
 
 #: Name of the per-city file holding the version ``load_bundle`` picks by default.
 LATEST = "latest"
@@ -60,9 +61,11 @@ class Bundle:
     sinr_db: np.ndarray  # [num_users, num_y, num_x] float32
     dead: np.ndarray  # [num_users, num_y, num_x] bool
     num_rx: np.ndarray  # [num_users, num_y, num_x] uint16
+    provenance: np.ndarray  # [num_users, num_y, num_x] uint8: where each value came from (schemas/provenance.py)
     routes: pd.DataFrame | None = None  # ``ROUTE_POINTS``: the tracking task's route points, in route order (None: no routes)
     route_sinr_db: np.ndarray | None = None  # [num_route_points, num_y, num_x] float32
     route_dead: np.ndarray | None = None  # [num_route_points, num_y, num_x] bool
+    route_provenance: np.ndarray | None = None  # [num_route_points, num_y, num_x] uint8
 
     @property
     def city(self) -> str:
@@ -92,6 +95,12 @@ class Bundle:
     @property
     def sinr_floor_db(self) -> float:
         return self.manifest.sinr.floor_db
+
+    def cell_sources(self) -> dict[str, int]:
+        """How many of the users' cells outside buildings (user x cell) came from where: provenance code name -> count,
+        the codes present only (``schemas.provenance``)."""
+        counts = np.bincount(self.provenance[:, ~self.blocked].ravel(), minlength=len(CODES))
+        return {code_name(c): int(n) for c, n in enumerate(counts) if n}
 
     def user_indices(self, split: str | None = None) -> np.ndarray:
         """Bundle user indices, all or those of one split (train, val, test)."""
@@ -263,6 +272,7 @@ def read_routes(folder: Path, manifest: BundleManifest) -> dict:
         raise InputError(
             path, f"SINR out of range, below the manifest's floor {floor} dB, or a dead cell not at it", field="sinr_db"
         )
+    check_provenance(path, arrays["provenance"], dead)
     table = _read_table(folder, ROUTE_POINTS)
     source = folder / ROUTE_POINTS.filename
     if len(table) != p or not np.array_equal(table["point"].to_numpy(), np.arange(p)):
@@ -282,13 +292,13 @@ def read_routes(folder: Path, manifest: BundleManifest) -> dict:
             raise InputError(source, f"row {int(np.argmax((v < -1) | (v >= n)))}: cell off the grid's {n} cells", field=name)
     for a in arrays.values():
         a.setflags(write=False)
-    return {"routes": table, "route_sinr_db": sinr, "route_dead": dead}
+    return {"routes": table, "route_sinr_db": sinr, "route_dead": dead, "route_provenance": arrays["provenance"]}
 
 
 def check_cells(path: Path, arrays: dict[str, np.ndarray]) -> None:
     """``InputError`` naming ``cells.parquet``'s first row that disagrees with ``maps.npz`` (the two copies of one
-    bundle's maps: SINR, dead, blocked and height at each user and cell), or that is missing or out of the grid."""
-    columns = ["user", "iy", "ix", "sinr_db", "dead", "blocked", "height_rel_m"]
+    bundle's maps: SINR, dead, provenance, blocked and height at each user and cell), or that is missing or out of the grid."""
+    columns = ["user", "iy", "ix", "sinr_db", "dead", "provenance", "blocked", "height_rel_m"]
     try:
         table = pq.read_table(path, columns=columns)
     except (OSError, ValueError, pa.ArrowException) as exc:
@@ -303,7 +313,7 @@ def check_cells(path: Path, arrays: dict[str, np.ndarray]) -> None:
         raise InputError(path, f"row {k}: user {user[k]}, cell ({iy[k]}, {ix[k]}) is not in maps.npz", field="user")
     expected = {
         "sinr_db": arrays["sinr_db"][user, iy, ix], "dead": arrays["dead"][user, iy, ix],
-        "blocked": arrays["blocked"][iy, ix], "height_rel_m": arrays["height_rel_m"][iy, ix],
+        "provenance": arrays["provenance"][user, iy, ix], "blocked": arrays["blocked"][iy, ix], "height_rel_m": arrays["height_rel_m"][iy, ix],
     }  # fmt: skip
     for name, want in expected.items():
         got = table.column(name).to_numpy(zero_copy_only=False)
@@ -337,7 +347,7 @@ def expected_shapes(manifest: BundleManifest) -> dict[str, tuple[int, ...]]:
     """Every array of ``maps.npz`` and the shape the manifest gives it."""
     ny, nx = manifest.grid.shape
     shapes = {"x_m": (nx,), "y_m": (ny,), "height_rel_m": (ny, nx), "blocked": (ny, nx), "building_id": (ny, nx)}
-    return shapes | {k: (manifest.num_users, ny, nx) for k in ("sinr_db", "dead", "num_rx")}
+    return shapes | {k: (manifest.num_users, ny, nx) for k in ("sinr_db", "dead", "num_rx", "provenance")}
 
 
 def read_arrays(path: Path, shapes: dict[str, tuple[int, ...]], dtypes: dict[str, tuple[str, str]]) -> dict[str, np.ndarray]:
@@ -394,6 +404,7 @@ def check_values(path: Path, manifest: BundleManifest, arrays: dict[str, np.ndar
     sinr, dead = arrays["sinr_db"], arrays["dead"]
     if (sinr < floor - 1e-3).any() or (sinr[dead] != np.float32(floor)).any():
         raise InputError(path, f"SINR below the manifest's floor {floor} dB, or a dead cell not at it", field="sinr_db")
+    check_provenance(path, arrays["provenance"], dead, arrays["num_rx"])
     buildings = manifest.counts.get("buildings")
     ids = arrays["building_id"]
     if (ids < -1).any() or (buildings is not None and (ids >= buildings).any()):
@@ -403,6 +414,21 @@ def check_values(path: Path, manifest: BundleManifest, arrays: dict[str, np.ndar
         raise InputError(path, "every cell is blocked: the UAV has nowhere to fly", field="blocked")
     for a in arrays.values():
         a.setflags(write=False)
+
+
+def check_provenance(path: Path, provenance: np.ndarray, dead: np.ndarray, num_rx: np.ndarray | None = None) -> None:
+    """``InputError`` naming the first cell whose provenance code disagrees with the maps: not a code
+    (``schemas.provenance.CODES``), a dead code (unreached, no receiver) on a live cell or a live code on a dead one,
+    and, given ``num_rx``, a no-receiver code (no receiver, nearest receiver) on a cell with receivers or the reverse."""
+    wrong = (provenance > max(CODES)) | (np.isin(provenance, DEAD) != dead)
+    if num_rx is not None:
+        wrong |= np.isin(provenance, (NO_RECEIVER, NEAREST_RECEIVER)) != (num_rx == 0)
+    if wrong.any():
+        where = tuple(int(i) for i in np.unravel_index(int(np.argmax(wrong)), wrong.shape))
+        code = int(provenance[where])
+        raise InputError(path, f"cell {list(where)}: code {code} ({code_name(code)}) but the cell is "
+                         f"{'dead' if dead[where] else 'live'}" + ("" if num_rx is None else f" with {num_rx[where]} "
+                         "receiver(s)") + ": the provenance disagrees with the maps", field="provenance")  # fmt: skip
 
 
 def check_users(path: Path, manifest: BundleManifest, users: pd.DataFrame) -> None:

@@ -443,7 +443,11 @@ def list_(root: Path, table: bool, raw: Path) -> None:
 )
 @root_option
 def show(city: str, version: str | None, user: int, out_path: Path | None, root: Path) -> None:
-    """Render a bundle's height map and one user's SINR map to a PNG."""
+    """Render a bundle's height map and one user's SINR map to a PNG.
+
+    The SINR map's estimated cells, whose value was not traced at the cell itself (straight path, walked, coarse map,
+    not recorded, nearest receiver: schemas/provenance.py, docs/data.md "Provenance"), are hatched, a hatch per kind
+    with its share of the open cells in the legend."""
     from uavplace.dataset.bundle import load_bundle
     from uavplace.dataset.preview import render_bundle
 

@@ -1,4 +1,4 @@
-"""`uavdata show`: a PNG of a bundle's height map and one user's SINR map."""
+"""`uavdata show`: a PNG of a bundle's height map and one user's SINR map, its estimated cells hatched."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import numpy as np
 
 from uavplace.dataset.bundle import Bundle
 from uavplace.infra.files import atomic_write_bytes
+from uavplace.schemas.provenance import COARSE_MAP, NEAREST_RECEIVER, NOT_RECORDED, STRAIGHT_PATH, WALKED, code_name
 
 
 def sinr_panel(bundle: Bundle, user: int) -> tuple[np.ma.MaskedArray, int]:
@@ -16,6 +17,17 @@ def sinr_panel(bundle: Bundle, user: int) -> tuple[np.ma.MaskedArray, int]:
     apart), and the count of dead cells the UAV may enter (a cell inside a building is not counted as dead)."""
     blocked = bundle.blocked
     return np.ma.masked_array(bundle.sinr_db[user], mask=bundle.dead[user] | blocked), int((bundle.dead[user] & ~blocked).sum())
+
+
+#: How `uavdata show` marks the cells whose value is not traced at the cell itself: a hatch per provenance code.
+HATCHES = {STRAIGHT_PATH: "..", WALKED: "////", COARSE_MAP: "xxxx", NOT_RECORDED: "\\\\\\\\", NEAREST_RECEIVER: "++"}
+
+
+def estimated_cells(bundle: Bundle, user: int) -> dict[int, np.ndarray]:
+    """The cells of ``user``'s map whose value is estimated or partial (``HATCHES``' codes), a mask per code present,
+    outside buildings: what `uavdata show` hatches."""
+    codes = bundle.provenance[user]
+    return {c: m for c in HATCHES if (m := (codes == c) & ~bundle.blocked).any()}
 
 
 def render_bundle(bundle: Bundle, user: int, out: str | Path) -> Path:
@@ -44,6 +56,18 @@ def render_bundle(bundle: Bundle, user: int, out: str | Path) -> Path:
     shade = matplotlib.colors.ListedColormap(["#4a90c2"])  # blocked cells in a colour magma never takes
     ax.imshow(np.ma.masked_array(blocked, mask=~blocked), origin="lower", extent=extent, cmap=shade, vmin=0, vmax=1)
     fig.colorbar(im, ax=ax, label="SINR [dB] (grey: dead, no path; blue: blocked)")
+    marked = estimated_cells(bundle, user)
+    handles = []
+    with matplotlib.rc_context({"hatch.color": "white", "hatch.linewidth": 0.6}):
+        for code, mask in marked.items():
+            ax.contourf(mask.astype(float), levels=[0.5, 1.5], hatches=[HATCHES[code]], colors="none", origin="lower",
+                        extent=extent)  # fmt: skip
+            share = 100 * mask.sum() / max(int((~blocked).sum()), 1)
+            handles.append(matplotlib.patches.Patch(facecolor="0.35", edgecolor="white", hatch=HATCHES[code],
+                                                    label=f"{code_name(code)} ({share:.1f} %)"))  # fmt: skip
+    if handles:
+        ax.legend(handles=handles, loc="upper left", fontsize=7, framealpha=0.85, title="estimated, not traced at the cell",
+                  title_fontsize=7)  # fmt: skip
     row = bundle.users.iloc[user]
     if np.isfinite(row["x_m"]) and np.isfinite(row["y_m"]):
         ax.plot(row["x_m"], row["y_m"], marker="*", color="cyan", markersize=14, markeredgecolor="black")

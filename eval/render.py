@@ -137,7 +137,8 @@ def render_section(config: ReportConfig, rows: list[list[str]], figures: dict[st
     alt["trajectories"] = "trajectories in " + p["test_city"]
     shown = [_figure(figures[key], first_figure + i, alt[key]) for i, key in enumerate(k for k in alt if k in figures)]
     return _templates().get_template("section.html.j2").render(
-        city=p["test_city"], bundle=p["test_bundle"], episodes=config.episodes, t_max=config.t_max,
+        city=p["test_city"], bundle=p["test_bundle"], maps=cell_sources_text(p["test_bundle_cells"]) if p.get("test_bundle_cells")
+        else None, episodes=config.episodes, t_max=config.t_max,
         p_t=f"{config.p_t_db:g}", penalties=penalties, epsilon=f"{config.test_epsilon:g}", n_boot=config.n_boot,
         users=p.get("users", "all"), paper_source=PAPER_SOURCE, rows=rows, diff_rows=diff_rows, group_rows=group_rows,
         figures=shown,
@@ -158,6 +159,8 @@ def provenance_rows(provenances: list[dict]) -> list[list[str]]:
         c = p["test_bundle_config"]
         rows.append([f"test city {p['test_city']}", f"bundle {p['test_bundle']}: grid {c.get('grid_m')} m, altitude "
                      f"{c.get('altitude_m')} m, noise + interference {c.get('noise_dbm')} dBm, role {c.get('role')}"])  # fmt: skip
+        if p.get("test_bundle_cells"):  # reports from before provenance lack it
+            rows.append([f"test city {p['test_city']}: its maps", cell_sources_text(p["test_bundle_cells"])])
     for name, a in first["agents"].items():
         trained = ", ".join(f"{k}@{v}" for k, v in (a["trained_on"] or {}).items()) or "unknown"
         selected = ", ".join(f"{k}@{v}" for k, v in (a.get("selected_on") or {}).items()) or "its training cities' held-out users"
@@ -170,6 +173,14 @@ def provenance_rows(provenances: list[dict]) -> list[list[str]]:
         for i, cmd in enumerate(a["commands"] or ["(not recorded)"]):
             rows.append([f"agent {name}: command {i + 1}", cmd])
     return rows
+
+
+def cell_sources_text(counts: dict[str, int]) -> str:
+    """Where the values of a bundle's maps came from (``Bundle.cell_sources``), in words: the share of the users' cells
+    outside buildings of each provenance (docs/data.md, "Provenance")."""
+    total = max(sum(counts.values()), 1)
+    shares = ", ".join(f"{100 * n / total:.1f} % {name}" for name, n in sorted(counts.items(), key=lambda kv: -kv[1]))
+    return f"{total:,} user-cells outside buildings: {shares}"
 
 
 def render_page(

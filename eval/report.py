@@ -112,6 +112,7 @@ def make_report(
             "test_bundle": bundle.version,
             "users": int(table["users"].iloc[0]),
             "test_bundle_config": json.loads(bundle.manifest.config.model_dump_json()),
+            "test_bundle_cells": bundle.cell_sources(),
             "upper_bounds_db": bounds,
             "upper_bounds_notes": bound_notes,
             "trajectories": {"agent": shown, "episodes": [e for e, _ in picked], "rules": [r for _, r in picked]},

@@ -92,7 +92,10 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--root", default="data/processed")
     ap.add_argument("--csv", type=Path, help="Write the table to this CSV file")
+    ap.add_argument("--labels", default=f"{PATHS},{RADIO}", help="What the two cities are, for the table: FIRST,SECOND "
+                    "(e.g. '4-neighbour walk,euclidean walk' for two fills of one trace)")  # fmt: skip
     args = ap.parse_args()
+    first, second = args.labels.split(",")
     development_cities([args.paths, args.radio_map], args.root)  # never a test city
     paths, radio = load_bundle(args.paths, root=args.root), load_bundle(args.radio_map, root=args.root)
     if paths.shape != radio.shape or not np.allclose(paths.users[["x_m", "y_m"]], radio.users[["x_m", "y_m"]]):
@@ -102,17 +105,17 @@ def main() -> None:
     episodes, dropped = same_episodes(paths, radio, config)
     folders = args.agent or default_agents()
     results: dict[str, pd.DataFrame] = {}
-    for label, bundle in ((PATHS, paths), (RADIO, radio)):
+    for label, bundle in ((first, paths), (second, radio)):
         agents = [load_agent(f, 0.096, args.seed) for f in folders]
         for name, df in evaluate(config, bundle, agents, baselines=[GeniePolicy()], episodes=episodes).items():
             results[f"{name} @ {label}"] = df
     table = bootstrap_table(results, n_boot=args.n_boot, seed=args.seed).set_index("method")
-    methods = [k.removesuffix(f" @ {PATHS}") for k in results if k.endswith(f" @ {PATHS}")]
-    diffs = difference_table(results, [f"{m} @ {RADIO}" for m in methods], n_boot=args.n_boot, seed=args.seed)
+    methods = [k.removesuffix(f" @ {first}") for k in results if k.endswith(f" @ {first}")]
+    diffs = difference_table(results, [f"{m} @ {second}" for m in methods], n_boot=args.n_boot, seed=args.seed)
     rows, out = [], []
     for m in methods:
-        p, r = table.loc[f"{m} @ {PATHS}"], table.loc[f"{m} @ {RADIO}"]
-        d = diffs[(diffs.method == f"{m} @ {PATHS}") & (diffs.against == f"{m} @ {RADIO}")].set_index("stat")
+        p, r = table.loc[f"{m} @ {first}"], table.loc[f"{m} @ {second}"]
+        d = diffs[(diffs.method == f"{m} @ {first}") & (diffs.against == f"{m} @ {second}")].set_index("stat")
         cell = {}
         for stat, unit in (("success", "points"), ("median_steps", "steps")):
             scale = 100 if stat == "success" else 1
@@ -128,18 +131,18 @@ def main() -> None:
     users = int(table.iloc[0]["users"])
     shares = {
         label: float((b.sinr_db >= args.p_t_db)[~b.dead & ~b.blocked[None]].mean())
-        for label, b in ((PATHS, paths), (RADIO, radio))
+        for label, b in ((first, paths), (second, radio))
     }
-    print(f"{args.paths} (exact paths) against {args.radio_map} (radio map) at P_T {args.p_t_db:g} dB (targets: "
-          f"{100 * shares[PATHS]:.1f} % and {100 * shares[RADIO]:.1f} % of the live open cells): {len(episodes)} episodes of "
+    print(f"{args.paths} ({first}) against {args.radio_map} ({second}) at P_T {args.p_t_db:g} dB (targets: "
+          f"{100 * shares[first]:.1f} % and {100 * shares[second]:.1f} % of the live open cells): {len(episodes)} episodes of "
           f"{users} users, the same in both ({dropped} draws dropped: no start in the twin); 95 % intervals over users, "
           "then episodes\n")  # fmt: skip
-    header = ["method", "success, exact paths", "success, radio map", "exact - radio map",
-              "median steps, exact paths", "median steps, radio map", "exact - radio map"]  # fmt: skip
+    header = ["method", f"success, {first}", f"success, {second}", "first - second",
+              f"median steps, {first}", f"median steps, {second}", "first - second"]  # fmt: skip
     print(markdown_table([header, *rows]))
     agree = map_agreement(paths, radio)
-    print(f"\nmaps over the open cells of every user: dead/live agreement {100 * agree['agreement']:.1f} % (live: exact paths "
-          f"{100 * agree['live_exact']:.1f} %, radio map {100 * agree['live_radio']:.1f} %); where both are live, the radio map's "
+    print(f"\nmaps over the open cells of every user: dead/live agreement {100 * agree['agreement']:.1f} % (live: {first} "
+          f"{100 * agree['live_exact']:.1f} %, {second} {100 * agree['live_radio']:.1f} %); where both are live, the second's "
           f"|SINR error| median {agree['median_abs_db']:.2f} dB, p90 {agree['p90_abs_db']:.2f} dB")  # fmt: skip
     if args.csv is not None:
         pd.DataFrame(out).assign(**{k: v for k, v in agree.items()}).to_csv(args.csv, index=False)

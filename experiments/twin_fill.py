@@ -17,7 +17,7 @@ cell: every path Sionna's ``PathSolver`` finds, nothing filled. Its radio-map tw
     uavdata simulate procedural:oldtown:128x128 --name oldtown-twin-map --users 4 --seed 205 --samples 1.6e7 \\
         --out runs/twin-fill/raw --trace-cache runs/twin-fill/traces
     python experiments/twin_fill.py --paths data/raw/oldtown-twin-paths --traces runs/twin-fill/traces/oldtown-twin-map.npz \\
-        [--geodesic 24:3 ...] [--samples 2e5 ...]
+        [--geodesic 24:3[:4-neighbour] ...] [--samples 2e5 ...]
 """
 
 from __future__ import annotations
@@ -125,8 +125,9 @@ def main() -> None:
     ap.add_argument(
         "--traces", type=Path, required=True, help="the radio-map twin's trace cache file (--trace-cache DIR: DIR/NAME.npz)"
     )
-    ap.add_argument("--geodesic", action="append", default=None, help="REACH_M:DECAY_DB_PER_M of a geodesic fill to score "
-                    "(repeatable; default 0:3, 24:3 (shipped), 24:1, 48:0.5)")  # fmt: skip
+    ap.add_argument("--geodesic", action="append", default=None, help="REACH_M:DECAY_DB_PER_M[:WALK] of a geodesic fill to "
+                    "score (repeatable; WALK euclidean (the default) or 4-neighbour; default 0:3, 24:3:4-neighbour, 24:3 "
+                    "(shipped), 24:1, 48:0.5)")  # fmt: skip
     ap.add_argument("--samples", action="append", type=float, default=[], help="rays per user of exact paths traced again "
                     "at the missed cells (repeatable; about a second a cell and user at 2e6 on 2 cores)")  # fmt: skip
     args = ap.parse_args()
@@ -146,12 +147,13 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|")
     hit = fine[opened] > 0
     maps = {1: fine, "direct": t["direct"]}
-    for spec in args.geodesic or ["0:3", "24:3", "24:1", "48:0.5"]:
-        reach, decay = (float(v) for v in spec.split(":"))
-        config = RayTraceConfig(gap_fill_reach_m=reach, gap_fill_decay_db_per_m=decay)
+    for spec in args.geodesic or ["0:3", "24:3:4-neighbour", "24:3", "24:1", "48:0.5"]:
+        reach, decay, *walk = spec.split(":")
+        walk = walk[0] if walk else RayTraceConfig.gap_fill_walk
+        config = RayTraceConfig(gap_fill_reach_m=float(reach), gap_fill_decay_db_per_m=float(decay), gap_fill_walk=walk)
         gain = fill(maps, config, t["open"], t["d2"], cell_m=float(t["job"][3]))[0]
         s = fill_scores(gain[opened], exact[opened], hit)
-        print(f"| geodesic {reach:g} m, {decay:g} dB/m | {_db(s['hit_median_db'])} / {_db(s['hit_p90_db'])} | "
+        print(f"| geodesic {float(reach):g} m, {float(decay):g} dB/m, {walk} | {_db(s['hit_median_db'])} / {_db(s['hit_p90_db'])} | "
               f"{_db(s['missed_median_db'])} / {_db(s['missed_p90_db'])} | {s['sinr_hit_median_db']:.2f} / "
               f"{s['sinr_hit_p90_db']:.2f} | {s['sinr_missed_median_db']:.2f} / {s['sinr_missed_p90_db']:.2f} | "
               f"{s['sinr_mean_db']:.2f} | {100 * s['dead_live_agreement']:.1f} % |")  # fmt: skip

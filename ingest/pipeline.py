@@ -27,6 +27,7 @@ from uavplace.infra.files import atomic_directory, check_name, sha256_file, writ
 from uavplace.ingest.buildings import BuildingRecord, buildings_tables
 from uavplace.ingest.geojson import read_geojson
 from uavplace.ingest.mesh import MESH_SUFFIXES, read_mesh
+from uavplace.ingest.provenance import default_code, read_provenance
 from uavplace.ingest.routes import read_routes
 from uavplace.ingest.wireless_insite.city import read_city, read_terrain
 from uavplace.ingest.wireless_insite.p2m import COHERENT_MARGIN_DB, POSITION_COLUMNS, P2MStream, antenna_gain_dbi, parse_filename
@@ -51,6 +52,7 @@ from uavplace.schemas import (
     TxRxSet,
 )
 from uavplace.schemas.base import uavplace_version
+from uavplace.schemas.provenance import RAY_TRACED, RECEIVER_CODES, SIDE_FILE_SUFFIX, UNREACHED, code_name
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -75,7 +77,8 @@ class Classified:
 
 
 #: Names of the files ingest reads (a folder so named is reported, not silently passed over).
-EXPORT_SUFFIXES = (".p2m", ".p2m.gz", ".txrx", ".setup", ".city", ".ter", ".geojson", ".routes.csv", *MESH_SUFFIXES)
+EXPORT_SUFFIXES = (".p2m", ".p2m.gz", ".txrx", ".setup", ".city", ".ter", ".geojson", ".routes.csv", ".provenance.csv",
+                   SIDE_FILE_SUFFIX, *MESH_SUFFIXES)  # fmt: skip
 
 
 def classify(folder: Path) -> list[Classified]:
@@ -114,6 +117,8 @@ def classify(folder: Path) -> list[Classified]:
             elif not ident.is_receiver_output:
                 reason = ident.skip_reason
             kind = "p2m"
+        elif low.endswith((SIDE_FILE_SUFFIX, SIDE_FILE_SUFFIX.removesuffix(".gz"))):
+            kind = "cells"
         elif low.endswith(".routes.csv"):
             kind = "routes"
         elif low.endswith(".txrx"):
@@ -268,6 +273,52 @@ class _ReceiverReader:
         self.rows = 0
         self.reached = 0
         self.sets: list[ReceiverSet] = []
+        #: The side file's codes (``ingest.provenance``) and its name, or None and the code of a reached receiver.
+        self.codes: dict[tuple[int, int, int], np.ndarray] | None = None
+        self.codes_source = ""
+        self.default_code = RAY_TRACED
+        self.by_code = np.zeros(len(RECEIVER_CODES), np.int64)
+        self.seen: dict[tuple[int, int, int], int] = {}
+
+    def _with_codes(self, key: tuple[int, int, int], table: pa.Table, source: str) -> pa.Table:
+        """``table`` with its ``provenance`` column: the side file's codes of its receivers, checked against their
+        reach (a receiver is unreached exactly where its file says no path reached it), or the export's default."""
+        reached = table.column("reached").to_numpy(zero_copy_only=False) if "reached" in table.column_names else None
+        unreached = np.zeros(table.num_rows, bool) if reached is None else np.equal(reached, False)
+        if self.codes is None:
+            codes = np.where(unreached, UNREACHED, self.default_code).astype(np.uint8)
+        else:
+            known = self.codes.get(key)
+            if known is None:
+                raise InputError(self.codes_source, f"no runs for transmitter {key[1]} of set {key[0]} and receiver set "
+                                 f"{key[2]} ({source} has {table.num_rows} receivers)", field="tx_point")  # fmt: skip
+            index = table.column("rx_index").to_numpy(zero_copy_only=False).astype(np.int64) - 1
+            off = (index < 0) | (index >= len(known))
+            if off.any():
+                raise InputError(self.codes_source, f"runs of transmitter {key[1]} of set {key[0]} and receiver set {key[2]} "
+                                 f"describe receivers 1..{len(known)}, {source} has receiver {index[np.argmax(off)] + 1}",
+                                 field="count")  # fmt: skip
+            codes = known[index]
+            live = ~np.equal(reached, False) if reached is not None else np.ones(len(codes), bool)
+            wrong = ((codes == UNREACHED) & live) | ((codes != UNREACHED) & unreached)
+            if wrong.any():
+                k = int(np.argmax(wrong))
+                raise InputError(self.codes_source, f"transmitter {key[1]} of set {key[0]}, receiver {index[k] + 1}: code "
+                                 f"{codes[k]} ({code_name(int(codes[k]))}), but {source} says "
+                                 f"{'no path reached it' if unreached[k] else 'a path reached it'}", field="code")  # fmt: skip
+            self.seen[key] = self.seen.get(key, 0) + len(codes)
+        self.by_code += np.bincount(codes, minlength=len(self.by_code))[: len(self.by_code)]
+        return table.append_column("provenance", pa.array(codes, pa.uint8()))
+
+    def check_codes_used(self) -> None:
+        """Every run of the side file described a receiver of the export: none left over."""
+        if self.codes is None:
+            return
+        for key, known in self.codes.items():
+            if self.seen.get(key, 0) != len(known):
+                raise InputError(self.codes_source, f"runs of transmitter {key[1]} of set {key[0]} and receiver set {key[2]} "
+                                 f"describe {len(known)} receivers, the export has {self.seen.get(key, 0)}",
+                                 field="count")  # fmt: skip
 
     def _open(self, f: Classified) -> tuple[P2MStream, TxRxSet | None]:
         ident = parse_filename(f.path.name)
@@ -309,14 +360,14 @@ class _ReceiverReader:
     def write(self, key: tuple[int, int, int], files: list[Classified], writer: pq.ParquetWriter) -> None:
         if len(files) == 1:
             for batch in self._batches(files[0]):
-                self._append(writer, _receiver_rows(key, batch, files[0].rel))
+                self._append(writer, _receiver_rows(key, self._with_codes(key, batch, files[0].rel), files[0].rel))
             return
         parts = []
         for f in files:
             table = pa.concat_tables(list(self._batches(f)))
             parts.append((self.sets[-1], table))
         merged = pa.Table.from_pandas(merge_receiver_files(key, parts), preserve_index=False)
-        self._append(writer, _receiver_rows(key, merged, files[0].rel))
+        self._append(writer, _receiver_rows(key, self._with_codes(key, merged, files[0].rel), files[0].rel))
 
 
 def _transmitters(sets: list[TxRxSet], setup: SetupInfo | None, seen: set[tuple[int, int]], warnings: list[str]) -> pa.Table:
@@ -456,6 +507,14 @@ def ingest_city(
         warnings.append("no .txrx: receiver grids were not checked and transmitter positions are unknown")
     transmitters = _transmitters(list(sets.values()), setup, {(k[0], k[1]) for k in groups}, warnings)
     receivers = _ReceiverReader(sets, setup, warnings, tick, done)
+    if (f := _single(by_kind["cells"], "provenance.csv.gz")) is not None:
+        tick(f.rel)
+        receivers.codes, receivers.codes_source = read_provenance(f.path, f.rel), f.rel
+        done(f, rows=sum(len(c) for c in receivers.codes.values()), message=f"provenance of {len(receivers.codes)} "
+             "transmitter(s) x receiver set(s)")  # fmt: skip
+    else:
+        simulated = next((x for x in by_kind["provenance"] if Path(x.rel).name == "simulation.json"), None)
+        receivers.default_code = default_code(simulated.path if simulated else None, simulated.rel if simulated else None)
 
     records: list[BuildingRecord] = []
     origin = None
@@ -528,6 +587,7 @@ def ingest_city(
         with pq.ParquetWriter(tmp / RECEIVERS.filename, RECEIVERS.arrow_schema(), compression="zstd") as writer:
             for key in sorted(groups):
                 receivers.write(key, groups[key], writer)
+        receivers.check_codes_used()
         tables[RECEIVERS.name] = sha256_file(tmp / RECEIVERS.filename)
         written = [(TRANSMITTERS, transmitters), (BUILDINGS, buildings), (BUILDING_PARTS, parts)]
         for spec, table in written + ([(ROUTES, routes)] if routes is not None else []):
@@ -557,6 +617,7 @@ def ingest_city(
                 "receiver_sets": len({k[2] for k in groups}),
                 "receiver_rows": receivers.rows,
                 "receiver_rows_reached": receivers.reached,
+                **{f"receiver_rows_{code_name(c).replace(' ', '_')}": int(n) for c, n in enumerate(receivers.by_code)},
                 "buildings": buildings.num_rows,
                 "building_parts": parts.num_rows,
                 "terrain_triangles": terrain_info.num_faces if terrain_info else 0,

@@ -42,7 +42,7 @@ def _number(text: str, kind: type, source: str, line: int, field: str) -> float:
     return value
 
 
-def _rows(reader, source: str):  # noqa: ANN001, ANN202 - a csv.reader; yields its rows
+def csv_rows(reader, source: str):  # noqa: ANN001, ANN202 - a csv.reader; yields its rows
     """``reader``'s rows; a row the csv module refuses (a field over its size limit, a NUL) is an ``InputError`` naming
     its line."""
     while True:
@@ -64,7 +64,7 @@ def read_routes(path: Path, source: str, transmitters: pa.Table, footprints: lis
     except UnicodeDecodeError as exc:
         raise InputError(source, f"not UTF-8 text ({exc.reason} at byte {exc.start})", field="encoding") from None
     reader = csv.reader(io.StringIO(text, newline=""))
-    rows = _rows(reader, source)
+    rows = csv_rows(reader, source)
     header = next(rows, None)
     if header is None or tuple(h.strip() for h in header) != CSV_COLUMNS:
         raise InputError(source, f"header {header}: expected {', '.join(CSV_COLUMNS)}", line=1, field="header")

@@ -8,7 +8,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 
 #: Version of every contract in this package. Bumped whenever a model or a
 #: table declaration changes in a way a reader must know about.
-SCHEMA_VERSION = "1.0"
+SCHEMA_VERSION = "1.1"
 #: The largest seed: every seed is a non-negative integer that numpy's and torch's generators take.
 MAX_SEED = 2**63 - 1
 

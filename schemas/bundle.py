@@ -44,6 +44,11 @@ MAP_ARRAYS: dict[str, tuple[str, str]] = {
     "sinr_db": ("float32", "[num_users, num_y, num_x] SINR [dB]; dead cells hold the manifest's SINR floor"),
     "dead": ("bool", "[num_users, num_y, num_x] no ray-traced path reached the cell (or no receiver sampled it)"),
     "num_rx": ("uint16", "[num_users, num_y, num_x] receivers of the export averaged into the cell"),
+    "provenance": (
+        "uint8",
+        "[num_users, num_y, num_x] where the cell's value came from (schemas/provenance.py; dead "
+        "exactly where 0 unreached or 7 no receiver, no receiver exactly where 7 or 8)",
+    ),  # fmt: skip
 }
 
 #: Arrays of ``routes.npz`` (a bundle with routes): name -> (dtype, shape description). A route point's map is a
@@ -51,6 +56,7 @@ MAP_ARRAYS: dict[str, tuple[str, str]] = {
 ROUTE_ARRAYS: dict[str, tuple[str, str]] = {
     "sinr_db": ("float32", "[num_route_points, num_y, num_x] SINR [dB] of the user at each route point"),
     "dead": ("bool", "[num_route_points, num_y, num_x] no ray-traced path reached the cell"),
+    "provenance": ("uint8", "[num_route_points, num_y, num_x] where the cell's value came from (schemas/provenance.py)"),
 }
 
 #: The noise-plus-interference level [dBm] the embedded cities (data/raw/) and the shipped agents are calibrated at:
@@ -255,6 +261,7 @@ CELLS = TableSpec(
             "sinr_db", _F32, "dB", "SINR at the cell (the SINR floor where dead)", min=RATIO_RANGE_DB[0], max=RATIO_RANGE_DB[1]
         ),
         Column("dead", pa.bool_(), "", "No ray-traced path reached the cell"),
+        Column("provenance", pa.uint8(), "", "Where the cell's value came from (schemas/provenance.py)", min=0, max=8),
         Column("blocked", pa.bool_(), "", "Building at or above the UAV altitude"),
         Column(
             "height_rel_m", _F32, "m", "Building height above ground minus the UAV altitude", min=-Z_RANGE_M[1], max=Z_RANGE_M[1]

@@ -31,6 +31,7 @@ SCHEMA_MODELS: dict[str, type[BaseModel] | TableSpec] = {
 _JSON_TYPES = {
     "int32": "integer",
     "int64": "integer",
+    "uint8": "integer",
     "double": "number",
     "float": "number",
     "bool": "boolean",

@@ -270,6 +270,15 @@ RECEIVERS = TableSpec(
             "True if a ray-traced path reached the receiver; null if no file for it carries reach information",
             nullable=True,
         ),
+        Column(
+            "provenance",
+            pa.uint8(),
+            "",
+            "Where the receiver's value came from (schemas/provenance.py: 0 unreached, 1 ray-traced, 2 exact paths, "
+            "3 straight path, 4 walked, 5 coarse map, 6 not recorded): the export's side file, or its kind without one",
+            min=0,
+            max=6,
+        ),
     ),
 )
 

@@ -151,11 +151,36 @@ class Point(click.ParamType):
     help="geodesic: loss of the walk [dB per metre].",
 )
 @click.option(
+    "--gap-fill-walk",
+    type=click.Choice(["euclidean", "4-neighbour"]),
+    default="euclidean",
+    show_default=True,
+    help="geodesic: how the walk measures its reach. euclidean: the shortest way through open ground in steps of 1, "
+    "sqrt 2 and sqrt 5 cells (within 3 % of a straight line), so what it lights follows the streets; 4-neighbour: steps "
+    "along the axes only (an isolated lit patch is a diamond; the fill of the cities simulated before this option).",
+)
+@click.option(
+    "--complete-missed",
+    is_flag=True,
+    help="Trace exact paths (Sionna's PathSolver, every path found) at every open cell the radio map missed, instead of "
+    "filling them: each user's missed cells a Ray task (--ray-address; --cpus-per-city CPUs each; on a GPU where "
+    "Mitsuba finds one), each user's result kept in --trace-cache so that a stopped run resumes per user. About 0.4 s a "
+    "cell and user at 2e6 rays on 2 cores (docs/fidelity.md, 'Exact paths for the missed cells').",
+)
+@click.option(
+    "--complete-samples",
+    type=Finite(min=1),
+    default=2e6,
+    show_default=True,
+    help="--complete-missed: PathSolver's rays per user for each missed cell (2e6: the exact-path reference's).",
+)
+@click.option(
     "--trace-cache",
     type=click.Path(file_okay=False, path_type=Path),
     default=None,
     help="Keep each city's traced maps in this folder (CITY.npz, arrays only) and reuse them when the spec and the "
-    "ray-trace settings match: changing only --gap-fill-reach or --gap-fill-decay then re-fills without tracing.",
+    "ray-trace settings match: changing only --gap-fill-reach, --gap-fill-decay or --gap-fill-walk then re-fills "
+    "without tracing.",
 )
 @click.option(
     "--seed", type=SEED, default=0, show_default=True, help="Seed of the city generator, the users and the ray sampler."
@@ -187,6 +212,9 @@ def simulate(
     gap_fill_method: str,
     gap_fill_reach_m: float,
     gap_fill_decay_db_per_m: float,
+    gap_fill_walk: str,
+    complete_missed: bool,
+    complete_samples: float,
     trace_cache: Path | None,
     seed: int,
     quiet: bool,
@@ -206,7 +234,8 @@ def simulate(
     tasks on a local Ray (or --ray-address); cities already done with the same settings
     are skipped, so running the command again resumes it.
     Each city gets <name>.txrx (users and the receiver grid), <name>.setup, <name>.city,
-    one <name>.power.tNNN_01.r002.p2m.gz per user and simulation.json (every parameter,
+    one <name>.power.tNNN_01.r002.p2m.gz per user, <name>.provenance.csv.gz (where each
+    receiver's value came from: ray-traced, walked, ...; schemas/provenance.py) and simulation.json (every parameter,
     package versions, materials, wall time). Then: uavdata ingest OUT/<name>/ && uavdata build.
     Needs the raytrace extra: pip install -e '.[raytrace]' (CPU: libllvm19).
     """
@@ -241,6 +270,10 @@ def simulate(
         gap_fill_method=gap_fill_method,
         gap_fill_reach_m=gap_fill_reach_m,
         gap_fill_decay_db_per_m=gap_fill_decay_db_per_m,
+        gap_fill_walk=gap_fill_walk,
+        complete_missed_samples=(int(complete_samples) if math.isfinite(complete_samples) else complete_samples)
+        if complete_missed
+        else 0,
         solver=solver,
     )
     try:
@@ -266,7 +299,8 @@ def simulate(
                     console.print(f"simulate {name}: {stage} {done}/{total}", highlight=False, markup=False)
 
             folder, record = simulate_city(specs[0], rt, out_root, command=command_line(), on_progress=on_progress,
-                                           trace_cache=trace_cache)  # fmt: skip
+                                           trace_cache=trace_cache, ray_address=ray_address,
+                                           cpus_per_user=cpus_per_city)  # fmt: skip
     except RuntimeError as err:  # Sionna RT missing or its child process failed
         fail(err)
     g = record["grid"]

@@ -52,11 +52,18 @@ def is_done(spec: SimulationSpec, config: RayTraceConfig, out_root: str | Path) 
 
 
 def _simulate_task(
-    spec: SimulationSpec, config: RayTraceConfig, out_root: str, command: str, trace_cache: str | None = None
+    spec: SimulationSpec,
+    config: RayTraceConfig,
+    out_root: str,
+    command: str,
+    trace_cache: str | None = None,
+    cpus_per_user: float = 2.0,
 ) -> dict:
-    """One city, in a Ray worker: the summary of its simulation.json, or the one-line error that stopped it."""
+    """One city, in a Ray worker: the summary of its simulation.json, or the one-line error that stopped it. Its
+    exact paths for the missed cells (``--complete-missed``) are Ray tasks of the same cluster."""
     try:
-        folder, record = simulate_city(spec, config, out_root, command=command, trace_cache=trace_cache)
+        folder, record = simulate_city(spec, config, out_root, command=command, trace_cache=trace_cache,
+                                       cpus_per_user=cpus_per_user)  # fmt: skip
     except (InputError, RuntimeError, OSError) as err:
         return {"name": spec.name, "error": " ".join(str(err).split())}
     return {"name": spec.name, "folder": str(folder), "geometry": record["geometry"], "seconds": record["wall_seconds"]}
@@ -92,7 +99,8 @@ def simulate_corpus(
     try:
         task = ray.remote(num_cpus=cpus_per_city, max_retries=0)(_simulate_task)
         cache = None if trace_cache is None else str(Path(trace_cache).resolve())
-        pending = [task.remote(s, city_config(config, s), str(Path(out_root).resolve()), command, cache) for s in todo]
+        pending = [task.remote(s, city_config(config, s), str(Path(out_root).resolve()), command, cache, cpus_per_city)
+                   for s in todo]  # fmt: skip
         done: list[dict] = []
         while pending:
             ready, pending = ray.wait(pending, num_returns=1)

@@ -9,7 +9,9 @@ so a simulated city goes through exactly the ingest path of a real one:
   power threshold below which a receiver counts as unreached;
 - ``<project>.<output>.t<PPP>_<SS>.r<RRR>.p2m``: one receiver output per user
   (new-style header; unreached receivers carry the threshold sentinel);
-- ``<project>.city``: buildings as faces (a roof polygon and vertical walls).
+- ``<project>.city``: buildings as faces (a roof polygon and vertical walls);
+- ``<project>.provenance.csv.gz``: where each receiver's value came from (``schemas.provenance``), a side file
+  InSite-compatible readers do not read.
 """
 
 from __future__ import annotations
@@ -21,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 import shapely
+
+from uavplace.schemas.provenance import PROVENANCE_COLUMNS, SIDE_FILE_SUFFIX, code_table
 
 #: Output kinds the writer knows: file name token -> (column titles after the position, format of one row's values).
 P2M_OUTPUTS = {
@@ -225,6 +229,29 @@ def write_p2m(
     text = header + "\n".join(rows.tolist()) + "\n"
     path = Path(folder) / p2m_name(project, output, tx_point, tx_set[0], rx_set[0])
     return _write(path, text, gz=gz, crlf=crlf)
+
+
+def provenance_runs(codes: np.ndarray) -> list[tuple[int, int, int]]:
+    """``codes`` [N] (one receiver each, in the .p2m's order) as runs ``(first receiver, 1-based; count; code)``."""
+    c = np.asarray(codes).ravel()
+    starts = np.flatnonzero(np.r_[True, c[1:] != c[:-1]])
+    counts = np.diff(np.r_[starts, len(c)])
+    return [(int(s) + 1, int(n), int(c[s])) for s, n in zip(starts, counts, strict=True)]
+
+
+def write_provenance(folder: str | Path, project: str, rx_set_id: int, codes: dict[tuple[int, int], np.ndarray]) -> Path:
+    """The side file ``<project>.provenance.csv.gz`` (``schemas.provenance``): the provenance code of every receiver
+    of set ``rx_set_id`` for each transmitter, ``codes`` ``{(tx_set, tx_point): [N] codes in the .p2m's order}``, as
+    runs of equal codes. InSite-compatible readers do not read it; uavplace's ingest does."""
+    lines = [f"# {line}" for line in ("uavplace cell provenance (docs/data.md): runs of receivers that share a code",
+                                      *code_table().splitlines())]  # fmt: skip
+    lines.append(",".join(PROVENANCE_COLUMNS))
+    for (tx_set, tx_point), c in sorted(codes.items()):
+        lines += [f"{tx_set},{tx_point},{rx_set_id},{first},{n},{code}" for first, n, code in provenance_runs(c)]
+    path = Path(folder) / f"{project}{SIDE_FILE_SUFFIX}"
+    with gzip.GzipFile(path, "wb", mtime=0) as f:  # mtime 0: the same codes give the same bytes
+        f.write(("\n".join(lines) + "\n").encode())
+    return path
 
 
 def _prism_faces(poly: shapely.Polygon, base: float, roof: float) -> list[list[tuple[float, float, float]]]:

@@ -28,7 +28,7 @@ import time
 import zipfile
 import zlib
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -39,8 +39,18 @@ from uavplace.infra.files import atomic_directory, check_name, check_replaceable
 from uavplace.infra.limits import check_limit, limits, shown
 from uavplace.schemas import InputError
 from uavplace.schemas.base import Contract, uavplace_version
+from uavplace.schemas.provenance import CODES, ESTIMATED, EXACT_PATHS, UNREACHED, code_name
+from uavplace.simulate.complete import complete_users, missed_cells
 from uavplace.simulate.fidelity import lattice_boundary_shares, lattice_step_ratios
-from uavplace.simulate.insite import UNREACHED_POWER_DBM, ReceiverGrid, write_city, write_p2m, write_setup, write_txrx
+from uavplace.simulate.insite import (
+    UNREACHED_POWER_DBM,
+    ReceiverGrid,
+    write_city,
+    write_p2m,
+    write_provenance,
+    write_setup,
+    write_txrx,
+)
 from uavplace.simulate.procedural import PRESETS, USER_HEIGHT_M, generate_city, sample_users
 from uavplace.simulate.raytrace import (
     SOLVERS,
@@ -163,6 +173,11 @@ def check_simulation(spec: SimulationSpec, config: RayTraceConfig, count: int = 
     _bounded(config.max_depth, "depth", "--depth")
     if config.solver not in SOLVERS:
         raise InputError("--solver", f"{config.solver!r}: expected one of {', '.join(SOLVERS)}", field="solver")
+    if config.complete_missed_samples:
+        _bounded(config.complete_missed_samples, "samples", "--complete-samples")
+        if config.solver == "paths":
+            raise InputError("--complete-missed", "--solver paths traces exact paths at every cell already: nothing is "
+                             "missed", field="complete_missed")  # fmt: skip
     for option, box in (("--extent", spec.extent_m), ("--crop", spec.crop_m)):
         if box is None:
             continue
@@ -282,14 +297,19 @@ PATHS_TEXT = (
     "none: every open cell from exact paths (PathSolver, every path of up to max_depth interactions, as InSite "
     "computes them); a cell no path reaches stays unreached"
 )
+#: How the geodesic fill's walk measures its way (``RayTraceConfig.gap_fill_walk``).
+WALK_TEXT = {
+    "euclidean": "the shortest way in steps of 1, sqrt 2 and sqrt 5 cells, no corner of a building cut",
+    "4-neighbour": "steps along the axes only, front by front",
+}
 #: How simulation.json describes each gap-fill method.
 GAP_FILL_TEXT = {
     "geodesic": "a cell no ray hit takes the exact straight path from the user through the walls it crosses (ITU-R "
     "P.2040-4 slab transmission of the wall material at each crossing's incidence, free space, the user antenna's "
     "gain; none when it crosses more than max_depth walls), and a hit cell keeps at least that path's power; cells "
-    "within {reach:g} m of a hit cell, walking through cells without a building at or above the plane, take the "
-    "geometric mean of their known 4-neighbours' gain relative to free space, front by front, less {decay:g} dB per "
-    "metre walked; no coarse maps",
+    "within {reach:g} m of a hit cell, walking through cells without a building at or above the plane ({walk}), "
+    "take the geometric mean of their known neighbours' gain relative to free space, nearest first, less {decay:g} "
+    "dB per metre walked; no coarse maps",
     "smooth": "a cell no ray hit, whose parent in the maps of {factors} x coarser cells got rays, takes the geometric "
     "mean of its known 4-neighbours' gain relative to free space, spread outward from the hit cells through cells "
     "without a building at or above the plane; then each parent's gaps are scaled to the parent's mean gain",
@@ -303,7 +323,10 @@ def gap_fill_text(config: RayTraceConfig) -> str:
     if config.solver == "paths":
         return PATHS_TEXT
     return GAP_FILL_TEXT[config.gap_fill_method].format(
-        factors=config.gap_fill_factors, reach=config.gap_fill_reach_m, decay=config.gap_fill_decay_db_per_m
+        factors=config.gap_fill_factors,
+        reach=config.gap_fill_reach_m,
+        decay=config.gap_fill_decay_db_per_m,
+        walk=WALK_TEXT[config.gap_fill_walk],
     )
 
 
@@ -391,6 +414,21 @@ def place_users(blocks: list[Block], grid: ReceiverGrid, spec: SimulationSpec) -
     return users + [x0, y0, 0.0]
 
 
+def as_written(gain: np.ndarray, source: np.ndarray, tx_dbm: float) -> tuple[np.ndarray, np.ndarray]:
+    """The received power each .p2m gets [U, ny * nx] (dBm; NaN: unreached, written as the no-path value) and the
+    provenance codes as ingest will read them: a power written at or below the no-path value is unreached."""
+    g = gain.reshape(len(gain), -1)
+    with np.errstate(divide="ignore"):
+        power = np.where(g > 0, tx_dbm + 10 * np.log10(np.where(g > 0, g, 1.0)), np.nan)
+    codes = np.where(np.round(power, 4) > UNREACHED_POWER_DBM, source.reshape(len(source), -1), UNREACHED).astype(np.uint8)
+    return power, codes.reshape(source.shape)
+
+
+def transmitter_of(source: int, num_users: int) -> tuple[tuple[int, str], int]:
+    """(transmitter set, point number) of traced source ``source``: the users first, then the route points."""
+    return (USER_SET, source + 1) if source < num_users else (ROUTE_SET, source - num_users + 1)
+
+
 def direct_maps(job: RadioMapJob, config: RayTraceConfig, on_batch: Callable[[int, int], None] | None = None) -> dict:
     """What ``fill``'s ``geodesic`` method adds to the radio maps of ``job``: the exact straight paths through the
     buildings' walls (``raytrace.direct_gains``, in a child process), ``{"direct": [U, ny, nx], "crossings": ...}``."""
@@ -414,11 +452,11 @@ def map_quality(gain: np.ndarray, open_cells: np.ndarray) -> dict[str, float]:
     return {k: (None if np.isnan(v) else v) for k, v in out.items()}  # None (JSON null) where undefined: no boundary
 
 
-#: Settings that only change how the traced maps are filled: a trace cache entry serves any of their values.
-FILL_ONLY = ("gap_fill_reach_m", "gap_fill_decay_db_per_m")
+#: Settings that only change how the traced maps are filled or completed: a trace cache entry serves any of their values.
+FILL_ONLY = ("gap_fill_reach_m", "gap_fill_decay_db_per_m", "gap_fill_walk", "complete_missed_samples")
 
 
-def _trace_key(spec: SimulationSpec, config: RayTraceConfig) -> str:
+def trace_key(spec: SimulationSpec, config: RayTraceConfig) -> str:
     """What a city's traced maps depend on: its spec and the ray-trace settings, less ``FILL_ONLY``."""
     settings = {k: v for k, v in raytrace_record(config).items() if k not in FILL_ONLY}
     return json.dumps({"spec": spec_record(spec), "raytrace": settings, "uavplace": uavplace_version()}, sort_keys=True)
@@ -470,7 +508,7 @@ def read_cache_entry(path: Path, key: str) -> tuple[dict[str, np.ndarray] | None
 
 
 def _cached_traces(cache: Path | None, name: str, key: str, trace) -> tuple[dict, str]:  # noqa: ANN001
-    """``trace()``'s maps, or those kept in ``cache/<name>.npz`` under the same key (``_trace_key``; arrays only, no
+    """``trace()``'s maps, or those kept in ``cache/<name>.npz`` under the same key (``trace_key``; arrays only, no
     pickle, checked by ``read_cache_entry``); (maps, what became of the entry: ``used``, ``none``, or why it was
     traced again). A new trace is kept there with its sha256, written atomically."""
     path = None if cache is None else Path(cache) / f"{name}.npz"
@@ -484,12 +522,64 @@ def _cached_traces(cache: Path | None, name: str, key: str, trace) -> tuple[dict
         status = f"traced again: the entry was {status}" if status.startswith("made") else f"traced again: {status}"
     maps = trace()
     if path is not None:
-        stored = {(f"f{k}" if isinstance(k, int) else k): v for k, v in maps.items()}
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez_compressed(tmp, key=np.array(key), sha256=np.array(_entry_digest(key, stored)), **stored)
-        os.replace(tmp, path)
+        write_cache_entry(path, key, {(f"f{k}" if isinstance(k, int) else k): v for k, v in maps.items()})
     return maps, status
+
+
+def write_cache_entry(path: Path, key: str, arrays: dict[str, np.ndarray]) -> None:
+    """A trace cache entry: ``arrays`` with the ``key`` that made them and their sha256, written atomically."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez_compressed(tmp, key=np.array(key), sha256=np.array(_entry_digest(key, arrays)), **arrays)
+    os.replace(tmp, path)
+
+
+def complete_missed(
+    job: RadioMapJob,
+    config: RayTraceConfig,
+    missed: np.ndarray,
+    cache: Path | None,
+    key: str,
+    name: str,
+    *,
+    address: str | None = None,
+    cpus_per_user: float = 2.0,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> tuple[np.ndarray, dict]:
+    """Exact path gains at the ``missed`` cells [U, ny, nx] (``simulate.complete``; 0 elsewhere and where no path was
+    found) and what the completion cost. Each user's result is kept in ``cache/<name>.missed-<user>.npz`` (under
+    ``key`` and the PathSolver rays) as it arrives and reused, so an interrupted completion resumes per user."""
+    exact = np.zeros(missed.shape)
+    record = {"cells": int(missed.sum()), "users": int(missed.any(axis=(1, 2)).sum()), "samples": config.complete_missed_samples,
+              "users_from_cache": 0, "seconds": 0.0}  # fmt: skip
+    entry_key = f"{key}|complete-missed|{config.complete_missed_samples}"
+    entries = {u: None if cache is None else cache / f"{name}.missed-{u + 1:04d}.npz" for u in range(len(missed))}
+    todo = []
+    for u in np.flatnonzero(missed.any(axis=(1, 2))).tolist():
+        arrays, _ = read_cache_entry(entries[u], entry_key) if entries[u] is not None and entries[u].is_file() else (None, "")
+        if arrays is not None and arrays["gain"].shape == (int(missed[u].sum()),):
+            exact[u][missed[u]] = arrays["gain"]
+            record["users_from_cache"] += 1
+        else:
+            todo.append(u)
+    done = [record["users"] - len(todo)]
+
+    def on_user(u: int, gains: np.ndarray, seconds: float) -> None:
+        exact[u][missed[u]] = gains
+        record["seconds"] += seconds
+        if entries[u] is not None:
+            write_cache_entry(entries[u], entry_key, {"gain": gains})
+        done[0] += 1
+        if progress is not None:
+            progress("exact paths (users)", done[0], record["users"])
+
+    paths_config = replace(config, samples_per_tx=config.complete_missed_samples)
+    complete_users(job, paths_config, missed, todo, on_user, address=address, cpus_per_user=cpus_per_user)
+    traced = record["cells"] - sum(int(missed[u].sum()) for u in range(len(missed)) if u not in todo)
+    record["seconds"] = round(record["seconds"], 2)
+    record["seconds_per_cell"] = round(record["seconds"] / traced, 3) if traced else None
+    record["cells_with_paths"] = int((exact[missed] > 0).sum())
+    return exact, record
 
 
 def simulate_city(
@@ -500,11 +590,15 @@ def simulate_city(
     command: str = "",
     on_progress: Callable[[str, int, int], None] | None = None,
     trace_cache: str | Path | None = None,
+    ray_address: str | None = None,
+    cpus_per_user: float = 2.0,
 ) -> tuple[Path, dict]:
     """Simulate one city into ``out_root/<name>/``; returns (folder, the simulation.json record).
 
     ``trace_cache``: a folder where the traced maps are kept (``<name>.npz``) and reused when the spec and the
-    ray-trace settings are the same, so that changing only the fill's reach or decay needs no new trace.
+    ray-trace settings are the same, so that changing only the fill's reach, decay or walk needs no new trace; the
+    exact paths of ``--complete-missed`` are kept there per user. ``ray_address``, ``cpus_per_user``: where the
+    completion's Ray tasks run (``simulate.complete``).
     """
 
     def progress(stage: str, done: int, total: int) -> None:
@@ -551,10 +645,18 @@ def simulate_city(
                 seconds["direct"] = time.perf_counter() - t
             return maps
 
-        maps, cached = _cached_traces(Path(trace_cache) if trace_cache else None, spec.name, _trace_key(spec, rt_config),
+        maps, cached = _cached_traces(Path(trace_cache) if trace_cache else None, spec.name, trace_key(spec, rt_config),
                                       trace)  # fmt: skip
+        gain, source = fill(maps, rt_config, opened, squared_distances(sources, grid), cell_m=grid.spacing_m)
+        completion = None
+        if rt_config.complete_missed_samples:  # exact paths where the rays missed: their values, not the fill's estimates
+            missed = missed_cells(maps[1], opened)
+            exact, completion = complete_missed(job, rt_config, missed, Path(trace_cache) if trace_cache else None,
+                                                trace_key(spec, rt_config), spec.name, address=ray_address,
+                                                cpus_per_user=cpus_per_user, progress=progress)  # fmt: skip
+            gain = np.where(missed, exact, gain)
+            source = np.where(missed, np.where(exact > 0, EXACT_PATHS, UNREACHED), source).astype(np.uint8)
     pos = grid.points()  # [ny * nx, 3], x fastest: the same order as gain[u].ravel()
-    gain, filled = fill(maps, rt_config, opened, squared_distances(sources, grid), cell_m=grid.spacing_m)
     with atomic_directory(Path(out_root) / spec.name, marker=PROVENANCE, what="simulated city") as out:
         write_txrx(out / f"{spec.name}.txrx", users, grid, tx_power_dbm=spec.tx_dbm, user_set=USER_SET, grid_set=GRID_SET,
                    route_points_m=route_points, route_set=ROUTE_SET)  # fmt: skip
@@ -562,16 +664,19 @@ def simulate_city(
             write_routes_csv(out / f"{spec.name}.routes.csv", routes)
         write_setup(out / f"{spec.name}.setup", spec.name, frequency_hz=rt_config.frequency_hz, features=[f"{spec.name}.city"])
         write_city(out / f"{spec.name}.city", buildings_of(blocks), name=spec.name)
+        power, source = as_written(gain, source, spec.tx_dbm)
+        codes = {}
         for u in range(len(sources)):
-            g = gain[u].ravel()
-            with np.errstate(divide="ignore"):
-                power = np.where(g > 0, spec.tx_dbm + 10 * np.log10(g), np.nan)
             dist = np.linalg.norm(pos - sources[u], axis=1)
-            tx_set, tx_point = (USER_SET, u + 1) if u < len(users) else (ROUTE_SET, u - len(users) + 1)
+            tx_set, tx_point = transmitter_of(u, len(users))
             write_p2m(out, spec.name, "power", tx_point=tx_point, tx_set=tx_set, rx_set=GRID_SET, positions_m=pos,
-                      distance_m=dist, values=power, gz=True)  # fmt: skip
+                      distance_m=dist, values=power[u], gz=True)  # fmt: skip
+            codes[(tx_set[0], tx_point)] = source[u].ravel()
             progress("writing", u + 1, len(sources))
+        write_provenance(out, spec.name, GRID_SET[0], codes)
+        gain = np.where(source == UNREACHED, 0.0, gain)
         reached = gain > 0
+        filled = np.isin(source, ESTIMATED)
         quality = map_quality(gain[: len(users)], opened)
         record = {
             "tool": "uavdata simulate",
@@ -614,12 +719,16 @@ def simulate_city(
                 "monte_carlo_gaps_filled": int(filled.sum()),
                 "unreached": int((~reached).sum()),
                 "gap_fill": gap_fill_text(rt_config),
+                "provenance": {
+                    code_name(c): int(n) for c, n in enumerate(np.bincount(source.ravel(), minlength=len(CODES))) if n
+                },  # fmt: skip
                 **quality,
             },
             "unreached_cell_share": float(1 - reached.mean()),
             "gap_filled_cell_share": float(filled.mean()),
             "raytrace_seconds": round(seconds["raytrace"], 2),
             "direct_path_seconds": round(seconds["direct"], 2),
+            "complete_missed": completion,
             "traces_from_cache": cached == "used",
             "trace_cache": cached,
             "wall_seconds": round(time.perf_counter() - t_start, 2),

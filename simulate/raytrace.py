@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from uavplace.schemas.provenance import COARSE_MAP, EXACT_PATHS, RAY_TRACED, STRAIGHT_PATH, UNREACHED, WALKED
+
 LLVM_19 = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
 
 
@@ -54,16 +56,36 @@ class RayTraceConfig:
     #: (chosen on the validation cities' exact paths, ``experiments/fidelity.py``); reach 0: direct paths only.
     gap_fill_reach_m: float = 24.0
     gap_fill_decay_db_per_m: float = 3.0
+    #: ``geodesic``: how the walk measures its reach (``WALKS``): "euclidean" (the shortest way through open cells in
+    #: steps of 1, sqrt 2 and sqrt 5 cells, within 3 % of the straight line: what it lights follows the streets) or
+    #: "4-neighbour" (steps along the axes only: an isolated lit patch is a diamond; the fill before this option).
+    gap_fill_walk: str = "euclidean"
+    #: Exact paths at every open cell the radio map missed (``simulate.complete``), PathSolver's rays per user for each
+    #: (2e6 is the exact-path reference's); 0: off, the fill estimates them.
+    complete_missed_samples: int = 0
     #: ``SOLVERS``: "radio-map" (the default), or "paths": every open cell from exact paths, no radio map and no fill
     #: (``samples_per_tx`` then is PathSolver's ``samples_per_src``).
     solver: str = "radio-map"
 
 
+#: The walks of the geodesic fill (``RayTraceConfig.gap_fill_walk``).
+WALKS = ("euclidean", "4-neighbour")
+
+
+#: The settings a record leaves out when they hold these values: what every city simulated before the choice had.
+_EARLIER = {"solver": "radio-map", "gap_fill_walk": "4-neighbour", "complete_missed_samples": 0}
+
+
 def raytrace_record(config: RayTraceConfig) -> dict:
-    """``config`` as ``simulation.json`` and the trace cache record it: without ``solver`` when it is the radio map's (as
+    """``config`` as ``simulation.json`` and the trace cache record it: without ``solver`` when it is the radio map's,
+    without ``gap_fill_walk`` when it is the 4-neighbour walk and without ``complete_missed_samples`` when it is off (as
     before there was a choice, so that the cities simulated then stay up to date)."""
-    doc = asdict(config)
-    return doc if config.solver != "radio-map" else {k: v for k, v in doc.items() if k != "solver"}
+    return {k: v for k, v in asdict(config).items() if _EARLIER.get(k, object()) != v}
+
+
+def config_of_record(record: dict) -> RayTraceConfig:
+    """The ``RayTraceConfig`` a ``raytrace_record`` (simulation.json's ``raytrace``) was made from."""
+    return RayTraceConfig(**_EARLIER | record | {"gap_fill_factors": tuple(record.get("gap_fill_factors", ()))})
 
 
 def _expand(coarse: np.ndarray, factor: int, shape: tuple[int, int]) -> np.ndarray:
@@ -203,6 +225,65 @@ def _shifted(a: np.ndarray, step: int, axis: int) -> np.ndarray:
 FILL_METHODS = ("geodesic", "smooth", "parent")
 
 
+#: The Euclidean walk's moves (dy, dx), with the cells each passes between, which must be open too (no corner of a
+#: building cut): the 16 moves of lengths 1, sqrt 2 and sqrt 5 cells, whose ways are within 3 % of a straight line.
+_MOVES: tuple[tuple[tuple[int, int], tuple[tuple[int, int], ...]], ...] = tuple(
+    ((dy, dx), () if abs(dy) + abs(dx) == 1 else ((dy, 0), (0, dx)) if abs(dy) == abs(dx) == 1
+     else ((dy // 2 if abs(dy) == 2 else 0, dx // 2 if abs(dx) == 2 else 0), (dy // abs(dy), dx // abs(dx))))
+    for dy in range(-2, 3) for dx in range(-2, 3) if (abs(dy), abs(dx)) in {(0, 1), (1, 0), (1, 1), (1, 2), (2, 1)}
+)  # fmt: skip
+
+
+def _moved(a: np.ndarray, dy: int, dx: int) -> np.ndarray:
+    """``a`` [..., ny, nx] moved by ``dy`` rows and ``dx`` columns (``out[y, x] = a[y - dy, x - dx]``), zeros shifted in."""
+    out = a
+    for step, axis in ((dy, -2), (dx, -1)):
+        if step:
+            out = _shifted(out, step, axis)
+    return out
+
+
+def _walk_euclidean(
+    value: np.ndarray, known: np.ndarray, spread: np.ndarray, reach_m: float, cell_m: float, decay_ln_per_m: float
+) -> np.ndarray:
+    """In place, the geodesic fill's walk with a Euclidean reach: every cell of ``spread`` [ny, nx] (open ground) within
+    ``reach_m`` of a ``known`` cell [U, ny, nx], measured along the shortest way through ``spread`` in the moves of
+    ``_MOVES``, takes the mean over its known neighbours on such ways of their ``value`` (a log relative gain) less
+    ``decay_ln_per_m`` for each metre between them, nearest cells first; they become known. Returns the distance walked
+    to each cell [m] (0 at the known cells, inf where the walk does not go)."""
+    open2 = np.asarray(spread, bool)
+    allowed = []  # per move: the target cell, the cell it comes from and the cells it passes between are all open
+    for (dy, dx), between in _MOVES:
+        ok = open2 & _moved(open2, dy, dx)
+        for by, bx in between:
+            ok &= _moved(open2, dy - by, dx - bx)
+        allowed.append((dy, dx, float(np.hypot(dy, dx)) * cell_m, ok))
+    dist = np.where(known & open2, 0.0, np.inf)
+    for _ in range(int(reach_m // cell_m) * 2 + 2):  # relax until no way shortens (a way within reach has few steps)
+        before = dist
+        for dy, dx, length, ok in allowed:
+            shifted = _moved(np.where(np.isfinite(dist), dist, -1.0), dy, dx)
+            dist = np.where(ok & (shifted >= 0), np.minimum(dist, shifted + length), dist)
+        if np.array_equal(dist, before):
+            break
+    dist = np.where(dist <= reach_m + 1e-9, dist, np.inf)
+    todo = np.isfinite(dist) & ~known
+    walked = np.where(np.isfinite(dist), dist, 0.0)
+    sources = [(dy, dx, ok, _moved(walked, dy, dx)) for dy, dx, _, ok in allowed]
+    for level in np.unique(dist[todo]):
+        at = todo & (dist == level)
+        total = np.zeros(value.shape)
+        count = np.zeros(value.shape)
+        for dy, dx, ok, came in sources:
+            src = _moved(known, dy, dx) & ok
+            total += np.where(src, _moved(value, dy, dx) + decay_ln_per_m * came, 0.0)
+            count += src
+        at &= count > 0  # always: the way to a cell within reach comes from a nearer one
+        value[at] = total[at] / count[at] - decay_ln_per_m * level
+        known |= at
+    return dist
+
+
 def fill_geodesic(
     fine: np.ndarray,
     direct: np.ndarray,
@@ -212,25 +293,40 @@ def fill_geodesic(
     reach_m: float,
     decay_db_per_m: float,
     cell_m: float,
-) -> np.ndarray:
-    """Complete the radio map ``fine`` [U, ny, nx] without coarse maps, so without their lattice.
+    walk: str = "euclidean",
+) -> tuple[np.ndarray, np.ndarray]:
+    """Complete the radio map ``fine`` [U, ny, nx] without coarse maps, so without their lattice: (gain, the
+    provenance code of each cell, ``schemas.provenance``).
 
     1. A cell no ray hit takes the exact straight path through the walls, ``direct`` [U, ny, nx] (0 where
        there is none); a hit cell keeps at least its power (the sum of all paths is never below one of them).
     2. The radio map samples diffraction only at edges the user sees, so the paths that reflect and then
        diffract into a side street reach few cells. Cells within ``reach_m`` of a hit cell, walking through
        ``open_cells`` [ny, nx] (no building at or above the plane: never from the lit side of a wall), take the
-       geometric mean of their already known 4-neighbours' gain relative to free space (gain x ``d2``, the
-       squared user-to-cell distance), front by front outward from the hit cells, less ``decay_db_per_m`` for each
-       metre walked. Beyond that, cells stay unreached, as InSite leaves them.
+       geometric mean of their already known neighbours' gain relative to free space (gain x ``d2``, the
+       squared user-to-cell distance), nearest first, less ``decay_db_per_m`` for each metre walked. ``walk``
+       (``WALKS``): "euclidean" measures the way in steps of 1, sqrt 2 and sqrt 5 cells (``_walk_euclidean``),
+       "4-neighbour" in steps along the axes (isolated lit patches are diamonds). Beyond that, cells stay
+       unreached, as InSite leaves them.
+
+    A cell takes the larger of its walked and straight-path values, and its code says which: ray-traced (hit),
+    walked, straight path, or unreached.
     """
-    known = fine > 0
+    if walk not in WALKS:
+        raise ValueError(f"unknown walk {walk!r} ({', '.join(WALKS)})")
+    hit = fine > 0
+    known = hit.copy()
     value = log_relative_gain(fine, d2)
     spread = np.broadcast_to(open_cells, fine.shape)
-    step_ln = decay_db_per_m * cell_m * np.log(10) / 10
-    _walk_fronts(value, known, spread, spread, int(reach_m // cell_m + 1e-9), step_ln)
-    walked = np.where(known & ~(fine > 0), np.exp(value) / d2, 0.0)
-    return np.maximum(np.where(fine > 0, fine, walked), direct)
+    decay_ln_per_m = decay_db_per_m * np.log(10) / 10
+    if walk == "euclidean":
+        _walk_euclidean(value, known, open_cells, reach_m, cell_m, decay_ln_per_m)
+    else:
+        _walk_fronts(value, known, spread, spread, int(reach_m // cell_m + 1e-9), decay_ln_per_m * cell_m)
+    walked = np.where(known & ~hit, np.exp(value) / d2, 0.0)
+    gain = np.maximum(np.where(hit, fine, walked), direct)
+    code = np.select([hit, (walked > 0) & (walked >= direct), direct > 0], [RAY_TRACED, WALKED, STRAIGHT_PATH], UNREACHED)
+    return gain, code.astype(np.uint8)
 
 
 def check_fill(config: RayTraceConfig) -> None:
@@ -239,14 +335,17 @@ def check_fill(config: RayTraceConfig) -> None:
         raise ValueError(f"unknown gap fill method {config.gap_fill_method!r} ({', '.join(FILL_METHODS)})")
     if config.gap_fill_method != "geodesic" and not config.gap_fill_factors:
         raise ValueError(f"the {config.gap_fill_method!r} fill takes its levels from coarse maps: give --gap-fill, e.g. 4,16")
+    if config.gap_fill_walk not in WALKS:
+        raise ValueError(f"unknown walk {config.gap_fill_walk!r} ({', '.join(WALKS)})")
 
 
 def fill(
     maps: dict[int | str, np.ndarray], config: RayTraceConfig, open_cells: np.ndarray, d2: np.ndarray, cell_m: float = 4.0
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The raw maps of ``path_gain_maps`` (by cell factor) completed by ``config.gap_fill_method``: (gain, mask of the
-    cells that no ray hit but the method made live); with ``config.solver == "paths"`` the maps are exact paths at every
-    open cell and are returned as they are, nothing filled.
+    """The raw maps of ``path_gain_maps`` (by cell factor) completed by ``config.gap_fill_method``: (gain, the
+    provenance code of every cell, ``schemas.provenance``: ray-traced, walked, straight path, coarse map or unreached);
+    with ``config.solver == "paths"`` the maps are exact paths at every open cell and are returned as they are, nothing
+    filled (exact paths or unreached).
 
     ``geodesic`` also takes ``maps["direct"]`` [U, ny, nx] (``direct_gains``) and the cell size ``cell_m``. ``open_cells`` [ny, nx]: no building at or above the plane; ``d2`` [U, ny, nx]:
     squared user-to-cell distances [m^2].
@@ -254,11 +353,10 @@ def fill(
     check_fill(config)
     fine = maps[1]
     if config.solver == "paths":  # exact paths at every open cell (``exact_path_maps``): nothing to fill
-        return fine, np.zeros(fine.shape, bool)
+        return fine, np.where(fine > 0, EXACT_PATHS, UNREACHED).astype(np.uint8)
     if config.gap_fill_method == "geodesic":
-        gain = fill_geodesic(fine, maps["direct"], open_cells, d2, reach_m=config.gap_fill_reach_m,
+        return fill_geodesic(fine, maps["direct"], open_cells, d2, reach_m=config.gap_fill_reach_m, walk=config.gap_fill_walk,
                              decay_db_per_m=config.gap_fill_decay_db_per_m, cell_m=cell_m)  # fmt: skip
-        return gain, (fine == 0) & (gain > 0)
     factors = tuple(config.gap_fill_factors)
     coarse = [maps[f] for f in factors]
     if config.gap_fill_method == "smooth":
@@ -267,7 +365,8 @@ def fill(
         gain = fine
         for f, c in zip(factors, coarse, strict=True):
             gain = fill_gaps(gain, c, f)
-    return gain, (fine == 0) & (gain > 0)
+    code = np.select([fine > 0, gain > 0], [RAY_TRACED, COARSE_MAP], UNREACHED)
+    return gain, code.astype(np.uint8)
 
 
 def constant_patch_share(gain: np.ndarray, live: np.ndarray, size: int = 4) -> float:

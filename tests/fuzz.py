@@ -257,7 +257,7 @@ def _array_edits(path: Path, plan: list[tuple[str, float, float]]) -> None:
     path.write_bytes(buffer.getvalue())
 
 
-ARRAYS = ["x_m", "y_m", "height_rel_m", "blocked", "building_id", "sinr_db", "dead", "num_rx"]
+ARRAYS = ["x_m", "y_m", "height_rel_m", "blocked", "building_id", "sinr_db", "dead", "num_rx", "provenance"]
 
 
 def run(name: str, examples: int, seed_value: int) -> None:

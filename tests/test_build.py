@@ -21,7 +21,7 @@ from uavplace.cli import uavdata
 from uavplace.dataset.build import build_city
 from uavplace.dataset.bundle import load_bundle, read_latest
 from uavplace.ingest.pipeline import ingest_city
-from uavplace.schemas import InputError
+from uavplace.schemas import SCHEMA_VERSION, InputError
 from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM, BuildConfig
 
 NOISE = EMBEDDED_NOISE_DBM  # the build's default
@@ -208,8 +208,15 @@ def test_schema_version_mismatch(tmp_path):
     m = json.loads((path / "manifest.json").read_text())
     m["schema_version"] = "0.9"
     (path / "manifest.json").write_text(json.dumps(m))
-    with pytest.raises(InputError, match="schema_version: bundle schema version '0.9', this uavplace reads '1.0'"):
+    with pytest.raises(InputError, match=f"schema_version: bundle schema version '0.9', this uavplace reads '{SCHEMA_VERSION}'"):
         load_bundle("city", root=root)
+    # an ingest of an earlier schema (its receivers table lacks columns the build reads) is refused, not half-read
+    ingested = root / "city" / "ingested" / "manifest.json"
+    m = json.loads(ingested.read_text())
+    m["schema_version"] = "1.0"
+    ingested.write_text(json.dumps(m))
+    with pytest.raises(InputError, match="ingested with schema version '1.0'.*run `uavdata ingest` again"):
+        build_city("city", cfg(seed=1), root)
 
 
 def test_half_written_bundle_is_never_loaded(tmp_path):

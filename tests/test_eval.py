@@ -205,6 +205,9 @@ def test_report_end_to_end(tmp_path, two_cities):
     assert doc["test_bundle"] and set(doc["agents"]["PQN + GRU (best)"]["trained_on"]) == {"citya"}
     assert doc["report_config"]["episodes"] == 60 and "upper_bounds_db" in doc
     assert doc["torch"]["threads"] >= 1 and doc["torch"]["version"]
+    # where the test city's values came from (an InSite-like export: every reached receiver ray-traced), in the page too
+    cells = doc["test_bundle_cells"]
+    assert set(cells) == {"unreached", "ray-traced"} and f"{sum(cells.values()):,} user-cells outside buildings" in page
     # The trajectories follow the stated rule: the success nearest the median, the successes' p90, a failure.
     shown = eps[eps.method == "PQN + GRU (best)"].set_index("episode")
     picks = dict(zip(doc["trajectories"]["rules"], doc["trajectories"]["episodes"], strict=True))

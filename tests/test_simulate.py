@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gzip
 import importlib.util
 import json
 import os
@@ -525,3 +526,78 @@ def test_trace_cache_entries_are_checked_and_damage_is_traced_again(tmp_path):
     with pytest.raises(InputError, match="not a regular file"):
         _cached_traces(cache, "c", "settings A", trace)
     assert entry.is_fifo()
+
+
+@needs_sionna
+def test_each_cell_of_a_small_traced_city_says_where_its_value_came_from(tmp_path):
+    """Few rays, one wall for the straight path and an 8 m walk: the tiny city has hit, straight-path, walked and
+    unreached cells. Each carries its code in the side file, the ingested receivers, the bundle and `uavdata show`,
+    checked against the traced maps kept in the trace cache (what the rays hit, the straight paths) and the export."""
+    from uavplace.dataset.preview import estimated_cells
+    from uavplace.schemas.provenance import RAY_TRACED, STRAIGHT_PATH, UNREACHED, WALKED
+
+    _simulate(tmp_path, "procedural:tiny", "--name", "tiny", "--users", "3", "--samples", "3e3", "--seed", "4", "--depth", "1",
+              "--gap-fill-reach", "8", "--trace-cache", str(tmp_path / "cache"))  # fmt: skip
+    with np.load(tmp_path / "cache" / "tiny.npz", allow_pickle=False) as z:
+        hit, direct = z["f1"] > 0, z["direct"]
+    root = tmp_path / "p"
+    ingest_city(tmp_path / "raw" / "tiny", root)
+    rx = pd.read_parquet(root / "tiny" / "ingested" / "receivers.parquet").sort_values(["tx_point", "rx_index"])
+    expected = np.full(hit.shape, WALKED, np.uint8)
+    power = rx["power_dbm"].to_numpy(dtype=float, na_value=np.nan).reshape(hit.shape)
+    with np.errstate(divide="ignore"):
+        straight = 20.0 + 10 * np.log10(direct)  # the user's 20 dBm along the straight path alone
+    expected[np.abs(power - straight) < 2e-4] = STRAIGHT_PATH  # the export's value is the straight path's
+    expected[np.isnan(power)] = UNREACHED
+    expected[hit] = RAY_TRACED
+    assert set(np.unique(expected)) == {UNREACHED, RAY_TRACED, STRAIGHT_PATH, WALKED}
+    np.testing.assert_array_equal(rx["provenance"].to_numpy().reshape(hit.shape), expected)
+    b = load_bundle(build_city("tiny", BuildConfig(grid_m=4.0, altitude_m=10.0), root).path)
+    np.testing.assert_array_equal(b.provenance, expected)  # the export's receivers are the grid's cells
+    assert sum(b.cell_sources().values()) == 3 * int((~b.blocked).sum())
+    for code, mask in estimated_cells(b, 0).items():
+        np.testing.assert_array_equal(mask, (expected[0] == code) & ~b.blocked)
+
+
+@needs_sionna
+@pytest.mark.slow
+def test_exact_paths_complete_the_missed_cells_as_ray_tasks_and_resume_per_user(tmp_path):
+    """--complete-missed: every open cell the rays missed carries PathSolver's value (the same as PathSolver at that
+    point alone) and the code "exact paths" (or "unreached" where it finds none); nothing open is walked or given its
+    straight path; run again, every user's paths come from the trace cache and the export is the same."""
+    from uavplace.schemas.provenance import EXACT_PATHS, RAY_TRACED, STRAIGHT_PATH, UNREACHED
+    from uavplace.simulate.insite import ReceiverGrid
+    from uavplace.simulate.pipeline import open_cells
+    from uavplace.simulate.raytrace import RadioMapJob, RayTraceConfig, point_path_gains_isolated
+    from uavplace.simulate.scene import write_scene
+
+    args = ("procedural:tiny", "--name", "tiny", "--users", "2", "--samples", "3e3", "--seed", "4", "--depth", "1",
+            "--gap-fill-reach", "8", "--trace-cache", str(tmp_path / "cache"), "--complete-missed", "--complete-samples", "2e4")  # fmt: skip
+    _simulate(tmp_path, *args)
+    record = json.loads((tmp_path / "raw" / "tiny" / "simulation.json").read_text())
+    with np.load(tmp_path / "cache" / "tiny.npz", allow_pickle=False) as z:
+        hit = z["f1"] > 0
+    blocks, bounds, _ = load_geometry("procedural:tiny", 4)
+    grid = ReceiverGrid(x0_m=2.0, y0_m=2.0, z_m=10.0, num_x=24, num_y=20, spacing_m=4.0)
+    missed = ~hit & open_cells(blocks, grid)
+    root = tmp_path / "p"
+    ingest_city(tmp_path / "raw" / "tiny", root)
+    rx = pd.read_parquet(root / "tiny" / "ingested" / "receivers.parquet").sort_values(["tx_point", "rx_index"])
+    code = rx["provenance"].to_numpy().reshape(hit.shape)
+    assert set(np.unique(code[missed])) <= {EXACT_PATHS, UNREACHED} and (code[missed] == EXACT_PATHS).any()
+    assert (code[hit] == RAY_TRACED).all() and set(np.unique(code[~hit & ~missed])) <= {STRAIGHT_PATH, UNREACHED}
+    assert record["complete_missed"]["cells"] == int(missed.sum()) and record["complete_missed"]["users_from_cache"] == 0
+    power = rx["power_dbm"].to_numpy(dtype=float, na_value=np.nan).reshape(hit.shape)
+    u, iy, ix = (int(a[0]) for a in np.nonzero(code == EXACT_PATHS))  # one completed cell, traced again on its own
+    xml, _ = write_scene(tmp_path / "scene", blocks, bounds, 800e6)
+    job = RadioMapJob(str(xml), (tuple(record["users_m"][u]),), (48.0, 40.0, 10.0), (96.0, 80.0), 4.0)
+    alone = point_path_gains_isolated(job, np.array([[4.0 * ix + 2, 4.0 * iy + 2, 10.0]]),
+                                      RayTraceConfig(samples_per_tx=20_000, seed=4, max_depth=1))  # fmt: skip
+    assert power[u, iy, ix] == pytest.approx(20.0 + 10 * np.log10(alone[0, 0]), abs=0.5)
+
+    again = tmp_path / "again"
+    _simulate(again, *args)  # the same trace cache
+    redo = json.loads((again / "raw" / "tiny" / "simulation.json").read_text())
+    assert redo["complete_missed"]["users_from_cache"] == 2 and redo["complete_missed"]["seconds"] == 0
+    for f in sorted((tmp_path / "raw" / "tiny").glob("*.p2m.gz")) + [tmp_path / "raw" / "tiny" / "tiny.provenance.csv.gz"]:
+        assert gzip.decompress((again / "raw" / "tiny" / f.name).read_bytes()) == gzip.decompress(f.read_bytes()), f.name

@@ -809,6 +809,18 @@ CASES: list[Case] = [
         _bundle_arrays(_set("sinr_db", (0, 0, 0), -300.0)),
         "SINR below the manifest's floor",
     ),
+    Case(
+        "show provenance not a code",
+        "uavdata",
+        _bundle_arrays(_set("provenance", (0, 0, 0), 200)),
+        "provenance: cell [0, 0, 0]: code 200 (code 200) but the cell is",
+    ),
+    Case(
+        "show live cell said unreached",
+        "uavdata",
+        _bundle_arrays(lambda a: a["provenance"].__setitem__(~a["dead"], 0)),
+        "code 0 (unreached) but the cell is live",
+    ),
     Case("show all blocked", "uavdata", _bundle_arrays(lambda a: a["blocked"].fill(True)), "blocked: every cell is blocked"),
     Case(
         "show building id -7",

@@ -1,0 +1,118 @@
+"""``<city>.provenance.csv.gz``: where each receiver's value came from (``schemas.provenance``), beside an export.
+
+The side file ``uavdata simulate`` writes: comment lines (``#``), the header ``PROVENANCE_COLUMNS``, then runs of
+consecutive receivers of one transmitter and receiver set that share a code. Refused, with the file, line and field,
+unless every field is an integer, every code a receiver's code, and the runs of each transmitter and receiver set
+follow each other from receiver 1 with no gap or overlap. ``ingest_city`` then checks that the runs cover exactly
+the receivers of the .p2m files and that a receiver is "unreached" exactly where its file says no path reached it.
+Without the side file, ``default_code`` says what an export's reached receivers are.
+"""
+
+from __future__ import annotations
+
+import csv
+import gzip
+import io
+import json
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from uavplace.infra.limits import check_limit
+from uavplace.ingest.routes import csv_rows
+from uavplace.schemas import InputError
+from uavplace.schemas.provenance import (
+    EXACT_PATHS,
+    NOT_RECORDED,
+    PROVENANCE_COLUMNS,
+    RAY_TRACED,
+    RECEIVER_CODES,
+    code_name,
+)
+
+
+def _text(path: Path, source: str) -> str:
+    """The decompressed text, within the limit ``export_bytes`` (read in pieces: a small archive cannot expand into
+    gigabytes before it is refused)."""
+    chunks, size = [], 0
+    try:
+        with gzip.open(path, "rb") if path.name.lower().endswith(".gz") else path.open("rb") as f:
+            while chunk := f.read(1 << 20):
+                size += len(chunk)
+                check_limit("export_bytes", size, source, "size of the (decompressed) text [bytes]")
+                chunks.append(chunk)
+    except (OSError, EOFError, zlib.error) as exc:
+        raise InputError(source, f"not a readable gzip file ({type(exc).__name__}: {str(exc)[:120]})") from None
+    try:
+        return b"".join(chunks).decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise InputError(source, f"not UTF-8 text ({exc.reason} at byte {exc.start})", field="encoding") from None
+
+
+def read_provenance(path: Path, source: str) -> dict[tuple[int, int, int], np.ndarray]:
+    """The codes of a side file: ``{(tx_set, tx_point, rx_set): codes [N] of receivers 1..N}`` (uint8); ``InputError``
+    naming the file, line and field of the first problem."""
+    reader = csv.reader(io.StringIO(_text(path, source), newline=""))
+    runs: dict[tuple[int, int, int], list[tuple[int, int]]] = {}
+    ends: dict[tuple[int, int, int], int] = {}
+    header_seen = False
+    total = 0
+    for row in csv_rows(reader, source):
+        line = reader.line_num
+        if not row or all(not c.strip() for c in row) or row[0].lstrip().startswith("#"):
+            continue
+        if not header_seen:
+            if tuple(c.strip() for c in row) != PROVENANCE_COLUMNS:
+                raise InputError(source, f"header {row}: expected {', '.join(PROVENANCE_COLUMNS)}", line=line, field="header")
+            header_seen = True
+            continue
+        if len(row) != len(PROVENANCE_COLUMNS):
+            raise InputError(source, f"{len(row)} fields, expected {len(PROVENANCE_COLUMNS)}", line=line, field="row")
+        values = {}
+        for name, cell in zip(PROVENANCE_COLUMNS, row, strict=True):
+            try:
+                values[name] = int(cell)
+            except ValueError:
+                raise InputError(source, f"{cell!r} is not an integer", line=line, field=name) from None
+        for name in ("tx_set", "tx_point", "rx_set", "first_rx", "count"):
+            if values[name] < (0 if name.endswith("_set") else 1):
+                raise InputError(source, f"{values[name]} is not a {'set id' if name.endswith('_set') else 'count'} "
+                                 f"(at least {0 if name.endswith('_set') else 1})", line=line, field=name)  # fmt: skip
+        if values["code"] not in RECEIVER_CODES:
+            raise InputError(source, f"{values['code']} is not a receiver's code ("
+                             + ", ".join(f"{c} {code_name(c)}" for c in RECEIVER_CODES) + ")", line=line, field="code")  # fmt: skip
+        key = (values["tx_set"], values["tx_point"], values["rx_set"])
+        expected = ends.get(key, 0) + 1
+        if values["first_rx"] != expected:
+            raise InputError(source, f"run starts at receiver {values['first_rx']}; the runs of transmitter {key[1]} of set "
+                             f"{key[0]} and receiver set {key[2]} reach {expected - 1}: they must follow each other from "
+                             "1, with no gap or overlap", line=line,
+                             field="first_rx")  # fmt: skip
+        total += values["count"]
+        check_limit("export_bytes", total, source, "receivers the runs describe", line=line, field="count")
+        runs.setdefault(key, []).append((values["count"], values["code"]))
+        ends[key] = values["first_rx"] + values["count"] - 1
+    if not header_seen:
+        raise InputError(source, f"no header line ({', '.join(PROVENANCE_COLUMNS)})", field="header")
+    return {
+        key: np.repeat(np.array([c for _, c in r], np.uint8), np.array([n for n, _ in r], np.int64)) for key, r in runs.items()
+    }
+
+
+def default_code(provenance_json: Path | None, source: str | None = None) -> int:
+    """The code of a reached receiver of an export without a side file: ``ray-traced`` for a ray tracer's export (no
+    simulation.json), ``exact paths`` when its simulation.json says ``uavdata simulate --solver paths``, ``not recorded``
+    for an earlier ``uavdata simulate`` export, which filled gaps without saying which."""
+    if provenance_json is None:
+        return RAY_TRACED
+    check_limit("record_bytes", provenance_json.stat().st_size, source or provenance_json, "size [bytes]")
+    try:
+        record = json.loads(provenance_json.read_text(encoding="utf-8"))
+        solver = (record.get("raytrace") or {}).get("solver", "radio-map") if isinstance(record, dict) else None
+    except (ValueError, OSError, AttributeError):
+        solver = None
+    return EXACT_PATHS if solver == "paths" else NOT_RECORDED
+
+
+__all__ = ["default_code", "read_provenance"]
