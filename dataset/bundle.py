@@ -426,6 +426,9 @@ def check_provenance(path: Path, provenance: np.ndarray, dead: np.ndarray, num_r
     if wrong.any():
         where = tuple(int(i) for i in np.unravel_index(int(np.argmax(wrong)), wrong.shape))
         code = int(provenance[where])
+        if code not in CODES:
+            raise InputError(path, f"cell {list(where)}: {code} is not a provenance code (0 .. {max(CODES)}: "
+                             "schemas/provenance.py)", field="provenance")  # fmt: skip
         raise InputError(path, f"cell {list(where)}: code {code} ({code_name(code)}) but the cell is "
                          f"{'dead' if dead[where] else 'live'}" + ("" if num_rx is None else f" with {num_rx[where]} "
                          "receiver(s)") + ": the provenance disagrees with the maps", field="provenance")  # fmt: skip

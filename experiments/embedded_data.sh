@@ -1,14 +1,16 @@
 #!/usr/bin/env bash
 # Ray-trace every embedded city of data/raw/ (the README's data section), into OUT (default data/raw).
 # Resumable: a city whose simulation.json records the same settings is skipped, so run it again after a stop.
-# The traced maps are kept in runs/traces (TRACES): changing only the fill's reach or decay re-fills in seconds.
+# The traced maps are kept in runs/traces (TRACES): changing only the fill's reach, decay or walk re-fills in seconds.
+# The embedded cities keep the 4-neighbour walk they were made with: the Euclidean walk (the default since) did not
+# move the validation cities' numbers (docs/fidelity.md, "The walk's reach").
 # About 90 minutes on the 2-core machine alone (fine radio maps at 1.6e7 rays per user, then the direct paths).
 #
 #     bash experiments/embedded_data.sh [OUT]
 set -euo pipefail
 out=${1:-data/raw}
 traces=${TRACES:-runs/traces}
-common=(--samples 1.6e7 --out "$out" --trace-cache "$traces")
+common=(--samples 1.6e7 --gap-fill-walk 4-neighbour --out "$out" --trace-cache "$traces")
 uavdata simulate procedural:mixed --count 18 --name corpus --seed 100 --users 16 "${common[@]}"
 uavdata simulate procedural:oldtown --count 6 --name oldtown --seed 200 --users 16 "${common[@]}"
 uavdata simulate procedural:test --name test --users 25 --seed 2 "${common[@]}"
@@ -18,8 +20,8 @@ uavdata simulate sionna:florence --crop=-200,-250,200,250 --name florence --user
 uavdata simulate sionna:etoile --crop=200,-200,400,200 --name etoile-val --users 16 --seed 6 "${common[@]}"
 uavdata simulate sionna:florence --crop=200,-250,494,250 --name florence-val --users 16 --seed 7 "${common[@]}"
 uavdata simulate procedural:train --name train --users 27 --seed 1 "${common[@]}"
-uavdata simulate procedural:tiny --name tiny --users 4 --seed 3 --samples 2e6 --out "$out" --trace-cache "$traces"
-uavdata simulate procedural:tiny --name tiny-routes --users 4 --seed 3 --samples 2e6 --routes 4 --route-length 40m --out "$out" --trace-cache "$traces"
+uavdata simulate procedural:tiny --name tiny --users 4 --seed 3 --samples 2e6 --gap-fill-walk 4-neighbour --out "$out" --trace-cache "$traces"
+uavdata simulate procedural:tiny --name tiny-routes --users 4 --seed 3 --samples 2e6 --routes 4 --route-length 40m --gap-fill-walk 4-neighbour --out "$out" --trace-cache "$traces"
 # The tracking task's test cities: the test cities' geometry (same source, crop and seed) with one user and two 40 m
 # routes (a pedestrian and a vehicle, 42 points), at the embedded ray count: about 5 MB each (docs/tracking.md).
 routes=(--users 1 --routes 2 --route-length 40m)

@@ -5,8 +5,9 @@ Two bundles of the same city and trace, filled with ``--gap-fill-walk 4-neighbou
 user's provenance codes side by side (ray-traced, straight path, walked, unreached, and the buildings), in a window.
 The 4-neighbour walk lights a diamond around each isolated hit cell; the Euclidean one a disc along the streets.
 
+    bash experiments/walk_validation.sh florence-val      (traces, fills both ways, builds into runs/walk/processed)
     python experiments/walk_figure.py --before florence-val-w4 --after florence-val-we --root runs/walk/processed \\
-        --user 3 --window 250,-200,450,0 --out docs/img/walk-before-after.png
+        --user 9 --window 260,90,420,250 --out docs/img/walk-before-after.png
 """
 
 from __future__ import annotations

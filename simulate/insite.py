@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import shapely
 
+from uavplace.infra.files import atomic_write_bytes
 from uavplace.schemas.provenance import PROVENANCE_COLUMNS, SIDE_FILE_SUFFIX, code_table
 
 #: Output kinds the writer knows: file name token -> (column titles after the position, format of one row's values).
@@ -249,8 +250,8 @@ def write_provenance(folder: str | Path, project: str, rx_set_id: int, codes: di
     for (tx_set, tx_point), c in sorted(codes.items()):
         lines += [f"{tx_set},{tx_point},{rx_set_id},{first},{n},{code}" for first, n, code in provenance_runs(c)]
     path = Path(folder) / f"{project}{SIDE_FILE_SUFFIX}"
-    with gzip.GzipFile(path, "wb", mtime=0) as f:  # mtime 0: the same codes give the same bytes
-        f.write(("\n".join(lines) + "\n").encode())
+    # mtime 0: the same codes give the same bytes; written beside and renamed, so a reader never sees half of it
+    atomic_write_bytes(path, gzip.compress(("\n".join(lines) + "\n").encode(), mtime=0))
     return path
 
 

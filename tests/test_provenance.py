@@ -182,7 +182,7 @@ def test_a_bundle_whose_provenance_disagrees_with_its_maps_is_refused():
         ([[[UNREACHED, UNREACHED, 8]]], r"cell \[0, 0, 1\]: code 0 \(unreached\) but the cell is live"),
         ([[[UNREACHED, WALKED, WALKED]]], r"cell \[0, 0, 2\]: code 4 \(walked\) but the cell is live with 0 receiver"),
         ([[[NO_RECEIVER, WALKED, 8]]], r"cell \[0, 0, 0\]: code 7 \(no receiver\) but the cell is dead with 1"),
-        ([[[UNREACHED, 200, 8]]], r"cell \[0, 0, 1\]: code 200 \(code 200\)"),
+        ([[[UNREACHED, 200, 8]]], r"cell \[0, 0, 1\]: 200 is not a provenance code"),
     ):
         with pytest.raises(InputError, match="maps.npz: provenance: " + pattern):
             check_provenance("maps.npz", np.array(codes, np.uint8), dead, num_rx)

@@ -813,7 +813,7 @@ CASES: list[Case] = [
         "show provenance not a code",
         "uavdata",
         _bundle_arrays(_set("provenance", (0, 0, 0), 200)),
-        "provenance: cell [0, 0, 0]: code 200 (code 200) but the cell is",
+        "provenance: cell [0, 0, 0]: 200 is not a provenance code (0 .. 8",
     ),
     Case(
         "show live cell said unreached",
