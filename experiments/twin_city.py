@@ -65,6 +65,27 @@ def stat_cell(row: pd.Series, stat: str) -> str:
     return format_stat(stat, row[stat], row[f"{stat}_lo"], row[f"{stat}_hi"], t_max=500)
 
 
+def difference_cell(difference: float, lo: float, hi: float, scale: float = 1, unit: str = "") -> str:
+    """A paired difference with its interval, times ``scale`` (100: points), or "undefined" (a median beyond t_max)."""
+    if not np.isfinite(difference):
+        return "undefined"
+    return f"{scale * difference:+.1f} [{scale * lo:+.1f}, {scale * hi:+.1f}]{unit}"
+
+
+def summary(csvs: list[Path], first: str, second: str) -> None:
+    """Print several cities' ``--csv`` tables as one (the city: each file's stem): success and median steps in the
+    ``first`` and the ``second`` (``--labels``), their paired difference (first - second) and the maps' dead/live agreement."""
+    print(f"| city | method | success: {first} / {second} | difference [points] | median steps: {first} / {second} | "
+          "difference [steps] | dead/live agreement |\n|---|---|---|---|---|---|---|")  # fmt: skip
+    for csv in csvs:
+        for r in pd.read_csv(csv).itertuples():
+            steps = " / ".join(format_stat("median_steps", v, t_max=500) for v in (r.median_steps_paths, r.median_steps_radio))
+            print(f"| {csv.stem} | {r.method} | {100 * r.success_paths:.1f} / {100 * r.success_radio:.1f} % | "
+                  f"{difference_cell(r.success_difference, r.success_difference_lo, r.success_difference_hi, 100)} | "
+                  f"{steps} | {difference_cell(r.median_steps_difference, r.median_steps_difference_lo, r.median_steps_difference_hi)} | "
+                  f"{100 * r.agreement:.1f} % |")  # fmt: skip
+
+
 def map_agreement(paths: Bundle, radio: Bundle) -> dict[str, float]:
     """Over the open cells of every user: the share where both call a cell dead or both live, and the radio map's
     SINR error against the exact paths where both are live (median and 90th percentile of |error|, dB)."""
@@ -83,8 +104,10 @@ def map_agreement(paths: Bundle, radio: Bundle) -> dict[str, float]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--paths", required=True, help="The city traced with --solver paths")
-    ap.add_argument("--radio-map", required=True, help="Its twin traced with the radio map")
+    ap.add_argument("--paths", help="The city traced with --solver paths (required unless --summary)")
+    ap.add_argument("--radio-map", help="Its twin traced with the radio map (required unless --summary)")
+    ap.add_argument("--summary", type=Path, nargs="+", metavar="CSV",
+                    help="Print the --csv tables of earlier runs as one (a city each: the file's stem) and exit")  # fmt: skip
     ap.add_argument("--agent", type=Path, action="append", default=None, help="A run folder (default: data/agents/*)")
     ap.add_argument("--episodes", type=int, default=1000)
     ap.add_argument("--p-t-db", type=float, default=5.0, help="SINR target P_T [dB] in both cities (the report's: 5)")
@@ -96,6 +119,11 @@ def main() -> None:
                     "(e.g. '4-neighbour walk,euclidean walk' for two fills of one trace)")  # fmt: skip
     args = ap.parse_args()
     first, second = args.labels.split(",")
+    if args.summary:
+        summary(args.summary, first, second)
+        return
+    if not (args.paths and args.radio_map):
+        ap.error("--paths and --radio-map are required (or --summary)")
     development_cities([args.paths, args.radio_map], args.root)  # never a test city
     paths, radio = load_bundle(args.paths, root=args.root), load_bundle(args.radio_map, root=args.root)
     if paths.shape != radio.shape or not np.allclose(paths.users[["x_m", "y_m"]], radio.users[["x_m", "y_m"]]):
@@ -118,10 +146,8 @@ def main() -> None:
         d = diffs[(diffs.method == f"{m} @ {first}") & (diffs.against == f"{m} @ {second}")].set_index("stat")
         cell = {}
         for stat, unit in (("success", "points"), ("median_steps", "steps")):
-            scale = 100 if stat == "success" else 1
             row = d.loc[stat]
-            cell[stat] = (f"{scale * row.difference:+.1f} [{scale * row.lo:+.1f}, {scale * row.hi:+.1f}] {unit}"
-                          if np.isfinite(row.difference) else "undefined")  # fmt: skip
+            cell[stat] = difference_cell(row.difference, row.lo, row.hi, 100 if stat == "success" else 1, f" {unit}")
         rows.append([m, stat_cell(p, "success"), stat_cell(r, "success"), cell["success"],
                      stat_cell(p, "median_steps"), stat_cell(r, "median_steps"), cell["median_steps"]])  # fmt: skip
         out.append({"method": m, **{f"{k}_{lab}": t[k] for lab, t in (("paths", p), ("radio", r))

@@ -32,30 +32,6 @@ for city in "${cities[@]}"; do
         --episodes 500 --root "$out/processed" --csv "$out/$city.csv.part" | tee "$out/$city.txt"
     mv "$out/$city.csv.part" "$out/$city.csv"
 done
-# Every city in one table (docs/fidelity.md, "The walk's reach"): success and median steps with the Euclidean walk and
-# the 4-neighbour walk, their paired difference (Euclidean - 4-neighbour, 95 % interval over users, then episodes).
-python - "${cities[@]/#/$out/}" <<'PY'
-import math
-import sys
-
-import pandas as pd
-
-
-def steps(v):
-    return f"{v:g}" if v <= 500 else "> 500"
-
-
-def diff(d, lo, hi, scale=1):
-    return f"{scale * d:+.1f} [{scale * lo:+.1f}, {scale * hi:+.1f}]" if math.isfinite(d) else "undefined"
-
-
-print("| city | method | success: euclidean / 4-neighbour | difference [points] | median steps: euclidean / "
-      "4-neighbour | difference [steps] | dead/live agreement |\n|---|---|---|---|---|---|---|")
-for stem in sys.argv[1:]:
-    for r in pd.read_csv(f"{stem}.csv").itertuples():
-        print(f"| {stem.rsplit('/', 1)[1]} | {r.method} | {100 * r.success_paths:.1f} / {100 * r.success_radio:.1f} % | "
-              f"{diff(r.success_difference, r.success_difference_lo, r.success_difference_hi, 100)} | "
-              f"{steps(r.median_steps_paths)} / {steps(r.median_steps_radio)} | "
-              f"{diff(r.median_steps_difference, r.median_steps_difference_lo, r.median_steps_difference_hi)} | "
-              f"{100 * r.agreement:.1f} % |")
-PY
+# Every city in one table (docs/fidelity.md, "The walk's reach").
+tables=("${cities[@]/#/$out/}")
+python experiments/twin_city.py --summary "${tables[@]/%/.csv}" --labels euclidean,4-neighbour
