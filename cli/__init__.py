@@ -103,6 +103,7 @@ limit_option = click.option(
         "build": "uavplace.dataset.cli:build",
         "list": "uavplace.dataset.cli:list_",
         "show": "uavplace.dataset.cli:show",
+        "pack": "uavplace.dataset.cli:pack",
     },
 )
 @click.version_option(package_name="uavplace", prog_name="uavdata")

@@ -457,3 +457,19 @@ def check_users(path: Path, manifest: BundleManifest, users: pd.DataFrame) -> No
     splits = set(users["split"].dropna())
     if not splits <= {"train", "val", "test"}:
         raise InputError(path, f"unknown splits {sorted(splits - {'train', 'val', 'test'})}", field="split")
+
+
+def public_settings(bundle: Bundle) -> dict:
+    """A bundle's settings that every UAV of the system knows: none is a user's position or map."""
+    sinr = bundle.manifest.sinr
+    freqs = bundle.users["frequency_hz"].dropna().unique()
+    return {
+        "city": bundle.city,
+        "version": bundle.version,
+        "spacing_m": bundle.spacing_m,
+        "altitude_m": bundle.altitude_m,
+        "noise_dbm": sinr.noise_dbm,
+        "floor_db": sinr.floor_db,
+        "tx_power_dbm": sinr.tx_power_dbm[0] if sinr.tx_power_dbm else None,
+        "frequency_hz": float(freqs[0]) if len(freqs) else None,
+    }

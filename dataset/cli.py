@@ -1,4 +1,4 @@
-"""``uavdata build``, ``list`` and ``show``: versioned map bundles from ingested cities (registered in ``uavplace.cli``)."""
+"""``uavdata build``, ``list``, ``show`` and ``pack``: versioned map bundles from ingested cities, and their compact training maps (registered in ``uavplace.cli``)."""
 
 from __future__ import annotations
 
@@ -457,3 +457,48 @@ def show(city: str, version: str | None, user: int, out_path: Path | None, root:
     out_path = out_path or Path("reports") / "show" / f"{bundle.city}-{bundle.version}-user{user}.png"
     path = render_bundle(bundle, user, out_path)
     stdout().print(f"wrote {path}", highlight=False, soft_wrap=True)
+
+
+@click.command()
+@click.argument("cities", metavar="CITY...", nargs=-1, required=True)
+@root_option
+@click.option(
+    "--raw",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("data/raw"),
+    show_default=True,
+    help="Where each city's raw folder is: its simulation.json (seed and ray-trace settings) goes into the pack.",
+)
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("data/trainmaps"),
+    show_default=True,
+    help="Folder of packs: one <city>.npz each (a regular file or absent; written to a temporary file, then renamed).",
+)
+def pack(cities: tuple[str, ...], root: Path, raw: Path, out: Path) -> None:
+    """Pack built cities' maps into the compact training-maps form the predictor trains on (dataset/trainmaps.py):
+    building heights, the users' cells, each user's SINR to 0.5 dB (dead cells apart) and its provenance, about
+    4 kB a user. A CITY already packed from the same bundle version is left as it is."""
+    from uavplace.dataset.bundle import load_bundle
+    from uavplace.dataset.trainmaps import TrainingMaps, read_pack, simulation_record, write_pack
+
+    out_ = stdout()
+    total_users = total_bytes = 0
+    for city in cities:
+        check_name(city, "city name")
+        bundle = load_bundle(city, root=root)
+        path = out / f"{city}.npz"
+        if path.is_file() and not path.is_symlink():
+            try:
+                if read_pack(path).version == bundle.version:
+                    out_.print(f"{city}: packed already from bundle {bundle.version}", highlight=False)
+                    continue
+            except InputError:
+                pass  # a damaged or older pack is packed again
+        meta = write_pack(path, TrainingMaps.of_bundle(bundle), simulation_record(raw / city))
+        size = path.stat().st_size
+        total_users, total_bytes = total_users + meta.num_users, total_bytes + size
+        out_.print(f"{city}: {meta.num_users} users, {size / 1e3:.0f} kB ({size / meta.num_users / 1e3:.1f} kB a user), "
+                   f"{meta.clipped_cells} cells clipped -> {path}", highlight=False, soft_wrap=True)  # fmt: skip
+    out_.print(f"packed {total_users} users into {total_bytes / 1e6:.1f} MB under {out}", highlight=False)

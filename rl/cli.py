@@ -356,7 +356,15 @@ def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out:
 
 
 @click.command("train-predictor")
-@training_cities_option
+@click.option("--dataset", "datasets", multiple=True,
+              help="Training city (repeatable); a city with a declared role gives its train users only.")  # fmt: skip
+@click.option(
+    "--maps", "map_folders", multiple=True, type=click.Path(file_okay=False, path_type=Path),
+    help="A folder of training-maps packs (repeatable; `uavdata pack` writes them, data/trainmaps holds the shipped "
+    "ones): every user of every pack is a training user.",
+)  # fmt: skip
+@click.option("--widths", default="16,32,64,64", show_default=True,
+              help="Channels per U-Net level, comma-separated (1 to 5 levels).")  # fmt: skip
 @click.option("--val-dataset", "val_datasets", multiple=True, help="Validation city whose users' maps score both tiers "
               "(repeatable): median and p90 |error| [dB], dead/live agreement, ms per map; in model.json and the card.")  # fmt: skip
 @click.option(
@@ -373,23 +381,38 @@ def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out:
 @click.option("--threads", type=click.IntRange(1, 256), default=2, show_default=True, help="torch CPU threads.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @root_option
-def train_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], constants: Path, out: Path, steps: int,
-                    batch: int, seed: int, threads: int, quiet: bool, root: Path) -> None:  # fmt: skip
+def train_predictor(datasets: tuple[str, ...], map_folders: tuple[Path, ...], widths: str, val_datasets: tuple[str, ...],
+                    constants: Path, out: Path, steps: int, batch: int, seed: int, threads: int, quiet: bool,
+                    root: Path) -> None:  # fmt: skip
     """Train the map searcher's learned radio-map predictor (rl/learned.py: a U-Net correcting the physics tier)
-    on the users of training cities, score it and the physics tier on validation cities' users, and write it with
-    its model card."""
+    on the users of training cities (--dataset) and of training-maps packs (--maps), score it and the physics tier on
+    validation cities' users, and write it with its model card. A validation city may not be a training city."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from uavplace.dataset.bundle import load_bundle
+    from uavplace.dataset.trainmaps import TrainingMaps, list_packs, read_pack
     from uavplace.infra.console import command_line
     from uavplace.infra.files import atomic_directory
     from uavplace.rl.learned import MODEL_CARD, MODEL_JSON, LearnedPredictor, UNetConfig, model_card, save_learned, train_learned
-    from uavplace.rl.predictor import PhysicsPredictor, prediction_scores
+    from uavplace.rl.predictor import PhysicsPredictor, predicted_and_measured, reliability, scores_of
     from uavplace.rl.searcher import load_constants
 
+    if not datasets and not map_folders:
+        raise click.UsageError("give training maps: --dataset CITY or --maps FOLDER (or both)")
+    try:
+        config = UNetConfig(widths=[int(w) for w in widths.split(",")], steps=steps, batch=batch, seed=seed,
+                            threads=threads)  # fmt: skip
+    except ValueError as err:  # pydantic ValidationError included
+        raise click.BadParameter(f"{widths!r}: expected 1 to 5 positive integers, e.g. 16,32,64 ({str(err)[:80]})",
+                                 param_hint="--widths") from None  # fmt: skip
     physics = load_constants(constants)
-    config = UNetConfig(steps=steps, batch=batch, seed=seed, threads=threads)
     bundles, users = _training_users(datasets, root)
+    maps = [TrainingMaps.of_bundle(b, u) for b, u in zip(bundles, users, strict=True)]
+    maps += [read_pack(p) for folder in map_folders for p in list_packs(folder)]
+    overlap = sorted({m.city for m in maps} & set(val_datasets))
+    if overlap:
+        raise click.BadParameter(f"{', '.join(overlap)}: a validation city is also a training city (it would score the "
+                                 "predictor on its own training maps)", param_hint="--val-dataset")  # fmt: skip
     columns = (TextColumn("[bold]train-predictor[/] loss {task.fields[loss]:.4f}"), BarColumn(), MofNCompleteColumn(),
                TextColumn("steps"), TimeElapsedColumn())  # fmt: skip
     log = LogLines(quiet)  # a log: a plain line every LINE_SECONDS instead of a bar
@@ -400,26 +423,35 @@ def train_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], co
             bar.update(task, completed=done, loss=loss)
             log(f"train-predictor: step {done:,}/{steps:,} loss {loss:.4f}", last=done >= steps)
 
-        net, facts = train_learned(bundles, users, physics, config, progress=on_progress)
-    fields = {"config": config, "constants": physics, "fitted_on": [f"{b.city}@{b.version}" for b in bundles], **facts}
-    table = plain_table("city", "tier", "median |error| [dB]", "p90 |error| [dB]", "dead/live agreement", "ms per map")
+        net, facts = train_learned(maps, physics, config, progress=on_progress)
+    fields = {"config": config, "constants": physics, "fitted_on": [f"{m.city}@{m.version}" for m in maps], **facts}
+    table = plain_table("city", "tier", "median |error| [dB]", "p90 |error| [dB]", "dead/live agreement",
+                        "calibration error", "ms per map")  # fmt: skip
     with atomic_directory(out, marker=MODEL_JSON, what="learned predictor") as tmp:
         model = save_learned(tmp, net, fields)
         learned = LearnedPredictor(model, net)
         scores: dict[str, dict[str, float]] = {}
+        diagrams: dict[str, list[list[float]]] = {}
         for name in val_datasets:
             b = load_bundle(name, root=root)
             row = {}
             for tier, predictor in (("learned", learned), ("physics", PhysicsPredictor(physics))):
-                s = prediction_scores(b, b.user_indices(), predictor)
+                pm = predicted_and_measured(b, b.user_indices(), predictor)
+                s = scores_of(pm)
                 row.update({f"{tier}_{k}": v for k, v in s.items()})
                 table.add_row(name, tier, f"{s['median_error_db']:.1f}", f"{s['p90_error_db']:.1f}",
-                              f"{100 * s['dead_live_agreement']:.1f} %", f"{s['ms_per_map']:.0f}")  # fmt: skip
+                              f"{100 * s['dead_live_agreement']:.1f} %", f"{s['calibration_error']:.3f}",
+                              f"{s['ms_per_map']:.0f}")  # fmt: skip
+                if tier == "learned":
+                    diagrams[name] = reliability(pm["p_dead"], pm["low"])[1]
             scores[name] = row
-        model = model.model_copy(update={"scores": scores})
+        model = model.model_copy(update={"scores": scores, "reliability": diagrams})
         (tmp / MODEL_JSON).write_text(model.model_dump_json(indent=2) + "\n")
         (tmp / MODEL_CARD).write_text(model_card(model, command_line()))
     if val_datasets:
         stdout().print(table)
-    stdout().print(f"wrote {out}: trained on {facts['users']} users of {len(bundles)} cities in "
-                   f"{facts['train_seconds']:.0f} s; residual std {facts['error_db']:.1f} dB", highlight=False, soft_wrap=True)  # fmt: skip
+    scale, bias = facts["calibration"]
+    stdout().print(f"wrote {out}: trained on {facts['users']} users of {len(maps)} cities in "
+                   f"{facts['train_seconds']:.0f} s; residual std {facts['error_db']:.1f} dB; dead logit calibrated "
+                   f"x {scale:.3f} {bias:+.3f} on {facts['calibration_users']} held-out users",
+                   highlight=False, soft_wrap=True)  # fmt: skip

@@ -29,10 +29,18 @@ from pydantic import Field
 from torch import nn
 from torch.nn import functional as F
 
-from uavplace.dataset.bundle import Bundle
+from uavplace.dataset.trainmaps import TrainingMaps
 from uavplace.infra.files import read_model_json, sha256_file, write_model_json
 from uavplace.rl.agent.checkpoint import load_tensors, save_tensors
-from uavplace.rl.predictor import PhysicsConstants, Scene, dead_probability, path_features, sinr_from_features
+from uavplace.rl.predictor import (
+    PhysicsConstants,
+    Scene,
+    code_digest,
+    dead_probability,
+    path_features,
+    platt_scaling,
+    sinr_from_features,
+)
 from uavplace.schemas import InputError
 from uavplace.schemas.base import Contract
 
@@ -55,6 +63,13 @@ class UNetConfig(Contract):
     dead_weight: float = Field(default=1.0, ge=0, description="Weight of the dead-cell cross-entropy in the loss")
     seed: int = Field(default=0, description="Seed of the weights' initialisation and of the crops")
     threads: int = Field(default=2, ge=1, le=256, description="torch CPU threads")
+    calibration_share: float = Field(
+        default=0.1,
+        ge=0,
+        lt=1,
+        description="Share of the training users held out of the gradient steps to calibrate the dead probability "
+        "(Platt scaling of its logit, fitted on their legal cells); none when it rounds down to no user",
+    )
 
 
 class LearnedModel(Contract):
@@ -70,6 +85,17 @@ class LearnedModel(Contract):
     weights_sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
     scores: dict[str, dict[str, float]] = Field(
         default_factory=dict, description="Per validation city: prediction_scores of this tier and of the physics tier"
+    )
+    calibration: tuple[float, float] = Field(
+        default=(1.0, 0.0),
+        description="(scale, bias) of the dead-cell logit: p_dead = sigmoid(scale * logit + bias), fitted on held-out "
+        "training users ((1, 0): uncalibrated)",
+    )
+    calibration_users: int = Field(default=0, ge=0, description="Training users held out to fit the calibration")
+    reliability: dict[str, list[list[float]]] = Field(
+        default_factory=dict,
+        description="Per validation city: this tier's reliability diagram of the dead probability, rows [mean p, "
+        "observed frequency, cells] of ten equal-width bins (rl.predictor.reliability)",
     )
 
 
@@ -164,8 +190,14 @@ class LearnedPredictor:
         self.error_db = model.error_db
 
     def version(self) -> str:
-        doc = {"tier": self.tier, "weights": self.model.weights_sha256, "constants": self.constants.version(),
-               "config": self.model.config.model_dump(mode="json")}  # fmt: skip
+        doc = {
+            "tier": self.tier,
+            "weights": self.model.weights_sha256,
+            "constants": self.constants.version(),
+            "config": self.model.config.model_dump(mode="json"),
+            "code": code_digest(),
+            "calibration": list(self.model.calibration),
+        }
         return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:12]
 
     @torch.no_grad()
@@ -175,6 +207,7 @@ class LearnedPredictor:
         ny, nx = scene.ground_height_m.shape
         py, px = _padded(ny, nx, self.net.multiple)
         floor = torch.tensor([scene.floor_db], dtype=torch.float32)
+        scale, bias = (float(v) for v in self.model.calibration)
         mu = np.empty((len(users), len(cells)), np.float32)
         p_dead = np.empty_like(mu)
         for i in range(0, len(users), self.batch):
@@ -182,7 +215,7 @@ class LearnedPredictor:
             x = np.stack([_pad_to(input_planes(scene, self.constants, (int(u[0]), int(u[1]))), py, px) for u in chunk])
             mu_b, logit_b = _outputs(self.net, torch.from_numpy(x), floor.expand(len(chunk)))
             mu[i : i + len(chunk)] = mu_b[:, cells[:, 0], cells[:, 1]].numpy()
-            p_dead[i : i + len(chunk)] = torch.sigmoid(logit_b[:, cells[:, 0], cells[:, 1]]).numpy()
+            p_dead[i : i + len(chunk)] = torch.sigmoid(scale * logit_b[:, cells[:, 0], cells[:, 1]] + bias).numpy()
         return mu, p_dead
 
 
@@ -208,16 +241,15 @@ def load_learned(folder: str | Path) -> LearnedPredictor:
     return LearnedPredictor(model, net)
 
 
-def training_examples(bundles: list[Bundle], users: list[np.ndarray], constants: PhysicsConstants) -> list[tuple]:
+def training_examples(maps: list[TrainingMaps], constants: PhysicsConstants) -> list[tuple]:
     """Per training user: (planes [P, H, W], sinr [H, W], live-above-floor [H, W], low [H, W], legal [H, W], floor)."""
     out = []
-    for bundle, chosen in zip(bundles, users, strict=True):
-        scene = Scene.of(bundle)
-        table = bundle.users.set_index("user")
-        legal = ~bundle.blocked
-        for u in chosen:
-            planes = input_planes(scene, constants, (int(table.at[u, "iy"]), int(table.at[u, "ix"])))
-            sinr, dead = bundle.sinr_db[u].astype(np.float32), bundle.dead[u]
+    for m in maps:
+        scene = Scene.from_settings(m.settings, m.height_rel_m)
+        legal = ~m.blocked
+        for i, (iy, ix) in enumerate(m.users):
+            planes = input_planes(scene, constants, (int(iy), int(ix)))
+            sinr, dead = m.sinr_db[i].astype(np.float32), m.dead[i]
             live = ~dead & (sinr > scene.floor_db + 1e-3) & legal
             out.append((planes, sinr, live, (~live) & legal, legal, scene.floor_db))
     return out
@@ -256,20 +288,26 @@ def _loss(net: MapUNet, batch: tuple[torch.Tensor, ...], dead_weight: float) -> 
 
 
 def train_learned(
-    bundles: list[Bundle],
-    users: list[np.ndarray],
+    maps: list[TrainingMaps],
     constants: PhysicsConstants,
     config: UNetConfig,
     progress: Callable[[int, float], None] | None = None,
 ) -> tuple[MapUNet, dict]:
-    """Train the U-Net on ``users`` of ``bundles`` (module docstring). Returns (network, facts: ``error_db`` the
-    residual std on the training users' live cells, ``train_seconds``, ``final_loss``, ``users``)."""
+    """Train the U-Net on the users of ``maps`` (module docstring; ``TrainingMaps.of_bundle`` or packs), less
+    ``config.calibration_share`` of them held out (a seeded draw) to fit the dead probability's calibration. Returns
+    (network, facts: ``error_db`` the residual std on the training users' live cells, ``train_seconds``,
+    ``final_loss``, ``users``, ``calibration``, ``calibration_users``)."""
     torch.manual_seed(config.seed)
     torch.set_num_threads(config.threads)
     rng = np.random.default_rng(config.seed)
-    examples = training_examples(bundles, users, constants)
+    examples = training_examples(maps, constants)
     if not examples:
         raise ValueError("train_learned: no user to train on")
+    held = int(config.calibration_share * len(examples))
+    if held:
+        order = np.random.default_rng([config.seed, 1]).permutation(len(examples))
+        calibration = [examples[i] for i in sorted(order[:held])]
+        examples = [examples[i] for i in sorted(order[held:])]
     net = MapUNet(config.widths)
     if config.crop % net.multiple:
         raise ValueError(f"crop {config.crop} is not a multiple of {net.multiple} ({len(config.widths)} levels)")
@@ -288,15 +326,33 @@ def train_learned(
     train_s = time.perf_counter() - t0
     net.eval()
     residuals = []
-    with torch.no_grad():  # the residual's spread over whole maps (no crop), the searcher's likelihood width
-        for planes, sinr, live, _low, _legal, floor in examples:
-            h, w = sinr.shape
-            ph, pw = _padded(h, w, net.multiple)
-            mu, _ = _outputs(net, torch.from_numpy(_pad_to(planes, ph, pw))[None], torch.tensor([floor]))
-            residuals.append((mu[0, :h, :w].numpy() - sinr)[live])
+    for mu, _logit, sinr, live, _low, _legal in _whole_maps(net, examples):  # the searcher's likelihood width
+        residuals.append((mu - sinr)[live])
     error = float(np.std(np.concatenate(residuals)))
     return net, {"error_db": error, "train_seconds": train_s, "final_loss": float(np.mean(recent)),
-                 "users": len(examples)}  # fmt: skip
+                 "users": len(examples), "calibration": fit_calibration(net, calibration) if held else (1.0, 0.0),
+                 "calibration_users": held}  # fmt: skip
+
+
+def _whole_maps(net: MapUNet, examples: list[tuple]):  # noqa: ANN202 - a generator of arrays
+    """Per example, over its whole map (no crop): (mu, dead logit, sinr, live, low, legal), each [H, W]."""
+    with torch.no_grad():
+        for planes, sinr, live, low, legal, floor in examples:
+            h, w = sinr.shape
+            ph, pw = _padded(h, w, net.multiple)
+            mu, logit = _outputs(net, torch.from_numpy(_pad_to(planes, ph, pw))[None], torch.tensor([floor]))
+            yield mu[0, :h, :w].numpy(), logit[0, :h, :w].numpy(), sinr, live, low, legal
+
+
+def fit_calibration(net: MapUNet, examples: list[tuple]) -> tuple[float, float]:
+    """Platt scaling of the dead-cell logit on ``examples``' legal cells: the (scale, bias) of least binary
+    cross-entropy of ``sigmoid(scale * logit + bias)`` against the cells dead or at the floor (Newton's method on the
+    two parameters: ``rl.predictor.platt_scaling``)."""
+    logits, lows = [], []
+    for _mu, logit, _sinr, _live, low, legal in _whole_maps(net, examples):
+        logits.append(logit[legal].astype(np.float64))
+        lows.append(low[legal].astype(np.float64))
+    return platt_scaling(np.concatenate(logits), np.concatenate(lows))
 
 
 def save_learned(folder: Path, net: MapUNet, model_fields: dict) -> LearnedModel:
@@ -310,12 +366,23 @@ def save_learned(folder: Path, net: MapUNet, model_fields: dict) -> LearnedModel
 
 def model_card(model: LearnedModel, command: str) -> str:
     """The model card of a learned tier: data, settings, error and speed, from ``model.json``'s facts."""
-    rows = ["| city | tier | median \\|error\\| [dB] | p90 \\|error\\| [dB] | dead/live agreement | ms per map |",
-            "|---|---|---|---|---|---|"]  # fmt: skip
+    rows = [
+        "| city | tier | median \\|error\\| [dB] | p90 \\|error\\| [dB] | dead/live agreement | calibration error | ms per map |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for city, s in model.scores.items():
         for tier in ("learned", "physics"):
-            rows.append(f"| {city} | {tier} | {s[f'{tier}_median_error_db']:.1f} | {s[f'{tier}_p90_error_db']:.1f} | "
-                        f"{100 * s[f'{tier}_dead_live_agreement']:.1f} % | {s[f'{tier}_ms_per_map']:.0f} |")  # fmt: skip
+            ece = s.get(f"{tier}_calibration_error")
+            rows.append(
+                f"| {city} | {tier} | {s[f'{tier}_median_error_db']:.1f} | {s[f'{tier}_p90_error_db']:.1f} | "
+                f"{100 * s[f'{tier}_dead_live_agreement']:.1f} % | {'-' if ece is None else f'{ece:.3f}'} | "
+                f"{s[f'{tier}_ms_per_map']:.0f} |"
+            )
+    bins = ["| city | " + " | ".join(f"{b / 10:.1f}-{(b + 1) / 10:.1f}" for b in range(10)) + " |", "|---" * 11 + "|"]
+    for city, diagram in model.reliability.items():
+        cells = {min(int(m * 10), 9): f"{f:.2f} ({m:.2f})" for m, f, _ in diagram}
+        bins.append(f"| {city} | " + " | ".join(cells.get(b, "-") for b in range(10)) + " |")
+    scale, bias = model.calibration
     params = sum(p.numel() for p in MapUNet(model.config.widths).parameters())
     return "\n".join([
         "# Model card: the map searcher's learned radio-map predictor",
@@ -333,12 +400,20 @@ def model_card(model: LearnedModel, command: str) -> str:
         f"lr {model.config.lr:g}, seed {model.config.seed}: {model.train_seconds:.0f} s on {model.config.threads} CPU "
         f"threads; final loss {model.final_loss:.4f}; residual std on the training users' live cells "
         f"{model.error_db:.1f} dB.",
+        f"- **Calibration**: the dead-cell logit scaled by {scale:.3f} and shifted by {bias:+.3f} (Platt scaling on "
+        f"the legal cells of {model.calibration_users} training users held out of the gradient steps; 1 and 0: none).",
         "- **Weights**: `weights.pt`, tensors only (loaded with `torch.load(weights_only=True)`), sha256 "
         f"`{model.weights_sha256}`.",
         "",
         "## Error on the validation cities' users (legal cells; the prediction floored, the floor where it says dead)",
         "",
         *rows,
+        "",
+        "The calibration error is the expected calibration error of the dead probability (ten equal-width bins)",
+        "against what it predicts, a cell dead or at the SINR floor. Its reliability diagram on the same cells, per",
+        "bin of the predicted probability: the observed frequency (the bin's mean prediction):",
+        "",
+        *(bins if model.reliability else ["(no validation city)"]),
         "",
         "## Made by",
         "",

@@ -17,7 +17,8 @@ from the UAV, and moves one cell along a shortest path to the best; it plans aga
 
 It reads only what the UAV knows (an ``rl.view.AgentView``): its position, its own measurements and the public
 maps. The predicted maps of a canvas are computed once and kept on disk (``PredictionCache``), keyed by the bundle
-version, the symmetry, the candidate lattice, the blanked map and the predictor's version.
+version, the symmetry, the candidate lattice, the blanked map and the predictor's version (its weights, constants and
+code), and checked whenever they are read.
 
 ``BeliefTracker`` keeps the same belief for every row of a ``BatchedEnv`` and paints the posterior probability of
 reaching P_T as an observation channel: the hybrid learner (``EnvConfig.belief_channel``). ``rl.fleet`` runs the
@@ -26,8 +27,10 @@ searcher for a fleet of UAVs, one belief per user.
 
 from __future__ import annotations
 
+import hashlib
 import io
 import math
+import zipfile
 from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,11 +42,12 @@ from scipy import sparse
 from scipy.sparse.csgraph import shortest_path
 from scipy.special import ndtr
 
-from uavplace.infra.files import atomic_write_bytes, read_model_json
-from uavplace.infra.limits import check_limit
+from uavplace.infra.files import atomic_write_bytes, read_model_json, read_small_file
+from uavplace.infra.limits import check_limit, limits
 from uavplace.rl.maps import MOVES, MapSet, transform
 from uavplace.rl.predictor import PhysicsConstants, PhysicsPredictor, Predictor, Scene
 from uavplace.rl.view import AgentView, PublicMaps
+from uavplace.schemas import InputError
 from uavplace.schemas.base import Contract
 
 #: Where the shipped physics tier's constants live.
@@ -117,7 +121,16 @@ def posterior_cover(log_b: np.ndarray, cover: np.ndarray) -> np.ndarray:
 
 
 class PredictionCache:
-    """Predicted maps on disk, one ``.npz`` per canvas, named by the hash of everything they depend on."""
+    """Predicted maps on disk, one ``.npz`` per canvas, named by the hash of everything they depend on (the bundle, the
+    symmetry, the lattice, the blanked map, the predictor's weights, constants and code: ``Predictor.version``).
+
+    An entry is data, never trusted as it is (docs/security.md): it is read only when it is a regular file inside the
+    cache folder (no link, no FIFO) of at most ``prediction_bytes``, and used only when it names its own key, its
+    arrays hash to the sha256 it records, they have the expected shape, and every value is finite with the dead
+    probability in [0, 1] and the SINR within +-``MAX_ABS_DB``. Anything else is predicted again and replaced."""
+
+    #: The largest |SINR| [dB] a cached prediction may hold.
+    MAX_ABS_DB = 400.0
 
     def __init__(self, folder: str | Path | None) -> None:
         self.folder = None if folder is None else Path(folder)
@@ -126,28 +139,52 @@ class PredictionCache:
         return None if self.folder is None else self.folder / f"{key}.npz"
 
     def load(self, key: str, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray] | None:
-        """(mu, p_dead) as float32 if the file is there, whole and of ``shape``; else None (made again)."""
+        """(mu, p_dead) as float32 if the entry passes every check of the class's docstring; else None (made again)."""
         path = self.path(key)
-        if path is None or not path.is_file():
+        if path is None or path.is_symlink():
             return None
         try:
-            with np.load(path, allow_pickle=False) as z:
-                mu, p_dead = z["mu"], z["p_dead"]
-        except (OSError, ValueError, KeyError, EOFError):
-            return None  # a damaged or older cache file is made again
-        if mu.shape != shape or p_dead.shape != shape:
+            data = read_small_file(path, "a predicted-maps cache entry", max_bytes=limits().prediction_bytes)
+        except InputError:  # missing, a link, a FIFO, a folder, too large
             return None
-        return mu.astype(np.float32), p_dead.astype(np.float32)
+        try:
+            with np.load(io.BytesIO(data), allow_pickle=False) as z:
+                if int(sum(z.zip.getinfo(n).file_size for n in z.zip.namelist())) > 2 * 4 * (shape[0] * shape[1] + 64):
+                    return None  # inflates beyond two float16 arrays of this shape: not ours
+                mu, p_dead, meta = z["mu"], z["p_dead"], bytes(z["meta"])
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+            return None  # a damaged or older cache file is made again
+        if mu.shape != shape or p_dead.shape != shape or mu.dtype != np.float16 or p_dead.dtype != np.float16:
+            return None
+        if meta != _entry_meta(key, mu, p_dead):
+            return None
+        mu, p_dead = mu.astype(np.float32), p_dead.astype(np.float32)
+        if not (np.isfinite(mu).all() and np.isfinite(p_dead).all()):
+            return None
+        if (np.abs(mu) > self.MAX_ABS_DB).any() or (p_dead < 0).any() or (p_dead > 1).any():
+            return None
+        return mu, p_dead
 
     def save(self, key: str, mu: np.ndarray, p_dead: np.ndarray) -> None:
-        """Keep ``mu`` and ``p_dead`` [C, M] as float16 (atomically; a cache that can't be written is skipped)."""
+        """Keep ``mu`` and ``p_dead`` [C, M] as float16 with their key and sha256 (atomically; a cache that can't be
+        written, or whose entry's path is not a regular file, is skipped)."""
         path = self.path(key)
         if path is None:
             return
-        path.parent.mkdir(parents=True, exist_ok=True)
+        mu16, p16 = mu.astype(np.float16), p_dead.astype(np.float16)
         buf = io.BytesIO()
-        np.savez(buf, mu=mu.astype(np.float16), p_dead=p_dead.astype(np.float16))
-        atomic_write_bytes(path, buf.getvalue())
+        np.savez(buf, mu=mu16, p_dead=p16, meta=np.frombuffer(_entry_meta(key, mu16, p16), np.uint8))
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            atomic_write_bytes(path, buf.getvalue())
+        except (InputError, OSError):
+            pass
+
+
+def _entry_meta(key: str, mu: np.ndarray, p_dead: np.ndarray) -> bytes:
+    """What a cache entry records of itself: its key and the sha256 of its two float16 arrays."""
+    digest = hashlib.sha256(np.ascontiguousarray(mu).tobytes() + np.ascontiguousarray(p_dead).tobytes()).hexdigest()
+    return f"{key}:{digest}".encode()
 
 
 class MapSearchPolicy:

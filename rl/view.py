@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavplace.dataset.bundle import Bundle
+from uavplace.dataset.bundle import public_settings
 from uavplace.rl.config import EnvConfig
 from uavplace.rl.maps import MOVES, MapSet, transform
 
@@ -66,22 +66,6 @@ class PublicMaps:
         ny, nx = self.shapes[canvas]
         p = self.pad
         return ~self.blocked[canvas, p : p + ny, p : p + nx]
-
-
-def public_settings(bundle: Bundle) -> dict:
-    """A bundle's settings that every UAV of the system knows: none is a user's position or map."""
-    sinr = bundle.manifest.sinr
-    freqs = bundle.users["frequency_hz"].dropna().unique()
-    return {
-        "city": bundle.city,
-        "version": bundle.version,
-        "spacing_m": bundle.spacing_m,
-        "altitude_m": bundle.altitude_m,
-        "noise_dbm": sinr.noise_dbm,
-        "floor_db": sinr.floor_db,
-        "tx_power_dbm": sinr.tx_power_dbm[0] if sinr.tx_power_dbm else None,
-        "frequency_hz": float(freqs[0]) if len(freqs) else None,
-    }
 
 
 class AgentView:

@@ -12,6 +12,7 @@ from click.testing import CliRunner
 
 from uavplace.cli import uavrl
 from uavplace.dataset.bundle import load_bundle
+from uavplace.dataset.trainmaps import TrainingMaps
 from uavplace.rl.learned import (
     MODEL_CARD,
     MODEL_JSON,
@@ -46,7 +47,7 @@ def _fields(constants: PhysicsConstants, config: UNetConfig) -> dict:
 
 def _trained_and_saved(bundle, folder):  # noqa: ANN001, ANN202
     """(network, folder): three training steps on ``bundle``'s users, saved as a learned tier in ``folder``."""
-    net, facts = train_learned([bundle], [bundle.user_indices()], _constants(), SMALL.model_copy(update={"steps": 3}))
+    net, facts = train_learned([TrainingMaps.of_bundle(bundle)], _constants(), SMALL.model_copy(update={"steps": 3}))
     folder.mkdir()
     save_learned(folder, net, {"config": SMALL, "constants": _constants(), **facts})
     return net, folder
@@ -68,14 +69,14 @@ def test_untrained_network_is_the_physics_tier(tiny):
 
 def test_training_lowers_the_loss_and_is_seeded(tiny):
     bundle = load_bundle("tiny", root=tiny)
-    users = [bundle.user_indices()]
-    examples = training_examples([bundle], users, _constants())
+    maps = [TrainingMaps.of_bundle(bundle)]
+    examples = training_examples(maps, _constants())
     fixed = _batch(examples, SMALL.model_copy(update={"batch": 16}), np.random.default_rng(123))
     before = _loss(MapUNet(SMALL.widths), fixed, 1.0)[0].item()
-    net, facts = train_learned([bundle], users, _constants(), SMALL)
+    net, facts = train_learned(maps, _constants(), SMALL)
     after = _loss(net, fixed, 1.0)[0].item()
     assert after < before
-    again, _ = train_learned([bundle], users, _constants(), SMALL)
+    again, _ = train_learned(maps, _constants(), SMALL)
     for a, b in zip(net.state_dict().values(), again.state_dict().values(), strict=True):
         torch.testing.assert_close(a, b)
     assert facts["users"] == bundle.num_users and facts["error_db"] > 0
@@ -118,16 +119,27 @@ def test_searcher_with_the_learned_tier_finds_the_tiny_users(tiny, tmp_path):
 
 
 def test_train_predictor_cli_writes_weights_model_and_card(tiny, tmp_path):
+    import shutil
+
+    from tests.conftest import REPO
+    from uavplace.dataset.build import build_city
+    from uavplace.ingest.pipeline import ingest_city
+    from uavplace.schemas.bundle import BuildConfig
+
+    root = tmp_path / "root"  # tiny, and tiny again under another name to validate on (a training city may not be)
+    shutil.copytree(tiny, root)
+    ingest_city(REPO / "data" / "raw" / "tiny", root, name="tiny-val")
+    build_city("tiny-val", BuildConfig(grid_m=4.0, altitude_m=10.0), root)
     constants = tmp_path / "predictor.json"
     constants.write_text(_constants().model_dump_json())
     out = tmp_path / "unet"
-    args = ["train-predictor", "--dataset", "tiny", "--val-dataset", "tiny", "--constants", str(constants), "--out",
-            str(out), "--steps", "2", "--batch", "2", "--threads", "1", "--quiet", "--root", str(tiny)]  # fmt: skip
+    args = ["train-predictor", "--dataset", "tiny", "--val-dataset", "tiny-val", "--constants", str(constants), "--out",
+            str(out), "--steps", "2", "--batch", "2", "--threads", "1", "--quiet", "--root", str(root)]  # fmt: skip
     result = CliRunner().invoke(uavrl, args)
     assert result.exit_code == 0, result.output
     assert {p.name for p in out.iterdir()} == {MODEL_JSON, WEIGHTS, MODEL_CARD}
     model = load_learned(out).model
-    assert set(model.scores) == {"tiny"} and model.scores["tiny"]["learned_ms_per_map"] > 0
+    assert set(model.scores) == {"tiny-val"} and model.scores["tiny-val"]["learned_ms_per_map"] > 0
     assert "uavrl train-predictor" in (out / MODEL_CARD).read_text()
     (out / MODEL_JSON).unlink()
     (out / "notes.txt").write_text("mine")  # a folder that is not a learned predictor's is never replaced
@@ -144,3 +156,50 @@ def test_shipped_learned_tier_loads_and_says_how_it_was_made():
     assert predictor.model.users > 0 and predictor.model.scores  # trained on users, scored on validation cities
     card = (REPO / DEFAULT_PREDICTOR / MODEL_CARD).read_text()
     assert predictor.model.weights_sha256 in card
+
+
+def test_reliability_by_hand():
+    """Ten equal-width bins; the error is the count-weighted |frequency - mean probability|."""
+    from uavplace.rl.predictor import reliability
+
+    p = np.array([0.05, 0.05, 0.95, 0.95, 0.95, 0.55])
+    outcome = np.array([False, True, True, True, True, False])
+    ece, rows = reliability(p, outcome)
+    assert [r[2] for r in rows] == [2, 1, 3]
+    np.testing.assert_allclose([r[1] for r in rows], [0.5, 0.0, 1.0])
+    assert ece == pytest.approx((2 * 0.45 + 1 * 0.55 + 3 * 0.05) / 6)
+    assert reliability(np.array([1.0, 0.0]), np.array([True, False]))[0] == 0  # p = 1 falls in the last bin
+
+
+def test_platt_scaling_recovers_a_known_miscalibration():
+    from uavplace.rl.predictor import platt_scaling, reliability
+
+    rng = np.random.default_rng(0)
+    z = rng.normal(0, 3, 200_000)
+    y = rng.random(z.size) < 1 / (1 + np.exp(-(0.5 * z - 1.0)))  # the events follow 0.5 z - 1, not z
+    scale, bias = platt_scaling(z, y)
+    assert scale == pytest.approx(0.5, abs=0.02) and bias == pytest.approx(-1.0, abs=0.03)
+    before = reliability(1 / (1 + np.exp(-z)), y)[0]
+    after = reliability(1 / (1 + np.exp(-(scale * z + bias))), y)[0]
+    assert after < 0.01 < before
+
+
+def test_training_holds_out_users_to_calibrate(tiny):
+    """With a calibration share, the held-out users are left out of the gradient steps and fit the dead logit's scale
+    and bias, which the predictor then applies."""
+    bundle = load_bundle("tiny", root=tiny)
+    maps = [TrainingMaps.of_bundle(bundle)]
+    config = SMALL.model_copy(update={"steps": 5, "calibration_share": 0.5})
+    net, facts = train_learned(maps, _constants(), config)
+    assert facts["calibration_users"] == bundle.num_users // 2 and facts["users"] == bundle.num_users - facts["calibration_users"]
+    scale, bias = facts["calibration"]
+    assert (scale, bias) != (1.0, 0.0) and np.isfinite([scale, bias]).all()
+    model = LearnedModel(weights_sha256="0" * 64, **{**_fields(_constants(), config), "calibration": (scale, bias)})
+    plain = LearnedModel(weights_sha256="0" * 64, **_fields(_constants(), config))
+    scene, cells = Scene.of(bundle), np.argwhere(~bundle.blocked)
+    users = np.array([[2, 3]])
+    _, p_cal = LearnedPredictor(model, net).predict(scene, users, cells)
+    _, p_raw = LearnedPredictor(plain, net).predict(scene, users, cells)
+    logit = np.log(p_raw) - np.log1p(-p_raw)
+    np.testing.assert_allclose(p_cal, 1 / (1 + np.exp(-(scale * logit + bias))), atol=2e-4)
+    assert LearnedPredictor(model, net).version() != LearnedPredictor(plain, net).version()

@@ -256,3 +256,84 @@ def test_belief_channel_in_the_observation(tiny):
     for _ in range(5):
         again, *_, info = other.step(np.argmax(info["action_mask"], axis=1))
     assert not np.allclose(again[:, -2], obs[:, -2])
+
+
+def _cache_entry(tmp_path):  # noqa: ANN001, ANN202
+    """(cache, key, mu, p_dead): one entry saved, as the searcher saves it."""
+    from uavplace.rl.searcher import PredictionCache
+
+    cache = PredictionCache(tmp_path / "cache")
+    rng = np.random.default_rng(0)
+    mu, p_dead = rng.normal(0, 20, (6, 9)).astype(np.float32), rng.random((6, 9)).astype(np.float32)
+    cache.save("k1", mu, p_dead)
+    return cache, "k1", mu, p_dead
+
+
+def test_prediction_cache_uses_only_whole_entries_of_its_own_key(tmp_path):
+    """A cache entry is data: altered values (a valid archive of the right shape), NaN, dead probabilities out of
+    [0, 1], another key's entry, a truncated file, a link or a FIFO are all predicted again, never used."""
+    import io
+    import os
+
+    from uavplace.rl.searcher import _entry_meta
+
+    cache, key, mu, p_dead = _cache_entry(tmp_path)
+    hit = cache.load(key, mu.shape)
+    assert hit is not None
+    np.testing.assert_array_equal(hit[0], mu.astype(np.float16).astype(np.float32))
+    path = cache.path(key)
+    good = path.read_bytes()
+
+    def forged(mu_: np.ndarray, p_: np.ndarray, meta_key: str = key, meta: bytes | None = None) -> bytes:
+        """A valid archive of ``mu_`` and ``p_``, recording ``meta`` (default: their own key and hash)."""
+        m16, p16 = mu_.astype(np.float16), p_.astype(np.float16)
+        meta = _entry_meta(meta_key, m16, p16) if meta is None else meta
+        buf = io.BytesIO()
+        np.savez(buf, mu=m16, p_dead=p16, meta=np.frombuffer(meta, np.uint8))
+        return buf.getvalue()
+
+    cases = {
+        "every SINR +30 dB, the entry's own hash kept": forged(
+            mu + 30, p_dead, meta=_entry_meta(key, mu.astype(np.float16), p_dead.astype(np.float16))
+        ),
+        "NaN": forged(np.full_like(mu, np.nan), p_dead),
+        "dead probability 2": forged(mu, p_dead + 2),
+        "SINR 1000 dB": forged(mu + 1000, p_dead),
+        "another key's entry": forged(mu, p_dead, "k2"),
+        "truncated": good[: len(good) // 2],
+        "not a zip": b"hello",
+    }
+    for what, data in cases.items():
+        path.write_bytes(data)
+        assert cache.load(key, mu.shape) is None, what
+    path.write_bytes(good)
+    assert cache.load(key, (6, 8)) is None  # another shape
+    outside = tmp_path / "outside.npz"
+    outside.write_bytes(good)
+    path.unlink()
+    path.symlink_to(outside)  # a link, even to a whole entry, is not followed
+    assert cache.load(key, mu.shape) is None
+    cache.save(key, mu, p_dead)  # and never replaced: the link stays, the target unchanged
+    assert path.is_symlink() and outside.read_bytes() == good
+    path.unlink()
+    os.mkfifo(path)
+    assert cache.load(key, mu.shape) is None  # refused at once, not waited on
+
+
+def test_predictor_versions_name_their_code(monkeypatch):
+    """The prediction cache's key holds the predictor's code: a change to rl/predictor.py or rl/learned.py changes
+    every predictor's version, so its maps are predicted again."""
+    from uavplace.rl import learned, predictor
+    from uavplace.rl.learned import LearnedModel, LearnedPredictor, MapUNet, UNetConfig
+
+    physics = predictor.PhysicsPredictor(_constants())
+    config = UNetConfig(widths=[4, 8])
+    model = LearnedModel(config=config, constants=_constants(), error_db=9.0, users=1, train_seconds=0.0, final_loss=0.0,
+                         weights_sha256="0" * 64)  # fmt: skip
+    net = LearnedPredictor(model, MapUNet(config.widths))
+    before = (physics.version(), net.version())
+    assert len(predictor.code_digest()) == 64
+    monkeypatch.setattr(predictor, "code_digest", lambda: "1" * 64)
+    monkeypatch.setattr(learned, "code_digest", lambda: "1" * 64)
+    after = (physics.version(), net.version())
+    assert before[0] != after[0] and before[1] != after[1]

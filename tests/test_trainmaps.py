@@ -1,0 +1,117 @@
+"""Training-maps packs (dataset/trainmaps.py, `uavdata pack`): the maps of a bundle round-trip within the quantisation,
+a damaged or foreign pack is refused naming the file and the field, and `uavrl train-predictor --maps` trains on them
+and refuses a validation city it trains on."""
+
+from __future__ import annotations
+
+import io
+import zipfile
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from uavplace.cli import uavdata, uavrl
+from uavplace.dataset.bundle import load_bundle
+from uavplace.dataset.trainmaps import STEP_DB, TrainingMaps, dequantise, pack_bytes, quantise, read_pack, write_pack
+from uavplace.infra import limits as lim
+from uavplace.schemas import InputError
+
+
+def test_pack_round_trips_a_bundle_within_half_a_step(tiny, tmp_path):
+    bundle = load_bundle("tiny", root=tiny)
+    path = tmp_path / "tiny.npz"
+    meta = write_pack(path, TrainingMaps.of_bundle(bundle), {"spec": {"seed": 3}})
+    maps = read_pack(path)
+    assert (maps.city, maps.version, meta.num_users, meta.simulation) == (
+        "tiny",
+        bundle.version,
+        bundle.num_users,
+        {"spec": {"seed": 3}},
+    )
+    np.testing.assert_array_equal(maps.dead, bundle.dead)
+    np.testing.assert_array_equal(maps.blocked, bundle.blocked)
+    np.testing.assert_array_equal(maps.provenance, bundle.provenance)
+    np.testing.assert_allclose(maps.height_rel_m, bundle.height_rel_m, atol=0.05 + 1e-6)
+    live = ~bundle.dead
+    assert np.abs(maps.sinr_db - bundle.sinr_db)[live].max() <= STEP_DB / 2 + 1e-4
+    assert (maps.sinr_db[bundle.dead] == bundle.sinr_floor_db).all()
+    table = bundle.users.set_index("user")
+    np.testing.assert_array_equal(maps.users, table.loc[bundle.user_indices(), ["iy", "ix"]].to_numpy())
+    assert maps.settings["floor_db"] == bundle.sinr_floor_db
+
+
+def test_quantise_marks_dead_cells_and_counts_clipped_ones():
+    sinr = np.array([-40.0, -39.74, 10.26, 200.0], np.float32)
+    dead = np.array([True, False, False, False])
+    q, clipped = quantise(sinr, dead, floor_db=-40.0)
+    assert q.tolist() == [0, 2, 102, 255] and clipped == 1
+    back, back_dead = dequantise(q, -40.0, STEP_DB)
+    assert back_dead.tolist() == [True, False, False, False]
+    np.testing.assert_allclose(back[1:3], [-39.5, 10.5])
+
+
+def _rewritten(data: bytes, name: str, array: np.ndarray) -> bytes:
+    """``data`` (a pack) with member ``name`` replaced by ``array``."""
+    out = io.BytesIO()
+    with zipfile.ZipFile(io.BytesIO(data)) as src, zipfile.ZipFile(out, "w") as dst:
+        for info in src.infolist():
+            if info.filename == f"{name}.npy":
+                with dst.open(info.filename, "w") as f:
+                    np.lib.format.write_array(f, array)
+            else:
+                dst.writestr(info, src.read(info))
+    return out.getvalue()
+
+
+def test_damaged_or_foreign_packs_are_refused_naming_the_field(tiny, tmp_path, monkeypatch):
+    bundle = load_bundle("tiny", root=tiny)
+    data, _ = pack_bytes(TrainingMaps.of_bundle(bundle))
+    with zipfile.ZipFile(io.BytesIO(data)) as z:
+        sinr = np.load(io.BytesIO(z.read("sinr.npy")))
+    altered = sinr.copy()
+    altered[0, 0, 0] ^= 1
+    cases = {
+        "sinr": _rewritten(data, "sinr", altered),  # one value changed: its sha256 differs
+        "users": _rewritten(data, "users", np.zeros((1, 2), np.int16)),  # a shape the meta does not say
+        "meta": _rewritten(data, "meta", np.frombuffer(b'{"format": "other"}', np.uint8)),
+    }
+    for field, bad in cases.items():
+        path = tmp_path / f"{field}.npz"
+        path.write_bytes(bad)
+        with pytest.raises(InputError) as err:
+            read_pack(path)
+        assert err.value.field == field and str(path) in str(err.value)
+    (tmp_path / "cut.npz").write_bytes(data[: len(data) // 2])
+    with pytest.raises(InputError, match="unreadable"):
+        read_pack(tmp_path / "cut.npz")
+    (tmp_path / "whole.npz").write_bytes(data)
+    monkeypatch.setattr(lim, "_current", None)
+    monkeypatch.setenv(lim.ENV, "map_bytes=1000")  # a pack that inflates past the limit is refused before it is read
+    with pytest.raises(InputError, match="map_bytes"):
+        read_pack(tmp_path / "whole.npz")
+    monkeypatch.setattr(lim, "_current", None)
+
+
+def test_pack_cli_and_train_predictor_on_packs(tiny, tmp_path):
+    out = tmp_path / "packs"
+    result = CliRunner().invoke(uavdata, ["pack", "tiny", "--root", str(tiny), "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert (out / "tiny.npz").is_file() and "kB a user" in result.output
+    again = CliRunner().invoke(uavdata, ["pack", "tiny", "--root", str(tiny), "--out", str(out)])
+    assert again.exit_code == 0 and "packed already" in again.output
+    constants = tmp_path / "predictor.json"
+    from tests.test_learned import _constants
+
+    constants.write_text(_constants().model_dump_json())
+    common = ["--constants", str(constants), "--steps", "2", "--batch", "2", "--threads", "1", "--widths", "4,8",
+              "--quiet", "--root", str(tiny)]  # fmt: skip
+    trained = CliRunner().invoke(uavrl, ["train-predictor", "--maps", str(out), "--out", str(tmp_path / "unet"), *common])
+    assert trained.exit_code == 0, trained.output
+    assert f"trained on {load_bundle('tiny', root=tiny).num_users} users of 1 cities" in trained.output
+    overlap = CliRunner().invoke(
+        uavrl, ["train-predictor", "--maps", str(out), "--val-dataset", "tiny", "--out", str(tmp_path / "u2"), *common]
+    )
+    assert overlap.exit_code != 0 and "also a training city" in overlap.output and not (tmp_path / "u2").exists()
+    nothing = CliRunner().invoke(uavrl, ["train-predictor", "--out", str(tmp_path / "u3"), *common])
+    assert nothing.exit_code != 0 and "--maps" in nothing.output
