@@ -8,6 +8,7 @@ against the searcher. Settings of the searcher as ``--set name=value`` (``Search
 
     python experiments/searcher_validation.py [--city oldtown-005] [--episodes 300] [--set temper=0.3] [--quick]
         [--predictor data/agents/searcher/unet] [--agent data/agents/best --agent runs/hybrid/h-s0]
+        [--variant planner=info,info_weight=0.2]
 """
 
 from __future__ import annotations
@@ -52,6 +53,13 @@ def main() -> None:
         help="Agent folder (repeatable; default: data/agents/best); the first is the reference of the differences",
     )
     ap.add_argument("--set", action="append", default=[], help="A SearchConfig field, name=value (JSON value)")
+    ap.add_argument(
+        "--variant",
+        action="append",
+        default=[],
+        help="Another searcher played beside it on the same episodes, its fields changed: name=value[,name=value] "
+        "(repeatable; named 'map searcher [name=value,...]'; paired against the searcher)",
+    )
     ap.add_argument("--root", type=Path, default=Path("data/processed"))
     ap.add_argument("--predictor", type=Path, default=DEFAULT_PREDICTOR, help="Constants' JSON or a learned tier's folder")
     ap.add_argument("--quick", action="store_true", help="The genie and the searcher only (no best, no ablation)")
@@ -74,6 +82,10 @@ def main() -> None:
             MapSearchPolicy(predictor, search.model_copy(update={"buildings": b}), cache)
             for b in ((True,) if args.quick else (True, False))
         ]
+        for text in args.variant:
+            changed = {k: _value(v) for k, v in (p.split("=", 1) for p in text.split(","))}
+            policies.append(MapSearchPolicy(predictor, SearchConfig(**{**search.model_dump(), **changed}), cache,
+                                            name=f"{SEARCHER} [{text}]"))  # fmt: skip
         t0 = time.perf_counter()
         results = evaluate(config, bundle, agents, baselines=policies)
         wall = time.perf_counter() - t0

@@ -82,6 +82,18 @@ class SearchConfig(Contract):
         description="Share of the likelihood that is flat: one measurement the predictor "
         "got wrong lowers a candidate, never rules it out",
     )
+    planner: Literal["cover", "info", "lookahead"] = Field(
+        default="cover",
+        description="cover: move toward the unvisited cell of best discounted posterior probability of reaching P_T; "
+        "info: add to that probability info_weight times the information [bits] a measurement at the cell gives "
+        "about the user's cell (mutual information), for the cells within info_radius moves; lookahead: take the "
+        "move whose measurement, over its possible outcomes, leaves the best expected discounted score (1 where it "
+        "reaches P_T) among the lookahead_targets cells the cover planner scores best",
+    )
+    lookahead_targets: int = Field(default=64, ge=1, le=4096, description="lookahead: target cells it weighs")
+    info_weight: float = Field(default=0.1, ge=0, description="info: the worth of one bit, in probability of reaching P_T")
+    info_radius: int = Field(default=3, ge=1, le=32, description="info: cells within this many moves get the term")
+    info_bin_db: float = Field(default=4.0, gt=0, le=40, description="info: width of the SINR bins a measurement falls in")
 
 
 @dataclass(frozen=True)
@@ -109,6 +121,11 @@ def candidate_cells(ground_height_m: np.ndarray, stride: int, buildings: bool) -
     if buildings:
         cells = cells[ground_height_m[cells[:, 0], cells[:, 1]] <= 0]
     return cells
+
+
+def _rows(maps: CandidateMaps, keep: np.ndarray) -> CandidateMaps:
+    """``maps`` with the candidates of ``keep`` [C] only."""
+    return CandidateMaps(maps.cells[keep], maps.legal, maps.index, maps.mu[keep], maps.p_dead[keep], maps.cover[keep])
 
 
 def posterior_cover(log_b: np.ndarray, cover: np.ndarray) -> np.ndarray:
@@ -267,6 +284,11 @@ class MapSearchPolicy:
     def paths_from(self, public: PublicMaps, canvas: int, maps: CandidateMaps, cell: int) -> tuple[np.ndarray, np.ndarray]:
         """(discount [M], predecessors [M]) of the shortest legal paths from legal cell ``cell``: each cell's discount
         by its fewest moves (``SearchConfig.discount``; -1 where unreachable); kept for the most recent 4096 cells."""
+        discount, pred, _ = self._shortest(public, canvas, maps, cell)
+        return discount, pred
+
+    def _shortest(self, public: PublicMaps, canvas: int, maps: CandidateMaps, cell: int) -> tuple[np.ndarray, ...]:
+        """(discount, predecessors, fewest moves: inf where unreachable) of ``paths_from``, kept."""
         key = (canvas, cell, public.settings[public.bundle_of(canvas)]["version"])
         hit = self._paths.get(key)
         if hit is not None:
@@ -276,11 +298,47 @@ class MapSearchPolicy:
         d = d.astype(np.float32)
         scale = d / self.config.reach_cells
         discount = np.exp(-scale) if self.config.discount == "exp" else 1.0 / (1.0 + scale)
-        hit = (np.where(np.isfinite(d), discount, np.float32(-1.0)), pred.astype(np.int32))
+        hit = (np.where(np.isfinite(d), discount, np.float32(-1.0)), pred.astype(np.int32), d)
         self._paths[key] = hit
         if len(self._paths) > 4096:
             self._paths.popitem(last=False)
         return hit
+
+    def bin_edges(self, floor_db: float, p_t_db: float) -> np.ndarray:
+        """The upper edges of the SINR bins a measurement falls in (``outcome_probabilities``), ``info_bin_db`` apart,
+        one of them at P_T, over ``OUTLIER_SPAN_DB`` above the floor."""
+        w = self.config.info_bin_db
+        k = np.arange(math.floor((floor_db - p_t_db) / w) + 1, math.ceil((floor_db + OUTLIER_SPAN_DB - p_t_db) / w))
+        return p_t_db + w * k
+
+    def outcome_probabilities(self, maps: CandidateMaps, columns: np.ndarray, floor_db: float, p_t_db: float) -> np.ndarray:
+        """``[C, K, J]`` the probability that a measurement at legal cells ``columns`` [K] falls in each of ``J`` SINR
+        bins for a user at each candidate, by the likelihood ``update`` uses: bin 0 at or below the floor (censored),
+        then the bins between ``bin_edges``, the last open above; the flat share ``outlier`` spread evenly."""
+        cfg = self.config
+        mu = maps.mu[:, columns].astype(np.float64)[:, :, None]
+        p_dead = maps.p_dead[:, columns].astype(np.float64)[:, :, None]
+        edges = self.bin_edges(floor_db, p_t_db)
+        cdf = ndtr((np.concatenate([[floor_db], edges]) - mu) / self.sigma)  # [C, K, J]
+        live = np.diff(np.concatenate([cdf, np.ones_like(cdf[..., :1])], axis=-1), axis=-1)
+        probs = np.concatenate([p_dead + (1 - p_dead) * cdf[..., :1], (1 - p_dead) * live], axis=-1)
+        return (1 - cfg.outlier) * probs + cfg.outlier / probs.shape[-1]
+
+    def information(self, maps: CandidateMaps, log_b: np.ndarray, columns: np.ndarray, floor_db: float,
+                    p_t_db: float) -> np.ndarray:  # fmt: skip
+        """``[K]`` the mutual information [bits] between the user's candidate cell, under belief ``log_b`` [C], and a
+        measurement at each of legal cells ``columns`` [K]: H(mixture of the outcomes) - E_b[H(outcomes)]
+        (``outcome_probabilities``; candidates of belief under 1e-6 of the largest are left out)."""
+        b = np.exp(log_b - log_b.max())
+        keep = b > 1e-6
+        b = b[keep] / b[keep].sum()
+        probs = self.outcome_probabilities(_rows(maps, keep), columns, floor_db, p_t_db)  # [C', K, J]
+
+        def entropy(p: np.ndarray) -> np.ndarray:
+            return -(p * np.log2(np.maximum(p, 1e-300))).sum(axis=-1)
+
+        mixture = np.einsum("c,ckj->kj", b, probs)
+        return np.maximum(entropy(mixture) - b @ entropy(probs), 0.0)
 
     # -- the policy --------------------------------------------------------------------------------
     def reset(self, rows: np.ndarray, num_envs: int) -> None:
@@ -289,6 +347,11 @@ class MapSearchPolicy:
             self.belief_canvas = np.full(num_envs, -1, np.int64)
         for r in np.asarray(rows, np.int64):
             self.belief[r] = None
+
+    def prior(self, maps: CandidateMaps, row: int) -> np.ndarray:
+        """``[C]`` the log-belief of row ``row`` before its first measurement: uniform over the candidates (an oracle
+        that is told more overrides it)."""
+        return np.zeros(len(maps.cells), np.float32)
 
     def update(self, maps: CandidateMaps, log_b: np.ndarray, column: int, measured: float, floor_db: float) -> np.ndarray:
         """``log_b`` [C] after measuring ``measured`` [dB] at legal cell ``column`` (the module's likelihood)."""
@@ -322,7 +385,7 @@ class MapSearchPolicy:
             here[r] = maps.index[pos[r, 0] - p, pos[r, 1] - p]
             floor_db = float(public.settings[public.bundle_of(c)]["floor_db"])
             if self.belief[r] is None or t[r] == 0 or self.belief_canvas[r] != c:
-                log_b = np.zeros(len(maps.cells), np.float32)
+                log_b = self.prior(maps, r)
                 # Every cell measured so far (at t = 0 the start), as the memory holds it.
                 for y, x in np.argwhere(visits[r] > 0):
                     log_b = self.update(maps, log_b, int(maps.index[y - p, x - p]), float(env.memory[r, y, x]), floor_db)
@@ -334,10 +397,74 @@ class MapSearchPolicy:
         for c, rows in by_canvas.items():  # the plans, a canvas's rows in one product
             maps = self.canvas_maps(public, c)
             scores = posterior_cover(np.stack([self.belief[r] for r in rows]), maps.cover)
+            floor_db = float(public.settings[public.bundle_of(c)]["floor_db"])
+            p_t = public.config.p_t_db
             for i, r in enumerate(rows):
                 seen = visits[r, maps.legal[:, 0] + p, maps.legal[:, 1] + p] > 0
-                actions[r] = self._move(public, c, maps, int(here[r]), scores[i], seen, mask[r])
+                score = scores[i]
+                if self.config.planner == "info":
+                    score = self.with_information(public, c, maps, int(here[r]), score, self.belief[r], seen, floor_db, p_t)
+                actions[r] = self._move(public, c, maps, int(here[r]), score, seen, mask[r])
+                if self.config.planner == "lookahead":
+                    actions[r] = self.lookahead_move(public, c, maps, int(here[r]), self.belief[r], seen, mask[r],
+                                                     floor_db, p_t, int(actions[r]))  # fmt: skip
         return actions
+
+    def lookahead_move(self, public: PublicMaps, canvas: int, maps: CandidateMaps, here: int, log_b: np.ndarray,
+                       seen: np.ndarray, mask: np.ndarray, floor_db: float, p_t_db: float, default: int) -> int:  # fmt: skip
+        """The ``lookahead`` planner's move from legal cell ``here``: for each legal move, the expectation over the
+        outcome of the measurement at the cell it leads to (``outcome_probabilities``; the belief updated as
+        ``update`` would, on the outcome's bin) of the best discounted posterior probability of reaching P_T among
+        the ``lookahead_targets`` unvisited cells the cover planner scores best, counting 1 for an outcome at or
+        above P_T (the episode ends there). ``default`` (the cover planner's move) unless another is better."""
+        b = np.exp(log_b - log_b.max())
+        keep = b > 1e-6
+        b = (b[keep] / b[keep].sum()).astype(np.float64)
+        cover = maps.cover[keep].astype(np.float64)
+        discount, _, _ = self._shortest(public, canvas, maps, here)
+        score = np.where(seen | (discount < 0), -1.0, (b @ cover) * discount)
+        k = min(self.config.lookahead_targets, len(score))
+        targets = np.argpartition(-score, k - 1)[:k]
+        targets = targets[score[targets] >= 0]
+        if not len(targets):
+            return default
+        lower = np.concatenate([[floor_db], self.bin_edges(floor_db, p_t_db)])  # the live bins' lower edges
+        success = np.concatenate([[False], lower >= p_t_db])  # the bins above P_T: the episode ends there
+        kept = _rows(maps, keep)
+        values = np.full(len(MOVES), -np.inf)
+        for a, (dy, dx) in enumerate(MOVES):
+            y, x = maps.legal[here, 0] + dy, maps.legal[here, 1] + dx
+            if not mask[a] or not (0 <= y < maps.index.shape[0] and 0 <= x < maps.index.shape[1]) or maps.index[y, x] < 0:
+                continue
+            n = int(maps.index[y, x])
+            disc_n, _, _ = self._shortest(public, canvas, maps, n)
+            t = targets[(targets != n) & (disc_n[targets] >= 0)]
+            if not len(t):
+                continue
+            if seen[n]:  # measured before: nothing new to learn there
+                values[a] = float(((b @ cover[:, t]) * disc_n[t]).max())
+                continue
+            probs = self.outcome_probabilities(kept, np.array([n]), floor_db, p_t_db)[:, 0, :]  # [C', J]
+            q = b @ probs
+            post = b[None, :] * probs.T**self.config.temper
+            post /= np.maximum(post.sum(axis=1, keepdims=True), 1e-300)
+            best = ((post @ cover[:, t]) * disc_n[t][None, :]).max(axis=1)
+            values[a] = float(q @ np.where(success, 1.0, best))
+        if not np.isfinite(values).any() or values[default] >= values.max() - 1e-12:
+            return default
+        return int(np.argmax(values))
+
+    def with_information(self, public: PublicMaps, canvas: int, maps: CandidateMaps, here: int, score: np.ndarray,
+                         log_b: np.ndarray, seen: np.ndarray, floor_db: float, p_t_db: float) -> np.ndarray:  # fmt: skip
+        """``score`` [M] plus ``info_weight`` times the information of a measurement at each unvisited cell within
+        ``info_radius`` moves of legal cell ``here`` (the ``info`` planner)."""
+        _, _, d = self._shortest(public, canvas, maps, here)
+        near = np.flatnonzero((d <= self.config.info_radius) & ~seen)
+        if not len(near):
+            return score
+        out = score.astype(np.float64)
+        out[near] += self.config.info_weight * self.information(maps, log_b, near, floor_db, p_t_db)
+        return out
 
     def _move(self, public: PublicMaps, canvas: int, maps: CandidateMaps, here: int, score: np.ndarray,
               seen: np.ndarray, mask: np.ndarray) -> int:  # fmt: skip

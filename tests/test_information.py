@@ -91,8 +91,12 @@ def test_report_methods_read_only_what_they_measured(tiny):
 
     env = EnvConfig(t_max=T_MAX, rotate=False)
     maps = MapSet.load("tiny", env, root=str(tiny))
+    from uavplace.rl.searcher import MapSearchPolicy, SearchConfig, load_predictor
+
     policies = [p for p in baseline_policies(ReportConfig(dataset="tiny"), env) if not getattr(p, "privileged", False)]
     assert {"map searcher", "map searcher, no buildings", "greedy hill-climbing"} <= {p.name for p in policies}
+    for planner in ("info", "lookahead"):
+        policies.append(MapSearchPolicy(load_predictor(), SearchConfig(planner=planner), name=f"map searcher, {planner}"))
     episodes = maps.episode_list(EPISODES, 1)
     for policy in policies:
         same, _ = _replay(maps, policy, episodes, np.random.default_rng(3))

@@ -337,3 +337,38 @@ def test_predictor_versions_name_their_code(monkeypatch):
     monkeypatch.setattr(learned, "code_digest", lambda: "1" * 64)
     after = (physics.version(), net.version())
     assert before[0] != after[0] and before[1] != after[1]
+
+
+def _hand_maps(p_dead: list[list[float]], mu: list[list[float]]):  # noqa: ANN202
+    """CandidateMaps of two candidates over ``len(mu[0])`` legal cells, by hand."""
+    from uavplace.rl.searcher import CandidateMaps
+
+    mu_, p_ = np.array(mu, np.float32), np.array(p_dead, np.float32)
+    m = mu_.shape[1]
+    return CandidateMaps(np.zeros((2, 2), np.int64), np.zeros((m, 2), np.int64), np.zeros((1, m), np.int64), mu_, p_, p_)
+
+
+def test_information_of_a_measurement_by_hand():
+    """Two candidates, three cells: where one is surely dead and the other far above the floor a measurement tells
+    them apart (the belief's entropy: 1 bit for even odds, H(0.9) = 0.469 bits for 9 to 1); where both predict the
+    same it tells nothing; where one is dead half the time and the other never, H(1/4) + 3/4 H(G) - 1/2 (1 + 1/2
+    H(G)) - 1/2 H(G) = H(1/4) - 1/2 = 0.311 bits, whatever the spread H(G) of the live value."""
+    searcher = MapSearchPolicy(_constants(), SearchConfig(outlier=0.0))  # sigma: the constants' 10 dB
+    maps = _hand_maps([[1.0, 0.3, 0.5], [0.0, 0.3, 0.0]], [[30.0, 0.0, 30.0], [30.0, 0.0, 30.0]])
+    floor = -40.0
+    even = searcher.information(maps, np.log(np.array([0.5, 0.5])), np.arange(3), floor, 5.0)
+    np.testing.assert_allclose(even, [1.0, 0.0, 0.8112781 - 0.5], atol=1e-6)
+    skewed = searcher.information(maps, np.log(np.array([0.9, 0.1])), np.array([0]), floor, 5.0)
+    np.testing.assert_allclose(skewed, [-(0.9 * math.log2(0.9) + 0.1 * math.log2(0.1))], atol=1e-6)
+    probs = searcher.outcome_probabilities(maps, np.arange(3), floor, 5.0)
+    np.testing.assert_allclose(probs.sum(axis=-1), 1.0, atol=1e-9)
+    assert probs[0, 0, 0] == pytest.approx(1.0) and probs[1, 0, 0] == pytest.approx(0.0, abs=1e-9)
+
+
+@pytest.mark.parametrize("planner", ["info", "lookahead"])
+def test_other_planners_find_the_tiny_users(tiny, planner):
+    maps = MapSet.load("tiny", EnvConfig(t_max=100), root=str(tiny))
+    constants = load_constants(REPO / "data" / "agents" / "searcher" / "predictor.json")
+    policy = MapSearchPolicy(constants, SearchConfig(planner=planner, info_weight=0.5))
+    df = run_episodes(maps, policy, maps.episode_list(16, 0), num_envs=8)
+    assert df["success"].mean() >= 0.9

@@ -115,3 +115,22 @@ def test_pack_cli_and_train_predictor_on_packs(tiny, tmp_path):
     assert overlap.exit_code != 0 and "also a training city" in overlap.output and not (tmp_path / "u2").exists()
     nothing = CliRunner().invoke(uavrl, ["train-predictor", "--out", str(tmp_path / "u3"), *common])
     assert nothing.exit_code != 0 and "--maps" in nothing.output
+
+
+def test_shipped_training_maps_are_valid_small_and_of_training_cities_only():
+    """data/trainmaps (experiments/training_maps.sh): every pack reads and checks, the folder is within its 40 MB
+    budget, and no pack is of a validation or test city (nor of any city with a declared role)."""
+    from tests.conftest import REPO
+    from uavplace.dataset.catalog import ROLES_FILE, read_roles
+    from uavplace.dataset.trainmaps import list_packs
+
+    folder = REPO / "data" / "trainmaps"
+    packs = list_packs(folder)
+    size = sum(p.stat().st_size for p in folder.iterdir() if p.is_file())
+    assert size <= 40e6, f"data/trainmaps holds {size / 1e6:.1f} MB, over its 40 MB budget"
+    roles = read_roles(REPO / "data" / "raw" / ROLES_FILE)
+    declared = {*roles.train, *roles.val, *roles.test, *roles.crop}
+    for path in packs:
+        maps = read_pack(path)
+        assert path.stem == maps.city and maps.city not in declared and maps.city.startswith("tm-")
+        assert maps.provenance.size and maps.users.shape[0] >= 1
