@@ -12,6 +12,7 @@ from __future__ import annotations
 import copy
 
 import numpy as np
+import pytest
 
 from tests.conftest import REPO
 from uavplace.eval.evaluate import default_agents, load_agent
@@ -107,3 +108,37 @@ def test_report_methods_read_only_what_they_measured(tiny):
     batch.reset(0)
     view = view_for(policies[0], batch)
     assert isinstance(view, AgentView) and not any(v is maps or v is batch for v in vars(view).values())
+
+
+@pytest.mark.slow
+def test_searcher_reads_only_what_it_measured_on_a_validation_city(tmp_path):
+    """The scramble test on 100 episodes of a validation city with real geometry (etoile-val) and the shipped
+    predictor: each episode played again alone with the user's map scrambled off its route moves the same."""
+    from uavplace.dataset.build import build_city
+    from uavplace.ingest.pipeline import ingest_city
+    from uavplace.rl.config import EnvConfig
+    from uavplace.rl.searcher import MapSearchPolicy, PredictionCache, load_predictor
+    from uavplace.schemas.bundle import BuildConfig
+
+    ingest_city(REPO / "data" / "raw" / "etoile-val", tmp_path)
+    build_city("etoile-val", BuildConfig(grid_m=4.0, altitude_m=10.0), tmp_path)
+    maps = MapSet.load("etoile-val", EnvConfig(t_max=120, rotate=False), root=str(tmp_path))
+    policy = MapSearchPolicy(load_predictor(REPO / "data" / "agents" / "searcher" / "unet"),
+                             cache=PredictionCache(tmp_path / "predictions"))  # fmt: skip
+    episodes = maps.episode_list(100, 0)
+
+    def moved(policy, episodes):  # noqa: ANN001, ANN202 - per episode: did it move otherwise on the scrambled map?
+        first = run_episodes(maps, policy, episodes, num_envs=20, record=np.arange(len(episodes)))
+        rng, out = np.random.default_rng(4), []
+        for k in range(len(episodes)):
+            path = first.attrs["paths"][k]
+            keep = np.zeros(maps.sinr.shape[1:], bool)
+            keep[_to_canvas(maps, int(episodes[k, 0]), path)] = True
+            other = _scrambled(maps, int(episodes[k, 0]), keep, rng)
+            again = run_episodes(other, policy, episodes[k : k + 1], num_envs=1, record=np.array([0]))
+            out.append(not np.array_equal(again.attrs["paths"][0], path))
+        return out
+
+    changed = moved(policy, episodes)
+    assert not any(changed), f"moves changed in {sum(changed)} of {len(changed)} episodes"
+    assert any(moved(GeniePolicy(), episodes[:40])), "the genie reads the whole map: a scramble must move it somewhere"
