@@ -77,7 +77,7 @@ class KnownUserSearch(MapSearchPolicy):
                 self._cover[key] = self.cover(mu, p_dead, public.config.p_t_db)[0]
             here = int(maps.index[view.pos[r, 0] - p, view.pos[r, 1] - p])
             seen = view.visits[r, maps.legal[:, 0] + p, maps.legal[:, 1] + p] > 0
-            actions[r] = self._move(public, c, maps, here, self._cover[key], seen, mask[r])
+            actions[r] = self.first_move(public, c, maps, here, self._cover[key], seen, mask[r])
         return actions
 
 

@@ -7,7 +7,7 @@ episodes (routes, start times and start cells drawn with ``--seed``); one Markdo
 metrics (``rl.tracking.episode_metrics``): the median steps to first reach P_T, the mean coverage after it, the
 median longest outage and the mean share of the horizon covered, with the seconds each method took.
 
-    python experiments/tracking_baselines.py trk-val --episodes 300 [--agent data/agents/best] [--horizon 300]
+    python experiments/tracking_baselines.py trk-val --episodes 300 [--agent data/agents/best] [--horizon 300] [--searcher]
 """
 
 from __future__ import annotations
@@ -21,7 +21,9 @@ from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.cities import development_cities
 from uavplace.eval.evaluate import check_unseen, load_agent
 from uavplace.eval.tracking import tracking_methods
+from uavplace.rl.searcher import DEFAULT_PREDICTOR, PREDICTIONS, MapSearchPolicy, PredictionCache, load_predictor
 from uavplace.rl.tracking import RouteSet, TrackingConfig, run_tracking
+from uavplace.rl.tracksearch import TrackingSearchPolicy, fit_motion
 
 
 def main() -> None:
@@ -35,6 +37,13 @@ def main() -> None:
     ap.add_argument("--agent", action="append", default=[], help="An agent's run folder (repeatable)")
     ap.add_argument("--no-hold", action="store_true", help="Leave out the methods holding their cell while covered")
     ap.add_argument("--release", action="store_true", help="Allow test cities (release numbers only, never to choose)")
+    ap.add_argument(
+        "--searcher",
+        action="store_true",
+        help="Also the tracking searcher (rl/tracksearch.py): the shipped predictor, the motion fitted on --motion-from",
+    )
+    ap.add_argument("--motion-from", nargs="+", default=[f"trk-00{i}" for i in range(4)],
+                    help="Training cities with routes whose speeds the tracking searcher's motion is fitted on")  # fmt: skip
     args = ap.parse_args()
     config = TrackingConfig(horizon=args.horizon, p_t_db=args.p_t_db)
     cities = development_cities(args.cities, args.root, release=args.release)
@@ -47,6 +56,11 @@ def main() -> None:
     routes = RouteSet(bundles, config)
     episodes = routes.sample_episodes(args.episodes, np.random.default_rng(args.seed))
     policies = tracking_methods(config, args.seed, agents, hold=not args.no_hold)
+    if args.searcher:
+        motion = fit_motion([load_bundle(c, root=args.root) for c in args.motion_from])
+        print(f"motion fitted on {', '.join(args.motion_from)}: {motion}")
+        searcher = MapSearchPolicy(load_predictor(DEFAULT_PREDICTOR), cache=PredictionCache(f"{args.root}/{PREDICTIONS}"))
+        policies.append(TrackingSearchPolicy(searcher, motion))
     print(
         f"{', '.join(b.city for b in bundles)}: {args.episodes} episodes, horizon {args.horizon}, P_T {args.p_t_db:g} dB, seed {args.seed}"
     )

@@ -404,7 +404,7 @@ class MapSearchPolicy:
                 score = scores[i]
                 if self.config.planner == "info":
                     score = self.with_information(public, c, maps, int(here[r]), score, self.belief[r], seen, floor_db, p_t)
-                actions[r] = self._move(public, c, maps, int(here[r]), score, seen, mask[r])
+                actions[r] = self.first_move(public, c, maps, int(here[r]), score, seen, mask[r])
                 if self.config.planner == "lookahead":
                     actions[r] = self.lookahead_move(public, c, maps, int(here[r]), self.belief[r], seen, mask[r],
                                                      floor_db, p_t, int(actions[r]))  # fmt: skip
@@ -466,7 +466,7 @@ class MapSearchPolicy:
         out[near] += self.config.info_weight * self.information(maps, log_b, near, floor_db, p_t_db)
         return out
 
-    def _move(self, public: PublicMaps, canvas: int, maps: CandidateMaps, here: int, score: np.ndarray,
+    def first_move(self, public: PublicMaps, canvas: int, maps: CandidateMaps, here: int, score: np.ndarray,
               seen: np.ndarray, mask: np.ndarray) -> int:  # fmt: skip
         """The first move along a shortest legal path to the unvisited cell of best discounted ``score``."""
         discount, pred = self.paths_from(public, canvas, maps, here)

@@ -553,3 +553,67 @@ def test_rotated_routes_are_their_citys_quarter_turns(root):
     blocked = turned.maps.blocked[turned.canvas[episodes[:, 0].astype(int)]]
     for path, canvas in zip((oracle.path, genie.path), (blocked, blocked), strict=True):
         assert not canvas[np.arange(16)[:, None], path[:, :, 0], path[:, :, 1]].any()
+
+
+def test_motion_update_is_the_brute_force_propagation():
+    """The tracking searcher's motion step (a sparse transition per speed class) against a dense matrix built from
+    every pair of candidates by their distance, propagated step by step: the same belief, and no mass lost."""
+    from uavplace.rl.tracksearch import transition
+
+    rng = np.random.default_rng(0)
+    yy, xx = np.mgrid[0:16:2, 0:16:2]
+    cells = np.stack([yy.ravel(), xx.ravel()], axis=1)
+    cells = cells[rng.random(len(cells)) < 0.7]  # candidates missing where buildings stand
+    q, stride = 0.3, 2
+    dense = np.zeros((len(cells), len(cells)))
+    for i, j in itertools.product(range(len(cells)), repeat=2):
+        if np.abs(cells[i] - cells[j]).sum() == stride and (cells[i] == cells[j]).any():
+            dense[i, j] = q / 4
+    dense[np.diag_indices(len(cells))] = 1 - dense.sum(axis=0)
+    sparse_t = transition(cells, stride, q)
+    b = rng.random(len(cells))
+    b /= b.sum()
+    want, got = b.copy(), b.copy()
+    for _ in range(5):
+        want, got = dense @ want, sparse_t @ got
+    np.testing.assert_allclose(got, want, atol=1e-12)
+    assert got.sum() == pytest.approx(1.0)
+
+
+def test_fit_motion_reads_the_routes_speeds(root):
+    from uavplace.rl.tracksearch import fit_motion
+
+    motion = fit_motion([load_bundle("walk", root=root)])
+    speeds = load_bundle("walk", root=root).routes.groupby("route")["speed_mps"].first().round(1)
+    assert set(motion.speeds_mps) == set(speeds) and sum(motion.weights) == pytest.approx(1.0)
+
+
+def test_tracking_searcher_reads_only_what_it_measures(root):
+    """The tracking searcher (predicted maps, a belief carried through time) moves exactly as before when the user's
+    maps are scrambled off its path at every route point, and covers the user in some steps."""
+    import copy
+
+    from uavplace.rl.predictor import PhysicsConstants
+    from uavplace.rl.searcher import MapSearchPolicy, SearchConfig
+    from uavplace.rl.tracksearch import TrackingSearchPolicy, fit_motion
+
+    bundle = load_bundle("walk", root=root)
+    constants = PhysicsConstants(intercept_db=-20, log_d_db=-23, wall_db=-9, diffraction_weight=0.1,
+                                 dead_level_db=-13, dead_scale_db=4, error_db=10)  # fmt: skip
+    policy = TrackingSearchPolicy(MapSearchPolicy(constants, SearchConfig(stride=1)), fit_motion([bundle]))
+    task = TrackingConfig(horizon=24, window=9)
+    routes = RouteSet([bundle], task)
+    episodes = routes.sample_episodes(10, np.random.default_rng(1))
+    first = run_tracking(routes, policy, episodes, num_envs=5, record=True)
+    assert first.covered.any()
+    rng = np.random.default_rng(0)
+    for k in range(len(episodes)):
+        hidden = np.ones(routes.sinr.shape[1:], bool)
+        hidden[first.path[k, :, 0], first.path[k, :, 1]] = False
+        other = copy.copy(routes)
+        other.sinr, other.dead, other.steps = routes.sinr.copy(), routes.dead.copy(), routes.steps.copy()
+        other.sinr[:, hidden] = rng.uniform(-150, 50, (len(routes.sinr), hidden.sum()))
+        other.dead[:, hidden] = rng.random((len(routes.sinr), hidden.sum())) < 0.3
+        other.steps[:, hidden] = rng.integers(0, 2, (len(routes.sinr), hidden.sum()))
+        again = run_tracking(other, policy, episodes[k : k + 1], num_envs=1, record=True)
+        assert np.array_equal(again.path[0], first.path[k]), f"episode {k}: moves changed off its path"

@@ -1,0 +1,149 @@
+"""The tracking searcher: the map searcher's belief carried through time for a user who walks (``rl.tracking``).
+
+Its candidates and their predicted maps are the placement searcher's (``rl.searcher.MapSearchPolicy``: open-ground
+cells on a lattice of ``stride`` cells, a map of each predicted from the buildings and cached). Each row keeps a
+belief over (speed class, candidate): the user walks at one of the speeds of the training routes
+(``MotionModel``, fitted by ``fit_motion``), unknown to the UAV, with the share of routes of that speed as its prior.
+Every step:
+
+1. **motion**: the user walks ``speed x step_s`` metres on, along open ground. The belief of each speed class flows
+   from each candidate to its lattice neighbours on open ground (four, ``stride`` cells away) with probability
+   ``q = min(1, speed x step_s / (stride x cell side))`` split evenly over the four directions, a direction into a
+   building keeping its share in place (``transition``): the belief leaves a candidate as often as the user leaves a
+   lattice cell at that speed;
+2. **measurement**: the SINR the UAV measures where it is, now, updates every class and candidate as the placement
+   searcher's likelihood does (``MapSearchPolicy.update``);
+3. **move**: on a cell that measured P_T or more it stays; else it takes one step along a shortest legal path to the
+   cell of best discounted posterior probability of reaching P_T (the placement planner, every cell but its own a
+   candidate, since the user moves and an old measurement says little).
+
+It reads what the UAV knows: its position, the step, its own current measurement and the public maps; never the
+route, the user's point or a map of the user (``tests/test_tracking.py`` scrambles them).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import sparse
+
+from uavplace.dataset.bundle import Bundle
+from uavplace.rl.searcher import CandidateMaps, MapSearchPolicy, posterior_cover
+from uavplace.rl.tracking import STAY
+from uavplace.rl.view import public_maps
+
+#: The tracking searcher's name in tables.
+TRACKING_SEARCHER = "tracking searcher"
+
+
+@dataclass(frozen=True)
+class MotionModel:
+    """The user's speeds [m/s] and the prior probability of each (``fit_motion``)."""
+
+    speeds_mps: tuple[float, ...]
+    weights: tuple[float, ...]
+
+
+def fit_motion(bundles: list[Bundle]) -> MotionModel:
+    """The speeds of the routes of ``bundles`` (training cities: each route's ``speed_mps``, to 0.1 m/s) and the share
+    of routes at each."""
+    speeds = []
+    for b in bundles:
+        if b.routes is not None:
+            speeds += b.routes.groupby("route")["speed_mps"].first().round(1).tolist()
+    if not speeds:
+        raise ValueError(f"no route among {[b.city for b in bundles]} to fit the user's motion on")
+    values, counts = np.unique(speeds, return_counts=True)
+    return MotionModel(tuple(float(v) for v in values), tuple(float(c / counts.sum()) for c in counts))
+
+
+def transition(cells: np.ndarray, stride: int, q: float) -> sparse.csr_matrix:
+    """``[C, C]`` column-stochastic: the probability of moving from candidate ``j`` (``cells[j]``, ``(iy, ix)``) to
+    candidate ``i`` in one step: ``q / 4`` to each of the four lattice neighbours (``stride`` cells away) that is a
+    candidate, and the rest (``1 - q`` and the shares of the missing neighbours) staying."""
+    index = {(int(y), int(x)): i for i, (y, x) in enumerate(cells)}
+    rows, cols, vals = [], [], []
+    stay = np.ones(len(cells))
+    for j, (y, x) in enumerate(cells):
+        for dy, dx in ((stride, 0), (-stride, 0), (0, stride), (0, -stride)):
+            i = index.get((int(y) + dy, int(x) + dx))
+            if i is not None:
+                rows.append(i)
+                cols.append(j)
+                vals.append(q / 4)
+                stay[j] -= q / 4
+    rows += list(range(len(cells)))
+    cols += list(range(len(cells)))
+    vals += stay.tolist()
+    return sparse.csr_matrix((vals, (rows, cols)), shape=(len(cells), len(cells)))
+
+
+class TrackingSearchPolicy:
+    """The tracking searcher of the module's docstring as a tracking method (``reset``, ``act(obs, mask, env)`` of a
+    ``rl.tracking.TrackingEnv``, 5 actions)."""
+
+    name = TRACKING_SEARCHER
+
+    def __init__(self, searcher: MapSearchPolicy, motion: MotionModel, name: str | None = None) -> None:
+        self.searcher, self.motion = searcher, motion
+        self.name = name or TRACKING_SEARCHER
+        self.prior = np.log(np.asarray(motion.weights, np.float64))
+        self.belief: list[np.ndarray | None] = []  # per row: [speed classes, candidates] log-belief
+        self._moves: dict[tuple, list[sparse.csr_matrix]] = {}
+
+    def reset(self, rows: np.ndarray, num_envs: int) -> None:
+        if len(self.belief) != num_envs:
+            self.belief = [None] * num_envs
+        for r in np.asarray(rows, np.int64):
+            self.belief[r] = None
+
+    def moves(self, canvas: int, maps: CandidateMaps, step_s: float, cell_m: float) -> list[sparse.csr_matrix]:
+        """One ``transition`` per speed class for the candidates of ``canvas``, kept."""
+        key = (canvas, step_s)
+        if key not in self._moves:
+            stride = self.searcher.config.stride
+            qs = [min(1.0, v * step_s / (stride * cell_m)) for v in self.motion.speeds_mps]
+            self._moves[key] = [transition(maps.cells, stride, q) for q in qs]
+        return self._moves[key]
+
+    def step_belief(self, log_b: np.ndarray, moves: list[sparse.csr_matrix]) -> np.ndarray:
+        """``log_b`` [K, C] after one step of motion (each speed class by its own transition)."""
+        b = np.exp(log_b - log_b.max())
+        moved = np.stack([m @ row for m, row in zip(moves, b, strict=True)])
+        return np.log(np.maximum(moved, 1e-300))
+
+    def act(self, obs: np.ndarray, mask: np.ndarray, env: object) -> np.ndarray:
+        n = len(mask)
+        if len(self.belief) != n:
+            self.reset(np.arange(n), n)
+        public = public_maps(env)
+        p, s = public.pad, self.searcher
+        actions = np.full(n, STAY, np.int64)
+        rows_of: dict[int, list[int]] = {}
+        for r in np.flatnonzero(~env.exhausted):
+            canvas = int(env.canvas(np.array([r]))[0])
+            maps = s.canvas_maps(public, canvas)
+            settings = public.settings[public.bundle_of(canvas)]
+            y, x = int(env.pos[r, 0]), int(env.pos[r, 1])
+            measured = float(env.memory[r, y, x])  # measured now, at this cell
+            column = int(maps.index[y - p, x - p])
+            if self.belief[r] is None or env.t[r] == 0:
+                log_b = np.repeat(self.prior[:, None], len(maps.cells), axis=1)
+            else:
+                step_s = float(settings["spacing_m"]) / env.config.uav_speed_mps
+                log_b = self.step_belief(self.belief[r], self.moves(canvas, maps, step_s, float(settings["spacing_m"])))
+            log_b = np.stack([s.update(maps, row, column, measured, float(settings["floor_db"])) for row in log_b])
+            self.belief[r] = log_b - log_b.max()
+            if measured < env.config.p_t_db:
+                rows_of.setdefault(canvas, []).append(r)
+        for canvas, rows in rows_of.items():  # the plans, a canvas's rows in one product
+            maps = s.canvas_maps(public, canvas)
+            marginal = np.stack([np.logaddexp.reduce(self.belief[r], axis=0) for r in rows])
+            scores = posterior_cover(marginal, maps.cover)
+            for i, r in enumerate(rows):
+                here = int(maps.index[env.pos[r, 0] - p, env.pos[r, 1] - p])
+                others = np.zeros(len(maps.legal), bool)
+                others[here] = True  # only its own cell is not a target: the user moves
+                actions[r] = s.first_move(public, canvas, maps, here, scores[i], others, mask[r, :4])
+        return actions
