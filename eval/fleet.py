@@ -9,7 +9,8 @@ ratios to the oracle's steps and SPL against the oracle; intervals are paired bo
 the user sets, then the episodes of each (``eval.metrics``); paired differences against the oracle and against
 the first independent agent (greedy hill-climbing without one): the baseline every fleet method must beat.
 
-The folder ``OUT`` (default ``reports/fleet``) holds ``fleet.md`` (every table and figure), per city
+The folder ``OUT`` (default ``reports/fleet``) holds ``fleet.html`` (self-contained, the placement and tracking
+reports' style), ``fleet.md`` (every table and figure), per city
 ``<city>-episodes.png`` (the first method's episodes at the 10th, 50th and 90th percentiles of its steps on the
 heights: every UAV's path, every user's position), ``results.csv``,
 ``differences.csv``, ``episodes.parquet`` and ``fleet.json`` (the config and the bundle versions), replaced only
@@ -29,8 +30,9 @@ from pydantic import Field
 
 from uavplace.dataset.bundle import Bundle, load_bundle
 from uavplace.eval.evaluate import load_agent
+from uavplace.eval.figures import Figure
 from uavplace.eval.metrics import bootstrap_table, difference_table
-from uavplace.eval.render import difference_rows
+from uavplace.eval.render import _CSS, _figure, _templates, difference_rows
 from uavplace.infra.console import markdown_table
 from uavplace.infra.files import atomic_directory, check_replaceable
 from uavplace.rl.fleet import (
@@ -200,6 +202,7 @@ def make_fleet_report(config: FleetReportConfig, out: Path, root: Path, command:
     differences, the Markdown file), every city in each."""
     check_replaceable(out, FLEET_JSON, "fleet report")
     tables, diffs, frames, sections, versions, shown_episodes = [], [], [], [], {}, {}
+    pages: dict[str, dict] = {}  # per city: what its section of fleet.html shows
     for city in config.datasets:
         bundle = load_bundle(city, root=root)
         results = fleet_results(config, bundle, root, on_progress)
@@ -213,19 +216,20 @@ def make_fleet_report(config: FleetReportConfig, out: Path, root: Path, command:
         versions[city] = bundle.version
         head = (f"**{city}** ({config.episodes} episodes, {config.task.uavs} UAVs and {config.task.users} users, "
                 f"t_max {config.task.t_max}, P_T {config.task.p_t_db:g} dB; 95 % intervals over user sets, then episodes)")  # fmt: skip
-        sections += [head, markdown_table(table_rows(table, config.task.t_max)),
-                     f"Paired differences in {city}, method minus reference (95 % intervals):",
-                     markdown_table(difference_rows(diff, config.task.t_max))]  # fmt: skip
+        rows, diff_rows = table_rows(table, config.task.t_max), difference_rows(diff, config.task.t_max)
+        sections += [head, markdown_table(rows), f"Paired differences in {city}, method minus reference (95 % intervals):",
+                     markdown_table(diff_rows)]  # fmt: skip
+        pages[city] = {"bundle": bundle.version, "rows": rows, "differences": diff_rows}
     table, diff = pd.concat(tables, ignore_index=True), pd.concat(diffs, ignore_index=True)
-    if len(config.datasets) > 1:
-        sections += [
-            f"Every city: {SUMMARY_TITLE} (95 % intervals).",
-            markdown_table(summary_rows(table, diff, config.task.t_max)),
-        ]
+    summary = summary_rows(table, diff, config.task.t_max) if len(config.datasets) > 1 else None
+    if summary:
+        sections += [f"Every city: {SUMMARY_TITLE} (95 % intervals).", markdown_table(summary)]
     with atomic_directory(out, marker=FLEET_JSON, what="fleet report") as tmp:
-        for city, (bundle, frame, method) in shown_episodes.items():
-            caption = plot_fleet_episodes(bundle, frame, method, config.task, tmp / f"{city}-episodes.png")
+        for number, (city, (bundle, frame, method)) in enumerate(shown_episodes.items(), start=1):
+            path = tmp / f"{city}-episodes.png"
+            caption = plot_fleet_episodes(bundle, frame, method, config.task, path)
             sections.append(f"![{caption}]({city}-episodes.png)\n\n{caption}")
+            pages[city]["figure"] = _figure(Figure(path, caption), number, f"episodes in {city}")
         (tmp / "fleet.md").write_text("\n\n".join(sections) + "\n", encoding="utf-8")
         table.to_csv(tmp / "results.csv", index=False)
         diff.to_csv(tmp / "differences.csv", index=False)
@@ -233,4 +237,24 @@ def make_fleet_report(config: FleetReportConfig, out: Path, root: Path, command:
         doc = {"config": config.model_dump(mode="json"), "bundles": versions, "command": command,
                "uavplace_version": uavplace_version(), "created_utc": dt.datetime.now(dt.UTC).isoformat()}  # fmt: skip
         (tmp / FLEET_JSON).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+        (tmp / "fleet.html").write_text(fleet_page(config, pages, summary, doc), encoding="utf-8")
     return table, diff, out / "fleet.md"
+
+
+def fleet_page(config: FleetReportConfig, pages: dict[str, dict], summary: list[list[str]] | None, doc: dict) -> str:
+    """``fleet.html``: self-contained, the placement and tracking reports' style: the summary of every city (with
+    more than one), then per city its table, its paired differences and its figure (``pages``), then ``fleet.json``."""
+    import markupsafe
+
+    task = config.task
+    sections = [
+        _templates()
+        .get_template("fleet_section.html.j2")
+        .render(city=city, episodes=config.episodes, users=task.users, uavs=task.uavs, n_boot=config.n_boot, **page)
+        for city, page in pages.items()
+    ]
+    return _templates().get_template("fleet.html.j2").render(
+        css=markupsafe.Markup(_CSS), cities=", ".join(pages), uavs=task.uavs, users=task.users, p_t=f"{task.p_t_db:g}",
+        t_max=task.t_max, made=doc["created_utc"], command=doc["command"], summary=summary,
+        summary_title=SUMMARY_TITLE, sections=[markupsafe.Markup(s) for s in sections], raw=json.dumps(doc, indent=2),
+    )  # fmt: skip

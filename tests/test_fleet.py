@@ -328,6 +328,9 @@ def test_fleet_report_writes_its_tables_and_never_replaces_a_stranger(tiny, tmp_
     oracle = table[table.method == "oracle"].iloc[0]
     assert rows[1][1].startswith("100.0 % [100.0, 100.0 %] / ") and rows[1][1].endswith("(1.00)") and oracle.success == 1
     assert (out / "tiny-episodes.png").stat().st_size > 0 and "tiny-episodes.png" in (out / "fleet.md").read_text()
+    page = (out / "fleet.html").read_text()  # the placement and tracking reports' style: self-contained
+    assert page.count("<table") == 2 and page.count('src="data:image/png;base64,') == 1 and best in page
+    assert 'content="uavplace fleet report"' in page and "Figure 1." in page and "<script" not in page
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "thesis.tex").write_text("x")
