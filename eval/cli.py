@@ -127,7 +127,8 @@ from uavplace.rl.cli import episode_options
     show_default=True,
     help="The map searcher's radio-map predictor (rl/searcher.py): a learned tier's folder (`uavrl train-predictor`), "
     "the physics tier's constants (data/agents/searcher/predictor.json, `uavrl fit-predictor`), or 'none' "
-    "to leave the searcher and its ablation out. Its predicted maps are cached under ROOT/.predictions/.",
+    "to leave the searcher and its ablation out (with --task tracking, the tracking searcher, rl/tracksearch.py). Its "
+    "predicted maps are cached under ROOT/.predictions/.",
 )
 @click.option(
     "--overwrite",
@@ -158,7 +159,8 @@ def report(
     one page with every city (OUT/report.html, OUT/summary.csv; OUT defaults to reports/).
 
     With --task tracking, the user moves: the oracle (the upper bound), the agents (placement agents run unchanged),
-    the re-planning genie, the random walk and greedy hill-climbing on the same episodes of each city's routes, those
+    the re-planning genie, the tracking searcher (--predictor), the random walk and greedy hill-climbing on the same
+    episodes of each city's routes, those
     without a stay action also holding their cell while covered (--hold); one
     page OUT/tracking.html with a table per city, the coverage over time and three episodes on the maps
     (eval/tracking.py).
@@ -207,7 +209,7 @@ def report(
         if groups or split:
             raise click.UsageError("--task tracking plays every route of the cities: it takes no --group or --split")
         _tracking_report(datasets, chosen, out, episodes, horizon, p_t_db, test_epsilon, seed, n_boot, trajectories,
-                         hold, markdown, root, quiet)  # fmt: skip
+                         hold, markdown, root, quiet, predictor)  # fmt: skip
         return
 
     _check_runs_once(chosen, "--run")
@@ -333,14 +335,15 @@ def _check_training_settings(runs: list[Path], datasets: tuple[str, ...], p_t_db
 
 def _tracking_report(datasets: tuple[str, ...], runs: list[Path], out: Path | None, episodes: int, horizon: int, p_t_db: float,
                      test_epsilon: float, seed: int, n_boot: int, trajectories: int, hold: bool, markdown: Path | None,
-                     root: Path, quiet: bool) -> None:  # fmt: skip
+                     root: Path, quiet: bool, predictor: str) -> None:  # fmt: skip
     from uavplace.eval.tracking import SUMMARY_TITLE, TrackingReportConfig, make_tracking_report, summary_rows, table_rows
     from uavplace.infra.files import atomic_write_text
     from uavplace.rl.tracking import TrackingConfig
 
     config = TrackingReportConfig(datasets=list(datasets), runs=[str(r) for r in runs], episodes=episodes, seed=seed,
                                   test_epsilon=test_epsilon, n_boot=n_boot, trajectories=trajectories, hold=hold,
-                                  task=TrackingConfig(horizon=horizon, p_t_db=p_t_db))  # fmt: skip
+                                  task=TrackingConfig(horizon=horizon, p_t_db=p_t_db),
+                                  predictor=None if predictor.lower() == "none" else predictor)  # fmt: skip
     log = LogLines(quiet)
     with console.status("[bold]tracking report[/]", spinner="dots") if not quiet else contextlib.nullcontext() as status:
 

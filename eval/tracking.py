@@ -2,7 +2,8 @@
 
 Every method plays the same episodes of each city (routes, start times and start cells drawn from the report's
 seed): the oracle (the most covered steps possible: the upper bound), the agents, the placement genie re-planned
-every step, the steered random walk and greedy hill-climbing; each method that cannot stay also holding its cell
+every step, the tracking searcher (``rl.tracksearch``: the map searcher's belief carried through time), the steered
+random walk and greedy hill-climbing; each method that cannot stay also holding its cell
 while it covers the user (``rl.tracking.Holding``). Per method and city: the median steps to first reach P_T, the
 coverage after it, the median longest outage, the share of the horizon covered and that share as a fraction of the
 oracle's. Intervals are paired bootstrap 95 % intervals that resample the routes (a route plays the part a user
@@ -33,6 +34,7 @@ from uavplace.eval.render import _CSS, _figure, _templates
 from uavplace.infra.console import markdown_table
 from uavplace.infra.files import atomic_directory, check_replaceable
 from uavplace.rl.policies import GreedyPolicy, RandomWalkPolicy
+from uavplace.rl.searcher import DEFAULT_PREDICTOR, PREDICTIONS, MapSearchPolicy, PredictionCache, load_predictor
 from uavplace.rl.tracking import (
     Holding,
     MovesOnly,
@@ -45,6 +47,7 @@ from uavplace.rl.tracking import (
     TrackingEpisodes,
     run_tracking,
 )
+from uavplace.rl.tracksearch import MotionModel, TrackingSearchPolicy
 from uavplace.schemas import InputError
 from uavplace.schemas.base import MAX_SEED, Contract, uavplace_version
 
@@ -90,12 +93,18 @@ class TrackingReportConfig(Contract):
         description="Also play each method without a stay action (placement agents, random walk, greedy) holding its "
         "cell while its own measurement is at or above P_T",
     )
+    predictor: str | None = Field(
+        default=str(DEFAULT_PREDICTOR),
+        description="The tracking searcher's radio-map predictor (rl/tracksearch.py; None: the searcher is not played)",
+    )
+    motion: MotionModel = Field(default_factory=MotionModel, description="The tracking searcher's motion model")
 
 
-def tracking_methods(task: TrackingConfig, seed: int, agents: list[Agent] = (), hold: bool = True) -> list:
+def tracking_methods(task: TrackingConfig, seed: int, agents: list[Agent] = (), hold: bool = True,
+                     searcher: TrackingSearchPolicy | None = None) -> list:  # fmt: skip
     """The methods of the report: the upper bound first, then the agents (tracking agents on the observations they
     were trained with, ``TrackingAgent``; placement agents run unchanged, ``PlacementInTracking``), then the
-    re-planning genie and the baselines. With ``hold``, every method that cannot stay (the placement agents, the
+    re-planning genie, the tracking searcher (when given) and the baselines. With ``hold``, every method that cannot stay (the placement agents, the
     random walk, greedy hill-climbing) is also played holding its cell while it covers the user (``Holding``), right
     after itself; tracking agents have a stay action of their own, and the genie and the oracle already stay."""
     played = []
@@ -105,7 +114,8 @@ def tracking_methods(task: TrackingConfig, seed: int, agents: list[Agent] = (), 
         else:
             played += _and_holding(PlacementInTracking(a.policy, a.config.env_config(evaluation=True), a.name), hold)
     baselines = [MovesOnly(RandomWalkPolicy(seed=seed)), MovesOnly(GreedyPolicy(task.p_h_db, seed=seed))]
-    return [OraclePolicy(), *played, ReplanningGenie(), *(m for b in baselines for m in _and_holding(b, hold))]
+    searchers = [] if searcher is None else [searcher]
+    return [OraclePolicy(), *played, ReplanningGenie(), *searchers, *(m for b in baselines for m in _and_holding(b, hold))]
 
 
 def _and_holding(method, hold: bool) -> list:  # noqa: ANN001 - a tracking method without a stay action
@@ -321,11 +331,15 @@ def make_tracking_report(
         check_unseen(agents, b)
     sections, provenance, figures_all = [], [], []
     per_city: list[tuple] = []
+    searcher = None
+    if config.predictor is not None:
+        cache = PredictionCache(Path(root) / PREDICTIONS)
+        searcher = TrackingSearchPolicy(MapSearchPolicy(load_predictor(config.predictor), cache=cache), config.motion)
     for b in bundles:
         routes = RouteSet([b], config.task)
         episodes = routes.sample_episodes(config.episodes, np.random.default_rng([config.seed, 7]))
         results: dict[str, TrackingEpisodes] = {}
-        for policy in tracking_methods(config.task, config.seed, agents, config.hold):
+        for policy in tracking_methods(config.task, config.seed, agents, config.hold, searcher):
             if on_progress is not None:
                 on_progress(b.city, policy.name)
             results[policy.name] = run_tracking(routes, policy, episodes, record=True)

@@ -617,3 +617,18 @@ def test_tracking_searcher_reads_only_what_it_measures(root):
         other.steps[:, hidden] = rng.integers(0, 2, (len(routes.sinr), hidden.sum()))
         again = run_tracking(other, policy, episodes[k : k + 1], num_envs=1, record=True)
         assert np.array_equal(again.path[0], first.path[k]), f"episode {k}: moves changed off its path"
+
+
+def test_motion_defaults_are_the_training_routes_fit(tmp_path):
+    """The tracking searcher's default motion (``MotionModel()``) is ``fit_motion`` of the training cities with routes,
+    trk-000 ... trk-003, as they are embedded."""
+    from uavplace.rl.tracksearch import MotionModel, fit_motion
+
+    bundles = []
+    for city in (f"trk-00{i}" for i in range(4)):
+        ingest_city(REPO / "data" / "raw" / city, tmp_path)
+        build_city(city, BuildConfig(grid_m=4.0, altitude_m=10.0, crop=True), tmp_path)
+        bundles.append(load_bundle(city, root=tmp_path))
+    assert fit_motion(bundles) == MotionModel()
+    with pytest.raises(ValueError):
+        MotionModel(speeds_mps=(1.0,), weights=(0.5,))
