@@ -22,6 +22,7 @@ from uavplace.infra.console import (
     stdout,
     warn_or_refuse,
 )
+from uavplace.infra.files import shipped
 from uavplace.rl.cli import episode_options
 
 
@@ -32,7 +33,7 @@ from uavplace.rl.cli import episode_options
     multiple=True,
     type=click.Path(file_okay=False, exists=True, path_type=Path),
     help="Agent to evaluate: a run folder of `uavrl train` or a shipped agent (repeatable). "
-    "Default: every agent under data/agents/.",
+    "Default: every agent under the project's data/agents/ (--agents-dir).",
 )
 @click.option(
     "--dataset",
@@ -82,7 +83,7 @@ from uavplace.rl.cli import episode_options
     "the runs' range, and an interval that resamples runs, then users, then episodes; with paired differences against "
     "the blind paper agent and the genie (repeatable; groups.csv and a table in the report).",
 )
-@click.option("--agents-dir", type=click.Path(file_okay=False, path_type=Path), default=Path("data/agents"), show_default=True,
+@click.option("--agents-dir", type=click.Path(file_okay=False, path_type=Path), default=shipped("data/agents"), show_default=True,
               help="Where the default agents are looked for (without --run: those of the report's task; a tracking "
                    "report plays the placement agents too; a fleet report its 'best' on every UAV and the fleet-trained agents).")  # fmt: skip
 @click.option(
@@ -123,7 +124,7 @@ from uavplace.rl.cli import episode_options
 )
 @click.option(
     "--predictor",
-    default="data/agents/searcher/unet",
+    default=str(shipped("data/agents/searcher/unet")),
     show_default=True,
     help="The map searcher's radio-map predictor (rl/searcher.py): a learned tier's folder (`uavrl train-predictor`), "
     "the physics tier's constants (data/agents/searcher/predictor.json, `uavrl fit-predictor`), or 'none' "

@@ -15,6 +15,7 @@ from pydantic import Field
 from uavplace.dataset.bundle import Bundle, load_bundle, read_manifest, resolve
 from uavplace.dataset.difficulty import valid_starts
 from uavplace.eval.metrics import bootstrap_table, difference_table
+from uavplace.infra.files import shipped
 from uavplace.rl.agent.checkpoint import load_tensors
 from uavplace.rl.agent.dqn import DQNConfig
 from uavplace.rl.agent.train import (
@@ -158,9 +159,14 @@ def load_agent(folder: str | Path, epsilon: float, seed: int, task: str | None =
     return Agent(policy.name, folder, config, run, policy, ck.get("eval"), metrics)
 
 
-def default_agents(root: str | Path = "data/agents", task: str | tuple[str, ...] | None = "placement") -> list[Path]:
-    """The shipped agents: every folder under ``root`` with a ``checkpoints/best.pt``, in name order; those that
-    learnt ``task`` or one of the tasks given (by their ``run.json``; None: every agent)."""
+#: Where the shipped agents live: the project's ``data/agents``, wherever a command runs.
+SHIPPED_AGENTS = shipped("data/agents")
+
+
+def default_agents(root: str | Path = SHIPPED_AGENTS, task: str | tuple[str, ...] | None = "placement") -> list[Path]:
+    """The shipped agents: every folder under ``root`` (default: the project's ``data/agents``, wherever the command
+    runs) with a ``checkpoints/best.pt``, in name order; those that learnt ``task`` or one of the tasks given (by
+    their ``run.json``; None: every agent)."""
     root = Path(root)
     tasks = (task,) if isinstance(task, str) else task
     found = sorted(p for p in root.iterdir() if (p / "checkpoints" / "best.pt").is_file()) if root.is_dir() else []

@@ -33,6 +33,16 @@ M = TypeVar("M", bound=BaseModel)
 
 #: Default root of ingested cities and bundles (relative to the working folder).
 DEFAULT_ROOT = Path("data/processed")
+#: The project's folder, where the shipped agents and predictor (``data/agents/``) are found whatever the working
+#: folder: the folder above the installed ``uavplace.infra`` package (the repository, for the README's editable
+#: install).
+PROJECT_ROOT = Path(__file__).resolve().parent.parent
+
+
+def shipped(relative: str) -> Path:
+    """``relative`` (e.g. ``data/agents``) in the project's folder (``PROJECT_ROOT``), not the working folder."""
+    return PROJECT_ROOT / relative
+
 
 _CHUNK = 1 << 20
 _NAME_RE = re.compile(NAME_PATTERN)

@@ -42,7 +42,7 @@ from scipy import sparse
 from scipy.sparse.csgraph import shortest_path
 from scipy.special import ndtr
 
-from uavplace.infra.files import atomic_write_bytes, read_model_json, read_small_file
+from uavplace.infra.files import atomic_write_bytes, read_model_json, read_small_file, shipped
 from uavplace.infra.limits import check_limit, limits
 from uavplace.rl.maps import MOVES, MapSet, transform
 from uavplace.rl.predictor import PhysicsConstants, PhysicsPredictor, Predictor, Scene
@@ -50,10 +50,10 @@ from uavplace.rl.view import AgentView, PublicMaps
 from uavplace.schemas import InputError
 from uavplace.schemas.base import Contract
 
-#: Where the shipped physics tier's constants live.
-DEFAULT_CONSTANTS = Path("data/agents/searcher/predictor.json")
+#: Where the shipped physics tier's constants live (in the project, wherever a command runs).
+DEFAULT_CONSTANTS = shipped("data/agents/searcher/predictor.json")
 #: The shipped predictor the searcher uses: the learned tier (chosen on the validation cities, docs/searcher.md).
-DEFAULT_PREDICTOR = Path("data/agents/searcher/unet")
+DEFAULT_PREDICTOR = shipped("data/agents/searcher/unet")
 #: The span of SINR [dB] over which the likelihood's flat share is spread.
 OUTLIER_SPAN_DB = 100.0
 #: The searcher's name in tables (its ablation's: SEARCHER + ", no buildings").
@@ -484,11 +484,14 @@ class MapSearchPolicy:
 
 def load_predictor(path: str | Path = DEFAULT_PREDICTOR) -> Predictor:
     """The predictor at ``path``: a folder is a learned tier (``rl.learned.load_learned``), a file the physics tier's
-    constants (``load_constants``)."""
+    constants (``load_constants``); ``InputError`` saying where the shipped ones live when there is none."""
     if Path(path).is_dir():
         from uavplace.rl.learned import load_learned
 
         return load_learned(path)
+    if not Path(path).exists() and not Path(path).is_symlink():
+        raise InputError(path, f"no predictor here: give a learned tier's folder or a physics tier's constants (the "
+                         f"shipped ones are {DEFAULT_PREDICTOR} and {DEFAULT_CONSTANTS})")  # fmt: skip
     return PhysicsPredictor(load_constants(path))
 
 

@@ -445,3 +445,20 @@ def test_a_terminal_gets_the_columns_that_fit():
     header = ["method", *STATS.values(), "paper: success", "paper: median steps"]
     rows = terminal_columns([header, [f"m{i}" for i in range(len(header))]])
     assert rows[0] == list(TERMINAL_COLUMNS) and rows[1] == ["m0", "m1", "m2", "m5"]
+
+
+def test_shipped_agents_and_predictor_are_found_from_any_working_folder(tiny, tmp_path, monkeypatch):
+    """`uavrl report` run from a folder that is not the repository finds the shipped agents and predictor (the
+    project's data/agents, not the working folder's); a predictor path that does not exist says where they are."""
+    from uavplace.rl.searcher import DEFAULT_PREDICTOR, load_predictor
+    from uavplace.schemas import InputError
+
+    monkeypatch.chdir(tmp_path)
+    args = ["report", "--dataset", "tiny", "--root", str(tiny), "--episodes", "4", "--bootstrap", "100", "--out",
+            str(tmp_path / "rep"), "--quiet"]  # fmt: skip
+    res = CliRunner().invoke(uavrl, args)
+    assert res.exit_code == 0, res.output
+    methods = pd.read_csv(tmp_path / "rep" / "results.csv")["method"].tolist()
+    assert "map searcher" in methods and any("(best)" in m for m in methods)
+    with pytest.raises(InputError, match=str(DEFAULT_PREDICTOR)):
+        load_predictor(tmp_path / "nowhere")

@@ -208,7 +208,8 @@ def test_batches_stream_and_errors_still_name_their_line(tmp_path, deepmimo):
 
 def test_header_titles_parse_in_linear_time():
     """A title regex that searched names lazily took 19.5 s on a 30 kB header line and never ended on 50 MB
-    (issue 34): ``column_titles`` is linear, so a 5 MB line of junk takes well under a second (bound: 10 s)."""
+    (issue 34): ``column_titles`` is linear, so a 5 MB line of junk takes well under a second of CPU (bound: 10 s of
+    this process's CPU time, which a busy machine does not inflate as it does the wall time)."""
     import time
 
     from uavplace.ingest.wireless_insite.p2m import column_titles
@@ -216,6 +217,6 @@ def test_header_titles_parse_in_linear_time():
     line = "# X(m) Y(m) Z(m) Distance(m) Power(dBm) Phase(deg)"
     assert column_titles(line) == [("X", "m"), ("Y", "m"), ("Z", "m"), ("Distance", "m"), ("Power", "dBm"), ("Phase", "deg")]
     for junk in ("# " + "ab " * 1_700_000 + "(m)", "(" * 5_000_000, "a(" * 2_500_000 + ")"):
-        t = time.perf_counter()
+        t = time.process_time()
         column_titles(junk)
-        assert time.perf_counter() - t < 10.0
+        assert time.process_time() - t < 10.0
