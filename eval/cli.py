@@ -24,6 +24,7 @@ from uavplace.infra.console import (
 )
 from uavplace.infra.files import shipped
 from uavplace.rl.cli import episode_options
+from uavplace.schemas.base import repeated
 
 
 @click.command()
@@ -169,7 +170,7 @@ def report(
     from uavplace.dataset.bundle import resolve
 
     cities = [d.split("@")[0] for d in datasets]
-    twice = sorted({c for c in cities if cities.count(c) > 1})
+    twice = repeated(cities)
     if twice:  # one folder, table and summary row per city: two versions of one city would overwrite each other
         given = ", ".join(d for d in datasets if d.split("@")[0] in twice)
         raise click.UsageError(f"--dataset names {', '.join(twice)} more than once ({given}): one report per city; "

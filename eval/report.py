@@ -41,7 +41,7 @@ from uavplace.eval.figures import Figure, pick_trajectories, plot_cdf, plot_trai
 from uavplace.eval.metrics import difference_table, group_tables
 from uavplace.eval.render import Report, difference_rows, group_rows, render_page, render_section, table_rows
 from uavplace.infra.files import atomic_directory, check_replaceable
-from uavplace.schemas.base import uavplace_version
+from uavplace.schemas.base import repeated, uavplace_version
 
 #: A report folder's marker: only a folder holding it is ever replaced.
 REPORT_JSON = "report.json"
@@ -67,9 +67,9 @@ def make_report(
     bundle = load_bundle(config.dataset, root=root)
     agents = [load_agent(r, config.test_epsilon, config.seed) for r in config.runs]
     check_unseen(agents, bundle)
-    names = [a.name for a in agents]
+    twice = set(repeated([a.name for a in agents]))
     for a in agents:  # same agent and preset twice: tell them apart by folder
-        if names.count(a.name) > 1:
+        if a.name in twice:
             a.name = a.policy.name = f"{a.name} [{a.folder.name}]"
     bounds, bound_notes = training_bounds(agents, root, config.p_t_db)
 

@@ -40,7 +40,7 @@ from uavplace.rl.agent.dqn import DQNConfig, parse_settings, preset_config
 from uavplace.rl.policies import GeniePolicy
 from uavplace.rl.rollout import format_stat
 from uavplace.schemas import InputError
-from uavplace.schemas.base import MAX_SEED, Contract
+from uavplace.schemas.base import MAX_SEED, Contract, repeated
 
 #: The spec, as it was given, beside the runs it made.
 SPEC_COPY = "sweep.toml"
@@ -120,7 +120,7 @@ class SweepSpec(Contract):
     def _names(self) -> SweepSpec:
         runs = self.run_names()
         if len(set(runs)) != len(runs):
-            raise ValueError(f"two trials share a run name: {sorted(r for r in runs if runs.count(r) > 1)[0]}")
+            raise ValueError(f"two trials share a run name: {repeated(runs)[0]}")
         for e in self.ensembles:
             unknown = [m for m in e.members if m not in runs]
             if unknown:

@@ -85,10 +85,12 @@ def write_model_json(model: BaseModel, path: str | Path) -> None:
     Path(path).write_text(model.model_dump_json(indent=2) + "\n", encoding="utf-8")
 
 
-def read_small_file(path: str | Path, what: str, missing: str | None = None, max_bytes: int | None = None) -> bytes:
+def read_small_file(path: str | Path, what: str, missing: str | None = None, max_bytes: int | None = None,
+                    limit: str = "record_bytes") -> bytes:  # fmt: skip
     """The bytes of a record or settings file; ``InputError`` naming it when it is missing (``missing``, or "no such
     file"), is not a regular file (a FIFO, a device, a folder: refused without waiting on it) or is over ``max_bytes``
-    (default: the limits' ``record_bytes``). ``what`` says what the file should be."""
+    (default: the limits' ``record_bytes``; ``limit`` names the limit a caller's ``max_bytes`` comes from). ``what``
+    says what the file should be."""
     from uavplace.infra.limits import limits
 
     path = Path(path)
@@ -104,13 +106,13 @@ def read_small_file(path: str | Path, what: str, missing: str | None = None, max
         if not stat.S_ISREG(info.st_mode):
             raise InputError(path, f"not a regular file: {what}")
         if info.st_size > bound:
-            raise InputError(path, f"over {bound:,} bytes (limit record_bytes): not {what}")
+            raise InputError(path, f"over {bound:,} bytes (limit {limit}): not {what}")
         with os.fdopen(os.dup(fd), "rb") as f:
             data = f.read(bound + 1)
     finally:
         os.close(fd)
     if len(data) > bound:
-        raise InputError(path, f"over {bound:,} bytes (limit record_bytes): not {what}")
+        raise InputError(path, f"over {bound:,} bytes (limit {limit}): not {what}")
     return data
 
 

@@ -72,8 +72,11 @@ def task_bundles(dataset: str | list[str], config: object, kind: type, root: str
     from uavplace.dataset.bundle import load_bundle
 
     base = config if isinstance(config, kind) else kind(**(config or {}))
+    # Validated as the command line's settings are (an unknown field, or a value out of its range, is refused):
+    # model_copy(update=...) would take anything.
+    merged = kind.model_validate({**base.model_dump(), **overrides})
     names = [dataset] if isinstance(dataset, str) else list(dataset)
-    return [load_bundle(n, root=root) for n in names], base.model_copy(update=overrides)
+    return [load_bundle(n, root=root) for n in names], merged
 
 
 def observation_bounds(config: object, *more_high: float) -> tuple[float, float]:
@@ -225,8 +228,17 @@ class UavFleetEnv(gym.Env):
         while episode is None:  # all randomness from Gymnasium's seeded generator
             episode = maps.draw(self.np_random)
         self._env.begin(np.array([0]), episode[None], np.array([0]))
+        self._playing = True
         return self._env.observe()[0], self._info()
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
-        reward, terminated, truncated = self._env.step(np.asarray(action, np.int64).reshape(1, -1))
+        """One step of every UAV; ``ValueError`` for a step before ``reset`` or after the episode ended, and for an
+        action that is not in the action space (K integers from 0 to 4: no float, string or out-of-range value)."""
+        if not getattr(self, "_playing", False):
+            raise ValueError("step() before reset(), or after the episode ended: call reset()")
+        moves = np.asarray(action)
+        if moves.shape != (self.config.uavs,) or moves.dtype.kind not in "iu" or ((moves < 0) | (moves > 4)).any():
+            raise ValueError(f"action {action!r}: expected {self.config.uavs} integers from 0 to 4 (the action space)")
+        reward, terminated, truncated = self._env.step(moves.astype(np.int64).reshape(1, -1))
+        self._playing = not (terminated[0] or truncated[0])
         return self._env.observe()[0], float(reward[0]), bool(terminated[0]), bool(truncated[0]), self._info()

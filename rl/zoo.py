@@ -55,6 +55,17 @@ class UavFleetParallelEnv(ParallelEnv):
         return self._split(obs, info)
 
     def step(self, actions: dict) -> tuple[dict, dict, dict, dict, dict]:
+        """One step of every UAV (an agent given no action stays); ``ValueError`` for a step before ``reset`` or after
+        the episode ended, an agent that is not live, and an action that is not in its space (an integer from 0 to
+        4: no float, string or out-of-range value, which a cast would have turned into a move)."""
+        if not self.agents:
+            raise ValueError("step() before reset(), or after the episode ended: call reset()")
+        unknown = sorted(set(actions) - set(self.agents), key=str)
+        if unknown:
+            raise ValueError(f"actions for {unknown}: not live agents ({', '.join(self.agents)})")
+        for agent, a in actions.items():
+            if isinstance(a, bool) or not isinstance(a, int | np.integer) or not 0 <= int(a) <= STAY:
+                raise ValueError(f"{agent}: action {a!r} is not in the action space (an integer from 0 to {STAY})")
         chosen = np.array([int(actions.get(a, STAY)) for a in self.possible_agents], np.int64)
         obs, reward, terminated, truncated, info = self.fleet.step(chosen)
         observations, infos = self._split(obs, info)

@@ -80,3 +80,11 @@ def uavplace_version() -> str:
         return version("uavplace")
     except PackageNotFoundError:
         return "0+src"
+
+
+def repeated(items: list) -> list:
+    """The items listed more than once, sorted: in time linear in the list (a count per item would be quadratic:
+    a roles file of a million names never finished)."""
+    from collections import Counter
+
+    return sorted(item for item, n in Counter(items).items() if n > 1)

@@ -22,7 +22,7 @@ from typing import Literal
 import pyarrow as pa
 from pydantic import ConfigDict, Field, field_validator, model_validator
 
-from uavplace.schemas.base import MAX_SEED, NAME_PATTERN, SCHEMA_VERSION, Contract
+from uavplace.schemas.base import MAX_SEED, NAME_PATTERN, SCHEMA_VERSION, Contract, repeated
 from uavplace.schemas.tables import FREQUENCY_RANGE_HZ, POWER_RANGE_DBM, RATIO_RANGE_DB, XY_RANGE_M, Z_RANGE_M, Column, TableSpec
 
 SplitRole = Literal["train", "val", "test"]
@@ -201,7 +201,7 @@ class CityRoles(Contract):
         bad = [n for n in names if not re.fullmatch(NAME_PATTERN, n)]
         if bad:
             raise ValueError(f"{bad[0]!r} is not a city name")
-        twice = sorted({n for n in names if names.count(n) > 1})
+        twice = repeated(names)
         if twice:
             raise ValueError(f"{twice[0]} is listed twice")
         return names

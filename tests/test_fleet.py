@@ -167,6 +167,36 @@ def test_pettingzoo_parallel_api_test_passes(tiny):
     assert len(set(rewards.values())) == 1 and len(set(terms.values())) == 1
 
 
+def test_pettingzoo_env_refuses_what_is_not_in_its_spaces(tiny):
+    """Overrides are validated as the command line's settings (an unknown one, uavs=99 or 0, users=0 refused before
+    any map is read); an action outside the action space (-1, 5, 2.7, '3', 2**70, 1e300), an unknown agent, a step
+    before reset() or after the episode ended: each one ValueError, never a numpy traceback or a coerced move."""
+    pytest.importorskip("pettingzoo", reason="PettingZoo missing (pip install -e '.[zoo]')")
+    from uavplace.rl.zoo import parallel_env
+
+    for bad in ({"uavs": 99}, {"uavs": 0}, {"users": 0}, {"no_such_field": 1}):
+        with pytest.raises(ValueError):
+            parallel_env("tiny", root=str(tiny), **bad)
+    env = parallel_env("tiny", root=str(tiny), uavs=2, users=2, window=9, t_max=3)
+    with pytest.raises(ValueError, match="before reset"):
+        env.step({"uav_0": 0})
+    env.reset(seed=0)
+    for action in (-1, 5, 2.7, -0.5, "3", 2**70, 1e300, None, np.float32(1)):
+        with pytest.raises(ValueError, match="action space"):
+            env.step({"uav_0": action})
+    with pytest.raises(ValueError, match="not live agents"):
+        env.step({"uav_7": 0})
+    while env.agents:
+        env.step({"uav_0": np.int64(4), "uav_1": 4})
+    with pytest.raises(ValueError, match="after the episode ended"):
+        env.step({"uav_0": 0})
+    fleet = env.fleet  # the Gymnasium env beneath it
+    fleet.reset(seed=1)
+    for action in ([0], [0, 5], [0.5, 1], ["1", "2"]):
+        with pytest.raises(ValueError, match="action space"):
+            fleet.step(np.array(action))
+
+
 def _scrambled(maps: FleetMaps, city: int, users: np.ndarray, keep: np.ndarray, rng: np.random.Generator) -> FleetMaps:
     """A copy of ``maps`` whose ``users`` of ``city`` hold random SINR and targets outside ``keep`` [L, L]."""
     import copy

@@ -180,3 +180,18 @@ def test_simulate_ranges_live_in_a_pydantic_model_bounded_by_the_limits():
         lo, hi = _range(name)
         assert lo is not None, name
         assert hi is not None or name in Limits.model_fields, name
+
+
+def test_duplicate_names_are_found_in_linear_time():
+    """A roles file's lists are checked for repeats with a count of each name, not a scan per name: 300,000 names
+    (which a scan per name takes hours on) validate at once, and a repeat is named."""
+    from pydantic import ValidationError
+
+    from uavplace.schemas.base import repeated
+    from uavplace.schemas.bundle import CityRoles
+
+    assert repeated(["b", "a", "b", "c", "a", "b"]) == ["a", "b"] and repeated([]) == []
+    names = [f"city-{i}" for i in range(300_000)]
+    assert len(CityRoles(val=names).val) == 300_000
+    with pytest.raises(ValidationError, match="city-7 is listed twice"):
+        CityRoles(val=[*names[:10], "city-7"])

@@ -392,3 +392,22 @@ def test_names_are_drawn_as_they_are_never_as_mathtext(tmp_path, shared):  # noq
     res = invoke(uavrl, *w.report("--run", str(weird), "--out", str(tmp_path / "rep")))
     assert res.exit_code == 0, res.output
     assert (tmp_path / "rep" / "report.html").is_file()
+
+
+def test_weights_files_that_are_fifos_are_refused_at_once(tmp_path):
+    """Every weights file goes through one regular-file, size-bounded read (``load_tensors``): a FIFO as a resume's
+    ``networks.pt`` or as ``--set init=DIR``'s ``best.pt`` is refused in one line, never waited on."""
+    from uavplace.rl.agent.checkpoint import load_tensors
+    from uavplace.rl.agent.train import start_from
+
+    os.mkfifo(tmp_path / "networks.pt")
+    err = _within(10, load_tensors, tmp_path / "networks.pt")
+    assert isinstance(err, InputError) and "not a regular file" in str(err)
+    init = tmp_path / "init"
+    (init / "checkpoints").mkdir(parents=True)
+    os.mkfifo(init / "checkpoints" / "best.pt")
+    config = type("Config", (), {"init": str(init), "init_member": 0})()
+    err = _within(10, start_from, None, config)
+    assert isinstance(err, InputError) and "best.pt" in str(err) and "not a regular file" in str(err)
+    err = _within(10, load_tensors, tmp_path / "absent.pt")
+    assert isinstance(err, InputError) and "no such checkpoint" in str(err)

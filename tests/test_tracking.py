@@ -345,6 +345,12 @@ def test_tracking_report_from_the_command_line(root, tmp_path):
     assert plain.exit_code == 0 and "+ hold" not in (tmp_path / "plain" / "tracking.md").read_text()
     refused = CliRunner().invoke(uavrl, [*args[:-1], "--group", f"g={tmp_path}"])
     assert refused.exit_code == 2 and "takes no --group" in refused.output
+    assert "tracking searcher" in table  # the shipped predictor's belief, carried through time (rl/tracksearch.py)
+    for p_t in ("100", "-100"):  # P_T above or below every map: no episode can start; one line, no report
+        odd = [str(tmp_path / f"odd{p_t}") if a == str(out) else a for a in args] + ["--p-t-db", p_t]
+        refused = CliRunner().invoke(uavrl, odd)
+        assert refused.exit_code == 2 and "--p-t-db" in refused.output and "internal error" not in refused.output
+        assert not (tmp_path / f"odd{p_t}").exists()
 
 
 @pytest.fixture(scope="module")

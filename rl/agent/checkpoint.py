@@ -32,7 +32,8 @@ from typing import Any
 import torch
 from pydantic import Field, model_validator
 
-from uavplace.infra.files import atomic_write_bytes
+from uavplace.infra.files import atomic_write_bytes, read_small_file
+from uavplace.infra.limits import limits
 from uavplace.schemas import InputError
 from uavplace.schemas.base import Contract
 
@@ -140,8 +141,13 @@ def load_tensors(path: str | Path, map_location: str | torch.device = "cpu") -> 
     checkpoint, and for one that is not a dict.
     """
     path = Path(path)
+    # Read as every record is: a regular file (a FIFO is refused at once, never waited on) of a bounded size: a
+    # network of the limit's parameters with its optimiser's two moments, in float32, and room to spare.
+    bound = 16 * limits().network_params
+    data = read_small_file(path, "a PyTorch checkpoint", missing="no such checkpoint", max_bytes=bound,
+                           limit="network_params x 16 bytes")  # fmt: skip
     try:
-        obj = torch.load(path, weights_only=True, map_location=map_location)
+        obj = torch.load(io.BytesIO(data), weights_only=True, map_location=map_location)
     except pickle.UnpicklingError as exc:
         found = _UNPICKLER_ERROR.search(str(exc))
         reason = found.group(1).strip() if found else (str(exc).strip().splitlines() or [type(exc).__name__])[0]
