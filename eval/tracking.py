@@ -340,8 +340,12 @@ def make_tracking_report(
         try:
             episodes = routes.sample_episodes(config.episodes, np.random.default_rng([config.seed, 7]))
         except ValueError:  # no start below P_T with a target reachable: P_T above or below every route's maps
-            raise InputError(b.path, f"at P_T = {config.task.p_t_db:g} dB no route has a start time and a cell below "
-                             "P_T from which a cell at P_T is reachable: choose another --p-t-db", field="p_t_db") from None
+            raise InputError(
+                b.path,
+                f"at P_T = {config.task.p_t_db:g} dB no route has a start time and a cell below "
+                "P_T from which a cell at P_T is reachable: choose another --p-t-db",
+                field="p_t_db",
+            ) from None
         results: dict[str, TrackingEpisodes] = {}
         for policy in tracking_methods(config.task, config.seed, agents, config.hold, searcher):
             if on_progress is not None:
