@@ -479,11 +479,13 @@ def _entry_digest(key: str, arrays: dict[str, np.ndarray]) -> str:
     return h.hexdigest()
 
 
-def read_cache_entry(path: Path, key: str) -> tuple[dict[str, np.ndarray] | None, str]:
+def read_cache_entry(path: Path, key: str, max_bytes: float | None = None) -> tuple[dict[str, np.ndarray] | None, str]:
     """A trace cache entry's arrays, or None and why it is not used: not a regular file, not a readable archive, an
-    array over the limits or of objects (read before any is decompressed), another key (other settings), or arrays
-    that do not match the sha256 the entry carries (damaged or altered). Never raises on a damaged entry."""
+    array over the limits or of objects, arrays that together hold more than ``max_bytes`` (what the simulation can
+    make: read from the headers before anything is decompressed), another key (other settings), or arrays that do
+    not match the sha256 the entry carries (damaged or altered). Never raises on a damaged entry."""
     bound = limits().array_bytes
+    total = 0
     try:
         with zipfile.ZipFile(path) as archive:
             for info in archive.infolist():
@@ -493,8 +495,12 @@ def read_cache_entry(path: Path, key: str) -> tuple[dict[str, np.ndarray] | None
                     if version not in read_header:
                         return None, f"{info.filename}: .npy format {version}"
                     shape, _, dtype = read_header[version](member)  # the header only, before anything is decompressed
-                if dtype.hasobject or int(np.prod(shape, dtype=np.float64)) * dtype.itemsize > bound:
+                size = int(np.prod(shape, dtype=np.float64)) * dtype.itemsize
+                if dtype.hasobject or size > bound:
                     return None, f"{info.filename}: {dtype} {shape} is over the limit array_bytes or not numbers"
+                total += size
+                if max_bytes is not None and total > max_bytes:
+                    return None, f"its arrays hold over {max_bytes:,.0f} bytes, more than this simulation makes"
         with np.load(path, allow_pickle=False) as z:
             if "key" not in z.files or str(z["key"]) != key:
                 return None, "made with other settings"
@@ -507,16 +513,16 @@ def read_cache_entry(path: Path, key: str) -> tuple[dict[str, np.ndarray] | None
     return arrays, "used"
 
 
-def _cached_traces(cache: Path | None, name: str, key: str, trace) -> tuple[dict, str]:  # noqa: ANN001
+def _cached_traces(cache: Path | None, name: str, key: str, trace, max_bytes: float | None = None) -> tuple[dict, str]:  # noqa: ANN001
     """``trace()``'s maps, or those kept in ``cache/<name>.npz`` under the same key (``trace_key``; arrays only, no
-    pickle, checked by ``read_cache_entry``); (maps, what became of the entry: ``used``, ``none``, or why it was
-    traced again). A new trace is kept there with its sha256, written atomically."""
+    pickle, checked by ``read_cache_entry``, at most ``max_bytes`` in all); (maps, what became of the entry: ``used``,
+    ``none``, or why it was traced again). A new trace is kept there with its sha256, written atomically."""
     path = None if cache is None else Path(cache) / f"{name}.npz"
     status = "none"
     if path is not None and (path.is_symlink() or (path.exists() and not path.is_file())):  # before minutes of tracing
         raise InputError(path, "exists and is not a regular file: not a trace cache entry; move it away", field="trace_cache")
     if path is not None and path.exists():
-        arrays, status = read_cache_entry(path, key)
+        arrays, status = read_cache_entry(path, key, max_bytes)
         if arrays is not None:
             return {(int(k[1:]) if k[0] == "f" and k[1:].isdigit() else k): v for k, v in arrays.items()}, status
         status = f"traced again: the entry was {status}" if status.startswith("made") else f"traced again: {status}"
@@ -645,8 +651,11 @@ def simulate_city(
                 seconds["direct"] = time.perf_counter() - t
             return maps
 
+        # What a trace of this city holds at most: a fine, a direct and each coarse map of float64 per source and cell,
+        # with room for the arrays beside them: an entry that inflates beyond it is not read.
+        most = 8.0 * len(sources) * grid.num_x * grid.num_y * (4 + 2 * len(rt_config.gap_fill_factors)) + 2**20
         maps, cached = _cached_traces(Path(trace_cache) if trace_cache else None, spec.name, trace_key(spec, rt_config),
-                                      trace)  # fmt: skip
+                                      trace, most)  # fmt: skip
         gain, source = fill(maps, rt_config, opened, squared_distances(sources, grid), cell_m=grid.spacing_m)
         completion = None
         if rt_config.complete_missed_samples:  # exact paths where the rays missed: their values, not the fill's estimates

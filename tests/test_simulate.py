@@ -521,6 +521,12 @@ def test_trace_cache_entries_are_checked_and_damage_is_traced_again(tmp_path):
         maps, status = _cached_traces(cache, "c", "settings A", trace)
         assert len(calls) == before + 1 and status.startswith("traced again") and message in status, (what, status)
         assert _cached_traces(cache, "c", "settings A", trace)[1] == "used"  # the new trace was kept, whole
+    # An entry whose arrays, each within the limits, hold more than this simulation makes (a 2 GB archive of a
+    # small city's key) is traced again from its headers, before anything is decompressed.
+    entry.write_bytes(rewrite(f0=np.zeros((1000, 3, 4))))
+    maps, status = _cached_traces(cache, "c", "settings A", trace, max_bytes=1000)
+    assert status.startswith("traced again") and "more than this simulation makes" in status, status
+    assert _cached_traces(cache, "c", "settings A", trace, max_bytes=1000)[1] == "used"
     entry.unlink()
     os.mkfifo(entry)
     with pytest.raises(InputError, match="not a regular file"):
