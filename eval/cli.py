@@ -22,7 +22,7 @@ from uavplace.infra.console import (
     stdout,
     warn_or_refuse,
 )
-from uavplace.infra.files import shipped
+from uavplace.infra.files import exclusive_folder, shipped
 from uavplace.rl.cli import episode_options
 from uavplace.schemas.base import repeated
 
@@ -190,87 +190,90 @@ def report(
         datasets = tuple(release_cities(root, routes=task == "tracking"))
     budget, option = (horizon, "--horizon") if task == "tracking" else (t_max, "--t-max")
     check_limit("episode_steps", episodes * budget, None, f"--episodes x {option}", field="episodes")
+    # One report into a folder at a time: a second one of the same folder, even of other agents, is refused at once
+    # (both would publish, the last one winning, and both would say they wrote it).
+    target = out or Path("reports") / ("" if task == "placement" else task)
+    with exclusive_folder(target, "report", kind="job"):
+        if task == "fleet":
+            from uavplace.eval.fleet import DEFAULT_AGENT
 
-    if task == "fleet":
-        from uavplace.eval.fleet import DEFAULT_AGENT
+            if groups or split:
+                raise click.UsageError("--task fleet plays every user set of the cities: it takes no --group or --split")
+            shipped = [p for p in default_agents(agents_dir) if p.name == DEFAULT_AGENT] + default_agents(agents_dir, "fleet")
+            chosen = list(runs) or shipped
+            _check_runs_once(chosen, "--run")
+            check_unseen_runs(chosen, list(datasets), root)
+            _check_training_settings(chosen, datasets, p_t_db, root, strict)
+            _fleet_report(datasets, chosen, out, episodes, t_max, p_t_db, test_epsilon, seed, n_boot, uavs, users, predictor,
+                          markdown, root, quiet)  # fmt: skip
+            return
+        chosen = list(runs) or default_agents(agents_dir, ("placement", "tracking") if task == "tracking" else "placement")
+        if task == "tracking":
+            _check_runs_once(chosen, "--run")
+            _check_training_settings(chosen, datasets, p_t_db, root, strict)
+            if groups or split:
+                raise click.UsageError("--task tracking plays every route of the cities: it takes no --group or --split")
+            _tracking_report(datasets, chosen, out, episodes, horizon, p_t_db, test_epsilon, seed, n_boot, trajectories,
+                             hold, markdown, root, quiet, predictor)  # fmt: skip
+            return
 
-        if groups or split:
-            raise click.UsageError("--task fleet plays every user set of the cities: it takes no --group or --split")
-        shipped = [p for p in default_agents(agents_dir) if p.name == DEFAULT_AGENT] + default_agents(agents_dir, "fleet")
-        chosen = list(runs) or shipped
         _check_runs_once(chosen, "--run")
-        check_unseen_runs(chosen, list(datasets), root)
+        grouped: dict[str, list[str]] = {}
+        for text in groups:
+            name, _, members = text.partition("=")
+            folders = [m for m in members.split(",") if m]
+            if not name or not folders:
+                raise click.UsageError(f"--group {text!r}: expected NAME=RUN,RUN,...")
+            if name in grouped:
+                raise click.UsageError(f"--group {name} is given twice: one group of each name")
+            if name in _method_names():
+                raise click.UsageError(f"--group {name}: the name of a method of the report; call the group otherwise")
+            _check_runs_once([Path(f) for f in folders], f"--group {name}")
+            grouped[name] = [str(Path(f)) for f in folders]
+            chosen += [Path(f) for f in folders if Path(f).resolve() not in {c.resolve() for c in chosen}]
+        _check_runs_once(chosen, "--run and --group")
+        check_unseen_runs(chosen, list(datasets), root)  # every city before the first city's report
         _check_training_settings(chosen, datasets, p_t_db, root, strict)
-        _fleet_report(datasets, chosen, out, episodes, t_max, p_t_db, test_epsilon, seed, n_boot, uavs, users, predictor,
-                      markdown, root, quiet)  # fmt: skip
-        return
-    chosen = list(runs) or default_agents(agents_dir, ("placement", "tracking") if task == "tracking" else "placement")
-    if task == "tracking":
-        _check_runs_once(chosen, "--run")
-        _check_training_settings(chosen, datasets, p_t_db, root, strict)
-        if groups or split:
-            raise click.UsageError("--task tracking plays every route of the cities: it takes no --group or --split")
-        _tracking_report(datasets, chosen, out, episodes, horizon, p_t_db, test_epsilon, seed, n_boot, trajectories,
-                         hold, markdown, root, quiet, predictor)  # fmt: skip
-        return
+        if len(datasets) > 1:
+            check_summary_page(out or Path("reports"))
+        folders = {d: out if out and len(datasets) == 1 else (out or Path("reports")) / d.split("@")[0] for d in datasets}
+        if not overwrite:
+            for folder in folders.values():
+                _check_same_agents(folder, chosen)
+        reports = []
+        for dataset in datasets:
+            config = ReportConfig(
+                dataset=dataset, runs=[str(r) for r in chosen], episodes=episodes, t_max=t_max, p_t_db=p_t_db,
+                test_epsilon=test_epsilon, seed=seed, n_boot=n_boot, trajectories=trajectories, split=split, groups=grouped,
+                predictor=None if predictor.lower() == "none" else predictor,
+            )  # fmt: skip
+            result = _one_report(config, folders[dataset], root, quiet)
+            reports.append(result)
+            title = f"{episodes} episodes in {dataset} (t_max {t_max}, P_T {p_t_db:g} dB)"
+            rows = result.rows
+            if stdout().is_terminal:  # a terminal gets the columns that fit; the full table is in the report and --markdown
+                rows = terminal_columns(rows)
+                title += f"; every column: {result.out / 'report.html'}"
+            stdout().print(plain_table(*rows[0], rows=rows[1:], title=title))
+            if len(result.diff_rows) > 1:
+                stdout().print(plain_table(*result.diff_rows[0], rows=result.diff_rows[1:],
+                                           title=f"paired differences in {dataset}, method minus reference, 95 % intervals"))  # fmt: skip
+            if result.group_rows is not None:
+                stdout().print(plain_table(*result.group_rows[0], rows=result.group_rows[1:],
+                                           title=f"groups of runs in {dataset}: mean over runs [interval over runs, users, "
+                                           "episodes] (runs' range)"))  # fmt: skip
+            stdout().print(f"report: {result.out / 'report.html'}", highlight=False, soft_wrap=True)
+        if len(datasets) > 1:
+            rows = summary_rows(reports, t_max)
+            stdout().print(plain_table(*rows[0], rows=rows[1:], title="success / median steps per method and city"))
+            page = write_summary_page(reports, out or Path("reports"), t_max)
+            stdout().print(f"report (every city): {page}", highlight=False, soft_wrap=True)
+        if markdown is not None:
+            from uavplace.eval.render import markdown_tables
+            from uavplace.infra.files import atomic_write_text
 
-    _check_runs_once(chosen, "--run")
-    grouped: dict[str, list[str]] = {}
-    for text in groups:
-        name, _, members = text.partition("=")
-        folders = [m for m in members.split(",") if m]
-        if not name or not folders:
-            raise click.UsageError(f"--group {text!r}: expected NAME=RUN,RUN,...")
-        if name in grouped:
-            raise click.UsageError(f"--group {name} is given twice: one group of each name")
-        if name in _method_names():
-            raise click.UsageError(f"--group {name}: the name of a method of the report; call the group otherwise")
-        _check_runs_once([Path(f) for f in folders], f"--group {name}")
-        grouped[name] = [str(Path(f)) for f in folders]
-        chosen += [Path(f) for f in folders if Path(f).resolve() not in {c.resolve() for c in chosen}]
-    _check_runs_once(chosen, "--run and --group")
-    check_unseen_runs(chosen, list(datasets), root)  # every city before the first city's report
-    _check_training_settings(chosen, datasets, p_t_db, root, strict)
-    if len(datasets) > 1:
-        check_summary_page(out or Path("reports"))
-    folders = {d: out if out and len(datasets) == 1 else (out or Path("reports")) / d.split("@")[0] for d in datasets}
-    if not overwrite:
-        for folder in folders.values():
-            _check_same_agents(folder, chosen)
-    reports = []
-    for dataset in datasets:
-        config = ReportConfig(
-            dataset=dataset, runs=[str(r) for r in chosen], episodes=episodes, t_max=t_max, p_t_db=p_t_db,
-            test_epsilon=test_epsilon, seed=seed, n_boot=n_boot, trajectories=trajectories, split=split, groups=grouped,
-            predictor=None if predictor.lower() == "none" else predictor,
-        )  # fmt: skip
-        result = _one_report(config, folders[dataset], root, quiet)
-        reports.append(result)
-        title = f"{episodes} episodes in {dataset} (t_max {t_max}, P_T {p_t_db:g} dB)"
-        rows = result.rows
-        if stdout().is_terminal:  # a terminal gets the columns that fit; the full table is in the report and --markdown
-            rows = terminal_columns(rows)
-            title += f"; every column: {result.out / 'report.html'}"
-        stdout().print(plain_table(*rows[0], rows=rows[1:], title=title))
-        if len(result.diff_rows) > 1:
-            stdout().print(plain_table(*result.diff_rows[0], rows=result.diff_rows[1:],
-                                       title=f"paired differences in {dataset}, method minus reference, 95 % intervals"))  # fmt: skip
-        if result.group_rows is not None:
-            stdout().print(plain_table(*result.group_rows[0], rows=result.group_rows[1:],
-                                       title=f"groups of runs in {dataset}: mean over runs [interval over runs, users, "
-                                       "episodes] (runs' range)"))  # fmt: skip
-        stdout().print(f"report: {result.out / 'report.html'}", highlight=False, soft_wrap=True)
-    if len(datasets) > 1:
-        rows = summary_rows(reports, t_max)
-        stdout().print(plain_table(*rows[0], rows=rows[1:], title="success / median steps per method and city"))
-        page = write_summary_page(reports, out or Path("reports"), t_max)
-        stdout().print(f"report (every city): {page}", highlight=False, soft_wrap=True)
-    if markdown is not None:
-        from uavplace.eval.render import markdown_tables
-        from uavplace.infra.files import atomic_write_text
-
-        atomic_write_text(markdown, markdown_tables(reports, t_max))
-        stdout().print(f"tables (Markdown): {markdown}", highlight=False, soft_wrap=True)
+            atomic_write_text(markdown, markdown_tables(reports, t_max))
+            stdout().print(f"tables (Markdown): {markdown}", highlight=False, soft_wrap=True)
 
 
 #: The columns of a report's table that a terminal shows (they fit 120 columns).

@@ -201,18 +201,21 @@ def folder_lock(final: str | Path) -> Iterator[None]:
         os.close(fd)  # closing the descriptor releases the lock
 
 
-def _open_lock(final: str | Path) -> int:
-    """A descriptor of ``final``'s lock file, ``.<name>.lock`` beside it (created, with its parent, if missing)."""
+def _open_lock(final: str | Path, kind: str = "") -> int:
+    """A descriptor of ``final``'s lock file, ``.<name>.lock`` beside it (``.<name>.<kind>.lock``: a second lock of
+    the same folder), created with its parent if missing."""
     final = Path(final)
     final.parent.mkdir(parents=True, exist_ok=True)
-    return os.open(final.parent / f".{final.name}.lock", os.O_RDWR | os.O_CREAT, 0o644)
+    name = f".{final.name}.{kind}.lock" if kind else f".{final.name}.lock"
+    return os.open(final.parent / name, os.O_RDWR | os.O_CREAT, 0o644)
 
 
 @contextlib.contextmanager
-def exclusive_folder(final: str | Path, what: str) -> Iterator[None]:
-    """Hold ``final``'s lock (``folder_lock``'s file) for the whole block, or refuse at once (``InputError``) when
-    another process holds it: for long work on one folder (a training run) that a second command must not join."""
-    fd = _open_lock(final)
+def exclusive_folder(final: str | Path, what: str, kind: str = "") -> Iterator[None]:
+    """Hold ``final``'s lock (``folder_lock``'s file; with ``kind``, a lock of its own, so that the block may publish
+    ``final`` itself with ``atomic_directory``) for the whole block, or refuse at once (``InputError``) when another
+    process holds it: for long work on one folder (a training run, a report) that a second command must not join."""
+    fd = _open_lock(final, kind)
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)

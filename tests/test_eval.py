@@ -462,3 +462,20 @@ def test_shipped_agents_and_predictor_are_found_from_any_working_folder(tiny, tm
     assert "map searcher" in methods and any("(best)" in m for m in methods)
     with pytest.raises(InputError, match=str(DEFAULT_PREDICTOR)):
         load_predictor(tmp_path / "nowhere")
+
+
+def test_a_report_folder_takes_one_report_at_a_time(tiny, tmp_path):
+    """While one report works on a folder (its job lock held), a second report of that folder, of any task, is
+    refused at once in one line, and nothing of it is written."""
+    from uavplace.infra.files import exclusive_folder
+
+    out = tmp_path / "same"
+    args = ["report", "--dataset", "tiny", "--root", str(tiny), "--episodes", "4", "--bootstrap", "100", "--out",
+            str(out), "--predictor", "none", "--quiet"]  # fmt: skip
+    with exclusive_folder(out, "report", kind="job"):  # as a first report holds it while it plays
+        res = CliRunner().invoke(uavrl, args)
+        assert res.exit_code == 2 and "another process is working on this report now" in res.output, res.output
+        assert not out.exists()
+    res = CliRunner().invoke(uavrl, args)  # once the first is done, the folder is free
+    assert res.exit_code == 0, res.output
+    assert (out / "report.html").is_file()
