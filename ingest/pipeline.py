@@ -405,6 +405,19 @@ def _transmitters(sets: list[TxRxSet], setup: SetupInfo | None, seen: set[tuple[
     return TRANSMITTERS.conform(pa.Table.from_pydict(rows))
 
 
+def export_receivers(sets: dict[int, TxRxSet], groups: dict) -> int | None:
+    """How many receivers an export's ``.p2m`` files hold: each (transmitter point, receiver set) group's receivers,
+    from the ``.txrx`` sets (a grid's rows times columns, else its vertices); None when a set is not known."""
+    total = 0
+    for _tx_set, _tx_point, rx_set in groups:
+        s = sets.get(rx_set)
+        if s is None:
+            return None
+        shape = s.grid_shape
+        total += shape[0] * shape[1] if shape is not None else len(s.vertices_m)
+    return total
+
+
 def _single(files: list[Classified], kind: str) -> Classified | None:
     if len(files) > 1:
         raise InputError(
@@ -509,7 +522,7 @@ def ingest_city(
     receivers = _ReceiverReader(sets, setup, warnings, tick, done)
     if (f := _single(by_kind["cells"], "provenance.csv.gz")) is not None:
         tick(f.rel)
-        receivers.codes, receivers.codes_source = read_provenance(f.path, f.rel), f.rel
+        receivers.codes, receivers.codes_source = read_provenance(f.path, f.rel, export_receivers(sets, groups)), f.rel
         done(f, rows=sum(len(c) for c in receivers.codes.values()), message=f"provenance of {len(receivers.codes)} "
              "transmitter(s) x receiver set(s)")  # fmt: skip
     else:

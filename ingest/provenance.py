@@ -31,29 +31,42 @@ from uavplace.schemas.provenance import (
     code_name,
 )
 
+#: The longest line a side file may hold [characters]: a run is six integers.
+MAX_LINE = 4096
+#: Bytes of text a side file may hold per receiver it describes, and for its comments.
+BYTES_PER_RECEIVER, COMMENT_BYTES = 64, 1 << 16
 
-def _text(path: Path, source: str) -> str:
-    """The decompressed text, within the limit ``export_bytes`` (read in pieces: a small archive cannot expand into
-    gigabytes before it is refused)."""
-    chunks, size = [], 0
+
+def _lines(path: Path, source: str, max_bytes: float):
+    """The decompressed text's lines, streamed (a small archive cannot expand into gigabytes in memory): refused
+    past ``max_bytes`` in all (and the limit ``export_bytes``), or at a line longer than ``MAX_LINE``."""
+    size = 0
     try:
-        with gzip.open(path, "rb") if path.name.lower().endswith(".gz") else path.open("rb") as f:
-            while chunk := f.read(1 << 20):
-                size += len(chunk)
+        with gzip.open(path, "rb") if path.name.lower().endswith(".gz") else path.open("rb") as raw:
+            text = io.TextIOWrapper(raw, encoding="utf-8-sig", newline="")
+            while line := text.readline(MAX_LINE + 1):
+                if len(line) > MAX_LINE:
+                    raise InputError(source, f"a line longer than {MAX_LINE} characters: not a provenance side file",
+                                     field="row")  # fmt: skip
+                size += len(line)
+                if size > max_bytes:
+                    raise InputError(source, f"over {max_bytes:,.0f} characters of text: more than runs of the "
+                                     "export's receivers take", field="row")  # fmt: skip
                 check_limit("export_bytes", size, source, "size of the (decompressed) text [bytes]")
-                chunks.append(chunk)
+                yield line
     except (OSError, EOFError, zlib.error) as exc:
         raise InputError(source, f"not a readable gzip file ({type(exc).__name__}: {str(exc)[:120]})") from None
-    try:
-        return b"".join(chunks).decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise InputError(source, f"not UTF-8 text ({exc.reason} at byte {exc.start})", field="encoding") from None
 
 
-def read_provenance(path: Path, source: str) -> dict[tuple[int, int, int], np.ndarray]:
+def read_provenance(path: Path, source: str, receivers: int | None = None) -> dict[tuple[int, int, int], np.ndarray]:
     """The codes of a side file: ``{(tx_set, tx_point, rx_set): codes [N] of receivers 1..N}`` (uint8); ``InputError``
-    naming the file, line and field of the first problem."""
-    reader = csv.reader(io.StringIO(_text(path, source), newline=""))
+    naming the file, line and field of the first problem. ``receivers``: how many the export holds (its receiver
+    sets times its transmitters, when known): the text may hold ``BYTES_PER_RECEIVER`` for each and
+    ``COMMENT_BYTES`` more, and is read as a stream."""
+    bound = float("inf") if receivers is None else BYTES_PER_RECEIVER * receivers + COMMENT_BYTES
+    reader = csv.reader(_lines(path, source, bound))
     runs: dict[tuple[int, int, int], list[tuple[int, int]]] = {}
     ends: dict[tuple[int, int, int], int] = {}
     header_seen = False

@@ -117,6 +117,17 @@ def test_the_side_file_round_trips_and_refuses_what_is_not_a_run_of_codes(tmp_pa
     f.write_bytes(b"not gzip")
     with pytest.raises(InputError, match="not a readable gzip file"):
         read_provenance(f, f.name)
+    # A small gzip of newlines (2 GB of text) or of one endless line is refused as it streams, past what runs of the
+    # export's receivers take, never read whole (it once reached 4.6 GB of memory).
+    f.write_bytes(gzip.compress(b"\n" * 20_000_000))
+    with pytest.raises(InputError, match="more than runs of the export's receivers take"):
+        read_provenance(f, f.name, receivers=16)
+    f.write_bytes(gzip.compress(b"1" * 10_000))
+    with pytest.raises(InputError, match="a line longer than 4096 characters"):
+        read_provenance(f, f.name)
+    f.write_bytes(gzip.compress(b"\xff\xfe garbage\n"))
+    with pytest.raises(InputError, match="not UTF-8"):
+        read_provenance(f, f.name)
 
 
 def _codes_for(folder, root) -> dict[tuple[int, int], np.ndarray]:
