@@ -316,3 +316,20 @@ def describe_os_error(err: OSError) -> str:
     if err.errno == errno.ENOSPC:
         return f"{where}: no space left on device (nothing was published; free space and run again)"
     return f"{where}: {err.strerror or err}"
+
+
+def regular_file_bytes(path: Path, name: str, limit: str) -> bytes:
+    """The bytes of ``path`` if it is a regular file within the limit ``limit`` (``mesh_bytes``: a mesh, or a file a
+    mesh refers to, an OBJ's material library, a glTF's buffer; ``text_bytes``: a text export), else ``InputError``.
+    Checked with ``stat`` before opening: a FIFO or a device would block or never end, and a sparse file of
+    gigabytes is refused by its size before a byte of it is read."""
+    from uavplace.infra.limits import check_limit
+
+    try:
+        st = os.stat(path)
+    except OSError as exc:
+        raise InputError(name, f"cannot read ({exc.strerror})") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise InputError(name, "not a regular file (a FIFO, device or folder): refused")
+    check_limit(limit, st.st_size, name, "file size [bytes]")
+    return path.read_bytes()

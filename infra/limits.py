@@ -30,6 +30,12 @@ class Limits(Contract):
     mesh_bytes: int = Field(
         default=256 * 2**20, ge=1, description="Size of one mesh file (PLY, OBJ, glTF) read by ingest or simulate [bytes]"
     )
+    text_bytes: int = Field(
+        default=256 * 2**20,
+        ge=1,
+        description="One text export read whole by ingest or simulate: .city, .txrx, .setup, GeoJSON, routes, Mitsuba "
+        "XML [bytes]",
+    )
     route_points: int = Field(default=100_000, ge=1, description="Rows of one routes table (ingest)")
     record_bytes: int = Field(
         default=16 * 2**20,

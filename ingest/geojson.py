@@ -27,6 +27,7 @@ import numpy as np
 import shapely
 from shapely.geometry import shape
 
+from uavplace.infra.files import regular_file_bytes
 from uavplace.ingest.buildings import BuildingRecord, Part
 from uavplace.schemas import InputError, Rejection
 from uavplace.schemas.tables import BUILDINGS
@@ -114,7 +115,7 @@ def _base(props: dict, where: str, index: int) -> float:
 
 def _load(path: Path, name: str) -> object:
     """The parsed JSON document; ``InputError`` for text that is not UTF-8 JSON."""
-    raw = path.read_bytes()
+    raw = regular_file_bytes(path, name, "text_bytes")
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:

@@ -10,14 +10,12 @@ plane) are rejected and counted, not taken as buildings.
 from __future__ import annotations
 
 import io
-import os
-import stat
 from pathlib import Path
 
 import numpy as np
 import shapely
 
-from uavplace.infra.limits import check_limit
+from uavplace.infra.files import regular_file_bytes
 from uavplace.ingest.buildings import MIN_AREA_M2, BuildingRecord, Part
 from uavplace.schemas import InputError, Rejection
 
@@ -32,20 +30,6 @@ _PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort"
               "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}  # fmt: skip
 
 
-def regular_file_bytes(path: Path, name: str) -> bytes:
-    """The bytes of ``path`` if it is a regular file within the limit ``mesh_bytes`` (a mesh, or a file a mesh refers
-    to: an OBJ's material library, a glTF's buffer), else ``InputError``. Checked with ``stat`` before opening: a FIFO
-    or a device would block or never end."""
-    try:
-        st = os.stat(path)
-    except OSError as exc:
-        raise InputError(name, f"cannot read ({exc.strerror})") from None
-    if not stat.S_ISREG(st.st_mode):
-        raise InputError(name, "not a regular file (a FIFO, device or folder): refused")
-    check_limit("mesh_bytes", st.st_size, name, "file size [bytes]")
-    return path.read_bytes()
-
-
 def _folder_resolver(folder: Path):  # noqa: ANN202 - a trimesh resolver
     """A trimesh resolver that reads only regular files inside ``folder``, each within the limit ``mesh_bytes``."""
     from trimesh.resolvers import FilePathResolver
@@ -56,7 +40,7 @@ def _folder_resolver(folder: Path):  # noqa: ANN202 - a trimesh resolver
             if not path.is_relative_to(folder.resolve()):
                 raise ValueError(f"'{name}' is outside the mesh's folder")
             try:
-                return regular_file_bytes(path, name)
+                return regular_file_bytes(path, name, "mesh_bytes")
             except InputError as exc:
                 raise ValueError(str(exc)) from None
 
@@ -97,7 +81,7 @@ def load_mesh(path: Path, name: str, *, process: bool):  # noqa: ANN201 - a trim
     index existing vertices, finite vertices. ``InputError`` naming ``name`` otherwise."""
     import trimesh  # heavy (about 50 MB): only for cities that ship meshes
 
-    data = regular_file_bytes(path, name)
+    data = regular_file_bytes(path, name, "mesh_bytes")
     kind = path.suffix.lower().lstrip(".")
     if kind == "ply":
         check_ply_header(data, name)

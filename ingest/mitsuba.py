@@ -29,6 +29,7 @@ from xml.parsers import expat
 import numpy as np
 import shapely
 
+from uavplace.infra.files import regular_file_bytes
 from uavplace.ingest.buildings import MIN_AREA_M2, BuildingRecord, Part, crop_records
 from uavplace.ingest.mesh import FLAT_M, bodies, load_mesh
 from uavplace.schemas import InputError, Rejection
@@ -84,7 +85,7 @@ def refuse_declarations(raw: bytes, name: str) -> None:
 
 def _scene_shapes(xml_path: Path, name: str) -> tuple[list[tuple[str, Path]], list[Rejection]]:
     """(shape id, mesh file) of every mesh shape, after the safety checks; other shapes rejected."""
-    raw = xml_path.read_bytes()
+    raw = regular_file_bytes(xml_path, name, "text_bytes")
     refuse_declarations(raw, name)
     try:
         root = ET.fromstring(raw)

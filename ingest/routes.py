@@ -20,6 +20,7 @@ import numpy as np
 import pyarrow as pa
 import shapely
 
+from uavplace.infra.files import regular_file_bytes
 from uavplace.infra.limits import check_limit
 from uavplace.schemas import ROUTES, InputError
 from uavplace.schemas.tables import ROUTE_KINDS, ROUTE_MAX_SPEED_MPS, ROUTE_MAX_STEP_M
@@ -58,7 +59,7 @@ def csv_rows(reader, source: str):  # noqa: ANN001, ANN202 - a csv.reader; yield
 def read_routes(path: Path, source: str, transmitters: pa.Table, footprints: list[shapely.Geometry]) -> pa.Table:
     """The ``ROUTES`` table of a routes file; ``InputError`` naming the file, line and field of the first problem.
     ``transmitters``: the ingest's transmitters table; ``footprints``: the building footprints at ground level."""
-    data = path.read_bytes()
+    data = regular_file_bytes(path, source, "text_bytes")
     try:
         text = data.decode("utf-8-sig")  # a byte-order mark is accepted, as in every other export
     except UnicodeDecodeError as exc:

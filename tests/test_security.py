@@ -411,3 +411,21 @@ def test_weights_files_that_are_fifos_are_refused_at_once(tmp_path):
     assert isinstance(err, InputError) and "best.pt" in str(err) and "not a regular file" in str(err)
     err = _within(10, load_tensors, tmp_path / "absent.pt")
     assert isinstance(err, InputError) and "no such checkpoint" in str(err)
+
+
+def test_sparse_text_exports_are_refused_by_their_size(tmp_path):
+    """A sparse 2 GB .city, .txrx, .setup, GeoJSON or routes file is refused by its size (``text_bytes``) before any of
+    it is read, in one line naming the limit; a FIFO in their place is refused at once."""
+    from uavplace.ingest.geojson import read_geojson
+    from uavplace.ingest.wireless_insite.keyword import read_text
+
+    for name in ("big.city", "big.txrx", "big.setup", "big.geojson"):
+        path = tmp_path / name
+        with path.open("wb") as f:  # 2 GB that take no disk
+            f.truncate(2 * 2**30)
+        reader = read_text if not name.endswith("geojson") else read_geojson
+        err = _within(10, reader, path, name)
+        assert isinstance(err, InputError) and "text_bytes" in str(err), err
+    os.mkfifo(tmp_path / "fifo.txrx")
+    err = _within(10, read_text, tmp_path / "fifo.txrx", "fifo.txrx")
+    assert isinstance(err, InputError) and "not a regular file" in str(err)

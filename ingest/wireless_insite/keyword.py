@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from uavplace.infra.files import regular_file_bytes
 from uavplace.schemas import InputError
 from uavplace.schemas.tables import XY_RANGE_M, Z_RANGE_M, Column
 
@@ -147,7 +148,7 @@ def read_text(path: str | Path, display: str | None = None) -> str:
 
     Binary data (NUL bytes outside UTF-16) is an ``InputError``.
     """
-    raw = Path(path).read_bytes()
+    raw = regular_file_bytes(Path(path), str(display or path), "text_bytes")
     if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
         try:
             return raw.decode("utf-16")
