@@ -50,7 +50,16 @@ class Limits(Contract):
         default=8 * GiB, ge=1, description="One array of a bundle, from its .npy header, before reading [bytes]"
     )
     grid_cells: int = Field(
-        default=4_000_000, ge=1, description="Cells of one bundle's grid (uavdata build: extent / grid squared)"
+        default=4_000_000,
+        ge=1,
+        description="Cells of one grid, extent / grid squared: a bundle's (uavdata build) or a simulated receiver grid's "
+        "(uavdata simulate)",
+    )
+    buildings: int = Field(
+        default=50_000,
+        ge=1,
+        description="Buildings or shapes of one city's geometry (a .city's structures, a GeoJSON's features, a Mitsuba "
+        "scene's shapes), counted before any is processed",
     )
     map_bytes: int = Field(
         default=6 * GiB, ge=1, description="The per-user maps of one build, users x cells x 8 bytes, held in memory [bytes]"
@@ -74,7 +83,7 @@ class Limits(Contract):
     episodes: int = Field(default=1_000_000, ge=1, description="Episodes of one evaluation (report, baselines) per city")
     t_max: int = Field(default=100_000, ge=1, description="Step budget of one evaluation episode (--t-max)")
     episode_steps: int = Field(
-        default=50_000_000,
+        default=5_000_000,
         ge=1,
         description="Episodes x step budget of one evaluation per city (--episodes x --t-max or --horizon): the steps "
         "it plays and, for tracking, the coverage it holds per method",

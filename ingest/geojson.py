@@ -28,6 +28,7 @@ import shapely
 from shapely.geometry import shape
 
 from uavplace.infra.files import regular_file_bytes
+from uavplace.infra.limits import check_limit
 from uavplace.ingest.buildings import BuildingRecord, Part
 from uavplace.schemas import InputError, Rejection
 from uavplace.schemas.tables import BUILDINGS
@@ -139,6 +140,7 @@ def read_geojson(path: str | Path, display: str | None = None) -> tuple[list[Bui
     if not isinstance(doc, dict) or doc.get("type") != "FeatureCollection" or not isinstance(doc.get("features"), list):
         kind = f"a JSON {type(doc).__name__}" if not isinstance(doc, dict) else f"type {doc.get('type')!r}"
         raise InputError(name, f"not a GeoJSON FeatureCollection ({kind})", field="type")
+    check_limit("buildings", len(doc["features"]), name, "features of the GeoJSON (before any is processed)")
     records, rejected = [], []
     for i, feature in enumerate(doc["features"]):
         field = f"features[{i}]"

@@ -30,6 +30,7 @@ import numpy as np
 import shapely
 
 from uavplace.infra.files import regular_file_bytes
+from uavplace.infra.limits import check_limit
 from uavplace.ingest.buildings import MIN_AREA_M2, BuildingRecord, Part, crop_records
 from uavplace.ingest.mesh import FLAT_M, bodies, load_mesh
 from uavplace.schemas import InputError, Rejection
@@ -105,6 +106,7 @@ def _scene_shapes(xml_path: Path, name: str) -> tuple[list[tuple[str, Path]], li
             "export the scene with every mesh as a shape of its own", field=found.get("id") or found.tag,
         )  # fmt: skip
     folder = xml_path.parent.resolve()
+    check_limit("buildings", sum(1 for _ in root.iter("shape")), name, "shapes of the scene (before any is read)")
     shapes, rejected = [], []
     for i, shape in enumerate(root.iter("shape")):
         sid = shape.get("id") or f"shape[{i}]"

@@ -185,6 +185,8 @@ def check_simulation(spec: SimulationSpec, config: RayTraceConfig, count: int = 
             raise InputError(option, f"{box}: expected finite XMIN,YMIN,XMAX,YMAX with XMIN < XMAX and YMIN < YMAX", field="box")
         _bounded(max(box[2] - box[0], box[3] - box[1]), "extent_m", option)
         cells = ((box[2] - box[0]) // spec.grid_m) * ((box[3] - box[1]) // spec.grid_m)
+        check_limit("grid_cells", cells, option, "cells of the receiver grid (the extent over the grid squared)",
+                    field="grid_m")  # fmt: skip
         _bounded(cells * (len(spec.users_m) or spec.num_users), "user_cells", f"{option} with --grid and --users")
     for k, (x, y) in enumerate(spec.users_m):
         if not (np.isfinite(x) and np.isfinite(y)):
@@ -358,6 +360,10 @@ def buildings_of(blocks: list[Block]) -> list[list[tuple[shapely.Polygon, float,
 def receiver_grid(bounds: tuple[float, float, float, float], spec: SimulationSpec) -> ReceiverGrid:
     x0, y0, x1, y1 = spec.extent_m or bounds
     nx, ny = int((x1 - x0) // spec.grid_m), int((y1 - y0) // spec.grid_m)
+    # The work of the radio maps grows with the cells as well as with the rays: a grid no build could take is refused
+    # before the ray tracer starts (a 5 km extent at 1 m held 25 M cells and ran for hours).
+    check_limit("grid_cells", nx * ny, "--grid", "cells of the receiver grid (the extent over the grid squared)",
+                field="grid_m")  # fmt: skip
     _bounded(nx * ny * (len(spec.users_m) or spec.num_users), "user_cells", "--grid with --users (the city's size)")
     if nx < 2 or ny < 2:
         raise InputError(

@@ -429,3 +429,25 @@ def test_sparse_text_exports_are_refused_by_their_size(tmp_path):
     os.mkfifo(tmp_path / "fifo.txrx")
     err = _within(10, read_text, tmp_path / "fifo.txrx", "fifo.txrx")
     assert isinstance(err, InputError) and "not a regular file" in str(err)
+
+
+def test_work_is_bounded_before_it_starts(tmp_path):
+    """Each command estimates its work before it starts and refuses in seconds, naming the limit: a simulated grid
+    of 25 M cells (grid_cells), a GeoJSON of more features than the limit buildings, an evaluation of a million
+    50-step episodes (episode_steps)."""
+    import json
+
+    from uavplace.ingest.geojson import read_geojson
+    from uavplace.simulate.pipeline import SimulationSpec, check_simulation
+    from uavplace.simulate.raytrace import RayTraceConfig
+
+    spec = SimulationSpec(source="procedural:mixed", name="x", num_users=1, grid_m=1.0, extent_m=(0.0, 0.0, 5000.0, 5000.0))
+    err = _within(10, check_simulation, spec, RayTraceConfig())
+    assert isinstance(err, InputError) and "grid_cells" in str(err)
+    square = {"type": "Polygon", "coordinates": [[[0, 0], [1, 0], [1, 1], [0, 1], [0, 0]]]}
+    feature = {"type": "Feature", "geometry": square, "properties": {"height": 10}}
+    (tmp_path / "many.geojson").write_text(json.dumps({"type": "FeatureCollection", "features": [feature] * 50_001}))
+    err = _within(30, read_geojson, tmp_path / "many.geojson", "many.geojson")
+    assert isinstance(err, InputError) and "buildings" in str(err)
+    res = _within(60, invoke, uavrl, "report", "--dataset", "tiny", "--episodes", "1000000", "--t-max", "50")
+    assert res.exit_code == 2 and "episode_steps" in res.output, res.output

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import shapely
 
+from uavplace.infra.limits import check_limit
 from uavplace.ingest.buildings import BuildingRecord, Part
 from uavplace.ingest.wireless_insite.keyword import N_VERTICES, Block, parse_keyword_file
 from uavplace.schemas import InputError
@@ -65,8 +66,10 @@ def read_city(path: str | Path, display: str | None = None) -> list[BuildingReco
     """Buildings of an InSite .city file, one per ``structure``, in file order."""
     name = display or str(path)
     root = parse_keyword_file(path, name)
+    structures = list(root.walk("structure"))
+    check_limit("buildings", len(structures), name, "structures of the .city (before any is processed)")
     records = []
-    for structure in root.walk("structure"):
+    for structure in structures:
         subs = structure.blocks("sub_structure") or [structure]
         parts = []
         for sub in subs:
