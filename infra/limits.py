@@ -90,6 +90,12 @@ class Limits(Contract):
     )
     sweep_runs: int = Field(default=1000, ge=1, description="Runs of one sweep file (its trials x their seeds)")
     bootstrap: int = Field(default=1_000_000, ge=1, description="Bootstrap resamples of a report's intervals (--bootstrap)")
+    predictor_step_bytes: int = Field(
+        default=2 * GiB,
+        ge=1,
+        description="Activations of one training step of the learned predictor: crops x each level's cells x its "
+        "channels x 32 bytes (forward and backward) [bytes]",
+    )
     prediction_bytes: int = Field(
         default=4 * GiB, ge=1, description="The map searcher's predicted maps of one city, candidates x legal cells x 12 bytes"
     )

@@ -31,6 +31,7 @@ from torch.nn import functional as F
 
 from uavplace.dataset.trainmaps import TrainingMaps
 from uavplace.infra.files import read_model_json, sha256_file, write_model_json
+from uavplace.infra.limits import check_limit
 from uavplace.rl.agent.checkpoint import load_tensors, save_tensors
 from uavplace.rl.predictor import (
     PhysicsConstants,
@@ -297,6 +298,8 @@ def train_learned(
     ``config.calibration_share`` of them held out (a seeded draw) to fit the dead probability's calibration. Returns
     (network, facts: ``error_db`` the residual std on the training users' live cells, ``train_seconds``,
     ``final_loss``, ``users``, ``calibration``, ``calibration_users``)."""
+    check_limit("predictor_step_bytes", step_bytes(config), "--batch", "activations of one training step [bytes]",
+                field="batch")  # before any map is read  # fmt: skip
     torch.manual_seed(config.seed)
     torch.set_num_threads(config.threads)
     rng = np.random.default_rng(config.seed)
@@ -332,6 +335,14 @@ def train_learned(
     return net, {"error_db": error, "train_seconds": train_s, "final_loss": float(np.mean(recent)),
                  "users": len(examples), "calibration": fit_calibration(net, calibration) if held else (1.0, 0.0),
                  "calibration_users": held}  # fmt: skip
+
+
+def step_bytes(config: UNetConfig) -> int:
+    """About what one training step holds in memory: per crop, each level's cells (a quarter of the level above's)
+    times its channels, for the convolutions down and up, forward and backward, in float32 (32 bytes a value and
+    channel, measured near 4.9 GB at 1024 crops of 64 cells and the default widths)."""
+    cells = sum((config.crop // 2**level) ** 2 * w for level, w in enumerate(config.widths))
+    return 32 * config.batch * cells
 
 
 def _whole_maps(net: MapUNet, examples: list[tuple]):  # noqa: ANN202 - a generator of arrays

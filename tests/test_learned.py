@@ -203,3 +203,14 @@ def test_training_holds_out_users_to_calibrate(tiny):
     logit = np.log(p_raw) - np.log1p(-p_raw)
     np.testing.assert_allclose(p_cal, 1 / (1 + np.exp(-(scale * logit + bias))), atol=2e-4)
     assert LearnedPredictor(model, net).version() != LearnedPredictor(plain, net).version()
+
+
+def test_a_training_step_too_large_for_memory_is_refused_before_any_map_is_read(tiny):
+    """`--batch 1024` (inside UNetConfig's range) would hold about 4 GB of activations a step: refused by the limit
+    predictor_step_bytes before any training map is read, naming --batch."""
+    from uavplace.rl.learned import step_bytes
+
+    assert step_bytes(UNetConfig(batch=1024)) > 2 * 2**30 > step_bytes(UNetConfig())
+    maps = [TrainingMaps.of_bundle(load_bundle("tiny", root=tiny))]
+    with pytest.raises(InputError, match="predictor_step_bytes"):
+        train_learned(maps, _constants(), UNetConfig(batch=1024))
