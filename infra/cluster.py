@@ -27,8 +27,9 @@ def head_endpoint(address: str) -> tuple[str, int] | None:
 def start_ray(address: str | None, cpus_per_task: float, cpus_option: str) -> bool:
     """Start a local Ray (``address`` None) or join the cluster at ``address``, for tasks of ``cpus_per_task`` CPUs;
     True when this call started it (the caller shuts it down). Refused in one line (``InputError``): an address that
-    does not answer within ``CONNECT_TIMEOUT_S``, and tasks larger than every CPU the machine or cluster has (they
-    would wait forever)."""
+    does not answer within ``CONNECT_TIMEOUT_S``, tasks larger than every CPU the machine or cluster has (they would
+    wait forever), and a Ray that does not start (a node that timed out during startup under load), saying what to
+    do."""
     import ray
 
     if ray.is_initialized():
@@ -47,7 +48,14 @@ def start_ray(address: str | None, cpus_per_task: float, cpus_option: str) -> bo
                 reason = "no answer" if isinstance(err, TimeoutError) else (err.strerror or type(err).__name__)
                 raise InputError(None, f"{address}: nothing answers there ({reason} within {CONNECT_TIMEOUT_S:g} s)",
                                  field="--ray-address") from None  # fmt: skip
-    ray.init(address=address, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    try:
+        ray.init(address=address, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    except Exception as err:  # noqa: BLE001 - Ray raises bare Exceptions (a node that timed out during startup)
+        first = (str(err).strip().splitlines() or [type(err).__name__])[0][:200]
+        where = "the local Ray" if address is None else f"the Ray cluster at {address}"
+        raise InputError(None, f"{where} did not start ({first}): run the command again (a busy machine starts Ray "
+                         "slowly), join a running cluster with --ray-address, or ask for fewer CPUs",
+                         field=cpus_option if address is None else "--ray-address") from None  # fmt: skip
     have = float(ray.cluster_resources().get("CPU", 0))
     if cpus_per_task > have:
         ray.shutdown()

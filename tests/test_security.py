@@ -451,3 +451,23 @@ def test_work_is_bounded_before_it_starts(tmp_path):
     assert isinstance(err, InputError) and "buildings" in str(err)
     res = _within(60, invoke, uavrl, "report", "--dataset", "tiny", "--episodes", "1000000", "--t-max", "50")
     assert res.exit_code == 2 and "episode_steps" in res.output, res.output
+
+
+def test_a_ray_that_does_not_start_is_one_line_saying_what_to_do(monkeypatch):
+    """Ray's own startup failure (a node that timed out under load, a bare Exception) becomes one InputError naming
+    what to do: run again, --ray-address, fewer CPUs."""
+    import ray
+
+    from uavplace.infra.cluster import start_ray
+
+    def timed_out(**_kwargs):  # noqa: ANN202 - ray.init's failure as Ray raises it
+        raise Exception(
+            "The current node timed out during startup. This could happen because some of the Ray processes failed to startup."
+        )  # noqa: TRY002
+
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    monkeypatch.setattr(ray, "init", timed_out)
+    with pytest.raises(
+        InputError, match=r"the local Ray did not start \(The current node timed out during startup.*--ray-address"
+    ):
+        start_ray(None, 1.0, "--cpus-per-city")
