@@ -19,13 +19,15 @@ def sinr_panel(bundle: Bundle, user: int) -> tuple[np.ma.MaskedArray, int]:
     return np.ma.masked_array(bundle.sinr_db[user], mask=bundle.dead[user] | blocked), int((bundle.dead[user] & ~blocked).sum())
 
 
-#: How `uavdata show` marks the cells whose value is not traced at the cell itself: a hatch per provenance code.
-HATCHES = {STRAIGHT_PATH: "..", WALKED: "////", COARSE_MAP: "xxxx", NOT_RECORDED: "\\\\\\\\", NEAREST_RECEIVER: "++"}
+#: How `uavdata show` marks the cells whose value is known to be estimated, not traced at the cell itself: a hatch
+#: per provenance code. "Not recorded" (an export that does not say) is not hatched: it says nothing of the cell,
+#: and over a whole map it would hide the colours; the legend gives its share in words.
+HATCHES = {STRAIGHT_PATH: "..", WALKED: "////", COARSE_MAP: "xxxx", NEAREST_RECEIVER: "++"}
 
 
 def estimated_cells(bundle: Bundle, user: int) -> dict[int, np.ndarray]:
-    """The cells of ``user``'s map whose value is estimated or partial (``HATCHES``' codes), a mask per code present,
-    outside buildings: what `uavdata show` hatches."""
+    """The cells of ``user``'s map whose value is known to be estimated or partial (``HATCHES``' codes), a mask per
+    code present, outside buildings: what `uavdata show` hatches."""
     codes = bundle.provenance[user]
     return {c: m for c in HATCHES if (m := (codes == c) & ~bundle.blocked).any()}
 
@@ -65,9 +67,15 @@ def render_bundle(bundle: Bundle, user: int, out: str | Path) -> Path:
             share = 100 * mask.sum() / max(int((~blocked).sum()), 1)
             handles.append(matplotlib.patches.Patch(facecolor="0.35", edgecolor="white", hatch=HATCHES[code],
                                                     label=f"{code_name(code)} ({share:.1f} %)"))  # fmt: skip
+    unrecorded = (bundle.provenance[user] == NOT_RECORDED) & ~blocked
+    if unrecorded.any():  # said in words, not hatched: the export does not say whether these were traced or estimated
+        share = 100 * unrecorded.sum() / max(int((~blocked).sum()), 1)
+        handles.append(matplotlib.patches.Patch(facecolor="none", edgecolor="none",
+                                                label=f"not recorded ({share:.1f} %): traced or estimated, the export "
+                                                "does not say"))  # fmt: skip
     if handles:
-        ax.legend(handles=handles, loc="upper left", fontsize=7, framealpha=0.85, title="estimated, not traced at the cell",
-                  title_fontsize=7)  # fmt: skip
+        ax.legend(handles=handles, loc="upper left", fontsize=7, framealpha=0.85, title="where the values came from "
+                  "(hatched: estimated, not traced at the cell)", title_fontsize=7)  # fmt: skip
     row = bundle.users.iloc[user]
     if np.isfinite(row["x_m"]) and np.isfinite(row["y_m"]):
         ax.plot(row["x_m"], row["y_m"], marker="*", color="cyan", markersize=14, markeredgecolor="black")

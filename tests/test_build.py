@@ -512,6 +512,17 @@ def test_show_leaves_buildings_out_of_the_sinr_panel_and_the_dead_count(tiny):
         assert dead_open == int((b.dead[user] & ~b.blocked).sum()) <= int(b.dead[user].sum())
 
 
+def test_show_hatches_only_what_is_known_to_be_estimated(tiny):
+    """The embedded tiny city's provenance is "not recorded" (its export predates the side file): `uavdata show`
+    hatches none of it, and its legend says the share in words."""
+    from uavplace.dataset.preview import HATCHES, estimated_cells
+    from uavplace.schemas.provenance import NOT_RECORDED
+
+    b = load_bundle("tiny", root=tiny)
+    assert (b.provenance[0][~b.blocked & ~b.dead[0]] == NOT_RECORDED).all()
+    assert NOT_RECORDED not in HATCHES and estimated_cells(b, 0) == {}
+
+
 def test_the_grid_is_the_exports_unless_given(tmp_path):
     """`uavdata build --alt 10` takes each city's receiver-grid spacing from its .txrx: the same bundle as `--grid`
     with that spacing; a city of point receivers needs `--grid`, said in one line."""
