@@ -380,15 +380,19 @@ def training_bounds(agents: list[Agent], root: str | Path, p_t_db: float) -> tup
         key = ", ".join(f"{c}@{v}" for c, v in a.trained_on.items())
         if not key or key in bounds or key in notes:
             continue
+        names = list(a.trained_on)
+        cities = ", ".join(names) if len(names) <= 3 else f"{', '.join(names[:2])} and {len(names) - 2} more"
         try:
             bundles = [load_bundle(c, v, root=root) for c, v in a.trained_on.items()]
-        except InputError as err:
+        except InputError:
             try:
                 bundles = [load_bundle(c, root=root) for c in a.trained_on]
-            except InputError:
-                notes[key] = f"no bound: {err}"
+            except InputError:  # said in words: a caption is no place for an error message
+                notes[key] = f"no bound: the training cities ({cities}) are not built here"
                 continue
-            notes[key] = "computed on " + ", ".join(f"{b.city}@{b.version}" for b in bundles) + f" (latest; {err})"
+            notes[key] = (
+                f"computed on the latest builds of the training cities ({cities}): the run's own versions are not built here"
+            )
         bounds[key] = upper_bound_db(bundles, p_t_db)
     return bounds, notes
 

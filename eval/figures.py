@@ -103,7 +103,7 @@ def plot_training(agents: list[Agent], bounds: dict[str, float], out: Path, note
         ax_gain.set_title(f"{a.name}: SINR at the end - SINR at the start", fontsize=9)
     fig.savefig(out, dpi=100)
     plt.close(fig)
-    where = "; ".join(f"{k}: {v}" for k, v in (notes or {}).items())
+    where = "; ".join(dict.fromkeys((notes or {}).values()))  # in words, once each: which bound, and why not another
     caption = (
         f"Training curves, one row per agent on its own step axis: the share of successful training episodes (left) "
         f"and the mean SINR gain (final minus start SINR; right), each over the last {RUNNING_WINDOW} training episodes "
@@ -112,7 +112,7 @@ def plot_training(agents: list[Agent], bounds: dict[str, float], out: Path, note
         f"where episodes started later might not have ended when training did. Training episodes explore (epsilon in the "
         f"title) and stop at the training t_max. Dashed: the paper's training bound, the mean over training users and "
         f"start cells of P_T - start SINR, i.e. the gain if every episode ended exactly at P_T; a successful episode "
-        f"ends on the first cell at or above P_T, so the curve can pass it." + (f" Bound computed on: {where}." if where else "")
+        f"ends on the first cell at or above P_T, so the curve can pass it." + (f" The bound: {where}." if where else "")
     )
     return Figure(out, caption)
 

@@ -479,3 +479,16 @@ def test_a_report_folder_takes_one_report_at_a_time(tiny, tmp_path):
     res = CliRunner().invoke(uavrl, args)  # once the first is done, the folder is free
     assert res.exit_code == 0, res.output
     assert (out / "report.html").is_file()
+
+
+def test_a_missing_training_bundle_is_said_in_words_in_the_caption(tmp_path):
+    """The shipped agents' training bundles are not on a user's machine: the training figure's note says so in
+    words, naming a few cities, never an error message."""
+    from tests.conftest import REPO
+    from uavplace.eval.evaluate import load_agent, training_bounds
+
+    agent = load_agent(REPO / "data" / "agents" / "best", 0.096, 0)
+    bounds, notes = training_bounds([agent], tmp_path / "empty", 5.0)
+    (note,) = notes.values()
+    assert not bounds and note.startswith("no bound: the training cities (") and note.endswith("are not built here")
+    assert "bundle version" not in note and "@" not in note
