@@ -19,7 +19,7 @@ import click
 from uavplace.infra.console import fail, stdout
 from uavplace.infra.files import describe_os_error
 from uavplace.infra.limits import ENV as LIMITS_ENV
-from uavplace.infra.limits import Limits, set_limits, shown
+from uavplace.infra.limits import set_limits
 from uavplace.schemas import InputError
 from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM
 from uavplace.schemas.export import SCHEMA_MODELS, json_schemas
@@ -38,6 +38,17 @@ class UavGroup(click.Group):
     def __init__(self, *args, lazy: dict[str, str] | None = None, **kwargs) -> None:  # noqa: ANN002, ANN003 - click.Group's
         super().__init__(*args, **kwargs)
         self.lazy = dict(lazy or {})
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        """The commands with the whole first sentence of each one's help, wrapped, never cut with "..."."""
+        rows = []
+        for name in self.list_commands(ctx):
+            cmd = self.get_command(ctx, name)
+            if cmd is not None and not cmd.hidden:
+                rows.append((name, cmd.get_short_help_str(limit=10_000)))
+        if rows:
+            with formatter.section("Commands"):
+                formatter.write_dl(rows)
 
     def list_commands(self, ctx: click.Context) -> list[str]:
         return sorted({*super().list_commands(ctx), *self.lazy})
@@ -88,9 +99,9 @@ limit_option = click.option(
     metavar="NAME=VALUE",
     expose_value=False,
     callback=_apply_limits,
-    help=f"Raise or lower a resource limit for this command, before the command's name (repeatable): "
-    f"{', '.join(f'{k} ({shown(v.default)})' for k, v in Limits.model_fields.items())}. "
-    f"The same as the environment variable {LIMITS_ENV}=NAME=VALUE,...; see the README's Security section.",
+    help=f"Raise or lower a resource limit for this command, before the command's name (repeatable; the same as "
+    f"{LIMITS_ENV}=NAME=VALUE,...). Every limit, its default and what it bounds: docs/security.md, 'Resource "
+    "limits'; an error over one names it and this option.",
 )
 
 
@@ -142,7 +153,16 @@ uavdata.help = uavdata.help.format(noise=EMBEDDED_NOISE_DBM)
 @click.version_option(package_name="uavplace", prog_name="uavrl")
 @limit_option
 def uavrl() -> None:
-    """UAV placement agents: the datasets they can use, training, ensembles of runs, sweeps and reports."""
+    """UAV placement agents: the datasets they can use, training, ensembles of runs, sweeps and reports.
+
+    \b
+    Typical use, after `uavdata ingest` and `uavdata build`:
+      uavrl report                              the shipped agents and the baselines in the test cities
+      uavrl report --dataset cityA              ... in a city of yours (reports/)
+      uavrl train --dataset corpus --dataset oldtown --name mine
+      uavrl report --dataset cityA --run runs/mine
+      uavrl report --task tracking              a user who moves (cities with routes)
+    """
 
 
 @uavdata.command()

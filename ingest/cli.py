@@ -26,7 +26,7 @@ from uavplace.infra.files import DEFAULT_ROOT, check_name
 @click.option("--verbose", is_flag=True, help="Also a table of every file: kind, status, rows read and rejected, notes.")
 @click.option("--quiet", is_flag=True, help="No progress bar; only the summary line per city (and any warning).")
 def ingest(folders: tuple[Path, ...], out_root: Path, name: str | None, verbose: bool, quiet: bool) -> None:
-    """Read every export in each city FOLDER, validate it and write tables (e.g. `uavdata ingest data/raw/*/`).
+    """Read every export in each city FOLDER, validate it and write tables: `uavdata ingest data/raw/*/` takes them all.
 
     Understands Wireless InSite receiver outputs (.p2m, .p2m.gz: power, pl,
     pg, txloss, spread, noise), .txrx, .setup, .city, .ter, GeoJSON footprints

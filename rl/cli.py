@@ -187,7 +187,17 @@ def train(
     runs: Path, name: str | None, until: int | None, resume: Path | None, strict: bool, root: Path, quiet: bool,
 ) -> None:  # fmt: skip
     """Train the DQN agent (or its blind twin) on built cities, for placement or tracking; write config, metrics and
-    checkpoints to a run folder."""
+    checkpoints to a run folder.
+
+    \b
+    Its progress line (a bar on a terminal, a line every 30 s in a log):
+      ep N          training episodes ended so far
+      gain100       mean SINR gain (last SINR - first) of the last 100 training episodes [dB]
+      success100    share of the last 100 training episodes that reached P_T
+      eps           the exploration rate now (a random legal move's probability)
+      loss          mean training loss of the last updates ('-': no update yet)
+      best eval     success of the best evaluation so far on the validation users ('-': none yet)
+    """
     from uavplace.dataset.catalog import expand_datasets
     from uavplace.infra.files import check_name, exclusive_folder
     from uavplace.rl.agent.dqn import parse_settings, preset_config

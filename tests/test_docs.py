@@ -123,3 +123,25 @@ def test_the_docs_and_the_readme_are_undated():
     for page in [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]:
         lines = [n for n, line in enumerate(page.read_text(encoding="utf-8").splitlines(), 1) if dated.search(line)]
         assert not lines, f"{page.relative_to(REPO)}:{lines[0]} is dated"
+
+
+def test_the_readmes_numbers_about_the_code_are_the_codes():
+    """What the README states about the code comes from it: the paper agents' training steps (the shipped run.json,
+    beside the preset's own), each preset's steps in `uavrl train --help` (the presets' total_steps), and the budget
+    of the training maps (the test in tests/test_trainmaps.py). No count of tests is stated (it changes with
+    every test)."""
+    import json
+
+    from uavplace.rl.agent.dqn import preset_config
+
+    readme = (REPO / "README.md").read_text(encoding="utf-8")
+    shipped = {json.loads((REPO / "data" / "agents" / a / "run.json").read_text())["config"]["total_steps"]
+               for a in ("proposed", "blind")}  # fmt: skip
+    assert shipped == {300_000} and "trained for\n  300 k steps rather than the preset's 7 M" in readme
+    assert preset_config("paper").total_steps == 7_000_000
+    train_help = uavrl.commands["train"] if "train" in uavrl.commands else uavrl.get_command(click.Context(uavrl), "train")
+    text = " ".join(" ".join(p.help.split()) for p in train_help.params if p.name == "preset")
+    for preset, words in (("best", "300 k steps"), ("paper", "about 7 M steps"), ("fast", "40 k")):
+        steps = preset_config(preset).total_steps
+        assert words in text and steps == {"300 k steps": 300_000, "about 7 M steps": 7_000_000, "40 k": 40_000}[words]
+    assert not re.search(r"\b\d{3} tests\b", readme), "the README states a count of tests: it changes with every test"
