@@ -145,3 +145,17 @@ def test_the_readmes_numbers_about_the_code_are_the_codes():
         steps = preset_config(preset).total_steps
         assert words in text and steps == {"300 k steps": 300_000, "about 7 M steps": 7_000_000, "40 k": 40_000}[words]
     assert not re.search(r"\b\d{3} tests\b", readme), "the README states a count of tests: it changes with every test"
+
+
+def test_the_citation_file_cites_the_project_and_the_paper():
+    """CITATION.cff is valid YAML in the Citation File Format's shape, at the package's version, and cites the paper
+    docs/method.md summarises."""
+    yaml = pytest.importorskip("yaml", reason="PyYAML missing")
+    from importlib.metadata import version
+
+    doc = yaml.safe_load((REPO / "CITATION.cff").read_text(encoding="utf-8"))
+    assert doc["cff-version"] == "1.2.0" and doc["type"] == "software" and doc["authors"]
+    assert doc["version"] == version("uavplace") and doc["license"] == "MIT"
+    (paper,) = doc["references"]
+    assert paper["year"] == 2019 and [a["family-names"] for a in paper["authors"]] == ["Krijestorac", "Hanna", "Cabric"]
+    assert paper["title"] in " ".join((REPO / "docs" / "method.md").read_text(encoding="utf-8").split())
