@@ -27,7 +27,7 @@ from uavplace.infra.files import atomic_directory, check_name, sha256_file, writ
 from uavplace.ingest.buildings import BuildingRecord, buildings_tables
 from uavplace.ingest.geojson import read_geojson
 from uavplace.ingest.mesh import MESH_SUFFIXES, read_mesh
-from uavplace.ingest.provenance import default_code, read_provenance
+from uavplace.ingest.provenance import default_code, export_digest, read_provenance, recorded_export
 from uavplace.ingest.routes import read_routes
 from uavplace.ingest.wireless_insite.city import read_city, read_terrain
 from uavplace.ingest.wireless_insite.p2m import COHERENT_MARGIN_DB, POSITION_COLUMNS, P2MStream, antenna_gain_dbi, parse_filename
@@ -523,6 +523,13 @@ def ingest_city(
     if (f := _single(by_kind["cells"], "provenance.csv.gz")) is not None:
         tick(f.rel)
         receivers.codes, receivers.codes_source = read_provenance(f.path, f.rel, export_receivers(sets, groups)), f.rel
+        recorded = recorded_export(f.path, f.rel)
+        if recorded is None:
+            warnings.append(f"{f.rel} records no sha256 of its export: not checked against these .p2m files")
+        elif recorded != export_digest([p.path for p in by_kind["p2m"] if p.skip_reason is None]):
+            raise InputError(f.rel, "written for another export: the sha256 of the .p2m files it records is not this "
+                             "folder's (another simulation of the city?); it does not describe these receivers",
+                             field="export")  # fmt: skip
         done(f, rows=sum(len(c) for c in receivers.codes.values()), message=f"provenance of {len(receivers.codes)} "
              "transmitter(s) x receiver set(s)")  # fmt: skip
     else:

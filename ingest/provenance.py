@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import gzip
+import hashlib
 import io
 import json
 import zlib
@@ -58,6 +59,32 @@ def _lines(path: Path, source: str, max_bytes: float):
         raise InputError(source, f"not a readable gzip file ({type(exc).__name__}: {str(exc)[:120]})") from None
     except UnicodeDecodeError as exc:
         raise InputError(source, f"not UTF-8 text ({exc.reason} at byte {exc.start})", field="encoding") from None
+
+
+#: The side file's comment line that ties it to its export: the sha256 of the export's .p2m files (``export_digest``).
+EXPORT_LINE = "# export sha256: "
+
+
+def export_digest(p2m_files: list[Path]) -> str:
+    """The sha256 of an export's receiver outputs: each ``.p2m`` (or ``.p2m.gz``) file's name and bytes, in name
+    order. What a side file records of the export it describes."""
+    digest = hashlib.sha256()
+    for path in sorted(p2m_files, key=lambda p: p.name):
+        digest.update(path.name.encode() + b"\0")
+        with path.open("rb") as f:
+            while chunk := f.read(1 << 20):
+                digest.update(chunk)
+    return digest.hexdigest()
+
+
+def recorded_export(path: Path, source: str) -> str | None:
+    """The export sha256 a side file records (its ``EXPORT_LINE`` among the comments before the header), or None."""
+    for line in _lines(path, source, COMMENT_BYTES):
+        if not line.startswith("#"):
+            return None
+        if line.startswith(EXPORT_LINE):
+            return line[len(EXPORT_LINE) :].strip()
+    return None
 
 
 def read_provenance(path: Path, source: str, receivers: int | None = None) -> dict[tuple[int, int, int], np.ndarray]:

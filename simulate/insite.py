@@ -25,6 +25,7 @@ import numpy as np
 import shapely
 
 from uavplace.infra.files import atomic_write_bytes
+from uavplace.ingest.provenance import EXPORT_LINE, export_digest
 from uavplace.schemas.provenance import PROVENANCE_COLUMNS, SIDE_FILE_SUFFIX, code_table
 
 #: Output kinds the writer knows: file name token -> (column titles after the position, format of one row's values).
@@ -240,12 +241,17 @@ def provenance_runs(codes: np.ndarray) -> list[tuple[int, int, int]]:
     return [(int(s) + 1, int(n), int(c[s])) for s, n in zip(starts, counts, strict=True)]
 
 
-def write_provenance(folder: str | Path, project: str, rx_set_id: int, codes: dict[tuple[int, int], np.ndarray]) -> Path:
+def write_provenance(folder: str | Path, project: str, rx_set_id: int, codes: dict[tuple[int, int], np.ndarray],
+                     p2m_files: list[Path] | None = None) -> Path:  # fmt: skip
     """The side file ``<project>.provenance.csv.gz`` (``schemas.provenance``): the provenance code of every receiver
     of set ``rx_set_id`` for each transmitter, ``codes`` ``{(tx_set, tx_point): [N] codes in the .p2m's order}``, as
-    runs of equal codes. InSite-compatible readers do not read it; uavplace's ingest does."""
+    runs of equal codes. InSite-compatible readers do not read it; uavplace's ingest does. ``p2m_files``: the export's
+    receiver outputs, whose sha256 the file records (``ingest.provenance.export_digest``): ingest refuses the side
+    file beside any other export."""
     lines = [f"# {line}" for line in ("uavplace cell provenance (docs/data.md): runs of receivers that share a code",
                                       *code_table().splitlines())]  # fmt: skip
+    if p2m_files is not None:
+        lines.append(EXPORT_LINE + export_digest(list(p2m_files)))
     lines.append(",".join(PROVENANCE_COLUMNS))
     for (tx_set, tx_point), c in sorted(codes.items()):
         lines += [f"{tx_set},{tx_point},{rx_set_id},{first},{n},{code}" for first, n, code in provenance_runs(c)]

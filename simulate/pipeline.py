@@ -680,15 +680,15 @@ def simulate_city(
         write_setup(out / f"{spec.name}.setup", spec.name, frequency_hz=rt_config.frequency_hz, features=[f"{spec.name}.city"])
         write_city(out / f"{spec.name}.city", buildings_of(blocks), name=spec.name)
         power, source = as_written(gain, source, spec.tx_dbm)
-        codes = {}
+        codes, written = {}, []
         for u in range(len(sources)):
             dist = np.linalg.norm(pos - sources[u], axis=1)
             tx_set, tx_point = transmitter_of(u, len(users))
-            write_p2m(out, spec.name, "power", tx_point=tx_point, tx_set=tx_set, rx_set=GRID_SET, positions_m=pos,
-                      distance_m=dist, values=power[u], gz=True)  # fmt: skip
+            written.append(write_p2m(out, spec.name, "power", tx_point=tx_point, tx_set=tx_set, rx_set=GRID_SET,
+                                     positions_m=pos, distance_m=dist, values=power[u], gz=True))  # fmt: skip
             codes[(tx_set[0], tx_point)] = source[u].ravel()
             progress("writing", u + 1, len(sources))
-        write_provenance(out, spec.name, GRID_SET[0], codes)
+        write_provenance(out, spec.name, GRID_SET[0], codes, written)
         gain = np.where(source == UNREACHED, 0.0, gain)
         reached = gain > 0
         filled = np.isin(source, ESTIMATED)

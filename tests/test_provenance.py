@@ -174,6 +174,22 @@ def test_ingest_reads_the_side_file_against_the_export_and_says_what_an_export_w
         ingest_city(folder, tmp_path / "p")
     assert b.path.is_dir()  # nothing refused replaced the good ingest's bundle
 
+    # A side file records the sha256 of its export's .p2m files: beside the same export it is read, beside another
+    # simulation's (one receiver's value changed) it is refused, never taken for the codes of these receivers.
+    p2m = sorted(folder.glob("*.p2m*"))
+    write_provenance(folder, "city", 2, codes, p2m)
+    _, _, report = ingest_city(folder, tmp_path / "p")
+    assert not any("records no sha256" in w for w in report.warnings)
+    text = p2m[0].read_text().splitlines()
+    last = text[-1].split()
+    text[-1] = " ".join([*last[:-2], f"{float(last[-2]) + 1:.4f}", last[-1]])
+    p2m[0].write_text("\n".join(text) + "\n")
+    with pytest.raises(InputError, match=r"city.provenance.csv.gz: export: written for another export"):
+        ingest_city(folder, tmp_path / "p")
+    write_provenance(folder, "city", 2, codes)  # an older side file records none: read, with a warning
+    _, _, report = ingest_city(folder, tmp_path / "p")
+    assert any("records no sha256 of its export" in w for w in report.warnings)
+
     # without a side file: a simulation.json of exact paths, or of an earlier uavplace (not recorded)
     (folder / "city.provenance.csv.gz").unlink()
     for solver, code in (("paths", EXACT_PATHS), ("radio-map", NOT_RECORDED)):
