@@ -115,6 +115,7 @@ limit_option = click.option(
         "list": "uavplace.dataset.cli:list_",
         "show": "uavplace.dataset.cli:show",
         "pack": "uavplace.dataset.cli:pack",
+        "export": "uavplace.dataset.cli:export",
     },
 )
 @click.version_option(package_name="uavplace", prog_name="uavdata")

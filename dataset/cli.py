@@ -1,4 +1,4 @@
-"""``uavdata build``, ``list``, ``show`` and ``pack``: versioned map bundles from ingested cities, and their compact training maps (registered in ``uavplace.cli``)."""
+"""``uavdata build``, ``list``, ``show``, ``pack`` and ``export``: versioned map bundles from ingested cities, their compact training maps, and the radio-map community's formats (registered in ``uavplace.cli``)."""
 
 from __future__ import annotations
 
@@ -502,3 +502,37 @@ def pack(cities: tuple[str, ...], root: Path, raw: Path, out: Path) -> None:
         out_.print(f"{city}: {meta.num_users} users, {size / 1e3:.0f} kB ({size / meta.num_users / 1e3:.1f} kB a user), "
                    f"{meta.clipped_cells} cells clipped -> {path}", highlight=False, soft_wrap=True)  # fmt: skip
     out_.print(f"packed {total_users} users into {total_bytes / 1e6:.1f} MB under {out}", highlight=False)
+
+
+@click.command()
+@click.argument("cities", metavar="CITY...", nargs=-1, required=True)
+@click.option(
+    "--format",
+    "formats",
+    type=click.Choice(["radiomapseer", "deepmimo"]),
+    multiple=True,
+    default=("radiomapseer", "deepmimo"),
+    show_default=True,
+    help="radiomapseer: OUT/<city>/ with the building map and one radio map per user as PNG (a documented dB scale, "
+    "scale.json) and the users' positions as CSV; deepmimo: OUT/<city>.deepmimo.npz, per user its position and "
+    "each cell's received power, path loss and SINR (dataset/export.py documents both, units and frames).",
+)
+@root_option
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("exports"),
+    show_default=True,
+    help="Folder of the exports (a RadioMapSeer-style folder is replaced only if it is one).",
+)
+def export(cities: tuple[str, ...], formats: tuple[str, ...], root: Path, out: Path) -> None:
+    """Write built cities in the formats of the radio-map community: RadioMapSeer-style folders (PNG maps) and
+    DeepMIMO-style array files."""
+    from uavplace.dataset.bundle import load_bundle
+    from uavplace.dataset.export import write_deepmimo, write_radiomapseer
+
+    for city in cities:
+        bundle = load_bundle(city, root=root)
+        for fmt in dict.fromkeys(formats):
+            path = write_radiomapseer(bundle, out) if fmt == "radiomapseer" else write_deepmimo(bundle, out)
+            stdout().print(f"{city}: {fmt} -> {path}", highlight=False, soft_wrap=True)

@@ -371,7 +371,7 @@ def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out:
 @click.option(
     "--maps", "map_folders", multiple=True, type=click.Path(file_okay=False, path_type=Path),
     help="A folder of training-maps packs (repeatable; `uavdata pack` writes them, data/trainmaps holds the shipped "
-    "ones): every user of every pack is a training user.",
+    "ones), or a RadioMapSeer-style city folder (`uavdata export`, dataset/export.py): every user is a training user.",
 )  # fmt: skip
 @click.option("--widths", default="16,32,64,64", show_default=True,
               help="Channels per U-Net level, comma-separated (1 to 5 levels).")  # fmt: skip
@@ -400,6 +400,7 @@ def train_predictor(datasets: tuple[str, ...], map_folders: tuple[Path, ...], wi
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from uavplace.dataset.bundle import load_bundle
+    from uavplace.dataset.export import read_radiomapseer
     from uavplace.dataset.trainmaps import TrainingMaps, list_packs, read_pack
     from uavplace.infra.console import command_line
     from uavplace.infra.files import atomic_directory
@@ -418,7 +419,8 @@ def train_predictor(datasets: tuple[str, ...], map_folders: tuple[Path, ...], wi
     physics = load_constants(constants)
     bundles, users = _training_users(datasets, root)
     maps = [TrainingMaps.of_bundle(b, u) for b, u in zip(bundles, users, strict=True)]
-    maps += [read_pack(p) for folder in map_folders for p in list_packs(folder)]
+    for folder in map_folders:  # a folder of packs, or one RadioMapSeer-style city folder (`uavdata export`)
+        maps += [read_radiomapseer(folder)] if (folder / "scale.json").is_file() else [read_pack(p) for p in list_packs(folder)]
     overlap = sorted({m.city for m in maps} & set(val_datasets))
     if overlap:
         raise click.BadParameter(f"{', '.join(overlap)}: a validation city is also a training city (it would score the "

@@ -1,0 +1,94 @@
+"""The radio-map community's formats (dataset/export.py, `uavdata export`): a bundle round-trips through a
+RadioMapSeer-style folder within the PNG's quantisation, the DeepMIMO-style file's arrays are the bundle's in their
+documented units and frame, a damaged folder is refused naming the file, and the predictor trains on such a folder."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from uavplace.cli import uavdata, uavrl
+from uavplace.dataset.bundle import load_bundle
+from uavplace.dataset.export import read_radiomapseer, write_deepmimo, write_radiomapseer
+from uavplace.dataset.trainmaps import STEP_DB
+from uavplace.schemas import InputError
+
+
+def test_radiomapseer_folder_round_trips_within_the_quantisation(tiny, tmp_path):
+    bundle = load_bundle("tiny", root=tiny)
+    folder = write_radiomapseer(bundle, tmp_path)
+    assert folder == tmp_path / "tiny" and (folder / "png" / "buildings_complete" / "tiny.png").is_file()
+    maps = read_radiomapseer(folder)
+    np.testing.assert_array_equal(maps.blocked, bundle.blocked)
+    np.testing.assert_array_equal(maps.dead, bundle.dead)
+    assert np.abs(maps.sinr_db - bundle.sinr_db)[~bundle.dead].max() <= STEP_DB / 2 + 1e-4
+    np.testing.assert_allclose(maps.height_rel_m, bundle.height_rel_m, atol=0.005 + 1e-6)
+    table = bundle.users.set_index("user")
+    np.testing.assert_array_equal(maps.users, table.loc[bundle.user_indices(), ["iy", "ix"]].to_numpy())
+    # row 0 of every image is the north: the building map's first row is the grid's last
+    from PIL import Image
+
+    with Image.open(folder / "png" / "buildings_complete" / "tiny.png") as im:
+        image = np.asarray(im)
+    np.testing.assert_array_equal(image[0] > 127, bundle.blocked[-1])
+    scale = json.loads((folder / "scale.json").read_text())
+    assert scale["sinr"]["step_db"] == STEP_DB and "row 0 is the northernmost" in scale["frame"]
+
+
+def test_a_damaged_radiomapseer_folder_is_refused_naming_the_file(tiny, tmp_path):
+    folder = write_radiomapseer(load_bundle("tiny", root=tiny), tmp_path)
+    (folder / "gain" / "tiny_1.png").write_bytes(b"not a png")
+    with pytest.raises(InputError, match="tiny_1.png: not a readable PNG"):
+        read_radiomapseer(folder)
+    folder = write_radiomapseer(load_bundle("tiny", root=tiny), tmp_path)  # replaced: it is one of these folders
+    from PIL import Image
+
+    Image.fromarray(np.zeros((3, 3), np.uint8)).save(folder / "gain" / "tiny_0.png")
+    with pytest.raises(InputError, match="tiny_0.png: shape: 3 x 3 pixels"):
+        read_radiomapseer(folder)
+    (folder / "scale.json").write_text('{"format": "other"}')
+    with pytest.raises(InputError, match="scale.json"):
+        read_radiomapseer(folder)
+    mine = tmp_path / "mine" / "tiny"
+    mine.mkdir(parents=True)
+    (mine / "notes.txt").write_text("x")
+    with pytest.raises(InputError, match="refusing to replace"):
+        write_radiomapseer(load_bundle("tiny", root=tiny), tmp_path / "mine")
+
+
+def test_deepmimo_file_holds_the_bundles_maps_in_its_units(tiny, tmp_path):
+    bundle = load_bundle("tiny", root=tiny)
+    with np.load(write_deepmimo(bundle, tmp_path)) as z:
+        arrays = {k: z[k] for k in z.files}
+    meta = json.loads(arrays.pop("meta").tobytes())
+    u, m = bundle.num_users, bundle.blocked.size
+    assert arrays["rx_power_dbm"].shape == (u, m) and arrays["tx_positions_m"].shape == (u, 3)
+    sinr = bundle.sinr_db.reshape(u, -1)
+    live = ~bundle.dead.reshape(u, -1)
+    np.testing.assert_allclose(arrays["sinr_db"][live], sinr[live], atol=1e-5)
+    assert np.isnan(arrays["sinr_db"][~live]).all()
+    settings = meta["settings"]
+    np.testing.assert_allclose(arrays["rx_power_dbm"][live], sinr[live] + settings["noise_dbm"], atol=1e-4)
+    np.testing.assert_allclose(arrays["path_loss_db"][live], settings["tx_power_dbm"] - arrays["rx_power_dbm"][live], atol=1e-4)
+    ix = 3  # the rx cells in row-major order, x fastest, at the altitude
+    np.testing.assert_allclose(arrays["rx_positions_m"][ix], [bundle.x_m[ix], bundle.y_m[0], bundle.altitude_m])
+    assert meta["units"]["rx_power_dbm"] == "dBm" and "x east, y north" in meta["frame"]
+
+
+def test_export_command_and_training_on_an_exported_folder(tiny, tmp_path):
+    out = tmp_path / "exports"
+    res = CliRunner().invoke(uavdata, ["export", "tiny", "--root", str(tiny), "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert (out / "tiny" / "scale.json").is_file() and (out / "tiny.deepmimo.npz").is_file()
+    from tests.test_learned import _constants
+
+    constants = tmp_path / "predictor.json"
+    constants.write_text(_constants().model_dump_json())
+    res = CliRunner().invoke(uavrl, ["train-predictor", "--maps", str(out / "tiny"), "--constants", str(constants),
+                                     "--out", str(tmp_path / "unet"), "--steps", "2", "--batch", "2", "--widths", "4,8",
+                                     "--threads", "1", "--quiet", "--root", str(tiny)])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert "trained on" in res.output
