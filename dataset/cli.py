@@ -17,6 +17,7 @@ from uavplace.infra.files import check_name
 from uavplace.schemas import InputError
 from uavplace.schemas.base import validation_message
 from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM, BuildConfig
+from uavplace.schemas.constants import P_T_DB
 
 
 def _splits(values: tuple[str, ...]) -> dict[str, str | None]:
@@ -167,7 +168,7 @@ def _latest_role(city: str, root: Path) -> str | None:
 @click.option(
     "--p-t-db",
     type=Finite(),
-    default=5.0,
+    default=P_T_DB,
     show_default=True,
     help="SINR target the manifest's difficulty figures (targets, BFS steps) are computed at [dB].",
 )

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from uavplace.schemas.constants import P_T_DB, reaches_target
+
 #: Steps value of a cell from which no target can be reached (and of blocked cells).
 UNREACHABLE = np.iinfo(np.int32).max
 
@@ -50,16 +52,16 @@ def valid_starts(
     these maps, when already computed.
     """
     if steps is None:
-        steps = steps_to_target(~blocked, ~blocked & ~dead & (sinr_db >= p_t_db))
+        steps = steps_to_target(~blocked, reaches_target(sinr_db, p_t_db, dead, ~blocked))
     return _candidate_starts(blocked, dead, sinr_db, p_t_db) & (steps != UNREACHABLE)
 
 
 def _candidate_starts(blocked: np.ndarray, dead: np.ndarray, sinr_db: np.ndarray, p_t_db: float) -> np.ndarray:
     """Legal, live cells below the target: starts before the reachability rule."""
-    return ~blocked & ~dead & (sinr_db < p_t_db)
+    return ~blocked & ~dead & ~reaches_target(sinr_db, p_t_db)
 
 
-def difficulty(blocked: np.ndarray, dead: np.ndarray, sinr_db: np.ndarray, p_t_db: float = 5.0) -> dict[str, float | None]:
+def difficulty(blocked: np.ndarray, dead: np.ndarray, sinr_db: np.ndarray, p_t_db: float = P_T_DB) -> dict[str, float | None]:
     """Summary of the search problem over all users at target ``p_t_db``.
 
     ``target_share``: legal, live cells at or above P_T, over legal cells; ``dead_share``:
@@ -70,7 +72,7 @@ def difficulty(blocked: np.ndarray, dead: np.ndarray, sinr_db: np.ndarray, p_t_d
     a target cell. A figure that does not exist (no start) is None.
     """
     legal = ~blocked
-    target = legal & ~dead & (sinr_db >= p_t_db)
+    target = reaches_target(sinr_db, p_t_db, dead, legal)
     steps = steps_to_target(legal, target)
     candidates = _candidate_starts(blocked, dead, sinr_db, p_t_db)
     starts = valid_starts(blocked, dead, sinr_db, p_t_db, steps)

@@ -42,6 +42,7 @@ from uavplace.rl.searcher import (
 from uavplace.schemas import InputError
 from uavplace.schemas.base import MAX_SEED, Contract
 from uavplace.schemas.bundle import BundleManifest
+from uavplace.schemas.constants import P_T_DB
 
 #: The paper's test-city results (docs/method.md, "The paper's results"): success within t_max = 500, median steps.
 PAPER = {
@@ -61,7 +62,7 @@ class ReportConfig(Contract):
     runs: list[str] = Field(default_factory=list, description="Agent folders (run folders or shipped agents)")
     episodes: int = Field(default=1000, ge=1, description="Episodes, the same for every method")
     t_max: int = Field(default=500, ge=1, description="Step budget per episode (paper: 500 at test)")
-    p_t_db: float = Field(default=5.0, description="SINR target P_T [dB]")
+    p_t_db: float = Field(default=P_T_DB, description="SINR target P_T [dB]")
     test_epsilon: float = Field(default=0.096, ge=0, le=1, description="Random legal move rate of the agents (paper: 0.096)")
     seed: int = Field(
         default=0, ge=0, le=MAX_SEED, description="Seed of the episodes, the agents' random moves and the baselines"

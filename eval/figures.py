@@ -12,6 +12,7 @@ from uavplace.dataset.bundle import Bundle
 from uavplace.eval.evaluate import BASELINES, Agent
 from uavplace.eval.metrics import ecdf
 from uavplace.rl.rollout import summarise
+from uavplace.schemas.constants import reaches_target
 
 #: Episodes in the training curves' running mean (the paper's 100).
 RUNNING_WINDOW = 100
@@ -187,7 +188,7 @@ def plot_trajectories(
                 im = ax.imshow(sinr, origin="lower", extent=extent, cmap=matplotlib.colormaps["magma"].with_extremes(bad="0.75"))
                 ax.imshow(np.ma.masked_array(np.ones(bundle.shape), mask=~bundle.blocked), origin="lower", extent=extent,
                           cmap=matplotlib.colors.ListedColormap(["0.05"]), vmin=0, vmax=1)  # fmt: skip
-                target = (bundle.sinr_db[user] >= p_t_db) & ~bundle.dead[user] & ~bundle.blocked
+                target = reaches_target(bundle.sinr_db[user], p_t_db, bundle.dead[user], ~bundle.blocked)
                 ax.contour(target, levels=[0.5], origin="lower", extent=extent, colors="cyan", linewidths=0.8)
                 label = "SINR [dB]"
             for color, width in (("black", 1.6), ("white", 0.6)):  # a white line on a black one: seen on any colour

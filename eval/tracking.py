@@ -50,6 +50,7 @@ from uavplace.rl.tracking import (
 from uavplace.rl.tracksearch import MotionModel, TrackingSearchPolicy
 from uavplace.schemas import InputError
 from uavplace.schemas.base import MAX_SEED, Contract, uavplace_version
+from uavplace.schemas.constants import reaches_target
 
 TRACKING_JSON = "tracking.json"
 #: Statistic -> (column header, how episodes are summarised).
@@ -263,9 +264,9 @@ def plot_episodes(routes: RouteSet, res: TrackingEpisodes, method: str, picked: 
         g = b.manifest.grid
         extent = (g.x_min_m, g.x_max_m, g.y_min_m, g.y_max_m)
         points = res.points[e]
-        covered = (routes.sinr[points[1:], p : p + ny, p : p + nx] >= task.p_t_db) & ~routes.dead[
-            points[1:], p : p + ny, p : p + nx
-        ]
+        covered = reaches_target(
+            routes.sinr[points[1:], p : p + ny, p : p + nx], task.p_t_db, routes.dead[points[1:], p : p + ny, p : p + nx]
+        )
         share = np.ma.masked_array(covered.mean(axis=0), mask=b.blocked)
         px = g.x_min_m + (res.path[e, :, 1] - p + 0.5) * g.spacing_m
         py = g.y_min_m + (res.path[e, :, 0] - p + 0.5) * g.spacing_m

@@ -11,6 +11,7 @@ from uavplace.dataset.bundle import list_versions, read_latest
 from uavplace.dataset.catalog import list_cities
 from uavplace.infra.console import SEED, Counted, Finite, LogLines, fail, plain_table, root_option, stdout, warn_or_refuse
 from uavplace.rl.rollout import STATS, format_stat, summarise
+from uavplace.schemas.constants import P_T_DB
 
 
 @click.command()
@@ -45,7 +46,7 @@ def episode_options(command):
     options = (
         click.option("--episodes", type=Counted("episodes"), default=1000, show_default=True, help="Episodes, the same for every method."),
         click.option("--t-max", type=Counted("t_max"), default=500, show_default=True, help="Step budget per episode (paper: 500 at test)."),
-        click.option("--p-t-db", type=Finite(-100, 100), default=5.0, show_default=True, help="SINR target P_T [dB]."),
+        click.option("--p-t-db", type=Finite(-100, 100), default=P_T_DB, show_default=True, help="SINR target P_T [dB]."),
         click.option("--split", type=click.Choice(["train", "val", "test"]), default=None, help="Users of this split only (default: all)."),
         click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the episodes and of every random move."),
     )  # fmt: skip

@@ -7,6 +7,7 @@ from typing import Literal
 from pydantic import ConfigDict, Field, field_validator
 
 from uavplace.schemas.base import Contract
+from uavplace.schemas.constants import P_T_DB
 
 Split = Literal["train", "val", "test"]
 
@@ -16,7 +17,7 @@ class EnvConfig(Contract):
 
     model_config = ConfigDict(allow_inf_nan=False)  # a NaN target or reward would train and report without a word
 
-    p_t_db: float = Field(default=5.0, description="SINR target P_T: the episode ends (terminated) when reached [dB]")
+    p_t_db: float = Field(default=P_T_DB, description="SINR target P_T: the episode ends (terminated) when reached [dB]")
     t_max: int = Field(
         default=800, ge=1, description="Step budget: the episode is truncated after t_max moves (paper: 800 train, 500 test)"
     )

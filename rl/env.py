@@ -64,6 +64,7 @@ import numpy as np
 from uavplace.rl.config import EnvConfig
 from uavplace.rl.maps import MapSet
 from uavplace.rl.vec_env import BatchedEnv
+from uavplace.schemas.constants import reaches_target
 
 
 def task_bundles(dataset: str | list[str], config: object, kind: type, root: str, overrides: dict) -> tuple[list, object]:
@@ -219,7 +220,7 @@ class UavFleetEnv(gym.Env):
         e, rows = self._env, np.array([0])
         values = e.sinr_here(rows)[0]
         return {"action_mask": e.action_mask(rows)[0].astype(np.int8), "positions": e.pos[0] - e.maps.pad,
-                "sinr_db": values, "served": (values >= self.config.p_t_db).any(axis=0)}  # fmt: skip
+                "sinr_db": values, "served": reaches_target(values, self.config.p_t_db).any(axis=0)}  # fmt: skip
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         super().reset(seed=seed)

@@ -45,6 +45,7 @@ from uavplace.rl.maps import MOVES
 from uavplace.rl.randomness import combine, stream_key, uniforms
 from uavplace.rl.vec_env import BatchedEnv
 from uavplace.schemas.base import Contract, InputError
+from uavplace.schemas.constants import P_T_DB, reaches_target
 
 #: The fleet's 5 actions per UAV in map coordinates (dy, dx): the 4 placement moves, then 4 = stay.
 FLEET_MOVES = np.vstack([MOVES, [[0, 0]]])
@@ -59,7 +60,7 @@ class FleetConfig(Contract):
     uavs: int = Field(default=2, ge=1, le=4, description="UAVs K in the fleet")
     users: int = Field(default=3, ge=1, le=6, description="Users N served at once, drawn from a city's traced users")
     t_max: int = Field(default=500, ge=1, description="Step budget: truncated after t_max steps")
-    p_t_db: float = Field(default=5.0, description="SINR target P_T: a user is served by a UAV at or above it [dB]")
+    p_t_db: float = Field(default=P_T_DB, description="SINR target P_T: a user is served by a UAV at or above it [dB]")
     window: int = Field(default=61, ge=3, le=1001, description="Observation side in cells (odd), centred on each UAV")
     p_h_db: float = Field(default=50.0, description="P_H: the memory value of unvisited cells [dB]")
     p_l_db: float = Field(default=-150.0, description="P_L: the memory value of blocked cells and beyond the edge [dB]")
@@ -99,7 +100,7 @@ class FleetCity:
         picked = np.arange(bundle.num_users) if users is None else np.asarray(users, np.int64)
         sinr, dead = bundle.sinr_db[picked], bundle.dead[picked]
         legal = ~bundle.blocked
-        target = legal & ~dead & (sinr >= p_t_db)
+        target = reaches_target(sinr, p_t_db, dead, legal)
         return cls(bundle.city, bundle.version, legal, bundle.height_rel_m, sinr, target)
 
 
@@ -309,7 +310,7 @@ class BatchedFleet:
         for n in range(self.config.users):
             self.memory[rows[:, None], n, y, x] = values[:, :, n]
         self.best[rows] = values.max(axis=1)
-        served = values >= self.config.p_t_db
+        served = reaches_target(values, self.config.p_t_db)
         newly = served.any(axis=1) & (self.served_at[rows] < 0)
         self.served_at[rows] = np.where(newly, self.t[rows, None], self.served_at[rows])
         return fresh.sum(axis=1), served.any(axis=1).all(axis=1)
@@ -465,7 +466,7 @@ class FleetGreedy:
         e, k = mask.shape[:2]
         rows = np.arange(e)
         here = view.at_uavs()  # [E, K, N]
-        served = here >= cfg.p_t_db
+        served = reaches_target(here, cfg.p_t_db)
         to = view.pos[:, :, None, :] + FLEET_MOVES[None, None, :STAY]  # [E, K, 4, 2]
         seen = view.visits[rows[:, None, None], to[..., 0], to[..., 1]] > 0  # [E, K, 4]
         value = np.minimum(view.memory[rows[:, None, None, None], np.arange(cfg.users)[None, None, None],
@@ -571,7 +572,7 @@ class FleetPlacement:
         cfg = view.config
         e, k, n = len(view.t), cfg.uavs, cfg.users
         here = view.at_uavs()
-        served = here >= cfg.p_t_db
+        served = reaches_target(here, cfg.p_t_db)
         groups = np.zeros((e, k, n), bool)
         kept = np.zeros((e, n), bool)
         for uav in range(k):
@@ -749,7 +750,7 @@ class FleetTrainEnv:
         here = FleetView.of(self.fleet).at_uavs()
         weakest = np.where(groups, here, np.inf).min(axis=2)
         has = groups.any(axis=2)
-        return np.where(has, weakest, 0.0), has & (weakest >= self.maps.config.p_t_db)
+        return np.where(has, weakest, 0.0), has & reaches_target(weakest, self.maps.config.p_t_db)
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
         k, cfg, f = self.uavs, self.env_config, self.fleet
@@ -907,7 +908,7 @@ class FleetSearcher:
         cfg, p, k = view.config, view.config.window // 2, len(mask)
         cols = cm.index[view.pos[r, :, 0] - p, view.pos[r, :, 1] - p]
         seen = view.visits[r, cm.legal[:, 0] + p, cm.legal[:, 1] + p] > 0
-        known = view.memory[r][:, cm.legal[:, 0] + p, cm.legal[:, 1] + p] >= cfg.p_t_db  # [N, M]
+        known = reaches_target(view.memory[r][:, cm.legal[:, 0] + p, cm.legal[:, 1] + p], cfg.p_t_db)  # [N, M]
         cover = np.where(seen[None], known.astype(np.float32), cover)
         paths = [self.searcher.paths_from(self.public, canvas, cm, int(c)) for c in cols]  # (discount, predecessors)
         discounts = [np.where(d < 0, 0.0, d) for d, _ in paths]

@@ -23,6 +23,7 @@ from uavplace.infra.files import in_corpus
 from uavplace.rl.config import EnvConfig
 from uavplace.rl.randomness import stream_key, uniforms
 from uavplace.schemas import InputError
+from uavplace.schemas.constants import reaches_target
 
 #: Moves of the 4 actions in canvas coordinates (dy, dx): 0 north (+y), 1 east (+x), 2 south (-y), 3 west (-x).
 MOVES = np.array([[1, 0], [0, 1], [-1, 0], [0, -1]], dtype=np.int64)
@@ -102,7 +103,7 @@ class MapSet:
         for s, sc in enumerate(scenarios):
             b = bundles[sc.bundle]
             legal = ~b.blocked
-            target = legal & ~b.dead[sc.user] & (b.sinr_db[sc.user] >= config.p_t_db)
+            target = reaches_target(b.sinr_db[sc.user], config.p_t_db, b.dead[sc.user], legal)
             steps = steps_to_target(legal, target)
             for k in range(S):
                 v = S * s + k

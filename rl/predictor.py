@@ -32,6 +32,7 @@ from pydantic import Field
 
 from uavplace.dataset.bundle import Bundle, public_settings
 from uavplace.schemas.base import Contract
+from uavplace.schemas.constants import CARRIER_HZ, PAPER_NOISE_DBM, TX_POWER_DBM
 
 #: The version of the features' code: a cache of predicted maps is keyed by it and by the constants.
 FEATURES_VERSION = 3
@@ -90,9 +91,9 @@ class Scene:
             ground_height_m=ground,
             spacing_m=float(settings["spacing_m"]),
             altitude_m=altitude,
-            frequency_hz=given("frequency_hz", 8e8),
-            tx_power_dbm=given("tx_power_dbm", 20.0),
-            noise_dbm=given("noise_dbm", -104.0),
+            frequency_hz=given("frequency_hz", CARRIER_HZ),
+            tx_power_dbm=given("tx_power_dbm", TX_POWER_DBM),
+            noise_dbm=given("noise_dbm", PAPER_NOISE_DBM),
             floor_db=float(settings["floor_db"]),
         )
 

@@ -49,6 +49,7 @@ from uavplace.rl.predictor import PhysicsConstants, PhysicsPredictor, Predictor,
 from uavplace.rl.view import AgentView, PublicMaps
 from uavplace.schemas import InputError
 from uavplace.schemas.base import Contract
+from uavplace.schemas.constants import reaches_target
 
 #: Where the shipped physics tier's constants live (in the project, wherever a command runs).
 DEFAULT_CONSTANTS = shipped("data/agents/searcher/predictor.json")
@@ -429,7 +430,7 @@ class MapSearchPolicy:
         if not len(targets):
             return default
         lower = np.concatenate([[floor_db], self.bin_edges(floor_db, p_t_db)])  # the live bins' lower edges
-        success = np.concatenate([[False], lower >= p_t_db])  # the bins above P_T: the episode ends there
+        success = np.concatenate([[False], reaches_target(lower, p_t_db)])  # the bins above P_T: the episode ends
         kept = _rows(maps, keep)
         values = np.full(len(MOVES), -np.inf)
         for a, (dy, dx) in enumerate(MOVES):

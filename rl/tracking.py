@@ -39,6 +39,7 @@ from uavplace.rl.maps import MOVES, MapSet, transform
 from uavplace.rl.randomness import combine, stream_key
 from uavplace.rl.vec_env import EpisodeRows, encode_obs, refuse_bad_rows
 from uavplace.schemas.base import Contract
+from uavplace.schemas.constants import P_T_DB, reaches_target
 
 #: The 5 tracking actions in canvas coordinates (dy, dx): the 4 placement moves, then 4 = stay.
 TRACK_MOVES = np.vstack([MOVES, [[0, 0]]])
@@ -57,7 +58,7 @@ class TrackingConfig(Contract):
 
     model_config = ConfigDict(allow_inf_nan=False)
 
-    p_t_db: float = Field(default=5.0, description="SINR target P_T [dB]: a step at or above it is covered")
+    p_t_db: float = Field(default=P_T_DB, description="SINR target P_T [dB]: a step at or above it is covered")
     horizon: int = Field(default=300, ge=1, le=100_000, description="Steps per episode")
     uav_speed_mps: float = Field(default=10.0, gt=0, le=100, description="UAV speed: one cell per cell side / speed seconds")
     window: int = Field(default=61, ge=3, description="Observation side in cells (odd), centred on the UAV")
@@ -133,7 +134,7 @@ class RouteSet:
         start_cells: list[np.ndarray] = []  # per route point: the canvas cells an episode may start in then
         offset = 0
         for i, b in enumerate(with_routes):
-            target = ~b.blocked & ~b.route_dead & (b.route_sinr_db >= config.p_t_db)
+            target = reaches_target(b.route_sinr_db, config.p_t_db, b.route_dead, ~b.blocked)
             steps = steps_to_target(~b.blocked, target)
             for k in range(self.turns):
                 ny, nx = self.maps.shapes[S * i + k]
@@ -141,7 +142,7 @@ class RouteSet:
                 self.sinr[sl, p : p + ny, p : p + nx] = transform(b.route_sinr_db, k)
                 self.dead[sl, p : p + ny, p : p + nx] = transform(b.route_dead, k)
                 self.steps[sl, p : p + ny, p : p + nx] = transform(steps, k)
-                starts = ~self.maps.blocked[S * i + k] & ~self.dead[sl] & (self.sinr[sl] < config.p_t_db)
+                starts = ~self.maps.blocked[S * i + k] & ~self.dead[sl] & ~reaches_target(self.sinr[sl], config.p_t_db)
                 start_cells += [np.flatnonzero(ok) for ok in starts & (self.steps[sl] != UNREACHABLE)]
                 for route, rows in b.routes.groupby("route", sort=False):
                     first.append(offset + int(rows.index[0]))
@@ -376,7 +377,7 @@ class TrackingEnv(EpisodeRows):
         self.pos = np.where(legal[:, None], target, self.pos)
         self.t += 1
         new = self._measure(self._rows)
-        covered = new >= self.config.p_t_db
+        covered = reaches_target(new, self.config.p_t_db)
         self.covered_steps += covered
         reward = (self.config.cover_reward * covered + self.config.gain_weight * (new - old)).astype(np.float32)
         truncated = self.t >= self.config.horizon
@@ -421,7 +422,7 @@ class Holding:
     def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingEnv) -> np.ndarray:
         action = self.policy.act(obs, mask, env)
         centre = env.config.window // 2
-        return np.where(obs[:, -1, centre, centre] >= env.config.p_t_db, STAY, action)
+        return np.where(reaches_target(obs[:, -1, centre, centre], env.config.p_t_db), STAY, action)
 
 
 class PlacementInTracking:
@@ -524,7 +525,7 @@ class OraclePolicy:
         t = np.arange(1, env.config.horizon + 1)
         points = env.routes.point(np.full(len(t), r), np.full(len(t), env.start_s[row]), t)
         sinr = env.routes.sinr[points, p : p + ny, p : p + nx]
-        covered = (sinr >= env.config.p_t_db) & ~env.routes.dead[points, p : p + ny, p : p + nx]
+        covered = reaches_target(sinr, env.config.p_t_db, env.routes.dead[points, p : p + ny, p : p + nx])
         legal = ~env.maps.blocked[canvas, p : p + ny, p : p + nx]
         path, _ = oracle_path(legal, covered, (int(env.pos[row, 0]) - p, int(env.pos[row, 1]) - p))
         return path + p

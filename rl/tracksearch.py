@@ -32,6 +32,7 @@ from uavplace.rl.searcher import CandidateMaps, MapSearchPolicy, posterior_cover
 from uavplace.rl.tracking import STAY
 from uavplace.rl.view import public_maps
 from uavplace.schemas.base import Contract
+from uavplace.schemas.constants import reaches_target
 
 #: The tracking searcher's name in tables.
 TRACKING_SEARCHER = "tracking searcher"
@@ -143,7 +144,7 @@ class TrackingSearchPolicy:
                 log_b = self.step_belief(self.belief[r], self.moves(canvas, maps, step_s, float(settings["spacing_m"])))
             log_b = np.stack([s.update(maps, row, column, measured, float(settings["floor_db"])) for row in log_b])
             self.belief[r] = log_b - log_b.max()
-            if measured < env.config.p_t_db:
+            if not reaches_target(measured, env.config.p_t_db):
                 rows_of.setdefault(canvas, []).append(r)
         for canvas, rows in rows_of.items():  # the plans, a canvas's rows in one product
             maps = s.canvas_maps(public, canvas)

@@ -23,6 +23,7 @@ import pyarrow as pa
 from pydantic import ConfigDict, Field, field_validator, model_validator
 
 from uavplace.schemas.base import MAX_SEED, NAME_PATTERN, SCHEMA_VERSION, Contract, repeated
+from uavplace.schemas.constants import EMBEDDED_NOISE_DBM, P_T_DB
 from uavplace.schemas.tables import FREQUENCY_RANGE_HZ, POWER_RANGE_DBM, RATIO_RANGE_DB, XY_RANGE_M, Z_RANGE_M, Column, TableSpec
 
 SplitRole = Literal["train", "val", "test"]
@@ -61,7 +62,6 @@ ROUTE_ARRAYS: dict[str, tuple[str, str]] = {
 
 #: The noise-plus-interference level [dBm] the embedded cities (data/raw/) and the shipped agents are calibrated at:
 #: where the embedded test city's genie needs the paper's 14 moves (README, experiments/calibrate_difficulty.py).
-EMBEDDED_NOISE_DBM = -75.0
 
 
 class BuildConfig(Contract):
@@ -103,7 +103,7 @@ class BuildConfig(Contract):
     crop: bool = Field(default=False, description="Drop buildings wholly outside the grid (counted) instead of failing")
     role: SplitRole | None = Field(default=None, description="The city's role in experiments, if declared")
     p_t_db: float = Field(
-        default=5.0, ge=-100, le=100, description="SINR target the manifest's difficulty figures are computed at [dB]"
+        default=P_T_DB, ge=-100, le=100, description="SINR target the manifest's difficulty figures are computed at [dB]"
     )
     val_users: int = Field(default=0, ge=0, description="Users of a train city held out for validation (seeded)")
 

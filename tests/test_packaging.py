@@ -110,3 +110,27 @@ def test_imports_flow_one_way_without_a_cycle():
     for m in graph:
         if m not in state:
             visit(m, [])
+
+
+def test_p_t_and_the_target_rule_have_one_home_each():
+    """P_T's default (5 dB) is written in schemas/constants.py only, every model and command reading it there; the
+    rule "a cell reaches P_T" (an SINR at or above P_T) is ``schemas.constants.reaches_target`` only."""
+    import re
+
+    default = re.compile(r"(p_t_db|p-t-db)\W.*default=5\.0|p_t_db: float = 5\.0")
+    rule = re.compile(r"(>=|<)\s*[\w.]*p_t(_db)?\b")
+    found = []
+    for stage in STAGES:
+        for path in sorted((REPO / stage).rglob("*.py")):
+            if path.name == "constants.py" and stage == "schemas":
+                continue
+            text = path.read_text(encoding="utf-8")
+            for n, line in enumerate(text.splitlines(), 1):
+                if default.search(line) or (rule.search(line) and not line.lstrip().startswith(("#", '"', "``"))):
+                    found.append(f"{path.relative_to(REPO)}:{n}: {line.strip()}")
+    assert not found, "\n".join(found)
+    from uavplace.rl.config import EnvConfig
+    from uavplace.schemas.constants import P_T_DB, reaches_target
+
+    assert EnvConfig().p_t_db == P_T_DB == 5.0
+    assert reaches_target([4.99, 5.0, 6.0], 5.0, dead=[False, False, True]).tolist() == [False, True, False]
