@@ -12,7 +12,19 @@ from pydantic import ValidationError
 from rich.markup import escape
 
 from uavplace.dataset.catalog import ROLES_FILE, list_cities, nearest_names
-from uavplace.infra.console import SEED, Bounds, Finite, Metres, command_line, console, fail, plain_table, root_option, stdout
+from uavplace.infra.console import (
+    SEED,
+    Bounds,
+    Finite,
+    Metres,
+    command_line,
+    console,
+    fail,
+    folder_option,
+    plain_table,
+    root_option,
+    stdout,
+)
 from uavplace.infra.files import check_name
 from uavplace.schemas import InputError
 from uavplace.schemas.base import validation_message
@@ -463,19 +475,13 @@ def show(city: str, version: str | None, user: int, out_path: Path | None, root:
 @click.command()
 @click.argument("cities", metavar="CITY...", nargs=-1, required=True)
 @root_option
-@click.option(
-    "--raw",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=Path("data/raw"),
-    show_default=True,
-    help="Where each city's raw folder is: its simulation.json (seed and ray-trace settings) goes into the pack.",
+@folder_option(
+    "--raw", "data/raw", "Where each city's raw folder is: its simulation.json (seed and ray-trace settings) goes into the pack."
 )
-@click.option(
+@folder_option(
     "--out",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=Path("data/trainmaps"),
-    show_default=True,
-    help="Folder of packs: one <city>.npz each (a regular file or absent; written to a temporary file, then renamed).",
+    "data/trainmaps",
+    "Folder of packs: one <city>.npz each (a regular file or absent; written to a temporary file, then renamed).",
 )
 def pack(cities: tuple[str, ...], root: Path, raw: Path, out: Path) -> None:
     """Pack built cities' maps into the compact training-maps form the predictor trains on (dataset/trainmaps.py):
@@ -519,13 +525,7 @@ def pack(cities: tuple[str, ...], root: Path, raw: Path, out: Path) -> None:
     "each cell's received power, path loss and SINR (dataset/export.py documents both, units and frames).",
 )
 @root_option
-@click.option(
-    "--out",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=Path("exports"),
-    show_default=True,
-    help="Folder of the exports (a RadioMapSeer-style folder is replaced only if it is one).",
-)
+@folder_option("--out", "exports", "Folder of the exports (a RadioMapSeer-style folder is replaced only if it is one).")
 def export(cities: tuple[str, ...], formats: tuple[str, ...], root: Path, out: Path) -> None:
     """Write built cities in the formats of the radio-map community: RadioMapSeer-style folders (PNG maps) and
     DeepMIMO-style array files."""

@@ -73,6 +73,13 @@ root_option = click.option(
 )
 
 
+def folder_option(name: str, default: str, help: str):  # noqa: A002, ANN201 - click's word; a click decorator
+    """``name`` (``--out``, ``--raw``): a folder, ``default`` shown, one wording of the type for every command."""
+    return click.option(
+        name, type=click.Path(file_okay=False, path_type=Path), default=Path(default), show_default=True, help=help
+    )
+
+
 def ray_address_option(what: str):  # noqa: ANN201 - a click decorator
     """``--ray-address``: the Ray cluster ``what`` runs on (a local Ray by default), one wording for every command."""
     return click.option(
