@@ -247,7 +247,7 @@ def report(
                 test_epsilon=test_epsilon, seed=seed, n_boot=n_boot, trajectories=trajectories, split=split, groups=grouped,
                 predictor=None if predictor.lower() == "none" else predictor,
             )  # fmt: skip
-            result = _one_report(config, folders[dataset], root, quiet)
+            result = _one_report(config, folders[dataset], root, quiet, (datasets.index(dataset) + 1, len(datasets)))
             reports.append(result)
             title = f"{episodes} episodes in {dataset} (t_max {t_max}, P_T {p_t_db:g} dB)"
             rows = result.rows
@@ -409,8 +409,9 @@ def _fleet_report(datasets: tuple[str, ...], runs: list[Path], out: Path | None,
     stdout().print(f"report: {page}", highlight=False, soft_wrap=True)
 
 
-def _one_report(config, out: Path, root: Path, quiet: bool):
-    """``make_report`` with a progress bar per method."""
+def _one_report(config, out: Path, root: Path, quiet: bool, city: tuple[int, int] = (1, 1)):
+    """``make_report`` with a progress bar per method (and stage: a searcher's predicted maps), named by the city's
+    place among the report's (``city``: its number and the count) and the method's number."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from uavplace.eval.report import make_report
@@ -424,9 +425,13 @@ def _one_report(config, out: Path, root: Path, quiet: bool):
         def on_progress(method: str, done: int, total: int) -> None:
             new = method not in tasks
             if new:
-                tasks[method] = bar.add_task(f"{config.dataset} {method}", total=total)
+                tasks[method] = bar.add_task(f"{where} {config.dataset}, {len(tasks) + 1}: {method}", total=total)
             bar.update(tasks[method], completed=done)
-            log(f"report {config.dataset}: {method} {done}/{total} episodes", last=new or done >= total)
+            unit = "candidates" if method.endswith("predicted maps") else "episodes"
+            log(f"report {where} {config.dataset}, method {list(tasks).index(method) + 1}: {method} {done}/{total} {unit}",
+                last=new or done >= total)  # fmt: skip
+
+        where = f"city {city[0]} of {city[1]}:"
 
         return make_report(config, out, root=root, command=command_line(), on_progress=on_progress)
 

@@ -39,6 +39,7 @@ from uavplace.rl.searcher import (
     SearchConfig,
     load_predictor,
 )
+from uavplace.rl.view import PublicMaps
 from uavplace.schemas import InputError
 from uavplace.schemas.base import MAX_SEED, Contract
 from uavplace.schemas.bundle import BundleManifest
@@ -236,6 +237,14 @@ def evaluate(
     if len(set(names)) != len(names):
         raise ValueError(f"two methods share a name: {names}")
     results = {}
+    for name, policy, mapset in methods:  # the searchers' predicted maps first, shown as they are made (the agents that
+        if hasattr(policy, "on_predict"):  # read the belief find them in the cache); the same maps as made on first use
+            if on_progress is not None:
+                policy.on_predict = lambda done, total, name=name: on_progress(f"{name}: predicted maps", done, total)
+            public = PublicMaps.of(mapset)
+            specs = mapset.episodes_from(episodes, maps[""])
+            for canvas in np.unique(mapset.view_map[specs[:, 0].astype(np.int64)]):  # the canvases the episodes fly
+                policy.canvas_maps(public, int(canvas))
     for name, policy, mapset in methods:
         report = None if on_progress is None else (lambda done, total, name=name: on_progress(name, done, total))
         specs = mapset.episodes_from(episodes, maps[""])  # an agent's window pads its canvas by another margin

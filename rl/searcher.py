@@ -32,6 +32,7 @@ import io
 import math
 import zipfile
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -55,6 +56,8 @@ from uavplace.schemas.constants import reaches_target
 DEFAULT_CONSTANTS = shipped("data/agents/searcher/predictor.json")
 #: The shipped predictor the searcher uses: the learned tier (chosen on the validation cities, docs/searcher.md).
 DEFAULT_PREDICTOR = shipped("data/agents/searcher/unet")
+#: Candidates predicted at once between two progress reports (a multiple of the learned tier's batch of 16).
+PREDICT_CHUNK = 128
 #: The span of SINR [dB] over which the likelihood's flat share is spread.
 OUTLIER_SPAN_DB = 100.0
 #: The searcher's name in tables (its ablation's: SEARCHER + ", no buildings").
@@ -220,6 +223,8 @@ class MapSearchPolicy:
         self.cache = cache or PredictionCache(None)
         self.name = name or (SEARCHER if self.config.buildings else SEARCHER + ", no buildings")
         self._canvases: dict[tuple, CandidateMaps] = {}
+        #: Told ``(candidates done, candidates)`` as a canvas's maps are predicted (a report's progress), or None.
+        self.on_predict: Callable[[int, int], None] | None = None
         self._graphs: dict[tuple, sparse.csr_matrix] = {}
         self._paths: OrderedDict[tuple, tuple[np.ndarray, np.ndarray]] = OrderedDict()
         self.belief: list[np.ndarray | None] = []
@@ -249,12 +254,26 @@ class MapSearchPolicy:
         )
         hit = self.cache.load(cache_key, (len(cells), len(legal)))
         if hit is None:
-            mu, p_dead = self.predictor.predict(scene, cells, legal)
+            mu, p_dead = self.predict_all(scene, cells, legal)
             self.cache.save(cache_key, mu, p_dead)
             hit = tuple(a.astype(np.float16).astype(np.float32) for a in (mu, p_dead))  # as stored: cold = warm
         mu, p_dead = hit
         out = self._canvases[key] = CandidateMaps(cells, legal, index, mu, p_dead, self.cover(mu, p_dead, public.config.p_t_db))
         return out
+
+    def predict_all(self, scene: Scene, cells: np.ndarray, legal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The predictor's maps of every candidate, in chunks of ``PREDICT_CHUNK`` (a multiple of the learned tier's
+        batch, so the same batches and the same numbers as in one call), telling ``on_predict(done, total)`` after each:
+        the minutes of a city's first predictions are shown as they pass, never a silent wait."""
+        mu = np.empty((len(cells), len(legal)), np.float32)
+        p_dead = np.empty_like(mu)
+        for i in range(0, len(cells), PREDICT_CHUNK):
+            mu[i : i + PREDICT_CHUNK], p_dead[i : i + PREDICT_CHUNK] = self.predictor.predict(
+                scene, cells[i : i + PREDICT_CHUNK], legal
+            )
+            if self.on_predict is not None:
+                self.on_predict(min(i + PREDICT_CHUNK, len(cells)), len(cells))
+        return mu, p_dead
 
     @property
     def sigma(self) -> float:

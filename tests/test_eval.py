@@ -492,3 +492,20 @@ def test_a_missing_training_bundle_is_said_in_words_in_the_caption(tmp_path):
     (note,) = notes.values()
     assert not bounds and note.startswith("no bound: the training cities (") and note.endswith("are not built here")
     assert "bundle version" not in note and "@" not in note
+
+
+def test_report_progress_names_the_city_the_method_and_the_predicted_maps(tiny, tmp_path):
+    """To a log, the report's progress names the city's place among the report's, each method's number, and the
+    searcher's predicted maps as they are made (a cold cache: no silent wait before the first episode)."""
+    import shutil
+
+    root = tmp_path / "root"
+    shutil.copytree(tiny, root)
+    shutil.rmtree(root / ".predictions", ignore_errors=True)
+    args = ["report", "--dataset", "tiny", "--root", str(root), "--episodes", "4", "--bootstrap", "100", "--out",
+            str(tmp_path / "rep")]  # fmt: skip
+    res = CliRunner().invoke(uavrl, args)  # not a terminal: plain progress lines
+    assert res.exit_code == 0, res.output
+    lines = [line for line in res.output.splitlines() if line.startswith("report city 1 of 1: tiny, method ")]
+    assert any("map searcher: predicted maps" in line and line.endswith("candidates") for line in lines), lines
+    assert any(line.endswith("4/4 episodes") for line in lines)
