@@ -105,9 +105,9 @@ def tracking_methods(task: TrackingConfig, seed: int, agents: list[Agent] = (), 
                      searcher: TrackingSearchPolicy | None = None) -> list:  # fmt: skip
     """The methods of the report: the upper bound first, then the agents (tracking agents on the observations they
     were trained with, ``TrackingAgent``; placement agents run unchanged, ``PlacementInTracking``), then the
-    re-planning genie, the tracking searcher (when given) and the baselines. With ``hold``, every method that cannot stay (the placement agents, the
-    random walk, greedy hill-climbing) is also played holding its cell while it covers the user (``Holding``), right
-    after itself; tracking agents have a stay action of their own, and the genie and the oracle already stay."""
+    re-planning genie, the tracking searcher (when given) and the baselines. With ``hold``, every method that cannot
+    stay (the placement agents, the random walk, greedy hill-climbing) is also played holding its cell while it covers
+    the user (``Holding``), right after itself; tracking agents, the searcher, the genie and the oracle stay already."""
     played = []
     for a in agents:
         if a.config.task == "tracking":
