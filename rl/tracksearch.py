@@ -107,9 +107,10 @@ class TrackingSearchPolicy:
         for r in np.asarray(rows, np.int64):
             self.belief[r] = None
 
-    def moves(self, canvas: int, maps: CandidateMaps, step_s: float, cell_m: float) -> list[sparse.csr_matrix]:
-        """One ``transition`` per speed class for the candidates of ``canvas``, kept."""
-        key = (canvas, step_s)
+    def moves(self, city: str, canvas: int, maps: CandidateMaps, step_s: float, cell_m: float) -> list[sparse.csr_matrix]:
+        """One ``transition`` per speed class for the candidates of ``canvas`` of ``city`` (its bundle version: a
+        canvas number names a canvas of one city's maps only), kept."""
+        key = (city, canvas, step_s)
         if key not in self._moves:
             stride = self.searcher.config.stride
             qs = [min(1.0, v * step_s / (stride * cell_m)) for v in self.motion.speeds_mps]
@@ -141,7 +142,8 @@ class TrackingSearchPolicy:
                 log_b = np.repeat(self.prior[:, None], len(maps.cells), axis=1)
             else:
                 step_s = float(settings["spacing_m"]) / env.config.uav_speed_mps
-                log_b = self.step_belief(self.belief[r], self.moves(canvas, maps, step_s, float(settings["spacing_m"])))
+                moves = self.moves(settings["version"], canvas, maps, step_s, float(settings["spacing_m"]))
+                log_b = self.step_belief(self.belief[r], moves)
             log_b = np.stack([s.update(maps, row, column, measured, float(settings["floor_db"])) for row in log_b])
             self.belief[r] = log_b - log_b.max()
             if not reaches_target(measured, env.config.p_t_db):

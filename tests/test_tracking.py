@@ -638,3 +638,24 @@ def test_motion_defaults_are_the_training_routes_fit(tmp_path):
     assert fit_motion(bundles) == MotionModel()
     with pytest.raises(ValueError):
         MotionModel(speeds_mps=(1.0,), weights=(0.5,))
+
+
+def test_tracking_searcher_plays_one_city_after_another(root, tmp_path):
+    """The report plays each city with the same searcher: a city whose canvas has the same number as the last one's
+    but other candidates gets its own motion (the first report of three cities once failed on it)."""
+    from uavplace.rl.predictor import PhysicsConstants
+    from uavplace.rl.searcher import MapSearchPolicy, SearchConfig
+    from uavplace.rl.tracksearch import MotionModel, TrackingSearchPolicy
+
+    other = tmp_path / "p"
+    ingest_city(write_grid_city(tmp_path / "raw", nx=8, ny=6, n_tx=3, seed=5, dead_share=0.0, routes=ROUTES), other,
+                name="walk2")  # fmt: skip
+    build_city("walk2", BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=-45.0), other)
+    constants = PhysicsConstants(intercept_db=-20, log_d_db=-23, wall_db=-9, diffraction_weight=0.1,
+                                 dead_level_db=-13, dead_scale_db=4, error_db=10)  # fmt: skip
+    policy = TrackingSearchPolicy(MapSearchPolicy(constants, SearchConfig(stride=1)), MotionModel())
+    task = TrackingConfig(horizon=12, window=9)
+    for bundle in (load_bundle("walk", root=root), load_bundle("walk2", root=other)):
+        routes = RouteSet([bundle], task)
+        played = run_tracking(routes, policy, routes.sample_episodes(6, np.random.default_rng(0)), num_envs=3)
+        assert len(played.table) == 6
