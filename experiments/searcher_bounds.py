@@ -24,7 +24,7 @@ The dense validation crop (a 120 x 120 m piece of etoile-val's region, 160 users
         --samples 1.6e7 --gap-fill-walk 4-neighbour --out runs/bounds/raw --trace-cache runs/traces
     uavdata ingest runs/bounds/raw/etoile-val-dense/ --out runs/bounds/processed
     uavdata build --grid 4m --alt 10 --root runs/bounds/processed --city etoile-val-dense
-    python experiments/searcher_bounds.py --root runs/bounds/processed --city etoile-val-dense --true-maps
+    python experiments/searcher_bounds.py --root runs/bounds/processed --city etoile-val-dense --true-maps [--p-t-db 20]
 
     python experiments/searcher_bounds.py [--city etoile-val] [--episodes 300] [--radius 2]
 
@@ -55,6 +55,7 @@ from uavplace.rl.searcher import (
     load_predictor,
 )
 from uavplace.rl.view import AgentView, PublicMaps, public_maps
+from uavplace.schemas.constants import P_T_DB
 
 TOLD = "searcher told where (within R cells)"
 TRUE_MAPS = "searcher given the true maps"
@@ -118,6 +119,7 @@ def main() -> None:
     ap = validation_parser(__doc__, episodes=300)
     ap.add_argument("--radius", type=int, default=2, help="Cells (Chebyshev) of the told-where oracle's first belief")
     ap.add_argument("--true-maps", action="store_true", help="Also the searcher given every user's true map")
+    ap.add_argument("--p-t-db", type=float, default=P_T_DB, help="The SINR target P_T [dB] (a harder target on an easy crop)")
     ap.add_argument("--root", type=Path, default=Path("data/processed"))
     args = ap.parse_args()
     predictor = load_predictor(DEFAULT_PREDICTOR)
@@ -135,7 +137,7 @@ def main() -> None:
                                                                                            radius=args.radius)]  # fmt: skip
         if args.true_maps:
             methods.append(TrueMapsSearch(bundle, predictor, cache=cache))
-        config = ReportConfig(dataset=city, episodes=args.episodes, seed=args.seed, predictor=None)
+        config = ReportConfig(dataset=city, episodes=args.episodes, seed=args.seed, predictor=None, p_t_db=args.p_t_db)
         t0 = time.perf_counter()
         res = evaluate(config, bundle, [], baselines=methods)
         steps = pd.DataFrame({m.name: res[m.name]["steps"] for m in methods})
