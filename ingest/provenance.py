@@ -66,12 +66,13 @@ EXPORT_LINE = "# export sha256: "
 
 
 def export_digest(p2m_files: list[Path]) -> str:
-    """The sha256 of an export's receiver outputs: each ``.p2m`` (or ``.p2m.gz``) file's name and bytes, in name
-    order. What a side file records of the export it describes."""
+    """The sha256 of an export's receiver outputs: each ``.p2m`` (or ``.p2m.gz``) file's name and text (a gzip's
+    decompressed: its header's time stamp says nothing of the receivers), in name order. What a side file records of
+    the export it describes."""
     digest = hashlib.sha256()
     for path in sorted(p2m_files, key=lambda p: p.name):
         digest.update(path.name.encode() + b"\0")
-        with path.open("rb") as f:
+        with gzip.open(path, "rb") if path.name.lower().endswith(".gz") else path.open("rb") as f:
             while chunk := f.read(1 << 20):
                 digest.update(chunk)
     return digest.hexdigest()

@@ -162,7 +162,8 @@ def test_bad_simulation_inputs(tmp_path):
         (["--freq", "-8e8"], "--freq"), (["--crop=-inf,0,100,100"], "--crop"), (["--alt", "-10"], "--alt"),
         (["--count", "1000000000"], "--count"), (["--users", "100000000"], "--users"), (["--tx-dbm", "nan"], "--tx-dbm"),
         (["--depth", "99"], "--depth"), (["--extent", "0,0,50000,100"], "--extent"), (["--user", "nan,3"], "--user"),
-        (["--grid", "0.5", "--extent", "0,0,4000,4000", "--users", "27"], "--extent with --grid and --users"),
+        (["--grid", "0.5", "--extent", "0,0,4000,4000", "--users", "27"], "--extent"),  # 64 M cells: grid_cells
+        (["--grid", "2", "--extent", "0,0,2000,2000", "--users", "1000"], "--extent with --grid and --users"),
     ):  # fmt: skip
         res = CliRunner().invoke(uavdata, ["simulate", "procedural:tiny", "--name", "t", "--out", str(tmp_path), *args])
         named = f"error: {option}:" in res.output or f"Invalid value for '{option}'" in res.output  # by click or by the check
