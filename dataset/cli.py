@@ -506,8 +506,12 @@ def pack(cities: tuple[str, ...], root: Path, raw: Path, out: Path) -> None:
         meta = write_pack(path, TrainingMaps.of_bundle(bundle), simulation_record(raw / city))
         size = path.stat().st_size
         total_users, total_bytes = total_users + meta.num_users, total_bytes + size
-        out_.print(f"{city}: {meta.num_users} users, {size / 1e3:.0f} kB ({size / meta.num_users / 1e3:.1f} kB a user), "
-                   f"{meta.clipped_cells} cells clipped -> {path}", highlight=False, soft_wrap=True)  # fmt: skip
+        out_.print(
+            f"{city}: {meta.num_users} users, {size / 1e3:.0f} kB ({size / meta.num_users / 1e3:.1f} kB a user), "
+            f"{meta.clipped_cells} cells clipped -> {path}",
+            highlight=False,
+            soft_wrap=True,
+        )
     out_.print(f"packed {total_users} users into {total_bytes / 1e6:.1f} MB under {out}", highlight=False)
 
 

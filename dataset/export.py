@@ -109,7 +109,7 @@ def write_radiomapseer(bundle: Bundle, out: str | Path) -> Path:
                 "floor_db": floor,
                 "step_db": STEP_DB,
                 "value_db": "floor_db + (pixel - 1) * step_db",
-            },  # fmt: skip
+            },
             "heights": "building height above the ground [cm], 16-bit",
             "grid": {
                 "x_min_m": g.x_min_m,
@@ -117,7 +117,7 @@ def write_radiomapseer(bundle: Bundle, out: str | Path) -> Path:
                 "spacing_m": g.spacing_m,
                 "num_x": g.num_x,
                 "num_y": g.num_y,
-            },  # fmt: skip
+            },
             "frame": "x east, y north [m]; pixel (row, col) is the cell centred at x = x_min_m + (col + 0.5) spacing_m, "
             "y = y_min_m + (num_y - row - 0.5) spacing_m: row 0 is the northernmost",
             "settings": settings,
@@ -136,8 +136,9 @@ def read_radiomapseer(folder: str | Path) -> TrainingMaps:
         shape = (int(grid["num_y"]), int(grid["num_x"]))
         floor, step = float(sinr["floor_db"]), float(sinr["step_db"])
     except (ValueError, KeyError, TypeError) as err:
-        raise InputError(folder / "scale.json", f"not this format's scale ({type(err).__name__}: {str(err)[:80]})",
-                         field="scale") from None  # fmt: skip
+        raise InputError(
+            folder / "scale.json", f"not this format's scale ({type(err).__name__}: {str(err)[:80]})", field="scale"
+        ) from None
     if scale.get("format") != RADIOMAPSEER:
         raise InputError(folder / "scale.json", f"format {scale.get('format')!r}, expected {RADIOMAPSEER}", field="format")
     blocked = np.flipud(_image(folder / "png/buildings_complete" / f"{city}.png", shape, np.uint8)) > 127
@@ -161,8 +162,17 @@ def read_radiomapseer(folder: str | Path) -> TrainingMaps:
         raise InputError(users_csv, "no user", field="user")
     settings["floor_db"] = floor
     height_rel = (ground - float(settings["altitude_m"])).astype(np.float32)
-    return TrainingMaps(city, str(scale.get("bundle_version", "")), settings, height_rel, blocked, np.array(users, np.int64),
-                        np.stack(sinr_maps), np.stack(dead_maps), np.zeros((len(users), *shape), np.uint8))  # fmt: skip
+    return TrainingMaps(
+        city,
+        str(scale.get("bundle_version", "")),
+        settings,
+        height_rel,
+        blocked,
+        np.array(users, np.int64),
+        np.stack(sinr_maps),
+        np.stack(dead_maps),
+        np.zeros((len(users), *shape), np.uint8),
+    )
 
 
 def write_deepmimo(bundle: Bundle, out: str | Path) -> Path:
@@ -187,10 +197,15 @@ def write_deepmimo(bundle: Bundle, out: str | Path) -> Path:
         "received_power": "SINR + noise (noise plus background interference, the bundle's noise_dbm)",
         "settings": settings,
     }
-    arrays = {"tx_positions_m": tx.astype(np.float64), "rx_positions_m": rx.astype(np.float64), "rx_power_dbm": rx_power,
-              "path_loss_db": (np.float32(power) - rx_power).astype(np.float32) if power is not None else rx_power * np.nan,
-              "sinr_db": sinr, "blocked": bundle.blocked.ravel(),
-              "meta": np.frombuffer(json.dumps(meta).encode(), np.uint8)}  # fmt: skip
+    arrays = {
+        "tx_positions_m": tx.astype(np.float64),
+        "rx_positions_m": rx.astype(np.float64),
+        "rx_power_dbm": rx_power,
+        "path_loss_db": (np.float32(power) - rx_power).astype(np.float32) if power is not None else rx_power * np.nan,
+        "sinr_db": sinr,
+        "blocked": bundle.blocked.ravel(),
+        "meta": np.frombuffer(json.dumps(meta).encode(), np.uint8),
+    }
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)
     path = Path(out) / f"{bundle.city}.deepmimo.npz"

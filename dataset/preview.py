@@ -70,12 +70,22 @@ def render_bundle(bundle: Bundle, user: int, out: str | Path) -> Path:
     unrecorded = (bundle.provenance[user] == NOT_RECORDED) & ~blocked
     if unrecorded.any():  # said in words, not hatched: the export does not say whether these were traced or estimated
         share = 100 * unrecorded.sum() / max(int((~blocked).sum()), 1)
-        handles.append(matplotlib.patches.Patch(facecolor="none", edgecolor="none",
-                                                label=f"not recorded ({share:.1f} %): traced or estimated, the export "
-                                                "does not say"))  # fmt: skip
+        handles.append(
+            matplotlib.patches.Patch(
+                facecolor="none",
+                edgecolor="none",
+                label=f"not recorded ({share:.1f} %): traced or estimated, the export does not say",
+            )
+        )
     if handles:
-        ax.legend(handles=handles, loc="upper left", fontsize=7, framealpha=0.85, title="where the values came from "
-                  "(hatched: estimated, not traced at the cell)", title_fontsize=7)  # fmt: skip
+        ax.legend(
+            handles=handles,
+            loc="upper left",
+            fontsize=7,
+            framealpha=0.85,
+            title="where the values came from (hatched: estimated, not traced at the cell)",
+            title_fontsize=7,
+        )
     row = bundle.users.iloc[user]
     if np.isfinite(row["x_m"]) and np.isfinite(row["y_m"]):
         ax.plot(row["x_m"], row["y_m"], marker="*", color="cyan", markersize=14, markeredgecolor="black")

@@ -89,8 +89,17 @@ class TrainingMaps:
         chosen = bundle.user_indices() if users is None else np.asarray(users, np.int64)
         table = bundle.users.set_index("user")
         cells = np.array([[int(table.at[u, "iy"]), int(table.at[u, "ix"])] for u in chosen], np.int64).reshape(-1, 2)
-        return cls(bundle.city, bundle.version, public_settings(bundle), bundle.height_rel_m, bundle.blocked, cells,
-                   bundle.sinr_db[chosen], bundle.dead[chosen], bundle.provenance[chosen])  # fmt: skip
+        return cls(
+            bundle.city,
+            bundle.version,
+            public_settings(bundle),
+            bundle.height_rel_m,
+            bundle.blocked,
+            cells,
+            bundle.sinr_db[chosen],
+            bundle.dead[chosen],
+            bundle.provenance[chosen],
+        )
 
 
 def _digest(a: np.ndarray) -> str:
@@ -126,9 +135,18 @@ def pack_bytes(maps: TrainingMaps, simulation: dict | None = None, step_db: floa
         "sinr": sinr,
         "provenance": np.asarray(maps.provenance, np.uint8),
     }
-    meta = PackMeta(format=FORMAT, city=maps.city, bundle_version=maps.version, settings=maps.settings, step_db=step_db,
-                    shape=tuple(maps.blocked.shape), num_users=len(maps.users), clipped_cells=clipped,
-                    simulation=simulation or {}, sha256={k: _digest(a) for k, a in arrays.items()})  # fmt: skip
+    meta = PackMeta(
+        format=FORMAT,
+        city=maps.city,
+        bundle_version=maps.version,
+        settings=maps.settings,
+        step_db=step_db,
+        shape=tuple(maps.blocked.shape),
+        num_users=len(maps.users),
+        clipped_cells=clipped,
+        simulation=simulation or {},
+        sha256={k: _digest(a) for k, a in arrays.items()},
+    )
     buf = io.BytesIO()
     members = {"meta": np.frombuffer(meta.model_dump_json().encode(), np.uint8), **arrays}
     with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_LZMA) as z:  # an .npz numpy reads; LZMA: ~20 % smaller
@@ -190,8 +208,17 @@ def read_pack(path: str | Path) -> TrainingMaps:
     except (KeyError, TypeError, ValueError):
         raise InputError(path, "settings hold no floor_db", field="meta") from None
     sinr, dead = dequantise(arrays["sinr"], floor, meta.step_db)
-    return TrainingMaps(meta.city, meta.bundle_version, dict(meta.settings), arrays["height_dm"].astype(np.float32) / 10,
-                        arrays["blocked"].astype(bool), users, sinr, dead, arrays["provenance"])  # fmt: skip
+    return TrainingMaps(
+        meta.city,
+        meta.bundle_version,
+        dict(meta.settings),
+        arrays["height_dm"].astype(np.float32) / 10,
+        arrays["blocked"].astype(bool),
+        users,
+        sinr,
+        dead,
+        arrays["provenance"],
+    )
 
 
 def list_packs(folder: str | Path) -> list[Path]:

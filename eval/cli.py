@@ -204,8 +204,23 @@ def report(
             _check_runs_once(chosen, "--run")
             check_unseen_runs(chosen, list(datasets), root)
             _check_training_settings(chosen, datasets, p_t_db, root, strict)
-            _fleet_report(datasets, chosen, out, episodes, t_max, p_t_db, test_epsilon, seed, n_boot, uavs, users, predictor,
-                          markdown, root, quiet)  # fmt: skip
+            _fleet_report(
+                datasets,
+                chosen,
+                out,
+                episodes,
+                t_max,
+                p_t_db,
+                test_epsilon,
+                seed,
+                n_boot,
+                uavs,
+                users,
+                predictor,
+                markdown,
+                root,
+                quiet,
+            )
             return
         chosen = list(runs) or default_agents(agents_dir, ("placement", "tracking") if task == "tracking" else "placement")
         if task == "tracking":
@@ -213,8 +228,23 @@ def report(
             _check_training_settings(chosen, datasets, p_t_db, root, strict)
             if groups or split:
                 raise click.UsageError("--task tracking plays every route of the cities: it takes no --group or --split")
-            _tracking_report(datasets, chosen, out, episodes, horizon, p_t_db, test_epsilon, seed, n_boot, trajectories,
-                             hold, markdown, root, quiet, predictor)  # fmt: skip
+            _tracking_report(
+                datasets,
+                chosen,
+                out,
+                episodes,
+                horizon,
+                p_t_db,
+                test_epsilon,
+                seed,
+                n_boot,
+                trajectories,
+                hold,
+                markdown,
+                root,
+                quiet,
+                predictor,
+            )
             return
 
         _check_runs_once(chosen, "--run")
@@ -243,10 +273,19 @@ def report(
         reports = []
         for dataset in datasets:
             config = ReportConfig(
-                dataset=dataset, runs=[str(r) for r in chosen], episodes=episodes, t_max=t_max, p_t_db=p_t_db,
-                test_epsilon=test_epsilon, seed=seed, n_boot=n_boot, trajectories=trajectories, split=split, groups=grouped,
+                dataset=dataset,
+                runs=[str(r) for r in chosen],
+                episodes=episodes,
+                t_max=t_max,
+                p_t_db=p_t_db,
+                test_epsilon=test_epsilon,
+                seed=seed,
+                n_boot=n_boot,
+                trajectories=trajectories,
+                split=split,
+                groups=grouped,
                 predictor=None if predictor.lower() == "none" else predictor,
-            )  # fmt: skip
+            )
             result = _one_report(config, folders[dataset], root, quiet, (datasets.index(dataset) + 1, len(datasets)))
             reports.append(result)
             title = f"{episodes} episodes in {dataset} (t_max {t_max}, P_T {p_t_db:g} dB)"
@@ -256,12 +295,21 @@ def report(
                 title += f"; every column: {result.out / 'report.html'}"
             stdout().print(plain_table(*rows[0], rows=rows[1:], title=title))
             if len(result.diff_rows) > 1:
-                stdout().print(plain_table(*result.diff_rows[0], rows=result.diff_rows[1:],
-                                           title=f"paired differences in {dataset}, method minus reference, 95 % intervals"))  # fmt: skip
+                stdout().print(
+                    plain_table(
+                        *result.diff_rows[0],
+                        rows=result.diff_rows[1:],
+                        title=f"paired differences in {dataset}, method minus reference, 95 % intervals",
+                    )
+                )
             if result.group_rows is not None:
-                stdout().print(plain_table(*result.group_rows[0], rows=result.group_rows[1:],
-                                           title=f"groups of runs in {dataset}: mean over runs [interval over runs, users, "
-                                           "episodes] (runs' range)"))  # fmt: skip
+                stdout().print(
+                    plain_table(
+                        *result.group_rows[0],
+                        rows=result.group_rows[1:],
+                        title=f"groups of runs in {dataset}: mean over runs [interval over runs, users, episodes] (runs' range)",
+                    )
+                )
             stdout().print(f"report: {result.out / 'report.html'}", highlight=False, soft_wrap=True)
         if len(datasets) > 1:
             rows = summary_rows(reports, t_max)
@@ -338,17 +386,39 @@ def _check_training_settings(runs: list[Path], datasets: tuple[str, ...], p_t_db
     warn_or_refuse(unlike_training(runs, list(datasets), root, p_t_db), strict)
 
 
-def _tracking_report(datasets: tuple[str, ...], runs: list[Path], out: Path | None, episodes: int, horizon: int, p_t_db: float,
-                     test_epsilon: float, seed: int, n_boot: int, trajectories: int, hold: bool, markdown: Path | None,
-                     root: Path, quiet: bool, predictor: str) -> None:  # fmt: skip
+def _tracking_report(
+    datasets: tuple[str, ...],
+    runs: list[Path],
+    out: Path | None,
+    episodes: int,
+    horizon: int,
+    p_t_db: float,
+    test_epsilon: float,
+    seed: int,
+    n_boot: int,
+    trajectories: int,
+    hold: bool,
+    markdown: Path | None,
+    root: Path,
+    quiet: bool,
+    predictor: str,
+) -> None:
     from uavplace.eval.tracking import SUMMARY_TITLE, TrackingReportConfig, make_tracking_report, summary_rows, table_rows
     from uavplace.infra.files import atomic_write_text
     from uavplace.rl.tracking import TrackingConfig
 
-    config = TrackingReportConfig(datasets=list(datasets), runs=[str(r) for r in runs], episodes=episodes, seed=seed,
-                                  test_epsilon=test_epsilon, n_boot=n_boot, trajectories=trajectories, hold=hold,
-                                  task=TrackingConfig(horizon=horizon, p_t_db=p_t_db),
-                                  predictor=None if predictor.lower() == "none" else predictor)  # fmt: skip
+    config = TrackingReportConfig(
+        datasets=list(datasets),
+        runs=[str(r) for r in runs],
+        episodes=episodes,
+        seed=seed,
+        test_epsilon=test_epsilon,
+        n_boot=n_boot,
+        trajectories=trajectories,
+        hold=hold,
+        task=TrackingConfig(horizon=horizon, p_t_db=p_t_db),
+        predictor=None if predictor.lower() == "none" else predictor,
+    )
     log = LogLines(quiet)
     with console.status("[bold]tracking report[/]", spinner="dots") if not quiet else contextlib.nullcontext() as status:
 
@@ -428,8 +498,10 @@ def _one_report(config, out: Path, root: Path, quiet: bool, city: tuple[int, int
                 tasks[method] = bar.add_task(f"{where} {config.dataset}, {len(tasks) + 1}: {method}", total=total)
             bar.update(tasks[method], completed=done)
             unit = "candidates" if method.endswith("predicted maps") else "episodes"
-            log(f"report {where} {config.dataset}, method {list(tasks).index(method) + 1}: {method} {done}/{total} {unit}",
-                last=new or done >= total)  # fmt: skip
+            log(
+                f"report {where} {config.dataset}, method {list(tasks).index(method) + 1}: {method} {done}/{total} {unit}",
+                last=new or done >= total,
+            )
 
         where = f"city {city[0]} of {city[1]}:"
 

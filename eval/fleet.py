@@ -217,8 +217,12 @@ def make_fleet_report(config: FleetReportConfig, out: Path, root: Path, command:
         head = (f"**{city}** ({config.episodes} episodes, {config.task.uavs} UAVs and {config.task.users} users, "
                 f"t_max {config.task.t_max}, P_T {config.task.p_t_db:g} dB; 95 % intervals over user sets, then episodes)")  # fmt: skip
         rows, diff_rows = table_rows(table, config.task.t_max), difference_rows(diff, config.task.t_max)
-        sections += [head, markdown_table(rows), f"Paired differences in {city}, method minus reference (95 % intervals):",
-                     markdown_table(diff_rows)]  # fmt: skip
+        sections += [
+            head,
+            markdown_table(rows),
+            f"Paired differences in {city}, method minus reference (95 % intervals):",
+            markdown_table(diff_rows),
+        ]
         pages[city] = {"bundle": bundle.version, "rows": rows, "differences": diff_rows}
     table, diff = pd.concat(tables, ignore_index=True), pd.concat(diffs, ignore_index=True)
     summary = summary_rows(table, diff, config.task.t_max) if len(config.datasets) > 1 else None
@@ -253,8 +257,21 @@ def fleet_page(config: FleetReportConfig, pages: dict[str, dict], summary: list[
         .render(city=city, episodes=config.episodes, users=task.users, uavs=task.uavs, n_boot=config.n_boot, **page)
         for city, page in pages.items()
     ]
-    return _templates().get_template("fleet.html.j2").render(
-        css=markupsafe.Markup(_CSS), cities=", ".join(pages), uavs=task.uavs, users=task.users, p_t=f"{task.p_t_db:g}",
-        t_max=task.t_max, made=doc["created_utc"], command=doc["command"], summary=summary,
-        summary_title=SUMMARY_TITLE, sections=[markupsafe.Markup(s) for s in sections], raw=json.dumps(doc, indent=2),
-    )  # fmt: skip
+    return (
+        _templates()
+        .get_template("fleet.html.j2")
+        .render(
+            css=markupsafe.Markup(_CSS),
+            cities=", ".join(pages),
+            uavs=task.uavs,
+            users=task.users,
+            p_t=f"{task.p_t_db:g}",
+            t_max=task.t_max,
+            made=doc["created_utc"],
+            command=doc["command"],
+            summary=summary,
+            summary_title=SUMMARY_TITLE,
+            sections=[markupsafe.Markup(s) for s in sections],
+            raw=json.dumps(doc, indent=2),
+        )
+    )

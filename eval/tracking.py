@@ -101,8 +101,9 @@ class TrackingReportConfig(Contract):
     motion: MotionModel = Field(default_factory=MotionModel, description="The tracking searcher's motion model")
 
 
-def tracking_methods(task: TrackingConfig, seed: int, agents: list[Agent] = (), hold: bool = True,
-                     searcher: TrackingSearchPolicy | None = None) -> list:  # fmt: skip
+def tracking_methods(
+    task: TrackingConfig, seed: int, agents: list[Agent] = (), hold: bool = True, searcher: TrackingSearchPolicy | None = None
+) -> list:
     """The methods of the report: the upper bound first, then the agents (tracking agents on the observations they
     were trained with, ``TrackingAgent``; placement agents run unchanged, ``PlacementInTracking``), then the
     re-planning genie, the tracking searcher (when given) and the baselines. With ``hold``, every method that cannot

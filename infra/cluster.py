@@ -53,9 +53,12 @@ def start_ray(address: str | None, cpus_per_task: float, cpus_option: str) -> bo
     except Exception as err:  # noqa: BLE001 - Ray raises bare Exceptions (a node that timed out during startup)
         first = (str(err).strip().splitlines() or [type(err).__name__])[0][:200]
         where = "the local Ray" if address is None else f"the Ray cluster at {address}"
-        raise InputError(None, f"{where} did not start ({first}): run the command again (a busy machine starts Ray "
-                         "slowly), join a running cluster with --ray-address, or ask for fewer CPUs",
-                         field=cpus_option if address is None else "--ray-address") from None  # fmt: skip
+        raise InputError(
+            None,
+            f"{where} did not start ({first}): run the command again (a busy machine starts Ray "
+            "slowly), join a running cluster with --ray-address, or ask for fewer CPUs",
+            field=cpus_option if address is None else "--ray-address",
+        ) from None
     have = float(ray.cluster_resources().get("CPU", 0))
     if cpus_per_task > have:
         ray.shutdown()

@@ -85,8 +85,9 @@ def write_model_json(model: BaseModel, path: str | Path) -> None:
     Path(path).write_text(model.model_dump_json(indent=2) + "\n", encoding="utf-8")
 
 
-def read_small_file(path: str | Path, what: str, missing: str | None = None, max_bytes: int | None = None,
-                    limit: str = "record_bytes") -> bytes:  # fmt: skip
+def read_small_file(
+    path: str | Path, what: str, missing: str | None = None, max_bytes: int | None = None, limit: str = "record_bytes"
+) -> bytes:
     """The bytes of a record or settings file; ``InputError`` naming it when it is missing (``missing``, or "no such
     file"), is not a regular file (a FIFO, a device, a folder: refused without waiting on it) or is over ``max_bytes``
     (default: the limits' ``record_bytes``; ``limit`` names the limit a caller's ``max_bytes`` comes from). ``what``

@@ -527,9 +527,12 @@ def ingest_city(
         if recorded is None:
             warnings.append(f"{f.rel} records no sha256 of its export: not checked against these .p2m files")
         elif recorded != export_digest([p.path for p in by_kind["p2m"] if p.skip_reason is None]):
-            raise InputError(f.rel, "written for another export: the sha256 of the .p2m files it records is not this "
-                             "folder's (another simulation of the city?); it does not describe these receivers",
-                             field="export")  # fmt: skip
+            raise InputError(
+                f.rel,
+                "written for another export: the sha256 of the .p2m files it records is not this "
+                "folder's (another simulation of the city?); it does not describe these receivers",
+                field="export",
+            )
         done(f, rows=sum(len(c) for c in receivers.codes.values()), message=f"provenance of {len(receivers.codes)} "
              "transmitter(s) x receiver set(s)")  # fmt: skip
     else:

@@ -47,12 +47,14 @@ def _lines(path: Path, source: str, max_bytes: float):
             text = io.TextIOWrapper(raw, encoding="utf-8-sig", newline="")
             while line := text.readline(MAX_LINE + 1):
                 if len(line) > MAX_LINE:
-                    raise InputError(source, f"a line longer than {MAX_LINE} characters: not a provenance side file",
-                                     field="row")  # fmt: skip
+                    raise InputError(source, f"a line longer than {MAX_LINE} characters: not a provenance side file", field="row")
                 size += len(line)
                 if size > max_bytes:
-                    raise InputError(source, f"over {max_bytes:,.0f} characters of text: more than runs of the "
-                                     "export's receivers take", field="row")  # fmt: skip
+                    raise InputError(
+                        source,
+                        f"over {max_bytes:,.0f} characters of text: more than runs of the export's receivers take",
+                        field="row",
+                    )
                 check_limit("export_bytes", size, source, "size of the (decompressed) text [bytes]")
                 yield line
     except (OSError, EOFError, zlib.error) as exc:

@@ -320,9 +320,12 @@ def ensemble(runs: tuple[Path, ...], out: Path, root: Path, quiet: bool) -> None
 
 #: The predictors' training cities (``uavrl fit-predictor``, ``uavrl train-predictor``).
 training_cities_option = click.option(
-    "--dataset", "datasets", multiple=True, required=True,
+    "--dataset",
+    "datasets",
+    multiple=True,
+    required=True,
     help="Training city (repeatable); a city with a declared role gives its train users only.",
-)  # fmt: skip
+)
 
 
 def _training_users(datasets: tuple[str, ...], root: Path) -> tuple[list, list]:
@@ -338,9 +341,12 @@ def _training_users(datasets: tuple[str, ...], root: Path) -> tuple[list, list]:
 @click.option("--val-dataset", "val_datasets", multiple=True, help="Validation city whose users' maps score the fit "
               "(repeatable): median and p90 |error| [dB], dead/live agreement.")  # fmt: skip
 @click.option(
-    "--out", type=click.Path(dir_okay=False, path_type=Path), default=Path("data/agents/searcher/predictor.json"),
-    show_default=True, help="The constants' JSON file (written atomically; a regular file or absent).",
-)  # fmt: skip
+    "--out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=Path("data/agents/searcher/predictor.json"),
+    show_default=True,
+    help="The constants' JSON file (written atomically; a regular file or absent).",
+)
 @root_option
 def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out: Path, root: Path) -> None:
     """Fit the map searcher's radio-map predictor (rl/predictor.py: free space, walls crossed and Deygout's knife
@@ -367,34 +373,59 @@ def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out:
 
 
 @click.command("train-predictor")
-@click.option("--dataset", "datasets", multiple=True,
-              help="Training city (repeatable); a city with a declared role gives its train users only.")  # fmt: skip
 @click.option(
-    "--maps", "map_folders", multiple=True, type=click.Path(file_okay=False, path_type=Path),
+    "--dataset",
+    "datasets",
+    multiple=True,
+    help="Training city (repeatable); a city with a declared role gives its train users only.",
+)
+@click.option(
+    "--maps",
+    "map_folders",
+    multiple=True,
+    type=click.Path(file_okay=False, path_type=Path),
     help="A folder of training-maps packs (repeatable; `uavdata pack` writes them, data/trainmaps holds the shipped "
     "ones), or a RadioMapSeer-style city folder (`uavdata export`, dataset/export.py): every user is a training user.",
-)  # fmt: skip
-@click.option("--widths", default="16,32,64,64", show_default=True,
-              help="Channels per U-Net level, comma-separated (1 to 5 levels).")  # fmt: skip
+)
+@click.option(
+    "--widths", default="16,32,64,64", show_default=True, help="Channels per U-Net level, comma-separated (1 to 5 levels)."
+)
 @click.option("--val-dataset", "val_datasets", multiple=True, help="Validation city whose users' maps score both tiers "
               "(repeatable): median and p90 |error| [dB], dead/live agreement, ms per map; in model.json and the card.")  # fmt: skip
 @click.option(
-    "--constants", type=click.Path(dir_okay=False, path_type=Path), default=Path("data/agents/searcher/predictor.json"),
-    show_default=True, help="The physics tier the network corrects (`uavrl fit-predictor` writes it).",
-)  # fmt: skip
+    "--constants",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=Path("data/agents/searcher/predictor.json"),
+    show_default=True,
+    help="The physics tier the network corrects (`uavrl fit-predictor` writes it).",
+)
 @click.option(
-    "--out", type=click.Path(file_okay=False, path_type=Path), default=Path("data/agents/searcher/unet"),
-    show_default=True, help="Folder of model.json, weights.pt and MODEL_CARD.md (replaced whole, or left as it was).",
-)  # fmt: skip
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("data/agents/searcher/unet"),
+    show_default=True,
+    help="Folder of model.json, weights.pt and MODEL_CARD.md (replaced whole, or left as it was).",
+)
 @click.option("--steps", type=click.IntRange(1, 1_000_000), default=2000, show_default=True, help="Gradient steps.")
 @click.option("--batch", type=click.IntRange(1, 1024), default=16, show_default=True, help="Crops per step.")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the initial weights and the crops.")
 @click.option("--threads", type=click.IntRange(1, 256), default=2, show_default=True, help="torch CPU threads.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @root_option
-def train_predictor(datasets: tuple[str, ...], map_folders: tuple[Path, ...], widths: str, val_datasets: tuple[str, ...],
-                    constants: Path, out: Path, steps: int, batch: int, seed: int, threads: int, quiet: bool,
-                    root: Path) -> None:  # fmt: skip
+def train_predictor(
+    datasets: tuple[str, ...],
+    map_folders: tuple[Path, ...],
+    widths: str,
+    val_datasets: tuple[str, ...],
+    constants: Path,
+    out: Path,
+    steps: int,
+    batch: int,
+    seed: int,
+    threads: int,
+    quiet: bool,
+    root: Path,
+) -> None:
     """Train the map searcher's learned radio-map predictor (rl/learned.py: a U-Net correcting the physics tier)
     on the users of training cities (--dataset) and of training-maps packs (--maps), score it and the physics tier on
     validation cities' users, and write it with its model card. A validation city may not be a training city."""
@@ -412,11 +443,11 @@ def train_predictor(datasets: tuple[str, ...], map_folders: tuple[Path, ...], wi
     if not datasets and not map_folders:
         raise click.UsageError("give training maps: --dataset CITY or --maps FOLDER (or both)")
     try:
-        config = UNetConfig(widths=[int(w) for w in widths.split(",")], steps=steps, batch=batch, seed=seed,
-                            threads=threads)  # fmt: skip
+        config = UNetConfig(widths=[int(w) for w in widths.split(",")], steps=steps, batch=batch, seed=seed, threads=threads)
     except ValueError as err:  # pydantic ValidationError included
-        raise click.BadParameter(f"{widths!r}: expected 1 to 5 positive integers, e.g. 16,32,64 ({str(err)[:80]})",
-                                 param_hint="--widths") from None  # fmt: skip
+        raise click.BadParameter(
+            f"{widths!r}: expected 1 to 5 positive integers, e.g. 16,32,64 ({str(err)[:80]})", param_hint="--widths"
+        ) from None
     physics = load_constants(constants)
     bundles, users = _training_users(datasets, root)
     maps = [TrainingMaps.of_bundle(b, u) for b, u in zip(bundles, users, strict=True)]
@@ -424,8 +455,11 @@ def train_predictor(datasets: tuple[str, ...], map_folders: tuple[Path, ...], wi
         maps += [read_radiomapseer(folder)] if (folder / "scale.json").is_file() else [read_pack(p) for p in list_packs(folder)]
     overlap = sorted({m.city for m in maps} & set(val_datasets))
     if overlap:
-        raise click.BadParameter(f"{', '.join(overlap)}: a validation city is also a training city (it would score the "
-                                 "predictor on its own training maps)", param_hint="--val-dataset")  # fmt: skip
+        raise click.BadParameter(
+            f"{', '.join(overlap)}: a validation city is also a training city (it would score the "
+            "predictor on its own training maps)",
+            param_hint="--val-dataset",
+        )
     columns = (TextColumn("[bold]train-predictor[/] loss {task.fields[loss]:.4f}"), BarColumn(), MofNCompleteColumn(),
                TextColumn("steps"), TimeElapsedColumn())  # fmt: skip
     log = LogLines(quiet)  # a log: a plain line every LINE_SECONDS instead of a bar
@@ -438,8 +472,9 @@ def train_predictor(datasets: tuple[str, ...], map_folders: tuple[Path, ...], wi
 
         net, facts = train_learned(maps, physics, config, progress=on_progress)
     fields = {"config": config, "constants": physics, "fitted_on": [f"{m.city}@{m.version}" for m in maps], **facts}
-    table = plain_table("city", "tier", "median |error| [dB]", "p90 |error| [dB]", "dead/live agreement",
-                        "calibration error", "ms per map")  # fmt: skip
+    table = plain_table(
+        "city", "tier", "median |error| [dB]", "p90 |error| [dB]", "dead/live agreement", "calibration error", "ms per map"
+    )
     with atomic_directory(out, marker=MODEL_JSON, what="learned predictor") as tmp:
         model = save_learned(tmp, net, fields)
         learned = LearnedPredictor(model, net)
@@ -452,9 +487,15 @@ def train_predictor(datasets: tuple[str, ...], map_folders: tuple[Path, ...], wi
                 pm = predicted_and_measured(b, b.user_indices(), predictor)
                 s = scores_of(pm)
                 row.update({f"{tier}_{k}": v for k, v in s.items()})
-                table.add_row(name, tier, f"{s['median_error_db']:.1f}", f"{s['p90_error_db']:.1f}",
-                              f"{100 * s['dead_live_agreement']:.1f} %", f"{s['calibration_error']:.3f}",
-                              f"{s['ms_per_map']:.0f}")  # fmt: skip
+                table.add_row(
+                    name,
+                    tier,
+                    f"{s['median_error_db']:.1f}",
+                    f"{s['p90_error_db']:.1f}",
+                    f"{100 * s['dead_live_agreement']:.1f} %",
+                    f"{s['calibration_error']:.3f}",
+                    f"{s['ms_per_map']:.0f}",
+                )
                 if tier == "learned":
                     diagrams[name] = reliability(pm["p_dead"], pm["low"])[1]
             scores[name] = row
@@ -464,7 +505,10 @@ def train_predictor(datasets: tuple[str, ...], map_folders: tuple[Path, ...], wi
     if val_datasets:
         stdout().print(table)
     scale, bias = facts["calibration"]
-    stdout().print(f"wrote {out}: trained on {facts['users']} users of {len(maps)} cities in "
-                   f"{facts['train_seconds']:.0f} s; residual std {facts['error_db']:.1f} dB; dead logit calibrated "
-                   f"x {scale:.3f} {bias:+.3f} on {facts['calibration_users']} held-out users",
-                   highlight=False, soft_wrap=True)  # fmt: skip
+    stdout().print(
+        f"wrote {out}: trained on {facts['users']} users of {len(maps)} cities in "
+        f"{facts['train_seconds']:.0f} s; residual std {facts['error_db']:.1f} dB; dead logit calibrated "
+        f"x {scale:.3f} {bias:+.3f} on {facts['calibration_users']} held-out users",
+        highlight=False,
+        soft_wrap=True,
+    )

@@ -219,8 +219,12 @@ class UavFleetEnv(gym.Env):
     def _info(self) -> dict:
         e, rows = self._env, np.array([0])
         values = e.sinr_here(rows)[0]
-        return {"action_mask": e.action_mask(rows)[0].astype(np.int8), "positions": e.pos[0] - e.maps.pad,
-                "sinr_db": values, "served": reaches_target(values, self.config.p_t_db).any(axis=0)}  # fmt: skip
+        return {
+            "action_mask": e.action_mask(rows)[0].astype(np.int8),
+            "positions": e.pos[0] - e.maps.pad,
+            "sinr_db": values,
+            "served": reaches_target(values, self.config.p_t_db).any(axis=0),
+        }
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         super().reset(seed=seed)

@@ -298,8 +298,9 @@ def train_learned(
     ``config.calibration_share`` of them held out (a seeded draw) to fit the dead probability's calibration. Returns
     (network, facts: ``error_db`` the residual std on the training users' live cells, ``train_seconds``,
     ``final_loss``, ``users``, ``calibration``, ``calibration_users``)."""
-    check_limit("predictor_step_bytes", step_bytes(config), "--batch", "activations of one training step [bytes]",
-                field="batch")  # before any map is read  # fmt: skip
+    check_limit(
+        "predictor_step_bytes", step_bytes(config), "--batch", "activations of one training step [bytes]", field="batch"
+    )  # before any map is read
     torch.manual_seed(config.seed)
     torch.set_num_threads(config.threads)
     rng = np.random.default_rng(config.seed)
@@ -332,9 +333,14 @@ def train_learned(
     for mu, _logit, sinr, live, _low, _legal in _whole_maps(net, examples):  # the searcher's likelihood width
         residuals.append((mu - sinr)[live])
     error = float(np.std(np.concatenate(residuals)))
-    return net, {"error_db": error, "train_seconds": train_s, "final_loss": float(np.mean(recent)),
-                 "users": len(examples), "calibration": fit_calibration(net, calibration) if held else (1.0, 0.0),
-                 "calibration_users": held}  # fmt: skip
+    return net, {
+        "error_db": error,
+        "train_seconds": train_s,
+        "final_loss": float(np.mean(recent)),
+        "users": len(examples),
+        "calibration": fit_calibration(net, calibration) if held else (1.0, 0.0),
+        "calibration_users": held,
+    }
 
 
 def step_bytes(config: UNetConfig) -> int:

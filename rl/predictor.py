@@ -402,8 +402,15 @@ def predicted_and_measured(bundle: Bundle, users: np.ndarray, predictor: Physics
     sinr = bundle.sinr_db[np.asarray(users)[:, None], cells[None, :, 0], cells[None, :, 1]].ravel()
     dead = bundle.dead[np.asarray(users)[:, None], cells[None, :, 0], cells[None, :, 1]].ravel()
     low = dead | (sinr <= scene.floor_db + 1e-3)
-    return {"mu": mu.ravel(), "p_dead": p_dead.ravel(), "sinr": sinr, "dead": dead, "low": low,
-            "floor_db": scene.floor_db, "ms_per_map": ms}  # fmt: skip
+    return {
+        "mu": mu.ravel(),
+        "p_dead": p_dead.ravel(),
+        "sinr": sinr,
+        "dead": dead,
+        "low": low,
+        "floor_db": scene.floor_db,
+        "ms_per_map": ms,
+    }
 
 
 def prediction_scores(bundle: Bundle, users: np.ndarray, predictor: PhysicsPredictor) -> dict[str, float]:

@@ -344,8 +344,9 @@ class MapSearchPolicy:
         probs = np.concatenate([p_dead + (1 - p_dead) * cdf[..., :1], (1 - p_dead) * live], axis=-1)
         return (1 - cfg.outlier) * probs + cfg.outlier / probs.shape[-1]
 
-    def information(self, maps: CandidateMaps, log_b: np.ndarray, columns: np.ndarray, floor_db: float,
-                    p_t_db: float) -> np.ndarray:  # fmt: skip
+    def information(
+        self, maps: CandidateMaps, log_b: np.ndarray, columns: np.ndarray, floor_db: float, p_t_db: float
+    ) -> np.ndarray:
         """``[K]`` the mutual information [bits] between the user's candidate cell, under belief ``log_b`` [C], and a
         measurement at each of legal cells ``columns`` [K]: H(mixture of the outcomes) - E_b[H(outcomes)]
         (``outcome_probabilities``; candidates of belief under 1e-6 of the largest are left out)."""
@@ -426,12 +427,24 @@ class MapSearchPolicy:
                     score = self.with_information(public, c, maps, int(here[r]), score, self.belief[r], seen, floor_db, p_t)
                 actions[r] = self.first_move(public, c, maps, int(here[r]), score, seen, mask[r])
                 if self.config.planner == "lookahead":
-                    actions[r] = self.lookahead_move(public, c, maps, int(here[r]), self.belief[r], seen, mask[r],
-                                                     floor_db, p_t, int(actions[r]))  # fmt: skip
+                    actions[r] = self.lookahead_move(
+                        public, c, maps, int(here[r]), self.belief[r], seen, mask[r], floor_db, p_t, int(actions[r])
+                    )
         return actions
 
-    def lookahead_move(self, public: PublicMaps, canvas: int, maps: CandidateMaps, here: int, log_b: np.ndarray,
-                       seen: np.ndarray, mask: np.ndarray, floor_db: float, p_t_db: float, default: int) -> int:  # fmt: skip
+    def lookahead_move(
+        self,
+        public: PublicMaps,
+        canvas: int,
+        maps: CandidateMaps,
+        here: int,
+        log_b: np.ndarray,
+        seen: np.ndarray,
+        mask: np.ndarray,
+        floor_db: float,
+        p_t_db: float,
+        default: int,
+    ) -> int:
         """The ``lookahead`` planner's move from legal cell ``here``: for each legal move, the expectation over the
         outcome of the measurement at the cell it leads to (``outcome_probabilities``; the belief updated as
         ``update`` would, on the outcome's bin) of the best discounted posterior probability of reaching P_T among
@@ -474,8 +487,18 @@ class MapSearchPolicy:
             return default
         return int(np.argmax(values))
 
-    def with_information(self, public: PublicMaps, canvas: int, maps: CandidateMaps, here: int, score: np.ndarray,
-                         log_b: np.ndarray, seen: np.ndarray, floor_db: float, p_t_db: float) -> np.ndarray:  # fmt: skip
+    def with_information(
+        self,
+        public: PublicMaps,
+        canvas: int,
+        maps: CandidateMaps,
+        here: int,
+        score: np.ndarray,
+        log_b: np.ndarray,
+        seen: np.ndarray,
+        floor_db: float,
+        p_t_db: float,
+    ) -> np.ndarray:
         """``score`` [M] plus ``info_weight`` times the information of a measurement at each unvisited cell within
         ``info_radius`` moves of legal cell ``here`` (the ``info`` planner)."""
         _, _, d = self._shortest(public, canvas, maps, here)
@@ -510,8 +533,11 @@ def load_predictor(path: str | Path = DEFAULT_PREDICTOR) -> Predictor:
 
         return load_learned(path)
     if not Path(path).exists() and not Path(path).is_symlink():
-        raise InputError(path, f"no predictor here: give a learned tier's folder or a physics tier's constants (the "
-                         f"shipped ones are {DEFAULT_PREDICTOR} and {DEFAULT_CONSTANTS})")  # fmt: skip
+        raise InputError(
+            path,
+            f"no predictor here: give a learned tier's folder or a physics tier's constants (the "
+            f"shipped ones are {DEFAULT_PREDICTOR} and {DEFAULT_CONSTANTS})",
+        )
     return PhysicsPredictor(load_constants(path))
 
 

@@ -241,8 +241,13 @@ def provenance_runs(codes: np.ndarray) -> list[tuple[int, int, int]]:
     return [(int(s) + 1, int(n), int(c[s])) for s, n in zip(starts, counts, strict=True)]
 
 
-def write_provenance(folder: str | Path, project: str, rx_set_id: int, codes: dict[tuple[int, int], np.ndarray],
-                     p2m_files: list[Path] | None = None) -> Path:  # fmt: skip
+def write_provenance(
+    folder: str | Path,
+    project: str,
+    rx_set_id: int,
+    codes: dict[tuple[int, int], np.ndarray],
+    p2m_files: list[Path] | None = None,
+) -> Path:
     """The side file ``<project>.provenance.csv.gz`` (``schemas.provenance``): the provenance code of every receiver
     of set ``rx_set_id`` for each transmitter, ``codes`` ``{(tx_set, tx_point): [N] codes in the .p2m's order}``, as
     runs of equal codes. InSite-compatible readers do not read it; uavplace's ingest does. ``p2m_files``: the export's

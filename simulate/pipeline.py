@@ -185,8 +185,7 @@ def check_simulation(spec: SimulationSpec, config: RayTraceConfig, count: int = 
             raise InputError(option, f"{box}: expected finite XMIN,YMIN,XMAX,YMAX with XMIN < XMAX and YMIN < YMAX", field="box")
         _bounded(max(box[2] - box[0], box[3] - box[1]), "extent_m", option)
         cells = ((box[2] - box[0]) // spec.grid_m) * ((box[3] - box[1]) // spec.grid_m)
-        check_limit("grid_cells", cells, option, "cells of the receiver grid (the extent over the grid squared)",
-                    field="grid_m")  # fmt: skip
+        check_limit("grid_cells", cells, option, "cells of the receiver grid (the extent over the grid squared)", field="grid_m")
         _bounded(cells * (len(spec.users_m) or spec.num_users), "user_cells", f"{option} with --grid and --users")
     for k, (x, y) in enumerate(spec.users_m):
         if not (np.isfinite(x) and np.isfinite(y)):
@@ -362,8 +361,7 @@ def receiver_grid(bounds: tuple[float, float, float, float], spec: SimulationSpe
     nx, ny = int((x1 - x0) // spec.grid_m), int((y1 - y0) // spec.grid_m)
     # The work of the radio maps grows with the cells as well as with the rays: a grid no build could take is refused
     # before the ray tracer starts (a 5 km extent at 1 m held 25 M cells and ran for hours).
-    check_limit("grid_cells", nx * ny, "--grid", "cells of the receiver grid (the extent over the grid squared)",
-                field="grid_m")  # fmt: skip
+    check_limit("grid_cells", nx * ny, "--grid", "cells of the receiver grid (the extent over the grid squared)", field="grid_m")
     _bounded(nx * ny * (len(spec.users_m) or spec.num_users), "user_cells", "--grid with --users (the city's size)")
     if nx < 2 or ny < 2:
         raise InputError(
@@ -660,8 +658,9 @@ def simulate_city(
         # What a trace of this city holds at most: a fine, a direct and each coarse map of float64 per source and cell,
         # with room for the arrays beside them: an entry that inflates beyond it is not read.
         most = 8.0 * len(sources) * grid.num_x * grid.num_y * (4 + 2 * len(rt_config.gap_fill_factors)) + 2**20
-        maps, cached = _cached_traces(Path(trace_cache) if trace_cache else None, spec.name, trace_key(spec, rt_config),
-                                      trace, most)  # fmt: skip
+        maps, cached = _cached_traces(
+            Path(trace_cache) if trace_cache else None, spec.name, trace_key(spec, rt_config), trace, most
+        )
         gain, source = fill(maps, rt_config, opened, squared_distances(sources, grid), cell_m=grid.spacing_m)
         completion = None
         if rt_config.complete_missed_samples:  # exact paths where the rays missed: their values, not the fill's estimates
@@ -684,8 +683,20 @@ def simulate_city(
         for u in range(len(sources)):
             dist = np.linalg.norm(pos - sources[u], axis=1)
             tx_set, tx_point = transmitter_of(u, len(users))
-            written.append(write_p2m(out, spec.name, "power", tx_point=tx_point, tx_set=tx_set, rx_set=GRID_SET,
-                                     positions_m=pos, distance_m=dist, values=power[u], gz=True))  # fmt: skip
+            written.append(
+                write_p2m(
+                    out,
+                    spec.name,
+                    "power",
+                    tx_point=tx_point,
+                    tx_set=tx_set,
+                    rx_set=GRID_SET,
+                    positions_m=pos,
+                    distance_m=dist,
+                    values=power[u],
+                    gz=True,
+                )
+            )
             codes[(tx_set[0], tx_point)] = source[u].ravel()
             progress("writing", u + 1, len(sources))
         write_provenance(out, spec.name, GRID_SET[0], codes, written)

@@ -144,8 +144,9 @@ def load_tensors(path: str | Path, map_location: str | torch.device = "cpu") -> 
     # Read as every record is: a regular file (a FIFO is refused at once, never waited on) of a bounded size: a
     # network of the limit's parameters with its optimiser's two moments, in float32, and room to spare.
     bound = 16 * limits().network_params
-    data = read_small_file(path, "a PyTorch checkpoint", missing="no such checkpoint", max_bytes=bound,
-                           limit="network_params x 16 bytes")  # fmt: skip
+    data = read_small_file(
+        path, "a PyTorch checkpoint", missing="no such checkpoint", max_bytes=bound, limit="network_params x 16 bytes"
+    )
     try:
         obj = torch.load(io.BytesIO(data), weights_only=True, map_location=map_location)
     except pickle.UnpicklingError as exc:
