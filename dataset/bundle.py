@@ -102,6 +102,12 @@ class Bundle:
         counts = np.bincount(self.provenance[:, ~self.blocked].ravel(), minlength=len(CODES))
         return {code_name(c): int(n) for c, n in enumerate(counts) if n}
 
+    def user_cells(self, users: np.ndarray) -> np.ndarray:
+        """``[U, 2]`` int64: the cell ``(iy, ix)`` of each of ``users`` (bundle user indices), in their order."""
+        table = self.users.set_index("user")
+        chosen = np.asarray(users, np.int64).ravel()
+        return table.loc[chosen, ["iy", "ix"]].to_numpy().astype(np.int64).reshape(-1, 2)
+
     def user_indices(self, split: str | None = None) -> np.ndarray:
         """Bundle user indices, all or those of one split (train, val, test)."""
         if split is None:

@@ -90,7 +90,7 @@ def write_radiomapseer(bundle: Bundle, out: str | Path) -> Path:
         table = bundle.users.set_index("user")
         rows = [["user", "x_m", "y_m", "row", "col"]]
         for u in bundle.user_indices():
-            iy, ix = int(table.at[u, "iy"]), int(table.at[u, "ix"])
+            iy, ix = (int(v) for v in bundle.user_cells([u])[0])
             antenna = np.zeros(g.shape, np.uint8)
             antenna[iy, ix] = 255
             (tmp / "png/antennas" / f"{bundle.city}_{u}.png").write_bytes(_png(np.flipud(antenna)))

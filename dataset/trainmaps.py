@@ -87,8 +87,7 @@ class TrainingMaps:
     def of_bundle(cls, bundle: Bundle, users: np.ndarray | None = None) -> TrainingMaps:
         """``users`` (bundle user indices; default all) of ``bundle``."""
         chosen = bundle.user_indices() if users is None else np.asarray(users, np.int64)
-        table = bundle.users.set_index("user")
-        cells = np.array([[int(table.at[u, "iy"]), int(table.at[u, "ix"])] for u in chosen], np.int64).reshape(-1, 2)
+        cells = bundle.user_cells(chosen)
         return cls(
             bundle.city,
             bundle.version,

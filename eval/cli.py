@@ -272,20 +272,8 @@ def report(
                 _check_same_agents(folder, chosen)
         reports = []
         for dataset in datasets:
-            config = ReportConfig(
-                dataset=dataset,
-                runs=[str(r) for r in chosen],
-                episodes=episodes,
-                t_max=t_max,
-                p_t_db=p_t_db,
-                test_epsilon=test_epsilon,
-                seed=seed,
-                n_boot=n_boot,
-                trajectories=trajectories,
-                split=split,
-                groups=grouped,
-                predictor=None if predictor.lower() == "none" else predictor,
-            )
+            shared = report_settings(chosen, episodes, seed, test_epsilon, n_boot, trajectories, predictor)
+            config = ReportConfig(dataset=dataset, t_max=t_max, p_t_db=p_t_db, split=split, groups=grouped, **shared)
             result = _one_report(config, folders[dataset], root, quiet, (datasets.index(dataset) + 1, len(datasets)))
             reports.append(result)
             title = f"{episodes} episodes in {dataset} (t_max {t_max}, P_T {p_t_db:g} dB)"
@@ -322,6 +310,18 @@ def report(
 
             atomic_write_text(markdown, markdown_tables(reports, t_max))
             stdout().print(f"tables (Markdown): {markdown}", highlight=False, soft_wrap=True)
+
+
+def predictor_or_none(text: str) -> str | None:
+    """``--predictor``'s value: a predictor's path, or None for 'none' (the searchers left out)."""
+    return None if text.lower() == "none" else text
+
+
+def report_settings(runs: list[Path], episodes: int, seed: int, test_epsilon: float, n_boot: int, trajectories: int,
+                    predictor: str) -> dict:  # fmt: skip
+    """The settings the placement and tracking reports' configs share, from their command-line values."""
+    return {"runs": [str(r) for r in runs], "episodes": episodes, "seed": seed, "test_epsilon": test_epsilon,
+            "n_boot": n_boot, "trajectories": trajectories, "predictor": predictor_or_none(predictor)}  # fmt: skip
 
 
 #: The columns of a report's table that a terminal shows (they fit 120 columns).
@@ -407,17 +407,9 @@ def _tracking_report(
     from uavplace.infra.files import atomic_write_text
     from uavplace.rl.tracking import TrackingConfig
 
+    shared = report_settings(runs, episodes, seed, test_epsilon, n_boot, trajectories, predictor)
     config = TrackingReportConfig(
-        datasets=list(datasets),
-        runs=[str(r) for r in runs],
-        episodes=episodes,
-        seed=seed,
-        test_epsilon=test_epsilon,
-        n_boot=n_boot,
-        trajectories=trajectories,
-        hold=hold,
-        task=TrackingConfig(horizon=horizon, p_t_db=p_t_db),
-        predictor=None if predictor.lower() == "none" else predictor,
+        datasets=list(datasets), hold=hold, task=TrackingConfig(horizon=horizon, p_t_db=p_t_db), **shared
     )
     log = LogLines(quiet)
     with console.status("[bold]tracking report[/]", spinner="dots") if not quiet else contextlib.nullcontext() as status:
@@ -453,7 +445,7 @@ def _fleet_report(datasets: tuple[str, ...], runs: list[Path], out: Path | None,
     config = FleetReportConfig(datasets=list(datasets), runs=[str(r) for r in runs], test_epsilon=test_epsilon,
                                episodes=episodes, seed=seed, n_boot=n_boot,
                                task=FleetConfig(uavs=uavs, users=users, t_max=t_max, p_t_db=p_t_db),
-                               predictor=None if predictor.lower() == "none" else predictor)  # fmt: skip
+                               predictor=predictor_or_none(predictor))  # fmt: skip
     log = LogLines(quiet)
     with console.status("[bold]fleet report[/]", spinner="dots") if not quiet else contextlib.nullcontext() as status:
 

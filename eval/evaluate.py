@@ -237,18 +237,18 @@ def evaluate(
     if len(set(names)) != len(names):
         raise ValueError(f"two methods share a name: {names}")
     results = {}
+    # Each method's episodes on its own canvas (an agent's window pads its canvas by another margin), made once.
+    specs = {name: mapset.episodes_from(episodes, maps[""]) for name, _, mapset in methods}
     for name, policy, mapset in methods:  # the searchers' predicted maps first, shown as they are made (the agents that
         if hasattr(policy, "on_predict"):  # read the belief find them in the cache); the same maps as made on first use
             if on_progress is not None:
                 policy.on_predict = lambda done, total, name=name: on_progress(f"{name}: predicted maps", done, total)
             public = PublicMaps.of(mapset)
-            specs = mapset.episodes_from(episodes, maps[""])
-            for canvas in np.unique(mapset.view_map[specs[:, 0].astype(np.int64)]):  # the canvases the episodes fly
+            for canvas in np.unique(mapset.view_map[specs[name][:, 0].astype(np.int64)]):  # the canvases they fly over
                 policy.canvas_maps(public, int(canvas))
     for name, policy, mapset in methods:
         report = None if on_progress is None else (lambda done, total, name=name: on_progress(name, done, total))
-        specs = mapset.episodes_from(episodes, maps[""])  # an agent's window pads its canvas by another margin
-        results[name] = run_episodes(mapset, policy, specs, on_step=report, record=record if name == shown else None)
+        results[name] = run_episodes(mapset, policy, specs[name], on_step=report, record=record if name == shown else None)
     return results
 
 

@@ -102,9 +102,8 @@ class TrueMapsSearch(MapSearchPolicy):
             if public.symmetry_of(canvas) != 0:
                 raise ValueError("the true-maps searcher plays unturned maps only")
             b = self.bundle
-            table = b.users.set_index("user")
             users = b.user_indices()
-            cells = table.loc[users, ["iy", "ix"]].to_numpy().astype(np.int64)
+            cells = b.user_cells(users)
             legal = np.argwhere(public.legal(canvas))
             index = np.full(b.blocked.shape, -1, np.int64)
             index[legal[:, 0], legal[:, 1]] = np.arange(len(legal))

@@ -394,8 +394,7 @@ def predicted_and_measured(bundle: Bundle, users: np.ndarray, predictor: Physics
     predicted map of the legal cells)."""
     scene = Scene.of(bundle)
     cells = np.argwhere(~bundle.blocked)
-    table = bundle.users.set_index("user")
-    where = np.array([[int(table.at[u, "iy"]), int(table.at[u, "ix"])] for u in users], np.int64).reshape(-1, 2)
+    where = bundle.user_cells(users)
     t0 = time.perf_counter()
     mu, p_dead = predictor.predict(scene, where, cells)
     ms = 1000 * (time.perf_counter() - t0) / max(len(users), 1)
