@@ -431,7 +431,7 @@ def test_sparse_text_exports_are_refused_by_their_size(tmp_path):
     assert isinstance(err, InputError) and "not a regular file" in str(err)
 
 
-def test_work_is_bounded_before_it_starts(tmp_path):
+def test_work_is_bounded_before_it_starts(tmp_path, tiny):
     """Each command estimates its work before it starts and refuses in seconds, naming the limit: a simulated grid
     of 25 M cells (grid_cells), a GeoJSON of more features than the limit buildings, an evaluation of a million
     50-step episodes (episode_steps)."""
@@ -449,7 +449,7 @@ def test_work_is_bounded_before_it_starts(tmp_path):
     (tmp_path / "many.geojson").write_text(json.dumps({"type": "FeatureCollection", "features": [feature] * 50_001}))
     err = _within(30, read_geojson, tmp_path / "many.geojson", "many.geojson")
     assert isinstance(err, InputError) and "buildings" in str(err)
-    res = _within(60, invoke, uavrl, "report", "--dataset", "tiny", "--episodes", "1000000", "--t-max", "50")
+    res = _within(60, invoke, uavrl, "report", "--dataset", "tiny", "--root", str(tiny), "--episodes", "1000000", "--t-max", "50")
     assert res.exit_code == 2 and "episode_steps" in res.output, res.output
 
 
