@@ -414,10 +414,10 @@ def _tracking_report(
     log = LogLines(quiet)
     with console.status("[bold]tracking report[/]", spinner="dots") if not quiet else contextlib.nullcontext() as status:
 
-        def on_progress(city: str, method: str) -> None:
+        def on_progress(what: str) -> None:
             if status is not None:
-                status.update(f"[bold]tracking report[/] {city}: {method}")
-            log(f"tracking report {city}: {method}", last=True)
+                status.update(f"[bold]tracking report[/] {what}")
+            log(f"tracking report {what}", last=True)
 
         table, page = make_tracking_report(config, out or Path("reports") / "tracking", root=root, command=command_line(),
                                            on_progress=on_progress)  # fmt: skip
@@ -479,25 +479,22 @@ def _one_report(config, out: Path, root: Path, quiet: bool, city: tuple[int, int
     from uavplace.eval.report import make_report
 
     tasks: dict[str, int] = {}
+    plan: list[str] = []  # every stage of the city's evaluation, in order (make_report's on_plan)
     # no time-remaining column: the last episodes of a batch are its longest, so a rate-based ETA sat at 1 s for minutes
     columns = (TextColumn("[bold]report[/] {task.description:<20}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     log = LogLines(quiet)  # a log: a plain line every LINE_SECONDS (and at each method's start and end), not a bar
     with Progress(*columns, console=stdout(), disable=quiet or log.enabled) as bar:
 
-        def on_progress(method: str, done: int, total: int) -> None:
-            new = method not in tasks
+        def on_progress(stage: str, done: int, total: int) -> None:
+            new = stage not in tasks
+            name = f"city {city[0]} of {city[1]}: {config.dataset}, stage {plan.index(stage) + 1} of {len(plan)}: {stage}"
             if new:
-                tasks[method] = bar.add_task(f"{where} {config.dataset}, {len(tasks) + 1}: {method}", total=total)
-            bar.update(tasks[method], completed=done)
-            unit = "candidates" if method.endswith("predicted maps") else "episodes"
-            log(
-                f"report {where} {config.dataset}, method {list(tasks).index(method) + 1}: {method} {done}/{total} {unit}",
-                last=new or done >= total,
-            )
+                tasks[stage] = bar.add_task(name, total=total)
+            bar.update(tasks[stage], completed=done)
+            unit = "candidates" if stage.endswith("predicted maps") else "episodes"
+            log(f"report {name} {done}/{total} {unit}", last=new or done >= total)
 
-        where = f"city {city[0]} of {city[1]}:"
-
-        return make_report(config, out, root=root, command=command_line(), on_progress=on_progress)
+        return make_report(config, out, root=root, command=command_line(), on_progress=on_progress, on_plan=plan.extend)
 
 
 @click.command()

@@ -231,7 +231,7 @@ def evaluate(
                 seen(maps[key])
         methods.append((a.name, a.policy, maps[key]))
     if baselines is None:
-        baselines = baseline_policies(config, base, cache=config.prediction_cache or bundle.path.parent.parent / PREDICTIONS)
+        baselines = default_baselines(config, bundle)
     methods += [(p.name, p, maps[""]) for p in baselines]
     names = [m[0] for m in methods]
     if len(set(names)) != len(names):
@@ -242,7 +242,7 @@ def evaluate(
     for name, policy, mapset in methods:  # the searchers' predicted maps first, shown as they are made (the agents that
         if hasattr(policy, "on_predict"):  # read the belief find them in the cache); the same maps as made on first use
             if on_progress is not None:
-                policy.on_predict = lambda done, total, name=name: on_progress(f"{name}: predicted maps", done, total)
+                policy.on_predict = lambda done, total, name=name: on_progress(predicted_maps(name), done, total)
             public = PublicMaps.of(mapset)
             for canvas in np.unique(mapset.view_map[specs[name][:, 0].astype(np.int64)]):  # the canvases they fly over
                 policy.canvas_maps(public, int(canvas))
@@ -250,6 +250,24 @@ def evaluate(
         report = None if on_progress is None else (lambda done, total, name=name: on_progress(name, done, total))
         results[name] = run_episodes(mapset, policy, specs[name], on_step=report, record=record if name == shown else None)
     return results
+
+
+def predicted_maps(method: str) -> str:
+    """The name of the stage in which ``method`` (a searcher) makes its predicted maps, before it plays."""
+    return f"{method}: predicted maps"
+
+
+def stages(methods: list[tuple[str, Policy]]) -> list[str]:
+    """The stages ``evaluate`` goes through for ``methods`` (``(name, policy)``), in its order: every searcher's
+    predicted maps, then every method's episodes (what a progress display counts)."""
+    return [predicted_maps(name) for name, policy in methods if hasattr(policy, "on_predict")] + [n for n, _ in methods]
+
+
+def default_baselines(config: ReportConfig, bundle: Bundle) -> list[Policy]:
+    """``baseline_policies`` at the report's settings, the predicted maps cached beside the city's bundles (or in
+    ``config.prediction_cache``)."""
+    env = EnvConfig(t_max=config.t_max, p_t_db=config.p_t_db, split=config.split, rotate=False)
+    return baseline_policies(config, env, cache=config.prediction_cache or bundle.path.parent.parent / PREDICTIONS)
 
 
 def baseline_policies(config: ReportConfig, env: EnvConfig, cache: str | Path | None = None) -> list[Policy]:
@@ -278,12 +296,19 @@ def results_table(results: dict[str, pd.DataFrame], config: ReportConfig) -> pd.
 NO_BUILDINGS, WITH_BUILDINGS = ", no buildings", "the same with buildings"
 
 
-def blanked_results(config: ReportConfig, bundle: Bundle, agents: list[Agent], on_progress) -> dict[str, pd.DataFrame]:  # noqa: ANN001
-    """The agents that read the building map, played again on the same episodes with the map blanked."""
+def blanked_agents(config: ReportConfig, agents: list[Agent]) -> list[Agent]:
+    """The agents that read the building map, loaded again and named ``X, no buildings``: ``evaluate`` them with
+    ``blanked_results`` (the same episodes, the map blanked)."""
     sighted = [a for a in agents if not a.config.env_config(evaluation=True).blind]  # a blind agent reads no map
     readers = [load_agent(a.folder, config.test_epsilon, config.seed) for a in sighted]
     for reader, agent in zip(readers, sighted, strict=True):
         reader.name = reader.policy.name = agent.name + NO_BUILDINGS
+    return readers
+
+
+def blanked_results(config: ReportConfig, bundle: Bundle, readers: list[Agent], on_progress) -> dict[str, pd.DataFrame]:  # noqa: ANN001
+    """``blanked_agents`` played on the report's episodes with the building map blanked (what they see, not where
+    they move)."""
     if not readers:
         return {}
     return evaluate(config, bundle, readers, on_progress, baselines=[], seen=lambda m: m.show_buildings(None))

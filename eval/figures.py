@@ -1,4 +1,5 @@
-"""The report's figures: the CDF of steps to P_T, the training curves and the trajectories (matplotlib, Agg)."""
+"""The report's figures: the CDF of steps to P_T, the performance profiles, the training curves and the trajectories
+(matplotlib, Agg)."""
 
 from __future__ import annotations
 
@@ -9,8 +10,8 @@ import numpy as np
 import pandas as pd
 
 from uavplace.dataset.bundle import Bundle
-from uavplace.eval.evaluate import BASELINES, Agent
-from uavplace.eval.metrics import ecdf
+from uavplace.eval.evaluate import BASELINES, NO_BUILDINGS, Agent
+from uavplace.eval.metrics import PROFILE_TAUS, ecdf
 from uavplace.rl.rollout import summarise
 from uavplace.schemas.constants import reaches_target
 
@@ -30,12 +31,45 @@ def _pyplot():
     return plt
 
 
+#: Ten colours told apart in print and by most colour-blind readers (matplotlib's tab10).
+_COLOURS = tuple(f"tab:{c}" for c in "blue orange green red purple brown pink olive cyan gray".split())
+
+
+def method_styles(methods: list[str]) -> dict[str, dict]:
+    """Each method's line: the genie black; every other method its own colour (the eleventh on repeat the first colour
+    dash-dotted, and so on); a method played with the buildings blanked (``X, no buildings``) dashed in ``X``'s colour.
+    Baselines thinner. Keyword arguments for ``Axes.plot``."""
+    styles: dict[str, dict] = {}
+    own = [m for m in methods if not (m.endswith(NO_BUILDINGS) and m[: -len(NO_BUILDINGS)] in methods)]
+    plain = [m for m in own if m != "genie"]
+    for i, m in enumerate(plain):
+        styles[m] = {"color": _COLOURS[i % len(_COLOURS)], "linestyle": ("-", "-.", ":")[i // len(_COLOURS) % 3]}
+    if "genie" in own:
+        styles["genie"] = {"color": "black", "linestyle": "-"}
+    for m in methods:
+        if m not in styles:
+            styles[m] = {"color": styles[m[: -len(NO_BUILDINGS)]]["color"], "linestyle": "--"}
+        styles[m]["linewidth"] = 1.3 if m in BASELINES else 2.0
+    return styles
+
+
+def _legend_in_curve_order(ax, lines: dict, heights: dict[str, float], title: str) -> None:  # noqa: ANN001 - an Axes
+    """The legend beside the plot, its entries (``lines``: each method's Line2D) in the order of the curves' right ends
+    (``heights``), top first."""
+    order = sorted(lines, key=lambda m: -heights[m])
+    beside = {"loc": "upper left", "bbox_to_anchor": (1.02, 1.0), "fontsize": 8, "title_fontsize": 8}
+    ax.legend([lines[m] for m in order], [lines[m].get_label() for m in order], title=title, **beside)
+
+
 def plot_cdf(results: dict[str, pd.DataFrame], t_max: int, out: Path) -> Figure:
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(9.5, 4.8), constrained_layout=True)
+    styles = method_styles(list(results))
+    lines, heights = {}, {}
     for name, df in results.items():
         s, f = ecdf(df, t_max)
-        ax.step(s, f, where="post", label=f"{name} ({100 * f[-1]:.1f} %)", linewidth=1.3 if name in BASELINES else 2.0)
+        lines[name] = ax.step(s, f, where="post", label=f"{name} ({100 * f[-1]:.1f} %)", **styles[name])[0]
+        heights[name] = f[-1]
     ax.set_xscale("symlog", linthresh=10)
     ax.set_xlim(0, t_max)
     ticks = [t for t in (0, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000) if t <= t_max]
@@ -46,13 +80,45 @@ def plot_cdf(results: dict[str, pd.DataFrame], t_max: int, out: Path) -> Figure:
     n = len(next(iter(results.values())))
     ax.set_title(f"CDF of steps to P_T ({n} episodes, t_max {t_max})")
     ax.grid(alpha=0.3)
-    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, title="method (success within t_max)", title_fontsize=8)
+    _legend_in_curve_order(ax, lines, heights, "method (success within t_max)")
     fig.savefig(out, dpi=110)
     plt.close(fig)
     caption = (
         f"Share of the {n} episodes that reached P_T within a given number of steps, one curve per method, all "
         f"methods on the same episodes (users drawn uniformly, then start cells uniformly among the legal live cells "
-        f"below P_T). A curve ends at t_max = {t_max}; its height there is the method's success rate (in the legend)."
+        f"below P_T). A curve ends at t_max = {t_max}; its height there is the method's success rate (in the legend, "
+        "in the order of the curves' ends). Dashed: a method shown no building, in its method's colour."
+    )
+    return Figure(out, caption)
+
+
+def plot_profiles(bands: dict[str, np.ndarray], where: str, out: Path, taus: np.ndarray = PROFILE_TAUS) -> Figure:
+    """The performance profiles (``eval.metrics.profiles``): for each method the share of episodes solved within tau x
+    the genie's steps, tau from 1 to 10, with its 95 % bootstrap band; ``where`` names the episodes (a city, or the
+    test cities pooled)."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(9.5, 4.8), constrained_layout=True)
+    styles = method_styles(list(bands))
+    lines = {}
+    for name, (value, lo, hi) in bands.items():
+        lines[name] = ax.step(taus, value, where="post", label=f"{name} ({100 * value[-1]:.1f} %)", **styles[name])[0]
+        ax.fill_between(taus, lo, hi, step="post", color=styles[name]["color"], alpha=0.12, linewidth=0)
+    ax.set_xlim(taus[0], taus[-1])
+    ax.set_ylim(0, 1.01)
+    ax.set_xlabel("tau: steps / the genie's steps in the same episode")
+    ax.set_ylabel("share of episodes solved within tau x the genie's steps")
+    ax.set_title(f"Performance profiles, {where}")
+    ax.grid(alpha=0.3)
+    heights = {m: b[0][-1] for m, b in bands.items()}
+    _legend_in_curve_order(ax, lines, heights, f"method (within {taus[-1]:g} x the genie)")
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    caption = (
+        f"Performance profiles in {where}: for each method, the share of episodes that reached P_T within tau times the "
+        "genie's steps in the same episode (a failure never does), tau from 1 (as fast as the genie) to "
+        f"{taus[-1]:g}; shaded: 95 % bootstrap bands that resample the users, then their episodes (within each city "
+        "when cities are pooled), as rliable draws score distributions. A curve above another is better at every "
+        "tolerance; the legend is in the order of the curves' right ends."
     )
     return Figure(out, caption)
 

@@ -95,7 +95,7 @@ def fleet_results(config: FleetReportConfig, bundle: Bundle, root: Path, on_prog
     results: dict[str, pd.DataFrame] = {}
     for i, policy in enumerate(policies):  # the first method's paths kept: the figure draws three of them
         if on_progress is not None:
-            on_progress(f"{city}: {policy.name}")
+            on_progress(f"{city}, method {i + 1} of {len(policies)}: {policy.name}")
         results[policy.name] = run_fleet(maps, policy, episodes, record=np.arange(len(episodes)) if i == 0 else None)
     first = next(iter(results.values()))
     reached = first["oracle_steps"] <= config.task.t_max
@@ -203,9 +203,10 @@ def make_fleet_report(config: FleetReportConfig, out: Path, root: Path, command:
     check_replaceable(out, FLEET_JSON, "fleet report")
     tables, diffs, frames, sections, versions, shown_episodes = [], [], [], [], {}, {}
     pages: dict[str, dict] = {}  # per city: what its section of fleet.html shows
-    for city in config.datasets:
+    for number, city in enumerate(config.datasets, 1):
         bundle = load_bundle(city, root=root)
-        results = fleet_results(config, bundle, root, on_progress)
+        where = f"city {number} of {len(config.datasets)}: "
+        results = fleet_results(config, bundle, root, on_progress and (lambda what, where=where: on_progress(where + what)))
         shown = next(m for m in results if m != ORACLE)
         shown_episodes[city] = (bundle, results[shown], shown)
         table = bootstrap_table(results, n_boot=config.n_boot, seed=config.seed)

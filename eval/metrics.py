@@ -15,16 +15,16 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from uavplace.rl.rollout import STATS, WITHIN, format_stat, spl_terms
+from uavplace.rl.rollout import IQM_CUT, STATS, WITHIN, format_stat, spl_terms
 
-__all__ = ["STATS", "bootstrap_table", "difference_table", "ecdf", "format_stat", "group_tables", "resample_counts",
-           "weighted_stats"]  # fmt: skip
+__all__ = ["STATS", "aggregate_table", "bootstrap_table", "difference_table", "ecdf", "format_stat", "group_tables",
+           "performance_profile", "profiles", "resample_counts", "stratified_counts", "weighted_iqm", "weighted_stats"]  # fmt: skip
 
 #: The statistics a difference is reported for (the two the paper reports).
 DIFFERENCE_STATS = ("success", "median_steps")
 
 
-def resample_counts(groups: np.ndarray | None, n: int, n_boot: int, seed: int) -> np.ndarray:
+def resample_counts(groups: np.ndarray | None, n: int, n_boot: int, seed: int | tuple[int, ...]) -> np.ndarray:
     """[n_boot, n] how often each of ``n`` episodes is drawn in each bootstrap replicate.
 
     ``groups`` [n] (the user of each episode): users drawn with replacement, then for each drawn user
@@ -42,6 +42,17 @@ def resample_counts(groups: np.ndarray | None, n: int, n_boot: int, seed: int) -
         members = np.flatnonzero(label == g)
         # c independent draws of the group's size from its episodes = one multinomial of c * size trials.
         counts[:, members] = rng.multinomial(drawn[:, g] * len(members), np.full(len(members), 1.0 / len(members)))
+    return counts
+
+
+def stratified_counts(strata: np.ndarray, groups: np.ndarray, n_boot: int, seed: int) -> np.ndarray:
+    """``resample_counts`` within each stratum (a city) on its own: every replicate keeps each city's share of the
+    episodes (rliable's stratified bootstrap over tasks), resampling the city's users, then their episodes."""
+    strata, groups = np.asarray(strata), np.asarray(groups)
+    counts = np.zeros((n_boot, len(strata)), np.int64)
+    for i, stratum in enumerate(np.unique(strata)):
+        members = np.flatnonzero(strata == stratum)
+        counts[:, members] = resample_counts(groups[members], len(members), n_boot, (seed, i))
     return counts
 
 
@@ -72,8 +83,38 @@ def weighted_stats(steps: np.ndarray, success: np.ndarray, genie_steps: np.ndarr
         "medians_ratio": _weighted_quantile(to_target, w, 0.5)
         / np.maximum(_weighted_quantile(np.asarray(genie_steps, np.float64), w, 0.5), 1),
         "spl": (w * spl_terms(steps, ok, genie_steps)).sum(axis=1) / total,
+        "iqm_over_genie": weighted_iqm(ratio, w),
+        "iqm_spl": weighted_iqm(spl_terms(steps, ok, genie_steps), w),
         "mean_steps_success": mean_ok,
     }
+
+
+def weighted_iqm(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """``rl.rollout.interquartile_mean`` of the sample in which value ``i`` occurs ``weights[b, i]`` times (bootstrap
+    counts: whole numbers), for each row ``b``: [B]. The same values as expanding the sample and trimming it."""
+    order = np.argsort(values, kind="stable")
+    v = np.asarray(values, np.float64)[order]
+    w = np.asarray(weights, np.float64)[:, order]
+    total = w.sum(axis=1, keepdims=True)
+    cut = np.floor(IQM_CUT * total)
+    upto = np.cumsum(w, axis=1)  # the ranks [upto - w, upto) of each value in the expanded, sorted sample
+    kept = np.clip(np.minimum(upto, total - cut) - np.maximum(upto - w, cut), 0.0, None)
+    with np.errstate(invalid="ignore"):  # 0 x inf: a failure outside the middle half
+        return np.where(kept > 0, kept * v, 0.0).sum(axis=1) / (total - 2 * cut)[:, 0]
+
+
+def performance_profile(
+    steps: np.ndarray, success: np.ndarray, genie_steps: np.ndarray, taus: np.ndarray, weights: np.ndarray | None = None
+) -> np.ndarray:
+    """The share of episodes solved within ``tau`` x the genie's steps, for each ``tau`` of ``taus`` (Dolan and More's
+    performance profile, as rliable draws score distributions): [len(taus)], or [B, len(taus)] under ``weights`` [B, n]
+    (bootstrap counts)."""
+    ratio = np.where(np.asarray(success, bool), steps / np.maximum(genie_steps, 1), np.inf)
+    within = ratio[None, :] <= np.asarray(taus, np.float64)[:, None]  # [taus, n]
+    if weights is None:
+        return within.mean(axis=1)
+    w = np.asarray(weights, np.float64)
+    return (w @ within.T) / w.sum(axis=1, keepdims=True)
 
 
 def _paired(results: dict[str, pd.DataFrame]) -> int:
@@ -115,19 +156,70 @@ def bootstrap_table(
     resample users, then episodes within them (``resample_counts``); else episodes alone.
     """
     n, counts = _resamples(results, n_boot, seed, by_user)
-    users = len(np.unique(_groups(results, True)))
+    return _table(results, counts, len(np.unique(_groups(results, True))), level)
+
+
+def _table(results: dict[str, pd.DataFrame], counts: np.ndarray, users: int, level: float) -> pd.DataFrame:
+    """``bootstrap_table``'s rows under the resamples ``counts`` [B, episodes]."""
     alpha = (1.0 - level) / 2.0
     rows = []
     for name, df in results.items():
-        point = _stats_of(df, np.ones((1, n)))
+        point = _stats_of(df, np.ones((1, counts.shape[1])))
         boot = _stats_of(df, counts)
-        row: dict[str, object] = {"method": name, "episodes": n, "users": users}
+        row: dict[str, object] = {"method": name, "episodes": counts.shape[1], "users": users}
         for stat in STATS:
             row[stat] = float(point[stat][0])
             lo, hi = np.quantile(boot[stat], [alpha, 1.0 - alpha], method="inverted_cdf")
             row[f"{stat}_lo"], row[f"{stat}_hi"] = float(lo), float(hi)
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def pooled(by_city: dict[str, dict[str, pd.DataFrame]]) -> dict[str, pd.DataFrame]:
+    """The methods played in every city of ``by_city`` (``{city: {method: run_episodes frame}}``), each with its
+    episodes of every city in one frame (in the cities' order: paired across methods)."""
+    common = [m for m in next(iter(by_city.values())) if all(m in r for r in by_city.values())]
+    return {m: pd.concat([r[m] for r in by_city.values()], ignore_index=True) for m in common}
+
+
+def aggregate_table(
+    by_city: dict[str, dict[str, pd.DataFrame]], *, n_boot: int = 2000, level: float = 0.95, seed: int = 0
+) -> pd.DataFrame:
+    """``bootstrap_table`` of the methods played in every city, over the episodes of all of them at once, with
+    stratified bootstrap intervals (``stratified_counts``: each city's users, then their episodes, resampled within
+    the city), as rliable aggregates across tasks: the IQM across test cities is its headline."""
+    results = pooled(by_city)
+    groups = _groups(results, True)
+    counts = stratified_counts(next(iter(results.values()))["city"].astype(str).to_numpy(), groups, n_boot, seed)
+    return _table(results, counts, len(np.unique(groups)), level).assign(cities=len(by_city))
+
+
+#: The step ratios (method / genie) at which a performance profile is read: tau from 1 to 10.
+PROFILE_TAUS = np.round(np.linspace(1.0, 10.0, 91), 1)
+
+
+def profile_bands(
+    results: dict[str, pd.DataFrame], counts: np.ndarray, taus: np.ndarray = PROFILE_TAUS, level: float = 0.95
+) -> dict[str, np.ndarray]:
+    """``{method: [3, len(taus)]}``: each method's ``performance_profile`` and its bootstrap interval (rows: value,
+    low, high) under the resamples ``counts`` [B, episodes]."""
+    alpha = (1.0 - level) / 2.0
+    out = {}
+    for name, df in results.items():
+        args = [df[c].to_numpy() for c in ("steps", "success", "genie_steps")]
+        boot = performance_profile(*args, taus, counts)
+        lo, hi = np.quantile(boot, [alpha, 1.0 - alpha], axis=0, method="inverted_cdf")
+        out[name] = np.stack([performance_profile(*args, taus), lo, hi])
+    return out
+
+
+def profiles(results: dict[str, pd.DataFrame], *, n_boot: int = 2000, seed: int = 0, stratified: bool = False) -> dict:
+    """``profile_bands`` of paired ``results`` with the report's resamples (users, then episodes; ``stratified``:
+    within each city, for results pooled over cities)."""
+    if not stratified:
+        return profile_bands(results, _resamples(results, n_boot, seed, True)[1])
+    first = next(iter(results.values()))
+    return profile_bands(results, stratified_counts(first["city"].astype(str).to_numpy(), _groups(results, True), n_boot, seed))
 
 
 def difference_table(

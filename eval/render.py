@@ -7,6 +7,7 @@ import base64
 import datetime as dt
 import functools
 import json
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -14,10 +15,18 @@ import numpy as np
 import pandas as pd
 
 from uavplace.eval.evaluate import PAPER, ReportConfig, paper_key, references
-from uavplace.eval.figures import Figure
-from uavplace.eval.metrics import STATS, format_stat
+from uavplace.eval.figures import Figure, plot_profiles
+from uavplace.eval.findings import (
+    HEADLINE_STATS,
+    across_findings,
+    city_findings,
+    difference_cell,
+    headline_methods,
+    stat_rows,
+)
+from uavplace.eval.metrics import STATS, aggregate_table, format_stat, pooled, profiles
 from uavplace.infra.console import markdown_table
-from uavplace.infra.files import atomic_write_text
+from uavplace.infra.files import atomic_write_bytes, atomic_write_text
 from uavplace.schemas import InputError
 
 
@@ -31,7 +40,7 @@ def difference_rows(differences: pd.DataFrame, t_max: int) -> list[list[str]]:
         for ref in refs:
             for stat in ("success", "median_steps"):
                 r = group[(group["against"] == ref) & (group["stat"] == stat)]
-                cells.append("-" if r.empty else _difference_cell(stat, r.iloc[0]))
+                cells.append("-" if r.empty else difference_cell(stat, r.iloc[0]))
         rows.append(cells)
     return rows
 
@@ -61,20 +70,9 @@ def group_rows(
         for ref in refs:
             for stat in ("success", "median_steps"):
                 r = differences[(differences["group"] == group) & (differences["against"] == ref) & (differences["stat"] == stat)]
-                cells.append("-" if r.empty else _difference_cell(stat, r.iloc[0]))
+                cells.append("-" if r.empty else difference_cell(stat, r.iloc[0]))
         rows.append(cells)
     return rows
-
-
-def _difference_cell(stat: str, r: pd.Series) -> str:
-    if np.isnan(r["difference"]):
-        return f"undefined ({100 * r['undefined_share']:.0f} % of resamples: a median beyond t_max)"
-    if stat == "success":
-        return f"{100 * r['difference']:+.1f} points [{100 * r['lo']:+.1f}, {100 * r['hi']:+.1f}]"
-    values = (r["difference"], r["lo"], r["hi"])
-    if all(float(v).is_integer() for v in values):  # one run's medians: whole steps
-        return f"{r['difference']:+g} [{r['lo']:+g}, {r['hi']:+g}]"
-    return f"{r['difference']:+.1f} [{r['lo']:+.1f}, {r['hi']:+.1f}]"  # a mean over runs
 
 
 #: Where the paper columns come from: the paper's table of 1000 test episodes in its unseen city (docs/method.md).
@@ -115,6 +113,18 @@ def table_rows(table: pd.DataFrame, t_max: int) -> list[list[str]]:
     return rows
 
 
+def split_columns(rows: list[list[str]], first: tuple[str, ...]) -> tuple[list[list[str]], list[list[str]]]:
+    """``rows`` (header first, the method in the first column) as two tables that fit a laptop's screen: the columns
+    named in ``first``, then the others, each with the method."""
+    keep = [0] + [i for i, name in enumerate(rows[0]) if name in first]
+    rest = [0] + [i for i in range(1, len(rows[0])) if i not in keep]
+    return [[r[i] for i in keep] for r in rows], [[r[i] for i in rest] for r in rows]
+
+
+#: The headline table's column names (``findings.HEADLINE_STATS``' labels).
+HEADLINE_COLUMNS = tuple(STATS[s] for s in HEADLINE_STATS)
+
+
 _CSS = """body{font-family:system-ui,sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;color:#222}
 table{border-collapse:collapse;margin:1em 0;font-size:14px;display:block;overflow-x:auto;max-width:100%}
 td,th{border:1px solid #ccc;padding:4px 8px;text-align:right}td{white-space:nowrap}.prov td{white-space:normal}
@@ -133,14 +143,17 @@ def render_section(config: ReportConfig, rows: list[list[str]], figures: dict[st
     penalised = {n: a["config"].get("test_revisit_penalty", 0.0) for n, a in p["agents"].items()}
     penalties = "; ".join(f"{n}: less {v:g} per earlier visit of the episode to the cell the move leads to"
                           for n, v in penalised.items() if v)  # fmt: skip
-    alt = {"cdf": "CDF of steps to P_T in " + p["test_city"], "training": "training curves"}
-    alt["trajectories"] = "trajectories in " + p["test_city"]
+    city = p["test_city"]
+    alt = {"cdf": f"CDF of steps to P_T in {city}", "profile": f"performance profiles in {city}",
+           "training": "training curves", "trajectories": f"trajectories in {city}"}  # fmt: skip
     shown = [_figure(figures[key], first_figure + i, alt[key]) for i, key in enumerate(k for k in alt if k in figures)]
+    headline, detail = split_columns(rows, HEADLINE_COLUMNS)
     return _templates().get_template("section.html.j2").render(
         city=p["test_city"], bundle=p["test_bundle"], maps=cell_sources_text(p["test_bundle_cells"]) if p.get("test_bundle_cells")
         else None, episodes=config.episodes, t_max=config.t_max,
         p_t=f"{config.p_t_db:g}", penalties=penalties, epsilon=f"{config.test_epsilon:g}", n_boot=config.n_boot,
-        users=p.get("users", "all"), paper_source=PAPER_SOURCE, rows=rows, diff_rows=diff_rows, group_rows=group_rows,
+        users=p.get("users", "all"), paper_source=PAPER_SOURCE, rows=headline, detail_rows=detail, diff_rows=diff_rows,
+        group_rows=group_rows,
         figures=shown,
     )  # fmt: skip
 
@@ -183,16 +196,60 @@ def cell_sources_text(counts: dict[str, int]) -> str:
     return f"{total:,} user-cells outside buildings: {shares}"
 
 
+@dataclass
+class Top:
+    """The top of a report page: what it found in words (``findings``), the headline methods' table (``rows``) and what
+    its cells are (``caption``), and across cities the pooled performance profiles."""
+
+    findings: list[str]
+    caption: str
+    rows: list[list[str]]
+    figure: Figure | None = None
+
+
+def city_top(table: pd.DataFrame, differences: pd.DataFrame, config: ReportConfig, city: str) -> Top:
+    """The top of one city's page: ``city_findings`` and the headline methods' ``HEADLINE_STATS``."""
+    methods = headline_methods(list(table["method"]))
+    caption = (
+        f"The headline methods in {city} ({config.episodes} episodes; brackets: 95 % paired bootstrap intervals over "
+        "users, then episodes; every method and statistic below)."
+    )
+    rows = stat_rows(table, config.t_max, HEADLINE_STATS, methods)
+    return Top(city_findings(table, differences, config.t_max), caption, rows)
+
+
+def across_top(reports: list[Report], profile_png: Path | None = None) -> Top:
+    """The top of a page of several cities: ``across_findings`` and the headline methods over the episodes of every city
+    (``aggregate_table``, stratified intervals); with ``profile_png``, the pooled performance profiles drawn there."""
+    config = reports[0].config
+    by_city = {r.provenance["test_city"]: {m: df for m, df in r.episodes.groupby("method", sort=False)} for r in reports}
+    aggregate = aggregate_table(by_city, n_boot=config.n_boot, seed=config.seed)
+    cities = {r.provenance["test_city"]: (r.table, r.differences) for r in reports}
+    caption = (
+        f"The headline methods over the {int(aggregate['episodes'].iloc[0])} episodes of the {len(reports)} cities "
+        f"({', '.join(cities)}) at once; brackets: 95 % stratified bootstrap intervals ({config.n_boot} resamples of "
+        "each city's users, then their episodes, within each city), as rliable aggregates across tasks."
+    )
+    figure = None
+    if profile_png is not None:
+        bands = profiles(pooled(by_city), n_boot=config.n_boot, seed=config.seed, stratified=True)
+        figure = plot_profiles(bands, f"the {len(reports)} cities pooled ({', '.join(cities)})", profile_png)
+    rows = stat_rows(aggregate, config.t_max, HEADLINE_STATS, headline_methods(list(aggregate["method"])))
+    return Top(across_findings(cities, aggregate, config.t_max), caption, rows, figure)
+
+
 def render_page(
     sections: list[str],
     provenances: list[dict],
+    top: Top,
     summary: list[list[str]] | None = None,
     training: Figure | None = None,
     caption: str = "",
 ) -> str:
-    """The whole report (``templates/page.html.j2``): with several cities a summary table and the training curves
-    (Figure 1) first, then a section per city (``render_section``'s HTML), then the provenance. Self-contained: the
-    style and the figures are inlined."""
+    """The whole report (``templates/page.html.j2``): its ``top`` (the findings, the headline table; with several
+    cities the pooled performance profiles, Figure 1), with several cities a summary table and the training curves
+    (Figure 2), then a section per city (``render_section``'s HTML), then the provenance. Self-contained: the style and
+    the figures are inlined."""
     import markupsafe
 
     raw = provenances[0] if len(provenances) == 1 else provenances
@@ -200,8 +257,9 @@ def render_page(
     made = provenances[0]["created_utc"] if summary is None else dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
     return _templates().get_template("page.html.j2").render(
         generator=GENERATOR, cities=", ".join(p["test_city"] for p in provenances), css=markupsafe.Markup(_CSS),
-        made=made, command=provenances[0]["command"], summary=summary, caption=caption,
-        training=_figure(training, 1, "training curves"), sections=[markupsafe.Markup(s) for s in sections],
+        made=made, command=provenances[0]["command"], summary=summary, caption=caption, top=top,
+        top_figure=top.figure and _figure(top.figure, 1, "performance profiles, cities pooled"),
+        training=_figure(training, 2, "training curves"), sections=[markupsafe.Markup(s) for s in sections],
         provenance=provenance_rows(provenances), raw=json.dumps(raw, indent=2),
     )  # fmt: skip
 
@@ -225,31 +283,43 @@ def check_summary_page(out: str | Path) -> None:
 
 
 def write_summary_page(reports: list[Report], out: str | Path, t_max: int) -> Path:
-    """``out/report.html``: the summary table (method x city), then each city's section, then the provenance;
+    """``out/report.html``: the findings over every city (``across_top``, the pooled performance profiles in
+    ``out/profile.png``), the summary table (method x city), then each city's section, then the provenance;
     ``out/summary.csv`` the same figures as numbers (``summary_frame``). Written to temporary files renamed into place."""
     out = Path(out)
     summary = summary_rows(reports, t_max)
-    sections = []
-    for i, r in enumerate(reports):  # the training curves once, above the cities (Figure 1); each city: CDF, trajectories
+    sections, number = [], 3  # Figure 1: the pooled profiles; 2: the training curves, once above the cities
+    for r in reports:
         figures = {k: v for k, v in r.figures.items() if k != "training"}
-        sections.append(render_section(r.config, r.rows, figures, r.provenance, first_figure=2 + 2 * i, diff_rows=r.diff_rows))
-    page = render_page(sections, [r.provenance for r in reports], summary, reports[0].figures.get("training"),
-                       summary_caption(reports))  # fmt: skip
+        sections.append(render_section(r.config, r.rows, figures, r.provenance, first_figure=number, diff_rows=r.diff_rows))
+        number += len(figures)
+    with tempfile.TemporaryDirectory() as tmp:
+        top = across_top(reports, Path(tmp) / "profile.png")
+        page = render_page(sections, [r.provenance for r in reports], top, summary, reports[0].figures.get("training"),
+                           summary_caption(reports))  # fmt: skip
+        atomic_write_bytes(out / "profile.png", top.figure.path.read_bytes())
     for name, text in (("report.html", page), ("summary.csv", summary_frame(reports).to_csv(index=False))):
         atomic_write_text(out / name, text)
     return out / "report.html"
 
 
 def markdown_tables(reports: list[Report], t_max: int) -> str:
-    """Every table of the reports as Markdown: per city its results and paired differences (each with what it is),
-    then, with several cities, the summary with its caption."""
-    parts = []
+    """Every table of the reports as Markdown, led by what they found (``across_top`` with several cities, else the
+    city's): then, with several cities, the summary with its caption; per city its headline and detail tables and
+    its paired differences (each with what it is)."""
+    top = across_top(reports) if len(reports) > 1 else reports[0].top
+    parts = ["\n".join(f"- {f}" for f in top.findings), top.caption, markdown_table(top.rows)]
+    if len(reports) > 1:
+        parts.append(summary_caption(reports))
+        parts.append(markdown_table(summary_rows(reports, t_max)))
     for r in reports:
         p = r.provenance
         parts.append(f"**{p['test_city']}** ({r.config.episodes} episodes of {p.get('users', '?')} users, bundle "
                      f"{p['test_bundle']}, t_max {r.config.t_max}, P_T {r.config.p_t_db:g} dB; 95 % intervals over users, "
                      "then episodes)")  # fmt: skip
-        parts.append(markdown_table(r.rows))
+        headline, detail = split_columns(r.rows, HEADLINE_COLUMNS)
+        parts += [markdown_table(headline), f"The other statistics in {p['test_city']}, and the paper's numbers:"]
+        parts.append(markdown_table(detail))
         if len(r.diff_rows) > 1:
             parts.append(f"Paired differences in {p['test_city']}, method minus reference (95 % intervals):")
             parts.append(markdown_table(r.diff_rows))
@@ -257,9 +327,6 @@ def markdown_tables(reports: list[Report], t_max: int) -> str:
             parts.append(f"Groups of runs in {p['test_city']}: mean over runs [95 % interval over runs, users, episodes] "
                          "(the runs' range), differences paired in users and episodes:")  # fmt: skip
             parts.append(markdown_table(r.group_rows))
-    if len(reports) > 1:
-        parts.append(summary_caption(reports))
-        parts.append(markdown_table(summary_rows(reports, t_max)))
     return "\n\n".join(parts) + "\n"
 
 
@@ -329,4 +396,5 @@ class Report:
     diff_rows: list[list[str]]  # the differences as text (difference_rows)
     figures: dict[str, Figure | None]  # in the report folder
     provenance: dict  # report.json
+    top: Top  # what the page leads with (city_top)
     group_rows: list[list[str]] | None = None  # the groups of seeds as text (group_rows), when --group was given

@@ -7,7 +7,8 @@ The recipe (``make_report``):
 3. play them with every method (the learned agents, the genie, the steered random walk, greedy
    hill-climbing), batched, the same episodes for all;
 4. tabulate success rate and steps to P_T with paired bootstrap 95 % intervals, beside the paper's;
-5. draw the CDF of steps to P_T, the training curves, a few trajectories;
+5. draw the CDF of steps to P_T, the performance profiles, the training curves, a few trajectories;
+   say what it found (``eval.findings``: the leader, by how much, whether the map matters) above the tables;
 6. write ``report.html`` (figures embedded), the PNGs, the tables (CSV and Parquet), every
    episode (Parquet) and ``report.json`` (config and provenance) into a temporary folder that is
    renamed into place.
@@ -27,19 +28,30 @@ from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.evaluate import (
     ReportConfig,
     ablation_table,
+    blanked_agents,
     blanked_results,
     check_unseen,
+    default_baselines,
     evaluate,
     groups_of,
     load_agent,
     references,
     results_table,
     shown_method,
+    stages,
     training_bounds,
 )
-from uavplace.eval.figures import Figure, pick_trajectories, plot_cdf, plot_training, plot_trajectories
-from uavplace.eval.metrics import difference_table, group_tables
-from uavplace.eval.render import Report, difference_rows, group_rows, render_page, render_section, table_rows
+from uavplace.eval.figures import Figure, pick_trajectories, plot_cdf, plot_profiles, plot_training, plot_trajectories
+from uavplace.eval.metrics import difference_table, group_tables, profiles
+from uavplace.eval.render import (
+    Report,
+    city_top,
+    difference_rows,
+    group_rows,
+    render_page,
+    render_section,
+    table_rows,
+)
 from uavplace.infra.files import atomic_directory, check_replaceable
 from uavplace.schemas.base import repeated, uavplace_version
 
@@ -54,6 +66,7 @@ def make_report(
     root: str | Path = "data/processed",
     command: str = "",
     on_progress: Callable[[str, int, int], None] | None = None,
+    on_plan: Callable[[list[str]], None] | None = None,
 ) -> Report:
     """Evaluate every method on ``config.dataset`` and write the report folder ``out`` (atomically).
 
@@ -61,6 +74,8 @@ def make_report(
     folder (replaced only if it is a report, ``report.json``), the test bundle,
     every agent (weights only), and that no agent was trained in the test city.
     A training city whose bundle is not built here only loses its upper bound.
+    ``on_plan`` is told every stage (``evaluate.stages``) before the first; ``on_progress`` each stage's
+    ``(stage, done, total)`` as it goes.
     """
     out = Path(out)
     check_replaceable(out, REPORT_JSON, "report")
@@ -73,9 +88,13 @@ def make_report(
             a.name = a.policy.name = f"{a.name} [{a.folder.name}]"
     bounds, bound_notes = training_bounds(agents, root, config.p_t_db)
 
-    results = evaluate(config, bundle, agents, on_progress)
-    if config.ablate:
-        results |= blanked_results(config, bundle, agents, on_progress)
+    baselines = default_baselines(config, bundle)
+    blanked = blanked_agents(config, agents) if config.ablate else []
+    if on_plan is not None:
+        played = [(m.name, m.policy) for m in agents] + [(p.name, p) for p in baselines]
+        on_plan(stages(played) + stages([(m.name, m.policy) for m in blanked]))
+    results = evaluate(config, bundle, agents, on_progress, baselines=baselines)
+    results |= blanked_results(config, bundle, blanked, on_progress)
     table = results_table(results, config)
     refs = references(list(results))
     differences = pd.concat(
@@ -88,6 +107,8 @@ def make_report(
     episodes = pd.concat([_plain(df.assign(method=name)) for name, df in results.items()], ignore_index=True)
     with atomic_directory(out, marker=REPORT_JSON, what="report") as tmp:
         figures: dict[str, Figure | None] = {"cdf": plot_cdf(results, config.t_max, tmp / "cdf.png")}
+        bands = profiles(results, n_boot=config.n_boot, seed=config.seed)
+        figures["profile"] = plot_profiles(bands, bundle.city, tmp / "profile.png")
         figures["training"] = plot_training(agents, bounds, tmp / "training.png", bound_notes)
         shown = shown_method(agents)
         picked = pick_trajectories(results, shown, config.trajectories)
@@ -134,10 +155,11 @@ def make_report(
         grows = None if grouped is None else group_rows(*grouped, groups)
         provenance["groups"] = named or None
         section = render_section(config, rows, figures, provenance, diff_rows=diff_rows, group_rows=grows)
-        (tmp / "report.html").write_text(render_page([section], [provenance]), encoding="utf-8")
+        top = city_top(table, differences, config, bundle.city)
+        (tmp / "report.html").write_text(render_page([section], [provenance], top), encoding="utf-8")
         (tmp / REPORT_JSON).write_text(json.dumps(provenance, indent=2) + "\n", encoding="utf-8")
     figures = {k: None if v is None else Figure(out / v.path.name, v.caption) for k, v in figures.items()}
-    return Report(out, table, differences, episodes, config, rows, diff_rows, figures, provenance, grows)
+    return Report(out, table, differences, episodes, config, rows, diff_rows, figures, provenance, top, grows)
 
 
 def _plain(df: pd.DataFrame) -> pd.DataFrame:

@@ -318,7 +318,7 @@ def make_tracking_report(
     *,
     root: str | Path = "data/processed",
     command: str = "",
-    on_progress: Callable[[str, str], None] | None = None,
+    on_progress: Callable[[str], None] | None = None,
 ) -> tuple[pd.DataFrame, Path]:
     """Evaluate every method on each city of ``config`` and write the report folder ``out`` (atomically; an existing
     folder is replaced only if it is a tracking report). Returns the table (every city) and the page."""
@@ -337,7 +337,7 @@ def make_tracking_report(
     if config.predictor is not None:
         cache = PredictionCache(Path(root) / PREDICTIONS)
         searcher = TrackingSearchPolicy(MapSearchPolicy(load_predictor(config.predictor), cache=cache), config.motion)
-    for b in bundles:
+    for number, b in enumerate(bundles, 1):
         routes = RouteSet([b], config.task)
         try:
             episodes = routes.sample_episodes(config.episodes, np.random.default_rng([config.seed, 7]))
@@ -349,9 +349,10 @@ def make_tracking_report(
                 field="p_t_db",
             ) from None
         results: dict[str, TrackingEpisodes] = {}
-        for policy in tracking_methods(config.task, config.seed, agents, config.hold, searcher):
+        methods = tracking_methods(config.task, config.seed, agents, config.hold, searcher)
+        for j, policy in enumerate(methods, 1):
             if on_progress is not None:
-                on_progress(b.city, policy.name)
+                on_progress(f"city {number} of {len(bundles)}: {b.city}, method {j} of {len(methods)}: {policy.name}")
             results[policy.name] = run_tracking(routes, policy, episodes, record=True)
         per_city.append((b, routes, results, tracking_table(results, config.n_boot, config.seed)))
     with atomic_directory(out, marker=TRACKING_JSON, what="tracking report") as tmp:

@@ -120,12 +120,18 @@ STATS = {
     "p75_steps": "p75 steps",
     "within_100": "solved within 100 steps",
     "steps_over_genie": "median of per-episode steps / genie",
-    "medians_ratio": "median steps / median genie steps (paper's ratio)",
-    "spl": "SPL (success x genie steps / max(steps, genie steps), mean)",
+    "medians_ratio": "median / genie's median (paper's ratio)",
+    "spl": "SPL",
+    "iqm_over_genie": "IQM of steps / genie",
+    "iqm_spl": "IQM of SPL",
     "mean_steps_success": "mean steps of its own successes (unpaired)",
 }
 #: The statistics that are ratios to the genie (infinite: the median episode failed, not a step count).
-RATIOS = ("steps_over_genie", "medians_ratio")
+RATIOS = ("steps_over_genie", "medians_ratio", "iqm_over_genie")
+#: The statistics of scores in [0, 1] (three decimals).
+SCORES = ("spl", "iqm_spl")
+#: The share of the episodes cut from each end by the interquartile mean (rliable's IQM: ``scipy.stats.trim_mean``).
+IQM_CUT = 0.25
 #: ``within_100``'s step budget.
 WITHIN = 100
 
@@ -138,7 +144,10 @@ def episode_stats(steps: np.ndarray, success: np.ndarray, genie_steps: np.ndarra
     genie steps per episode (infinite for failures); ``medians_ratio``: the median steps over the genie's median
     steps (the paper's way of comparing; infinite when the median is a failure); ``spl``: success weighted by path
     length (Anderson et al. 2018, "On evaluation of embodied navigation agents"), the mean over episodes of
-    ``success * genie / max(steps, genie)``, the genie's steps as the shortest path; ``mean_steps_success``: the mean over the method's
+    ``success * genie / max(steps, genie)``, the genie's steps as the shortest path; ``iqm_over_genie`` and
+    ``iqm_spl``: the interquartile means (``interquartile_mean``; Agarwal et al. 2021, "Deep reinforcement learning
+    at the edge of the statistical precipice") of the per-episode steps / genie (inf when more than a quarter of the
+    episodes fail) and of the SPL terms; ``mean_steps_success``: the mean over the method's
     own successes (nan without any), so two methods' values average different episodes. Quantiles are
     order statistics (``inverted_cdf``), so a quantile that falls on a failure is inf.
     """
@@ -157,8 +166,18 @@ def episode_stats(steps: np.ndarray, success: np.ndarray, genie_steps: np.ndarra
         "medians_ratio": np.quantile(to_target, 0.5, axis=-1, method="inverted_cdf")
         / np.maximum(np.quantile(genie_steps, 0.5, axis=-1, method="inverted_cdf"), 1),
         "spl": spl_terms(steps, ok, genie_steps).mean(axis=-1),
+        "iqm_over_genie": interquartile_mean(ratio),
+        "iqm_spl": interquartile_mean(spl_terms(steps, ok, genie_steps)),
         "mean_steps_success": mean_ok,
     }
+
+
+def interquartile_mean(values: np.ndarray) -> np.ndarray:
+    """The mean of the middle half over the last axis: ``int(n / 4)`` values cut from each end of the sorted sample, as
+    ``scipy.stats.trim_mean(values, 0.25)`` (rliable's IQM); inf when an inf value is kept."""
+    v = np.sort(np.asarray(values, np.float64), axis=-1)
+    cut = int(IQM_CUT * v.shape[-1])
+    return v[..., cut : v.shape[-1] - cut].mean(axis=-1)
 
 
 def spl_terms(steps: np.ndarray, success: np.ndarray, genie_steps: np.ndarray) -> np.ndarray:
@@ -174,14 +193,18 @@ def format_stat(stat: str, value: float, lo: float | None = None, hi: float | No
     """A table cell: percentages for shares, ``> t_max`` (``> 500`` with ``t_max``) for infinite steps, ``[lo, hi]``
     when given."""
     share = stat in ("success", "within_100")
-    if stat == "spl":
+    if stat in SCORES:
         return f"{value:.3f}" + (f" [{lo:.3f}, {hi:.3f}]" if lo is not None and hi is not None else "")
     beyond = "> t_max" if t_max is None else f"> {t_max}"
 
-    def one(v: float) -> str:
+    def one(v: float, bound: bool = False) -> str:
         if share:
             return f"{100 * v:.1f} %"
         if np.isinf(v):
+            if stat in RATIOS and bound:
+                return "inf"
+            if stat == "iqm_over_genie":
+                return "inf (over a quarter failed)"
             return "inf (median a failure)" if stat in RATIOS else beyond
         if np.isnan(v):
             return "-"
@@ -189,5 +212,5 @@ def format_stat(stat: str, value: float, lo: float | None = None, hi: float | No
 
     text = one(value)
     if lo is not None and hi is not None:
-        text += f" [{one(lo).removesuffix(' %')}, {one(hi)}]" if share else f" [{one(lo)}, {one(hi)}]"
+        text += f" [{one(lo).removesuffix(' %')}, {one(hi)}]" if share else f" [{one(lo, True)}, {one(hi, True)}]"
     return text

@@ -50,7 +50,7 @@ def test_median_counts_failures_as_beyond_t_max():
     assert row["within_100"] == pytest.approx(0.6)
     assert row["steps_over_genie"] == 3.0  # ratios 2, 2, 3, inf, inf
     assert row["medians_ratio"] == 6.0  # median steps 6 over the genie's median 1 (genie steps 1, 2, 2, 1, 1)
-    assert format_stat("medians_ratio", np.inf, 2.0, np.inf) == "inf (median a failure) [2.00, inf (median a failure)]"
+    assert format_stat("medians_ratio", np.inf, 2.0, np.inf) == "inf (median a failure) [2.00, inf]"
     assert summarise(df) == pytest.approx({k: row[k] for k in summarise(df)})
     # With failures in the majority the median is past t_max (at exactly half, it is the last success).
     assert bootstrap_table({"m": episodes([2, 4, 6, 10, 10, 10], [1, 1, 1, 0, 0, 0])}, n_boot=200).iloc[0]["median_steps"] == 6
@@ -177,8 +177,15 @@ def test_report_end_to_end(tmp_path, two_cities):
     assert res.exit_code == 0, res.output
     assert "report.html" in res.output and "genie" in res.output
     page = (out / "report.html").read_text()
-    assert page.count('src="data:image/png;base64,') == 3  # CDF, training curves, trajectories
-    assert page.count("<figcaption>") == 3 and "<details>" in page and "Provenance" in page
+    assert page.count('src="data:image/png;base64,') == 4  # CDF, performance profiles, training curves, trajectories
+    assert page.count("<figcaption>") == 4 and "<details>" in page and "Provenance" in page
+    assert (out / "profile.png").is_file() and "Performance profiles in cityb" in page
+    # The page leads with what it found: the leader by the table's own ranking, then the headline table, then details
+    table = pd.read_csv(out / "results.csv")
+    rivals = table[(table.method != "genie") & ~table.method.str.endswith(", no buildings")]
+    lead = rivals.sort_values(["success", "medians_ratio", "spl"], ascending=[False, True, False]).method.iloc[0]
+    found = page.index("What it found")
+    assert found < page.index(f"<li>{lead} leads: ") < page.index("IQM of SPL") < page.index('<section id="cityb">')
     assert "median steps" in page and "p75 steps" in page and "100 % (genie)" in page
     assert "90 % (proposed)" not in page  # the paper's numbers stand beside the paper's agents only, not ours
     for text in ("PQN + GRU (best)", "genie", "steered random walk", "greedy hill-climbing", "paper: success", "cityb", "citya"):
@@ -254,7 +261,9 @@ def test_report_on_several_cities(tmp_path, two_cities):
                                      "--markdown", str(md)])  # fmt: skip
     assert res.exit_code == 0, res.output
     text = md.read_text()  # the tables the command printed, as Markdown: a README copies them, never retypes them
-    assert text.index("**cityb** (20 episodes") < text.index("**cityc** (20 episodes") < text.index("| method | cityb: success")
+    # led by what it found over both cities (stratified intervals), then the summary, then each city's tables
+    assert text.startswith("- ") and "over the 40 episodes of the 2 cities" in text
+    assert text.index("| method | cityb: success") < text.index("**cityb** (20 episodes") < text.index("**cityc** (20 episodes")
     assert "Paired differences in cityb, method minus reference" in text and "| genie | 100.0 % [100.0, 100.0 %]" in text
     for city in ("cityb", "cityc"):
         doc = json.loads((tmp_path / "r" / city / "report.json").read_text())
@@ -262,9 +271,15 @@ def test_report_on_several_cities(tmp_path, two_cities):
     assert "cityb: success / median steps" in res.output and "cityc: success / median steps" in res.output
     summary = res.output[res.output.index("cityb: success / median steps") :]
     assert "genie" in summary and "100.0 %" in summary
-    page = (tmp_path / "r" / "report.html").read_text()  # one page: the summary, then a section per city
-    assert page.index("Summary") < page.index('<section id="cityb">') < page.index('<section id="cityc">')
-    assert page.count("<figcaption>") == 5 and "Figure 5." in page  # training once, then CDF and trajectories per city
+    page = (tmp_path / "r" / "report.html").read_text()  # one page: what it found, the summary, a section per city
+    assert (
+        page.index("What it found")
+        < page.index("Summary")
+        < page.index('<section id="cityb">')
+        < page.index('<section id="cityc">')
+    )
+    # the pooled profiles, the training once, then CDF, profiles and trajectories per city
+    assert page.count("<figcaption>") == 8 and "Figure 8." in page and (tmp_path / "r" / "profile.png").is_file()
     summary_csv = pd.read_csv(tmp_path / "r" / "summary.csv")
     assert list(summary_csv.columns[:7]) == ["city", "method", "episodes", "users", "success", "success_lo", "success_hi"]
     assert sorted(set(summary_csv.city)) == ["cityb", "cityc"] and (summary_csv.episodes == 20).all()
@@ -495,8 +510,10 @@ def test_a_missing_training_bundle_is_said_in_words_in_the_caption(tmp_path):
 
 
 def test_report_progress_names_the_city_the_method_and_the_predicted_maps(tiny, tmp_path):
-    """To a log, the report's progress names the city's place among the report's, each method's number, and the
-    searcher's predicted maps as they are made (a cold cache: no silent wait before the first episode)."""
+    """To a log, the report's progress names the city's place among the report's, each stage's (a method's episodes,
+    a searcher's predicted maps) place among the city's, "stage j of m", and the predicted maps as they are made (a
+    cold cache: no silent wait before the first episode)."""
+    import re
     import shutil
 
     root = tmp_path / "root"
@@ -506,6 +523,10 @@ def test_report_progress_names_the_city_the_method_and_the_predicted_maps(tiny, 
             str(tmp_path / "rep")]  # fmt: skip
     res = CliRunner().invoke(uavrl, args)  # not a terminal: plain progress lines
     assert res.exit_code == 0, res.output
-    lines = [line for line in res.output.splitlines() if line.startswith("report city 1 of 1: tiny, method ")]
+    lines = [line for line in res.output.splitlines() if line.startswith("report city 1 of 1: tiny, stage ")]
     assert any("map searcher: predicted maps" in line and line.endswith("candidates") for line in lines), lines
     assert any(line.endswith("4/4 episodes") for line in lines)
+    pattern = re.compile(r"report city 1 of 1: tiny, stage (\d+) of (\d+): ")
+    counts = {tuple(map(int, pattern.match(line).groups())) for line in lines}
+    total = {m for _, m in counts}
+    assert len(total) == 1 and {j for j, _ in counts} == set(range(1, total.pop() + 1)), counts  # every stage, counted
