@@ -41,10 +41,10 @@ def stat_rows(table: pd.DataFrame, t_max: int, stats: tuple[str, ...], methods: 
     return rows
 
 
-def ranking(table: pd.DataFrame) -> list[str]:
-    """The methods other than the genie and the ablations, best first: by success, then the paper's ratio (fewer
-    steps), then SPL."""
-    rows = [r for r in table.to_dict("records") if r["method"] != "genie" and not r["method"].endswith(NO_BUILDINGS)]
+def ranking(table: pd.DataFrame, bound: str = "genie") -> list[str]:
+    """The methods other than the ``bound`` (the genie; the fleet's oracle) and the ablations, best first: by success,
+    then the paper's ratio (fewer steps), then SPL."""
+    rows = [r for r in table.to_dict("records") if r["method"] != bound and not r["method"].endswith(NO_BUILDINGS)]
     rows.sort(key=lambda r: (-r["success"], r["medians_ratio"], -r["spl"]))
     return [r["method"] for r in rows]
 
@@ -89,18 +89,21 @@ def _matters(d: dict[str, dict]) -> str:
     return "the map matters" if tells else "no cost told apart from chance: the map does not measurably matter here"
 
 
-def city_findings(table: pd.DataFrame, differences: pd.DataFrame, t_max: int) -> list[str]:
+def city_findings(
+    table: pd.DataFrame, differences: pd.DataFrame, t_max: int, bound: str = "genie", succeed: str = "reach P_T"
+) -> list[str]:
     """One sentence per finding of one city's report: which method leads, by how much against the next, and what
-    blanking the buildings costs the leader."""
-    order = ranking(table)
+    blanking the buildings costs the leader. ``bound``: the method every step count is divided by (the fleet's
+    oracle); ``succeed``: what a successful episode does."""
+    order = ranking(table, bound)
     if not order:
         return []
     r = table.set_index("method").loc[order[0]]
     lead = order[0]
     out = [
-        f"{lead} leads: {format_stat('success', r['success'])} of the episodes reach P_T, at "
-        f"{format_stat('medians_ratio', r['medians_ratio'], t_max=t_max)} x the genie's median steps (SPL "
-        f"{format_stat('spl', r['spl'])}, IQM of steps / genie {format_stat('iqm_over_genie', r['iqm_over_genie'])})."
+        f"{lead} leads: {format_stat('success', r['success'])} of the episodes {succeed}, at "
+        f"{format_stat('medians_ratio', r['medians_ratio'], t_max=t_max)} x the {bound}'s median steps (SPL "
+        f"{format_stat('spl', r['spl'])}, IQM of steps / {bound} {format_stat('iqm_over_genie', r['iqm_over_genie'])})."
     ]
     if len(order) > 1 and (d := paired(differences, lead, order[1])) is not None:
         out.append(f"Against the next, {order[1]}, paired: {_changes(d)}.")

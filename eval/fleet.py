@@ -31,6 +31,7 @@ from pydantic import Field
 from uavplace.dataset.bundle import Bundle, load_bundle
 from uavplace.eval.evaluate import load_agent
 from uavplace.eval.figures import Figure
+from uavplace.eval.findings import city_findings, difference_cell
 from uavplace.eval.metrics import bootstrap_table, difference_table
 from uavplace.eval.render import _CSS, _figure, _templates, difference_rows
 from uavplace.infra.console import markdown_table
@@ -175,8 +176,6 @@ SUMMARY_TITLE = ("success / median steps (median of per-episode steps / the orac
 def summary_rows(table: pd.DataFrame, diff: pd.DataFrame, t_max: int) -> list[list[str]]:
     """Header then one row per method: in each city, ``success / median steps (steps / oracle)``, then its paired
     difference from the city's reference (``reference``: success, median steps), with 95 % intervals."""
-    from uavplace.eval.render import _difference_cell
-
     cities = list(dict.fromkeys(table["city"]))
     refs = {c: str(diff[(diff["city"] == c) & (diff["against"] != ORACLE)]["against"].iloc[0]) for c in cities}
     header = ["method", *(f"{c}: success / median steps (x oracle)" for c in cities),
@@ -190,7 +189,7 @@ def summary_rows(table: pd.DataFrame, diff: pd.DataFrame, t_max: int) -> list[li
             cells.append(f"{shown[0]} / {shown[1]} ({format_stat('steps_over_genie', r['steps_over_genie'], t_max=t_max)})")
         for c in cities:
             d = diff[(diff["city"] == c) & (diff["method"] == method) & (diff["against"] == refs[c])]
-            cells.append("-" if d.empty else " / ".join(_difference_cell(s, d[d["stat"] == s].iloc[0])
+            cells.append("-" if d.empty else " / ".join(difference_cell(s, d[d["stat"] == s].iloc[0])
                                                          for s in ("success", "median_steps")))  # fmt: skip
         rows.append(cells)
     return rows
@@ -201,7 +200,7 @@ def make_fleet_report(config: FleetReportConfig, out: Path, root: Path, command:
     """Play every city, tabulate, and write ``out`` (see the module's docstring). Returns (results table, paired
     differences, the Markdown file), every city in each."""
     check_replaceable(out, FLEET_JSON, "fleet report")
-    tables, diffs, frames, sections, versions, shown_episodes = [], [], [], [], {}, {}
+    tables, diffs, frames, sections, versions, shown_episodes, found = [], [], [], [], {}, {}, []
     pages: dict[str, dict] = {}  # per city: what its section of fleet.html shows
     for number, city in enumerate(config.datasets, 1):
         bundle = load_bundle(city, root=root)
@@ -225,6 +224,9 @@ def make_fleet_report(config: FleetReportConfig, out: Path, root: Path, command:
             markdown_table(diff_rows),
         ]
         pages[city] = {"bundle": bundle.version, "rows": rows, "differences": diff_rows}
+        said = city_findings(table, diff, config.task.t_max, bound=ORACLE, succeed="serve every user")
+        found += [f"In {city}: {f}" for f in said]
+    sections.insert(0, "\n".join(f"- {f}" for f in found))
     table, diff = pd.concat(tables, ignore_index=True), pd.concat(diffs, ignore_index=True)
     summary = summary_rows(table, diff, config.task.t_max) if len(config.datasets) > 1 else None
     if summary:
@@ -242,13 +244,15 @@ def make_fleet_report(config: FleetReportConfig, out: Path, root: Path, command:
         doc = {"config": config.model_dump(mode="json"), "bundles": versions, "command": command,
                "uavplace_version": uavplace_version(), "created_utc": dt.datetime.now(dt.UTC).isoformat()}  # fmt: skip
         (tmp / FLEET_JSON).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
-        (tmp / "fleet.html").write_text(fleet_page(config, pages, summary, doc), encoding="utf-8")
+        (tmp / "fleet.html").write_text(fleet_page(config, pages, summary, doc, found), encoding="utf-8")
     return table, diff, out / "fleet.md"
 
 
-def fleet_page(config: FleetReportConfig, pages: dict[str, dict], summary: list[list[str]] | None, doc: dict) -> str:
-    """``fleet.html``: self-contained, the placement and tracking reports' style: the summary of every city (with
-    more than one), then per city its table, its paired differences and its figure (``pages``), then ``fleet.json``."""
+def fleet_page(config: FleetReportConfig, pages: dict[str, dict], summary: list[list[str]] | None, doc: dict,
+               findings: list[str]) -> str:  # fmt: skip
+    """``fleet.html``: self-contained, the placement and tracking reports' style: what it found (``findings``), the
+    summary of every city (with more than one), then per city its table, its paired differences and its figure
+    (``pages``), then ``fleet.json``."""
     import markupsafe
 
     task = config.task
@@ -272,6 +276,7 @@ def fleet_page(config: FleetReportConfig, pages: dict[str, dict], summary: list[
             command=doc["command"],
             summary=summary,
             summary_title=SUMMARY_TITLE,
+            findings=findings,
             sections=[markupsafe.Markup(s) for s in sections],
             raw=json.dumps(doc, indent=2),
         )

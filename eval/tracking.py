@@ -164,6 +164,27 @@ def tracking_table(results: dict[str, TrackingEpisodes], n_boot: int, seed: int)
     return pd.DataFrame(rows)
 
 
+def findings(table: pd.DataFrame, horizon: int) -> list[str]:
+    """One sentence per city of ``table`` (``tracking_table``'s rows of every city): the method other than the oracle
+    and the re-planning genie that keeps the user covered for the largest share of the horizon, as a fraction of the
+    oracle's, and against the re-planning genie (paired)."""
+    out = []
+    for city, rows in table.groupby("city", sort=False):
+        rivals = rows[~rows["method"].isin([UPPER_BOUND, REFERENCE])]
+        if rivals.empty:
+            continue
+        r = rivals.sort_values("covered_share", ascending=False, kind="stable").iloc[0].to_dict()
+        text = (
+            f"In {city}, {r['method']} keeps the link for the largest share of the horizon: {_cell('covered_share', r, horizon)}"
+        )
+        if "of_oracle" in r and np.isfinite(r["of_oracle"]):
+            text += f", {_cell('of_oracle', r, horizon)} of the oracle's"
+        if "minus_reference" in r and np.isfinite(r["minus_reference"]):
+            text += f"; against the {REFERENCE}, paired: {_cell('minus_reference', r, horizon)}"
+        out.append(text + ".")
+    return out
+
+
 def _cell(stat: str, r: dict, horizon: int) -> str:
     v, lo, hi = r[stat], r[f"{stat}_lo"], r[f"{stat}_hi"]
     if stat in ("first_reach",):
@@ -394,6 +415,7 @@ def make_tracking_report(
         page = _templates().get_template("tracking.html.j2").render(
             css=markupsafe.Markup(_CSS), cities=", ".join(b.city for b in bundles), made=record["created_utc"],
             command=command, sections=[markupsafe.Markup(s) for s in sections], raw=json.dumps(record, indent=2),
+            findings=findings(table, config.task.horizon),
         )  # fmt: skip
         (tmp / "tracking.html").write_text(page, encoding="utf-8")
         (tmp / TRACKING_JSON).write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
