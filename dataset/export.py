@@ -37,13 +37,8 @@ import numpy as np
 
 from uavplace.dataset.bundle import Bundle, public_settings
 from uavplace.dataset.trainmaps import STEP_DB, TrainingMaps, dequantise, quantise
-from uavplace.infra.files import atomic_directory, atomic_write_bytes, read_small_file
-from uavplace.schemas import InputError
-
-#: The RadioMapSeer-style folder's format name (``scale.json``).
-RADIOMAPSEER = "uavplace-radiomapseer/1"
-#: The users' height above the ground [m] in the DeepMIMO-style file's transmitter positions.
-USER_HEIGHT_M = 1.5
+from uavplace.infra.files import atomic_directory, atomic_write_bytes
+from uavplace.ingest.radiomapseer import RADIOMAPSEER, USER_HEIGHT_M, read_folder
 
 
 def _png(array: np.ndarray) -> bytes:
@@ -53,23 +48,6 @@ def _png(array: np.ndarray) -> bytes:
     buf = io.BytesIO()
     Image.fromarray(np.ascontiguousarray(array)).save(buf, format="PNG", optimize=True)
     return buf.getvalue()
-
-
-def _image(path: Path, shape: tuple[int, int], dtype: type) -> np.ndarray:
-    """A gray PNG of ``shape`` and ``dtype`` (8 or 16 bits), read as data; ``InputError`` naming it otherwise."""
-    from PIL import Image, UnidentifiedImageError
-
-    data = read_small_file(path, "a PNG of a RadioMapSeer-style folder")
-    try:
-        with Image.open(io.BytesIO(data)) as im:
-            if im.size[0] * im.size[1] > 64 * shape[0] * shape[1] + 1:
-                raise InputError(path, f"{im.size[0]} x {im.size[1]} pixels, the grid is {shape[1]} x {shape[0]}")
-            a = np.asarray(im)
-    except (UnidentifiedImageError, OSError, ValueError) as err:
-        raise InputError(path, f"not a readable PNG ({str(err)[:120]})") from None
-    if a.shape != shape:
-        raise InputError(path, f"{a.shape[1]} x {a.shape[0]} pixels, the grid is {shape[1]} x {shape[0]}", field="shape")
-    return a.astype(dtype)
 
 
 def write_radiomapseer(bundle: Bundle, out: str | Path) -> Path:
@@ -127,52 +105,14 @@ def write_radiomapseer(bundle: Bundle, out: str | Path) -> Path:
 
 
 def read_radiomapseer(folder: str | Path) -> TrainingMaps:
-    """A RadioMapSeer-style folder (``write_radiomapseer``'s layout) as ``TrainingMaps``; ``InputError`` naming the file
-    and field of the first problem."""
-    folder = Path(folder)
-    try:
-        scale = json.loads(read_small_file(folder / "scale.json", "a RadioMapSeer-style folder's scale.json"))
-        city, grid, sinr, settings = scale["city"], scale["grid"], scale["sinr"], dict(scale["settings"])
-        shape = (int(grid["num_y"]), int(grid["num_x"]))
-        floor, step = float(sinr["floor_db"]), float(sinr["step_db"])
-    except (ValueError, KeyError, TypeError) as err:
-        raise InputError(
-            folder / "scale.json", f"not this format's scale ({type(err).__name__}: {str(err)[:80]})", field="scale"
-        ) from None
-    if scale.get("format") != RADIOMAPSEER:
-        raise InputError(folder / "scale.json", f"format {scale.get('format')!r}, expected {RADIOMAPSEER}", field="format")
-    blocked = np.flipud(_image(folder / "png/buildings_complete" / f"{city}.png", shape, np.uint8)) > 127
-    ground = np.flipud(_image(folder / "png/heights" / f"{city}.png", shape, np.int64)) / 100.0
-    users_csv = folder / "users.csv"
-    rows = list(csv.DictReader(io.StringIO(read_small_file(users_csv, "the users' table").decode("utf-8-sig"))))
-    users, sinr_maps, dead_maps = [], [], []
-    for k, row in enumerate(rows, start=2):
-        try:
-            u, r, c = int(row["user"]), int(row["row"]), int(row["col"])
-        except (KeyError, TypeError, ValueError):
-            raise InputError(users_csv, "user, row and col must be integers", line=k, field="user") from None
-        if not (0 <= r < shape[0] and 0 <= c < shape[1]):
-            raise InputError(users_csv, f"pixel ({r}, {c}) is off the {shape[1]} x {shape[0]} grid", line=k, field="row")
-        q = np.flipud(_image(folder / "gain" / f"{city}_{u}.png", shape, np.uint8))
-        s, d = dequantise(q, floor, step)
-        users.append((shape[0] - 1 - r, c))
-        sinr_maps.append(s)
-        dead_maps.append(d)
-    if not users:
-        raise InputError(users_csv, "no user", field="user")
-    settings["floor_db"] = floor
-    height_rel = (ground - float(settings["altitude_m"])).astype(np.float32)
-    return TrainingMaps(
-        city,
-        str(scale.get("bundle_version", "")),
-        settings,
-        height_rel,
-        blocked,
-        np.array(users, np.int64),
-        np.stack(sinr_maps),
-        np.stack(dead_maps),
-        np.zeros((len(users), *shape), np.uint8),
-    )
+    """A RadioMapSeer-style folder (``write_radiomapseer``'s layout; ``ingest.radiomapseer.read_folder``) as
+    ``TrainingMaps``; ``InputError`` naming the file and field of the first problem."""
+    m = read_folder(folder)
+    sinr, dead = dequantise(m.codes, m.floor_db, m.step_db)
+    settings = m.settings | {"floor_db": m.floor_db}
+    height_rel = (m.ground_m - float(m.settings["altitude_m"])).astype(np.float32)
+    provenance = np.zeros(m.codes.shape, np.uint8)
+    return TrainingMaps(m.city, m.version, settings, height_rel, m.blocked, m.cells, sinr, dead, provenance)
 
 
 def write_deepmimo(bundle: Bundle, out: str | Path) -> Path:

@@ -36,6 +36,7 @@ from pydantic import Field, ValidationError
 from uavplace.dataset.bundle import Bundle, public_settings
 from uavplace.infra.files import atomic_write_bytes, read_small_file
 from uavplace.infra.limits import limits
+from uavplace.ingest.radiomapseer import decode_sinr as dequantise  # the codes of packs and RadioMapSeer folders
 from uavplace.schemas import InputError
 from uavplace.schemas.base import Contract, validation_message
 from uavplace.schemas.provenance import CODES
@@ -112,13 +113,6 @@ def quantise(sinr_db: np.ndarray, dead: np.ndarray, floor_db: float, step_db: fl
     q = np.clip(q, 1, 255).astype(np.uint8)
     q[dead] = 0
     return q, clipped
-
-
-def dequantise(q: np.ndarray, floor_db: float, step_db: float) -> tuple[np.ndarray, np.ndarray]:
-    """(SINR [dB] float32, dead bool) of packed codes ``q``."""
-    dead = q == 0
-    sinr = (floor_db + (np.maximum(q.astype(np.float32), 1) - 1) * np.float32(step_db)).astype(np.float32)
-    return sinr, dead
 
 
 def pack_bytes(maps: TrainingMaps, simulation: dict | None = None, step_db: float = STEP_DB) -> tuple[bytes, PackMeta]:

@@ -32,7 +32,9 @@ def ingest(folders: tuple[Path, ...], out_root: Path, name: str | None, verbose:
     pg, txloss, spread, noise), .txrx, .setup, .city, .ter, GeoJSON footprints
     (.geojson) and meshes (.obj .ply .stl .glb .gltf). Per-path outputs
     (paths, doa, dod, cir, ...) are recognised and skipped; unknown files are
-    listed as warnings. On any error nothing is written for that city and the exit status is 2.
+    listed as warnings. A RadioMapSeer-style folder (what `uavdata export`
+    writes: scale.json, PNG maps, users.csv; ingest/radiomapseer.py) is read
+    as a city too. On any error nothing is written for that city and the exit status is 2.
     """
     if name is not None and len(folders) > 1:
         raise click.BadParameter("--name names one city: give one FOLDER", param_hint="--name")

@@ -28,6 +28,7 @@ from uavplace.ingest.buildings import BuildingRecord, buildings_tables
 from uavplace.ingest.geojson import read_geojson
 from uavplace.ingest.mesh import MESH_SUFFIXES, read_mesh
 from uavplace.ingest.provenance import default_code, export_digest, read_provenance, recorded_export
+from uavplace.ingest.radiomapseer import ingest_radiomapseer, is_radiomapseer
 from uavplace.ingest.routes import read_routes
 from uavplace.ingest.wireless_insite.city import read_city, read_terrain
 from uavplace.ingest.wireless_insite.p2m import COHERENT_MARGIN_DB, POSITION_COLUMNS, P2MStream, antenna_gain_dbi, parse_filename
@@ -448,6 +449,9 @@ def ingest_city(
         if name is not None
         else check_name(folder.resolve().name, "city name (the folder's; or pass --name)")
     )
+    if is_radiomapseer(folder):  # a RadioMapSeer-style folder (ingest/radiomapseer.py), not an InSite export
+        out_dir = Path(out_root) / city / INGESTED
+        return (out_dir, *ingest_radiomapseer(folder, out_dir, city, command))
     files = classify(folder)
     if not files:
         raise InputError(folder, "empty folder: nothing to ingest")

@@ -21,7 +21,7 @@ class SourceFile(Contract):
     )
     size_bytes: int | None = Field(ge=0, description="Size [bytes]; None for a link out of the city folder (never followed)")
     kind: str = Field(
-        description="Format family: p2m, txrx, setup, city, terrain, geojson, mesh, routes, cells (the provenance side file), geometry, provenance (simulation.json), link (out of the folder), special (not a regular file), other"
+        description="Format family: p2m, txrx, setup, city, terrain, geojson, mesh, routes, cells (the provenance side file), geometry, provenance (simulation.json), radiomapseer (a file of a RadioMapSeer-style folder), link (out of the folder), special (not a regular file), other"
     )
     status: FileStatus
 

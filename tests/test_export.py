@@ -38,11 +38,38 @@ def test_radiomapseer_folder_round_trips_within_the_quantisation(tiny, tmp_path)
     assert scale["sinr"]["step_db"] == STEP_DB and "row 0 is the northernmost" in scale["frame"]
 
 
+def test_uavdata_ingests_a_radiomapseer_folder_as_a_city(tiny, tmp_path):
+    """Export, ingest, build: the same maps (the SINR to the PNG's quantisation, the rest exactly; heights to the cm),
+    the same users, and a build that says where its values came from ("not recorded": the folder records nothing)."""
+    bundle = load_bundle("tiny", root=tiny)
+    folder = write_radiomapseer(bundle, tmp_path / "raw")
+    root = tmp_path / "processed"
+    res = CliRunner().invoke(uavdata, ["ingest", str(folder), "--name", "tiny-again", "--out", str(root)])
+    assert res.exit_code == 0, res.output
+    res = CliRunner().invoke(uavdata, ["build", "--city", "tiny-again", "--grid", "4m", "--alt", "10", "--root", str(root)])
+    assert res.exit_code == 0, res.output
+    again = load_bundle("tiny-again", root=root)
+    assert again.blocked.shape == bundle.blocked.shape and np.allclose(
+        [again.x_m[0], again.y_m[0]], [bundle.x_m[0], bundle.y_m[0]]
+    )
+    np.testing.assert_array_equal(again.blocked, bundle.blocked)
+    np.testing.assert_array_equal(again.dead, bundle.dead)
+    live = ~bundle.dead
+    assert np.abs(again.sinr_db - bundle.sinr_db)[live].max() <= STEP_DB / 2 + 1e-4
+    ground = lambda b: np.maximum(b.height_rel_m + b.altitude_m, 0)  # noqa: E731 - what the folder keeps: heights above the ground
+    np.testing.assert_allclose(ground(again), ground(bundle), atol=0.005 + 1e-6)
+    cells = lambda b: b.users.set_index("user").loc[b.user_indices(), ["iy", "ix"]].to_numpy()  # noqa: E731
+    np.testing.assert_array_equal(cells(again), cells(bundle))
+    assert set(again.cell_sources()) <= {"unreached", "not recorded"}
+
+
 def test_a_damaged_radiomapseer_folder_is_refused_naming_the_file(tiny, tmp_path):
     folder = write_radiomapseer(load_bundle("tiny", root=tiny), tmp_path)
     (folder / "gain" / "tiny_1.png").write_bytes(b"not a png")
     with pytest.raises(InputError, match="tiny_1.png: not a readable PNG"):
         read_radiomapseer(folder)
+    res = CliRunner().invoke(uavdata, ["ingest", str(folder), "--out", str(tmp_path / "p")])  # one line, nothing written
+    assert res.exit_code == 2 and "tiny_1.png: not a readable PNG" in res.output and not (tmp_path / "p" / "tiny").exists()
     folder = write_radiomapseer(load_bundle("tiny", root=tiny), tmp_path)  # replaced: it is one of these folders
     from PIL import Image
 
