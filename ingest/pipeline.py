@@ -451,7 +451,7 @@ def ingest_city(
     )
     if is_radiomapseer(folder):  # a RadioMapSeer-style folder (ingest/radiomapseer.py), not an InSite export
         out_dir = Path(out_root) / city / INGESTED
-        return (out_dir, *ingest_radiomapseer(folder, out_dir, city, command))
+        return (out_dir, *ingest_radiomapseer(folder, out_dir, city, (MANIFEST, REPORT), command))
     files = classify(folder)
     if not files:
         raise InputError(folder, "empty folder: nothing to ingest")

@@ -188,11 +188,13 @@ def _transmitters(m: RadioMapFolder, source: str) -> pa.Table:
                     schema=TRANSMITTERS.arrow_schema())  # fmt: skip
 
 
-def ingest_radiomapseer(folder: str | Path, out_dir: Path, city: str, command: str = "") -> tuple[CityManifest, IngestReport]:
+def ingest_radiomapseer(
+    folder: str | Path, out_dir: Path, city: str, names: tuple[str, str], command: str = ""
+) -> tuple[CityManifest, IngestReport]:
     """Ingest the RadioMapSeer-style ``folder`` as the city ``city`` into ``out_dir`` (written whole or not at all):
-    the tables an InSite export gives (``pipeline.ingest_city``'s), from the folder's rasters."""
-    from uavplace.ingest.pipeline import MANIFEST, REPORT
-
+    the tables an InSite export gives (``pipeline.ingest_city``'s), from the folder's rasters, and the manifest and
+    the report under ``names`` (``pipeline``'s file names)."""
+    manifest_json, report_json = names
     folder = Path(folder)
     m = read_folder(folder)
     rel = {p: str(p.relative_to(folder)) for p in m.files}
@@ -203,7 +205,7 @@ def ingest_radiomapseer(folder: str | Path, out_dir: Path, city: str, command: s
     by_code = {f"receiver_rows_{code_name(c).replace(' ', '_')}": int(codes[c]) for c in RECEIVER_CODES}
     reports = tuple(FileReport(path=r, kind="radiomapseer", status="parsed") for r in rel.values())
     report = IngestReport(city=city, files=reports, rejections=tuple(rejected), warnings=())
-    with atomic_directory(out_dir, marker=MANIFEST, what="ingested city") as tmp:
+    with atomic_directory(out_dir, marker=manifest_json, what="ingested city") as tmp:
         tables = {}
         for spec, table in ((RECEIVERS, receivers), (TRANSMITTERS, transmitters), (BUILDINGS, buildings),
                             (BUILDING_PARTS, parts)):  # fmt: skip
@@ -222,6 +224,6 @@ def ingest_radiomapseer(folder: str | Path, out_dir: Path, city: str, command: s
                                      status="parsed") for p in m.files),
             tables=tables,
         )  # fmt: skip
-        write_model_json(manifest, tmp / MANIFEST)
-        write_model_json(report, tmp / REPORT)
+        write_model_json(manifest, tmp / manifest_json)
+        write_model_json(report, tmp / report_json)
     return manifest, report
