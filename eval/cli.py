@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import contextlib
+import os
 from pathlib import Path
 
 import click
 
+from uavplace.infra.cluster import start_ray
 from uavplace.infra.console import (
     SEED,
     Counted,
@@ -25,6 +27,10 @@ from uavplace.infra.console import (
 from uavplace.infra.files import exclusive_folder, shipped
 from uavplace.rl.cli import episode_options
 from uavplace.schemas.base import repeated
+
+#: ``--workers 0`` (auto) plays a report's methods as Ray tasks from this many episodes a city on (fewer: one after
+#: the other, Ray's start would cost more than it saves).
+PARALLEL_EPISODES = 500
 
 
 @click.command()
@@ -145,13 +151,23 @@ from uavplace.schemas.base import repeated
     "cities' (run.json's bundle_settings), or at another P_T than it was trained at. Without it: one warning line "
     "for each such agent and city.",
 )
+@click.option(
+    "--workers",
+    type=click.IntRange(0),
+    default=0,
+    show_default="0: auto",
+    help="Placement: play each city's methods as Ray tasks on this many CPUs (1: one after the other in this "
+    f"process; 0: every CPU of this machine when --episodes is at least {PARALLEL_EPISODES}, else 1). The numbers are "
+    "the same whatever it is (eval/parallel.py).",
+)
+@ray_address_option("the methods (with it, --workers is the cluster's CPUs)")
 @root_option
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def report(
     runs: tuple[Path, ...], datasets: tuple[str, ...], out: Path | None, episodes: int, t_max: int, p_t_db: float, test_epsilon: float,
     n_boot: int, trajectories: int, split: str | None, seed: int, groups: tuple[str, ...], agents_dir: Path,
     markdown: Path | None, task: str, uavs: int, users: int, horizon: int, hold: bool, predictor: str, overwrite: bool,
-    strict: bool, root: Path, quiet: bool,
+    strict: bool, workers: int, ray_address: str | None, root: Path, quiet: bool,
 ) -> None:  # fmt: skip
     """Evaluate agents and baselines on the same episodes of a test city; write an HTML report, PNGs, CSV and Parquet.
 
@@ -193,7 +209,7 @@ def report(
     # One report into a folder at a time: a second one of the same folder, even of other agents, is refused at once
     # (both would publish, the last one winning, and both would say they wrote it).
     target = out or Path("reports") / ("" if task == "placement" else task)
-    with exclusive_folder(target, "report", kind="job"):
+    with exclusive_folder(target, "report", kind="job"), contextlib.ExitStack() as after:
         if task == "fleet":
             from uavplace.eval.fleet import DEFAULT_AGENT
 
@@ -271,10 +287,17 @@ def report(
             for folder in folders.values():
                 _check_same_agents(folder, chosen)
         reports = []
+        parallel = ray_address is not None or workers > 1 or (workers == 0 and episodes >= PARALLEL_EPISODES
+                                                                 and (os.cpu_count() or 1) > 1)  # fmt: skip
+        if parallel and start_ray(ray_address, 1, "--workers", workers or None):
+            import ray
+
+            after.callback(ray.shutdown)
         for dataset in datasets:
             shared = report_settings(chosen, episodes, seed, test_epsilon, n_boot, trajectories, predictor)
             config = ReportConfig(dataset=dataset, t_max=t_max, p_t_db=p_t_db, split=split, groups=grouped, **shared)
-            result = _one_report(config, folders[dataset], root, quiet, (datasets.index(dataset) + 1, len(datasets)))
+            where = (datasets.index(dataset) + 1, len(datasets))
+            result = _one_report(config, folders[dataset], root, quiet, where, parallel)
             reports.append(result)
             title = f"{episodes} episodes in {dataset} (t_max {t_max}, P_T {p_t_db:g} dB)"
             rows = result.rows
@@ -471,7 +494,7 @@ def _fleet_report(datasets: tuple[str, ...], runs: list[Path], out: Path | None,
     stdout().print(f"report: {page}", highlight=False, soft_wrap=True)
 
 
-def _one_report(config, out: Path, root: Path, quiet: bool, city: tuple[int, int] = (1, 1)):
+def _one_report(config, out: Path, root: Path, quiet: bool, city: tuple[int, int] = (1, 1), parallel: bool = False):
     """``make_report`` with a progress bar per method (and stage: a searcher's predicted maps), named by the city's
     place among the report's (``city``: its number and the count) and the method's number."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -494,7 +517,8 @@ def _one_report(config, out: Path, root: Path, quiet: bool, city: tuple[int, int
             unit = "candidates" if stage.endswith("predicted maps") else "episodes"
             log(f"report {name} {done}/{total} {unit}", last=new or done >= total)
 
-        return make_report(config, out, root=root, command=command_line(), on_progress=on_progress, on_plan=plan.extend)
+        return make_report(config, out, root=root, command=command_line(), on_progress=on_progress, on_plan=plan.extend,
+                           parallel=parallel)  # fmt: skip
 
 
 @click.command()

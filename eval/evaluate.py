@@ -201,6 +201,7 @@ def evaluate(
     baselines: list[Policy] | None = None,
     seen: Callable[[MapSet], None] | None = None,
     episodes: np.ndarray | None = None,
+    parallel: bool = False,
 ) -> dict[str, pd.DataFrame]:
     """Play the same ``config.episodes`` episodes with every method; ``{method: run_episodes frame}``.
 
@@ -210,6 +211,8 @@ def evaluate(
     each agent's maps before it plays (e.g. ``MapSet.show_buildings``: what the agents see, not where they move).
     ``episodes``: the specs to play (``MapSet.sample_episodes`` of the city's maps at the report's settings, e.g. drawn
     on a twin city and kept where ``can_start``), instead of the ``config.episodes`` drawn with ``config.seed``.
+    ``parallel``: the methods' rollouts as Ray tasks (``eval.parallel``; Ray started or joined by the caller), the
+    same frames as one after the other here.
     """
     base = EnvConfig(t_max=config.t_max, p_t_db=config.p_t_db, split=config.split, rotate=False)
     maps = {"": MapSet([bundle], base)}
@@ -246,9 +249,14 @@ def evaluate(
             public = PublicMaps.of(mapset)
             for canvas in np.unique(mapset.view_map[specs[name][:, 0].astype(np.int64)]):  # the canvases they fly over
                 policy.canvas_maps(public, int(canvas))
+    recorded = {name: record if name == shown else None for name, _, _ in methods}
+    if parallel:
+        from uavplace.eval.parallel import play_on_ray
+
+        return play_on_ray(methods, specs, recorded, on_progress)
     for name, policy, mapset in methods:
         report = None if on_progress is None else (lambda done, total, name=name: on_progress(name, done, total))
-        results[name] = run_episodes(mapset, policy, specs[name], on_step=report, record=record if name == shown else None)
+        results[name] = run_episodes(mapset, policy, specs[name], on_step=report, record=recorded[name])
     return results
 
 
@@ -306,12 +314,19 @@ def blanked_agents(config: ReportConfig, agents: list[Agent]) -> list[Agent]:
     return readers
 
 
-def blanked_results(config: ReportConfig, bundle: Bundle, readers: list[Agent], on_progress) -> dict[str, pd.DataFrame]:  # noqa: ANN001
+def blanked_results(
+    config: ReportConfig,
+    bundle: Bundle,
+    readers: list[Agent],
+    on_progress,
+    parallel: bool = False,  # noqa: ANN001
+) -> dict[str, pd.DataFrame]:
     """``blanked_agents`` played on the report's episodes with the building map blanked (what they see, not where
     they move)."""
     if not readers:
         return {}
-    return evaluate(config, bundle, readers, on_progress, baselines=[], seen=lambda m: m.show_buildings(None))
+    blank = lambda m: m.show_buildings(None)  # noqa: E731
+    return evaluate(config, bundle, readers, on_progress, baselines=[], seen=blank, parallel=parallel)
 
 
 def ablation_table(results: dict[str, pd.DataFrame], config: ReportConfig) -> pd.DataFrame:

@@ -67,6 +67,7 @@ def make_report(
     command: str = "",
     on_progress: Callable[[str, int, int], None] | None = None,
     on_plan: Callable[[list[str]], None] | None = None,
+    parallel: bool = False,
 ) -> Report:
     """Evaluate every method on ``config.dataset`` and write the report folder ``out`` (atomically).
 
@@ -75,7 +76,8 @@ def make_report(
     every agent (weights only), and that no agent was trained in the test city.
     A training city whose bundle is not built here only loses its upper bound.
     ``on_plan`` is told every stage (``evaluate.stages``) before the first; ``on_progress`` each stage's
-    ``(stage, done, total)`` as it goes.
+    ``(stage, done, total)`` as it goes. ``parallel``: the methods as Ray tasks (``eval.parallel``), the same
+    numbers.
     """
     out = Path(out)
     check_replaceable(out, REPORT_JSON, "report")
@@ -93,8 +95,8 @@ def make_report(
     if on_plan is not None:
         played = [(m.name, m.policy) for m in agents] + [(p.name, p) for p in baselines]
         on_plan(stages(played) + stages([(m.name, m.policy) for m in blanked]))
-    results = evaluate(config, bundle, agents, on_progress, baselines=baselines)
-    results |= blanked_results(config, bundle, blanked, on_progress)
+    results = evaluate(config, bundle, agents, on_progress, baselines=baselines, parallel=parallel)
+    results |= blanked_results(config, bundle, blanked, on_progress, parallel)
     table = results_table(results, config)
     refs = references(list(results))
     differences = pd.concat(

@@ -24,12 +24,12 @@ def head_endpoint(address: str) -> tuple[str, int] | None:
     return host.strip("[]"), int(port)
 
 
-def start_ray(address: str | None, cpus_per_task: float, cpus_option: str) -> bool:
+def start_ray(address: str | None, cpus_per_task: float, cpus_option: str, num_cpus: int | None = None) -> bool:
     """Start a local Ray (``address`` None) or join the cluster at ``address``, for tasks of ``cpus_per_task`` CPUs;
     True when this call started it (the caller shuts it down). Refused in one line (``InputError``): an address that
     does not answer within ``CONNECT_TIMEOUT_S``, tasks larger than every CPU the machine or cluster has (they would
     wait forever), and a Ray that does not start (a node that timed out during startup under load), saying what to
-    do."""
+    do. ``num_cpus``: the CPUs a local Ray may use (default: every one)."""
     import ray
 
     if ray.is_initialized():
@@ -49,7 +49,8 @@ def start_ray(address: str | None, cpus_per_task: float, cpus_option: str) -> bo
                 raise InputError(None, f"{address}: nothing answers there ({reason} within {CONNECT_TIMEOUT_S:g} s)",
                                  field="--ray-address") from None  # fmt: skip
     try:
-        ray.init(address=address, include_dashboard=False, log_to_driver=False, configure_logging=False)
+        local = {"num_cpus": num_cpus} if address is None and num_cpus else {}
+        ray.init(address=address, include_dashboard=False, log_to_driver=False, configure_logging=False, **local)
     except Exception as err:  # noqa: BLE001 - Ray raises bare Exceptions (a node that timed out during startup)
         first = (str(err).strip().splitlines() or [type(err).__name__])[0][:200]
         where = "the local Ray" if address is None else f"the Ray cluster at {address}"

@@ -231,6 +231,13 @@ class MapSearchPolicy:
         self.belief_canvas = np.zeros(0, np.int64)
         self.started = np.zeros(0, bool)
 
+    def __getstate__(self) -> dict:
+        """What a copy in another process (a Ray task) takes: the predictor, the settings and the cache's folder,
+        not the maps held in memory (read again from the cache there) nor the progress callback."""
+        state = self.__dict__.copy()
+        state.update(_canvases={}, _graphs={}, _paths=OrderedDict(), on_predict=None)
+        return state
+
     # -- predictions -----------------------------------------------------------------------------
     def canvas_maps(self, public: PublicMaps, canvas: int) -> CandidateMaps:
         settings = public.settings[public.bundle_of(canvas)]

@@ -1,0 +1,63 @@
+"""The report's methods as Ray tasks give the same episodes, to the bit, as one after the other in this process:
+every method (the shipped agents, the hybrid that reads the searcher's belief, the searchers, the baselines), the
+recorded paths, the progress (each method's episodes counted to the end)."""
+
+from __future__ import annotations
+
+import pandas as pd
+import pytest
+
+
+from uavplace.dataset.bundle import load_bundle
+from uavplace.eval.evaluate import ReportConfig, blanked_agents, blanked_results, evaluate, load_agent
+from uavplace.infra.files import shipped
+
+
+@pytest.fixture(scope="module")
+def local_ray():
+    ray = pytest.importorskip("ray")
+    from uavplace.infra.cluster import start_ray
+
+    started = start_ray(None, 1, "--workers")
+    yield
+    if started:
+        ray.shutdown()
+
+
+def test_methods_on_ray_play_the_same_episodes(tiny, tmp_path, local_ray):
+    config = ReportConfig(dataset="tiny", episodes=24, seed=3)
+    bundle = load_bundle("tiny", root=tiny)
+    agents = lambda: [load_agent(shipped(f"data/agents/{n}"), config.test_epsilon, config.seed) for n in ("best", "hybrid")]  # noqa: E731
+    serial = evaluate(config, bundle, agents())
+    seen: dict[str, int] = {}
+    on_ray = evaluate(config, bundle, agents(), lambda m, done, total: seen.update({m: done}), parallel=True)
+    assert list(on_ray) == list(serial)  # the methods in the report's order
+    for name in serial:
+        pd.testing.assert_frame_equal(on_ray[name], serial[name], check_exact=True)
+        paths, expected = on_ray[name].attrs.get("paths") or {}, serial[name].attrs.get("paths") or {}
+        assert paths.keys() == expected.keys() and all((paths[e] == expected[e]).all() for e in paths)
+    assert all(seen[name] == 24 for name in serial)  # each method's progress reached its last episode
+    readers = blanked_agents(config, agents())
+    pd.testing.assert_frame_equal(
+        pd.concat(blanked_results(config, bundle, readers, None, parallel=True)),
+        pd.concat(blanked_results(config, bundle, blanked_agents(config, agents()), None)),
+        check_exact=True,
+    )
+
+
+def test_the_report_is_the_same_on_one_worker_and_on_two(tiny, tmp_path, local_ray):
+    """`uavrl report --workers 2` (on the local Ray) writes the same tables and episodes as `--workers 1`."""
+    from click.testing import CliRunner
+
+    from uavplace.cli import uavrl
+
+    frames = {}
+    for workers in ("1", "2"):
+        out = tmp_path / f"w{workers}"
+        args = ["report", "--dataset", "tiny", "--root", str(tiny), "--episodes", "16", "--bootstrap", "100",
+                "--quiet", "--workers", workers, "--out", str(out)]  # fmt: skip
+        res = CliRunner().invoke(uavrl, args)
+        assert res.exit_code == 0, res.output
+        frames[workers] = (pd.read_csv(out / "results.csv"), pd.read_parquet(out / "episodes.parquet"))
+    for one, two in zip(frames["1"], frames["2"], strict=True):
+        pd.testing.assert_frame_equal(one, two, check_exact=True)
