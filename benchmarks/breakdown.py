@@ -4,7 +4,9 @@ For each city and method: the wall and CPU seconds of its predicted maps (a sear
 finds it) and of its rollouts; per city the statistics (the tables, the paired differences, the performance
 profiles' bands) and the figures; then the page of every city (its aggregate and pooled profiles) and what is left
 (loading, writing, the imports). One table, each part's share of the whole wall time. CPU seconds are this process's
-(every thread: torch's, Ray's driver), so above the wall time when both cores work.
+(every thread: torch's, Ray's driver; not the Ray workers'), so above the wall time when both cores work in it. With
+Ray (``--workers`` above 1) the methods' rollouts run at once in the workers: the table then has one row a city,
+"rollouts (every method, on Ray)", its wall time the city's.
 
     python benchmarks/breakdown.py [--out runs/breakdown] [REPORT OPTIONS ...]
 
@@ -30,16 +32,21 @@ class Stopwatch:
 
     def __init__(self) -> None:
         self.city = "-"
+        self.depth = 0  # a part called inside another (a searcher's maps inside a rollout) counts as the outer one
         self.wall: dict[tuple[str, str], float] = defaultdict(float)
         self.cpu: dict[tuple[str, str], float] = defaultdict(float)
 
     def wrap(self, fn, part):  # noqa: ANN001, ANN201 - any function, the same signature
         @functools.wraps(fn)
         def timed(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+            if self.depth:
+                return fn(*args, **kwargs)
             wall, cpu = time.perf_counter(), time.process_time()
+            self.depth += 1
             try:
                 return fn(*args, **kwargs)
             finally:
+                self.depth -= 1
                 key = (self.city, part(*args, **kwargs) if callable(part) else part)
                 self.wall[key] += time.perf_counter() - wall
                 self.cpu[key] += time.process_time() - cpu
@@ -52,6 +59,7 @@ def instrument(watch: Stopwatch) -> None:
     import importlib
 
     import uavplace.eval.evaluate as evaluate
+    import uavplace.eval.parallel as parallel
     import uavplace.eval.render as render
     import uavplace.eval.report as report
     from uavplace.rl.searcher import MapSearchPolicy
@@ -64,6 +72,7 @@ def instrument(watch: Stopwatch) -> None:
 
     report.load_bundle = city_of
     evaluate.run_episodes = watch.wrap(evaluate.run_episodes, lambda mapset, policy, *a, **k: f"{policy.name}: rollouts")
+    parallel.play_on_ray = watch.wrap(parallel.play_on_ray, "rollouts (every method, on Ray)")
     MapSearchPolicy.canvas_maps = watch.wrap(
         MapSearchPolicy.canvas_maps, lambda policy, *a, **k: f"{policy.name}: predicted maps"
     )

@@ -1,12 +1,11 @@
-"""The report's methods as Ray tasks give the same episodes, to the bit, as one after the other in this process:
-every method (the shipped agents, the hybrid that reads the searcher's belief, the searchers, the baselines), the
-recorded paths, the progress (each method's episodes counted to the end)."""
+"""The report's methods as Ray tasks, each in pieces of its episodes, give the same episodes, to the bit, as one after
+the other in this process: every method (the shipped agents, the hybrid that reads the searcher's belief, the
+searchers, the baselines), the recorded paths, the progress (each method's episodes counted to the end)."""
 
 from __future__ import annotations
 
 import pandas as pd
 import pytest
-
 
 from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.evaluate import ReportConfig, blanked_agents, blanked_results, evaluate, load_agent
@@ -24,7 +23,19 @@ def local_ray():
         ray.shutdown()
 
 
-def test_methods_on_ray_play_the_same_episodes(tiny, tmp_path, local_ray):
+def test_a_method_is_cut_into_contiguous_pieces():
+    from uavplace.eval.parallel import MIN_PIECE, pieces
+
+    assert pieces(1000, 2) == [(0, 500), (500, 1000)]
+    assert pieces(MIN_PIECE, 8) == [(0, MIN_PIECE)] and pieces(7, 3) == [(0, 7)]  # never below MIN_PIECE episodes
+    cut = pieces(1001, 3)
+    assert cut[0][0] == 0 and cut[-1][1] == 1001 and all(a[1] == b[0] for a, b in zip(cut[:-1], cut[1:], strict=True))
+
+
+def test_methods_on_ray_play_the_same_episodes(tiny, tmp_path, local_ray, monkeypatch):
+    import uavplace.eval.parallel as parallel
+
+    monkeypatch.setattr(parallel, "MIN_PIECE", 5)  # every method in pieces, even on a few episodes
     config = ReportConfig(dataset="tiny", episodes=24, seed=3)
     bundle = load_bundle("tiny", root=tiny)
     agents = lambda: [load_agent(shipped(f"data/agents/{n}"), config.test_epsilon, config.seed) for n in ("best", "hybrid")]  # noqa: E731
