@@ -154,7 +154,8 @@ class PredictionCache:
     MAX_ABS_DB = 400.0
 
     def __init__(self, folder: str | Path | None) -> None:
-        self.folder = None if folder is None else Path(folder)
+        # absolute: a copy in a Ray task (another working folder) reads the same cache
+        self.folder = None if folder is None else Path(folder).absolute()
 
     def path(self, key: str) -> Path | None:
         return None if self.folder is None else self.folder / f"{key}.npz"

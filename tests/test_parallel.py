@@ -72,3 +72,19 @@ def test_the_report_is_the_same_on_one_worker_and_on_two(tiny, tmp_path, local_r
         frames[workers] = (pd.read_csv(out / "results.csv"), pd.read_parquet(out / "episodes.parquet"))
     for one, two in zip(frames["1"], frames["2"], strict=True):
         pd.testing.assert_frame_equal(one, two, check_exact=True)
+
+
+def test_a_policy_in_a_task_finds_the_prediction_cache_from_another_folder(tmp_path, monkeypatch):
+    """A Ray worker runs in a folder of its own: the searcher's cache is kept by its absolute path, so the copy in a
+    task reads the maps the report made instead of predicting them again."""
+    import copy
+
+    from tests.test_searcher import _constants
+    from uavplace.rl.searcher import MapSearchPolicy, PredictionCache
+
+    monkeypatch.chdir(tmp_path)
+    policy = MapSearchPolicy(_constants(), cache=PredictionCache("data/processed/.predictions"))
+    monkeypatch.chdir("/")
+    policy._canvases[("v", 0, 5.0)] = "maps held in memory"
+    moved = copy.deepcopy(policy)  # what travels: __getstate__, as Ray's serialiser takes it
+    assert moved.cache.folder == tmp_path / "data" / "processed" / ".predictions" and moved._canvases == {}
