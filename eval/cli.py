@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import contextlib
-import os
 from pathlib import Path
 
 import click
@@ -27,10 +26,6 @@ from uavplace.infra.console import (
 from uavplace.infra.files import exclusive_folder, shipped
 from uavplace.rl.cli import episode_options
 from uavplace.schemas.base import repeated
-
-#: ``--workers 0`` (auto) plays a report's methods as Ray tasks from this many episodes a city on (fewer: one after
-#: the other, Ray's start would cost more than it saves).
-PARALLEL_EPISODES = 500
 
 
 @click.command()
@@ -153,12 +148,12 @@ PARALLEL_EPISODES = 500
 )
 @click.option(
     "--workers",
-    type=click.IntRange(0),
-    default=0,
-    show_default="0: auto",
-    help="Placement: play each city's methods as Ray tasks on this many CPUs (1: one after the other in this "
-    f"process; 0: every CPU of this machine when --episodes is at least {PARALLEL_EPISODES}, else 1). The numbers are "
-    "the same whatever it is (eval/parallel.py).",
+    type=click.IntRange(1),
+    default=1,
+    show_default=True,
+    help="Placement: play each city's methods, in pieces of their episodes, as Ray tasks on this many CPUs of this "
+    "machine (1: one after the other in this process, torch on every core: on 2 cores the faster, docs/benchmarks.md). "
+    "The numbers are the same whatever it is (eval/parallel.py).",
 )
 @ray_address_option("the methods (with it, --workers is the cluster's CPUs)")
 @root_option
@@ -287,9 +282,8 @@ def report(
             for folder in folders.values():
                 _check_same_agents(folder, chosen)
         reports = []
-        parallel = ray_address is not None or workers > 1 or (workers == 0 and episodes >= PARALLEL_EPISODES
-                                                                 and (os.cpu_count() or 1) > 1)  # fmt: skip
-        if parallel and start_ray(ray_address, 1, "--workers", workers or None):
+        parallel = ray_address is not None or workers > 1
+        if parallel and start_ray(ray_address, 1, "--workers", workers if ray_address is None else None):
             import ray
 
             after.callback(ray.shutdown)
