@@ -8,7 +8,7 @@ profiles' bands) and the figures; then the page of every city (its aggregate and
 Ray (``--workers`` above 1) the methods' rollouts run at once in the workers: the table then has one row a city,
 "rollouts (every method, on Ray)", its wall time the city's.
 
-    python benchmarks/breakdown.py [--out runs/breakdown] [REPORT OPTIONS ...]
+    python benchmarks/breakdown.py [--out runs/breakdown] [REPORT OPTIONS ...]   # e.g. --workers 1 --quiet --dataset test
 
 The timers wrap the report's functions from outside (the package is unchanged); run it from the repository root with
 the bundles built, on a machine with nothing else running, for docs/benchmarks.md's numbers.

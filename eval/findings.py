@@ -109,12 +109,7 @@ def city_findings(
         out.append(f"Against the next, {order[1]}, paired: {_changes(d)}.")
     if (d := paired(differences, lead + NO_BUILDINGS, WITH_BUILDINGS)) is not None:
         out.append(f"Shown no building, {lead} changes by {_changes(d)}: {_matters(d)}.")
-    return [_sentence(s) for s in out]
-
-
-def _sentence(text: str) -> str:
-    """``text`` begun with a capital (a method's name may begin a finding: "Map searcher leads")."""
-    return text[:1].upper() + text[1:]
+    return out
 
 
 def across_findings(cities: dict[str, tuple[pd.DataFrame, pd.DataFrame]], aggregate: pd.DataFrame, t_max: int) -> list[str]:
@@ -141,4 +136,4 @@ def across_findings(cities: dict[str, tuple[pd.DataFrame, pd.DataFrame]], aggreg
     if blanked and all(d is not None for _, d in blanked):
         costs = "; ".join(f"{_changes(d)} in {c} ({_matters(d)})" for c, d in blanked)
         out.append(f"Shown no building, {lead} changes by {costs}.")
-    return [_sentence(s) for s in out]
+    return out

@@ -109,6 +109,6 @@ def test_the_findings_name_the_leader_its_margin_and_the_maps_cost():
     mirrored = paired(diff, "b", "a")
     assert (mirrored["success"]["difference"], mirrored["success"]["lo"], mirrored["success"]["hi"]) == (0.05, 0.01, 0.08)
     lead, margin, cost = city_findings(table, diff, t_max=500)
-    assert lead.startswith("B leads: 95.0 % of the episodes reach P_T, at 3.00 x the genie's median steps")
+    assert lead.startswith("b leads: 95.0 % of the episodes reach P_T, at 3.00 x the genie's median steps")
     assert margin == "Against the next, a, paired: +5.0 points [+1.0, +8.0] of success and +4 [+1, +6] median steps."
     assert cost.startswith("Shown no building, b changes by -25.0 points [-30.0, -20.0]") and "the map matters" in cost
