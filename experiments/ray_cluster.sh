@@ -19,6 +19,10 @@ uavrl "${common[@]}" --workers 1 --out "$OUT/one-process" > "$OUT/one-process.lo
 echo "one process:      ${SECONDS} s wall"
 
 trap 'ray stop --force > /dev/null 2>&1 || true' EXIT
+# Ray's token authentication: every node and the driver read the token in ~/.ray/auth_token (made here if absent; on
+# a real cluster, copy it to every node or set RAY_AUTH_TOKEN).
+export RAY_AUTH_MODE=token
+ray get-auth-token --generate > /dev/null
 ray start --head --port "$PORT" --num-cpus 0 --include-dashboard false > "$OUT/head.log" 2>&1
 for node in 1 2; do
     ray start --address "127.0.0.1:$PORT" --num-cpus 1 > "$OUT/node-$node.log" 2>&1
