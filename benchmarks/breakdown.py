@@ -22,9 +22,9 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
-#: The statistics and the figures, by the module attribute the report calls them through.
-STATISTICS = {"uavplace.eval.report": ("results_table", "difference_table", "ablation_table", "group_tables", "profiles")}
-FIGURES = {"uavplace.eval.report": ("plot_cdf", "plot_profiles", "plot_training", "plot_trajectories")}
+#: The statistics and the figures, by the names the report (``uavplace.eval.report``) calls them through.
+STATISTICS = ("results_table", "difference_table", "ablation_table", "group_tables", "profiles")
+FIGURES = ("plot_cdf", "plot_profiles", "plot_training", "plot_trajectories")
 
 
 class Stopwatch:
@@ -56,8 +56,6 @@ class Stopwatch:
 
 def instrument(watch: Stopwatch) -> None:
     """Wrap the report's parts in ``watch`` (module attributes, as the report looks them up)."""
-    import importlib
-
     import uavplace.eval.evaluate as evaluate
     import uavplace.eval.parallel as parallel
     import uavplace.eval.render as render
@@ -76,11 +74,9 @@ def instrument(watch: Stopwatch) -> None:
     MapSearchPolicy.canvas_maps = watch.wrap(
         MapSearchPolicy.canvas_maps, lambda policy, *a, **k: f"{policy.name}: predicted maps"
     )
-    for table, kind in ((STATISTICS, "statistics"), (FIGURES, "figures")):
-        for module, names in table.items():
-            m = importlib.import_module(module)
-            for name in names:
-                setattr(m, name, watch.wrap(getattr(m, name), kind))
+    for names, kind in ((STATISTICS, "statistics"), (FIGURES, "figures")):
+        for name in names:
+            setattr(report, name, watch.wrap(getattr(report, name), kind))
     for name in ("write_summary_page", "markdown_tables"):  # imported by the command when it calls them
         setattr(render, name, watch.wrap(getattr(render, name), "the page of every city (aggregate, pooled profiles)"))
 

@@ -316,16 +316,17 @@ def report(
                     )
                 )
             stdout().print(f"report: {result.out / 'report.html'}", highlight=False, soft_wrap=True)
+        top = None  # several cities: the page's findings, which the Markdown leads with too
         if len(datasets) > 1:
             rows = summary_rows(reports, t_max)
             stdout().print(plain_table(*rows[0], rows=rows[1:], title="success / median steps per method and city"))
-            page = write_summary_page(reports, out or Path("reports"), t_max)
+            page, top = write_summary_page(reports, out or Path("reports"), t_max)
             stdout().print(f"report (every city): {page}", highlight=False, soft_wrap=True)
         if markdown is not None:
             from uavplace.eval.render import markdown_tables
             from uavplace.infra.files import atomic_write_text
 
-            atomic_write_text(markdown, markdown_tables(reports, t_max))
+            atomic_write_text(markdown, markdown_tables(reports, t_max, top))
             stdout().print(f"tables (Markdown): {markdown}", highlight=False, soft_wrap=True)
 
 

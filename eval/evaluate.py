@@ -214,8 +214,7 @@ def evaluate(
     ``parallel``: the methods' rollouts as Ray tasks (``eval.parallel``; Ray started or joined by the caller), the
     same frames as one after the other here.
     """
-    base = EnvConfig(t_max=config.t_max, p_t_db=config.p_t_db, split=config.split, rotate=False)
-    maps = {"": MapSet([bundle], base)}
+    maps = {"": MapSet([bundle], report_env(config))}
     if episodes is None:
         episodes = maps[""].episode_list(config.episodes, config.seed)  # as `uavrl baselines`
     elif not maps[""].can_start(episodes).all():
@@ -274,8 +273,13 @@ def stages(methods: list[tuple[str, Policy]]) -> list[str]:
 def default_baselines(config: ReportConfig, bundle: Bundle) -> list[Policy]:
     """``baseline_policies`` at the report's settings, the predicted maps cached beside the city's bundles (or in
     ``config.prediction_cache``)."""
-    env = EnvConfig(t_max=config.t_max, p_t_db=config.p_t_db, split=config.split, rotate=False)
-    return baseline_policies(config, env, cache=config.prediction_cache or bundle.path.parent.parent / PREDICTIONS)
+    cache = config.prediction_cache or bundle.path.parent.parent / PREDICTIONS
+    return baseline_policies(config, report_env(config), cache=cache)
+
+
+def report_env(config: ReportConfig) -> EnvConfig:
+    """The environment every baseline plays in at the report's settings (agents keep their own window)."""
+    return EnvConfig(t_max=config.t_max, p_t_db=config.p_t_db, split=config.split, rotate=False)
 
 
 def baseline_policies(config: ReportConfig, env: EnvConfig, cache: str | Path | None = None) -> list[Policy]:
@@ -318,8 +322,8 @@ def blanked_results(
     config: ReportConfig,
     bundle: Bundle,
     readers: list[Agent],
-    on_progress,
-    parallel: bool = False,  # noqa: ANN001
+    on_progress: Callable[[str, int, int], None] | None,
+    parallel: bool = False,
 ) -> dict[str, pd.DataFrame]:
     """``blanked_agents`` played on the report's episodes with the building map blanked (what they see, not where
     they move)."""

@@ -34,7 +34,7 @@ from uavplace.eval.figures import Figure
 from uavplace.eval.findings import city_findings, difference_cell
 from uavplace.eval.metrics import bootstrap_table, difference_table
 from uavplace.eval.render import _CSS, _figure, _templates, difference_rows
-from uavplace.infra.console import markdown_table
+from uavplace.infra.console import markdown_list, markdown_table
 from uavplace.infra.files import atomic_directory, check_replaceable
 from uavplace.rl.fleet import (
     FleetConfig,
@@ -226,7 +226,7 @@ def make_fleet_report(config: FleetReportConfig, out: Path, root: Path, command:
         pages[city] = {"bundle": bundle.version, "rows": rows, "differences": diff_rows}
         said = city_findings(table, diff, config.task.t_max, bound=ORACLE, succeed="serve every user")
         found += [f"In {city}: {f}" for f in said]
-    sections.insert(0, "\n".join(f"- {f}" for f in found))
+    sections.insert(0, markdown_list(found))
     table, diff = pd.concat(tables, ignore_index=True), pd.concat(diffs, ignore_index=True)
     summary = summary_rows(table, diff, config.task.t_max) if len(config.datasets) > 1 else None
     if summary:

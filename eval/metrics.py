@@ -70,6 +70,7 @@ def weighted_stats(steps: np.ndarray, success: np.ndarray, genie_steps: np.ndarr
     w = np.asarray(weights, np.float64)
     to_target = np.where(ok, steps, np.inf)
     ratio = np.where(ok, steps / np.maximum(genie_steps, 1), np.inf)
+    spl = spl_terms(steps, ok, genie_steps)
     total = w.sum(axis=1)
     w_ok = (w * ok).sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -82,9 +83,9 @@ def weighted_stats(steps: np.ndarray, success: np.ndarray, genie_steps: np.ndarr
         "steps_over_genie": _weighted_quantile(ratio, w, 0.5),
         "medians_ratio": _weighted_quantile(to_target, w, 0.5)
         / np.maximum(_weighted_quantile(np.asarray(genie_steps, np.float64), w, 0.5), 1),
-        "spl": (w * spl_terms(steps, ok, genie_steps)).sum(axis=1) / total,
+        "spl": (w * spl).sum(axis=1) / total,
         "iqm_over_genie": weighted_iqm(ratio, w),
-        "iqm_spl": weighted_iqm(spl_terms(steps, ok, genie_steps), w),
+        "iqm_spl": weighted_iqm(spl, w),
         "mean_steps_success": mean_ok,
     }
 
@@ -189,9 +190,14 @@ def aggregate_table(
     stratified bootstrap intervals (``stratified_counts``: each city's users, then their episodes, resampled within
     the city), as rliable aggregates across tasks: the IQM across test cities is its headline."""
     results = pooled(by_city)
-    groups = _groups(results, True)
-    counts = stratified_counts(next(iter(results.values()))["city"].astype(str).to_numpy(), groups, n_boot, seed)
-    return _table(results, counts, len(np.unique(groups)), level).assign(cities=len(by_city))
+    counts = _stratified(results, n_boot, seed)
+    return _table(results, counts, len(np.unique(_groups(results, True))), level).assign(cities=len(by_city))
+
+
+def _stratified(results: dict[str, pd.DataFrame], n_boot: int, seed: int) -> np.ndarray:
+    """``stratified_counts`` of paired results pooled over cities (``pooled``): their cities, then their users."""
+    cities = next(iter(results.values()))["city"].astype(str).to_numpy()
+    return stratified_counts(cities, _groups(results, True), n_boot, seed)
 
 
 #: The step ratios (method / genie) at which a performance profile is read: tau from 1 to 10.
@@ -216,10 +222,8 @@ def profile_bands(
 def profiles(results: dict[str, pd.DataFrame], *, n_boot: int = 2000, seed: int = 0, stratified: bool = False) -> dict:
     """``profile_bands`` of paired ``results`` with the report's resamples (users, then episodes; ``stratified``:
     within each city, for results pooled over cities)."""
-    if not stratified:
-        return profile_bands(results, _resamples(results, n_boot, seed, True)[1])
-    first = next(iter(results.values()))
-    return profile_bands(results, stratified_counts(first["city"].astype(str).to_numpy(), _groups(results, True), n_boot, seed))
+    counts = _stratified(results, n_boot, seed) if stratified else _resamples(results, n_boot, seed, True)[1]
+    return profile_bands(results, counts)
 
 
 def difference_table(

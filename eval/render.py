@@ -25,7 +25,7 @@ from uavplace.eval.findings import (
     stat_rows,
 )
 from uavplace.eval.metrics import STATS, aggregate_table, format_stat, pooled, profiles
-from uavplace.infra.console import markdown_table
+from uavplace.infra.console import markdown_list, markdown_table
 from uavplace.infra.files import atomic_write_bytes, atomic_write_text
 from uavplace.schemas import InputError
 
@@ -282,10 +282,11 @@ def check_summary_page(out: str | Path) -> None:
         raise InputError(table, "exists without a report page beside it: not replaced (choose another --out)")
 
 
-def write_summary_page(reports: list[Report], out: str | Path, t_max: int) -> Path:
+def write_summary_page(reports: list[Report], out: str | Path, t_max: int) -> tuple[Path, Top]:
     """``out/report.html``: the findings over every city (``across_top``, the pooled performance profiles in
     ``out/profile.png``), the summary table (method x city), then each city's section, then the provenance;
-    ``out/summary.csv`` the same figures as numbers (``summary_frame``). Written to temporary files renamed into place."""
+    ``out/summary.csv`` the same figures as numbers (``summary_frame``). Written to temporary files renamed into place.
+    Returns the page and its top (``markdown_tables`` leads with the same)."""
     out = Path(out)
     summary = summary_rows(reports, t_max)
     sections, number = [], 3  # Figure 1: the pooled profiles; 2: the training curves, once above the cities
@@ -300,15 +301,15 @@ def write_summary_page(reports: list[Report], out: str | Path, t_max: int) -> Pa
         atomic_write_bytes(out / "profile.png", top.figure.path.read_bytes())
     for name, text in (("report.html", page), ("summary.csv", summary_frame(reports).to_csv(index=False))):
         atomic_write_text(out / name, text)
-    return out / "report.html"
+    return out / "report.html", top
 
 
-def markdown_tables(reports: list[Report], t_max: int) -> str:
-    """Every table of the reports as Markdown, led by what they found (``across_top`` with several cities, else the
-    city's): then, with several cities, the summary with its caption; per city its headline and detail tables and
-    its paired differences (each with what it is)."""
-    top = across_top(reports) if len(reports) > 1 else reports[0].top
-    parts = ["\n".join(f"- {f}" for f in top.findings), top.caption, markdown_table(top.rows)]
+def markdown_tables(reports: list[Report], t_max: int, top: Top | None = None) -> str:
+    """Every table of the reports as Markdown, led by what they found (``top``: by default ``across_top`` with several
+    cities, else the city's): then, with several cities, the summary with its caption; per city its headline and
+    detail tables and its paired differences (each with what it is)."""
+    top = top or (across_top(reports) if len(reports) > 1 else reports[0].top)
+    parts = [markdown_list(top.findings), top.caption, markdown_table(top.rows)]
     if len(reports) > 1:
         parts.append(summary_caption(reports))
         parts.append(markdown_table(summary_rows(reports, t_max)))

@@ -104,6 +104,11 @@ def markdown_table(rows: list[list[str]]) -> str:
     return "\n".join(lines + ["| " + " | ".join(c.translate(escape) for c in r) + " |" for r in rows[1:]])
 
 
+def markdown_list(lines: list[str]) -> str:
+    """Sentences as a Markdown list, one item each."""
+    return "\n".join(f"- {line}" for line in lines)
+
+
 def plain_table(*headers: str, rows: list[list[str]] = (), **kwargs) -> Table:  # noqa: ANN003 - rich.table.Table's options
     """A rich table whose headers, cells and title are text, not markup: units such as ``[m]``, intervals and names
     such as ``best [best-s0]`` stay visible; ``rows`` are added."""

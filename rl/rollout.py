@@ -154,6 +154,7 @@ def episode_stats(steps: np.ndarray, success: np.ndarray, genie_steps: np.ndarra
     ok = np.asarray(success, bool)
     to_target = np.where(ok, steps, np.inf)
     ratio = np.where(ok, steps / np.maximum(genie_steps, 1), np.inf)
+    spl = spl_terms(steps, ok, genie_steps)
     n_ok = ok.sum(axis=-1)
     with np.errstate(invalid="ignore", divide="ignore"):
         mean_ok = np.where(n_ok > 0, np.where(ok, steps, 0).sum(axis=-1) / n_ok, np.nan)
@@ -165,9 +166,9 @@ def episode_stats(steps: np.ndarray, success: np.ndarray, genie_steps: np.ndarra
         "steps_over_genie": np.quantile(ratio, 0.5, axis=-1, method="inverted_cdf"),
         "medians_ratio": np.quantile(to_target, 0.5, axis=-1, method="inverted_cdf")
         / np.maximum(np.quantile(genie_steps, 0.5, axis=-1, method="inverted_cdf"), 1),
-        "spl": spl_terms(steps, ok, genie_steps).mean(axis=-1),
+        "spl": spl.mean(axis=-1),
         "iqm_over_genie": interquartile_mean(ratio),
-        "iqm_spl": interquartile_mean(spl_terms(steps, ok, genie_steps)),
+        "iqm_spl": interquartile_mean(spl),
         "mean_steps_success": mean_ok,
     }
 
