@@ -138,7 +138,7 @@ def load_agent(folder: str | Path, epsilon: float, seed: int, task: str | None =
     or if it learnt another task than ``task`` (None: either)."""
     folder = Path(folder)
     ckpt = folder / "checkpoints" / "best.pt"
-    if not ckpt.is_file():
+    if not os.path.lexists(ckpt):  # one that is there but no regular file is refused by load_tensors, as such
         raise InputError(folder, "no checkpoints/best.pt (not a training run, or it never evaluated)")
     run = read_run_json(folder) if has_record(folder) else None  # a run.json that is no file is refused there
     ck = load_tensors(ckpt)

@@ -10,6 +10,7 @@ import click
 from uavplace.dataset.bundle import list_versions, read_latest
 from uavplace.dataset.catalog import list_cities
 from uavplace.infra.console import SEED, Counted, Finite, LogLines, fail, plain_table, root_option, stdout, warn_or_refuse
+from uavplace.infra.files import shipped
 from uavplace.rl.rollout import STATS, format_stat, summarise
 from uavplace.schemas.constants import P_T_DB
 
@@ -395,9 +396,10 @@ def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out:
 @click.option(
     "--constants",
     type=click.Path(dir_okay=False, path_type=Path),
-    default=Path("data/agents/searcher/predictor.json"),
+    default=shipped("data/agents/searcher/predictor.json"),
     show_default=True,
-    help="The physics tier the network corrects (`uavrl fit-predictor` writes it).",
+    help="The physics tier the network corrects (`uavrl fit-predictor` writes it; default: the shipped one, found in "
+    "the project wherever the command runs).",
 )
 @click.option(
     "--out",

@@ -67,15 +67,28 @@ from uavplace.rl.vec_env import BatchedEnv
 from uavplace.schemas.constants import reaches_target
 
 
+def with_overrides(kind: type, config: object, overrides: dict) -> object:
+    """The settings ``config`` (a ``kind``, a dict of its fields or None) with ``overrides``, validated as the command
+    line's are: an unknown field, or a value out of its range, is a ``ValueError`` of one line naming the field
+    (``model_copy(update=...)`` would take anything)."""
+    from pydantic import ValidationError
+
+    from uavplace.schemas.base import validation_message
+
+    try:
+        base = config if isinstance(config, kind) else kind(**(config or {}))
+        return kind.model_validate({**base.model_dump(), **overrides})
+    except ValidationError as exc:
+        field, message = validation_message(exc)
+        raise ValueError(f"{kind.__name__}.{field}: {message}") from None
+
+
 def task_bundles(dataset: str | list[str], config: object, kind: type, root: str, overrides: dict) -> tuple[list, object]:
     """(the bundles of ``dataset``, a city name or list; the task's ``kind`` config from ``config``, a ``kind``, a
     dict of its fields or None, with ``overrides``): what the tracking and fleet environments are made from."""
     from uavplace.dataset.bundle import load_bundle
 
-    base = config if isinstance(config, kind) else kind(**(config or {}))
-    # Validated as the command line's settings are (an unknown field, or a value out of its range, is refused):
-    # model_copy(update=...) would take anything.
-    merged = kind.model_validate({**base.model_dump(), **overrides})
+    merged = with_overrides(kind, config, overrides)
     names = [dataset] if isinstance(dataset, str) else list(dataset)
     return [load_bundle(n, root=root) for n in names], merged
 
@@ -106,8 +119,7 @@ class UavPlacementEnv(gym.Env):
             if config is not None or overrides:
                 raise ValueError("a MapSet carries its config; pass config/overrides when loading it")
         else:
-            base = config if isinstance(config, EnvConfig) else EnvConfig(**(config or {}))
-            maps = MapSet.load(dataset, base.model_copy(update=overrides) if overrides else base, root=root)
+            maps = MapSet.load(dataset, with_overrides(EnvConfig, config, overrides), root=root)
         self.config = maps.config
         self.evaluation_info = evaluation_info
         self._env = BatchedEnv(maps, 1, autoreset=False)

@@ -107,7 +107,8 @@ def _cap() -> None:
 def start(args: list[str], cwd: Path) -> subprocess.Popen:
     env = os.environ | {"UAVPLACE_QUIET": "1", "PYTHONWARNINGS": "ignore", "RAY_AUTH_MODE": "disabled"}
     env.pop("UAVPLACE_DEBUG", None)
-    return subprocess.Popen([*CLI, *args], cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
+    command = [sys.executable, *args[1:]] if args[0] == "python" else [*CLI, *args]  # a script, or a command line
+    return subprocess.Popen(command, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
                             preexec_fn=_cap, text=True, errors="replace")  # fmt: skip
 
 
@@ -237,6 +238,23 @@ def report_args(root: Path, run: Path, out: Path, *extra: str) -> list[str]:
     """A short report of one run on the tiny city (valid as it is: the control probes check it)."""
     return ["report", "--dataset", "tiny", "--root", str(root), "--run", str(run), "--episodes", "8", "--bootstrap", "100",
             "--trajectories", "0", "--predictor", "none", "--out", str(out), "--quiet", *extra]  # fmt: skip
+
+
+def tracking_args(root: Path, *extra: str) -> list[str]:
+    """A tracking report on the tiny city's twin with routes."""
+    return ["report", "--task", "tracking", "--dataset", TWIN.name, "--root", str(root), "--quiet", *extra]
+
+
+def inflating_npz(path: Path, member: str, dtype: type, nbytes: int) -> Path:
+    """A zip archive whose one ``.npy`` member inflates to ``nbytes`` of zeros (a few MB on disk), written as a stream."""
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z, z.open(member, "w", force_zip64=True) as f:
+        header = np.lib.format.header_data_from_array_1_0(np.zeros(0, dtype))
+        header["shape"] = (nbytes // np.dtype(dtype).itemsize,)
+        np.lib.format.write_array_header_1_0(f, header)
+        chunk = bytes(1 << 26)
+        for _ in range(nbytes >> 26):
+            f.write(chunk)
+    return path
 
 
 # -- checks of accepted results ----------------------------------------------------------------------------------------
@@ -1135,20 +1153,9 @@ def round3_probes(base: Base) -> list[Probe]:
         Probe(
             "round3",
             "report: tracking --horizon 100000",
-            lambda w: [
-                "uavrl",
-                "report",
-                "--task",
-                "tracking",
-                "--dataset",
-                "tiny-routes",
-                "--root",
-                str(base.copy_root(w)),
-                "--horizon",
-                "100000",
-                "--quiet",
-            ],
-        ),  # fmt: skip
+            lambda w: ["uavrl", *tracking_args(base.copy_root(w), "--horizon", "100000")],
+        ),
+        # fmt: skip
         Probe("round3", "report: a run twice", lambda w: report(w, "--run", str(base.run) + "/")),
         Probe(
             "round3",
@@ -1230,6 +1237,14 @@ FAMILIES = {"opt": option_probes, "set": set_probes, "raw": raw_probes, "bundle"
             "race": race_probes, "fs": fs_probes, "round3": round3_probes}  # fmt: skip
 
 
+def all_families() -> dict[str, Callable[[Base], list[Probe]]]:
+    """These families and the fourth round's, a surface each (tests/probes_round4.py, which imports this module's
+    helpers: imported here, when the pass starts, not beside them)."""
+    from tests.probes_round4 import FAMILIES as round4
+
+    return FAMILIES | round4
+
+
 # -- the pass -----------------------------------------------------------------------------------------------------------
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -1237,7 +1252,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--only",
         default="",
-        help="families to run, comma-separated (" + ", ".join(FAMILIES) + "); also ID substrings after a colon: raw:gzip",
+        help="families to run, comma-separated (" + ", ".join(all_families()) + "); also ID substrings after a colon: raw:gzip",
     )
     ap.add_argument(
         "--timeout", type=float, default=60.0, help="seconds a probe may run (race and resume probes state their own)"
@@ -1245,9 +1260,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--list", action="store_true", help="print the probes and exit")
     args = ap.parse_args(argv)
     family, _, pattern = args.only.partition(":")
-    chosen = [f for f in (family.split(",") if family else FAMILIES) if f]
+    families = all_families()
+    chosen = [f for f in (family.split(",") if family else families) if f]
     base = Base(args.out.resolve() / "base")
-    probes = [p for f in chosen for p in FAMILIES[f](base) if pattern in p.id]
+    probes = [p for f in chosen for p in families[f](base) if pattern in p.id]
     if args.list:
         for p in probes:
             print(f"{p.family}\t{p.id}")

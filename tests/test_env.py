@@ -504,3 +504,15 @@ def test_an_episode_plays_the_same_whatever_else_is_played(maps):
         torch.set_num_threads(threads)
     other_seed = run_episodes(maps, RandomWalkPolicy(seed=2), eps, num_envs=7)
     assert other_seed.steps.tolist() != run_episodes(maps, RandomWalkPolicy(seed=1), eps, num_envs=7).steps.tolist()
+
+
+def test_placement_env_overrides_are_validated_as_the_command_line_settings(tiny):
+    """``UavPlacementEnv(..., **overrides)``: an unknown setting or a value out of its range is one ValueError naming
+    the field (``model_copy(update=...)`` had taken ``colour=1`` without a word and a window of 2)."""
+    from uavplace.rl.env import UavPlacementEnv
+
+    for bad, field in (({"colour": 1}, "colour"), ({"window": 2}, "window"), ({"p_t_db": float("nan")}, "p_t_db")):
+        with pytest.raises(ValueError, match=rf"^EnvConfig\.{field}: "):
+            UavPlacementEnv("tiny", root=str(tiny), **bad)
+    env = UavPlacementEnv("tiny", root=str(tiny), window=31)
+    assert env.config.window == 31

@@ -22,7 +22,7 @@ def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
     from tests import probes
 
     # Every probe's (family, id): the probes are built from the base's paths, not its files.
-    cases = [(p.family, p.id) for family in probes.FAMILIES.values() for p in family(probes.Base(Path("base")))]
+    cases = [(p.family, p.id) for family in probes.all_families().values() for p in family(probes.Base(Path("base")))]
     metafunc.parametrize("probe_case", cases, ids=[f"{f}:{i}" for f, i in cases])
 
 
@@ -40,6 +40,6 @@ def test_probe(probe_case: tuple[str, str], base, tmp_path: Path) -> None:  # no
     from tests import probes
 
     family, probe_id = probe_case
-    probe = next(p for p in probes.FAMILIES[family](base) if p.id == probe_id)
+    probe = next(p for p in probes.all_families()[family](base) if p.id == probe_id)
     probes.classify(probe, tmp_path, 60.0)
     assert probe.outcome not in (*probes.BAD, "setup"), f"{probe.outcome}: {probe.detail}"

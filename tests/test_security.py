@@ -411,6 +411,35 @@ def test_weights_files_that_are_fifos_are_refused_at_once(tmp_path):
     assert isinstance(err, InputError) and "best.pt" in str(err) and "not a regular file" in str(err)
     err = _within(10, load_tensors, tmp_path / "absent.pt")
     assert isinstance(err, InputError) and "no such checkpoint" in str(err)
+    # a run's best.pt that is there but a FIFO: "not a regular file", not "no checkpoints/best.pt"
+    from uavplace.eval.evaluate import load_agent
+    from uavplace.rl.agent.ensemble import read_member
+
+    for read in (lambda: load_agent(init, 0.0, 0), lambda: read_member(init)):
+        err = _within(10, read)
+        assert isinstance(err, InputError) and "not a regular file" in str(err), err
+
+
+def test_predictor_weights_are_bounded_before_they_are_hashed(tmp_path):
+    """The learned predictor's weights.pt of 2 GB (sparse) is refused by its size, in one line naming the limit, before
+    a byte of it is hashed (it had been hashed whole, 11 s, before the sha256 refused it)."""
+    import shutil
+    import time
+
+    from uavplace.rl.belief import DEFAULT_PREDICTOR
+    from uavplace.rl.learned import load_learned
+
+    folder = shutil.copytree(DEFAULT_PREDICTOR, tmp_path / "unet")
+    (folder / "weights.pt").unlink()
+    with (folder / "weights.pt").open("wb") as f:
+        f.truncate(2 * 2**30)
+    cpu = time.process_time()
+    err = _within(30, load_learned, folder)
+    assert isinstance(err, InputError) and "network_params" in str(err) and "weights.pt" in str(err), err
+    assert time.process_time() - cpu < 2.0  # nothing of the 2 GB was read
+    (folder / "weights.pt").write_bytes((DEFAULT_PREDICTOR / "weights.pt").read_bytes()[:-1] + b"x")
+    err = _within(30, load_learned, folder)
+    assert isinstance(err, InputError) and "do not belong together" in str(err), err
 
 
 def test_sparse_text_exports_are_refused_by_their_size(tmp_path):

@@ -22,6 +22,7 @@ Formats:
 
 from __future__ import annotations
 
+import hashlib
 import io
 import math
 import pickle
@@ -133,12 +134,14 @@ def pickle_globals(path: str | Path) -> list[str]:
     return names
 
 
-def load_tensors(path: str | Path, map_location: str | torch.device = "cpu") -> dict:
+def load_tensors(path: str | Path, map_location: str | torch.device = "cpu", sha256: str | None = None) -> dict:
     """Load a ``.pt`` of tensors and plain data with ``weights_only=True``; refuse anything else.
 
     Raises ``InputError`` naming the file: for a checkpoint that carries other
     Python objects (nothing of it runs), for a file that is not a PyTorch
-    checkpoint, and for one that is not a dict.
+    checkpoint, for one that is not a dict, and, given ``sha256`` (what a
+    description of the weights names), for bytes that do not hash to it (hashed
+    after the size check: a file of gigabytes is refused unread).
     """
     path = Path(path)
     # Read as every record is: a regular file (a FIFO is refused at once, never waited on) of a bounded size: a
@@ -147,6 +150,9 @@ def load_tensors(path: str | Path, map_location: str | torch.device = "cpu") -> 
     data = read_small_file(
         path, "a PyTorch checkpoint", missing="no such checkpoint", max_bytes=bound, limit="network_params x 16 bytes"
     )
+    if sha256 is not None and (digest := hashlib.sha256(data).hexdigest()) != sha256:
+        mismatch = f"sha256 {digest[:12]}... is not the {sha256[:12]}... that its description names"
+        raise InputError(path, mismatch + ": the weights and their description do not belong together")
     try:
         obj = torch.load(io.BytesIO(data), weights_only=True, map_location=map_location)
     except pickle.UnpicklingError as exc:

@@ -17,6 +17,7 @@ chosen as a run is, on validation cities only, never on a test city.
 from __future__ import annotations
 
 import datetime as dt
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -58,7 +59,7 @@ def read_member(folder: str | Path) -> Member:
     folder = Path(folder)
     run = read_run_json(folder)
     ckpt = folder / "checkpoints" / "best.pt"
-    if not ckpt.is_file():
+    if not os.path.lexists(ckpt):  # one that is there but no regular file is refused by load_tensors, as such
         raise InputError(folder, "no checkpoints/best.pt (not a training run, or it never evaluated)")
     net, config = network_from_checkpoint(load_tensors(ckpt), ckpt)
     if config.ensemble != 1:
