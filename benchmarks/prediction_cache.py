@@ -15,9 +15,10 @@ import tempfile
 import time
 from pathlib import Path
 
-from uavplace.rl.config import EnvConfig
+from uavplace.rl.belief import DEFAULT_PREDICTOR, PredictionCache, load_predictor
+from uavplace.rl.config import EnvConfig, SearchConfig
 from uavplace.rl.maps import MapSet
-from uavplace.rl.searcher import DEFAULT_PREDICTOR, MapSearchPolicy, PredictionCache, SearchConfig, load_predictor
+from uavplace.rl.searcher import MapSearchPolicy
 from uavplace.rl.view import PublicMaps
 
 

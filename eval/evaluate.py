@@ -26,19 +26,12 @@ from uavplace.rl.agent.train import (
     settings_unlike,
     training_users,
 )
-from uavplace.rl.config import EnvConfig
+from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
+from uavplace.rl.config import EnvConfig, SearchConfig
 from uavplace.rl.maps import MapSet
 from uavplace.rl.policies import GeniePolicy, GreedyPolicy, Policy, RandomWalkPolicy
 from uavplace.rl.rollout import run_episodes
-from uavplace.rl.searcher import (
-    DEFAULT_PREDICTOR,
-    PREDICTIONS,
-    SEARCHER,
-    MapSearchPolicy,
-    PredictionCache,
-    SearchConfig,
-    load_predictor,
-)
+from uavplace.rl.searcher import SEARCHER, MapSearchPolicy
 from uavplace.rl.view import PublicMaps
 from uavplace.schemas import InputError
 from uavplace.schemas.base import MAX_SEED, Contract
@@ -79,7 +72,7 @@ class ReportConfig(Contract):
     )
     predictor: str | None = Field(
         default=str(DEFAULT_PREDICTOR),
-        description="The map searcher's predictor: the physics tier's constants (a JSON file) or a learned tier (a folder; rl.searcher.load_predictor); None: no searcher is played",
+        description="The map searcher's predictor: the physics tier's constants (a JSON file) or a learned tier (a folder; rl.belief.load_predictor); None: no searcher is played",
     )
     search: SearchConfig = Field(default_factory=SearchConfig, description="The map searcher's settings")
     ablate: bool = Field(

@@ -36,6 +36,7 @@ from uavplace.eval.metrics import bootstrap_table, difference_table
 from uavplace.eval.render import _CSS, _figure, _templates, difference_rows
 from uavplace.infra.console import markdown_list, markdown_table
 from uavplace.infra.files import atomic_directory, check_replaceable
+from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
 from uavplace.rl.fleet import (
     FleetConfig,
     FleetGreedy,
@@ -46,7 +47,6 @@ from uavplace.rl.fleet import (
     run_fleet,
 )
 from uavplace.rl.rollout import STATS, format_stat
-from uavplace.rl.searcher import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
 from uavplace.schemas.base import MAX_SEED, Contract, InputError, uavplace_version
 
 FLEET_JSON = "fleet.json"
@@ -70,7 +70,7 @@ class FleetReportConfig(Contract):
     test_epsilon: float = Field(default=0.096, ge=0, le=1, description="Random legal move rate of the agents")
     predictor: str | None = Field(
         default=str(DEFAULT_PREDICTOR),
-        description="The fleet searcher's predictor (rl.searcher.load_predictor); None: no searcher",
+        description="The fleet searcher's predictor (rl.belief.load_predictor); None: no searcher",
     )
 
 

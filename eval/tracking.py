@@ -33,8 +33,9 @@ from uavplace.eval.metrics import _weighted_quantile, resample_counts
 from uavplace.eval.render import _CSS, _figure, _templates
 from uavplace.infra.console import markdown_table
 from uavplace.infra.files import atomic_directory, check_replaceable
+from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
 from uavplace.rl.policies import GreedyPolicy, RandomWalkPolicy
-from uavplace.rl.searcher import DEFAULT_PREDICTOR, PREDICTIONS, MapSearchPolicy, PredictionCache, load_predictor
+from uavplace.rl.searcher import MapSearchPolicy
 from uavplace.rl.tracking import (
     Holding,
     MovesOnly,

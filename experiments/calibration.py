@@ -22,8 +22,8 @@ from common import VALIDATION, validation_parser
 from uavplace.dataset.bundle import load_bundle
 from uavplace.dataset.trainmaps import list_packs, read_pack
 from uavplace.infra.console import markdown_table
+from uavplace.rl.belief import DEFAULT_PREDICTOR, load_predictor
 from uavplace.rl.predictor import Scene, platt_scaling, predicted_and_measured, reliability, scores_of
-from uavplace.rl.searcher import DEFAULT_PREDICTOR, load_predictor
 
 
 def logit(p: np.ndarray) -> np.ndarray:

@@ -19,6 +19,7 @@ import numpy as np
 
 from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.evaluate import load_agent
+from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
 from uavplace.rl.fleet import (
     FleetConfig,
     FleetGreedy,
@@ -28,7 +29,6 @@ from uavplace.rl.fleet import (
     FleetSearcher,
     run_fleet,
 )
-from uavplace.rl.searcher import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
 
 VALIDATION = ("corpus-016", "corpus-017", "oldtown-005", "etoile-val", "florence-val")
 

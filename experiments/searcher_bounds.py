@@ -44,16 +44,9 @@ from searcher_steps import user_cells
 from uavplace.dataset.bundle import Bundle, load_bundle
 from uavplace.eval.evaluate import ReportConfig, evaluate
 from uavplace.infra.console import markdown_table
+from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, CandidateMaps, PredictionCache, load_predictor
 from uavplace.rl.policies import GeniePolicy
-from uavplace.rl.searcher import (
-    DEFAULT_PREDICTOR,
-    PREDICTIONS,
-    SEARCHER,
-    CandidateMaps,
-    MapSearchPolicy,
-    PredictionCache,
-    load_predictor,
-)
+from uavplace.rl.searcher import SEARCHER, MapSearchPolicy
 from uavplace.rl.view import AgentView, PublicMaps, public_maps
 from uavplace.schemas.constants import P_T_DB
 

@@ -23,16 +23,10 @@ from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.evaluate import ReportConfig, evaluate, load_agent
 from uavplace.eval.metrics import bootstrap_table, difference_table
 from uavplace.infra.console import markdown_table
+from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
+from uavplace.rl.config import SearchConfig
 from uavplace.rl.policies import GeniePolicy
-from uavplace.rl.searcher import (
-    DEFAULT_PREDICTOR,
-    PREDICTIONS,
-    SEARCHER,
-    MapSearchPolicy,
-    PredictionCache,
-    SearchConfig,
-    load_predictor,
-)
+from uavplace.rl.searcher import SEARCHER, MapSearchPolicy
 
 
 def _value(text: str) -> object:

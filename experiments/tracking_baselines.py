@@ -21,7 +21,8 @@ from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.cities import development_cities
 from uavplace.eval.evaluate import check_unseen, load_agent
 from uavplace.eval.tracking import tracking_methods
-from uavplace.rl.searcher import DEFAULT_PREDICTOR, PREDICTIONS, MapSearchPolicy, PredictionCache, load_predictor
+from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
+from uavplace.rl.searcher import MapSearchPolicy
 from uavplace.rl.tracking import RouteSet, TrackingConfig, run_tracking
 from uavplace.rl.tracksearch import TrackingSearchPolicy, fit_motion
 

@@ -438,9 +438,9 @@ def train_predictor(
     from uavplace.dataset.trainmaps import TrainingMaps, list_packs, read_pack
     from uavplace.infra.console import command_line
     from uavplace.infra.files import atomic_directory
+    from uavplace.rl.belief import load_constants
     from uavplace.rl.learned import MODEL_CARD, MODEL_JSON, LearnedPredictor, UNetConfig, model_card, save_learned, train_learned
     from uavplace.rl.predictor import PhysicsPredictor, predicted_and_measured, reliability, scores_of
-    from uavplace.rl.searcher import load_constants
 
     if not datasets and not map_folders:
         raise click.UsageError("give training maps: --dataset CITY or --maps FOLDER (or both)")

@@ -74,7 +74,7 @@ class EnvConfig(Contract):
         default=False,
         description="Add a channel, after the homing channel and before the SINR memory, of the map searcher's "
         "posterior probability that each cell reaches P_T [%] (0 where the UAV may not go), from its belief over the "
-        "user's position given the episode's measurements and the predicted maps of belief_predictor (rl/searcher.py, "
+        "user's position given the episode's measurements and the predicted maps of belief_predictor (rl/belief.py, "
         "BeliefTracker): the hybrid learner of docs/searcher.md",
     )
     belief_predictor: str | None = Field(
@@ -139,3 +139,37 @@ class EnvConfig(Contract):
     def num_channels(self) -> int:
         extra = int(self.visited_channel) + int(self.homing_channel) + int(self.belief_channel)
         return (1 if self.blind else 2) + self.num_context + extra
+
+
+class SearchConfig(Contract):
+    """The searcher's settings (chosen on validation cities)."""
+
+    stride: int = Field(default=2, ge=1, le=16, description="Candidate user cells on a lattice of this many cells")
+    temper: float = Field(default=0.5, gt=0, le=1, description="Exponent of each measurement's likelihood")
+    reach_cells: float = Field(default=12.0, gt=0, description="Distance scale of a cell's discount [cells]")
+    discount: Literal["exp", "hyperbolic"] = Field(
+        default="hyperbolic",
+        description="A cell's score is its posterior probability of reaching P_T times exp(-d / reach_cells) ('exp') "
+        "or 1 / (1 + d / reach_cells) ('hyperbolic': a likely cell far away can beat an unlikely one nearby)",
+    )
+    buildings: bool = Field(default=True, description="Predict with the city's buildings (False: open ground, the ablation)")
+    min_sigma_db: float = Field(default=3.0, gt=0, description="Least spread of the likelihood [dB]")
+    outlier: float = Field(
+        default=0.1,
+        ge=0,
+        lt=1,
+        description="Share of the likelihood that is flat: one measurement the predictor "
+        "got wrong lowers a candidate, never rules it out",
+    )
+    planner: Literal["cover", "info", "lookahead"] = Field(
+        default="cover",
+        description="cover: move toward the unvisited cell of best discounted posterior probability of reaching P_T; "
+        "info: add to that probability info_weight times the information [bits] a measurement at the cell gives "
+        "about the user's cell (mutual information), for the cells within info_radius moves; lookahead: take the "
+        "move whose measurement, over its possible outcomes, leaves the best expected discounted score (1 where it "
+        "reaches P_T) among the lookahead_targets cells the cover planner scores best",
+    )
+    lookahead_targets: int = Field(default=64, ge=1, le=4096, description="lookahead: target cells it weighs")
+    info_weight: float = Field(default=0.1, ge=0, description="info: the worth of one bit, in probability of reaching P_T")
+    info_radius: int = Field(default=3, ge=1, le=32, description="info: cells within this many moves get the term")
+    info_bin_db: float = Field(default=4.0, gt=0, le=40, description="info: width of the SINR bins a measurement falls in")

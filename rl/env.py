@@ -16,7 +16,7 @@ visited, 0 elsewhere) comes before the SINR memory, which stays last; with
 ``homing_slope_db`` per cell of distance from where it was measured, clipped at
 P_L) comes between them, and with ``belief_channel`` the map searcher's posterior
 probability [%] that each cell reaches P_T, from its belief over the user's position
-given the episode's measurements (``rl.searcher.BeliefTracker``), just before the SINR
+given the episode's measurements (``rl.belief.BeliefTracker``), just before the SINR
 memory. With
 ``context_zoom`` z, context channels follow the height channel: the window again
 in blocks of z x z cells (z times the span), their mean height and the best SINR

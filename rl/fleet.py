@@ -874,7 +874,7 @@ class FleetSearcher:
             self.log_b[int(r)] = []
 
     def act(self, mask: np.ndarray, view: FleetView) -> np.ndarray:
-        from uavplace.rl.searcher import posterior_cover
+        from uavplace.rl.belief import posterior_cover
 
         if self.public is None:
             raise ValueError("FleetSearcher.bind(maps) first: it predicts from the bundles' public maps")

@@ -28,7 +28,8 @@ from pydantic import Field, model_validator
 from scipy import sparse
 
 from uavplace.dataset.bundle import Bundle
-from uavplace.rl.searcher import CandidateMaps, MapSearchPolicy, posterior_cover
+from uavplace.rl.belief import CandidateMaps, posterior_cover
+from uavplace.rl.searcher import MapSearchPolicy
 from uavplace.rl.tracking import STAY
 from uavplace.rl.view import public_maps
 from uavplace.schemas.base import Contract

@@ -6,7 +6,7 @@ height channel, the window again in blocks of ``context_zoom`` cells; with
 ``visited_channel`` a channel of the visited cells, then with ``homing_channel`` the
 homing cone (the best SINR measured so far less ``homing_slope_db`` per cell of
 distance from where it was measured), then with ``belief_channel`` the map searcher's
-posterior probability [%] of reaching P_T (``rl.searcher.BeliefTracker``), before the
+posterior probability [%] of reaching P_T (``rl.belief.BeliefTracker``), before the
 SINR memory, which stays last),
 float32, or uint8 with ``compact=True`` (``encode_obs``: 1 dB / 1 m per step, offset
 150; two 61 x 61 uint8 channels are 7.4 kB, so 5e5 transitions that store each
@@ -165,14 +165,8 @@ class BatchedEnv(EpisodeRows):
             self._context_height_windows = np.lib.stride_tricks.sliding_window_view(maps.context_height, (w, w), axis=(1, 2))
         self.belief = None
         if self.config.belief_channel:  # imported here: the predictors (torch) load only for the envs that use them
-            from uavplace.rl.searcher import (
-                DEFAULT_PREDICTOR,
-                PREDICTIONS,
-                BeliefTracker,
-                PredictionCache,
-                SearchConfig,
-                load_predictor,
-            )
+            from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, BeliefTracker, PredictionCache, load_predictor
+            from uavplace.rl.config import SearchConfig
 
             predictor = load_predictor(self.config.belief_predictor or DEFAULT_PREDICTOR)
             cache = PredictionCache(maps.bundles[0].path.parent.parent / PREDICTIONS)

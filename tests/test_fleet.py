@@ -256,8 +256,8 @@ def test_fleet_searcher_serves_the_tiny_city_from_what_it_measured(tiny):
     moves the same when every user's map is scrambled off the cells the fleet visited."""
     from tests.conftest import REPO
     from uavplace.dataset.bundle import load_bundle
+    from uavplace.rl.belief import load_predictor
     from uavplace.rl.fleet import FleetSearcher, run_fleet
-    from uavplace.rl.searcher import load_predictor
 
     config = FleetConfig(uavs=2, users=2, window=9, t_max=60)
     maps = FleetMaps.of([load_bundle("tiny", root=str(tiny))], config)

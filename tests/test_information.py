@@ -92,7 +92,9 @@ def test_report_methods_read_only_what_they_measured(tiny):
 
     env = EnvConfig(t_max=T_MAX, rotate=False)
     maps = MapSet.load("tiny", env, root=str(tiny))
-    from uavplace.rl.searcher import MapSearchPolicy, SearchConfig, load_predictor
+    from uavplace.rl.belief import load_predictor
+    from uavplace.rl.config import SearchConfig
+    from uavplace.rl.searcher import MapSearchPolicy
 
     policies = [p for p in baseline_policies(ReportConfig(dataset="tiny"), env) if not getattr(p, "privileged", False)]
     assert {"map searcher", "map searcher, no buildings", "greedy hill-climbing"} <= {p.name for p in policies}
@@ -116,8 +118,9 @@ def test_searcher_reads_only_what_it_measured_on_a_validation_city(tmp_path):
     predictor: each episode played again alone with the user's map scrambled off its route moves the same."""
     from uavplace.dataset.build import build_city
     from uavplace.ingest.pipeline import ingest_city
+    from uavplace.rl.belief import PredictionCache, load_predictor
     from uavplace.rl.config import EnvConfig
-    from uavplace.rl.searcher import MapSearchPolicy, PredictionCache, load_predictor
+    from uavplace.rl.searcher import MapSearchPolicy
     from uavplace.schemas.bundle import BuildConfig
 
     ingest_city(REPO / "data" / "raw" / "etoile-val", tmp_path)

@@ -13,6 +13,8 @@ from click.testing import CliRunner
 from uavplace.cli import uavrl
 from uavplace.dataset.bundle import load_bundle
 from uavplace.dataset.trainmaps import TrainingMaps
+from uavplace.rl.belief import PredictionCache, load_predictor
+from uavplace.rl.config import SearchConfig
 from uavplace.rl.learned import (
     MODEL_CARD,
     MODEL_JSON,
@@ -29,7 +31,7 @@ from uavplace.rl.learned import (
     training_examples,
 )
 from uavplace.rl.predictor import PhysicsConstants, PhysicsPredictor, Scene
-from uavplace.rl.searcher import MapSearchPolicy, PredictionCache, SearchConfig, load_predictor
+from uavplace.rl.searcher import MapSearchPolicy
 from uavplace.schemas import InputError
 
 SMALL = UNetConfig(widths=[4, 8], crop=16, batch=4, steps=40, lr=5e-3, threads=1)
@@ -149,7 +151,7 @@ def test_train_predictor_cli_writes_weights_model_and_card(tiny, tmp_path):
 
 def test_shipped_learned_tier_loads_and_says_how_it_was_made():
     from tests.conftest import REPO
-    from uavplace.rl.searcher import DEFAULT_PREDICTOR
+    from uavplace.rl.belief import DEFAULT_PREDICTOR
 
     predictor = load_predictor(REPO / DEFAULT_PREDICTOR)
     assert predictor.tier == "learned" and predictor.error_db > 0

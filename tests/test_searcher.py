@@ -10,12 +10,13 @@ import pytest
 from scipy.special import fresnel
 
 from tests.conftest import REPO
-from uavplace.rl.config import EnvConfig
+from uavplace.rl.belief import load_constants
+from uavplace.rl.config import EnvConfig, SearchConfig
 from uavplace.rl.maps import MapSet
 from uavplace.rl.policies import RandomWalkPolicy
 from uavplace.rl.predictor import PhysicsConstants, Scene, fresnel_nu, knife_edge_db, path_features
 from uavplace.rl.rollout import episode_stats, run_episodes
-from uavplace.rl.searcher import MapSearchPolicy, SearchConfig, load_constants
+from uavplace.rl.searcher import MapSearchPolicy
 from uavplace.schemas import InputError
 
 
@@ -195,9 +196,9 @@ def test_predicted_maps_are_bounded_by_the_limits(tiny, monkeypatch):
 def test_belief_channel_is_the_searchers_belief_turned_with_the_map(tiny):
     """The hybrid's channel (``BeliefTracker``): the belief after a few measurements is the searcher's own, and a
     canvas turned by a quarter turn, measured at the turned cells, shows the same cover canvas turned."""
+    from uavplace.rl.belief import BeliefTracker, PredictionCache
     from uavplace.rl.maps import transform
     from uavplace.rl.predictor import PhysicsPredictor
-    from uavplace.rl.searcher import BeliefTracker, PredictionCache
     from uavplace.rl.view import PublicMaps
 
     maps = MapSet.load("tiny", EnvConfig(t_max=50, rotate=True, symmetries=4), root=str(tiny))
@@ -260,7 +261,7 @@ def test_belief_channel_in_the_observation(tiny):
 
 def _cache_entry(tmp_path):  # noqa: ANN001, ANN202
     """(cache, key, mu, p_dead): one entry saved, as the searcher saves it."""
-    from uavplace.rl.searcher import PredictionCache
+    from uavplace.rl.belief import PredictionCache
 
     cache = PredictionCache(tmp_path / "cache")
     rng = np.random.default_rng(0)
@@ -275,7 +276,7 @@ def test_prediction_cache_uses_only_whole_entries_of_its_own_key(tmp_path):
     import io
     import os
 
-    from uavplace.rl.searcher import _entry_meta
+    from uavplace.rl.belief import _entry_meta
 
     cache, key, mu, p_dead = _cache_entry(tmp_path)
     hit = cache.load(key, mu.shape)
@@ -341,7 +342,7 @@ def test_predictor_versions_name_their_code(monkeypatch):
 
 def _hand_maps(p_dead: list[list[float]], mu: list[list[float]]):  # noqa: ANN202
     """CandidateMaps of two candidates over ``len(mu[0])`` legal cells, by hand."""
-    from uavplace.rl.searcher import CandidateMaps
+    from uavplace.rl.belief import CandidateMaps
 
     mu_, p_ = np.array(mu, np.float32), np.array(p_dead, np.float32)
     m = mu_.shape[1]

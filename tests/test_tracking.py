@@ -599,8 +599,9 @@ def test_tracking_searcher_reads_only_what_it_measures(root):
     maps are scrambled off its path at every route point, and covers the user in some steps."""
     import copy
 
+    from uavplace.rl.config import SearchConfig
     from uavplace.rl.predictor import PhysicsConstants
-    from uavplace.rl.searcher import MapSearchPolicy, SearchConfig
+    from uavplace.rl.searcher import MapSearchPolicy
     from uavplace.rl.tracksearch import TrackingSearchPolicy, fit_motion
 
     bundle = load_bundle("walk", root=root)
@@ -643,8 +644,9 @@ def test_motion_defaults_are_the_training_routes_fit(tmp_path):
 def test_tracking_searcher_plays_one_city_after_another(root, tmp_path):
     """The report plays each city with the same searcher: a city whose canvas has the same number as the last one's
     but other candidates gets its own motion (the first report of three cities once failed on it)."""
+    from uavplace.rl.config import SearchConfig
     from uavplace.rl.predictor import PhysicsConstants
-    from uavplace.rl.searcher import MapSearchPolicy, SearchConfig
+    from uavplace.rl.searcher import MapSearchPolicy
     from uavplace.rl.tracksearch import MotionModel, TrackingSearchPolicy
 
     other = tmp_path / "p"

@@ -1,0 +1,384 @@
+"""The map searcher's belief, apart from any policy: the predicted maps of every candidate user cell, their cache,
+the predictor's loader and the belief arithmetic (docs/searcher.md).
+
+For each canvas (a city under a symmetry) the predictor (``rl.predictor``, ``rl.learned``) gives the SINR map of a
+user at every *candidate* cell (open ground on a lattice of ``stride`` cells; with ``buildings=False`` every lattice
+cell, the predictor shown open ground: the map ablation): ``CandidateMaps``. A belief is the log-probability of each
+candidate, uniform at the start. After every measurement ``m`` at cell ``x``:
+
+- ``m`` above the SINR floor: ``log b += temper * log[(1 - p_dead) N(m; mu_c(x), sigma)]``;
+- ``m`` at the floor (dead, or live and below it): censored, ``log b += temper * log[p_dead + (1 - p_dead)
+  Phi((floor - mu_c(x)) / sigma)]``,
+
+with ``mu_c(x)`` the predicted SINR, ``p_dead`` the predictor's dead-cell probability and ``sigma`` its measured
+error, a share ``outlier`` of the likelihood flat. ``temper`` < 1 makes up for the errors of one candidate's map
+being alike from cell to cell. The posterior probability that a cell ``x'`` reaches P_T is ``sum_c b_c (1 - p_dead)
+Phi((mu_c(x') - P_T) / sigma)`` (``posterior_cover``).
+
+The predicted maps of a canvas are computed once and kept on disk (``PredictionCache``), keyed by the bundle version,
+the symmetry, the candidate lattice, the blanked map and the predictor's version (its weights, constants and code),
+and checked whenever they are read. ``BeliefModel`` holds the arithmetic, ``BeliefTracker`` the belief of every row
+of a ``BatchedEnv`` as an observation channel (the hybrid learner, ``EnvConfig.belief_channel``). The planners
+(``rl.searcher``, ``rl.tracksearch``, ``rl.fleet``) use it; this module imports none of them.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import math
+import zipfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.special import ndtr
+
+from uavplace.infra.files import atomic_write_bytes, read_model_json, read_small_file, shipped
+from uavplace.infra.limits import check_limit, limits
+from uavplace.rl.config import SearchConfig
+from uavplace.rl.maps import MapSet, transform
+from uavplace.rl.predictor import PhysicsConstants, PhysicsPredictor, Predictor, Scene
+from uavplace.rl.view import PublicMaps
+from uavplace.schemas import InputError
+
+#: Where the shipped physics tier's constants live (in the project, wherever a command runs).
+DEFAULT_CONSTANTS = shipped("data/agents/searcher/predictor.json")
+#: The shipped predictor the searcher uses: the learned tier (chosen on the validation cities, docs/searcher.md).
+DEFAULT_PREDICTOR = shipped("data/agents/searcher/unet")
+#: Candidates predicted at once between two progress reports (a multiple of the learned tier's batch of 16).
+PREDICT_CHUNK = 128
+#: The span of SINR [dB] over which the likelihood's flat share is spread.
+OUTLIER_SPAN_DB = 100.0
+#: The folder of cached predicted maps beside the bundles (safe to delete: they are made again on demand).
+PREDICTIONS = ".predictions"
+
+
+@dataclass(frozen=True)
+class CandidateMaps:
+    """One canvas's predictions: ``cells`` [C, 2] candidate cells ``(iy, ix)`` of the (transformed) map, ``legal``
+    [M, 2] the map cells the UAV may enter, ``index`` [num_y, num_x] a legal cell's column (-1 elsewhere), ``mu``
+    [C, M] float32 predicted SINR [dB], ``p_dead`` [C, M] float32, ``cover`` [C, M] float32 the probability of
+    reaching P_T."""
+
+    cells: np.ndarray
+    legal: np.ndarray
+    index: np.ndarray
+    mu: np.ndarray
+    p_dead: np.ndarray
+    cover: np.ndarray
+
+
+def candidate_cells(ground_height_m: np.ndarray, stride: int, buildings: bool) -> np.ndarray:
+    """``[C, 2]`` candidate user cells: the lattice of ``stride`` cells (offset to the middle of the first block),
+    open ground only when ``buildings``."""
+    ny, nx = ground_height_m.shape
+    o = stride // 2
+    yy, xx = np.mgrid[o:ny:stride, o:nx:stride]
+    cells = np.stack([yy.ravel(), xx.ravel()], axis=1)
+    if buildings:
+        cells = cells[ground_height_m[cells[:, 0], cells[:, 1]] <= 0]
+    return cells
+
+
+def rows_of(maps: CandidateMaps, keep: np.ndarray) -> CandidateMaps:
+    """``maps`` with the candidates of ``keep`` [C] only."""
+    return CandidateMaps(maps.cells[keep], maps.legal, maps.index, maps.mu[keep], maps.p_dead[keep], maps.cover[keep])
+
+
+def posterior_cover(log_b: np.ndarray, cover: np.ndarray) -> np.ndarray:
+    """``[R, M]`` the posterior probability that each cell reaches P_T, ``b @ cover``, for log-beliefs ``log_b`` [R, C]
+    (any offset) over the candidates of ``cover`` [C, M]: the rows in one matrix product, which reads ``cover`` once
+    for them all (the planner's main cost)."""
+    b = np.exp(log_b - log_b.max(axis=1, keepdims=True))
+    b /= b.sum(axis=1, keepdims=True)
+    return b @ cover
+
+
+class PredictionCache:
+    """Predicted maps on disk, one ``.npz`` per canvas, named by the hash of everything they depend on (the bundle, the
+    symmetry, the lattice, the blanked map, the predictor's weights, constants and code: ``Predictor.version``).
+
+    An entry is data, never trusted as it is (docs/security.md): it is read only when it is a regular file inside the
+    cache folder (no link, no FIFO) of at most ``prediction_bytes``, and used only when it names its own key, its
+    arrays hash to the sha256 it records, they have the expected shape, and every value is finite with the dead
+    probability in [0, 1] and the SINR within +-``MAX_ABS_DB``. Anything else is predicted again and replaced."""
+
+    #: The largest |SINR| [dB] a cached prediction may hold.
+    MAX_ABS_DB = 400.0
+
+    def __init__(self, folder: str | Path | None) -> None:
+        # absolute: a copy in a Ray task (another working folder) reads the same cache
+        self.folder = None if folder is None else Path(folder).absolute()
+
+    def path(self, key: str) -> Path | None:
+        return None if self.folder is None else self.folder / f"{key}.npz"
+
+    def load(self, key: str, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray] | None:
+        """(mu, p_dead) as float32 if the entry passes every check of the class's docstring; else None (made again)."""
+        path = self.path(key)
+        if path is None or path.is_symlink():
+            return None
+        try:
+            data = read_small_file(path, "a predicted-maps cache entry", max_bytes=limits().prediction_bytes)
+        except InputError:  # missing, a link, a FIFO, a folder, too large
+            return None
+        try:
+            with np.load(io.BytesIO(data), allow_pickle=False) as z:
+                if int(sum(z.zip.getinfo(n).file_size for n in z.zip.namelist())) > 2 * 4 * (shape[0] * shape[1] + 64):
+                    return None  # inflates beyond two float16 arrays of this shape: not ours
+                mu, p_dead, meta = z["mu"], z["p_dead"], bytes(z["meta"])
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+            return None  # a damaged or older cache file is made again
+        if mu.shape != shape or p_dead.shape != shape or mu.dtype != np.float16 or p_dead.dtype != np.float16:
+            return None
+        if meta != _entry_meta(key, mu, p_dead):
+            return None
+        mu, p_dead = mu.astype(np.float32), p_dead.astype(np.float32)
+        if not (np.isfinite(mu).all() and np.isfinite(p_dead).all()):
+            return None
+        if (np.abs(mu) > self.MAX_ABS_DB).any() or (p_dead < 0).any() or (p_dead > 1).any():
+            return None
+        return mu, p_dead
+
+    def save(self, key: str, mu: np.ndarray, p_dead: np.ndarray) -> None:
+        """Keep ``mu`` and ``p_dead`` [C, M] as float16 with their key and sha256 (atomically; a cache that can't be
+        written, or whose entry's path is not a regular file, is skipped)."""
+        path = self.path(key)
+        if path is None:
+            return
+        mu16, p16 = mu.astype(np.float16), p_dead.astype(np.float16)
+        buf = io.BytesIO()
+        np.savez(buf, mu=mu16, p_dead=p16, meta=np.frombuffer(_entry_meta(key, mu16, p16), np.uint8))
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            atomic_write_bytes(path, buf.getvalue())
+        except (InputError, OSError):
+            pass
+
+
+def _entry_meta(key: str, mu: np.ndarray, p_dead: np.ndarray) -> bytes:
+    """What a cache entry records of itself: its key and the sha256 of its two float16 arrays."""
+    digest = hashlib.sha256(np.ascontiguousarray(mu).tobytes() + np.ascontiguousarray(p_dead).tobytes()).hexdigest()
+    return f"{key}:{digest}".encode()
+
+
+class BeliefModel:
+    """The searcher's belief arithmetic over the candidate cells of a canvas: the predicted maps of every candidate
+    (``canvas_maps``, cached on disk by ``PredictionCache``), the likelihood of a measurement (``update``), the
+    probability that a cell reaches P_T (``cover``) and the information a measurement gives (``information``). No
+    planning: ``rl.searcher.MapSearchPolicy`` plans on it, ``BeliefTracker`` paints it for the hybrid's observation."""
+
+    def __init__(
+        self, predictor: Predictor | PhysicsConstants, config: SearchConfig | None = None, cache: PredictionCache | None = None
+    ) -> None:
+        self.predictor = PhysicsPredictor(predictor) if isinstance(predictor, PhysicsConstants) else predictor
+        self.config = config or SearchConfig()
+        self.cache = cache or PredictionCache(None)
+        self._canvases: dict[tuple, CandidateMaps] = {}
+        #: Told ``(candidates done, candidates)`` as a canvas's maps are predicted (a report's progress), or None.
+        self.on_predict: Callable[[int, int], None] | None = None
+
+    def __getstate__(self) -> dict:
+        """What a copy in another process (a Ray task) takes: the predictor, the settings and the cache's folder,
+        not the maps held in memory (read again from the cache there) nor the progress callback."""
+        state = self.__dict__.copy()
+        state.update(_canvases={}, on_predict=None)
+        return state
+
+    # -- predictions -----------------------------------------------------------------------------
+    def canvas_maps(self, public: PublicMaps, canvas: int) -> CandidateMaps:
+        settings = public.settings[public.bundle_of(canvas)]
+        key = (settings["version"], public.symmetry_of(canvas), public.config.p_t_db)
+        if key in self._canvases:
+            return self._canvases[key]
+        cfg, k = self.config, public.symmetry_of(canvas)
+        heights = public.map_heights(canvas)
+        if not cfg.buildings:
+            heights = np.full_like(heights, -settings["altitude_m"])
+        scene = Scene.from_settings(settings, heights)
+        cells = candidate_cells(scene.ground_height_m, cfg.stride, cfg.buildings)
+        legal_map = public.legal(canvas)
+        legal = np.argwhere(legal_map)
+        check_limit("prediction_bytes", 12 * len(cells) * len(legal), settings["city"],
+                    f"predicted maps of {len(cells)} candidates x {len(legal)} cells (a larger stride has fewer)")  # fmt: skip
+        index = np.full(legal_map.shape, -1, np.int64)
+        index[legal[:, 0], legal[:, 1]] = np.arange(len(legal))
+        cache_key = "-".join(
+            [settings["version"], f"k{k}", f"s{cfg.stride}", "b" if cfg.buildings else "open", self.predictor.version()]
+        )
+        hit = self.cache.load(cache_key, (len(cells), len(legal)))
+        if hit is None:
+            mu, p_dead = self.predict_all(scene, cells, legal)
+            self.cache.save(cache_key, mu, p_dead)
+            hit = tuple(a.astype(np.float16).astype(np.float32) for a in (mu, p_dead))  # as stored: cold = warm
+        mu, p_dead = hit
+        out = self._canvases[key] = CandidateMaps(cells, legal, index, mu, p_dead, self.cover(mu, p_dead, public.config.p_t_db))
+        return out
+
+    def predict_all(self, scene: Scene, cells: np.ndarray, legal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The predictor's maps of every candidate, in chunks of ``PREDICT_CHUNK`` (a multiple of the learned tier's
+        batch, so the same batches and the same numbers as in one call), telling ``on_predict(done, total)`` after each:
+        the minutes of a city's first predictions are shown as they pass, never a silent wait."""
+        mu = np.empty((len(cells), len(legal)), np.float32)
+        p_dead = np.empty_like(mu)
+        for i in range(0, len(cells), PREDICT_CHUNK):
+            mu[i : i + PREDICT_CHUNK], p_dead[i : i + PREDICT_CHUNK] = self.predictor.predict(
+                scene, cells[i : i + PREDICT_CHUNK], legal
+            )
+            if self.on_predict is not None:
+                self.on_predict(min(i + PREDICT_CHUNK, len(cells)), len(cells))
+        return mu, p_dead
+
+    @property
+    def sigma(self) -> float:
+        """The likelihood's spread [dB]: the predictor's measured error, at least ``min_sigma_db``."""
+        return max(self.predictor.error_db, self.config.min_sigma_db)
+
+    def cover(self, mu: np.ndarray, p_dead: np.ndarray, p_t_db: float) -> np.ndarray:
+        """The probability that a predicted map ``mu`` [dB] with dead-cell probability ``p_dead`` reaches ``p_t_db``."""
+        return ((1 - p_dead) * ndtr((mu - p_t_db) / self.sigma)).astype(np.float32)
+
+    def bin_edges(self, floor_db: float, p_t_db: float) -> np.ndarray:
+        """The upper edges of the SINR bins a measurement falls in (``outcome_probabilities``), ``info_bin_db`` apart,
+        one of them at P_T, over ``OUTLIER_SPAN_DB`` above the floor."""
+        w = self.config.info_bin_db
+        k = np.arange(math.floor((floor_db - p_t_db) / w) + 1, math.ceil((floor_db + OUTLIER_SPAN_DB - p_t_db) / w))
+        return p_t_db + w * k
+
+    def outcome_probabilities(self, maps: CandidateMaps, columns: np.ndarray, floor_db: float, p_t_db: float) -> np.ndarray:
+        """``[C, K, J]`` the probability that a measurement at legal cells ``columns`` [K] falls in each of ``J`` SINR
+        bins for a user at each candidate, by the likelihood ``update`` uses: bin 0 at or below the floor (censored),
+        then the bins between ``bin_edges``, the last open above; the flat share ``outlier`` spread evenly."""
+        cfg = self.config
+        mu = maps.mu[:, columns].astype(np.float64)[:, :, None]
+        p_dead = maps.p_dead[:, columns].astype(np.float64)[:, :, None]
+        edges = self.bin_edges(floor_db, p_t_db)
+        cdf = ndtr((np.concatenate([[floor_db], edges]) - mu) / self.sigma)  # [C, K, J]
+        live = np.diff(np.concatenate([cdf, np.ones_like(cdf[..., :1])], axis=-1), axis=-1)
+        probs = np.concatenate([p_dead + (1 - p_dead) * cdf[..., :1], (1 - p_dead) * live], axis=-1)
+        return (1 - cfg.outlier) * probs + cfg.outlier / probs.shape[-1]
+
+    def information(
+        self, maps: CandidateMaps, log_b: np.ndarray, columns: np.ndarray, floor_db: float, p_t_db: float
+    ) -> np.ndarray:
+        """``[K]`` the mutual information [bits] between the user's candidate cell, under belief ``log_b`` [C], and a
+        measurement at each of legal cells ``columns`` [K]: H(mixture of the outcomes) - E_b[H(outcomes)]
+        (``outcome_probabilities``; candidates of belief under 1e-6 of the largest are left out)."""
+        b = np.exp(log_b - log_b.max())
+        keep = b > 1e-6
+        b = b[keep] / b[keep].sum()
+        probs = self.outcome_probabilities(rows_of(maps, keep), columns, floor_db, p_t_db)  # [C', K, J]
+
+        def entropy(p: np.ndarray) -> np.ndarray:
+            return -(p * np.log2(np.maximum(p, 1e-300))).sum(axis=-1)
+
+        mixture = np.einsum("c,ckj->kj", b, probs)
+        return np.maximum(entropy(mixture) - b @ entropy(probs), 0.0)
+
+    def update(self, maps: CandidateMaps, log_b: np.ndarray, column: int, measured: float, floor_db: float) -> np.ndarray:
+        """``log_b`` [C] after measuring ``measured`` [dB] at legal cell ``column`` (the module's likelihood)."""
+        mu, p_dead = maps.mu[:, column], maps.p_dead[:, column]
+        sigma = self.sigma
+        eps = self.config.outlier
+        if measured <= floor_db + 1e-3:  # censored: the probability of a value at or below the floor
+            like = (1 - eps) * (p_dead + (1 - p_dead) * ndtr((floor_db - mu) / sigma)) + eps
+        else:  # a density over dB; the flat part spreads its share over OUTLIER_SPAN_DB
+            z = (measured - mu) / sigma
+            like = (1 - eps) * (1 - p_dead) * np.exp(-0.5 * z * z) / (sigma * math.sqrt(2 * math.pi)) + eps / OUTLIER_SPAN_DB
+        out = log_b + self.config.temper * np.log(like + 1e-30)
+        return out - out.max()
+
+
+def load_predictor(path: str | Path = DEFAULT_PREDICTOR) -> Predictor:
+    """The predictor at ``path``: a folder is a learned tier (``rl.learned.load_learned``), a file the physics tier's
+    constants (``load_constants``); ``InputError`` saying where the shipped ones live when there is none."""
+    if Path(path).is_dir():
+        from uavplace.rl.learned import load_learned
+
+        return load_learned(path)
+    if not Path(path).exists() and not Path(path).is_symlink():
+        raise InputError(
+            path,
+            f"no predictor here: give a learned tier's folder or a physics tier's constants (the "
+            f"shipped ones are {DEFAULT_PREDICTOR} and {DEFAULT_CONSTANTS})",
+        )
+    return PhysicsPredictor(load_constants(path))
+
+
+def load_constants(path: str | Path = DEFAULT_CONSTANTS) -> PhysicsConstants:
+    """The predictor's constants from their JSON file (``InputError`` naming it when unreadable or invalid)."""
+    return read_model_json(path, PhysicsConstants, "a predictor's constants (`uavrl fit-predictor` writes them)")
+
+
+class BeliefTracker:
+    """The searcher's belief for every row of a ``BatchedEnv``, as an observation channel (``EnvConfig.belief_channel``):
+    the hybrid of docs/searcher.md, a learner that reads where the belief says P_T is likely.
+
+    Per row, ``log_b`` [N, C_max] the log-belief over the candidate cells of its city (the searcher's ``update`` after
+    every measurement, the start's included; -inf past the city's candidates) and ``cover`` [N, L, L] the posterior
+    probability [%] that each legal canvas cell reaches P_T (0 on blocked cells and beyond the map). A canvas under
+    symmetry ``k`` reads its city's predictions at ``k = 0`` through the turned column map (``candidates``): the
+    predicted maps of the unturned city, turned, never predicted again. It is told only what the UAV measures
+    (``start``, ``measure``): the users' maps stay in the env. With ``MapSet.buildings_shown`` False (after
+    ``show_buildings(None)``) the predictor is shown open ground, as in the searcher's ablation.
+    """
+
+    def __init__(self, maps: MapSet, num_envs: int, predictor: Predictor, config: SearchConfig, cache: PredictionCache) -> None:
+        self.maps = maps
+        self.public = PublicMaps.of(maps)
+        self.models = {b: BeliefModel(predictor, config.model_copy(update={"buildings": b}), cache) for b in (True, False)}
+        self._columns: dict[tuple[int, bool], np.ndarray] = {}
+        S = self.public.symmetries
+        width = max(len(self.candidates(S * i)[0].cells) for i in range(len(maps.bundles)))
+        self.log_b = np.full((num_envs, width), -np.inf, np.float32)
+        self.canvas = np.zeros(num_envs, np.int64)
+        self.cover = np.zeros((num_envs, maps.side, maps.side), np.float32)
+
+    def candidates(self, canvas: int) -> tuple[CandidateMaps, np.ndarray]:
+        """The predictions of ``canvas``'s city (at symmetry 0, with or without its buildings as the maps show them)
+        and ``[num_y, num_x]`` the column of each cell of the canvas's (turned) map in them (-1 where the UAV may not
+        go)."""
+        public, shown = self.public, self.maps.buildings_shown
+        if not isinstance(shown, bool):
+            raise ValueError(f"the belief channel predicts with the city's buildings or none, not with {shown}'s")
+        k = public.symmetry_of(canvas)
+        cm = self.models[shown].canvas_maps(public, canvas - k)
+        if (canvas, shown) not in self._columns:
+            self._columns[canvas, shown] = np.ascontiguousarray(transform(cm.index, k))
+        return cm, self._columns[canvas, shown]
+
+    def start(self, rows: np.ndarray, canvases: np.ndarray, y: np.ndarray, x: np.ndarray, first: np.ndarray) -> None:
+        """Rows ``rows`` begin over ``canvases``, measuring ``first`` at map cells ``(y, x)``: a uniform belief
+        updated by that measurement."""
+        self.canvas[rows] = canvases
+        self.log_b[rows] = -np.inf
+        for r, c in zip(rows, canvases, strict=True):
+            self.log_b[r, : len(self.candidates(int(c))[0].cells)] = 0.0
+        self.measure(rows, y, x, first)
+
+    def measure(self, rows: np.ndarray, y: np.ndarray, x: np.ndarray, values: np.ndarray) -> None:
+        """Rows ``rows`` measured ``values`` [dB] at map cells ``(y, x)``: their beliefs, then their cover canvases."""
+        public, model = self.public, self.models[self.maps.buildings_shown]
+        for r, yy, xx, v in zip(rows, y, x, values, strict=True):
+            c = int(self.canvas[r])
+            cm, columns = self.candidates(c)
+            floor_db = float(public.settings[public.bundle_of(c)]["floor_db"])
+            n = len(cm.cells)
+            self.log_b[r, :n] = model.update(cm, self.log_b[r, :n], int(columns[yy, xx]), float(v), floor_db)
+        self.paint(rows)
+
+    def paint(self, rows: np.ndarray) -> None:
+        """The cover canvases of rows ``rows`` from their beliefs: a canvas's rows in one matrix product."""
+        groups: dict[int, list[int]] = {}
+        for r in rows:
+            groups.setdefault(int(self.canvas[r]), []).append(int(r))
+        p = self.public.pad
+        for c, members in groups.items():
+            cm, columns = self.candidates(c)
+            scores = np.zeros((len(members), cm.cover.shape[1] + 1), np.float32)  # the last column: -1's zero
+            scores[:, :-1] = posterior_cover(self.log_b[members, : len(cm.cells)], cm.cover) * np.float32(100.0)
+            ny, nx = columns.shape
+            self.cover[members] = 0.0  # a turned map of another shape may have painted beyond this one
+            self.cover[members, p : p + ny, p : p + nx] = scores[:, columns]
