@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from uavplace.eval.config import ReportConfig
 from uavplace.infra.cluster import start_ray
 from uavplace.infra.console import (
     SEED,
@@ -24,6 +25,7 @@ from uavplace.infra.console import (
     warn_or_refuse,
 )
 from uavplace.infra.files import exclusive_folder, shipped
+from uavplace.infra.options import model_options
 from uavplace.rl.cli import episode_options
 from uavplace.schemas.base import repeated
 
@@ -53,29 +55,7 @@ from uavplace.schemas.base import repeated
     "is replaced only if it is a report (holds report.json), anything else is refused.  [default: reports/<dataset>]",
 )
 @episode_options
-@click.option(
-    "--test-epsilon",
-    type=Finite(0, 1),
-    default=0.096,
-    show_default=True,
-    help="Probability of a random legal move of the agents (paper: 0.096).",
-)
-@click.option(
-    "--bootstrap",
-    "n_boot",
-    type=Counted("bootstrap", min=100),
-    default=2000,
-    show_default=True,
-    help="Bootstrap resamples of the 95 % intervals.",
-)
-@click.option(
-    "--trajectories",
-    type=click.IntRange(0, 3),
-    default=3,
-    show_default=True,
-    help="Episodes of the first agent drawn on the maps, by rule: the success closest to its median steps, the success at "
-    "the 90th percentile of its successes, its first failure (0: no trajectory figure).",
-)
+@model_options(ReportConfig, "test_epsilon", "n_boot", "trajectories", names={"n_boot": "--bootstrap"})
 @click.option(
     "--group",
     "groups",
@@ -188,7 +168,7 @@ def report(
                                "report each version with its own --out")  # fmt: skip
     for dataset in datasets:  # a mistyped city is named, with the nearest ones, before anything heavy is loaded
         resolve(dataset, root=root)
-    from uavplace.eval.evaluate import ReportConfig, check_unseen_runs, default_agents
+    from uavplace.eval.evaluate import check_unseen_runs, default_agents
     from uavplace.eval.render import check_summary_page, summary_rows, write_summary_page
     from uavplace.infra.files import check_replaceable_file
     from uavplace.infra.limits import check_limit

@@ -10,10 +10,10 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from pydantic import Field
 
 from uavplace.dataset.bundle import Bundle, load_bundle, read_manifest, resolve
 from uavplace.dataset.difficulty import valid_starts
+from uavplace.eval.config import ReportConfig
 from uavplace.eval.metrics import bootstrap_table, difference_table
 from uavplace.infra.files import shipped
 from uavplace.rl.agent.checkpoint import load_tensors
@@ -26,17 +26,15 @@ from uavplace.rl.agent.train import (
     settings_unlike,
     training_users,
 )
-from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
-from uavplace.rl.config import EnvConfig, SearchConfig
+from uavplace.rl.belief import PREDICTIONS, PredictionCache, load_predictor
+from uavplace.rl.config import EnvConfig
 from uavplace.rl.maps import MapSet
 from uavplace.rl.policies import GeniePolicy, GreedyPolicy, Policy, RandomWalkPolicy
 from uavplace.rl.rollout import run_episodes
 from uavplace.rl.searcher import SEARCHER, MapSearchPolicy
 from uavplace.rl.view import PublicMaps
 from uavplace.schemas import InputError
-from uavplace.schemas.base import MAX_SEED, Contract
 from uavplace.schemas.bundle import BundleManifest
-from uavplace.schemas.constants import P_T_DB
 
 #: The paper's test-city results (docs/method.md, "The paper's results"): success within t_max = 500, median steps.
 PAPER = {
@@ -47,42 +45,6 @@ PAPER = {
 
 
 BASELINES = (GeniePolicy.name, RandomWalkPolicy.name, GreedyPolicy.name)
-
-
-class ReportConfig(Contract):
-    """How a report was made (saved in ``report.json``)."""
-
-    dataset: str = Field(description="Test city (a built dataset, optionally city@version)")
-    runs: list[str] = Field(default_factory=list, description="Agent folders (run folders or shipped agents)")
-    episodes: int = Field(default=1000, ge=1, description="Episodes, the same for every method")
-    t_max: int = Field(default=500, ge=1, description="Step budget per episode (paper: 500 at test)")
-    p_t_db: float = Field(default=P_T_DB, description="SINR target P_T [dB]")
-    test_epsilon: float = Field(default=0.096, ge=0, le=1, description="Random legal move rate of the agents (paper: 0.096)")
-    seed: int = Field(
-        default=0, ge=0, le=MAX_SEED, description="Seed of the episodes, the agents' random moves and the baselines"
-    )
-    n_boot: int = Field(default=2000, ge=100, description="Bootstrap resamples for the 95 % intervals")
-    trajectories: int = Field(
-        default=3, ge=0, le=3, description="Episodes drawn for the first agent, by TRAJECTORY_RULES in order (0: none)"
-    )
-    split: str | None = Field(default=None, description="Users of this split only (None: all users of the city)")
-    groups: dict[str, list[str]] = Field(
-        default_factory=dict,
-        description="Methods made of several runs (a preset's seeds): name -> run folders, each also one of ``runs``",
-    )
-    predictor: str | None = Field(
-        default=str(DEFAULT_PREDICTOR),
-        description="The map searcher's predictor: the physics tier's constants (a JSON file) or a learned tier (a folder; rl.belief.load_predictor); None: no searcher is played",
-    )
-    search: SearchConfig = Field(default_factory=SearchConfig, description="The map searcher's settings")
-    ablate: bool = Field(
-        default=True,
-        description="Also play every agent that reads the building map with the map blanked (MapSet.show_buildings(None): "
-        "what it sees, not where it may fly), as '<agent>, no buildings', paired on the same episodes",
-    )
-    prediction_cache: str | None = Field(
-        default=None, description="Folder of the searcher's predicted maps (None: .predictions beside the bundles)"
-    )
 
 
 @dataclass

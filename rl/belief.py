@@ -35,18 +35,14 @@ from pathlib import Path
 import numpy as np
 from scipy.special import ndtr
 
-from uavplace.infra.files import atomic_write_bytes, read_model_json, read_small_file, shipped
+from uavplace.infra.files import atomic_write_bytes, read_model_json, read_small_file
 from uavplace.infra.limits import check_limit, limits
-from uavplace.rl.config import SearchConfig
+from uavplace.rl.config import DEFAULT_CONSTANTS, DEFAULT_PREDICTOR, SearchConfig
 from uavplace.rl.maps import MapSet, transform
 from uavplace.rl.predictor import PhysicsConstants, PhysicsPredictor, Predictor, Scene
 from uavplace.rl.view import PublicMaps
 from uavplace.schemas import InputError
 
-#: Where the shipped physics tier's constants live (in the project, wherever a command runs).
-DEFAULT_CONSTANTS = shipped("data/agents/searcher/predictor.json")
-#: The shipped predictor the searcher uses: the learned tier (chosen on the validation cities, docs/searcher.md).
-DEFAULT_PREDICTOR = shipped("data/agents/searcher/unet")
 #: Candidates predicted at once between two progress reports (a multiple of the learned tier's batch of 16).
 PREDICT_CHUNK = 128
 #: The span of SINR [dB] over which the likelihood's flat share is spread.

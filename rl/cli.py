@@ -9,10 +9,11 @@ import click
 
 from uavplace.dataset.bundle import list_versions, read_latest
 from uavplace.dataset.catalog import list_cities
-from uavplace.infra.console import SEED, Counted, Finite, LogLines, fail, plain_table, root_option, stdout, warn_or_refuse
+from uavplace.infra.console import SEED, Counted, LogLines, fail, plain_table, root_option, stdout, warn_or_refuse
 from uavplace.infra.files import shipped
+from uavplace.infra.options import model_options
+from uavplace.rl.config import EpisodeSettings
 from uavplace.rl.rollout import STATS, format_stat, summarise
-from uavplace.schemas.constants import P_T_DB
 
 
 @click.command()
@@ -42,18 +43,8 @@ def datasets(root: Path) -> None:
         out.print(f"ingested but not built (run `uavdata build`): {', '.join(unbuilt)}")
 
 
-def episode_options(command):
-    """The evaluation protocol's options, shared by ``baselines`` and ``report``."""
-    options = (
-        click.option("--episodes", type=Counted("episodes"), default=1000, show_default=True, help="Episodes, the same for every method."),
-        click.option("--t-max", type=Counted("t_max"), default=500, show_default=True, help="Step budget per episode (paper: 500 at test)."),
-        click.option("--p-t-db", type=Finite(-100, 100), default=P_T_DB, show_default=True, help="SINR target P_T [dB]."),
-        click.option("--split", type=click.Choice(["train", "val", "test"]), default=None, help="Users of this split only (default: all)."),
-        click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the episodes and of every random move."),
-    )  # fmt: skip
-    for option in reversed(options):
-        command = option(command)
-    return command
+#: The evaluation protocol's options, shared by ``baselines`` and ``report``: ``EpisodeSettings``'s fields.
+episode_options = model_options(EpisodeSettings, "episodes", "t_max", "p_t_db", "split", "seed")
 
 
 @click.command()

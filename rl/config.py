@@ -6,10 +6,16 @@ from typing import Literal
 
 from pydantic import ConfigDict, Field, field_validator
 
-from uavplace.schemas.base import Contract
+from uavplace.infra.files import shipped
+from uavplace.schemas.base import MAX_SEED, Contract
 from uavplace.schemas.constants import P_T_DB
 
 Split = Literal["train", "val", "test"]
+
+#: Where the shipped physics tier's constants live (in the project, wherever a command runs).
+DEFAULT_CONSTANTS = shipped("data/agents/searcher/predictor.json")
+#: The shipped predictor the searcher uses: the learned tier (chosen on the validation cities, docs/searcher.md).
+DEFAULT_PREDICTOR = shipped("data/agents/searcher/unet")
 
 
 class EnvConfig(Contract):
@@ -173,3 +179,20 @@ class SearchConfig(Contract):
     info_weight: float = Field(default=0.1, ge=0, description="info: the worth of one bit, in probability of reaching P_T")
     info_radius: int = Field(default=3, ge=1, le=32, description="info: cells within this many moves get the term")
     info_bin_db: float = Field(default=4.0, gt=0, le=40, description="info: width of the SINR bins a measurement falls in")
+
+
+class EpisodeSettings(Contract):
+    """The evaluation protocol: which episodes every method plays (``uavrl baselines``, ``uavrl report``; their
+    options derive from these fields, ``infra.options``)."""
+
+    model_config = ConfigDict(allow_inf_nan=False)
+
+    episodes: int = Field(
+        default=1000, ge=1, description="Episodes, the same for every method.", json_schema_extra={"limit": "episodes"}
+    )
+    t_max: int = Field(
+        default=500, ge=1, description="Step budget per episode (paper: 500 at test).", json_schema_extra={"limit": "t_max"}
+    )
+    p_t_db: float = Field(default=P_T_DB, ge=-100, le=100, description="SINR target P_T [dB].")
+    split: Split | None = Field(default=None, description="Users of this split only (default: all).")
+    seed: int = Field(default=0, ge=0, le=MAX_SEED, description="Seed of the episodes and of every random move.")

@@ -159,3 +159,16 @@ def test_the_citation_file_cites_the_project_and_the_paper():
     (paper,) = doc["references"]
     assert paper["year"] == 2019 and [a["family-names"] for a in paper["authors"]] == ["Krijestorac", "Hanna", "Cabric"]
     assert paper["title"] in " ".join((REPO / "docs" / "method.md").read_text(encoding="utf-8").split())
+
+
+def test_the_readme_is_short_and_the_changelog_one_line_a_change():
+    """The README reads in five minutes (at most 300 lines); the CHANGELOG's releases hold only the headings Added,
+    Changed and Fixed, each change one line of at most 160 characters (its numbers linked, not restated)."""
+    assert len((REPO / "README.md").read_text(encoding="utf-8").splitlines()) <= 300
+    lines = (REPO / "CHANGELOG.md").read_text(encoding="utf-8").splitlines()
+    first = next(n for n, line in enumerate(lines) if line.startswith("## "))
+    for n, line in enumerate(lines[first:], first + 1):
+        if line.startswith("### "):
+            assert line in ("### Added", "### Changed", "### Fixed"), f"CHANGELOG.md:{n}: {line}"
+        elif line.strip() and not line.startswith("## "):
+            assert line.startswith("- ") and len(line) <= 160, f"CHANGELOG.md:{n} is not one line of a change"

@@ -174,7 +174,12 @@ def test_pettingzoo_env_refuses_what_is_not_in_its_spaces(tiny):
     pytest.importorskip("pettingzoo", reason="PettingZoo missing (pip install -e '.[zoo]')")
     from uavplace.rl.zoo import parallel_env
 
-    for bad, field in (({"uavs": 99}, "uavs"), ({"uavs": 0}, "uavs"), ({"users": 0}, "users"), ({"no_such_field": 1}, "no_such_field")):
+    for bad, field in (
+        ({"uavs": 99}, "uavs"),
+        ({"uavs": 0}, "uavs"),
+        ({"users": 0}, "users"),
+        ({"no_such_field": 1}, "no_such_field"),
+    ):
         with pytest.raises(ValueError, match=rf"^FleetConfig\.{field}: "):  # one line naming the field
             parallel_env("tiny", root=str(tiny), **bad)
     env = parallel_env("tiny", root=str(tiny), uavs=2, users=2, window=9, t_max=3)

@@ -134,3 +134,14 @@ def test_p_t_and_the_target_rule_have_one_home_each():
 
     assert EnvConfig().p_t_db == P_T_DB == 5.0
     assert reaches_target([4.99, 5.0, 6.0], 5.0, dead=[False, False, True]).tolist() == [False, True, False]
+
+
+def test_the_env_and_the_belief_import_no_policy():
+    """The placement env, its maps and views, the belief (``rl.belief``: the searcher's predicted maps, their cache
+    and arithmetic) and the settings import no policy: the env's belief channel reads ``rl.belief``, never the
+    searcher; the policies sit above them."""
+    graph = _imports()
+    below = ["uavplace.rl." + m for m in ("env", "vec_env", "maps", "view", "belief", "config", "randomness", "predictor")]
+    policies = {"uavplace.rl." + m for m in ("searcher", "tracksearch", "policies")}
+    found = {m: sorted(i for i in graph[m] if i in policies or i.startswith("uavplace.rl.agent")) for m in below}
+    assert not any(found.values()), found

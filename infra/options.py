@@ -1,0 +1,102 @@
+"""Command-line options derived from a pydantic model: a setting is declared once, as a field, and its option follows.
+
+``model_options(Model, "episodes", "t_max", ...)`` is a click decorator adding one option a field: ``--t-max`` for
+``t_max`` (or the name ``names`` gives), its type from the annotation (an integer, a finite number, a choice of a
+``Literal``, a flag of a ``bool``, a path, a repeatable option of a tuple or list of strings), its bounds from the
+field's ``ge``/``gt``/``le``/``lt``, its default from the field's default (shown), its help from the description.
+A field may say more in ``json_schema_extra``: ``{"limit": "episodes"}`` bounds an integer by that resource limit
+too (``infra.console.Counted``). The command then builds its model from the options' values (``Model(**values)``), so
+a bound, a default or a help text is written once, in the model.
+"""
+
+from __future__ import annotations
+
+import types
+import typing
+from collections.abc import Callable
+from pathlib import Path
+
+import click
+from pydantic import BaseModel
+from pydantic.fields import FieldInfo
+
+from uavplace.infra.console import Counted, Finite
+
+
+def _bounds(info: FieldInfo) -> dict[str, float]:
+    """The field's bounds (pydantic's ``ge``, ``gt``, ``le``, ``lt`` constraints) as keyword arguments of click's
+    ranges: ``min``/``max``, open where strict."""
+    out: dict[str, float] = {}
+    for m in info.metadata:
+        for name, key, strict in (("ge", "min", False), ("gt", "min", True), ("le", "max", False), ("lt", "max", True)):
+            value = getattr(m, name, None)
+            if value is not None:
+                out[key] = value
+                if strict:
+                    out[f"{key}_open"] = True
+    return out
+
+
+def _plain(annotation: object) -> tuple[object, bool]:
+    """(the annotation without ``None``, whether ``None`` is allowed)."""
+    args = typing.get_args(annotation)
+    if typing.get_origin(annotation) in (typing.Union, types.UnionType) and type(None) in args:
+        rest = [a for a in args if a is not type(None)]
+        return (rest[0] if len(rest) == 1 else typing.Union[tuple(rest)]), True  # noqa: UP007 - built from a tuple
+    return annotation, False
+
+
+def option_kwargs(model: type[BaseModel], field: str) -> dict:
+    """click.option's keyword arguments for ``model``'s ``field`` (see the module's docstring)."""
+    info = model.model_fields[field]
+    annotation, _ = _plain(info.annotation)
+    extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
+    default = info.get_default(call_default_factory=True)
+    kwargs: dict = {"help": info.description or "", "default": default, "show_default": default is not None}
+    origin = typing.get_origin(annotation)
+    bounds = _bounds(info)
+    if annotation is bool:
+        kwargs.update(is_flag=True, show_default=False)
+    elif annotation is int:
+        if "limit" in extra:
+            kwargs["type"] = Counted(str(extra["limit"]), min=int(bounds.get("min", 1)))
+        else:
+            kwargs["type"] = click.IntRange(**{k: int(v) if k in ("min", "max") else v for k, v in bounds.items()})
+    elif annotation is float:
+        kwargs["type"] = Finite(**bounds)
+    elif origin is typing.Literal:
+        kwargs["type"] = click.Choice([str(v) for v in typing.get_args(annotation)])
+    elif annotation is Path:
+        kwargs["type"] = click.Path(path_type=Path)
+    elif origin in (tuple, list) and typing.get_args(annotation)[0] is str:
+        kwargs.update(multiple=True, default=tuple(default or ()), show_default=False)
+    elif annotation is not str:
+        raise TypeError(f"{model.__name__}.{field}: no option type for {annotation!r}: give one (types=)")
+    return kwargs
+
+
+class FieldOption(click.Option):
+    """An option derived from a model's field (``model_options``): ``field`` names its origin, ``Model.field``."""
+
+    def __init__(self, *args, field: str = "", **kwargs) -> None:  # noqa: ANN002, ANN003 - click.Option's
+        super().__init__(*args, **kwargs)
+        self.field = field
+
+
+def model_options(
+    model: type[BaseModel], *fields: str, names: dict[str, str] | None = None, **overrides: dict
+) -> Callable[[Callable], Callable]:
+    """A click decorator: an option for each of ``model``'s ``fields`` (all of them by default), in that order in
+    ``--help``; ``names`` maps a field to its option's name where it is not ``--field-name``; ``overrides`` maps a
+    field to click.option keyword arguments that replace the derived ones (a type the annotation does not say)."""
+    chosen = fields or tuple(model.model_fields)
+    names = names or {}
+
+    def decorate(command: Callable) -> Callable:
+        for field in reversed(chosen):
+            flag = names.get(field, "--" + field.replace("_", "-"))
+            kwargs = option_kwargs(model, field) | overrides.get(field, {})
+            command = click.option(flag, field, cls=FieldOption, field=f"{model.__name__}.{field}", **kwargs)(command)
+        return command
+
+    return decorate
