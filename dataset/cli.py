@@ -13,9 +13,7 @@ from rich.markup import escape
 
 from uavplace.dataset.catalog import ROLES_FILE, list_cities, nearest_names
 from uavplace.infra.console import (
-    SEED,
     Bounds,
-    Finite,
     Metres,
     command_line,
     console,
@@ -26,10 +24,10 @@ from uavplace.infra.console import (
     stdout,
 )
 from uavplace.infra.files import check_name
+from uavplace.infra.options import model_options
 from uavplace.schemas import InputError
 from uavplace.schemas.base import validation_message
-from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM, BuildConfig
-from uavplace.schemas.constants import P_T_DB
+from uavplace.schemas.bundle import BuildConfig
 
 
 def _splits(values: tuple[str, ...]) -> dict[str, str | None]:
@@ -85,63 +83,11 @@ def _latest_role(city: str, root: Path) -> str | None:
     help="Grid spacing of the maps (e.g. 4m)  [default: each city's receiver-grid spacing from its .txrx; a city "
     "of point receivers, or of grids of several spacings, needs it given].",
 )
-@click.option(
-    "--alt",
-    "altitude_m",
-    type=Metres(),
-    default="10m",
-    show_default=True,
-    help="UAV altitude above ground; the receivers at this height (terrain taken into account) make the SINR maps.",
-)
-@click.option(
-    "--alt-tol",
-    "altitude_tol_m",
-    type=Metres(),
-    default="0.5m",
-    show_default=True,
-    help="Receivers within this distance of the altitude are used.",
-)
+@model_options(BuildConfig, "altitude_m", "altitude_tol_m", names={"altitude_m": "--alt", "altitude_tol_m": "--alt-tol"})
 @click.option("--city", "cities", multiple=True, help="Build only this ingested city (repeatable; default: all).")
-@click.option(
-    "--noise-dbm",
-    type=Finite(),
-    default=EMBEDDED_NOISE_DBM,
-    show_default=True,
-    help="Noise plus background interference power [dBm]. The default is the level the embedded cities are "
-    "calibrated at and the shipped agents were trained at (EMBEDDED_NOISE_DBM in schemas/bundle.py; docs/data.md); "
-    "the paper's combined level is -104 dBm. Agents played on bundles of another level are warned about "
-    "(`uavrl report --strict` refuses them).",
+@model_options(
+    BuildConfig, "noise_dbm", "interference_std_db", "tx_dbm", "sinr_floor_db", "bounds", "crop", bounds={"type": Bounds()}
 )
-@click.option(
-    "--interference-std-db",
-    type=Finite(),
-    default=0.0,
-    show_default=True,
-    help="Std [dB] of a Gaussian per-cell offset of the noise+interference level (0: none).",
-)
-@click.option(
-    "--tx-dbm",
-    type=Finite(),
-    default=None,
-    help="User transmit power [dBm]: needed when the export has path loss/gain and no power; "
-    "else it overrides the export's (received power shifts with it).",
-)
-@click.option(
-    "--sinr-floor-db",
-    type=Finite(),
-    default=-40.0,
-    show_default=True,
-    help="SINR given to dead cells (no ray-traced path) and lowest SINR reported anywhere [dB].",
-)
-@click.option(
-    "--bounds",
-    type=Bounds(),
-    default="auto",
-    show_default=True,
-    help="Grid extent: auto (the receiver grid; receivers and buildings when the receivers are points), "
-    "receivers, buildings (buildings and receivers), or XMIN,YMIN,XMAX,YMAX [m].",
-)
-@click.option("--crop", is_flag=True, help="Drop buildings wholly outside the grid (counted in the manifest) instead of failing.")
 @click.option(
     "--crop-city",
     "crop_cities",
@@ -176,14 +122,7 @@ def _latest_role(city: str, root: Path) -> str | None:
     help="Users of each train city held out for validation (seeded)  [default: the roles file's val_users for the "
     "train cities it lists, else 0].",
 )
-@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the interference draw and of the user split.")
-@click.option(
-    "--p-t-db",
-    type=Finite(),
-    default=P_T_DB,
-    show_default=True,
-    help="SINR target the manifest's difficulty figures (targets, BFS steps) are computed at [dB].",
-)
+@model_options(BuildConfig, "seed", "p_t_db")
 @click.option("--force", is_flag=True, help="Rebuild even if an identical bundle exists.")
 @root_option
 @click.option("--quiet", is_flag=True, help="Only the summary lines.")

@@ -133,10 +133,10 @@ class Finite(click.FloatRange):
     name = "number"
 
     def convert(self, value, param, ctx):  # noqa: ANN001, ANN201 - click's signature
-        number = super().convert(value, param, ctx)
-        if not math.isfinite(number):
+        number = click.FLOAT.convert(value, param, ctx)
+        if not math.isfinite(number):  # said before the range, which inf would fail for another reason
             self.fail(f"{value!r} is not a finite number", param, ctx)
-        return number
+        return super().convert(number, param, ctx)
 
     def _describe_range(self) -> str:
         """The range as ``--help`` shows it: "finite" without bounds (click would write ``x<=None``)."""

@@ -5,7 +5,8 @@
 ``Literal``, a flag of a ``bool``, a path, a repeatable option of a tuple or list of strings), its bounds from the
 field's ``ge``/``gt``/``le``/``lt``, its default from the field's default (shown), its help from the description.
 A field may say more in ``json_schema_extra``: ``{"limit": "episodes"}`` bounds an integer by that resource limit
-too (``infra.console.Counted``). The command then builds its model from the options' values (``Model(**values)``), so
+too (``infra.console.Counted``), ``{"type": "metres"}`` takes a length as ``4``, ``4m`` or ``2.5 m``. The command
+then builds its model from the options' values (``Model(**values)``), so
 a bound, a default or a help text is written once, in the model.
 """
 
@@ -20,7 +21,7 @@ import click
 from pydantic import BaseModel
 from pydantic.fields import FieldInfo
 
-from uavplace.infra.console import Counted, Finite
+from uavplace.infra.console import Counted, Finite, Metres
 
 
 def _bounds(info: FieldInfo) -> dict[str, float]:
@@ -46,8 +47,10 @@ def _plain(annotation: object) -> tuple[object, bool]:
     return annotation, False
 
 
-def option_kwargs(model: type[BaseModel], field: str) -> dict:
-    """click.option's keyword arguments for ``model``'s ``field`` (see the module's docstring)."""
+def option_kwargs(model: type[BaseModel], field: str, override: dict | None = None) -> dict:
+    """click.option's keyword arguments for ``model``'s ``field`` (see the module's docstring), ``override`` replacing
+    the derived ones (a ``type`` the annotation does not say)."""
+    override = override or {}
     info = model.model_fields[field]
     annotation, _ = _plain(info.annotation)
     extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
@@ -55,7 +58,9 @@ def option_kwargs(model: type[BaseModel], field: str) -> dict:
     kwargs: dict = {"help": info.description or "", "default": default, "show_default": default is not None}
     origin = typing.get_origin(annotation)
     bounds = _bounds(info)
-    if annotation is bool:
+    if extra.get("type") == "metres":  # a length: 4, 4m or 2.5 m; its bounds checked by the model
+        kwargs["type"] = Metres()
+    elif annotation is bool:
         kwargs.update(is_flag=True, show_default=False)
     elif annotation is int:
         if "limit" in extra:
@@ -70,9 +75,9 @@ def option_kwargs(model: type[BaseModel], field: str) -> dict:
         kwargs["type"] = click.Path(path_type=Path)
     elif origin in (tuple, list) and typing.get_args(annotation)[0] is str:
         kwargs.update(multiple=True, default=tuple(default or ()), show_default=False)
-    elif annotation is not str:
-        raise TypeError(f"{model.__name__}.{field}: no option type for {annotation!r}: give one (types=)")
-    return kwargs
+    elif annotation is not str and "type" not in override:
+        raise TypeError(f"{model.__name__}.{field}: no option type for {annotation!r}: give one ({field}={{'type': ...}})")
+    return kwargs | override
 
 
 class FieldOption(click.Option):
@@ -95,7 +100,7 @@ def model_options(
     def decorate(command: Callable) -> Callable:
         for field in reversed(chosen):
             flag = names.get(field, "--" + field.replace("_", "-"))
-            kwargs = option_kwargs(model, field) | overrides.get(field, {})
+            kwargs = option_kwargs(model, field, overrides.get(field))
             command = click.option(flag, field, cls=FieldOption, field=f"{model.__name__}.{field}", **kwargs)(command)
         return command
 

@@ -23,7 +23,7 @@ import pyarrow as pa
 from pydantic import ConfigDict, Field, field_validator, model_validator
 
 from uavplace.schemas.base import MAX_SEED, NAME_PATTERN, SCHEMA_VERSION, Contract, repeated
-from uavplace.schemas.constants import EMBEDDED_NOISE_DBM, P_T_DB
+from uavplace.schemas.constants import ALTITUDE_M, EMBEDDED_NOISE_DBM, P_T_DB
 from uavplace.schemas.tables import FREQUENCY_RANGE_HZ, POWER_RANGE_DBM, RATIO_RANGE_DB, XY_RANGE_M, Z_RANGE_M, Column, TableSpec
 
 SplitRole = Literal["train", "val", "test"]
@@ -60,9 +60,6 @@ ROUTE_ARRAYS: dict[str, tuple[str, str]] = {
     "provenance": ("uint8", "[num_route_points, num_y, num_x] where the cell's value came from (schemas/provenance.py)"),
 }
 
-#: The noise-plus-interference level [dBm] the embedded cities (data/raw/) and the shipped agents are calibrated at:
-#: where the embedded test city's genie needs the paper's 14 moves (README, experiments/calibrate_difficulty.py).
-
 
 class BuildConfig(Contract):
     """Every parameter of `uavdata build` for one city (saved in the bundle's manifest). Every number must be finite
@@ -71,39 +68,61 @@ class BuildConfig(Contract):
     model_config = ConfigDict(allow_inf_nan=False)
 
     grid_m: float = Field(gt=0, le=1000, description="Grid spacing [m]")
-    altitude_m: float = Field(ge=0, le=10_000, description="UAV altitude above ground [m]; receivers are taken at this height")
-    altitude_tol_m: float = Field(default=0.5, ge=0, le=1000, description="Receivers within this of the altitude are used [m]")
+    altitude_m: float = Field(
+        default=ALTITUDE_M,
+        ge=0,
+        le=10_000,
+        description="UAV altitude above ground; the receivers at this height (terrain taken into account) make the SINR "
+        "maps [m].",
+        json_schema_extra={"type": "metres"},
+    )
+    altitude_tol_m: float = Field(
+        default=0.5,
+        ge=0,
+        le=1000,
+        description="Receivers within this distance of the altitude are used [m].",
+        json_schema_extra={"type": "metres"},
+    )
     noise_dbm: float = Field(
         default=EMBEDDED_NOISE_DBM,
         ge=-250,
         le=100,
-        description="Noise plus background interference power [dBm] (default: the level the shipped agents were trained at)",
+        description="Noise plus background interference power [dBm]. The default is the level the embedded cities are "
+        "calibrated at and the shipped agents were trained at (EMBEDDED_NOISE_DBM in schemas/constants.py; "
+        "docs/data.md); the paper's combined level is -104 dBm. Agents played on bundles of another level are warned "
+        "about (`uavrl report --strict` refuses them).",
     )
     interference_std_db: float = Field(
-        default=0.0, ge=0, le=100, description="Std of a Gaussian per-cell offset of the noise+interference level [dB]"
+        default=0.0, ge=0, le=100, description="Std [dB] of a Gaussian per-cell offset of the noise+interference level (0: none)."
     )
-    seed: int = Field(default=0, ge=0, le=MAX_SEED, description="Seed of the interference draw and of the user split")
+    seed: int = Field(default=0, ge=0, le=MAX_SEED, description="Seed of the interference draw and of the user split.")
     sinr_floor_db: float = Field(
         default=-40.0,
         ge=-300,
         le=100,
-        description="SINR of dead cells, and the lowest SINR reported anywhere (lower values are raised to it) [dB]",
+        description="SINR given to dead cells (no ray-traced path) and lowest SINR reported anywhere [dB].",
     )
     tx_dbm: float | None = Field(
         default=None,
         ge=-100,
         le=100,
-        description="User transmit power [dBm]; overrides the export's (received power shifts with it)",
+        description="User transmit power [dBm]: needed when the export has path loss/gain and no power; else it "
+        "overrides the export's (received power shifts with it).",
     )
     bounds: BoundsMode | tuple[float, float, float, float] = Field(
         default="auto",
-        description="Grid extent: auto (receiver grids, or receivers and buildings for point receivers), "
-        "receivers, buildings (buildings and receivers), or (x_min, y_min, x_max, y_max) [m]",
+        description="Grid extent: auto (the receiver grid; receivers and buildings when the receivers are points), "
+        "receivers, buildings (buildings and receivers), or XMIN,YMIN,XMAX,YMAX [m].",
     )
-    crop: bool = Field(default=False, description="Drop buildings wholly outside the grid (counted) instead of failing")
+    crop: bool = Field(
+        default=False, description="Drop buildings wholly outside the grid (counted in the manifest) instead of failing."
+    )
     role: SplitRole | None = Field(default=None, description="The city's role in experiments, if declared")
     p_t_db: float = Field(
-        default=P_T_DB, ge=-100, le=100, description="SINR target the manifest's difficulty figures are computed at [dB]"
+        default=P_T_DB,
+        ge=-100,
+        le=100,
+        description="SINR target the manifest's difficulty figures (targets, BFS steps) are computed at [dB].",
     )
     val_users: int = Field(default=0, ge=0, description="Users of a train city held out for validation (seeded)")
 

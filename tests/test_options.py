@@ -85,3 +85,21 @@ def test_the_evaluation_protocols_options_are_one_model():
             assert derived[name].default == field.default and derived[name].help == field.description
             assert repr(ReportConfig.model_fields[name]) == repr(field)  # inherited, not restated
     assert issubclass(ReportConfig, EpisodeSettings)
+
+
+def test_the_build_settings_are_the_bundles_config():
+    """``uavdata build``'s settings of every city (the altitude, its tolerance, noise, interference, power, floor,
+    bounds, crop, seed and P_T) are ``BuildConfig``'s fields, as the manifest records them: one default, one bound,
+    one help each; a value outside a field's bounds is refused by its option."""
+    from uavplace.dataset.cli import build
+    from uavplace.schemas.bundle import BuildConfig
+
+    derived = {p.name: p for p in build.params if isinstance(p, FieldOption)}
+    fields = ("altitude_m", "altitude_tol_m", "noise_dbm", "interference_std_db", "tx_dbm", "sinr_floor_db", "bounds")
+    assert set(derived) == {*fields, "crop", "seed", "p_t_db"}
+    for name, option in derived.items():
+        field = BuildConfig.model_fields[name]
+        assert option.field == f"BuildConfig.{name}" and option.help == field.description
+        assert option.default == field.default or (option.is_flag and field.default is False)
+    res = CliRunner().invoke(build, ["--noise-dbm", "101"])
+    assert res.exit_code == 2 and "-250<=x<=100" in res.output
