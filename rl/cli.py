@@ -12,7 +12,7 @@ from uavplace.dataset.catalog import list_cities
 from uavplace.infra.console import SEED, Counted, LogLines, fail, plain_table, root_option, stdout, warn_or_refuse
 from uavplace.infra.files import shipped
 from uavplace.infra.options import model_options
-from uavplace.rl.config import EpisodeSettings
+from uavplace.rl.config import EpisodeSettings, UNetConfig
 from uavplace.rl.rollout import STATS, format_stat, summarise
 
 
@@ -399,10 +399,7 @@ def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out:
     show_default=True,
     help="Folder of model.json, weights.pt and MODEL_CARD.md (replaced whole, or left as it was).",
 )
-@click.option("--steps", type=click.IntRange(1, 1_000_000), default=2000, show_default=True, help="Gradient steps.")
-@click.option("--batch", type=click.IntRange(1, 1024), default=16, show_default=True, help="Crops per step.")
-@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the initial weights and the crops.")
-@click.option("--threads", type=click.IntRange(1, 256), default=2, show_default=True, help="torch CPU threads.")
+@model_options(UNetConfig, "steps", "batch", "seed", "threads")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @root_option
 def train_predictor(
@@ -430,7 +427,7 @@ def train_predictor(
     from uavplace.infra.console import command_line
     from uavplace.infra.files import atomic_directory
     from uavplace.rl.belief import load_constants
-    from uavplace.rl.learned import MODEL_CARD, MODEL_JSON, LearnedPredictor, UNetConfig, model_card, save_learned, train_learned
+    from uavplace.rl.learned import MODEL_CARD, MODEL_JSON, LearnedPredictor, model_card, save_learned, train_learned
     from uavplace.rl.predictor import PhysicsPredictor, predicted_and_measured, reliability, scores_of
 
     if not datasets and not map_folders:

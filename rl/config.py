@@ -196,3 +196,24 @@ class EpisodeSettings(Contract):
     p_t_db: float = Field(default=P_T_DB, ge=-100, le=100, description="SINR target P_T [dB].")
     split: Split | None = Field(default=None, description="Users of this split only (default: all).")
     seed: int = Field(default=0, ge=0, le=MAX_SEED, description="Seed of the episodes and of every random move.")
+
+
+class UNetConfig(Contract):
+    """The learned radio-map predictor's network and training settings (``rl.learned``; `uavrl train-predictor`'s
+    options derive from them)."""
+
+    widths: list[int] = Field(default=[16, 32, 64, 64], min_length=1, max_length=5, description="Channels per level")
+    crop: int = Field(default=64, ge=16, le=512, description="Training crops [cells] (a multiple of 2^(levels-1))")
+    batch: int = Field(default=16, ge=1, le=1024, description="Crops per step.")
+    steps: int = Field(default=2000, ge=1, le=1_000_000, description="Gradient steps.")
+    lr: float = Field(default=2e-3, gt=0, le=1, description="Adam's learning rate (cosine decay to 1/20 of it)")
+    dead_weight: float = Field(default=1.0, ge=0, description="Weight of the dead-cell cross-entropy in the loss")
+    seed: int = Field(default=0, ge=0, le=MAX_SEED, description="Seed of the initial weights and the crops.")
+    threads: int = Field(default=2, ge=1, le=256, description="torch CPU threads.")
+    calibration_share: float = Field(
+        default=0.1,
+        ge=0,
+        lt=1,
+        description="Share of the training users held out of the gradient steps to calibrate the dead probability "
+        "(Platt scaling of its logit, fitted on their legal cells); none when it rounds down to no user",
+    )

@@ -33,6 +33,7 @@ from uavplace.dataset.trainmaps import TrainingMaps
 from uavplace.infra.files import read_model_json, sha256_file, write_model_json
 from uavplace.infra.limits import check_limit
 from uavplace.rl.agent.checkpoint import load_tensors, save_tensors
+from uavplace.rl.config import UNetConfig
 from uavplace.rl.predictor import (
     PhysicsConstants,
     Scene,
@@ -51,26 +52,6 @@ MODEL_JSON, WEIGHTS, MODEL_CARD = "model.json", "weights.pt", "MODEL_CARD.md"
 PLANES = ("ground", "blocked", "user", "log_d", "walls", "diffraction", "physics_sinr", "physics_dead")
 #: SINR [dB] per unit of the network's first output plane and of the SINR input plane.
 SCALE_DB = 20.0
-
-
-class UNetConfig(Contract):
-    """The learned tier's network and training settings."""
-
-    widths: list[int] = Field(default=[16, 32, 64, 64], min_length=1, max_length=5, description="Channels per level")
-    crop: int = Field(default=64, ge=16, le=512, description="Training crops [cells] (a multiple of 2^(levels-1))")
-    batch: int = Field(default=16, ge=1, le=1024, description="Crops per gradient step")
-    steps: int = Field(default=2000, ge=1, le=1_000_000, description="Gradient steps")
-    lr: float = Field(default=2e-3, gt=0, le=1, description="Adam's learning rate (cosine decay to 1/20 of it)")
-    dead_weight: float = Field(default=1.0, ge=0, description="Weight of the dead-cell cross-entropy in the loss")
-    seed: int = Field(default=0, description="Seed of the weights' initialisation and of the crops")
-    threads: int = Field(default=2, ge=1, le=256, description="torch CPU threads")
-    calibration_share: float = Field(
-        default=0.1,
-        ge=0,
-        lt=1,
-        description="Share of the training users held out of the gradient steps to calibrate the dead probability "
-        "(Platt scaling of its logit, fitted on their legal cells); none when it rounds down to no user",
-    )
 
 
 class LearnedModel(Contract):

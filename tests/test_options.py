@@ -68,38 +68,50 @@ def test_the_fields_bounds_are_the_options(args, says):
     assert res.exit_code == 2 and says in res.output, res.output
 
 
-def test_the_evaluation_protocols_options_are_one_model():
-    """``uavrl baselines`` and ``uavrl report`` take the episodes, t_max, P_T, split and seed from EpisodeSettings's
-    fields (the report's config inherits them): one default, one bound, one help each."""
-    from uavplace.eval.cli import report
-    from uavplace.eval.evaluate import ReportConfig
-    from uavplace.rl.cli import baselines
-    from uavplace.rl.config import EpisodeSettings
-
-    for command in (baselines, report):
-        derived = {p.name: p for p in command.params if isinstance(p, FieldOption)}
-        assert set(derived) >= {"episodes", "t_max", "p_t_db", "split", "seed"}
-        for name in ("episodes", "t_max", "p_t_db", "split", "seed"):
-            field = EpisodeSettings.model_fields[name]
-            assert derived[name].field == f"EpisodeSettings.{name}"
-            assert derived[name].default == field.default and derived[name].help == field.description
-            assert repr(ReportConfig.model_fields[name]) == repr(field)  # inherited, not restated
-    assert issubclass(ReportConfig, EpisodeSettings)
+def _commands() -> list[tuple[str, str, str, tuple[str, ...]]]:
+    """(command group, command, model, the fields its options derive from) of every command converted so far."""
+    episode = ("episodes", "t_max", "p_t_db", "split", "seed")
+    build = ("altitude_m", "altitude_tol_m", "noise_dbm", "interference_std_db", "tx_dbm", "sinr_floor_db", "bounds")
+    return [
+        ("uavrl", "baselines", "EpisodeSettings", episode),
+        ("uavrl", "report", "EpisodeSettings", episode),
+        ("uavrl", "report", "ReportConfig", ("test_epsilon", "n_boot", "trajectories")),
+        ("uavdata", "build", "BuildConfig", (*build, "crop", "seed", "p_t_db")),
+        ("uavrl", "train-predictor", "UNetConfig", ("steps", "batch", "seed", "threads")),
+    ]
 
 
-def test_the_build_settings_are_the_bundles_config():
-    """``uavdata build``'s settings of every city (the altitude, its tolerance, noise, interference, power, floor,
-    bounds, crop, seed and P_T) are ``BuildConfig``'s fields, as the manifest records them: one default, one bound,
-    one help each; a value outside a field's bounds is refused by its option."""
-    from uavplace.dataset.cli import build
+@pytest.mark.parametrize(("group", "name", "model", "fields"), _commands(), ids=lambda v: v if isinstance(v, str) else "")
+def test_a_commands_settings_are_its_models_fields(group, name, model, fields):
+    """Each converted command's settings come from its model's fields (``FieldOption``): one default, one bound, one
+    help each, written in the model only; the report's config inherits the evaluation protocol's fields."""
+    from uavplace.cli import uavdata, uavrl
+    from uavplace.eval.config import ReportConfig
+    from uavplace.rl.config import EpisodeSettings, UNetConfig
     from uavplace.schemas.bundle import BuildConfig
 
-    derived = {p.name: p for p in build.params if isinstance(p, FieldOption)}
-    fields = ("altitude_m", "altitude_tol_m", "noise_dbm", "interference_std_db", "tx_dbm", "sinr_floor_db", "bounds")
-    assert set(derived) == {*fields, "crop", "seed", "p_t_db"}
-    for name, option in derived.items():
-        field = BuildConfig.model_fields[name]
-        assert option.field == f"BuildConfig.{name}" and option.help == field.description
+    command = {"uavdata": uavdata, "uavrl": uavrl}[group].get_command(None, name)
+    cls = {
+        "EpisodeSettings": EpisodeSettings,
+        "ReportConfig": ReportConfig,
+        "BuildConfig": BuildConfig,
+        "UNetConfig": UNetConfig,
+    }[model]
+    derived = {p.name: p for p in command.params if isinstance(p, FieldOption) and p.field.startswith(model + ".")}
+    assert set(derived) == set(fields)
+    for field_name, option in derived.items():
+        field = cls.model_fields[field_name]
+        assert option.help == field.description
         assert option.default == field.default or (option.is_flag and field.default is False)
-    res = CliRunner().invoke(build, ["--noise-dbm", "101"])
+    assert issubclass(ReportConfig, EpisodeSettings)
+    assert all(repr(ReportConfig.model_fields[f]) == repr(EpisodeSettings.model_fields[f]) for f in EpisodeSettings.model_fields)
+
+
+def test_an_option_refuses_what_its_field_refuses():
+    """A value outside a field's bounds is refused by its option before the command runs."""
+    from uavplace.cli import uavdata, uavrl
+
+    res = CliRunner().invoke(uavdata, ["build", "--noise-dbm", "101"])
     assert res.exit_code == 2 and "-250<=x<=100" in res.output
+    res = CliRunner().invoke(uavrl, ["train-predictor", "--seed", "-1"])
+    assert res.exit_code == 2 and "--seed" in res.output
