@@ -6,8 +6,8 @@
 field's ``ge``/``gt``/``le``/``lt``, its default from the field's default (shown), its help from the description.
 A field may say more in ``json_schema_extra``: ``{"limit": "episodes"}`` bounds an integer by that resource limit
 too (``infra.console.Counted``), ``{"type": "metres"}`` takes a length as ``4``, ``4m`` or ``2.5 m``. The command
-then builds its model from the options' values (``Model(**values)``), so
-a bound, a default or a help text is written once, in the model.
+then builds its model from the options' values (``Model(**values)``), so a bound, a default or a help text is written
+once, in the model.
 """
 
 from __future__ import annotations
@@ -38,13 +38,13 @@ def _bounds(info: FieldInfo) -> dict[str, float]:
     return out
 
 
-def _plain(annotation: object) -> tuple[object, bool]:
-    """(the annotation without ``None``, whether ``None`` is allowed)."""
+def _plain(annotation: object) -> object:
+    """The annotation without ``None`` (an optional setting's option defaults to None)."""
     args = typing.get_args(annotation)
     if typing.get_origin(annotation) in (typing.Union, types.UnionType) and type(None) in args:
         rest = [a for a in args if a is not type(None)]
-        return (rest[0] if len(rest) == 1 else typing.Union[tuple(rest)]), True  # noqa: UP007 - built from a tuple
-    return annotation, False
+        return rest[0] if len(rest) == 1 else typing.Union[tuple(rest)]  # noqa: UP007 - built from a tuple
+    return annotation
 
 
 def option_kwargs(model: type[BaseModel], field: str, override: dict | None = None) -> dict:
@@ -52,7 +52,7 @@ def option_kwargs(model: type[BaseModel], field: str, override: dict | None = No
     the derived ones (a ``type`` the annotation does not say)."""
     override = override or {}
     info = model.model_fields[field]
-    annotation, _ = _plain(info.annotation)
+    annotation = _plain(info.annotation)
     extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
     default = info.get_default(call_default_factory=True)
     kwargs: dict = {"help": info.description or "", "default": default, "show_default": default is not None}
