@@ -412,9 +412,12 @@ def test_weights_files_that_are_fifos_are_refused_at_once(tmp_path):
     err = _within(10, load_tensors, tmp_path / "absent.pt")
     assert isinstance(err, InputError) and "no such checkpoint" in str(err)
     # a run's best.pt that is there but a FIFO: "not a regular file", not "no checkpoints/best.pt"
+    import shutil
+
     from uavplace.eval.evaluate import load_agent
     from uavplace.rl.agent.ensemble import read_member
 
+    shutil.copy(REPO / "data" / "agents" / "best" / "run.json", init / "run.json")  # a run's record beside the FIFO
     for read in (lambda: load_agent(init, 0.0, 0), lambda: read_member(init)):
         err = _within(10, read)
         assert isinstance(err, InputError) and "not a regular file" in str(err), err
