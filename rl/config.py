@@ -1,4 +1,7 @@
-"""The environment's parameters: one pydantic model, the paper's values as defaults."""
+"""The settings of rl/, each declared once as a pydantic model (the commands' options derive from their fields,
+``infra.options``): the environment's (``EnvConfig``, the paper's values as defaults), the evaluation protocol's
+(``EpisodeSettings``), the map searcher's (``SearchConfig``), the learned predictor's (``UNetConfig``) and where the
+shipped predictor lives. Light to import: pydantic only, read by the command line before any heavy work."""
 
 from __future__ import annotations
 
