@@ -133,7 +133,7 @@ def predcache_probes(base: Base) -> list[Probe]:
             fn(a)
             a["mu"], a["p_dead"] = a["mu"].astype(np.float16), a["p_dead"].astype(np.float16)
             if meta == "made":
-                from uavplace.rl.searcher import _entry_meta
+                from uavplace.rl.belief import _entry_meta
 
                 key = bytes(a["meta"]).decode().split(":")[0]
                 a["meta"] = np.frombuffer(_entry_meta(key, a["mu"], a["p_dead"]), np.uint8)
