@@ -49,6 +49,8 @@ PREDICT_CHUNK = 128
 OUTLIER_SPAN_DB = 100.0
 #: The folder of cached predicted maps beside the bundles (safe to delete: they are made again on demand).
 PREDICTIONS = ".predictions"
+#: Bytes a predicted-maps cache entry may hold beside its two float16 arrays: the archive's headers and its meta.
+ENTRY_BYTES = 1 << 16
 
 
 @dataclass(frozen=True)
@@ -97,9 +99,9 @@ class PredictionCache:
     symmetry, the lattice, the blanked map, the predictor's weights, constants and code: ``Predictor.version``).
 
     An entry is data, never trusted as it is (docs/security.md): it is read only when it is a regular file inside the
-    cache folder (no link, no FIFO) of at most ``prediction_bytes``, and used only when it names its own key, its
-    arrays hash to the sha256 it records, they have the expected shape, and every value is finite with the dead
-    probability in [0, 1] and the SINR within +-``MAX_ABS_DB``. Anything else is predicted again and replaced."""
+    cache folder (no link, no FIFO) of at most its two float16 arrays and ``ENTRY_BYTES`` (a larger one is not read),
+    and used only when it names its own key, its arrays hash to the sha256 it records, they have the expected shape,
+    and every value is finite with the dead probability in [0, 1] and the SINR within +-``MAX_ABS_DB``. Anything else is predicted again and replaced."""
 
     #: The largest |SINR| [dB] a cached prediction may hold.
     MAX_ABS_DB = 400.0
@@ -117,7 +119,10 @@ class PredictionCache:
         if path is None or path.is_symlink():
             return None
         try:
-            data = read_small_file(path, "a predicted-maps cache entry", max_bytes=limits().prediction_bytes)
+            # at most what two float16 arrays of this shape and the entry's meta take: a larger file is not ours, and
+            # is never read (a sparse file of gigabytes within prediction_bytes had been read whole)
+            bound = min(ENTRY_BYTES + 4 * shape[0] * shape[1], limits().prediction_bytes)
+            data = read_small_file(path, "a predicted-maps cache entry", max_bytes=bound)
         except InputError:  # missing, a link, a FIFO, a folder, too large
             return None
         try:

@@ -275,6 +275,7 @@ def test_prediction_cache_uses_only_whole_entries_of_its_own_key(tmp_path):
     [0, 1], another key's entry, a truncated file, a link or a FIFO are all predicted again, never used."""
     import io
     import os
+    import time
 
     from uavplace.rl.belief import _entry_meta
 
@@ -319,6 +320,12 @@ def test_prediction_cache_uses_only_whole_entries_of_its_own_key(tmp_path):
     path.unlink()
     os.mkfifo(path)
     assert cache.load(key, mu.shape) is None  # refused at once, not waited on
+    path.unlink()
+    with path.open("wb") as f:  # 2 GB that take no disk, within prediction_bytes: refused by its size, never read
+        f.truncate(2 * 2**30)
+    cpu = time.process_time()
+    assert cache.load(key, mu.shape) is None
+    assert time.process_time() - cpu < 1.0
 
 
 def test_predictor_versions_name_their_code(monkeypatch):
