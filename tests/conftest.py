@@ -18,7 +18,11 @@ FIXTURES = Path(os.environ.get("UAVPLACE_FIXTURES", REPO.parent / "shared" / "fi
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
-    parser.addoption("--probes", action="store_true", help="Also run the probe suite (tests/probes.py: ~25 min on 2 cores).")
+    parser.addoption(
+        "--probes",
+        action="store_true",
+        help="Also run the probe suite (tests/probes.py, tests/probes_round4.py: about an hour on 2 cores).",
+    )
 
 
 def fixture_dir(name: str) -> Path:

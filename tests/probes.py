@@ -26,7 +26,7 @@ bad input: ``uavdata build`` of several cities says each city's, no internal err
 fails its check: non-finite or unphysical values), ``lost`` (a race that exits 0 twice and keeps one result, or a
 result inconsistent with its record) and ``unclear`` (any other exit, or an error that is not one line).
 
-    python -m tests.probes --out runs/probes                # all (about 25 min on 2 cores)
+    python -m tests.probes --out runs/probes                # all (about an hour on 2 cores)
     python -m tests.probes --out runs/probes --only raw,run  # some families
     python -m tests.probes --out runs/probes --list          # the probes, without running them
 

@@ -1,5 +1,5 @@
 """The probe suite (``tests/probes.py``) as test cases, one a probe: hostile inputs through the real command lines,
-each in a child process, every outcome classified. Opt-in, ``pytest --probes`` (about 25 minutes on 2 cores); a
+each in a child process, every outcome classified. Opt-in, ``pytest --probes`` (about an hour on 2 cores); a
 probe fails when its command errs internally, hangs, blows up, exits 0 on a result that fails its check, loses a
 race's result, or refuses in anything but one clear error line. Without ``--probes`` the probes are not even built."""
 
@@ -16,7 +16,7 @@ def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
     if "probe_case" not in metafunc.fixturenames:
         return
     if not metafunc.config.getoption("--probes"):
-        skip = pytest.mark.skip(reason="the probe suite: run it with pytest --probes (about 25 minutes on 2 cores)")
+        skip = pytest.mark.skip(reason="the probe suite: run it with pytest --probes (about an hour on 2 cores)")
         metafunc.parametrize("probe_case", [pytest.param(None, marks=skip)], ids=["probes"])
         return
     from tests import probes
