@@ -16,7 +16,7 @@ from uavplace.dataset.difficulty import valid_starts
 from uavplace.eval.config import ReportConfig
 from uavplace.eval.metrics import bootstrap_table, difference_table
 from uavplace.infra.files import shipped
-from uavplace.rl.agent.checkpoint import load_tensors
+from uavplace.rl.agent.checkpoint import best_checkpoint, load_tensors
 from uavplace.rl.agent.dqn import DQNConfig
 from uavplace.rl.agent.train import (
     RUN_JSON,
@@ -92,9 +92,7 @@ def load_agent(folder: str | Path, epsilon: float, seed: int, task: str | None =
     """A run folder (``run.json`` + ``checkpoints/best.pt``) as an evaluable agent; ``InputError`` if it is not one,
     or if it learnt another task than ``task`` (None: either)."""
     folder = Path(folder)
-    ckpt = folder / "checkpoints" / "best.pt"
-    if not os.path.lexists(ckpt):  # one that is there but no regular file is refused by load_tensors, as such
-        raise InputError(folder, "no checkpoints/best.pt (not a training run, or it never evaluated)")
+    ckpt = best_checkpoint(folder)
     run = read_run_json(folder) if has_record(folder) else None  # a run.json that is no file is refused there
     ck = load_tensors(ckpt)
     policy, config = policy_from_checkpoint(ck, ckpt, epsilon=epsilon, seed=seed)

@@ -24,7 +24,7 @@ from pydantic.fields import FieldInfo
 from uavplace.infra.console import Counted, Finite, Metres
 
 
-def _bounds(info: FieldInfo) -> dict[str, float]:
+def field_bounds(info: FieldInfo) -> dict[str, float]:
     """The field's bounds (pydantic's ``ge``, ``gt``, ``le``, ``lt`` constraints) as keyword arguments of click's
     ranges: ``min``/``max``, open where strict."""
     out: dict[str, float] = {}
@@ -57,7 +57,7 @@ def option_kwargs(model: type[BaseModel], field: str, override: dict | None = No
     default = info.get_default(call_default_factory=True)
     kwargs: dict = {"help": info.description or "", "default": default, "show_default": default is not None}
     origin = typing.get_origin(annotation)
-    bounds = _bounds(info)
+    bounds = field_bounds(info)
     if extra.get("type") == "metres":  # a length: 4, 4m or 2.5 m; its bounds checked by the model
         kwargs["type"] = Metres()
     elif annotation is bool:

@@ -37,6 +37,7 @@ from pydantic import Field
 
 from uavplace.infra.files import atomic_directory, check_name, check_replaceable
 from uavplace.infra.limits import check_limit, limits, shown
+from uavplace.infra.options import field_bounds
 from uavplace.schemas import InputError
 from uavplace.schemas.base import Contract, uavplace_version
 from uavplace.schemas.provenance import CODES, ESTIMATED, EXACT_PATHS, UNREACHED, code_name
@@ -142,11 +143,8 @@ class SimulationRanges(Contract):
 
 def _range(name: str) -> tuple[float, float | None]:
     """``(lower, upper)`` of ``SimulationRanges``' field ``name`` (upper None: the resource limit of that name)."""
-    lo = hi = None
-    for m in SimulationRanges.model_fields[name].metadata:
-        lo = getattr(m, "ge", lo)
-        hi = getattr(m, "le", hi)
-    return lo, hi
+    bounds = field_bounds(SimulationRanges.model_fields[name])
+    return bounds.get("min"), bounds.get("max")
 
 
 def _bounded(value: float, name: str, option: str) -> None:

@@ -118,3 +118,11 @@ def write_grid_city(
                 crlf=crlf,
             )
     return folder
+
+
+def sparse_file(path: Path, size: int = 2 * 2**30) -> Path:
+    """``path`` as a file of ``size`` bytes (2 GB by default) that takes no disk: past every size limit, never read."""
+    path.unlink(missing_ok=True)
+    with path.open("wb") as f:
+        f.truncate(size)
+    return path

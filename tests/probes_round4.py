@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from tests.conftest import sparse_file
 from tests.probes import (
     REPO,
     TINY,
@@ -62,10 +63,7 @@ SPARSE = 2 * 2**30
 
 
 def _sparse(path: Path) -> Path:
-    path.unlink(missing_ok=True)
-    with path.open("wb") as f:
-        f.truncate(SPARSE)
-    return path
+    return sparse_file(path, SPARSE)
 
 
 def _replace_by_fifo(path: Path) -> Path:

@@ -277,6 +277,7 @@ def test_prediction_cache_uses_only_whole_entries_of_its_own_key(tmp_path):
     import os
     import time
 
+    from tests.conftest import sparse_file
     from uavplace.rl.belief import _entry_meta
 
     cache, key, mu, p_dead = _cache_entry(tmp_path)
@@ -320,9 +321,7 @@ def test_prediction_cache_uses_only_whole_entries_of_its_own_key(tmp_path):
     path.unlink()
     os.mkfifo(path)
     assert cache.load(key, mu.shape) is None  # refused at once, not waited on
-    path.unlink()
-    with path.open("wb") as f:  # 2 GB that take no disk, within prediction_bytes: refused by its size, never read
-        f.truncate(2 * 2**30)
+    sparse_file(path)  # 2 GB, within prediction_bytes: refused by its size, never read
     cpu = time.process_time()
     assert cache.load(key, mu.shape) is None
     assert time.process_time() - cpu < 1.0

@@ -12,7 +12,7 @@ import pytest
 from click.testing import CliRunner
 
 from tests.bad_inputs.workspace import Workspace
-from tests.conftest import REPO, UAVDATA, write_grid_city
+from tests.conftest import REPO, UAVDATA, sparse_file, write_grid_city
 from tests.test_bad_inputs import shared  # noqa: F401 - the module-scoped fixture of built data
 from uavplace.cli import uavdata, uavrl
 from uavplace.eval.evaluate import ReportConfig
@@ -433,9 +433,7 @@ def test_predictor_weights_are_bounded_before_they_are_hashed(tmp_path):
     from uavplace.rl.learned import load_learned
 
     folder = shutil.copytree(DEFAULT_PREDICTOR, tmp_path / "unet")
-    (folder / "weights.pt").unlink()
-    with (folder / "weights.pt").open("wb") as f:
-        f.truncate(2 * 2**30)
+    sparse_file(folder / "weights.pt")
     cpu = time.process_time()
     err = _within(30, load_learned, folder)
     assert isinstance(err, InputError) and "network_params" in str(err) and "weights.pt" in str(err), err
@@ -452,9 +450,7 @@ def test_sparse_text_exports_are_refused_by_their_size(tmp_path):
     from uavplace.ingest.wireless_insite.keyword import read_text
 
     for name in ("big.city", "big.txrx", "big.setup", "big.geojson"):
-        path = tmp_path / name
-        with path.open("wb") as f:  # 2 GB that take no disk
-            f.truncate(2 * 2**30)
+        path = sparse_file(tmp_path / name)
         reader = read_text if not name.endswith("geojson") else read_geojson
         err = _within(10, reader, path, name)
         assert isinstance(err, InputError) and "text_bytes" in str(err), err

@@ -25,6 +25,7 @@ from __future__ import annotations
 import hashlib
 import io
 import math
+import os
 import pickle
 import re
 from pathlib import Path
@@ -132,6 +133,15 @@ def pickle_globals(path: str | Path) -> list[str]:
     except Exception:  # noqa: BLE001 - a truncated or foreign stream: what was read so far is the answer
         pass
     return names
+
+
+def best_checkpoint(folder: str | Path) -> Path:
+    """A run folder's ``checkpoints/best.pt``; ``InputError`` when there is none (one that is there but no regular
+    file is refused by ``load_tensors``, as such)."""
+    path = Path(folder) / "checkpoints" / "best.pt"
+    if not os.path.lexists(path):
+        raise InputError(folder, "no checkpoints/best.pt (not a training run, or it never evaluated)")
+    return path
 
 
 def load_tensors(path: str | Path, map_location: str | torch.device = "cpu", sha256: str | None = None) -> dict:

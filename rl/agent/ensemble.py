@@ -17,7 +17,6 @@ chosen as a run is, on validation cities only, never on a test city.
 from __future__ import annotations
 
 import datetime as dt
-import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,7 +26,7 @@ import torch
 
 from uavplace.dataset.bundle import load_bundle
 from uavplace.infra.files import atomic_directory, write_model_json
-from uavplace.rl.agent.checkpoint import load_tensors, save_tensors
+from uavplace.rl.agent.checkpoint import best_checkpoint, load_tensors, save_tensors
 from uavplace.rl.agent.dqn import DQNConfig, DQNPolicy
 from uavplace.rl.agent.network import MeanQ
 from uavplace.rl.agent.train import (
@@ -58,9 +57,7 @@ def read_member(folder: str | Path) -> Member:
     """A finished run's ``run.json`` and ``best.pt``; ``InputError`` naming the file that is missing or wrong."""
     folder = Path(folder)
     run = read_run_json(folder)
-    ckpt = folder / "checkpoints" / "best.pt"
-    if not os.path.lexists(ckpt):  # one that is there but no regular file is refused by load_tensors, as such
-        raise InputError(folder, "no checkpoints/best.pt (not a training run, or it never evaluated)")
+    ckpt = best_checkpoint(folder)
     net, config = network_from_checkpoint(load_tensors(ckpt), ckpt)
     if config.ensemble != 1:
         raise InputError(ckpt, "already an ensemble: give the runs it was built from", field="ensemble")
