@@ -9,6 +9,7 @@ This module needs only numpy, pandas, pyarrow and the contracts.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import re
@@ -24,7 +25,7 @@ from pydantic import ValidationError
 
 from uavplace.dataset.catalog import DEFAULT_ROOT, nearest_names
 from uavplace.dataset.raster import cell_index
-from uavplace.infra.files import atomic_write_text, check_name, read_small_file, sha256_file
+from uavplace.infra.files import array_digest, atomic_write_text, check_name, read_small_file, sha256_file
 from uavplace.infra.limits import check_limit
 from uavplace.schemas import SCHEMA_VERSION, InputError
 from uavplace.schemas.base import validation_message
@@ -78,6 +79,13 @@ class Bundle:
     @property
     def num_users(self) -> int:
         return self.manifest.num_users
+
+    @functools.cached_property
+    def public_digest(self) -> str:
+        """The sha256 of what a UAV knows of the city before it flies: the grid's cell centres, the altitude, the
+        building heights and the blocked cells, never a user's map or the bundle's version. What a policy's
+        per-episode random draws are keyed by (``rl.randomness``): a rebuild that leaves these alone keeps them."""
+        return array_digest(self.x_m, self.y_m, self.height_rel_m, self.blocked, extra=f"altitude {self.altitude_m!r}")
 
     @property
     def shape(self) -> tuple[int, int]:

@@ -23,11 +23,14 @@ import stat
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
-from typing import TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
 from pydantic import BaseModel, ValidationError
 
 from uavplace.schemas.base import NAME_PATTERN, InputError, validation_message
+
+if TYPE_CHECKING:
+    import numpy as np
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -69,6 +72,17 @@ def in_corpus(city: str, name: str) -> bool:
     """True when ``city`` is ``name`` or a member ``NAME-NNN`` of the corpus ``name`` (as ``uavdata simulate --count``
     names them)."""
     return city == name or (city.startswith(f"{name}-") and city[len(name) + 1 :].isdigit())
+
+
+def array_digest(*arrays: np.ndarray, extra: str = "") -> str:
+    """The sha256 of ``arrays`` (each with its dtype and shape) and the text ``extra``: what names data by content."""
+    import numpy  # here: the command line imports this module before any array is at hand
+
+    digest = hashlib.sha256(extra.encode())
+    for a in arrays:
+        a = numpy.ascontiguousarray(a)
+        digest.update(f"{a.dtype.str}{a.shape}".encode() + a.tobytes())
+    return digest.hexdigest()
 
 
 def sha256_file(path: str | Path) -> str:

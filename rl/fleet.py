@@ -11,8 +11,8 @@ step, every user has a UAV at SINR >= P_T; it is truncated after ``t_max`` steps
 Episodes (``FleetMaps.episode_list``): episode ``i`` of a list is drawn from its own generator (the list's seed
 and ``i`` hashed, ``rl.randomness``), so any prefix of a list is the shorter list: a city, N distinct users, K
 distinct legal starts from which every user's target cells (SINR >= P_T) are reachable, not every user served at
-the start. ``episode_keys`` names an episode by what it is (the bundle version, its users, its starts) for the
-policies' random draws.
+the start. ``episode_keys`` names an episode by what the fleet knows of it (its city's public map and its UAVs'
+starts, never its users) for the policies' random draws.
 
 Observation ``[K, 2 + N, window, window]``, one window per UAV centred on it: the building height minus the
 altitude [m] (clipped; ``edge_height_m`` beyond the edge), the fleet channel (P_H where another UAV stands, 0
@@ -40,9 +40,10 @@ from pydantic import ConfigDict, Field, field_validator
 
 from uavplace.dataset.bundle import Bundle
 from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target
+from uavplace.infra.files import array_digest
 from uavplace.rl.config import EnvConfig
 from uavplace.rl.maps import MOVES
-from uavplace.rl.randomness import combine, stream_key, uniforms
+from uavplace.rl.randomness import canvas_key, combine, stream_key, uniforms
 from uavplace.rl.vec_env import BatchedEnv
 from uavplace.schemas.base import Contract, InputError
 from uavplace.schemas.constants import P_T_DB, reaches_target
@@ -93,6 +94,12 @@ class FleetCity:
     height_m: np.ndarray
     sinr_db: np.ndarray
     target: np.ndarray
+
+    @functools.cached_property
+    def public_digest(self) -> str:
+        """The sha256 of what the fleet knows of the city before it flies (where it may go, the buildings' heights),
+        never a user's map: what its episodes' random draws are keyed by (``FleetMaps.episode_keys``)."""
+        return array_digest(self.legal, self.height_m)
 
     @classmethod
     def of(cls, bundle: Bundle, p_t_db: float, users: np.ndarray | None = None) -> FleetCity:
@@ -213,10 +220,11 @@ class FleetMaps:
         return episodes[:, 0], episodes[:, 1 : 1 + n], episodes[:, 1 + n :].reshape(len(episodes), -1, 2)
 
     def episode_keys(self, episodes: np.ndarray) -> np.ndarray:
-        """``[E]`` uint64: each episode named by what it is: its city's version, its users and its starts."""
-        city, users, starts = self.split(episodes)
-        keys = np.array([stream_key(self.cities[int(b)].version) for b in city], np.uint64)
-        for column in np.concatenate([users, starts.reshape(len(users), -1)], axis=1).T:
+        """``[E]`` uint64: each episode named by what the fleet knows of it: its city's public map (``canvas_key``)
+        and its UAVs' starts, never its users or the bundle's version."""
+        city, _, starts = self.split(episodes)
+        keys = np.array([canvas_key(self.cities[int(b)].public_digest) for b in city], np.uint64)
+        for column in starts.reshape(len(starts), -1).T:
             keys = combine(keys, column.astype(np.uint64))
         return keys
 

@@ -21,7 +21,7 @@ from uavplace.dataset.bundle import Bundle, load_bundle
 from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target, valid_starts
 from uavplace.infra.files import in_corpus
 from uavplace.rl.config import EnvConfig
-from uavplace.rl.randomness import stream_key, uniforms
+from uavplace.rl.randomness import canvas_key, stream_key, uniforms
 from uavplace.schemas import InputError
 from uavplace.schemas.constants import reaches_target
 
@@ -83,10 +83,10 @@ class MapSet:
             raise ValueError(f"no user of split {config.split!r} in bundles {[b.city for b in bundles]}")
         self.scenarios = scenarios
         S = self.symmetries = config.symmetries
-        #: [num_views] uint64: what identifies each view's map for per-episode draws (``rl.randomness``).
-        self.view_keys = np.array(
-            [stream_key(bundles[sc.bundle].version, sc.user, k) for sc in scenarios for k in range(S)], np.uint64
-        )
+        #: [S * num_bundles] uint64: each canvas (a city under a symmetry) named by its public map only (its grid, its
+        #: buildings: ``Bundle.public_digest``) and its symmetry, never by a user or the bundle's version: what a
+        #: policy's per-episode draws are keyed by (``rl.randomness``, ``canvas_key``).
+        self.canvas_keys = np.array([canvas_key(b.public_digest, k) for b in bundles for k in range(S)], np.uint64)
         nb, nv = len(bundles), S * len(scenarios)
         self.height = np.full((S * nb, L, L), config.edge_height_m, np.float32)
         self.blocked = np.ones((S * nb, L, L), bool)

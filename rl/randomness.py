@@ -6,8 +6,10 @@ policy would hand each episode the draws left over by the others, so the same ep
 differently (issue 33). Here every draw is a pure function of
 
 - the stream: a key made of the method's name and seed (``stream_key``);
-- the episode: the bundle version and user of the map it is played on, and its index in the
-  evaluation's list (``BatchedEnv.episode_keys``);
+- the episode, by what the UAV knows of it: the public map of the canvas it flies over (``canvas_key``: the city's
+  grid and buildings under a symmetry, never a user's map or the bundle's version) and its start cell
+  (``BatchedEnv.episode_keys``; a tracking episode by its number in the evaluation's list, a fleet episode by its
+  UAVs' starts);
 - the step of the episode, and the draw's number within that step,
 
 hashed with SplitMix64's finaliser into a uniform in [0, 1). The same episode therefore plays the
@@ -40,6 +42,13 @@ def stream_key(*parts: object) -> np.uint64:
     """A 64-bit key from any printable parts (a method's name and seed, a bundle version): blake2b of their repr."""
     digest = hashlib.blake2b(repr(parts).encode(), digest_size=8).digest()
     return np.uint64(int.from_bytes(digest, "little"))
+
+
+def canvas_key(digest: str, symmetry: int = 0) -> np.uint64:
+    """The key of a canvas: the digest of a city's public map (``Bundle.public_digest``: its grid and buildings,
+    no user) under a symmetry of the square. Every key a
+    policy's draws are made from starts here, so none names a user."""
+    return stream_key("public map", digest, symmetry)
 
 
 def combine(a: np.ndarray | np.uint64, b: np.ndarray | np.uint64 | int) -> np.ndarray:

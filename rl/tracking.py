@@ -36,7 +36,7 @@ from uavplace.dataset.bundle import Bundle
 from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target
 from uavplace.rl.config import EnvConfig
 from uavplace.rl.maps import MOVES, MapSet, transform
-from uavplace.rl.randomness import combine, stream_key
+from uavplace.rl.randomness import combine
 from uavplace.rl.vec_env import EpisodeRows, encode_obs, refuse_bad_rows
 from uavplace.schemas.base import Contract
 from uavplace.schemas.constants import P_T_DB, reaches_target
@@ -151,7 +151,7 @@ class RouteSet:
                     canvas.append(S * i + k)
                     step_s.append(b.spacing_m / config.uav_speed_mps)
                     times.append(rows["time_s"].to_numpy())
-                    keys.append(stream_key(b.version, "route", int(route), *([k] if k else [])))
+                    keys.append(self.maps.canvas_keys[S * i + k])  # its canvas's public map: no route, no user
                     names.append((b.city, int(route), str(rows["kind"].iloc[0])))
                 offset += len(b.routes)
         n_max = max(len(t) for t in times)

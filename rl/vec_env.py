@@ -283,10 +283,12 @@ class BatchedEnv(EpisodeRows):
         return self.maps.steps[self.view[:, None], ny, nx] < self.genie_steps()[:, None]
 
     def episode_keys(self) -> np.ndarray:
-        """[N] uint64: each row's episode, as ``rl.randomness`` keys it: by what it is, its map (bundle version, user,
-        symmetry) and its start cell in that map, never by its place in a list. An episode plays the same in any
-        list, at any batch size and whatever window pads the canvas; two episodes of one user and start are one."""
-        return combine(self.maps.view_keys[self.view], self.start[:, 0] * self.maps.side + self.start[:, 1])
+        """[N] uint64: each row's episode, as ``rl.randomness`` keys it: by what the UAV knows of it, the public map
+        of its canvas (``MapSet.canvas_keys``: the city's grid and buildings under a symmetry) and its start cell,
+        never by its user, the bundle's version or its place in a list. An episode plays the same in any list and at
+        any batch size; episodes of one canvas and start draw alike whoever the user is (nothing names the user)."""
+        canvas = self.maps.canvas_keys[self.maps.view_map[self.view]]
+        return combine(canvas, self.start[:, 0] * self.maps.side + self.start[:, 1])
 
     def info(self) -> dict:
         return {"action_mask": self.action_mask(), "episode_id": self.episode_id.copy(), "view": self.view.copy()}

@@ -516,3 +516,64 @@ def test_placement_env_overrides_are_validated_as_the_command_line_settings(tiny
             UavPlacementEnv("tiny", root=str(tiny), **bad)
     env = UavPlacementEnv("tiny", root=str(tiny), window=31)
     assert env.config.window == 31
+
+
+class _Keys:
+    """A random walk that records the keys its draws are made from, at each episode's first step."""
+
+    name = "keys"
+
+    def __init__(self) -> None:
+        self.walk, self.first = RandomWalkPolicy(seed=0), {}
+
+    def reset(self, rows: np.ndarray, num_envs: int) -> None:
+        self.walk.reset(rows, num_envs)
+
+    def act(self, obs: np.ndarray, mask: np.ndarray, env) -> np.ndarray:  # noqa: ANN001 - an AgentView
+        keys = env.episode_keys()
+        for r in np.flatnonzero(env.t == 0):
+            self.first.setdefault(int(r), []).append(int(keys[r]))
+        return self.walk.act(obs, mask, env)
+
+
+def test_a_policys_random_stream_names_no_user(tiny):
+    """The keys a policy's draws are made from name the canvas (the city's public map under a symmetry) and the start,
+    never the user: every user of a city started at one cell draws alike (trying the users' numbers names no one),
+    scrambling which user a view holds changes no key, and a rebuild whose maps are byte-identical under another
+    bundle version keeps every key (it had kept 104 of 300 of the random walk's outcomes)."""
+    import dataclasses
+
+    from uavplace.dataset.bundle import load_bundle
+    from uavplace.rl.randomness import stream_key
+
+    bundle = load_bundle("tiny", root=tiny)
+    config = EnvConfig(rotate=False)
+    maps = MapSet([bundle], config)
+    S = maps.symmetries
+    common = np.ones(maps.side * maps.side, bool)
+    for v in range(0, len(maps.scenarios) * S, S):  # the cells every user of the city can start from (symmetry 0)
+        ok = np.zeros(maps.side * maps.side, bool)
+        ok[maps.start_cells[maps.start_offset[v] : maps.start_offset[v] + maps.start_count[v]]] = True
+        common &= ok
+    cells = np.flatnonzero(common)[:3]
+    assert len(cells) and len(maps.scenarios) >= 3
+    views = np.arange(len(maps.scenarios)) * S
+    y, x = np.divmod(cells, maps.side)
+    episodes = np.array([[v, yy, xx] for yy, xx in zip(y, x, strict=True) for v in views])
+
+    def keys_of(m: MapSet) -> np.ndarray:
+        rec = _Keys()
+        run_episodes(m, rec, episodes, num_envs=len(episodes))
+        return np.array([rec.first[r][0] for r in range(len(episodes))], np.uint64)
+
+    keys = keys_of(maps).reshape(len(cells), len(views))
+    assert (keys == keys[:, :1]).all(), "two users of one canvas and start drew differently"
+    assert len(set(keys[:, 0].tolist())) == len(cells)  # the start still tells episodes apart
+    named = {int(stream_key(bundle.version, u, 0)) for u in range(bundle.num_users)}
+    assert not named & set(keys.ravel().tolist())
+    scrambled = dataclasses.replace(bundle, sinr_db=bundle.sinr_db[::-1].copy(), dead=bundle.dead[::-1].copy())
+    np.testing.assert_array_equal(keys_of(MapSet([scrambled], config)).reshape(keys.shape), keys)
+    manifest = bundle.manifest.model_copy(update={"version": "0" * 12})
+    rebuilt = dataclasses.replace(bundle, manifest=manifest)
+    assert rebuilt.version != bundle.version
+    np.testing.assert_array_equal(keys_of(MapSet([rebuilt], config)).reshape(keys.shape), keys)

@@ -114,7 +114,12 @@ def test_episode_lists_are_prefixes_and_keys_name_episodes():
     np.testing.assert_array_equal(long[:4], short)
     assert not np.array_equal(maps.episode_list(4, 6), short)
     keys = maps.episode_keys(long)
-    assert len(set(keys.tolist())) == len({tuple(e) for e in long.tolist()})
+    city, _, starts = maps.split(long)
+    named = [(int(c), *s.ravel().tolist()) for c, s in zip(city, starts, strict=True)]
+    assert len(set(keys.tolist())) == len(set(named))  # named by the city and the starts: the users name nothing
+    swapped = long.copy()
+    swapped[:, 1 : 1 + config.users] = swapped[::-1, 1 : 1 + config.users]  # other users, the same starts
+    np.testing.assert_array_equal(maps.episode_keys(swapped), keys)
     np.testing.assert_array_equal(maps.episode_keys(long[::-1]), keys[::-1])
     from uavplace.schemas import InputError
 
