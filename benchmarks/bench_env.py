@@ -13,7 +13,7 @@ Without --dataset it ingests and builds the embedded training city into a tempor
 ``--corpus NAME`` adds the batched env over the corpus's cities and the dataset together
 (the training set of the `best` preset), with the training levers on (8 symmetries, the
 visited channel, far starts), at N = 64: its steps/s against the one city's, measured in the same run.
-``--tracking CITY`` (a city with routes): the tracking env (``rl.tracking.TrackingEnv``) against the placement env on
+``--tracking CITY`` (a city with routes): the tracking env (``rl.tasks.tracking.TrackingEnv``) against the placement env on
 that city, both at N = 256 with random legal moves, in the same run (the median of 3 seeds each).
 """
 
@@ -36,7 +36,7 @@ from uavplace.rl.config import EnvConfig
 from uavplace.rl.env import UavPlacementEnv
 from uavplace.rl.maps import MapSet
 from uavplace.rl.policies import random_legal
-from uavplace.rl.tracking import RouteSet, TrackingConfig, TrackingEnv
+from uavplace.rl.tasks.tracking import RouteSet, TrackingConfig, TrackingEnv
 from uavplace.rl.vec_env import BatchedEnv
 from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM, BuildConfig
 

@@ -81,9 +81,9 @@ from uavplace.schemas.base import repeated
     default="placement",
     show_default=True,
     help="placement: the paper's task (a user who stays); tracking: a user who moves along the routes of the cities "
-    "(bundles simulated with --routes; rl/tracking.py): the oracle, the agents (placement agents run unchanged), the "
+    "(bundles simulated with --routes; rl/tasks/tracking/): the oracle, the agents (placement agents run unchanged), the "
     "re-planning genie and the baselines (eval/tracking.py; OUT defaults to reports/tracking); fleet: --uavs UAVs "
-    "serve --users users at once (rl/fleet.py): the oracle, the map searcher run for the fleet, the agents (--run; "
+    "serve --users users at once (rl/tasks/fleet/): the oracle, the map searcher run for the fleet, the agents (--run; "
     "default: the shipped best and the fleet-trained agents under --agents-dir) run on every UAV on the users dealt "
     "to it, greedy hill-climbing and the random walk (eval/fleet.py; OUT defaults to reports/fleet).",
 )
@@ -101,7 +101,7 @@ from uavplace.schemas.base import repeated
     default=True,
     show_default=True,
     help="Tracking: also play each method that has no stay action (placement agents, the random walk, greedy "
-    "hill-climbing) holding its cell while its own measurement is at or above P_T (rl/tracking.py, Holding), as a "
+    "hill-climbing) holding its cell while its own measurement is at or above P_T (rl/tasks/tracking/policies.py, Holding), as a "
     "row '... + hold' after the method as it is.",
 )
 @click.option(
@@ -110,7 +110,7 @@ from uavplace.schemas.base import repeated
     show_default=True,
     help="The map searcher's radio-map predictor (rl/searcher.py): a learned tier's folder (`uavrl train-predictor`), "
     "the physics tier's constants (data/agents/searcher/predictor.json, `uavrl fit-predictor`), or 'none' "
-    "to leave the searcher and its ablation out (with --task tracking, the tracking searcher, rl/tracksearch.py). Its "
+    "to leave the searcher and its ablation out (with --task tracking, the tracking searcher, rl/tasks/tracking/searcher.py). Its "
     "predicted maps are cached under ROOT/.predictions/.",
 )
 @click.option(
@@ -403,7 +403,7 @@ def _tracking_report(
 ) -> None:
     from uavplace.eval.tracking import SUMMARY_TITLE, TrackingReportConfig, make_tracking_report, summary_rows, table_rows
     from uavplace.infra.files import atomic_write_text
-    from uavplace.rl.tracking import TrackingConfig
+    from uavplace.rl.tasks.tracking import TrackingConfig
 
     shared = report_settings(runs, episodes, seed, test_epsilon, n_boot, trajectories, predictor)
     config = TrackingReportConfig(
@@ -438,7 +438,7 @@ def _fleet_report(datasets: tuple[str, ...], runs: list[Path], out: Path | None,
     from uavplace.eval.fleet import SUMMARY_TITLE, FleetReportConfig, make_fleet_report, summary_rows, table_rows
     from uavplace.eval.render import difference_rows
     from uavplace.infra.files import atomic_write_text
-    from uavplace.rl.fleet import FleetConfig
+    from uavplace.rl.tasks.fleet import FleetConfig
 
     config = FleetReportConfig(datasets=list(datasets), runs=[str(r) for r in runs], test_epsilon=test_epsilon,
                                episodes=episodes, seed=seed, n_boot=n_boot,

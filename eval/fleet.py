@@ -1,4 +1,4 @@
-"""``uavrl report --task fleet``: the fleet task (``rl.fleet``) evaluated on the same episodes of each city.
+"""``uavrl report --task fleet``: the fleet task (``rl.tasks.fleet``) evaluated on the same episodes of each city.
 
 Every method plays the same episodes (``FleetMaps.episode_list`` of the report's seed): the oracle (the fewest steps
 until every user is served, knowing every map: the bound), the map searcher run for the fleet, placement agents run
@@ -37,7 +37,8 @@ from uavplace.eval.render import _CSS, _figure, _templates, difference_rows
 from uavplace.infra.console import markdown_list, markdown_table
 from uavplace.infra.files import atomic_directory, check_replaceable
 from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
-from uavplace.rl.fleet import (
+from uavplace.rl.rollout import STATS, format_stat
+from uavplace.rl.tasks.fleet import (
     FleetConfig,
     FleetGreedy,
     FleetMaps,
@@ -46,7 +47,6 @@ from uavplace.rl.fleet import (
     FleetSearcher,
     run_fleet,
 )
-from uavplace.rl.rollout import STATS, format_stat
 from uavplace.schemas.base import MAX_SEED, Contract, InputError, uavplace_version
 
 FLEET_JSON = "fleet.json"
@@ -63,7 +63,7 @@ class FleetReportConfig(Contract):
     episodes: int = Field(default=1000, ge=1, description="Episodes a city, the same for every method")
     seed: int = Field(default=0, ge=0, le=MAX_SEED, description="Seed of the episodes and of every random move")
     n_boot: int = Field(default=2000, ge=100, description="Bootstrap resamples for the 95 % intervals")
-    task: FleetConfig = Field(default_factory=FleetConfig, description="The fleet task (rl/fleet.py)")
+    task: FleetConfig = Field(default_factory=FleetConfig, description="The fleet task (rl/tasks/fleet/)")
     runs: list[str] = Field(
         default_factory=list, description="Agents' run folders (placement or fleet-trained), each run on every UAV"
     )

@@ -1,10 +1,10 @@
-"""``uavrl report --task tracking``: the moving-user task (``rl.tracking``) evaluated and written as a report.
+"""``uavrl report --task tracking``: the moving-user task (``rl.tasks.tracking``) evaluated and written as a report.
 
 Every method plays the same episodes of each city (routes, start times and start cells drawn from the report's
 seed): the oracle (the most covered steps possible: the upper bound), the agents, the placement genie re-planned
-every step, the tracking searcher (``rl.tracksearch``: the map searcher's belief carried through time), the steered
+every step, the tracking searcher (``rl.tasks.tracking.searcher``: the map searcher's belief carried through time), the steered
 random walk and greedy hill-climbing; each method that cannot stay also holding its cell
-while it covers the user (``rl.tracking.Holding``). Per method and city: the median steps to first reach P_T, the
+while it covers the user (``rl.tasks.tracking.Holding``). Per method and city: the median steps to first reach P_T, the
 coverage after it, the median longest outage, the share of the horizon covered and that share as a fraction of the
 oracle's. Intervals are paired bootstrap 95 % intervals that resample the routes (a route plays the part a user
 plays in placement: its episodes are alike), then the episodes of each drawn route (``eval.metrics.resample_counts``).
@@ -36,8 +36,9 @@ from uavplace.infra.files import atomic_directory, check_replaceable
 from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
 from uavplace.rl.policies import GreedyPolicy, RandomWalkPolicy
 from uavplace.rl.searcher import MapSearchPolicy
-from uavplace.rl.tracking import (
+from uavplace.rl.tasks.tracking import (
     Holding,
+    MotionModel,
     MovesOnly,
     OraclePolicy,
     PlacementInTracking,
@@ -46,9 +47,9 @@ from uavplace.rl.tracking import (
     TrackingAgent,
     TrackingConfig,
     TrackingEpisodes,
+    TrackingSearchPolicy,
     run_tracking,
 )
-from uavplace.rl.tracksearch import MotionModel, TrackingSearchPolicy
 from uavplace.schemas import InputError
 from uavplace.schemas.base import MAX_SEED, Contract, uavplace_version
 from uavplace.schemas.constants import reaches_target
@@ -97,7 +98,7 @@ class TrackingReportConfig(Contract):
     )
     predictor: str | None = Field(
         default=str(DEFAULT_PREDICTOR),
-        description="The tracking searcher's radio-map predictor (rl/tracksearch.py; None: the searcher is not played)",
+        description="The tracking searcher's radio-map predictor (rl/tasks/tracking/searcher.py; None: the searcher is not played)",
     )
     motion: MotionModel = Field(default_factory=MotionModel, description="The tracking searcher's motion model")
 

@@ -2,7 +2,7 @@
 
 Per validation city (never a test city), the same episodes (``FleetMaps.episode_list``) for the fleet's steered
 random walk, greedy hill-climbing, each agent of ``--agent`` run on every UAV on the users dealt to it (default: the
-shipped ``best`` and the fleet-trained ``fleet``) and the map searcher run for the fleet (rl/fleet.py), scored against
+shipped ``best`` and the fleet-trained ``fleet``) and the map searcher run for the fleet (rl/tasks/fleet/), scored against
 the oracle by ``run_fleet``. Prints one Markdown row per city. ``--agents-only``: the agents alone.
 
     python experiments/fleet_validation.py [--city corpus-016] [--episodes 100] [--uavs 2] [--users 3]
@@ -20,7 +20,7 @@ import numpy as np
 from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.evaluate import load_agent
 from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
-from uavplace.rl.fleet import (
+from uavplace.rl.tasks.fleet import (
     FleetConfig,
     FleetGreedy,
     FleetMaps,

@@ -2,9 +2,9 @@
 
 The report's methods (``eval.tracking.tracking_methods``): the oracle (the most covered steps possible), any
 ``--agent``, the re-planning genie, the steered random walk and greedy hill-climbing, those without a stay action
-also holding their cell while covered (``rl.tracking.Holding``; ``--no-hold`` leaves them out). They play the same
+also holding their cell while covered (``rl.tasks.tracking.Holding``; ``--no-hold`` leaves them out). They play the same
 episodes (routes, start times and start cells drawn with ``--seed``); one Markdown table of the per-episode
-metrics (``rl.tracking.episode_metrics``): the median steps to first reach P_T, the mean coverage after it, the
+metrics (``rl.tasks.tracking.episode_metrics``): the median steps to first reach P_T, the mean coverage after it, the
 median longest outage and the mean share of the horizon covered, with the seconds each method took.
 
     python experiments/tracking_baselines.py trk-val --episodes 300 [--agent data/agents/best] [--horizon 300] [--searcher]
@@ -23,8 +23,7 @@ from uavplace.eval.evaluate import check_unseen, load_agent
 from uavplace.eval.tracking import tracking_methods
 from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
 from uavplace.rl.searcher import MapSearchPolicy
-from uavplace.rl.tracking import RouteSet, TrackingConfig, run_tracking
-from uavplace.rl.tracksearch import TrackingSearchPolicy, fit_motion
+from uavplace.rl.tasks.tracking import RouteSet, TrackingConfig, TrackingSearchPolicy, fit_motion, run_tracking
 
 
 def main() -> None:
@@ -41,7 +40,7 @@ def main() -> None:
     ap.add_argument(
         "--searcher",
         action="store_true",
-        help="Also the tracking searcher (rl/tracksearch.py): the shipped predictor, the motion fitted on --motion-from",
+        help="Also the tracking searcher (rl/tasks/tracking/searcher.py): the shipped predictor, the motion fitted on --motion-from",
     )
     ap.add_argument("--motion-from", nargs="+", default=[f"trk-00{i}" for i in range(4)],
                     help="Training cities with routes whose speeds the tracking searcher's motion is fitted on")  # fmt: skip

@@ -19,7 +19,7 @@ from pathlib import Path
 import pandas as pd
 
 from uavplace.eval.tracking import TRACKING_JSON, tables_markdown, tracking_table
-from uavplace.rl.tracking import TrackingEpisodes
+from uavplace.rl.tasks.tracking import TrackingEpisodes
 
 
 def main() -> None:

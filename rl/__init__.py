@@ -2,8 +2,8 @@
 
 Importing ``rl`` registers the Gymnasium environments ``uavplace/UavPlacement-v0`` and
 ``uavplace/BlindUavPlacement-v0``: ``gymnasium.make("uavplace/UavPlacement-v0", dataset="cityA")``, and the
-tracking task's ``uavplace/UavTracking-v0`` (a bundle with routes; ``rl.tracking``) and the fleet task's
-``uavplace/UavFleet-v0`` (several UAVs, several users; ``rl.fleet``).
+tracking task's ``uavplace/UavTracking-v0`` (a bundle with routes; ``rl.tasks.tracking``) and the fleet task's
+``uavplace/UavFleet-v0`` (several UAVs, several users; ``rl.tasks.fleet``).
 """
 
 from gymnasium.envs.registration import register, registry

@@ -19,7 +19,7 @@ The predicted maps of a canvas are computed once and kept on disk (``PredictionC
 the symmetry, the candidate lattice, the blanked map and the predictor's version (its weights, constants and code),
 and checked whenever they are read. ``BeliefModel`` holds the arithmetic, ``BeliefTracker`` the belief of every row
 of a ``BatchedEnv`` as an observation channel (the hybrid learner, ``EnvConfig.belief_channel``). The planners
-(``rl.searcher``, ``rl.tracksearch``, ``rl.fleet``) use it; this module imports none of them.
+(``rl.searcher``, ``rl.tasks.tracking.searcher``, ``rl.tasks.fleet``) use it; this module imports none of them.
 """
 
 from __future__ import annotations

@@ -119,9 +119,9 @@ def baselines(
     default="placement",
     show_default=True,
     help="placement: find a user who stands still (the paper's task); tracking: keep a user who walks its route "
-    "covered (rl/tracking.py; 5 actions, stay the fifth; every --dataset and validation city needs routes, "
+    "covered (rl/tasks/tracking/; 5 actions, stay the fifth; every --dataset and validation city needs routes, "
     "`uavdata simulate --routes N`; best.pt is the network that covers the most of the horizon on the validation "
-    "cities' routes; the preset's revisit penalties are off); fleet: several UAVs serve several users (rl/fleet.py; "
+    "cities' routes; the preset's revisit penalties are off); fleet: several UAVs serve several users (rl/tasks/fleet/; "
     "one network on every UAV, each playing the placement task of the users dealt to it; best.pt is the network that "
     "serves every user in the most fleet episodes of the validation cities; --set fleet.uavs=2 --set fleet.users=3 "
     "are the defaults, --set init=data/agents/best starts from a trained network).",
@@ -133,8 +133,8 @@ def baselines(
     multiple=True,
     metavar="FIELD=VALUE",
     help="Override one field of the preset's DQNConfig (rl/agent/dqn.py), env fields as env.FIELD "
-    "(rl/config.py), the tracking task's as tracking.FIELD (rl/tracking.py, TrackingConfig), the fleet task's as "
-    "fleet.FIELD (rl/fleet.py, FleetConfig), e.g. --set env.shaping=1 --set eval_episodes=1000 --set "
+    "(rl/config.py), the tracking task's as tracking.FIELD (rl/tasks/tracking/config.py, TrackingConfig), the fleet task's as "
+    "fleet.FIELD (rl/tasks/fleet/config.py, FleetConfig), e.g. --set env.shaping=1 --set eval_episodes=1000 --set "
     "tracking.horizon=200; repeatable.",
 )
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the whole run.")

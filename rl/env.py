@@ -163,7 +163,7 @@ class UavPlacementEnv(gym.Env):
 
 
 class UavTrackingEnv(gym.Env):
-    """``uavplace/UavTracking-v0``: one episode of the tracking task (``rl.tracking``: a user who moves along a
+    """``uavplace/UavTracking-v0``: one episode of the tracking task (``rl.tasks.tracking``: a user who moves along a
     ray-traced route; 5 actions, the 4 moves and stay; a fixed horizon, ``truncated`` at its end, never
     ``terminated``). ``info``: ``action_mask`` (5), ``sinr_db``, ``position``, after a step ``covered`` and
     ``illegal``. ``dataset``: cities whose bundles have routes (or a loaded ``RouteSet``); ``config``: a
@@ -172,7 +172,7 @@ class UavTrackingEnv(gym.Env):
     metadata = {"render_modes": []}
 
     def __init__(self, dataset, config=None, root: str = "data/processed", **overrides: object) -> None:  # noqa: ANN001
-        from uavplace.rl.tracking import RouteSet, TrackingConfig, TrackingEnv
+        from uavplace.rl.tasks.tracking import RouteSet, TrackingConfig, TrackingEnv
 
         routes = (
             dataset
@@ -204,7 +204,7 @@ class UavTrackingEnv(gym.Env):
 
 
 class UavFleetEnv(gym.Env):
-    """``uavplace/UavFleet-v0``: one episode of the fleet task (``rl.fleet``: K UAVs serve N users of unknown
+    """``uavplace/UavFleet-v0``: one episode of the fleet task (``rl.tasks.fleet``: K UAVs serve N users of unknown
     position at once). Observation ``[K, 2 + N, window, window]``, one window per UAV; action ``MultiDiscrete([5] *
     K)`` (each UAV's 4 moves and stay); ``terminated`` when every user is served at one step, ``truncated`` after
     ``t_max`` steps. ``info``: ``action_mask`` [K, 5], ``positions`` [K, 2] (map cells), ``sinr_db`` [K, N] (what
@@ -215,7 +215,7 @@ class UavFleetEnv(gym.Env):
     metadata = {"render_modes": []}
 
     def __init__(self, dataset, config=None, root: str = "data/processed", **overrides: object) -> None:  # noqa: ANN001
-        from uavplace.rl.fleet import BatchedFleet, FleetConfig, FleetMaps
+        from uavplace.rl.tasks.fleet import BatchedFleet, FleetConfig, FleetMaps
 
         maps = (
             dataset

@@ -9,7 +9,7 @@ and moves one cell along a shortest path to the best; it plans again at every st
 the next measurement.
 
 It reads only what the UAV knows (an ``rl.view.AgentView``): its position, its own measurements and the public
-maps. ``rl.fleet`` runs the searcher for a fleet of UAVs, ``rl.tracksearch`` for a user who walks.
+maps. ``rl.tasks.fleet`` runs the searcher for a fleet of UAVs, ``rl.tasks.tracking.searcher`` for a user who walks.
 """
 
 from __future__ import annotations

@@ -62,7 +62,7 @@ def decode_obs(obs: np.ndarray) -> np.ndarray:
 
 class EpisodeRows:
     """What the batched environments share: ``num_envs`` rows of episodes (placement's ``BatchedEnv``, the tracking
-    task's ``rl.tracking.TrackingEnv``), drawn with the generator seeded by ``reset(seed)`` (``_sample``) or taken in
+    task's ``rl.tasks.tracking.TrackingEnv``), drawn with the generator seeded by ``reset(seed)`` (``_sample``) or taken in
     order from ``queue`` (episode specs, one row each) when one is given: evaluation then plays exactly those, and
     ``exhausted`` tells which rows have no episode left. A subclass starts the episodes (``_start``) and observes them.
 
@@ -70,7 +70,7 @@ class EpisodeRows:
     (``info["final_index"]``, ``final_obs`` and ``final_mask`` of the rows whose episodes were cut short, then
     ``action_mask`` for the next move), ``observe``, ``action_mask``, ``sinr_here``, ``genie_moves`` (a training aid),
     ``neighbour_visits`` where the revisit penalty is trained, and ``state_arrays``, ``check_state``,
-    ``_episodes_started`` and ``rng``, what a checkpoint keeps (``rl.fleet.FleetTrainEnv`` offers the same)."""
+    ``_episodes_started`` and ``rng``, what a checkpoint keeps (``rl.tasks.fleet.FleetTrainEnv`` offers the same)."""
 
     def _init_rows(self, num_envs: int, queue: np.ndarray | None, dtype: type = np.int64) -> None:
         self.num_envs = num_envs

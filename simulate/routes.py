@@ -7,7 +7,7 @@ at ``length_m``, straightened where the straight line stays ``CLEARANCE_M`` / 2 
 and resampled at equal steps of at most ``MAX_STEP_M``. Every point and step of a route is at least
 0.25 m clear of every building (a diagonal step between raster cells 1 m clear comes no closer than
 0.29 m). A route's kind sets its speed (``KINDS``): ``time_s`` of a point is its distance
-along the route over that speed. The tracking env (rl/tracking.py) moves the user along a route and back.
+along the route over that speed. The tracking env (rl/tasks/tracking/) moves the user along a route and back.
 
 The export stays InSite-shaped: the route points are a second transmitter points set of the ``.txrx``
 (``ROUTE_SET``), each traced as a user, and ``<name>.routes.csv`` (``ROUTE_COLUMNS``) says which point

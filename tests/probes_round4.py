@@ -8,7 +8,7 @@
   line, a truncated gzip, a code that is none, runs that overlap, a FIFO, sparse gigabytes.
 - ``roles``: the cities' roles file of ``uavdata build --roles``: 1.3 M names (the duplicate check must be linear),
   a name twice, a city of two roles, a FIFO, sparse gigabytes, not TOML.
-- ``zoo``: the PettingZoo env (``uavplace.rl.zoo``; and the Gymnasium placement env's overrides) driven by a script:
+- ``zoo``: the PettingZoo env (``uavplace.rl.tasks.fleet.zoo``; and the Gymnasium placement env's overrides) driven by a script:
   actions outside the space, steps before
   ``reset`` and after the end, overrides out of range or unknown. A refusal is a ``ValueError`` or ``InputError``
   (the script prints it as one ``error:`` line, exit 2); anything else is a traceback, an internal error.
@@ -343,7 +343,7 @@ import numpy as np
 from uavplace.schemas import InputError
 try:
     from uavplace.rl.env import UavPlacementEnv
-    from uavplace.rl.zoo import parallel_env
+    from uavplace.rl.tasks.fleet.zoo import parallel_env
     make = parallel_env if sys.argv[3] == "fleet" else UavPlacementEnv
     env = make("tiny", root=sys.argv[1], **eval(sys.argv[2]))
 {body}

@@ -85,7 +85,7 @@ def test_embedded_city_ingests_builds_and_is_faithful(tmp_path, city):
     check_env(env.unwrapped)
     assert env.reset(seed=0)[0].shape == (2, 61, 61)
     if record.get("routes", {}).get("count"):  # the tracking task: every route point in the bundle, the oracle on top
-        from uavplace.rl.tracking import OraclePolicy, ReplanningGenie, RouteSet, TrackingConfig, run_tracking
+        from uavplace.rl.tasks.tracking import OraclePolicy, ReplanningGenie, RouteSet, TrackingConfig, run_tracking
 
         assert (
             b.manifest.num_route_points == record["routes"]["points"] and b.routes["route"].nunique() == record["routes"]["count"]

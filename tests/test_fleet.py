@@ -1,4 +1,4 @@
-"""The fleet task (rl/fleet.py): its oracle against a search over the fleet's joint positions, its moves, its
+"""The fleet task (rl/tasks/fleet/): its oracle against a search over the fleet's joint positions, its moves, its
 shared measurements and its episode lists."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ from collections import deque
 import numpy as np
 import pytest
 
-from uavplace.rl.fleet import FLEET_MOVES, BatchedFleet, FleetCity, FleetConfig, FleetMaps, FleetView, oracle_steps
 from uavplace.rl.maps import MOVES
+from uavplace.rl.tasks.fleet import FLEET_MOVES, BatchedFleet, FleetCity, FleetConfig, FleetMaps, FleetView, oracle_steps
 
 
 def _city(seed: int, side: int = 7, users: int = 4, walls: int = 6) -> FleetCity:
@@ -151,12 +151,12 @@ def test_gymnasium_checker_passes(tiny):
 
 
 def test_pettingzoo_parallel_api_test_passes(tiny):
-    """The fleet as a PettingZoo parallel env (rl/zoo.py): PettingZoo's own API test, seeding, one agent a UAV, the
+    """The fleet as a PettingZoo parallel env (rl/tasks/fleet/zoo.py): PettingZoo's own API test, seeding, one agent a UAV, the
     shared reward and end, the per-agent action masks; an agent given no action stays."""
     pytest.importorskip("pettingzoo", reason="PettingZoo missing (pip install -e '.[zoo]')")
     from pettingzoo.test import parallel_api_test, parallel_seed_test
 
-    from uavplace.rl.zoo import parallel_env
+    from uavplace.rl.tasks.fleet.zoo import parallel_env
 
     def make():  # noqa: ANN202
         return parallel_env("tiny", root=str(tiny), uavs=2, users=2, window=9, t_max=20)
@@ -177,7 +177,7 @@ def test_pettingzoo_env_refuses_what_is_not_in_its_spaces(tiny):
     any map is read); an action outside the action space (-1, 5, 2.7, '3', 2**70, 1e300), an unknown agent, a step
     before reset() or after the episode ended: each one ValueError, never a numpy traceback or a coerced move."""
     pytest.importorskip("pettingzoo", reason="PettingZoo missing (pip install -e '.[zoo]')")
-    from uavplace.rl.zoo import parallel_env
+    from uavplace.rl.tasks.fleet.zoo import parallel_env
 
     for bad, field in (
         ({"uavs": 99}, "uavs"),
@@ -221,7 +221,7 @@ def _scrambled(maps: FleetMaps, city: int, users: np.ndarray, keep: np.ndarray, 
 
 def _paths(maps: FleetMaps, policy, episodes: np.ndarray) -> list[np.ndarray]:  # noqa: ANN001
     """Each episode played alone: the fleet's positions after every step."""
-    from uavplace.rl.fleet import FleetView
+    from uavplace.rl.tasks.fleet import FleetView
 
     out = []
     for e in range(len(episodes)):
@@ -239,7 +239,7 @@ def _paths(maps: FleetMaps, policy, episodes: np.ndarray) -> list[np.ndarray]:  
 def test_baselines_read_only_what_the_fleet_measured():
     """The fleet's random walk and greedy hill-climbing move the same when every user's map is scrambled off the
     cells the fleet visited; they play the same episodes alike in a batch and alone."""
-    from uavplace.rl.fleet import FleetGreedy, FleetRandomWalk, run_fleet
+    from uavplace.rl.tasks.fleet import FleetGreedy, FleetRandomWalk, run_fleet
 
     config = FleetConfig(uavs=2, users=2, window=5, t_max=60)
     maps = FleetMaps([_city(3, side=10, users=4, walls=12)], config)
@@ -267,7 +267,7 @@ def test_fleet_searcher_serves_the_tiny_city_from_what_it_measured(tiny):
     from tests.conftest import REPO
     from uavplace.dataset.bundle import load_bundle
     from uavplace.rl.belief import load_predictor
-    from uavplace.rl.fleet import FleetSearcher, run_fleet
+    from uavplace.rl.tasks.fleet import FleetSearcher, run_fleet
 
     config = FleetConfig(uavs=2, users=2, window=9, t_max=60)
     maps = FleetMaps.of([load_bundle("tiny", root=str(tiny))], config)
@@ -295,7 +295,7 @@ def test_independent_agents_deal_users_and_read_only_what_the_fleet_measured(tin
     from tests.conftest import REPO
     from uavplace.dataset.bundle import load_bundle
     from uavplace.eval.evaluate import load_agent
-    from uavplace.rl.fleet import FleetPlacement, FleetView, run_fleet
+    from uavplace.rl.tasks.fleet import FleetPlacement, FleetView, run_fleet
 
     agent = load_agent(REPO / "data" / "agents" / "best", 0.096, 0)
     config = FleetConfig(uavs=2, users=3, window=9, t_max=60)
@@ -399,7 +399,7 @@ def test_fleet_env_for_the_learner_rewards_each_uav_for_its_own_users(tiny):
     serve them all), nothing when it stays; a UAV kept still stays whatever it chose; the genie's moves shorten the way
     to a cell serving all its users."""
     from uavplace.dataset.bundle import load_bundle
-    from uavplace.rl.fleet import FleetTrainEnv
+    from uavplace.rl.tasks.fleet import FleetTrainEnv
 
     config = _fleet_run_config()
     env_config = config.env_config()

@@ -145,3 +145,23 @@ def test_the_env_and_the_belief_import_no_policy():
     policies = {"uavplace.rl." + m for m in ("searcher", "tracksearch", "policies")}
     found = {m: sorted(i for i in graph[m] if i in policies or i.startswith("uavplace.rl.agent")) for m in below}
     assert not any(found.values()), found
+
+
+#: A task folder's files, lowest first: a file imports the task's lower files only (``rl/tasks/__init__.py``).
+TASK_FILES = ("config", "maps", "env", "policies", "searcher", "learner", "rollout", "zoo")
+
+
+def test_the_task_folders_have_the_same_files_layered():
+    """Every folder of ``rl/tasks/`` holds the task files (``TASK_FILES``; ``learner`` and ``zoo`` where the task has them) and nothing else, and a
+    file imports only the files of its task below it (the package's ``__init__`` re-exports them all)."""
+    graph = _imports()
+    tasks = [p for p in sorted((REPO / "rl" / "tasks").iterdir()) if p.is_dir() and p.name != "__pycache__"]
+    assert tasks
+    for folder in tasks:
+        files = {p.stem for p in folder.glob("*.py")} - {"__init__"}
+        assert set(TASK_FILES) - {"learner", "zoo"} <= files <= set(TASK_FILES), folder
+        prefix = f"uavplace.rl.tasks.{folder.name}."
+        for name in files:
+            mine = {i.removeprefix(prefix) for i in graph[prefix + name] if i.startswith(prefix)}
+            above = {i for i in mine if TASK_FILES.index(i) >= TASK_FILES.index(name)}
+            assert not above, f"{folder.name}/{name}.py imports {sorted(above)}"

@@ -13,7 +13,7 @@ from tests.conftest import REPO, write_grid_city
 from uavplace.dataset.build import build_city
 from uavplace.dataset.bundle import load_bundle
 from uavplace.ingest.pipeline import ingest_city
-from uavplace.rl.tracking import (
+from uavplace.rl.tasks.tracking import (
     STAY,
     TRACK_MOVES,
     Holding,
@@ -283,7 +283,7 @@ def test_tracking_table_intervals_resample_routes():
     import pandas as pd
 
     from uavplace.eval.tracking import tracking_table
-    from uavplace.rl.tracking import TrackingEpisodes
+    from uavplace.rl.tasks.tracking import TrackingEpisodes
 
     rng = np.random.default_rng(0)
     k, h = 200, 10
@@ -345,7 +345,7 @@ def test_tracking_report_from_the_command_line(root, tmp_path):
     assert plain.exit_code == 0 and "+ hold" not in (tmp_path / "plain" / "tracking.md").read_text()
     refused = CliRunner().invoke(uavrl, [*args[:-1], "--group", f"g={tmp_path}"])
     assert refused.exit_code == 2 and "takes no --group" in refused.output
-    assert "tracking searcher" in table  # the shipped predictor's belief, carried through time (rl/tracksearch.py)
+    assert "tracking searcher" in table  # the shipped predictor's belief, carried through time (rl/tasks/tracking/searcher.py)
     for p_t in ("100", "-100"):  # P_T above or below every map: no episode can start; one line, no report
         odd = [str(tmp_path / f"odd{p_t}") if a == str(out) else a for a in args] + ["--p-t-db", p_t]
         refused = CliRunner().invoke(uavrl, odd)
@@ -478,7 +478,7 @@ def test_tracking_runs_need_routes_and_validation_routes(val_root, tmp_path):
 def test_an_agent_plays_the_same_episodes_on_its_own_observation(root):
     """A tracking agent trained with another window plays the report's episodes on a canvas of its own padding: the
     same starts, the same covered steps and the same path, shifted back, as on the report's canvas."""
-    from uavplace.rl.tracking import TrackingAgent
+    from uavplace.rl.tasks.tracking import TrackingAgent
 
     config = TrackingConfig(horizon=20, window=21)
     routes = RouteSet([load_bundle("walk", root=root)], config)
@@ -498,7 +498,7 @@ def test_tracking_agents_read_only_what_they_measured(root):
 
     from uavplace.eval.evaluate import default_agents, load_agent
     from uavplace.rl.agent.dqn import DQNPolicy, make_network
-    from uavplace.rl.tracking import TrackingAgent
+    from uavplace.rl.tasks.tracking import TrackingAgent
 
     fresh = _tracking_config()
     torch_net = make_network(fresh, *fresh.observation())
@@ -565,7 +565,7 @@ def test_rotated_routes_are_their_citys_quarter_turns(root):
 def test_motion_update_is_the_brute_force_propagation():
     """The tracking searcher's motion step (a sparse transition per speed class) against a dense matrix built from
     every pair of candidates by their distance, propagated step by step: the same belief, and no mass lost."""
-    from uavplace.rl.tracksearch import transition
+    from uavplace.rl.tasks.tracking import transition
 
     rng = np.random.default_rng(0)
     yy, xx = np.mgrid[0:16:2, 0:16:2]
@@ -588,7 +588,7 @@ def test_motion_update_is_the_brute_force_propagation():
 
 
 def test_fit_motion_reads_the_routes_speeds(root):
-    from uavplace.rl.tracksearch import fit_motion
+    from uavplace.rl.tasks.tracking import fit_motion
 
     motion = fit_motion([load_bundle("walk", root=root)])
     speeds = load_bundle("walk", root=root).routes.groupby("route")["speed_mps"].first().round(1)
@@ -603,7 +603,7 @@ def test_tracking_searcher_reads_only_what_it_measures(root):
     from uavplace.rl.config import SearchConfig
     from uavplace.rl.predictor import PhysicsConstants
     from uavplace.rl.searcher import MapSearchPolicy
-    from uavplace.rl.tracksearch import TrackingSearchPolicy, fit_motion
+    from uavplace.rl.tasks.tracking import TrackingSearchPolicy, fit_motion
 
     bundle = load_bundle("walk", root=root)
     constants = PhysicsConstants(intercept_db=-20, log_d_db=-23, wall_db=-9, diffraction_weight=0.1,
@@ -630,7 +630,7 @@ def test_tracking_searcher_reads_only_what_it_measures(root):
 def test_motion_defaults_are_the_training_routes_fit(tmp_path):
     """The tracking searcher's default motion (``MotionModel()``) is ``fit_motion`` of the training cities with routes,
     trk-000 ... trk-003, as they are embedded."""
-    from uavplace.rl.tracksearch import MotionModel, fit_motion
+    from uavplace.rl.tasks.tracking import MotionModel, fit_motion
 
     bundles = []
     for city in (f"trk-00{i}" for i in range(4)):
@@ -648,7 +648,7 @@ def test_tracking_searcher_plays_one_city_after_another(root, tmp_path):
     from uavplace.rl.config import SearchConfig
     from uavplace.rl.predictor import PhysicsConstants
     from uavplace.rl.searcher import MapSearchPolicy
-    from uavplace.rl.tracksearch import MotionModel, TrackingSearchPolicy
+    from uavplace.rl.tasks.tracking import MotionModel, TrackingSearchPolicy
 
     other = tmp_path / "p"
     ingest_city(write_grid_city(tmp_path / "raw", nx=8, ny=6, n_tx=3, seed=5, dead_share=0.0, routes=ROUTES), other,

@@ -27,10 +27,10 @@ from uavplace.infra.limits import check_limit, limits, over_limit
 from uavplace.rl.agent.network import FoveaQNetwork, MeanQ, QNetwork
 from uavplace.rl.agent.replay import Batch
 from uavplace.rl.config import EnvConfig
-from uavplace.rl.fleet import FleetConfig
 from uavplace.rl.policies import episode_draws, pick_legal, random_legal
 from uavplace.rl.randomness import stream_key
-from uavplace.rl.tracking import TRACK_MOVES, TrackingConfig
+from uavplace.rl.tasks.fleet import FleetConfig
+from uavplace.rl.tasks.tracking import TRACK_MOVES, TrackingConfig
 from uavplace.rl.vec_env import OBS_OFFSET, BatchedEnv
 from uavplace.schemas import InputError
 from uavplace.schemas.base import MAX_SEED, Contract, validation_message
@@ -143,8 +143,8 @@ class DQNConfig(Contract):
     task: Literal["placement", "tracking", "fleet"] = Field(
         default="placement",
         description="placement: find a user who stands still (the paper's task, 4 moves; the env is `env`); tracking: "
-        "keep a user who moves along its route covered (rl/tracking.py: 5 actions, stay the fifth; the task is "
-        "`tracking`, `env` is not read); fleet: several UAVs serve several users (rl/fleet.py, `fleet`: one network on "
+        "keep a user who moves along its route covered (rl/tasks/tracking/: 5 actions, stay the fifth; the task is "
+        "`tracking`, `env` is not read); fleet: several UAVs serve several users (rl/tasks/fleet/, `fleet`: one network on "
         "every UAV, each playing `env`'s placement observation of the users dealt to it)",
     )
     tracking: TrackingConfig | None = Field(

@@ -46,10 +46,10 @@ from uavplace.rl.agent.checkpoint import CHECKPOINT_JSON, CheckpointState, load_
 from uavplace.rl.agent.dqn import DQN, DQNConfig, DQNPolicy, make_network
 from uavplace.rl.agent.pqn import Rollout, pqn_round
 from uavplace.rl.agent.replay import ReplayBuffer
-from uavplace.rl.fleet import FleetMaps, FleetPlacement, FleetTrainEnv, run_fleet
 from uavplace.rl.maps import MapSet
 from uavplace.rl.rollout import run_episodes, summarise
-from uavplace.rl.tracking import RouteSet, TrackingEnv, run_tracking
+from uavplace.rl.tasks.fleet import FleetMaps, FleetPlacement, FleetTrainEnv, run_fleet
+from uavplace.rl.tasks.tracking import RouteSet, TrackingEnv, run_tracking
 from uavplace.rl.vec_env import BatchedEnv
 from uavplace.schemas import InputError
 from uavplace.schemas.base import Contract, uavplace_version, validation_message
@@ -629,7 +629,7 @@ class Trainer:
 
 
 class TrackingTrainer(Trainer):
-    """A run of the tracking task (``DQNConfig.task == "tracking"``, ``rl.tracking``): placement's learner, loop,
+    """A run of the tracking task (``DQNConfig.task == "tracking"``, ``rl.tasks.tracking``): placement's learner, loop,
     checkpoints and run folder; the env is the tracking env over the training cities' routes (5 actions, stay the
     fifth), and ``best.pt`` is the network that covered the most of the horizon on fixed episodes of the validation
     cities' routes (ties: the one that reached P_T in more of them). A training city's routes are all trained on: a
@@ -672,7 +672,7 @@ class TrackingTrainer(Trainer):
 
 
 class FleetTrainer(Trainer):
-    """A run of the fleet task (``DQNConfig.task == "fleet"``, ``rl.fleet``): placement's network, learner, loop,
+    """A run of the fleet task (``DQNConfig.task == "fleet"``, ``rl.tasks.fleet``): placement's network, learner, loop,
     checkpoints and run folder; the env is ``FleetTrainEnv`` over fleet episodes of the training cities' training
     users (a row per UAV), and ``best.pt`` is the network that, run on every UAV of fixed fleet episodes of the
     validation cities (``FleetPlacement``), served every user in the most of them (ties: the fewer median steps)."""

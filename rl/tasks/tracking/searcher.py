@@ -1,4 +1,4 @@
-"""The tracking searcher: the map searcher's belief carried through time for a user who walks (``rl.tracking``).
+"""The tracking searcher: the map searcher's belief carried through time for a user who walks (``rl.tasks.tracking``).
 
 Its candidates and their predicted maps are the placement searcher's (``rl.searcher.MapSearchPolicy``: open-ground
 cells on a lattice of ``stride`` cells, a map of each predicted from the buildings and cached). Each row keeps a
@@ -30,7 +30,7 @@ from scipy import sparse
 from uavplace.dataset.bundle import Bundle
 from uavplace.rl.belief import CandidateMaps, posterior_cover
 from uavplace.rl.searcher import MapSearchPolicy
-from uavplace.rl.tracking import STAY
+from uavplace.rl.tasks.tracking.config import STAY
 from uavplace.rl.view import public_maps
 from uavplace.schemas.base import Contract
 from uavplace.schemas.constants import reaches_target
@@ -91,7 +91,7 @@ def transition(cells: np.ndarray, stride: int, q: float) -> sparse.csr_matrix:
 
 class TrackingSearchPolicy:
     """The tracking searcher of the module's docstring as a tracking method (``reset``, ``act(obs, mask, env)`` of a
-    ``rl.tracking.TrackingEnv``, 5 actions)."""
+    ``rl.tasks.tracking.TrackingEnv``, 5 actions)."""
 
     name = TRACKING_SEARCHER
 

@@ -1,4 +1,4 @@
-"""The fleet task (``rl.fleet``) as a PettingZoo parallel environment: one agent per UAV.
+"""The fleet task (``rl.tasks.fleet``) as a PettingZoo parallel environment: one agent per UAV.
 
 ``parallel_env(dataset, ...)`` (PettingZoo's convention) wraps ``uavplace/UavFleet-v0`` (``rl.env.UavFleetEnv``):
 agents ``uav_0`` ... ``uav_{K-1}``, each observing its own window ``[2 + N, window, window]`` (the building
@@ -16,7 +16,7 @@ import numpy as np
 from pettingzoo import ParallelEnv
 
 from uavplace.rl.env import UavFleetEnv
-from uavplace.rl.fleet import STAY
+from uavplace.rl.tasks.fleet import STAY
 
 
 class UavFleetParallelEnv(ParallelEnv):

@@ -1,0 +1,62 @@
+"""The tracking task's settings and its moves (the package's docstring says what the task is)."""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import ConfigDict, Field
+
+from uavplace.rl.config import EnvConfig
+from uavplace.rl.maps import MOVES
+from uavplace.schemas.base import Contract
+from uavplace.schemas.constants import P_T_DB
+
+#: The 5 tracking actions in canvas coordinates (dy, dx): the 4 placement moves, then 4 = stay.
+TRACK_MOVES = np.vstack([MOVES, [[0, 0]]])
+STAY = 4
+#: The action of each move (dy + 1, dx + 1) in ``TRACK_MOVES`` (-1: no action makes it).
+ACTION_OF = np.full((3, 3), -1, np.int64)
+ACTION_OF[TRACK_MOVES[:, 0] + 1, TRACK_MOVES[:, 1] + 1] = np.arange(len(TRACK_MOVES))
+
+
+#: The fields of ``TrackingConfig`` that shape what an agent observes (the others define the task).
+OBSERVATION_FIELDS = ("window", "blind", "p_h_db", "p_l_db", "age_clip_s", "edge_height_m", "height_clip_m")
+
+
+class TrackingConfig(Contract):
+    """Everything that defines the tracking task (saved with every run and report that uses it)."""
+
+    model_config = ConfigDict(allow_inf_nan=False)
+
+    p_t_db: float = Field(default=P_T_DB, description="SINR target P_T [dB]: a step at or above it is covered")
+    horizon: int = Field(default=300, ge=1, le=100_000, description="Steps per episode")
+    uav_speed_mps: float = Field(default=10.0, gt=0, le=100, description="UAV speed: one cell per cell side / speed seconds")
+    window: int = Field(default=61, ge=3, description="Observation side in cells (odd), centred on the UAV")
+    blind: bool = Field(default=False, description="No height channel; blocked cells shown as P_H in the SINR memory")
+    p_h_db: float = Field(default=50.0, description="SINR memory of unvisited cells [dB]")
+    p_l_db: float = Field(default=-150.0, description="SINR memory of blocked cells and beyond the edge [dB]")
+    age_clip_s: float = Field(
+        default=100.0, gt=0, description="Measurement ages are clipped at this [s]; unvisited cells show it"
+    )
+    cover_reward: float = Field(default=1.0, description="Reward of a covered step")
+    gain_weight: float = Field(default=0.05, description="Reward per dB of SINR change")
+    edge_height_m: float = Field(default=100.0, description="Height channel beyond the map edge [m]")
+    height_clip_m: float = Field(default=100.0, gt=0, description="Height channel clipped to +/- this [m]")
+    rotate: bool = Field(
+        default=False,
+        description="Training: every route also under the quarter turns of its city (each city seen four ways, as "
+        "placement's rotate); evaluation and reports play the routes as they are",
+    )
+
+    @property
+    def num_channels(self) -> int:
+        return 2 if self.blind else 3
+
+    def observed_as(self, agent: TrackingConfig) -> TrackingConfig:
+        """This task (horizon, P_T, speeds) with ``agent``'s observation (``OBSERVATION_FIELDS``): what a tracking
+        agent trained with ``agent`` sees when it plays this task."""
+        return self.model_copy(update={k: getattr(agent, k) for k in OBSERVATION_FIELDS})
+
+    def placement_env(self) -> EnvConfig:
+        """The placement ``EnvConfig`` whose canvases (height, blocked, padding) this task shares."""
+        return EnvConfig(p_t_db=self.p_t_db, window=self.window, blind=self.blind, p_h_db=self.p_h_db, p_l_db=self.p_l_db,
+                         edge_height_m=self.edge_height_m, height_clip_m=self.height_clip_m, rotate=False)  # fmt: skip

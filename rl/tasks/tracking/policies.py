@@ -1,0 +1,160 @@
+"""The tracking task's policies: placement policies in it, holding, its agent, the re-planning genie and the oracle."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from uavplace.rl.config import EnvConfig
+from uavplace.rl.maps import MapSet
+from uavplace.rl.tasks.tracking.config import ACTION_OF, STAY, TrackingConfig
+from uavplace.rl.tasks.tracking.env import TrackingEnv
+from uavplace.rl.tasks.tracking.maps import oracle_path
+from uavplace.schemas.constants import reaches_target
+
+
+class MovesOnly:
+    """A placement policy (``rl.policies``: 4 moves, never stays) acting in the tracking env: it is shown the moves'
+    legal mask only, and keeps acting by its own rule after it first reaches P_T."""
+
+    def __init__(self, policy) -> None:  # noqa: ANN001 - a rl.policies.Policy
+        self.policy, self.name = policy, policy.name
+
+    def reset(self, rows: np.ndarray, num_envs: int) -> None:
+        self.policy.reset(rows, num_envs)
+
+    def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingEnv) -> np.ndarray:
+        return self.policy.act(obs, mask[:, :4], env)
+
+
+class Holding:
+    """A method without a stay action (a placement agent run unchanged, a placement baseline) with one rule on top:
+    stay while its own measurement now (the SINR memory's centre, the cell it stands in) is at or above P_T, else
+    act as ``policy`` does. ``policy`` still sees every observation, so a recurrent agent's state and a placement
+    agent's mirror follow the episode while it holds; it reads nothing the UAV did not measure."""
+
+    def __init__(self, policy) -> None:  # noqa: ANN001 - a tracking method (MovesOnly, PlacementInTracking)
+        self.policy, self.name = policy, f"{policy.name} + hold"
+
+    def reset(self, rows: np.ndarray, num_envs: int) -> None:
+        self.policy.reset(rows, num_envs)
+
+    def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingEnv) -> np.ndarray:
+        action = self.policy.act(obs, mask, env)
+        centre = env.config.window // 2
+        return np.where(reaches_target(obs[:, -1, centre, centre], env.config.p_t_db), STAY, action)
+
+
+class PlacementInTracking:
+    """A placement policy that reads placement observations (a trained placement agent, run unchanged) acting in the
+    tracking env. A placement env over the same cities (``BatchedEnv``, built for the agent's own ``EnvConfig``) keeps
+    the agent's channels (SINR memory, visited cells, homing cone, context) from the tracking env's positions and
+    measurements, as if the user's map were the placement episode's; the agent sees its observations, moves by its
+    own rule (never stays) and keeps acting after it first reaches P_T."""
+
+    def __init__(self, policy, env: EnvConfig, name: str | None = None) -> None:  # noqa: ANN001 - a rl.policies.Policy
+        self.policy, self.name = policy, name or policy.name
+        self.env_config = env.model_copy(update={"rotate": False, "city_weights": {}, "split": None})
+        self.mirror = None
+        self.key: tuple = ()
+
+    def reset(self, rows: np.ndarray, num_envs: int) -> None:
+        self.policy.reset(rows, num_envs)
+
+    def _mirror(self, env: TrackingEnv):  # noqa: ANN202 - a BatchedEnv
+        from uavplace.rl.vec_env import BatchedEnv
+
+        if env.routes.turns != 1:
+            raise ValueError("a placement agent plays the routes as they are: a RouteSet without rotate")
+        key = (id(env.routes), env.num_envs)
+        if self.key != key:
+            maps = MapSet(env.routes.bundles, self.env_config)
+            self.mirror, self.key = BatchedEnv(maps, env.num_envs, autoreset=False), key
+            # per bundle, a view of its identity symmetry: its height and blocked canvases
+            first = np.array([np.flatnonzero(maps.view_map == maps.symmetries * b)[0] for b in range(len(env.routes.bundles))])
+            self.views, self.shift = first, maps.pad - env.maps.pad
+            self.episode = np.full(env.num_envs, -2, np.int64)
+        return self.mirror
+
+    def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingEnv) -> np.ndarray:
+        mirror = self._mirror(env)
+        rows = np.arange(env.num_envs)
+        pos, sinr = env.pos + self.shift, env.sinr_here()
+        new = (env.t == 0) | (self.episode != env.episode_id)
+        if new.any():
+            idx = rows[new]
+            mirror.begin(idx, self.views[env.routes.bundle[env.route[idx]]], pos[idx, 0], pos[idx, 1], sinr[idx],
+                         env.episode_id[idx])  # fmt: skip
+            self.episode[idx] = env.episode_id[idx]
+        if (~new).any():
+            idx = rows[~new]
+            mirror.pos[idx], mirror.t[idx] = pos[idx], env.t[idx]
+            mirror.measure(idx, sinr[idx])
+        return self.policy.act(mirror.observe(), mask[:, :4], mirror)
+
+
+class TrackingAgent:
+    """An agent trained on the tracking task (``uavrl train --task tracking``), acting on the observations it was
+    trained with (``observation``: its ``TrackingConfig``); ``run_tracking`` plays it on a ``RouteSet`` of those."""
+
+    def __init__(self, policy, observation: TrackingConfig, name: str) -> None:  # noqa: ANN001 - a DQNPolicy
+        self.policy, self.observation, self.name = policy, observation, name
+
+    def reset(self, rows: np.ndarray, num_envs: int) -> None:
+        self.policy.reset(rows, num_envs)
+
+    def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingEnv) -> np.ndarray:
+        return self.policy.act(obs, mask, env)
+
+
+class ReplanningGenie:
+    """The placement genie re-planned every step: knows the user's map now (not the future); stays while covered,
+    else takes a shortest legal path toward the current P_T region."""
+
+    name = "re-planning genie"
+
+    def reset(self, rows: np.ndarray, num_envs: int) -> None:
+        pass
+
+    def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingEnv) -> np.ndarray:
+        point = env.point()
+        ny, nx = env.neighbours()
+        steps = env.routes.steps[point[:, None], ny, nx].astype(np.int64)
+        steps[~mask[:, :4]] = np.iinfo(np.int64).max
+        here = env.routes.steps[point, env.pos[:, 0], env.pos[:, 1]]
+        return np.where(here == 0, STAY, np.argmin(steps, axis=1))
+
+
+class OraclePolicy:
+    """The upper bound: knows the whole route and every map; follows ``oracle_path`` of its episode (computed when the
+    episode starts), the most covered steps possible."""
+
+    name = "oracle"
+
+    def __init__(self) -> None:
+        self.plans = np.zeros((0, 0, 2), np.int64)  # [num_envs, horizon + 1, 2]: each row's planned canvas cells
+        self.planned = np.zeros(0, np.int64)  # the episode each row's plan is for
+
+    def reset(self, rows: np.ndarray, num_envs: int) -> None:
+        pass
+
+    def plan(self, env: TrackingEnv, row: int) -> np.ndarray:
+        r, p = int(env.route[row]), env.maps.pad
+        canvas = env.routes.canvas[r]
+        ny, nx = env.maps.shapes[canvas]
+        t = np.arange(1, env.config.horizon + 1)
+        points = env.routes.point(np.full(len(t), r), np.full(len(t), env.start_s[row]), t)
+        sinr = env.routes.sinr[points, p : p + ny, p : p + nx]
+        covered = reaches_target(sinr, env.config.p_t_db, env.routes.dead[points, p : p + ny, p : p + nx])
+        legal = ~env.maps.blocked[canvas, p : p + ny, p : p + nx]
+        path, _ = oracle_path(legal, covered, (int(env.pos[row, 0]) - p, int(env.pos[row, 1]) - p))
+        return path + p
+
+    def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingEnv) -> np.ndarray:
+        n = env.num_envs
+        if self.plans.shape[:2] != (n, env.config.horizon + 1):
+            self.plans = np.zeros((n, env.config.horizon + 1, 2), np.int64)
+            self.planned = np.full(n, -2, np.int64)
+        for row in np.flatnonzero((env.t == 0) | (self.planned != env.episode_id)):  # episodes that just began
+            self.plans[row], self.planned[row] = self.plan(env, row), env.episode_id[row]
+        dy, dx = (self.plans[np.arange(n), env.t + 1] - env.pos).T
+        return ACTION_OF[dy + 1, dx + 1]
