@@ -64,8 +64,11 @@ def expand_datasets(names: list[str] | tuple[str, ...], root: str | Path = DEFAU
         else:
             members = [c for c in cities if in_corpus(c, name)]
             if not members:
-                raise InputError(Path(root) / name, f"no ingested city or corpus of that name{nearest_names(city, cities, 'ingested')}",
-                                 field="dataset")  # fmt: skip
+                raise InputError(
+                    Path(root) / name,
+                    f"no ingested city or corpus of that name{nearest_names(city, cities, 'ingested')}",
+                    field="dataset",
+                )
         out += [m for m in members if m not in out]
     return out
 

@@ -169,8 +169,9 @@ def build(
         fail(InputError(root, "no ingested city: run `uavdata ingest data/raw/<city>/` first"))
     for city in names:  # checked before anything is read: a mistyped name gets the nearest ones
         if city not in ingested:
-            fail(InputError(root / city, f"no ingested city of that name{nearest_names(city, ingested, 'ingested')}",
-                            field="city"))  # fmt: skip
+            fail(
+                InputError(root / city, f"no ingested city of that name{nearest_names(city, ingested, 'ingested')}", field="city")
+            )
     for option, given in (("--split", role), ("--crop-city", crop_cities)):
         unknown = sorted(set(given) - set(names))
         if unknown:
@@ -184,9 +185,15 @@ def build(
             held_out |= {n: declared.val_users for n in declared.train if n in held_out}
     held = {n: r for n in names if n not in role and (r := _latest_role(n, root)) is not None}
     if held:  # a build without their --split would make new bundles without a role and move `latest` to them
-        fail(InputError(root, f"{', '.join(f'{n} (a {r} city)' for n, r in held.items())}: the latest bundle has a role that "
-                        "this build would drop; name it again (--split CITY=ROLE, and --val-users for a train city), "
-                        "drop it with --split CITY=none, or build other cities with --city", field="split"))  # fmt: skip
+        fail(
+            InputError(
+                root,
+                f"{', '.join(f'{n} (a {r} city)' for n, r in held.items())}: the latest bundle has a role that "
+                "this build would drop; name it again (--split CITY=ROLE, and --val-users for a train city), "
+                "drop it with --split CITY=none, or build other cities with --city",
+                field="split",
+            )
+        )
     out = stdout()
     errors = 0
     warned: list[tuple[str, str]] = []

@@ -19,9 +19,22 @@ from uavplace.dataset.catalog import list_cities
 from uavplace.simulate.fidelity import lattice_boundary_shares, lattice_step_ratios
 from uavplace.simulate.raytrace import constant_patch_share
 
-HEADER = ["city", "source", "size [m]", "buildings (tiers)", "users", "role", "blocked", "targets", "dead",
-          "genie median steps", "starts excluded", "4 x 4 patches", "dead/live boundaries on 64 m / 16 m lines",
-          "step across 64 m / 16 m lines"]  # fmt: skip
+HEADER = [
+    "city",
+    "source",
+    "size [m]",
+    "buildings (tiers)",
+    "users",
+    "role",
+    "blocked",
+    "targets",
+    "dead",
+    "genie median steps",
+    "starts excluded",
+    "4 x 4 patches",
+    "dead/live boundaries on 64 m / 16 m lines",
+    "step across 64 m / 16 m lines",
+]
 
 
 def _pct(v: float | None) -> str:
@@ -42,12 +55,22 @@ def corpus_rows(root: str | Path, raw: str | Path) -> list[list[str]]:
         live = ~b.dead & ~b.blocked[None] & (b.sinr_db > b.sinr_floor_db)
         shares = lattice_boundary_shares(~b.dead, ~b.blocked)
         steps = lattice_step_ratios(b.sinr_db, ~b.dead, ~b.blocked)
-        rows.append([
-            c.name, source, f"{g.num_x * g.spacing_m:g} x {g.num_y * g.spacing_m:g}",
-            f"{b.manifest.counts['buildings']} ({record.get('num_building_parts', '-')})", str(b.num_users),
-            b.manifest.config.role or "-", f"{100 * d['blocked_share']:.0f} %", f"{100 * d['target_share']:.0f} %",
-            f"{100 * d['dead_share']:.0f} %", f"{d['bfs_median_steps']:g}", _pct(d.get("excluded_start_share")),
-            f"{100 * constant_patch_share(b.sinr_db, live):.2f} %", f"{_pct(shares['64 m'])} / {_pct(shares['16 m'])}",
-            f"{steps['64 m']:.2f} / {steps['16 m']:.2f}",
-        ])  # fmt: skip
+        rows.append(
+            [
+                c.name,
+                source,
+                f"{g.num_x * g.spacing_m:g} x {g.num_y * g.spacing_m:g}",
+                f"{b.manifest.counts['buildings']} ({record.get('num_building_parts', '-')})",
+                str(b.num_users),
+                b.manifest.config.role or "-",
+                f"{100 * d['blocked_share']:.0f} %",
+                f"{100 * d['target_share']:.0f} %",
+                f"{100 * d['dead_share']:.0f} %",
+                f"{d['bfs_median_steps']:g}",
+                _pct(d.get("excluded_start_share")),
+                f"{100 * constant_patch_share(b.sinr_db, live):.2f} %",
+                f"{_pct(shares['64 m'])} / {_pct(shares['16 m'])}",
+                f"{steps['64 m']:.2f} / {steps['16 m']:.2f}",
+            ]
+        )
     return rows

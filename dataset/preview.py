@@ -62,11 +62,15 @@ def render_bundle(bundle: Bundle, user: int, out: str | Path) -> Path:
     handles = []
     with matplotlib.rc_context({"hatch.color": "white", "hatch.linewidth": 0.6}):
         for code, mask in marked.items():
-            ax.contourf(mask.astype(float), levels=[0.5, 1.5], hatches=[HATCHES[code]], colors="none", origin="lower",
-                        extent=extent)  # fmt: skip
+            ax.contourf(
+                mask.astype(float), levels=[0.5, 1.5], hatches=[HATCHES[code]], colors="none", origin="lower", extent=extent
+            )
             share = 100 * mask.sum() / max(int((~blocked).sum()), 1)
-            handles.append(matplotlib.patches.Patch(facecolor="0.35", edgecolor="white", hatch=HATCHES[code],
-                                                    label=f"{code_name(code)} ({share:.1f} %)"))  # fmt: skip
+            handles.append(
+                matplotlib.patches.Patch(
+                    facecolor="0.35", edgecolor="white", hatch=HATCHES[code], label=f"{code_name(code)} ({share:.1f} %)"
+                )
+            )
     unrecorded = (bundle.provenance[user] == NOT_RECORDED) & ~blocked
     if unrecorded.any():  # said in words, not hatched: the export does not say whether these were traced or estimated
         share = 100 * unrecorded.sum() / max(int((~blocked).sum()), 1)

@@ -33,8 +33,12 @@ def release_cities(root: str | Path = "data/processed", *, routes: bool = False)
             found.append(c.name)
     if not found:
         kind = "with routes " if routes else ""
-        raise InputError(root, f"no test city {kind}is built: build some with --split CITY=test (or in data/raw/cities.toml), "
-                         "or name one with --dataset", field="dataset")  # fmt: skip
+        raise InputError(
+            root,
+            f"no test city {kind}is built: build some with --split CITY=test (or in data/raw/cities.toml), "
+            "or name one with --dataset",
+            field="dataset",
+        )
     return found
 
 

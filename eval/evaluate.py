@@ -99,8 +99,12 @@ def load_agent(folder: str | Path, epsilon: float, seed: int, task: str | None =
     if run is not None and run.config.model_dump() != config.model_dump():
         held, played = run.config.model_dump(), config.model_dump()
         differ = [k for k in held if held[k] != played[k]]
-        raise InputError(folder / RUN_JSON, f"its config is not the one checkpoints/best.pt was trained with ({', '.join(differ)} "
-                         "differ): the report would describe another agent than it plays", field="config")  # fmt: skip
+        raise InputError(
+            folder / RUN_JSON,
+            f"its config is not the one checkpoints/best.pt was trained with ({', '.join(differ)} "
+            "differ): the report would describe another agent than it plays",
+            field="config",
+        )
     if task is not None and config.task != task:
         how = "`uavrl report --task tracking`" if config.task == "tracking" else "a placement report"
         raise InputError(folder, f"a {config.task} agent, not a {task} one: {how} plays it", field="task")
@@ -141,8 +145,10 @@ def unlike_training(runs: list[Path], datasets: list[str], root: str | Path, p_t
         for manifest in manifests:
             unlike = settings_unlike(record, manifest, p_t_db)
             if unlike:
-                lines.append(f"{Path(run).name} on {manifest.city}@{manifest.version}: {'; '.join(unlike)}: the agent "
-                             "plays outside what it was trained on")  # fmt: skip
+                lines.append(
+                    f"{Path(run).name} on {manifest.city}@{manifest.version}: {'; '.join(unlike)}: the agent "
+                    "plays outside what it was trained on"
+                )
     return lines
 
 
@@ -293,8 +299,7 @@ def ablation_table(results: dict[str, pd.DataFrame], config: ReportConfig) -> pd
     for name in results:
         if name.endswith(NO_BUILDINGS) and name[: -len(NO_BUILDINGS)] in results:
             plain = name[: -len(NO_BUILDINGS)]
-            d = difference_table({plain: results[plain], name: results[name]}, [plain], n_boot=config.n_boot,
-                                 seed=config.seed)  # fmt: skip
+            d = difference_table({plain: results[plain], name: results[name]}, [plain], n_boot=config.n_boot, seed=config.seed)
             parts.append(d[d["method"] == name].assign(against=WITH_BUILDINGS))
     return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
 
@@ -358,18 +363,21 @@ def check_unseen(agents: list[Agent] | list[_Record], bundle: Bundle | BundleMan
         same = [city for city, version in {**a.trained_on, **a.selected_on}.items() if version == bundle.version]
         if same and bundle.city not in same:  # the same bundle under another name: a copied or renamed city
             raise InputError(
-                a.folder, f"trained or selected on bundle {bundle.version} (as {', '.join(same)}), which is this test "
-                f"city's ({bundle.city}): not an unseen-city evaluation", field="datasets",
-            )  # fmt: skip
+                a.folder,
+                f"trained or selected on bundle {bundle.version} (as {', '.join(same)}), which is this test "
+                f"city's ({bundle.city}): not an unseen-city evaluation",
+                field="datasets",
+            )
         if bundle.city in a.trained_on:
             raise InputError(
                 a.folder, f"was trained in {bundle.city}, the test city: not an unseen-city evaluation", field="datasets"
             )
         if bundle.city in a.selected_on:
             raise InputError(
-                a.folder, f"selected its checkpoint in {bundle.city}, the test city: not an unseen-city evaluation",
+                a.folder,
+                f"selected its checkpoint in {bundle.city}, the test city: not an unseen-city evaluation",
                 field="val_datasets",
-            )  # fmt: skip
+            )
 
 
 def training_bounds(agents: list[Agent], root: str | Path, p_t_db: float) -> tuple[dict[str, float], dict[str, str]]:

@@ -74,8 +74,9 @@ class FleetReportConfig(Contract):
     )
 
 
-def fleet_results(config: FleetReportConfig, bundle: Bundle, root: Path, on_progress: Callable[[str], None] | None = None
-                  ) -> dict[str, pd.DataFrame]:  # fmt: skip
+def fleet_results(
+    config: FleetReportConfig, bundle: Bundle, root: Path, on_progress: Callable[[str], None] | None = None
+) -> dict[str, pd.DataFrame]:
     """``{method: run_fleet frame}`` of one city's bundle, the oracle first."""
     city = bundle.city
     maps = FleetMaps.of([bundle], config.task)
@@ -146,17 +147,20 @@ def plot_fleet_episodes(bundle: Bundle, frame: pd.DataFrame, method: str, config
             user = bundle.users.iloc[u]
             ax.plot(user["x_m"], user["y_m"], "*", color="cyan", markersize=13, markeredgecolor="black")
         outcome = f"{int(row['steps'])} steps" if row["success"] else f"not all served in {config.t_max} steps"
-        ax.set_title(f"{q}th percentile: episode {ep}, users {row['user']}\n{outcome} (oracle {int(row['oracle_steps'])})",
-                     fontsize=9)  # fmt: skip
+        ax.set_title(
+            f"{q}th percentile: episode {ep}, users {row['user']}\n{outcome} (oracle {int(row['oracle_steps'])})", fontsize=9
+        )
         ax.tick_params(labelsize=7)
         fig.colorbar(im, ax=ax, shrink=0.8).set_label("building height - altitude [m]", fontsize=7)
     axes[0][0].legend(fontsize=7, loc="upper left")
     fig.suptitle(f"{method} in {bundle.city}: {config.uavs} UAVs, {config.users} users", fontsize=10)
     fig.savefig(out, dpi=100)
     plt.close(fig)
-    return (f"{method} in {bundle.city}: the episodes at the {', '.join(str(q) for q in PERCENTILES)}th percentiles of "
-            "its steps (chosen by rule, failures counted beyond t_max), on the building heights (black: the edges of "
-            "blocked cells). Lines: each UAV's path from its circle; stars: the users.")  # fmt: skip
+    return (
+        f"{method} in {bundle.city}: the episodes at the {', '.join(str(q) for q in PERCENTILES)}th percentiles of "
+        "its steps (chosen by rule, failures counted beyond t_max), on the building heights (black: the edges of "
+        "blocked cells). Lines: each UAV's path from its circle; stars: the users."
+    )
 
 
 def table_rows(table: pd.DataFrame, t_max: int) -> list[list[str]]:
@@ -169,8 +173,10 @@ def table_rows(table: pd.DataFrame, t_max: int) -> list[list[str]]:
 
 
 #: The summary's title: what each cell holds.
-SUMMARY_TITLE = ("success / median steps (median of per-episode steps / the oracle's) per method and city; then each "
-                 "method minus the reference, paired")  # fmt: skip
+SUMMARY_TITLE = (
+    "success / median steps (median of per-episode steps / the oracle's) per method and city; then each "
+    "method minus the reference, paired"
+)
 
 
 def summary_rows(table: pd.DataFrame, diff: pd.DataFrame, t_max: int) -> list[list[str]]:
@@ -178,8 +184,7 @@ def summary_rows(table: pd.DataFrame, diff: pd.DataFrame, t_max: int) -> list[li
     difference from the city's reference (``reference``: success, median steps), with 95 % intervals."""
     cities = list(dict.fromkeys(table["city"]))
     refs = {c: str(diff[(diff["city"] == c) & (diff["against"] != ORACLE)]["against"].iloc[0]) for c in cities}
-    header = ["method", *(f"{c}: success / median steps (x oracle)" for c in cities),
-              *(f"{c}: minus {refs[c]}" for c in cities)]  # fmt: skip
+    header = ["method", *(f"{c}: success / median steps (x oracle)" for c in cities), *(f"{c}: minus {refs[c]}" for c in cities)]
     rows = [header]
     for method in dict.fromkeys(table["method"]):
         cells = [str(method)]
@@ -189,14 +194,16 @@ def summary_rows(table: pd.DataFrame, diff: pd.DataFrame, t_max: int) -> list[li
             cells.append(f"{shown[0]} / {shown[1]} ({format_stat('steps_over_genie', r['steps_over_genie'], t_max=t_max)})")
         for c in cities:
             d = diff[(diff["city"] == c) & (diff["method"] == method) & (diff["against"] == refs[c])]
-            cells.append("-" if d.empty else " / ".join(difference_cell(s, d[d["stat"] == s].iloc[0])
-                                                         for s in ("success", "median_steps")))  # fmt: skip
+            cells.append(
+                "-" if d.empty else " / ".join(difference_cell(s, d[d["stat"] == s].iloc[0]) for s in ("success", "median_steps"))
+            )
         rows.append(cells)
     return rows
 
 
-def make_fleet_report(config: FleetReportConfig, out: Path, root: Path, command: str = "",
-                      on_progress: Callable[[str], None] | None = None) -> tuple[pd.DataFrame, pd.DataFrame, Path]:  # fmt: skip
+def make_fleet_report(
+    config: FleetReportConfig, out: Path, root: Path, command: str = "", on_progress: Callable[[str], None] | None = None
+) -> tuple[pd.DataFrame, pd.DataFrame, Path]:
     """Play every city, tabulate, and write ``out`` (see the module's docstring). Returns (results table, paired
     differences, the Markdown file), every city in each."""
     check_replaceable(out, FLEET_JSON, "fleet report")
@@ -214,8 +221,10 @@ def make_fleet_report(config: FleetReportConfig, out: Path, root: Path, command:
         diffs.append(diff.assign(city=city))
         frames += [df.assign(method=m, city_name=city) for m, df in results.items()]
         versions[city] = bundle.version
-        head = (f"**{city}** ({config.episodes} episodes, {config.task.uavs} UAVs and {config.task.users} users, "
-                f"t_max {config.task.t_max}, P_T {config.task.p_t_db:g} dB; 95 % intervals over user sets, then episodes)")  # fmt: skip
+        head = (
+            f"**{city}** ({config.episodes} episodes, {config.task.uavs} UAVs and {config.task.users} users, "
+            f"t_max {config.task.t_max}, P_T {config.task.p_t_db:g} dB; 95 % intervals over user sets, then episodes)"
+        )
         rows, diff_rows = table_rows(table, config.task.t_max), difference_rows(diff, config.task.t_max)
         sections += [
             head,
@@ -241,15 +250,21 @@ def make_fleet_report(config: FleetReportConfig, out: Path, root: Path, command:
         table.to_csv(tmp / "results.csv", index=False)
         diff.to_csv(tmp / "differences.csv", index=False)
         pd.concat(frames, ignore_index=True).to_parquet(tmp / "episodes.parquet", index=False)
-        doc = {"config": config.model_dump(mode="json"), "bundles": versions, "command": command,
-               "uavplace_version": uavplace_version(), "created_utc": dt.datetime.now(dt.UTC).isoformat()}  # fmt: skip
+        doc = {
+            "config": config.model_dump(mode="json"),
+            "bundles": versions,
+            "command": command,
+            "uavplace_version": uavplace_version(),
+            "created_utc": dt.datetime.now(dt.UTC).isoformat(),
+        }
         (tmp / FLEET_JSON).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
         (tmp / "fleet.html").write_text(fleet_page(config, pages, summary, doc, found), encoding="utf-8")
     return table, diff, out / "fleet.md"
 
 
-def fleet_page(config: FleetReportConfig, pages: dict[str, dict], summary: list[list[str]] | None, doc: dict,
-               findings: list[str]) -> str:  # fmt: skip
+def fleet_page(
+    config: FleetReportConfig, pages: dict[str, dict], summary: list[list[str]] | None, doc: dict, findings: list[str]
+) -> str:
     """``fleet.html``: self-contained, the placement and tracking reports' style: what it found (``findings``), the
     summary of every city (with more than one), then per city its table, its paired differences and its figure
     (``pages``), then ``fleet.json``."""

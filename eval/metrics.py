@@ -17,8 +17,21 @@ import pandas as pd
 
 from uavplace.rl.rollout import IQM_CUT, STATS, WITHIN, format_stat, spl_terms
 
-__all__ = ["STATS", "aggregate_table", "bootstrap_table", "difference_table", "ecdf", "format_stat", "group_tables",
-           "performance_profile", "profiles", "resample_counts", "stratified_counts", "weighted_iqm", "weighted_stats"]  # fmt: skip
+__all__ = [
+    "STATS",
+    "aggregate_table",
+    "bootstrap_table",
+    "difference_table",
+    "ecdf",
+    "format_stat",
+    "group_tables",
+    "performance_profile",
+    "profiles",
+    "resample_counts",
+    "stratified_counts",
+    "weighted_iqm",
+    "weighted_stats",
+]
 
 #: The statistics a difference is reported for (the two the paper reports).
 DIFFERENCE_STATS = ("success", "median_steps")
@@ -256,8 +269,17 @@ def difference_table(
                 finite = np.isfinite(d)
                 ok = finite.mean() >= 1.0 - alpha and np.isfinite(p)
                 lo, hi = np.quantile(d[finite], [alpha, 1.0 - alpha], method="inverted_cdf") if ok else (np.nan, np.nan)
-                rows.append({"method": name, "against": ref, "stat": stat, "difference": p if ok else np.nan,
-                             "lo": float(lo), "hi": float(hi), "undefined_share": float(1.0 - finite.mean())})  # fmt: skip
+                rows.append(
+                    {
+                        "method": name,
+                        "against": ref,
+                        "stat": stat,
+                        "difference": p if ok else np.nan,
+                        "lo": float(lo),
+                        "hi": float(hi),
+                        "undefined_share": float(1.0 - finite.mean()),
+                    }
+                )
     return pd.DataFrame(rows, columns=["method", "against", "stat", "difference", "lo", "hi", "undefined_share"])
 
 
@@ -288,8 +310,9 @@ def group_tables(
         stats = [(_stats_of(results[r], ones), _stats_of(results[r], counts)) for r in runs]
         draws = rng.integers(0, len(runs), size=(n_boot, len(runs)))  # the runs of each replicate
         point[name] = {st: np.array([s[0][st][0] for s in stats]) for st in DIFFERENCE_STATS}
-        boot[name] = {st: np.stack([s[1][st] for s in stats])[draws, np.arange(n_boot)[:, None]].mean(axis=1)
-                      for st in DIFFERENCE_STATS}  # fmt: skip
+        boot[name] = {
+            st: np.stack([s[1][st] for s in stats])[draws, np.arange(n_boot)[:, None]].mean(axis=1) for st in DIFFERENCE_STATS
+        }
 
     def interval(values: np.ndarray, at: float) -> tuple[float, float, float, float]:
         finite = np.isfinite(values)
@@ -301,9 +324,19 @@ def group_tables(
     for name, runs in groups.items():
         for st in DIFFERENCE_STATS:
             value, lo, hi, undefined = interval(boot[name][st], float(point[name][st].mean()))
-            rows.append({"group": name, "runs": len(runs), "stat": st, "value": value, "lo": lo, "hi": hi,
-                         "run_min": float(point[name][st].min()), "run_max": float(point[name][st].max()),
-                         "undefined_share": undefined})  # fmt: skip
+            rows.append(
+                {
+                    "group": name,
+                    "runs": len(runs),
+                    "stat": st,
+                    "value": value,
+                    "lo": lo,
+                    "hi": hi,
+                    "run_min": float(point[name][st].min()),
+                    "run_max": float(point[name][st].max()),
+                    "undefined_share": undefined,
+                }
+            )
     diffs = []
     for ref in (r for r in against if r in groups):
         for name in groups:
@@ -313,8 +346,17 @@ def group_tables(
                 with np.errstate(invalid="ignore"):
                     d, at = boot[name][st] - boot[ref][st], float(point[name][st].mean() - point[ref][st].mean())
                 value, lo, hi, undefined = interval(d, at)
-                diffs.append({"group": name, "against": ref, "stat": st, "difference": value, "lo": lo, "hi": hi,
-                              "undefined_share": undefined})  # fmt: skip
+                diffs.append(
+                    {
+                        "group": name,
+                        "against": ref,
+                        "stat": st,
+                        "difference": value,
+                        "lo": lo,
+                        "hi": hi,
+                        "undefined_share": undefined,
+                    }
+                )
     return pd.DataFrame(rows), pd.DataFrame(diffs)
 
 

@@ -45,12 +45,29 @@ OBS_SCALE = 50.0
 #: budget of minutes on a CPU can fill. ``policy_kwargs`` ``normalize_images=False``: the observations are floats of
 #: order 1 already, not 0-255 pixels.
 HYPERPARAMETERS: dict[str, dict] = {
-    "ppo": {"n_steps": 128, "batch_size": 256, "n_epochs": 4, "learning_rate": 2.5e-4, "clip_range": 0.1,
-            "ent_coef": 0.01, "vf_coef": 0.5},
-    "dqn": {"buffer_size": 50_000, "learning_starts": 5_000, "batch_size": 32, "learning_rate": 1e-4,
-            "target_update_interval": 1_000, "train_freq": 4, "gradient_steps": 1, "exploration_fraction": 0.1,
-            "exploration_final_eps": 0.01, "optimize_memory_usage": True, "replay_buffer_kwargs": {"handle_timeout_termination": False}},
-}  # fmt: skip
+    "ppo": {
+        "n_steps": 128,
+        "batch_size": 256,
+        "n_epochs": 4,
+        "learning_rate": 2.5e-4,
+        "clip_range": 0.1,
+        "ent_coef": 0.01,
+        "vf_coef": 0.5,
+    },
+    "dqn": {
+        "buffer_size": 50_000,
+        "learning_starts": 5_000,
+        "batch_size": 32,
+        "learning_rate": 1e-4,
+        "target_update_interval": 1_000,
+        "train_freq": 4,
+        "gradient_steps": 1,
+        "exploration_fraction": 0.1,
+        "exploration_final_eps": 0.01,
+        "optimize_memory_usage": True,
+        "replay_buffer_kwargs": {"handle_timeout_termination": False},
+    },
+}
 #: The weights file and its record in a peer's folder.
 WEIGHTS, RECORD = "policy.pt", "peer.json"
 
@@ -73,8 +90,9 @@ def make_model(algo: Literal["dqn", "ppo"], maps: MapSet, n_envs: int, seed: int
     venv = DummyVecEnv([lambda: UavPlacementEnv(maps, obs_scale=OBS_SCALE) for _ in range(n_envs)])
     venv.seed(seed)
     cls = {"dqn": sb3.DQN, "ppo": sb3.PPO}[algo]
-    return cls("CnnPolicy", venv, seed=seed, device="cpu", verbose=0, policy_kwargs={"normalize_images": False},
-               **HYPERPARAMETERS[algo])  # fmt: skip
+    return cls(
+        "CnnPolicy", venv, seed=seed, device="cpu", verbose=0, policy_kwargs={"normalize_images": False}, **HYPERPARAMETERS[algo]
+    )
 
 
 def train_sb3(
@@ -175,8 +193,9 @@ def training_maps(cities: list[str], root: str | Path) -> MapSet:
     return MapSet(plan.train, EnvConfig(split=plan.train_split), plan.train_users)
 
 
-def peer_table(best: Path, peers: list[Path], cities: list[str], root: str | Path, episodes: int = 1000, seed: int = 0
-               ) -> list[list[str]]:  # fmt: skip
+def peer_table(
+    best: Path, peers: list[Path], cities: list[str], root: str | Path, episodes: int = 1000, seed: int = 0
+) -> list[list[str]]:
     """The `best` run ``best``, the peers and the genie on the same ``episodes`` of each city (``evaluate``: t_max 500,
     test epsilon 0.096 for every learner): text rows (header first) of success and median steps with 95 % intervals over
     users then episodes, and the ratios best / peer (success) and peer / best (median steps)."""
@@ -197,9 +216,16 @@ def peer_table(best: Path, peers: list[Path], cities: list[str], root: str | Pat
             first = name == agent.name
             ratio_s = "-" if first or r.success == 0 else f"{ref.success / r.success:.2f}"
             ratio_m = "-" if first else ("inf" if not np.isfinite(r.median_steps) else f"{r.median_steps / ref.median_steps:.2f}")
-            rows.append([city, name, format_stat("success", r.success, r.success_lo, r.success_hi),
-                         format_stat("median_steps", r.median_steps, r.median_steps_lo, r.median_steps_hi, 500),
-                         ratio_s, ratio_m])  # fmt: skip
+            rows.append(
+                [
+                    city,
+                    name,
+                    format_stat("success", r.success, r.success_lo, r.success_hi),
+                    format_stat("median_steps", r.median_steps, r.median_steps_lo, r.median_steps_hi, 500),
+                    ratio_s,
+                    ratio_m,
+                ]
+            )
     return rows
 
 

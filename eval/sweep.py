@@ -160,14 +160,17 @@ def _remove_unstarted(run_dir: Path, config: DQNConfig, remove: bool = True) -> 
     from uavplace.rl.agent.train import read_run_json
 
     if run_dir.is_symlink() or not run_dir.is_dir() or not (run_dir / "run.json").is_file():
-        raise InputError(run_dir, "exists and is not a training run: a sweep removes only what it made; move it away, "
-                         "or rename the trial")  # fmt: skip
+        raise InputError(
+            run_dir, "exists and is not a training run: a sweep removes only what it made; move it away, or rename the trial"
+        )
     if read_run_json(run_dir).config.model_dump() != config.model_dump():
         raise InputError(run_dir, "holds a run of other settings than the sweep's: move it away, or rename the trial")
     strangers = sorted(p.name for p in run_dir.iterdir() if p.name not in RUN_ENTRIES)
     if strangers:
-        raise InputError(run_dir, f"holds files a run does not write ({', '.join(strangers[:3])}): a sweep removes only "
-                         "what it made; move them away")  # fmt: skip
+        raise InputError(
+            run_dir,
+            f"holds files a run does not write ({', '.join(strangers[:3])}): a sweep removes only what it made; move them away",
+        )
     if remove:
         shutil.rmtree(run_dir)  # started but never checkpointed: nothing to continue
 
@@ -181,8 +184,12 @@ def check_held_out(spec: SweepSpec, path: Path, root: Path) -> None:
     for field in ("val_datasets", "cities"):
         both = sorted(trained & set(expand_datasets(getattr(spec, field), root)))
         if both:
-            raise InputError(path, f"{', '.join(both)}: a training city of the sweep is also a validation city: the "
-                             "table would score the runs where they learnt", field=field)  # fmt: skip
+            raise InputError(
+                path,
+                f"{', '.join(both)}: a training city of the sweep is also a validation city: the "
+                "table would score the runs where they learnt",
+                field=field,
+            )
 
 
 def _trial(tune_config: dict) -> None:
@@ -203,8 +210,15 @@ def _trial(tune_config: dict) -> None:
             resume = (run_dir / "checkpoints" / "last").is_dir()
             if run_dir.exists() and not resume:
                 _remove_unstarted(run_dir, config)
-            trainer = start_run(run_dir, config, params["datasets"], params["val_datasets"], params["root"], resume=resume,
-                                command=params["command"])  # fmt: skip
+            trainer = start_run(
+                run_dir,
+                config,
+                params["datasets"],
+                params["val_datasets"],
+                params["root"],
+                resume=resume,
+                command=params["command"],
+            )
             trainer.run(resume=resume)
     last = pd.read_parquet(run_dir / "eval.parquet").iloc[-1]
     tune.report({"success": float(last["success"]), "median_steps": float(last["median_steps"])})
@@ -249,9 +263,14 @@ def run_sweep(
         started = start_ray(address, cpus_per_trial, "--cpus-per-trial")
         try:
             # corpus names (``corpus`` -> corpus-000, ...) expanded here, as ``uavrl train`` does
-            common = {"out": str(out), "root": str(root), "datasets": expand_datasets(spec.datasets, root),
-                      "val_datasets": expand_datasets(spec.val_datasets, root), "command": command,
-                      "cpus": cpus_per_trial}  # fmt: skip
+            common = {
+                "out": str(out),
+                "root": str(root),
+                "datasets": expand_datasets(spec.datasets, root),
+                "val_datasets": expand_datasets(spec.val_datasets, root),
+                "command": command,
+                "cpus": cpus_per_trial,
+            }
             space = [common | {"run": name, "config": configs[name].model_dump_json()} for name in todo]
             trainable = tune.with_resources(_trial, {"cpu": cpus_per_trial})
             stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%d-%H%M%S")
@@ -338,8 +357,10 @@ def validation_table(
         genie = table.loc[GeniePolicy.name, "median_steps"]
         for a in agents:
             r = table.loc[a.name]
-            rows[a.name] |= {f"{city} {k}": float(r[k]) for k in ("success", "success_lo", "success_hi", "median_steps",
-                                                                     "median_steps_lo", "median_steps_hi")}  # fmt: skip
+            rows[a.name] |= {
+                f"{city} {k}": float(r[k])
+                for k in ("success", "success_lo", "success_hi", "median_steps", "median_steps_lo", "median_steps_hi")
+            }
             rows[a.name][f"{city} x genie"] = float(r["median_steps"] / max(genie, 1))
     return pd.DataFrame(list(rows.values())).assign(cities=", ".join(cities))
 

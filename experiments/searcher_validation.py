@@ -8,7 +8,7 @@ against the searcher. Settings of the searcher as ``--set name=value`` (``Search
 
     python experiments/searcher_validation.py [--city oldtown-005] [--episodes 300] [--set temper=0.3] [--quick]
         [--predictor data/agents/searcher/unet] [--agent data/agents/best --agent runs/hybrid/h-s0]
-        [--variant planner=info,info_weight=0.2]
+        [--variant planner=info,info_weight=0.2] [--versus runs/predictor/v2]
 """
 
 from __future__ import annotations
@@ -56,11 +56,20 @@ def main() -> None:
     )
     ap.add_argument("--root", type=Path, default=Path("data/processed"))
     ap.add_argument("--predictor", type=Path, default=DEFAULT_PREDICTOR, help="Constants' JSON or a learned tier's folder")
+    ap.add_argument(
+        "--versus",
+        type=Path,
+        action="append",
+        default=[],
+        help="Another predictor (a learned tier's folder or constants' JSON) whose searcher plays beside it on the same "
+        "episodes, named 'map searcher [FOLDER]' (repeatable; paired against the searcher)",
+    )
     ap.add_argument("--quick", action="store_true", help="The genie and the searcher only (no best, no ablation)")
     args = ap.parse_args()
     settings = {k: _value(v) for k, v in (s.split("=", 1) for s in args.set)}
     search = SearchConfig(**settings)
     predictor, cache = load_predictor(args.predictor), PredictionCache(args.root / PREDICTIONS)
+    versus = [(other, load_predictor(other)) for other in args.versus]
     folders = args.agent or [Path("data/agents/best")]
     agents = [] if args.quick else [load_agent(f, epsilon=0.096, seed=args.seed) for f in folders]
     if len({a.name for a in agents}) != len(agents):  # two runs of one preset: named by their folders
@@ -80,6 +89,8 @@ def main() -> None:
             changed = {k: _value(v) for k, v in (p.split("=", 1) for p in text.split(","))}
             policies.append(MapSearchPolicy(predictor, SearchConfig(**{**search.model_dump(), **changed}), cache,
                                             name=f"{SEARCHER} [{text}]"))  # fmt: skip
+        for other, tier in versus:
+            policies.append(MapSearchPolicy(tier, search, cache, name=f"{SEARCHER} [{other.name}]"))
         t0 = time.perf_counter()
         results = evaluate(config, bundle, agents, baselines=policies)
         wall = time.perf_counter() - t0

@@ -37,8 +37,9 @@ def start_ray(address: str | None, cpus_per_task: float, cpus_option: str, num_c
     if address is None:
         have = os.cpu_count() or 1
         if cpus_per_task > have:
-            raise InputError(None, f"{cpus_per_task:g}: this machine has {have} CPUs: a task would wait for them forever",
-                             field=cpus_option)  # fmt: skip
+            raise InputError(
+                None, f"{cpus_per_task:g}: this machine has {have} CPUs: a task would wait for them forever", field=cpus_option
+            )
     else:
         endpoint = head_endpoint(address)
         if endpoint is not None:
@@ -46,8 +47,9 @@ def start_ray(address: str | None, cpus_per_task: float, cpus_option: str, num_c
                 socket.create_connection(endpoint, timeout=CONNECT_TIMEOUT_S).close()
             except OSError as err:
                 reason = "no answer" if isinstance(err, TimeoutError) else (err.strerror or type(err).__name__)
-                raise InputError(None, f"{address}: nothing answers there ({reason} within {CONNECT_TIMEOUT_S:g} s)",
-                                 field="--ray-address") from None  # fmt: skip
+                raise InputError(
+                    None, f"{address}: nothing answers there ({reason} within {CONNECT_TIMEOUT_S:g} s)", field="--ray-address"
+                ) from None
     try:
         local = {"num_cpus": num_cpus} if address is None and num_cpus else {}
         ray.init(address=address, include_dashboard=False, log_to_driver=False, configure_logging=False, **local)
@@ -63,6 +65,7 @@ def start_ray(address: str | None, cpus_per_task: float, cpus_option: str, num_c
     have = float(ray.cluster_resources().get("CPU", 0))
     if cpus_per_task > have:
         ray.shutdown()
-        raise InputError(None, f"{cpus_per_task:g}: the Ray cluster has {have:g} CPUs: a task would wait for them forever",
-                         field=cpus_option)  # fmt: skip
+        raise InputError(
+            None, f"{cpus_per_task:g}: the Ray cluster has {have:g} CPUs: a task would wait for them forever", field=cpus_option
+        )
     return True

@@ -267,8 +267,9 @@ def check_replaceable(final: str | Path, marker: str, what: str) -> None:
 
 
 @contextlib.contextmanager
-def atomic_directory(final: str | Path, *, marker: str | None = None, what: str = "output", new: bool = False,
-                     lock: str | Path | None = None) -> Iterator[Path]:  # fmt: skip
+def atomic_directory(
+    final: str | Path, *, marker: str | None = None, what: str = "output", new: bool = False, lock: str | Path | None = None
+) -> Iterator[Path]:
     """Yield a fresh temporary folder beside ``final``; on success it replaces ``final``.
 
     ``marker``: the file every folder of this kind holds; an existing ``final``

@@ -45,8 +45,11 @@ def ingest(folders: tuple[Path, ...], out_root: Path, name: str | None, verbose:
         city = folder.resolve().name
         if city in seen:
             same = folder.resolve() == seen[city].resolve()
-            raise click.UsageError(f"{folder} is given twice" if same else f"{seen[city]} and {folder} are both city "
-                                   f"'{city}': ingest them in two commands, one with --name")  # fmt: skip
+            raise click.UsageError(
+                f"{folder} is given twice"
+                if same
+                else f"{seen[city]} and {folder} are both city '{city}': ingest them in two commands, one with --name"
+            )
         seen[city] = folder
     for folder in folders:
         _ingest_one(folder, out_root, name, verbose, quiet)

@@ -26,8 +26,24 @@ FLAT_M = 0.5
 
 #: The largest PLY header read [bytes].
 _MAX_PLY_HEADER = 64 * 2**10
-_PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
-              "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}  # fmt: skip
+_PLY_SIZES = {
+    "char": 1,
+    "uchar": 1,
+    "int8": 1,
+    "uint8": 1,
+    "short": 2,
+    "ushort": 2,
+    "int16": 2,
+    "uint16": 2,
+    "int": 4,
+    "uint": 4,
+    "int32": 4,
+    "uint32": 4,
+    "float": 4,
+    "float32": 4,
+    "double": 8,
+    "float64": 8,
+}
 
 
 def _folder_resolver(folder: Path):  # noqa: ANN202 - a trimesh resolver
@@ -70,9 +86,11 @@ def check_ply_header(data: bytes, name: str) -> None:
     for element, count, number, row in elements:
         if count < 0 or count * max(row, 1) > body:
             raise InputError(
-                name, f"declares {count:,} {element} rows of at least {max(row, 1)} bytes; the file holds {body:,}",
-                line=number, field=element,
-            )  # fmt: skip
+                name,
+                f"declares {count:,} {element} rows of at least {max(row, 1)} bytes; the file holds {body:,}",
+                line=number,
+                field=element,
+            )
 
 
 def load_mesh(path: Path, name: str, *, process: bool):  # noqa: ANN201 - a trimesh.Trimesh
@@ -97,8 +115,11 @@ def load_mesh(path: Path, name: str, *, process: bool):  # noqa: ANN201 - a trim
         raise InputError(name, "mesh has no faces", field="faces")
     faces, vertices = np.asarray(loaded.faces), np.asarray(loaded.vertices)
     if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
-        raise InputError(name, f"vertices {list(vertices.shape)} and faces {list(faces.shape)}: a 3-D triangle mesh has "
-                         "[N, 3] and [F, 3]", field="vertices")  # fmt: skip
+        raise InputError(
+            name,
+            f"vertices {list(vertices.shape)} and faces {list(faces.shape)}: a 3-D triangle mesh has [N, 3] and [F, 3]",
+            field="vertices",
+        )
     if len(faces) and (faces.min() < 0 or faces.max() >= len(loaded.vertices)):
         raise InputError(name, f"a face indexes vertex {int(faces.max())} of {len(loaded.vertices)}", field="faces")
     if not np.isfinite(loaded.vertices).all():

@@ -75,9 +75,11 @@ def refuse_declarations(raw: bytes, name: str) -> None:
         parser.Parse(raw, True)
     except _Declared:
         raise InputError(
-            name, "the scene declares a DOCTYPE or entities: refused (a scene needs neither)",
-            line=parser.CurrentLineNumber, field="xml",
-        ) from None  # fmt: skip
+            name,
+            "the scene declares a DOCTYPE or entities: refused (a scene needs neither)",
+            line=parser.CurrentLineNumber,
+            field="xml",
+        ) from None
     except expat.ExpatError:
         return  # not well-formed: ElementTree's parse names the line
     except ValueError as exc:  # e.g. UTF-16 without a byte-order mark
@@ -102,9 +104,11 @@ def _scene_shapes(xml_path: Path, name: str) -> tuple[list[tuple[str, Path]], li
         found = groups[0]
         what = f"<{found.tag}>" if found.tag != "shape" else f'<shape type="{found.get("type")}">'
         raise InputError(
-            name, f"{what} is not supported (instances are placed by transforms, includes read other files): "
-            "export the scene with every mesh as a shape of its own", field=found.get("id") or found.tag,
-        )  # fmt: skip
+            name,
+            f"{what} is not supported (instances are placed by transforms, includes read other files): "
+            "export the scene with every mesh as a shape of its own",
+            field=found.get("id") or found.tag,
+        )
     folder = xml_path.parent.resolve()
     check_limit("buildings", sum(1 for _ in root.iter("shape")), name, "shapes of the scene (before any is read)")
     shapes, rejected = [], []

@@ -78,8 +78,19 @@ class Classified:
 
 
 #: Names of the files ingest reads (a folder so named is reported, not silently passed over).
-EXPORT_SUFFIXES = (".p2m", ".p2m.gz", ".txrx", ".setup", ".city", ".ter", ".geojson", ".routes.csv", ".provenance.csv",
-                   SIDE_FILE_SUFFIX, *MESH_SUFFIXES)  # fmt: skip
+EXPORT_SUFFIXES = (
+    ".p2m",
+    ".p2m.gz",
+    ".txrx",
+    ".setup",
+    ".city",
+    ".ter",
+    ".geojson",
+    ".routes.csv",
+    ".provenance.csv",
+    SIDE_FILE_SUFFIX,
+    *MESH_SUFFIXES,
+)
 
 
 def classify(folder: Path) -> list[Classified]:
@@ -291,22 +302,33 @@ class _ReceiverReader:
         else:
             known = self.codes.get(key)
             if known is None:
-                raise InputError(self.codes_source, f"no runs for transmitter {key[1]} of set {key[0]} and receiver set "
-                                 f"{key[2]} ({source} has {table.num_rows} receivers)", field="tx_point")  # fmt: skip
+                raise InputError(
+                    self.codes_source,
+                    f"no runs for transmitter {key[1]} of set {key[0]} and receiver set "
+                    f"{key[2]} ({source} has {table.num_rows} receivers)",
+                    field="tx_point",
+                )
             index = table.column("rx_index").to_numpy(zero_copy_only=False).astype(np.int64) - 1
             off = (index < 0) | (index >= len(known))
             if off.any():
-                raise InputError(self.codes_source, f"runs of transmitter {key[1]} of set {key[0]} and receiver set {key[2]} "
-                                 f"describe receivers 1..{len(known)}, {source} has receiver {index[np.argmax(off)] + 1}",
-                                 field="count")  # fmt: skip
+                raise InputError(
+                    self.codes_source,
+                    f"runs of transmitter {key[1]} of set {key[0]} and receiver set {key[2]} "
+                    f"describe receivers 1..{len(known)}, {source} has receiver {index[np.argmax(off)] + 1}",
+                    field="count",
+                )
             codes = known[index]
             live = ~np.equal(reached, False) if reached is not None else np.ones(len(codes), bool)
             wrong = ((codes == UNREACHED) & live) | ((codes != UNREACHED) & unreached)
             if wrong.any():
                 k = int(np.argmax(wrong))
-                raise InputError(self.codes_source, f"transmitter {key[1]} of set {key[0]}, receiver {index[k] + 1}: code "
-                                 f"{codes[k]} ({code_name(int(codes[k]))}), but {source} says "
-                                 f"{'no path reached it' if unreached[k] else 'a path reached it'}", field="code")  # fmt: skip
+                raise InputError(
+                    self.codes_source,
+                    f"transmitter {key[1]} of set {key[0]}, receiver {index[k] + 1}: code "
+                    f"{codes[k]} ({code_name(int(codes[k]))}), but {source} says "
+                    f"{'no path reached it' if unreached[k] else 'a path reached it'}",
+                    field="code",
+                )
             self.seen[key] = self.seen.get(key, 0) + len(codes)
         self.by_code += np.bincount(codes, minlength=len(self.by_code))[: len(self.by_code)]
         return table.append_column("provenance", pa.array(codes, pa.uint8()))
@@ -317,9 +339,12 @@ class _ReceiverReader:
             return
         for key, known in self.codes.items():
             if self.seen.get(key, 0) != len(known):
-                raise InputError(self.codes_source, f"runs of transmitter {key[1]} of set {key[0]} and receiver set {key[2]} "
-                                 f"describe {len(known)} receivers, the export has {self.seen.get(key, 0)}",
-                                 field="count")  # fmt: skip
+                raise InputError(
+                    self.codes_source,
+                    f"runs of transmitter {key[1]} of set {key[0]} and receiver set {key[2]} "
+                    f"describe {len(known)} receivers, the export has {self.seen.get(key, 0)}",
+                    field="count",
+                )
 
     def _open(self, f: Classified) -> tuple[P2MStream, TxRxSet | None]:
         ident = parse_filename(f.path.name)
@@ -331,9 +356,12 @@ class _ReceiverReader:
         tx_ant = self.setup.antenna(tx_set.tx_antenna) if self.setup and tx_set else None
         gains = antenna_gain_dbi(tx_ant.type if tx_ant else None) + antenna_gain_dbi(ant.type if ant else None)
         stream = P2MStream(
-            f.path, display=f.rel, power_threshold_dbm=ant.power_threshold_dbm if ant else None,
-            max_gain_db=gains + COHERENT_MARGIN_DB, tx_power_dbm=tx_set.tx_power_dbm if tx_set is not None else None,
-        )  # fmt: skip
+            f.path,
+            display=f.rel,
+            power_threshold_dbm=ant.power_threshold_dbm if ant else None,
+            max_gain_db=gains + COHERENT_MARGIN_DB,
+            tx_power_dbm=tx_set.tx_power_dbm if tx_set is not None else None,
+        )
         return stream, rx_set
 
     def _batches(self, f: Classified) -> Iterator[pa.Table]:
@@ -537,8 +565,11 @@ def ingest_city(
                 "folder's (another simulation of the city?); it does not describe these receivers",
                 field="export",
             )
-        done(f, rows=sum(len(c) for c in receivers.codes.values()), message=f"provenance of {len(receivers.codes)} "
-             "transmitter(s) x receiver set(s)")  # fmt: skip
+        done(
+            f,
+            rows=sum(len(c) for c in receivers.codes.values()),
+            message=f"provenance of {len(receivers.codes)} transmitter(s) x receiver set(s)",
+        )
     else:
         simulated = next((x for x in by_kind["provenance"] if Path(x.rel).name == "simulation.json"), None)
         receivers.default_code = default_code(simulated.path if simulated else None, simulated.rel if simulated else None)
@@ -596,8 +627,11 @@ def ingest_city(
         tick(f.rel)
         # The footprints a user on the ground could walk into: parts reaching down to the users' 1.5 m (all of them
         # over terrain, whose heights are absolute).
-        low = [shapely.from_wkb(w) for w, z in zip(parts.column("footprint_wkb").to_pylist(), parts.column("base_z_m").to_pylist(),
-                                                   strict=True) if terrain_info is not None or z <= 1.5]  # fmt: skip
+        low = [
+            shapely.from_wkb(w)
+            for w, z in zip(parts.column("footprint_wkb").to_pylist(), parts.column("base_z_m").to_pylist(), strict=True)
+            if terrain_info is not None or z <= 1.5
+        ]
         routes = read_routes(f.path, f.rel, transmitters, low)
         done(
             f, rows=routes.num_rows, message=f"{len(set(routes.column('route').to_pylist()))} route(s), {routes.num_rows} points"

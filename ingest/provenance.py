@@ -120,18 +120,31 @@ def read_provenance(path: Path, source: str, receivers: int | None = None) -> di
                 raise InputError(source, f"{cell!r} is not an integer", line=line, field=name) from None
         for name in ("tx_set", "tx_point", "rx_set", "first_rx", "count"):
             if values[name] < (0 if name.endswith("_set") else 1):
-                raise InputError(source, f"{values[name]} is not a {'set id' if name.endswith('_set') else 'count'} "
-                                 f"(at least {0 if name.endswith('_set') else 1})", line=line, field=name)  # fmt: skip
+                raise InputError(
+                    source,
+                    f"{values[name]} is not a {'set id' if name.endswith('_set') else 'count'} "
+                    f"(at least {0 if name.endswith('_set') else 1})",
+                    line=line,
+                    field=name,
+                )
         if values["code"] not in RECEIVER_CODES:
-            raise InputError(source, f"{values['code']} is not a receiver's code ("
-                             + ", ".join(f"{c} {code_name(c)}" for c in RECEIVER_CODES) + ")", line=line, field="code")  # fmt: skip
+            raise InputError(
+                source,
+                f"{values['code']} is not a receiver's code (" + ", ".join(f"{c} {code_name(c)}" for c in RECEIVER_CODES) + ")",
+                line=line,
+                field="code",
+            )
         key = (values["tx_set"], values["tx_point"], values["rx_set"])
         expected = ends.get(key, 0) + 1
         if values["first_rx"] != expected:
-            raise InputError(source, f"run starts at receiver {values['first_rx']}; the runs of transmitter {key[1]} of set "
-                             f"{key[0]} and receiver set {key[2]} reach {expected - 1}: they must follow each other from "
-                             "1, with no gap or overlap", line=line,
-                             field="first_rx")  # fmt: skip
+            raise InputError(
+                source,
+                f"run starts at receiver {values['first_rx']}; the runs of transmitter {key[1]} of set "
+                f"{key[0]} and receiver set {key[2]} reach {expected - 1}: they must follow each other from "
+                "1, with no gap or overlap",
+                line=line,
+                field="first_rx",
+            )
         total += values["count"]
         check_limit("export_bytes", total, source, "receivers the runs describe", line=line, field="count")
         runs.setdefault(key, []).append((values["count"], values["code"]))

@@ -92,10 +92,19 @@ def read_routes(path: Path, source: str, transmitters: pa.Table, footprints: lis
     a = {c: np.array(v) for c, v in columns.items()}
     _check_routes(a, np.array(lines), source)
     _check_points(a, np.array(lines), source, transmitters, footprints)
-    table = pa.table({
-        "route": a["route"], "order": a["order"], "time_s": a["time_s"], "tx_set_id": a["tx_set"], "tx_point": a["tx_point"],
-        "x_m": a["x_m"], "y_m": a["y_m"], "kind": a["kind"], "speed_mps": a["speed_mps"],
-    })  # fmt: skip
+    table = pa.table(
+        {
+            "route": a["route"],
+            "order": a["order"],
+            "time_s": a["time_s"],
+            "tx_set_id": a["tx_set"],
+            "tx_point": a["tx_point"],
+            "x_m": a["x_m"],
+            "y_m": a["y_m"],
+            "kind": a["kind"],
+            "speed_mps": a["speed_mps"],
+        }
+    )
     return ROUTES.conform(table, source)
 
 
@@ -125,22 +134,34 @@ def _check_routes(a: dict[str, np.ndarray], lines: np.ndarray, source: str) -> N
                 raise InputError(source, f"route {route} changes its {c}", line=int(lines[k]), field=c)
         kind, speed = str(a["kind"][s]), float(a["speed_mps"][s])
         if speed > ROUTE_MAX_SPEED_MPS[kind]:
-            raise InputError(source, f"route {route}: a {kind} at {speed:g} m/s, faster than a {kind} moves (at most "
-                             f"{ROUTE_MAX_SPEED_MPS[kind]:g} m/s): its kind or speed is wrong", line=int(lines[s]),
-                             field="speed_mps")  # fmt: skip
+            raise InputError(
+                source,
+                f"route {route}: a {kind} at {speed:g} m/s, faster than a {kind} moves (at most "
+                f"{ROUTE_MAX_SPEED_MPS[kind]:g} m/s): its kind or speed is wrong",
+                line=int(lines[s]),
+                field="speed_mps",
+            )
         xy = np.c_[a["x_m"][s:e], a["y_m"][s:e]]
         step = np.linalg.norm(np.diff(xy, axis=0), axis=1)
         far = np.flatnonzero(step > ROUTE_MAX_STEP_M + STEP_TOL_M)
         if len(far):
             k = s + int(far[0]) + 1
-            raise InputError(source, f"a jump of {step[far[0]]:.3f} m from the point before, more than the sampling of "
-                             f"{ROUTE_MAX_STEP_M:g} m", line=int(lines[k]), field="x_m")  # fmt: skip
+            raise InputError(
+                source,
+                f"a jump of {step[far[0]]:.3f} m from the point before, more than the sampling of {ROUTE_MAX_STEP_M:g} m",
+                line=int(lines[k]),
+                field="x_m",
+            )
         expected = np.r_[0.0, np.cumsum(step)] / a["speed_mps"][s]
         off = np.flatnonzero(np.abs(a["time_s"][s:e] - expected) > TIME_TOL_S + 1e-4 * expected)
         if len(off):
             k = s + int(off[0])
-            raise InputError(source, f"time {a['time_s'][k]:g} s, but {expected[off[0]]:.3f} s at {a['speed_mps'][s]:g} m/s "
-                             "along the route", line=int(lines[k]), field="time_s")  # fmt: skip
+            raise InputError(
+                source,
+                f"time {a['time_s'][k]:g} s, but {expected[off[0]]:.3f} s at {a['speed_mps'][s]:g} m/s along the route",
+                line=int(lines[k]),
+                field="time_s",
+            )
 
 
 def _check_points(
@@ -148,7 +169,10 @@ def _check_points(
 ) -> None:
     """Every point a transmitter of the .txrx at its position, in one route only; none inside a building, no step
     across one."""
-    tx = {(int(s), int(p)): (x, y) for s, p, x, y in zip(*(transmitters.column(c).to_pylist() for c in ("tx_set_id", "tx_point", "x_m", "y_m")), strict=True)}  # fmt: skip
+    tx = {
+        (int(s), int(p)): (x, y)
+        for s, p, x, y in zip(*(transmitters.column(c).to_pylist() for c in ("tx_set_id", "tx_point", "x_m", "y_m")), strict=True)
+    }
     used: dict[tuple[int, int], int] = {}
     for k, key in enumerate(zip(a["tx_set"].tolist(), a["tx_point"].tolist(), strict=True)):
         line = int(lines[k])
@@ -164,8 +188,13 @@ def _check_points(
         if where is None:
             raise InputError(source, f"no transmitter t{key[1]:03d}_{key[0]:02d} in the .txrx", line=line, field="tx_point")
         if where[0] is not None and max(abs(where[0] - a["x_m"][k]), abs(where[1] - a["y_m"][k])) > POSITION_TOL_M:
-            raise InputError(source, f"({a['x_m'][k]:g}, {a['y_m'][k]:g}), but the .txrx puts t{key[1]:03d}_{key[0]:02d} at "
-                             f"({where[0]:g}, {where[1]:g})", line=line, field="x_m")  # fmt: skip
+            raise InputError(
+                source,
+                f"({a['x_m'][k]:g}, {a['y_m'][k]:g}), but the .txrx puts t{key[1]:03d}_{key[0]:02d} at "
+                f"({where[0]:g}, {where[1]:g})",
+                line=line,
+                field="x_m",
+            )
     if not footprints:
         return
     union = shapely.union_all(footprints)

@@ -202,8 +202,12 @@ class BeliefModel:
         cells = candidate_cells(scene.ground_height_m, cfg.stride, cfg.buildings)
         legal_map = public.legal(canvas)
         legal = np.argwhere(legal_map)
-        check_limit("prediction_bytes", 12 * len(cells) * len(legal), settings["city"],
-                    f"predicted maps of {len(cells)} candidates x {len(legal)} cells (a larger stride has fewer)")  # fmt: skip
+        check_limit(
+            "prediction_bytes",
+            12 * len(cells) * len(legal),
+            settings["city"],
+            f"predicted maps of {len(cells)} candidates x {len(legal)} cells (a larger stride has fewer)",
+        )
         index = np.full(legal_map.shape, -1, np.int64)
         index[legal[:, 0], legal[:, 1]] = np.arange(len(legal))
         cache_key = "-".join(

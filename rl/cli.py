@@ -32,9 +32,15 @@ def datasets(root: Path) -> None:
             continue
         s = m.split
         table.add_row(
-            c.name, m.version, f"{m.grid.spacing_m:g}", f"{m.config.altitude_m:g}", f"{m.grid.num_x} x {m.grid.num_y}",
-            str(m.num_users), m.config.role or "-", f"{s['train']} / {s['val']} / {s['test']}" if m.config.role else "-",
-        )  # fmt: skip
+            c.name,
+            m.version,
+            f"{m.grid.spacing_m:g}",
+            f"{m.config.altitude_m:g}",
+            f"{m.grid.num_x} x {m.grid.num_y}",
+            str(m.num_users),
+            m.config.role or "-",
+            f"{s['train']} / {s['val']} / {s['test']}" if m.config.role else "-",
+        )
     if table.row_count:
         out.print(table)
     else:
@@ -176,9 +182,23 @@ def baselines(
 @root_option
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def train(
-    datasets, val_datasets, agent: str, preset: str, task: str, steps: int | None, settings, seed: int, eval_every: int | None,
-    runs: Path, name: str | None, until: int | None, resume: Path | None, strict: bool, root: Path, quiet: bool,
-) -> None:  # fmt: skip
+    datasets,
+    val_datasets,
+    agent: str,
+    preset: str,
+    task: str,
+    steps: int | None,
+    settings,
+    seed: int,
+    eval_every: int | None,
+    runs: Path,
+    name: str | None,
+    until: int | None,
+    resume: Path | None,
+    strict: bool,
+    root: Path,
+    quiet: bool,
+) -> None:
     """Train the DQN agent (or its blind twin) on built cities, for placement or tracking; write config, metrics and
     checkpoints to a run folder.
 
@@ -253,16 +273,23 @@ def _train_in(run_dir: Path, resume, config, datasets, val_datasets, root: Path,
         trainer = start_run(run_dir, config, datasets, val_datasets, root, resume=resume is not None, command=command_line())
     except FileExistsError as err:
         fail(err)
-    columns = (TextColumn("[bold]train[/] {task.description}"), BarColumn(), TextColumn("{task.completed:,}/{task.total:,}"),
-               TimeElapsedColumn(), TimeRemainingColumn())  # fmt: skip
+    columns = (
+        TextColumn("[bold]train[/] {task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed:,}/{task.total:,}"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+    )
     log = LogLines(quiet)  # a log: a plain line every LINE_SECONDS instead of a bar
     with Progress(*columns, console=stdout(), disable=quiet or log.enabled) as bar:
         task = bar.add_task(run_dir.name, total=config.total_steps)
 
         def on_progress(p) -> None:
             best = "-" if p.best is None else f"{100 * p.best:.0f} %"
-            text = (f"ep {p.episodes} gain100 {p.gain_mean100:.1f} dB success100 {100 * p.success100:.0f} % "
-                    f"eps {p.epsilon:.2f} loss {'-' if p.loss != p.loss else f'{p.loss:.3f}'} best eval {best}")  # fmt: skip
+            text = (
+                f"ep {p.episodes} gain100 {p.gain_mean100:.1f} dB success100 {100 * p.success100:.0f} % "
+                f"eps {p.epsilon:.2f} loss {'-' if p.loss != p.loss else f'{p.loss:.3f}'} best eval {best}"
+            )
             bar.update(task, completed=p.step, description=text)
             log(f"train {run_dir.name}: step {p.step:,}/{config.total_steps:,} {text}", last=p.step >= config.total_steps)
 
@@ -275,8 +302,10 @@ def _train_in(run_dir: Path, resume, config, datasets, val_datasets, root: Path,
     last = trainer.state.evals[-1] if trainer.state.evals else None
     summary = f"; last evaluation: {100 * last['success']:.1f} % success, median {last['median_steps']:g} steps" if last else ""
     if last and config.task == "tracking":
-        summary = f"; last evaluation: {100 * last['covered_share']:.1f} % of the horizon covered, P_T reached in " \
-                  f"{100 * last['success']:.1f} % of the episodes"  # fmt: skip
+        summary = (
+            f"; last evaluation: {100 * last['covered_share']:.1f} % of the horizon covered, P_T reached in "
+            f"{100 * last['success']:.1f} % of the episodes"
+        )
     stdout().print(f"trained {run_dir}{summary}", highlight=False, soft_wrap=True)
 
 
@@ -300,14 +329,27 @@ def ensemble(runs: tuple[Path, ...], out: Path, root: Path, quiet: bool) -> None
     from uavplace.infra.console import command_line
     from uavplace.rl.agent.ensemble import build_ensemble
 
-    columns = (TextColumn("[bold]ensemble[/] validation"), BarColumn(), MofNCompleteColumn(), TextColumn("episodes"),
-               TimeElapsedColumn())  # fmt: skip
+    columns = (
+        TextColumn("[bold]ensemble[/] validation"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("episodes"),
+        TimeElapsedColumn(),
+    )
     with Progress(*columns, console=stdout(), disable=quiet) as bar:
         task = bar.add_task("validation", total=None)
-        row = build_ensemble(list(runs), out, root, command=command_line(),
-                             on_progress=lambda done, total: bar.update(task, completed=done, total=total))  # fmt: skip
-    stdout().print(f"wrote {out}: {len(runs)} runs; validation {100 * row['success']:.1f} % success, median "
-                   f"{row['median_steps']:g} steps", highlight=False, soft_wrap=True)  # fmt: skip
+        row = build_ensemble(
+            list(runs),
+            out,
+            root,
+            command=command_line(),
+            on_progress=lambda done, total: bar.update(task, completed=done, total=total),
+        )
+    stdout().print(
+        f"wrote {out}: {len(runs)} runs; validation {100 * row['success']:.1f} % success, median {row['median_steps']:g} steps",
+        highlight=False,
+        soft_wrap=True,
+    )
 
 
 #: The predictors' training cities (``uavrl fit-predictor``, ``uavrl train-predictor``).
@@ -330,8 +372,12 @@ def _training_users(datasets: tuple[str, ...], root: Path) -> tuple[list, list]:
 
 @click.command("fit-predictor")
 @training_cities_option
-@click.option("--val-dataset", "val_datasets", multiple=True, help="Validation city whose users' maps score the fit "
-              "(repeatable): median and p90 |error| [dB], dead/live agreement.")  # fmt: skip
+@click.option(
+    "--val-dataset",
+    "val_datasets",
+    multiple=True,
+    help="Validation city whose users' maps score the fit (repeatable): median and p90 |error| [dB], dead/live agreement.",
+)
 @click.option(
     "--out",
     type=click.Path(dir_okay=False, path_type=Path),
@@ -355,13 +401,22 @@ def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out:
     for name in val_datasets:
         b = load_bundle(name, root=root)
         s = prediction_scores(b, b.user_indices(), PhysicsPredictor(constants))
-        table.add_row(name, str(b.num_users), f"{s['median_error_db']:.1f}", f"{s['p90_error_db']:.1f}",
-                      f"{100 * s['dead_live_agreement']:.1f} %")  # fmt: skip
+        table.add_row(
+            name,
+            str(b.num_users),
+            f"{s['median_error_db']:.1f}",
+            f"{s['p90_error_db']:.1f}",
+            f"{100 * s['dead_live_agreement']:.1f} %",
+        )
     atomic_write_text(out, constants.model_dump_json(indent=2) + "\n")
     if val_datasets:
         stdout().print(table)
-    stdout().print(f"wrote {out}: fitted on {sum(map(len, users))} users of {len(bundles)} cities in "
-                   f"{time.perf_counter() - t0:.0f} s; error std {constants.error_db:.1f} dB", highlight=False, soft_wrap=True)  # fmt: skip
+    stdout().print(
+        f"wrote {out}: fitted on {sum(map(len, users))} users of {len(bundles)} cities in "
+        f"{time.perf_counter() - t0:.0f} s; error std {constants.error_db:.1f} dB",
+        highlight=False,
+        soft_wrap=True,
+    )
 
 
 @click.command("train-predictor")
@@ -382,8 +437,13 @@ def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out:
 @click.option(
     "--widths", default="16,32,64,64", show_default=True, help="Channels per U-Net level, comma-separated (1 to 5 levels)."
 )
-@click.option("--val-dataset", "val_datasets", multiple=True, help="Validation city whose users' maps score both tiers "
-              "(repeatable): median and p90 |error| [dB], dead/live agreement, ms per map; in model.json and the card.")  # fmt: skip
+@click.option(
+    "--val-dataset",
+    "val_datasets",
+    multiple=True,
+    help="Validation city whose users' maps score both tiers "
+    "(repeatable): median and p90 |error| [dB], dead/live agreement, ms per map; in model.json and the card.",
+)
 @click.option(
     "--constants",
     type=click.Path(dir_okay=False, path_type=Path),
@@ -450,8 +510,13 @@ def train_predictor(
             "predictor on its own training maps)",
             param_hint="--val-dataset",
         )
-    columns = (TextColumn("[bold]train-predictor[/] loss {task.fields[loss]:.4f}"), BarColumn(), MofNCompleteColumn(),
-               TextColumn("steps"), TimeElapsedColumn())  # fmt: skip
+    columns = (
+        TextColumn("[bold]train-predictor[/] loss {task.fields[loss]:.4f}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("steps"),
+        TimeElapsedColumn(),
+    )
     log = LogLines(quiet)  # a log: a plain line every LINE_SECONDS instead of a bar
     with Progress(*columns, console=stdout(), disable=quiet or log.enabled) as bar:
         task = bar.add_task("train", total=steps, loss=float("nan"))

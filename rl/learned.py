@@ -376,41 +376,43 @@ def model_card(model: LearnedModel, command: str) -> str:
         bins.append(f"| {city} | " + " | ".join(cells.get(b, "-") for b in range(10)) + " |")
     scale, bias = model.calibration
     params = sum(p.numel() for p in MapUNet(model.config.widths).parameters())
-    return "\n".join([
-        "# Model card: the map searcher's learned radio-map predictor",
-        "",
-        "Written by `uavrl train-predictor` (rl/learned.py); every number below is measured by that command.",
-        "",
-        "- **What it predicts**: the SINR map [dB] at the UAV plane of a ground user at a given cell, and the",
-        "  probability that each cell is dead or at the SINR floor, from public inputs only (building heights, grid,",
-        "  altitude, carrier, transmit power, noise level, floor) and the physics tier's map (rl/predictor.py).",
-        f"- **Network**: a U-Net of widths {model.config.widths} ({params} parameters), {len(PLANES)} input planes "
-        f"({', '.join(PLANES)}), two outputs correcting the physics tier's SINR and dead-cell logit.",
-        f"- **Data**: {model.users} users of {len(model.fitted_on)} training bundles ({', '.join(model.fitted_on)}), "
-        "the legal cells of their ray-traced maps, random crops under the eight symmetries of the square.",
-        f"- **Training**: {model.config.steps} Adam steps of {model.config.batch} crops of {model.config.crop} cells, "
-        f"lr {model.config.lr:g}, seed {model.config.seed}: {model.train_seconds:.0f} s on {model.config.threads} CPU "
-        f"threads; final loss {model.final_loss:.4f}; residual std on the training users' live cells "
-        f"{model.error_db:.1f} dB.",
-        f"- **Calibration**: the dead-cell logit scaled by {scale:.3f} and shifted by {bias:+.3f} (Platt scaling on "
-        f"the legal cells of {model.calibration_users} training users held out of the gradient steps; 1 and 0: none).",
-        "- **Weights**: `weights.pt`, tensors only (loaded with `torch.load(weights_only=True)`), sha256 "
-        f"`{model.weights_sha256}`.",
-        "",
-        "## Error on the validation cities' users (legal cells; the prediction floored, the floor where it says dead)",
-        "",
-        *rows,
-        "",
-        "The calibration error is the expected calibration error of the dead probability (ten equal-width bins)",
-        "against what it predicts, a cell dead or at the SINR floor. Its reliability diagram on the same cells, per",
-        "bin of the predicted probability: the observed frequency (the bin's mean prediction):",
-        "",
-        *(bins if model.reliability else ["(no validation city)"]),
-        "",
-        "## Made by",
-        "",
-        "```bash",
-        command,
-        "```",
-        "",
-    ])  # fmt: skip
+    return "\n".join(
+        [
+            "# Model card: the map searcher's learned radio-map predictor",
+            "",
+            "Written by `uavrl train-predictor` (rl/learned.py); every number below is measured by that command.",
+            "",
+            "- **What it predicts**: the SINR map [dB] at the UAV plane of a ground user at a given cell, and the",
+            "  probability that each cell is dead or at the SINR floor, from public inputs only (building heights, grid,",
+            "  altitude, carrier, transmit power, noise level, floor) and the physics tier's map (rl/predictor.py).",
+            f"- **Network**: a U-Net of widths {model.config.widths} ({params} parameters), {len(PLANES)} input planes "
+            f"({', '.join(PLANES)}), two outputs correcting the physics tier's SINR and dead-cell logit.",
+            f"- **Data**: {model.users} users of {len(model.fitted_on)} training bundles ({', '.join(model.fitted_on)}), "
+            "the legal cells of their ray-traced maps, random crops under the eight symmetries of the square.",
+            f"- **Training**: {model.config.steps} Adam steps of {model.config.batch} crops of {model.config.crop} cells, "
+            f"lr {model.config.lr:g}, seed {model.config.seed}: {model.train_seconds:.0f} s on {model.config.threads} CPU "
+            f"threads; final loss {model.final_loss:.4f}; residual std on the training users' live cells "
+            f"{model.error_db:.1f} dB.",
+            f"- **Calibration**: the dead-cell logit scaled by {scale:.3f} and shifted by {bias:+.3f} (Platt scaling on "
+            f"the legal cells of {model.calibration_users} training users held out of the gradient steps; 1 and 0: none).",
+            "- **Weights**: `weights.pt`, tensors only (loaded with `torch.load(weights_only=True)`), sha256 "
+            f"`{model.weights_sha256}`.",
+            "",
+            "## Error on the validation cities' users (legal cells; the prediction floored, the floor where it says dead)",
+            "",
+            *rows,
+            "",
+            "The calibration error is the expected calibration error of the dead probability (ten equal-width bins)",
+            "against what it predicts, a cell dead or at the SINR floor. Its reliability diagram on the same cells, per",
+            "bin of the predicted probability: the observed frequency (the bin's mean prediction):",
+            "",
+            *(bins if model.reliability else ["(no validation city)"]),
+            "",
+            "## Made by",
+            "",
+            "```bash",
+            command,
+            "```",
+            "",
+        ]
+    )

@@ -211,8 +211,12 @@ class MapSet:
         ``config.far_starts``, that share of the starts is the farther from a target of two draws)."""
         if len(self.startable) == 0:
             cities = ", ".join(sorted({b.manifest.city for b in self.bundles}))
-            raise InputError(cities, f"no user has a start cell at P_T = {self.config.p_t_db:g} dB (a legal, live cell below P_T "
-                             "from which a target is reachable): choose another P_T (--p-t-db) or other users", field="p_t_db")  # fmt: skip
+            raise InputError(
+                cities,
+                f"no user has a start cell at P_T = {self.config.p_t_db:g} dB (a legal, live cell below P_T "
+                "from which a target is reachable): choose another P_T (--p-t-db) or other users",
+                field="p_t_db",
+            )
         rotate = self.config.rotate if rotate is None else rotate
         if self.start_p is None:
             scen = self.startable[rng.integers(0, len(self.startable), n)]
@@ -242,7 +246,9 @@ class MapSet:
         if self.start_p is None:
             scen = self.startable[np.minimum((u[:, 0] * len(self.startable)).astype(np.int64), len(self.startable) - 1)]
         else:
-            scen = self.startable[np.minimum(np.searchsorted(np.cumsum(self.start_p), u[:, 0], side="right"), len(self.startable) - 1)]  # fmt: skip
+            scen = self.startable[
+                np.minimum(np.searchsorted(np.cumsum(self.start_p), u[:, 0], side="right"), len(self.startable) - 1)
+            ]
         S = self.symmetries
         k = np.minimum((u[:, 1] * S).astype(np.int64), S - 1) if rotate else np.zeros(n, np.int64)
         view = S * scen + k

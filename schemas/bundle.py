@@ -49,7 +49,7 @@ MAP_ARRAYS: dict[str, tuple[str, str]] = {
         "uint8",
         "[num_users, num_y, num_x] where the cell's value came from (schemas/provenance.py; dead "
         "exactly where 0 unreached or 7 no receiver, no receiver exactly where 7 or 8)",
-    ),  # fmt: skip
+    ),
 }
 
 #: Arrays of ``routes.npz`` (a bundle with routes): name -> (dtype, shape description). A route point's map is a
@@ -258,8 +258,11 @@ class BundleSettings(Contract):
             return "the export's SINR" if value is None else f"{value:g} {unit}"
 
         fields = (("grid", "grid_m", "m"), ("altitude", "altitude_m", "m"), ("noise", "noise_dbm", "dBm"))
-        return [f"{name} {shown(getattr(self, f), unit)} (trained at {shown(getattr(trained, f), unit)})"
-                for name, f, unit in fields if getattr(self, f) != getattr(trained, f)]  # fmt: skip
+        return [
+            f"{name} {shown(getattr(self, f), unit)} (trained at {shown(getattr(trained, f), unit)})"
+            for name, f, unit in fields
+            if getattr(self, f) != getattr(trained, f)
+        ]
 
 
 _I32 = pa.int32()

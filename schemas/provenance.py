@@ -31,22 +31,22 @@ CODES: dict[int, tuple[str, str]] = {
     EXACT_PATHS: (
         "exact paths",
         "every path to the point, found by Sionna's PathSolver (--solver paths, --complete-missed)",
-    ),  # fmt: skip
+    ),
     STRAIGHT_PATH: (
         "straight path",
         "the ray tracer missed it; the exact straight path through the walls alone (a lower bound: no reflection or diffraction)",
-    ),  # fmt: skip
+    ),
     WALKED: ("walked", "estimated: the ray tracer missed it; walked from the cells it hit, less a decay a metre"),
     COARSE_MAP: ("coarse map", "estimated: the ray tracer missed it; taken from a coarser radio map's cell"),
     NOT_RECORDED: (
         "not recorded",
         "reached, by a simulation that did not record how (a uavplace export made before provenance)",
-    ),  # fmt: skip
+    ),
     NO_RECEIVER: ("no receiver", "no receiver of the export lies in the cell (the cell is dead)"),
     NEAREST_RECEIVER: (
         "nearest receiver",
         "estimated: no receiver lies in the cell; copied from the nearest one (an export coarser than the grid)",
-    ),  # fmt: skip
+    ),
 }
 #: The codes a receiver of an export may carry (the side file, the receivers table).
 RECEIVER_CODES = (UNREACHED, RAY_TRACED, EXACT_PATHS, STRAIGHT_PATH, WALKED, COARSE_MAP, NOT_RECORDED)

@@ -43,8 +43,10 @@ class TxRxSet(Contract):
             if not self.spacing_m > 0:
                 raise ValueError(f"grid '{self.name}' has spacing {self.spacing_m}, must be > 0")
             if not max(abs(self.side1_m), abs(self.side2_m)) / self.spacing_m < MAX_GRID_SIDE:
-                raise ValueError(f"grid '{self.name}' has spacing {self.spacing_m:g} m for sides {self.side1_m:g} x "
-                                 f"{self.side2_m:g} m: over {MAX_GRID_SIDE:,} receivers a side")  # fmt: skip
+                raise ValueError(
+                    f"grid '{self.name}' has spacing {self.spacing_m:g} m for sides {self.side1_m:g} x "
+                    f"{self.side2_m:g} m: over {MAX_GRID_SIDE:,} receivers a side"
+                )
         return self
 
     @property

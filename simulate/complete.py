@@ -33,8 +33,10 @@ def missed_cells(traced: np.ndarray, open_cells: np.ndarray) -> np.ndarray:
 def _user_paths(job: RadioMapJob, config: RayTraceConfig, points_m: np.ndarray) -> tuple[np.ndarray, float]:
     """One user's exact path gains at ``points_m`` [n, 3] (linear; 0 where no path) and the seconds they took."""
     start = time.perf_counter()
-    parts = [point_path_gains_isolated(job, points_m[i : i + CELLS_PER_CALL], config)[0]
-             for i in range(0, len(points_m), CELLS_PER_CALL)]  # fmt: skip
+    parts = [
+        point_path_gains_isolated(job, points_m[i : i + CELLS_PER_CALL], config)[0]
+        for i in range(0, len(points_m), CELLS_PER_CALL)
+    ]
     return (np.concatenate(parts) if parts else np.zeros(0)), time.perf_counter() - start
 
 
@@ -68,8 +70,10 @@ def complete_users(
             try:
                 gains, seconds = ray.get(ready[0])
             except ray.exceptions.RayError as err:
-                raise RuntimeError(f"user {u + 1}'s exact paths failed: {str(err).splitlines()[0]} (the users done so far "
-                                   "are kept in the trace cache; run again to resume)") from None  # fmt: skip
+                raise RuntimeError(
+                    f"user {u + 1}'s exact paths failed: {str(err).splitlines()[0]} (the users done so far "
+                    "are kept in the trace cache; run again to resume)"
+                ) from None
             on_user(u, gains, seconds)
     finally:
         if started:

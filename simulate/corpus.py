@@ -62,8 +62,9 @@ def _simulate_task(
     """One city, in a Ray worker: the summary of its simulation.json, or the one-line error that stopped it. Its
     exact paths for the missed cells (``--complete-missed``) are Ray tasks of the same cluster."""
     try:
-        folder, record = simulate_city(spec, config, out_root, command=command, trace_cache=trace_cache,
-                                       cpus_per_user=cpus_per_user)  # fmt: skip
+        folder, record = simulate_city(
+            spec, config, out_root, command=command, trace_cache=trace_cache, cpus_per_user=cpus_per_user
+        )
     except (InputError, RuntimeError, OSError) as err:
         return {"name": spec.name, "error": " ".join(str(err).split())}
     return {"name": spec.name, "folder": str(folder), "geometry": record["geometry"], "seconds": record["wall_seconds"]}
@@ -99,8 +100,9 @@ def simulate_corpus(
     try:
         task = ray.remote(num_cpus=cpus_per_city, max_retries=0)(_simulate_task)
         cache = None if trace_cache is None else str(Path(trace_cache).resolve())
-        pending = [task.remote(s, city_config(config, s), str(Path(out_root).resolve()), command, cache, cpus_per_city)
-                   for s in todo]  # fmt: skip
+        pending = [
+            task.remote(s, city_config(config, s), str(Path(out_root).resolve()), command, cache, cpus_per_city) for s in todo
+        ]
         done: list[dict] = []
         while pending:
             ready, pending = ray.wait(pending, num_returns=1)

@@ -116,8 +116,14 @@ def fill_scores(estimate: np.ndarray, reference: np.ndarray, hit: np.ndarray) ->
     hit = np.asarray(hit, bool)
     on_hit, on_missed = error_quantiles(estimate, reference, hit), error_quantiles(estimate, reference, ~hit)
     sinr_err = np.abs(sinr_db(estimate) - sinr_db(reference))
-    out = {"hit_pairs": on_hit["pairs"], "hit_median_db": on_hit["median_db"], "hit_p90_db": on_hit["p90_db"],
-           "missed_pairs": on_missed["pairs"], "missed_median_db": on_missed["median_db"], "missed_p90_db": on_missed["p90_db"]}  # fmt: skip
+    out = {
+        "hit_pairs": on_hit["pairs"],
+        "hit_median_db": on_hit["median_db"],
+        "hit_p90_db": on_hit["p90_db"],
+        "missed_pairs": on_missed["pairs"],
+        "missed_median_db": on_missed["median_db"],
+        "missed_p90_db": on_missed["p90_db"],
+    }
     for part, sel in (("hit", hit), ("missed", ~hit)):
         err = sinr_err[sel]
         out[f"sinr_{part}_median_db"] = float(np.median(err)) if err.size else float("nan")

@@ -253,8 +253,10 @@ def write_provenance(
     runs of equal codes. InSite-compatible readers do not read it; uavplace's ingest does. ``p2m_files``: the export's
     receiver outputs, whose sha256 the file records (``ingest.provenance.export_digest``): ingest refuses the side
     file beside any other export."""
-    lines = [f"# {line}" for line in ("uavplace cell provenance (docs/data.md): runs of receivers that share a code",
-                                      *code_table().splitlines())]  # fmt: skip
+    lines = [
+        f"# {line}"
+        for line in ("uavplace cell provenance (docs/data.md): runs of receivers that share a code", *code_table().splitlines())
+    ]
     if p2m_files is not None:
         lines.append(EXPORT_LINE + export_digest(list(p2m_files)))
     lines.append(",".join(PROVENANCE_COLUMNS))
@@ -287,8 +289,14 @@ def write_city(
     ``sub_structure`` (a roof tier) whose faces are the roof at roof z and one vertical wall per ring
     edge, holes (courtyards) included. A roof with holes is written as triangles (a face has one ring).
     z is above the terrain (``reference terrain``)."""
-    out = ["Format type:keyword version: 1.1.0", f"begin_<city> {name}", "begin_<reference>", "cartesian", "terrain",
-           "end_<reference>"]  # fmt: skip
+    out = [
+        "Format type:keyword version: 1.1.0",
+        f"begin_<city> {name}",
+        "begin_<reference>",
+        "cartesian",
+        "terrain",
+        "end_<reference>",
+    ]
     for k, parts in enumerate(buildings):
         out += ["begin_<structure_group> ", f"begin_<structure> building_{k}"]
         for j, (footprint, base, roof) in enumerate(parts):

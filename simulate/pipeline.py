@@ -174,8 +174,11 @@ def check_simulation(spec: SimulationSpec, config: RayTraceConfig, count: int = 
     if config.complete_missed_samples:
         _bounded(config.complete_missed_samples, "samples", "--complete-samples")
         if config.solver == "paths":
-            raise InputError("--complete-missed", "--solver paths traces exact paths at every cell already: nothing is "
-                             "missed", field="complete_missed")  # fmt: skip
+            raise InputError(
+                "--complete-missed",
+                "--solver paths traces exact paths at every cell already: nothing is missed",
+                field="complete_missed",
+            )
     for option, box in (("--extent", spec.extent_m), ("--crop", spec.crop_m)):
         if box is None:
             continue
@@ -278,9 +281,13 @@ def load_geometry(
         raise InputError(path, "no building in the geometry" + (" inside --crop" if crop else ""), field="geometry")
     b = crop if crop is not None else tuple(shapely.total_bounds([blk.footprint for blk in blocks]))
     if max(b[2] - b[0], b[3] - b[1]) > limits().extent_m:
-        raise InputError(path, f"the geometry spans {b[2] - b[0]:.0f} x {b[3] - b[1]:.0f} m, more than "
-                         f"the limit extent_m = {limits().extent_m:g} m a side: give --crop, or raise it with "
-                         "`--limit extent_m=VALUE`", field="geometry")  # fmt: skip
+        raise InputError(
+            path,
+            f"the geometry spans {b[2] - b[0]:.0f} x {b[3] - b[1]:.0f} m, more than "
+            f"the limit extent_m = {limits().extent_m:g} m a side: give --crop, or raise it with "
+            "`--limit extent_m=VALUE`",
+            field="geometry",
+        )
     tiers = len(blocks)
     described = f"{source if source.startswith('sionna:') else path.name}: {len(records)} buildings in {tiers} roof tiers"
     if left_out:
@@ -377,8 +384,14 @@ def city_routes(blocks: list[Block], grid: ReceiverGrid, spec: SimulationSpec) -
     x0, y0 = grid.x0_m - grid.spacing_m / 2, grid.y0_m - grid.spacing_m / 2
     box = (x0, y0, x0 + grid.num_x * grid.spacing_m, y0 + grid.num_y * grid.spacing_m)
     try:
-        return draw_routes([b.footprint for b in blocks], box, spec.routes, spec.route_length_m, spec.route_kinds,
-                           np.random.default_rng([spec.seed, 3]))  # fmt: skip
+        return draw_routes(
+            [b.footprint for b in blocks],
+            box,
+            spec.routes,
+            spec.route_length_m,
+            spec.route_kinds,
+            np.random.default_rng([spec.seed, 3]),
+        )
     except ValueError as err:
         raise InputError(spec.source, str(err), field="routes") from None
 
@@ -411,8 +424,9 @@ def place_users(blocks: list[Block], grid: ReceiverGrid, spec: SimulationSpec) -
             (x1 - x0, y1 - y0), [shapely.transform(f, lambda c: c - [x0, y0]) for f in foot], spec.num_users, rng
         )
     except ValueError as err:  # too little open ground 8 m inside the edges
-        raise InputError(spec.source, f"{err}: give a larger --extent or --crop, fewer --users, or place them with --user",
-                         field="users") from None  # fmt: skip
+        raise InputError(
+            spec.source, f"{err}: give a larger --extent or --crop, fewer --users, or place them with --user", field="users"
+        ) from None
     return users + [x0, y0, 0.0]
 
 
@@ -558,8 +572,13 @@ def complete_missed(
     found) and what the completion cost. Each user's result is kept in ``cache/<name>.missed-<user>.npz`` (under
     ``key`` and the PathSolver rays) as it arrives and reused, so an interrupted completion resumes per user."""
     exact = np.zeros(missed.shape)
-    record = {"cells": int(missed.sum()), "users": int(missed.any(axis=(1, 2)).sum()), "samples": config.complete_missed_samples,
-              "users_from_cache": 0, "seconds": 0.0}  # fmt: skip
+    record = {
+        "cells": int(missed.sum()),
+        "users": int(missed.any(axis=(1, 2)).sum()),
+        "samples": config.complete_missed_samples,
+        "users_from_cache": 0,
+        "seconds": 0.0,
+    }
     entry_key = f"{key}|complete-missed|{config.complete_missed_samples}"
     entries = {u: None if cache is None else cache / f"{name}.missed-{u + 1:04d}.npz" for u in range(len(missed))}
     todo = []
@@ -663,15 +682,31 @@ def simulate_city(
         completion = None
         if rt_config.complete_missed_samples:  # exact paths where the rays missed: their values, not the fill's estimates
             missed = missed_cells(maps[1], opened)
-            exact, completion = complete_missed(job, rt_config, missed, Path(trace_cache) if trace_cache else None,
-                                                trace_key(spec, rt_config), spec.name, address=ray_address,
-                                                cpus_per_user=cpus_per_user, progress=progress)  # fmt: skip
+            exact, completion = complete_missed(
+                job,
+                rt_config,
+                missed,
+                Path(trace_cache) if trace_cache else None,
+                trace_key(spec, rt_config),
+                spec.name,
+                address=ray_address,
+                cpus_per_user=cpus_per_user,
+                progress=progress,
+            )
             gain = np.where(missed, exact, gain)
             source = np.where(missed, np.where(exact > 0, EXACT_PATHS, UNREACHED), source).astype(np.uint8)
     pos = grid.points()  # [ny * nx, 3], x fastest: the same order as gain[u].ravel()
     with atomic_directory(Path(out_root) / spec.name, marker=PROVENANCE, what="simulated city") as out:
-        write_txrx(out / f"{spec.name}.txrx", users, grid, tx_power_dbm=spec.tx_dbm, user_set=USER_SET, grid_set=GRID_SET,
-                   route_points_m=route_points, route_set=ROUTE_SET)  # fmt: skip
+        write_txrx(
+            out / f"{spec.name}.txrx",
+            users,
+            grid,
+            tx_power_dbm=spec.tx_dbm,
+            user_set=USER_SET,
+            grid_set=GRID_SET,
+            route_points_m=route_points,
+            route_set=ROUTE_SET,
+        )
         if routes:
             write_routes_csv(out / f"{spec.name}.routes.csv", routes)
         write_setup(out / f"{spec.name}.setup", spec.name, frequency_hz=rt_config.frequency_hz, features=[f"{spec.name}.city"])
@@ -718,7 +753,7 @@ def simulate_city(
                 "num_y": grid.num_y,
                 "spacing_m": grid.spacing_m,
                 "altitude_m": spec.altitude_m,
-            },  # fmt: skip
+            },
             "users_m": np.round(users, 3).tolist(),
             "routes": {
                 "count": len(routes),
@@ -745,7 +780,7 @@ def simulate_city(
                 "gap_fill": gap_fill_text(rt_config),
                 "provenance": {
                     code_name(c): int(n) for c, n in enumerate(np.bincount(source.ravel(), minlength=len(CODES))) if n
-                },  # fmt: skip
+                },
                 **quality,
             },
             "unreached_cell_share": float(1 - reached.mean()),

@@ -228,10 +228,18 @@ FILL_METHODS = ("geodesic", "smooth", "parent")
 #: The Euclidean walk's moves (dy, dx), with the cells each passes between, which must be open too (no corner of a
 #: building cut): the 16 moves of lengths 1, sqrt 2 and sqrt 5 cells, whose ways are within 3 % of a straight line.
 _MOVES: tuple[tuple[tuple[int, int], tuple[tuple[int, int], ...]], ...] = tuple(
-    ((dy, dx), () if abs(dy) + abs(dx) == 1 else ((dy, 0), (0, dx)) if abs(dy) == abs(dx) == 1
-     else ((dy // 2 if abs(dy) == 2 else 0, dx // 2 if abs(dx) == 2 else 0), (dy // abs(dy), dx // abs(dx))))
-    for dy in range(-2, 3) for dx in range(-2, 3) if (abs(dy), abs(dx)) in {(0, 1), (1, 0), (1, 1), (1, 2), (2, 1)}
-)  # fmt: skip
+    (
+        (dy, dx),
+        ()
+        if abs(dy) + abs(dx) == 1
+        else ((dy, 0), (0, dx))
+        if abs(dy) == abs(dx) == 1
+        else ((dy // 2 if abs(dy) == 2 else 0, dx // 2 if abs(dx) == 2 else 0), (dy // abs(dy), dx // abs(dx))),
+    )
+    for dy in range(-2, 3)
+    for dx in range(-2, 3)
+    if (abs(dy), abs(dx)) in {(0, 1), (1, 0), (1, 1), (1, 2), (2, 1)}
+)
 
 
 def _moved(a: np.ndarray, dy: int, dx: int) -> np.ndarray:
@@ -355,8 +363,16 @@ def fill(
     if config.solver == "paths":  # exact paths at every open cell (``exact_path_maps``): nothing to fill
         return fine, np.where(fine > 0, EXACT_PATHS, UNREACHED).astype(np.uint8)
     if config.gap_fill_method == "geodesic":
-        return fill_geodesic(fine, maps["direct"], open_cells, d2, reach_m=config.gap_fill_reach_m, walk=config.gap_fill_walk,
-                             decay_db_per_m=config.gap_fill_decay_db_per_m, cell_m=cell_m)  # fmt: skip
+        return fill_geodesic(
+            fine,
+            maps["direct"],
+            open_cells,
+            d2,
+            reach_m=config.gap_fill_reach_m,
+            walk=config.gap_fill_walk,
+            decay_db_per_m=config.gap_fill_decay_db_per_m,
+            cell_m=cell_m,
+        )
     factors = tuple(config.gap_fill_factors)
     coarse = [maps[f] for f in factors]
     if config.gap_fill_method == "smooth":
@@ -406,8 +422,11 @@ class RadioMapJob:
         ny, nx = self.shape
         corner = (self.center_m[0] - self.size_m[0] / 2, self.center_m[1] - self.size_m[1] / 2)
         ix, iy = np.meshgrid(np.arange(nx), np.arange(ny))
-        return np.c_[corner[0] + (ix.ravel() + 0.5) * self.cell_m, corner[1] + (iy.ravel() + 0.5) * self.cell_m,
-                     np.full(ix.size, self.center_m[2])]  # fmt: skip
+        return np.c_[
+            corner[0] + (ix.ravel() + 0.5) * self.cell_m,
+            corner[1] + (iy.ravel() + 0.5) * self.cell_m,
+            np.full(ix.size, self.center_m[2]),
+        ]
 
 
 def sionna_versions() -> dict[str, str]:
@@ -578,8 +597,17 @@ def direct_gains(
     gains, crossings = [], []
     users = np.asarray(job.users_m, float)
     for u, user in enumerate(users):
-        g, n = direct_path_gains(mi, scene.mi_scene, user, cells, eta, material["thickness_m"], 3e8 / config.frequency_hz,
-                                 pattern=config.antenna, max_crossings=config.max_depth)  # fmt: skip
+        g, n = direct_path_gains(
+            mi,
+            scene.mi_scene,
+            user,
+            cells,
+            eta,
+            material["thickness_m"],
+            3e8 / config.frequency_hz,
+            pattern=config.antenna,
+            max_crossings=config.max_depth,
+        )
         gains.append(g.reshape(ny, nx))
         crossings.append(n.reshape(ny, nx))
         if on_batch is not None:

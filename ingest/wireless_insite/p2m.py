@@ -415,8 +415,9 @@ class P2MStream:
             rest = data[cut:]
             lines += data.count(b"\n", 0, cut)
             if len(rest) > MAX_LINE_BYTES:
-                raise InputError(self.name, f"a line of more than {MAX_LINE_BYTES:,} bytes (a receiver row is a few dozen)",
-                                 line=lines + 1)  # fmt: skip
+                raise InputError(
+                    self.name, f"a line of more than {MAX_LINE_BYTES:,} bytes (a receiver row is a few dozen)", line=lines + 1
+                )
             if cut and data[:cut].strip():
                 yield data[:cut]
         if rest.strip():
@@ -500,10 +501,11 @@ class P2MStream:
         if over.any():
             row = int(np.argmax(over))
             raise self._fail(
-                row0 + row, "power_dbm",
+                row0 + row,
+                "power_dbm",
                 f"received power {cols['power_dbm'][row]:g} dBm is beyond {limit:g} dBm, the transmit power and both "
                 f"antennas' gains with {COHERENT_MARGIN_DB:g} dB for paths in phase: not physical in the far field",
-            )  # fmt: skip
+            )
 
     def _check_range(self, column: Column, values: np.ndarray, valid: np.ndarray | None, row0: int) -> None:
         row = column.first_out_of_range(values, valid)

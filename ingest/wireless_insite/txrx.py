@@ -61,8 +61,12 @@ def parse_txrx_set(block: Block) -> TxRxSet:
     spacing, sides = lengths["spacing"], [v for k, v in lengths.items() if k != "spacing" and v is not None]
     if spacing is not None and sides and not max(sides) / spacing < MAX_GRID_SIDE:
         line = loc_block.find_entry("spacing")[0]  # type: ignore[index]
-        raise InputError(block.path, f"spacing {spacing:g} m for a side of {max(sides):g} m: over {MAX_GRID_SIDE:,} "
-                         "receivers a side: not a receiver grid", line=line, field="spacing")  # fmt: skip
+        raise InputError(
+            block.path,
+            f"spacing {spacing:g} m for a side of {max(sides):g} m: over {MAX_GRID_SIDE:,} receivers a side: not a receiver grid",
+            line=line,
+            field="spacing",
+        )
     try:
         return TxRxSet(
             kind=block.kind,

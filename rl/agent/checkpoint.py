@@ -93,8 +93,9 @@ def save_tensors(obj: dict, path: str | Path) -> None:
     ``InputError`` naming them) so that a diverged training never replaces a good checkpoint."""
     bad = non_finite(obj)
     if bad is not None:
-        raise InputError(path, f"{bad} holds NaN or inf: the training diverged; the last good checkpoint is kept",
-                         field="weights")  # fmt: skip
+        raise InputError(
+            path, f"{bad} holds NaN or inf: the training diverged; the last good checkpoint is kept", field="weights"
+        )
     buffer = io.BytesIO()  # serialised in memory: torch's writer words a full disk as an internal assertion
     torch.save(obj, buffer)
     atomic_write_bytes(path, buffer.getvalue())

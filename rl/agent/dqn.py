@@ -186,9 +186,13 @@ class DQNConfig(Contract):
     def _within_limits(self) -> DQNConfig:
         """The loops a config drives are bounded by the resource limits (``infra.limits``), checked when it is made
         or read from a run.json, before any work; the network's and the replay's sizes are checked where they are built."""
-        for field, limit, value in (("total_steps", "train_steps", self.total_steps), ("eval_episodes", "episodes", self.eval_episodes),
-                                    ("eval_t_max", "t_max", self.eval_t_max), ("env.t_max", "t_max", self.env.t_max),
-                                    ("fleet.t_max", "t_max", self.fleet.t_max if self.fleet else 0)):  # fmt: skip
+        for field, limit, value in (
+            ("total_steps", "train_steps", self.total_steps),
+            ("eval_episodes", "episodes", self.eval_episodes),
+            ("eval_t_max", "t_max", self.eval_t_max),
+            ("env.t_max", "t_max", self.env.t_max),
+            ("fleet.t_max", "t_max", self.fleet.t_max if self.fleet else 0),
+        ):
             if value > getattr(limits(), limit):
                 raise ValueError(over_limit(limit, value, field))
         return self
@@ -319,10 +323,10 @@ def parse_settings(settings: list[str] | tuple[str, ...]) -> dict:
         known = DQNConfig.model_fields if len(parts) == 1 else NESTED.get(parts[0], {})
         if not sep or len(parts) > 2 or parts[-1] not in known:
             raise InputError(
-                None, f"{item!r}: expected FIELD=VALUE, env.FIELD=VALUE, tracking.FIELD=VALUE or fleet.FIELD=VALUE with a "
-                "known field",
+                None,
+                f"{item!r}: expected FIELD=VALUE, env.FIELD=VALUE, tracking.FIELD=VALUE or fleet.FIELD=VALUE with a known field",
                 field="set",
-            )  # fmt: skip
+            )
         try:
             value = json.loads(raw)
         except ValueError:
@@ -370,8 +374,13 @@ def make_network(config: DQNConfig, in_channels: int, window: int) -> nn.Module:
     the limit ``network_params``: the sizes come from a run.json or ``--set`` and could ask for any amount."""
     with torch.device("meta"):
         count = sum(p.numel() for p in _network(config, in_channels, window).parameters())
-    check_limit("network_params", count, "hidden, conv_channels, fovea, ensemble, env.window",
-                f"parameters of a {config.network} network of {config.ensemble} member(s)", field="config")  # fmt: skip
+    check_limit(
+        "network_params",
+        count,
+        "hidden, conv_channels, fovea, ensemble, env.window",
+        f"parameters of a {config.network} network of {config.ensemble} member(s)",
+        field="config",
+    )
     return _network(config, in_channels, window)
 
 

@@ -80,11 +80,15 @@ def check_members(members: list[Member]) -> None:
         other = m.config.model_dump(exclude=FREE_FIELDS)
         diff = [k for k in base if base[k] != other[k]]
         if diff:  # first: runs that differ are never called the same network
-            raise InputError(where, f"differs from {first.folder} ({base[diff[0]]!r} there, {other[diff[0]]!r} here)",
-                             field=f"config.{diff[0]}")  # fmt: skip
+            raise InputError(
+                where,
+                f"differs from {first.folder} ({base[diff[0]]!r} there, {other[diff[0]]!r} here)",
+                field=f"config.{diff[0]}",
+            )
         if m.config.seed in seen:
-            raise InputError(where, f"the same settings and seed as {seen[m.config.seed]}: the same network twice",
-                             field="config.seed")  # fmt: skip
+            raise InputError(
+                where, f"the same settings and seed as {seen[m.config.seed]}: the same network twice", field="config.seed"
+            )
         seen[m.config.seed] = m.folder
         for name in ("datasets", "val_datasets", "train_split", "eval_split"):
             if getattr(m.run, name) != getattr(first.run, name):

@@ -46,8 +46,13 @@ class ReplayBuffer:
         c = self.capacity
         # observation bytes, masks, action, reward, flags, index
         slot = int(np.prod(obs_shape)) + 2 * n_actions + 1 + 4 + 1 + 1 + 4
-        check_limit("replay_bytes", c * slot * (1 + 1 / t_max), "buffer_size", f"replay memory of {c:,} transitions [bytes]",
-                    field="buffer_size")  # fmt: skip
+        check_limit(
+            "replay_bytes",
+            c * slot * (1 + 1 / t_max),
+            "buffer_size",
+            f"replay memory of {c:,} transitions [bytes]",
+            field="buffer_size",
+        )
         self.obs = np.zeros((c, *obs_shape), np.uint8)
         self.mask = np.zeros((c, n_actions), bool)
         self.genie = np.zeros((c, n_actions), bool)

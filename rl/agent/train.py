@@ -328,10 +328,11 @@ class Trainer:
         unmatched = [n for n in config.env.city_weights if not any(in_corpus(b.city, n) for b in cities.train)]
         if unmatched:
             raise InputError(
-                None, f"{', '.join(unmatched)}: no training city or corpus of that name (training cities: "
+                None,
+                f"{', '.join(unmatched)}: no training city or corpus of that name (training cities: "
                 f"{', '.join(b.city for b in cities.train)})",
                 field="env.city_weights",
-            )  # fmt: skip
+            )
         self.maps = MapSet(cities.train, config.env_config().model_copy(update={"split": cities.train_split}), cities.train_users)
         self.eval_maps, self.eval_episodes = validation_set(config, cities)
         self.env = BatchedEnv(self.maps, config.num_envs, compact=True)
@@ -522,9 +523,11 @@ class Trainer:
         last = self.state.evals[-1]["step"] if self.state.evals else None
         kept = f"checkpoints/ hold step {last:,}" if last is not None else "no checkpoint was written yet"
         raise InputError(
-            self.run_dir, f"the loss became {next(x for x in losses if not np.isfinite(x))} at step {self.state.step:,} "
-            f"(learning rate {lr:.3g}): training stopped; {kept}. Lower --set lr_start or grad_clip", field="loss",
-        )  # fmt: skip
+            self.run_dir,
+            f"the loss became {next(x for x in losses if not np.isfinite(x))} at step {self.state.step:,} "
+            f"(learning rate {lr:.3g}): training stopped; {kept}. Lower --set lr_start or grad_clip",
+            field="loss",
+        )
 
     # -- the loop -----------------------------------------------------------------------------------
     def run(
@@ -642,14 +645,18 @@ class TrackingTrainer(Trainer):
         for b in cities.train + val:
             if b.routes is None:
                 raise InputError(
-                    None, f"{b.city} has no routes: the tracking task trains and selects on cities simulated with "
-                    f"`uavdata simulate --routes N`", field="dataset" if b.city in trained else "val_dataset",
-                )  # fmt: skip
+                    None,
+                    f"{b.city} has no routes: the tracking task trains and selects on cities simulated with "
+                    f"`uavdata simulate --routes N`",
+                    field="dataset" if b.city in trained else "val_dataset",
+                )
         if not val:
             raise InputError(
-                None, "the tracking task selects best.pt on validation cities with routes, and none is given: build one "
-                "with `uavdata build --split CITY=val` and add it with --dataset or --val-dataset", field="val_dataset",
-            )  # fmt: skip
+                None,
+                "the tracking task selects best.pt on validation cities with routes, and none is given: build one "
+                "with `uavdata build --split CITY=val` and add it with --dataset or --val-dataset",
+                field="val_dataset",
+            )
         self.routes, self.eval_routes = RouteSet(cities.train, task, rotate=task.rotate), RouteSet(val, task)
         self.eval_episodes = self.eval_routes.sample_episodes(
             self.config.eval_episodes, np.random.default_rng([self.config.seed, 2])
@@ -692,8 +699,11 @@ class FleetTrainer(Trainer):
     def validate(self, policy: DQNPolicy) -> tuple[dict, tuple[float, float]]:
         fleet = FleetPlacement(policy, self.config.env_config(evaluation=True), prefix="").bind(self.eval_maps)
         table = run_fleet(self.eval_maps, fleet, self.eval_episodes)
-        row = {"success": float(table["success"].mean()), "median_steps": float(np.median(table["steps"])),
-               "spl": float(table["spl"].mean())}  # fmt: skip
+        row = {
+            "success": float(table["success"].mean()),
+            "median_steps": float(np.median(table["steps"])),
+            "spl": float(table["spl"].mean()),
+        }
         return row, (row["success"], -row["median_steps"])
 
 

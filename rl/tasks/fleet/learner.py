@@ -55,8 +55,12 @@ class FleetTrainEnv:
                 episodes.append(drawn)
             elif tries > 1000 * len(rows):
                 names = ", ".join(c.name for c in self.maps.cities)
-                raise InputError(names, "no fleet episode found in 1000 draws a row: every user needs a target cell "
-                                 "reachable from the starts (fewer fleet.users or another fleet.p_t_db)", field="fleet")  # fmt: skip
+                raise InputError(
+                    names,
+                    "no fleet episode found in 1000 draws a row: every user needs a target cell "
+                    "reachable from the starts (fewer fleet.users or another fleet.p_t_db)",
+                    field="fleet",
+                )
         ids = self._episodes_started + np.arange(len(rows))
         self._episodes_started += len(rows)
         self.fleet.begin(rows, np.array(episodes, np.int64), ids)

@@ -119,9 +119,13 @@ class FleetMaps:
                     break
             else:
                 names = ", ".join(c.name for c in self.cities)
-                raise InputError(names, f"no fleet episode of {cfg.users} users and {cfg.uavs} UAVs found in 1000 draws at "
-                                 f"P_T = {cfg.p_t_db:g} dB: every user needs a target cell reachable from the starts "
-                                 "(fewer --users or another --p-t-db)", field="p_t_db")  # fmt: skip
+                raise InputError(
+                    names,
+                    f"no fleet episode of {cfg.users} users and {cfg.uavs} UAVs found in 1000 draws at "
+                    f"P_T = {cfg.p_t_db:g} dB: every user needs a target cell reachable from the starts "
+                    "(fewer --users or another --p-t-db)",
+                    field="p_t_db",
+                )
         return out
 
     def draw(self, rng: np.random.Generator) -> np.ndarray | None:

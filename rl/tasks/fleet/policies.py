@@ -73,8 +73,10 @@ class FleetGreedy:
         served = reaches_target(here, cfg.p_t_db)
         to = view.pos[:, :, None, :] + FLEET_MOVES[None, None, :STAY]  # [E, K, 4, 2]
         seen = view.visits[rows[:, None, None], to[..., 0], to[..., 1]] > 0  # [E, K, 4]
-        value = np.minimum(view.memory[rows[:, None, None, None], np.arange(cfg.users)[None, None, None],
-                                       to[..., 0, None], to[..., 1, None]], cfg.p_t_db)  # fmt: skip  # [E, K, 4, N]
+        value = np.minimum(
+            view.memory[rows[:, None, None, None], np.arange(cfg.users)[None, None, None], to[..., 0, None], to[..., 1, None]],
+            cfg.p_t_db,
+        )  # [E, K, 4, N]
         u = uniforms(self.stream, view.keys, view.t, 8 * k).reshape(e, k, 8)
         out = np.full((e, k), STAY, np.int64)
         for uav in range(k):
@@ -124,15 +126,24 @@ class FleetPlacement:
 
     prefix = "independent "
 
-    def __init__(self, policy, env: EnvConfig, name: str | None = None, *, prefix: str | None = None,  # noqa: ANN001
-                 compact: bool = False) -> None:  # fmt: skip
+    def __init__(
+        self,
+        policy,
+        env: EnvConfig,
+        name: str | None = None,
+        *,
+        prefix: str | None = None,  # noqa: ANN001
+        compact: bool = False,
+    ) -> None:
         """``policy``: a ``rl.policies.Policy`` (None: only ``dealt`` is used, as ``FleetTrainEnv`` does); ``prefix``
         before its name (default ``FleetPlacement.prefix``: a placement agent run as it is); ``compact``: the agent's
         observations as the learner stores them (``BatchedEnv``'s)."""
         name = name or policy.name
         if env.belief_channel or env.context_zoom:
-            raise ValueError(f"{name}: an agent with a belief or context channel reads one user's measurements as they "
-                             "come; the fleet deals each UAV a changing set of users")  # fmt: skip
+            raise ValueError(
+                f"{name}: an agent with a belief or context channel reads one user's measurements as they "
+                "come; the fleet deals each UAV a changing set of users"
+            )
         self.policy, self.name = policy, (self.prefix if prefix is None else prefix) + name
         self.env_config = env.model_copy(update={"rotate": False, "city_weights": {}, "split": None})
         self.compact = compact
@@ -151,8 +162,9 @@ class FleetPlacement:
         self.placement.sinr[...], self.placement.dead[...] = self.env_config.p_l_db, True
         self.placement.steps[...] = UNREACHABLE
         # per city, the view of its identity symmetry; the placement canvas's cell of the fleet canvas's cell 0
-        self.views = np.array([np.flatnonzero(self.placement.view_map == self.placement.symmetries * b)[0]
-                               for b in range(len(maps.cities))])  # fmt: skip
+        self.views = np.array(
+            [np.flatnonzero(self.placement.view_map == self.placement.symmetries * b)[0] for b in range(len(maps.cities))]
+        )
         self.shift = self.placement.pad - maps.pad
         return self
 

@@ -9,8 +9,13 @@ from uavplace.rl.tasks.fleet.env import BatchedFleet, FleetView
 from uavplace.rl.tasks.fleet.maps import FleetMaps, oracle_steps
 
 
-def run_fleet(maps: FleetMaps, policy, episodes: np.ndarray, num_envs: int = 64,  # noqa: ANN001
-              record: np.ndarray | None = None) -> pd.DataFrame:  # fmt: skip
+def run_fleet(
+    maps: FleetMaps,
+    policy,
+    episodes: np.ndarray,
+    num_envs: int = 64,  # noqa: ANN001
+    record: np.ndarray | None = None,
+) -> pd.DataFrame:
     """Play ``episodes`` with ``policy`` (``reset(rows, num_envs, uavs)``, ``act(mask, FleetView) -> [E, K]``); one
     row per episode: ``success`` (every user served at one step within ``t_max``), ``steps`` (to that step; ``t_max
     + 1`` when it failed), ``users_served`` (the share of users served at some step), ``oracle_steps`` and ``spl``
@@ -54,13 +59,22 @@ def run_fleet(maps: FleetMaps, policy, episodes: np.ndarray, num_envs: int = 64,
     oracle = oracle_steps(maps, episodes)
     spl = success * oracle / np.maximum(np.maximum(steps, oracle), 1)
     city, users, starts = maps.split(episodes)
-    frame = pd.DataFrame({
-        "episode": np.arange(len(episodes)), "success": success, "steps": steps, "users_served": share,
-        "oracle_steps": oracle, "spl": spl,
-        # what the placement report's statistics read: the oracle in the genie's place, the user set as the user
-        "genie_steps": oracle, "city": [maps.cities[int(c)].name for c in city],
-        "user": ["-".join(map(str, sorted(u))) for u in users.tolist()], "view": city,
-        "start_y": starts[:, 0, 0], "start_x": starts[:, 0, 1],
-    })  # fmt: skip
+    frame = pd.DataFrame(
+        {
+            "episode": np.arange(len(episodes)),
+            "success": success,
+            "steps": steps,
+            "users_served": share,
+            "oracle_steps": oracle,
+            "spl": spl,
+            # what the placement report's statistics read: the oracle in the genie's place, the user set as the user
+            "genie_steps": oracle,
+            "city": [maps.cities[int(c)].name for c in city],
+            "user": ["-".join(map(str, sorted(u))) for u in users.tolist()],
+            "view": city,
+            "start_y": starts[:, 0, 0],
+            "start_x": starts[:, 0, 1],
+        }
+    )
     frame.attrs["paths"] = {i: np.stack(p) for i, p in paths.items()}
     return frame

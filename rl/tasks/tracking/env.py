@@ -144,8 +144,14 @@ class TrackingEnv(EpisodeRows):
         self.covered_steps += covered
         reward = (self.config.cover_reward * covered + self.config.gain_weight * (new - old)).astype(np.float32)
         truncated = self.t >= self.config.horizon
-        info = {"illegal": ~legal, "covered": covered, "episode_id": self.episode_id.copy(), "steps": self.t.copy(),
-                "sinr": new, "covered_share": self.covered_steps / self.t}  # fmt: skip
+        info = {
+            "illegal": ~legal,
+            "covered": covered,
+            "episode_id": self.episode_id.copy(),
+            "steps": self.t.copy(),
+            "sinr": new,
+            "covered_share": self.covered_steps / self.t,
+        }
         if truncated.any() and self.autoreset:
             ended = np.flatnonzero(truncated)
             info["final_index"] = ended

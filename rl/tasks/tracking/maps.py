@@ -123,8 +123,12 @@ def episode_metrics(covered: np.ndarray) -> dict[str, np.ndarray]:
     for t in range(h):
         run = np.where(after[:, t] & ~covered[:, t], run + 1, 0)
         outage = np.maximum(outage, run)
-    return {"first_reach": first, "coverage": coverage, "longest_outage": np.where(ever, outage, h),
-            "covered_share": covered.mean(axis=1)}  # fmt: skip
+    return {
+        "first_reach": first,
+        "coverage": coverage,
+        "longest_outage": np.where(ever, outage, h),
+        "covered_share": covered.mean(axis=1),
+    }
 
 
 def oracle_path(legal: np.ndarray, covered: np.ndarray, start: tuple[int, int]) -> tuple[np.ndarray, int]:

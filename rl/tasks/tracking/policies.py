@@ -82,8 +82,9 @@ class PlacementInTracking:
         new = (env.t == 0) | (self.episode != env.episode_id)
         if new.any():
             idx = rows[new]
-            mirror.begin(idx, self.views[env.routes.bundle[env.route[idx]]], pos[idx, 0], pos[idx, 1], sinr[idx],
-                         env.episode_id[idx])  # fmt: skip
+            mirror.begin(
+                idx, self.views[env.routes.bundle[env.route[idx]]], pos[idx, 0], pos[idx, 1], sinr[idx], env.episode_id[idx]
+            )
             self.episode[idx] = env.episode_id[idx]
         if (~new).any():
             idx = rows[~new]

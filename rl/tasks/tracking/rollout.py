@@ -40,8 +40,7 @@ def run_tracking(
     if own is not None and routes.config.observed_as(own) != routes.config:
         mine = RouteSet(routes.bundles, routes.config.observed_as(own))
         shift = mine.maps.pad - routes.maps.pad
-        played = run_tracking(mine, policy, np.asarray(episodes, float) + [0, 0, shift, shift], num_envs=num_envs,
-                              record=record)  # fmt: skip
+        played = run_tracking(mine, policy, np.asarray(episodes, float) + [0, 0, shift, shift], num_envs=num_envs, record=record)
         if played.path is not None:
             played.path -= shift
         return played
