@@ -35,6 +35,20 @@ def _pyplot():
 _COLOURS = tuple(f"tab:{c}" for c in "blue orange green red purple brown pink olive cyan gray".split())
 
 
+def draw_blocked(ax, blocked: np.ndarray, extent: tuple[float, ...]) -> None:  # noqa: ANN001 - an Axes
+    """The cells the UAV may not enter, in near-black over whatever ``ax`` shows (a map's other cells untouched)."""
+    import matplotlib.colors
+
+    ax.imshow(
+        np.ma.masked_array(np.ones(blocked.shape), mask=~blocked),
+        origin="lower",
+        extent=extent,
+        cmap=matplotlib.colors.ListedColormap(["0.05"]),
+        vmin=0,
+        vmax=1,
+    )
+
+
 def method_styles(methods: list[str]) -> dict[str, dict]:
     """Each method's line: the genie black; every other method its own colour (the eleventh on repeat the first colour
     dash-dotted, and so on); a method played with the buildings blanked (``X, no buildings``) dashed in ``X``'s colour.
@@ -156,8 +170,13 @@ def plot_training(agents: list[Agent], bounds: dict[str, float], out: Path, note
             ax_ok.legend(fontsize=7, loc="lower right", title="members", title_fontsize=7)
         key = ", ".join(f"{c}@{v}" for c, v in a.trained_on.items())
         if key in bounds:
-            ax_gain.axhline(bounds[key], color="black", linestyle="--", linewidth=1,
-                            label=f"every episode ends exactly at P_T ({bounds[key]:.1f} dB)")  # fmt: skip
+            ax_gain.axhline(
+                bounds[key],
+                color="black",
+                linestyle="--",
+                linewidth=1,
+                label=f"every episode ends exactly at P_T ({bounds[key]:.1f} dB)",
+            )
             ax_gain.legend(fontsize=7, loc="lower right")
         env = a.config.env
         ax_ok.set_ylim(0, 100)
@@ -252,8 +271,7 @@ def plot_trajectories(
                 # Open cells only: dead ones grey (masked), blocked ones drawn apart in black, never as flyable SINR.
                 sinr = np.ma.masked_array(bundle.sinr_db[user], mask=bundle.dead[user] | bundle.blocked)
                 im = ax.imshow(sinr, origin="lower", extent=extent, cmap=matplotlib.colormaps["magma"].with_extremes(bad="0.75"))
-                ax.imshow(np.ma.masked_array(np.ones(bundle.shape), mask=~bundle.blocked), origin="lower", extent=extent,
-                          cmap=matplotlib.colors.ListedColormap(["0.05"]), vmin=0, vmax=1)  # fmt: skip
+                draw_blocked(ax, bundle.blocked, extent)
                 target = reaches_target(bundle.sinr_db[user], p_t_db, bundle.dead[user], ~bundle.blocked)
                 ax.contour(target, levels=[0.5], origin="lower", extent=extent, colors="cyan", linewidths=0.8)
                 label = "SINR [dB]"

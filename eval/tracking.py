@@ -28,7 +28,7 @@ from pydantic import ConfigDict, Field
 
 from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.evaluate import Agent, check_unseen, load_agent
-from uavplace.eval.figures import Figure, _pyplot
+from uavplace.eval.figures import Figure, _pyplot, draw_blocked
 from uavplace.eval.metrics import _weighted_quantile, resample_counts
 from uavplace.eval.render import _CSS, _figure, _templates
 from uavplace.infra.console import markdown_table
@@ -144,8 +144,12 @@ def tracking_table(results: dict[str, TrackingEpisodes], n_boot: int, seed: int)
     bound, reference = results.get(UPPER_BOUND), results.get(REFERENCE)
     rows = []
     for name, res in results.items():
-        row: dict[str, object] = {"city": first["city"].iloc[0], "method": name, "episodes": n,
-                                  "routes": int(first["route"].nunique())}  # fmt: skip
+        row: dict[str, object] = {
+            "city": first["city"].iloc[0],
+            "method": name,
+            "episodes": n,
+            "routes": int(first["route"].nunique()),
+        }
         for stat, (_, how) in STATS.items():
             v = res.table[stat].to_numpy(dtype=np.float64)
             row[stat] = float(_summary(v, how, ones)[0])
@@ -242,8 +246,13 @@ def plot_coverage(results: dict[str, TrackingEpisodes], task: TrackingConfig, st
     t = np.arange(1, task.horizon + 1)
     for name, res in results.items():
         share = res.covered.mean(axis=0)
-        ax.plot(t, share, label=f"{name} ({res.covered.mean():.3f})", linewidth=2.0 if name == UPPER_BOUND else 1.4,
-                linestyle="--" if name == UPPER_BOUND else "-")  # fmt: skip
+        ax.plot(
+            t,
+            share,
+            label=f"{name} ({res.covered.mean():.3f})",
+            linewidth=2.0 if name == UPPER_BOUND else 1.4,
+            linestyle="--" if name == UPPER_BOUND else "-",
+        )
     ax.set_xlim(1, task.horizon)
     ax.set_ylim(0, 1.01)
     ax.set_xlabel(f"step (one step: {step_s:g} s, a {task.uav_speed_mps:g} m/s UAV crossing one cell)")
@@ -254,9 +263,11 @@ def plot_coverage(results: dict[str, TrackingEpisodes], task: TrackingConfig, st
     fig.savefig(out, dpi=110)
     plt.close(fig)
     n = len(next(iter(results.values())).table)
-    caption = (f"{city}: the share of the {n} episodes in which the UAV covers the user (SINR at or above P_T = "
-               f"{task.p_t_db:g} dB) at each step, one curve per method, all on the same episodes; in the legend, the "
-               "mean over the horizon (the share of the horizon covered). The oracle, dashed, is the upper bound.")  # fmt: skip
+    caption = (
+        f"{city}: the share of the {n} episodes in which the UAV covers the user (SINR at or above P_T = "
+        f"{task.p_t_db:g} dB) at each step, one curve per method, all on the same episodes; in the legend, the "
+        "mean over the horizon (the share of the horizon covered). The oracle, dashed, is the upper bound."
+    )
     return Figure(out, caption)
 
 
@@ -304,34 +315,38 @@ def plot_episodes(routes: RouteSet, res: TrackingEpisodes, method: str, picked: 
                 fig.colorbar(im, ax=ax, shrink=0.8, label="height above ground [m]")
             else:
                 im = ax.imshow(share, origin="lower", extent=extent, cmap=matplotlib.colormaps["magma"], vmin=0, vmax=1)
-                ax.imshow(np.ma.masked_array(np.ones(b.shape), mask=~b.blocked), origin="lower", extent=extent,
-                          cmap=matplotlib.colors.ListedColormap(["0.05"]), vmin=0, vmax=1)  # fmt: skip
+                draw_blocked(ax, b.blocked, extent)
                 fig.colorbar(im, ax=ax, shrink=0.8, label="share of the steps the cell covers the user")
             ax.plot(route["x_m"], route["y_m"], color="cyan", linewidth=3, alpha=0.6, zorder=3)
             ax.plot(user["x_m"].iloc[0], user["y_m"].iloc[0], "*", color="cyan", markersize=13, markeredgecolor="black", zorder=5)
-            ax.plot(user["x_m"].iloc[-1], user["y_m"].iloc[-1], "*", color="magenta", markersize=13, markeredgecolor="black",
-                    zorder=5)  # fmt: skip
+            ax.plot(
+                user["x_m"].iloc[-1], user["y_m"].iloc[-1], "*", color="magenta", markersize=13, markeredgecolor="black", zorder=5
+            )
             for color, width in (("black", 1.6), ("white", 0.6)):
                 ax.plot(px, py, color=color, linewidth=width, zorder=4)
             ax.plot(px[0], py[0], "o", color="lime", markeredgecolor="black", zorder=5)
             ax.plot(px[-1], py[-1], "s", color="red", markeredgecolor="black", zorder=5)
-            ax.set_title(f"episode {e} ({_SHORT[row]}): covered {m['covered_share']:.2f}, first reach {m['first_reach']:g}",
-                         fontsize=9)  # fmt: skip
-    handles = [Line2D([], [], color="white", linewidth=2, label="UAV path"),
-               Line2D([], [], marker="o", color="lime", markeredgecolor="black", linestyle="", label="UAV start"),
-               Line2D([], [], marker="s", color="red", markeredgecolor="black", linestyle="", label="UAV end"),
-               Line2D([], [], color="cyan", linewidth=3, alpha=0.6, label="user's route"),
-               Line2D([], [], marker="*", color="cyan", markeredgecolor="black", linestyle="", markersize=11, label="user start"),
-               Line2D([], [], marker="*", color="magenta", markeredgecolor="black", linestyle="", markersize=11,
-                      label="user end")]  # fmt: skip
+            ax.set_title(
+                f"episode {e} ({_SHORT[row]}): covered {m['covered_share']:.2f}, first reach {m['first_reach']:g}", fontsize=9
+            )
+    handles = [
+        Line2D([], [], color="white", linewidth=2, label="UAV path"),
+        Line2D([], [], marker="o", color="lime", markeredgecolor="black", linestyle="", label="UAV start"),
+        Line2D([], [], marker="s", color="red", markeredgecolor="black", linestyle="", label="UAV end"),
+        Line2D([], [], color="cyan", linewidth=3, alpha=0.6, label="user's route"),
+        Line2D([], [], marker="*", color="cyan", markeredgecolor="black", linestyle="", markersize=11, label="user start"),
+        Line2D([], [], marker="*", color="magenta", markeredgecolor="black", linestyle="", markersize=11, label="user end"),
+    ]
     fig.legend(handles=handles, loc="outside lower center", ncol=6, fontsize=8, facecolor="0.85")
     fig.savefig(out, dpi=90)
     plt.close(fig)
-    caption = (f"{city}: three episodes of {method} (the best method but the oracle by its mean covered share), picked "
-               f"at {', '.join(EPISODE_RULES[: len(picked)])} of its covered share. Left: heights; right: the share of "
-               "the episode's steps at which each cell would have covered the user (blocked cells black). The user walks "
-               "the cyan route (to its end and back) from the cyan star to the magenta one; the UAV's path is the white "
-               "line from the green circle to the red square.")  # fmt: skip
+    caption = (
+        f"{city}: three episodes of {method} (the best method but the oracle by its mean covered share), picked "
+        f"at {', '.join(EPISODE_RULES[: len(picked)])} of its covered share. Left: heights; right: the share of "
+        "the episode's steps at which each cell would have covered the user (blocked cells black). The user walks "
+        "the cyan route (to its end and back) from the cyan star to the magenta one; the UAV's path is the white "
+        "line from the green circle to the red square."
+    )
     return Figure(out, caption)
 
 
@@ -351,8 +366,11 @@ def make_tracking_report(
     agents = [load_agent(r, config.test_epsilon, config.seed, task=None) for r in config.runs]
     for b in bundles:
         if b.routes is None:
-            raise InputError(b.path, "this bundle has no routes: simulate them with `uavdata simulate ... --routes N`, then "
-                             "ingest and build", field="routes")  # fmt: skip
+            raise InputError(
+                b.path,
+                "this bundle has no routes: simulate them with `uavdata simulate ... --routes N`, then ingest and build",
+                field="routes",
+            )
         check_unseen(agents, b)
     sections, provenance, figures_all = [], [], []
     per_city: list[tuple] = []
@@ -392,14 +410,33 @@ def make_tracking_report(
             number += len(shown)
             rows = table_rows(table, config.task.horizon)
             kinds = routes.names
-            sections.append(_templates().get_template("tracking_section.html.j2").render(
-                city=b.city, bundle=b.version, episodes=config.episodes, routes=routes.num_routes,
-                kinds=", ".join(sorted({k for _, _, k in kinds})), horizon=config.task.horizon, step_s=f"{step_s:g}",
-                speed=f"{config.task.uav_speed_mps:g}", p_t=f"{config.task.p_t_db:g}", n_boot=config.n_boot,
-                rows=rows, figures=shown,
-            ))  # fmt: skip
-            provenance.append({"city": b.city, "bundle": b.version, "routes": routes.num_routes,
-                               "route_points": len(b.routes), "drawn": {"method": method, "episodes": picked}})  # fmt: skip
+            sections.append(
+                _templates()
+                .get_template("tracking_section.html.j2")
+                .render(
+                    city=b.city,
+                    bundle=b.version,
+                    episodes=config.episodes,
+                    routes=routes.num_routes,
+                    kinds=", ".join(sorted({k for _, _, k in kinds})),
+                    horizon=config.task.horizon,
+                    step_s=f"{step_s:g}",
+                    speed=f"{config.task.uav_speed_mps:g}",
+                    p_t=f"{config.task.p_t_db:g}",
+                    n_boot=config.n_boot,
+                    rows=rows,
+                    figures=shown,
+                )
+            )
+            provenance.append(
+                {
+                    "city": b.city,
+                    "bundle": b.version,
+                    "routes": routes.num_routes,
+                    "route_points": len(b.routes),
+                    "drawn": {"method": method, "episodes": picked},
+                }
+            )
             figures_all += [f.caption for f in figs if f is not None]
             episodes_frame = pd.concat([r.table.assign(method=name) for name, r in results.items()], ignore_index=True)
             episodes_frame.to_parquet(tmp / f"{b.city}-episodes.parquet", index=False)
@@ -407,18 +444,33 @@ def make_tracking_report(
         table = pd.concat(tables, ignore_index=True)
         table.to_csv(tmp / "tracking.csv", index=False)
         (tmp / "tracking.md").write_text(tables_markdown(tables, config.task.horizon), encoding="utf-8")
-        record = {"command": command, "created_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
-                  "uavplace_version": uavplace_version(), "config": json.loads(config.model_dump_json()),
-                  "cities": provenance, "figures": figures_all,
-                  "agents": {a.name: {"folder": str(a.folder), "trained_on": a.trained_on or None,
-                                      "selected_on": a.selected_on or None} for a in agents}}  # fmt: skip
+        record = {
+            "command": command,
+            "created_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+            "uavplace_version": uavplace_version(),
+            "config": json.loads(config.model_dump_json()),
+            "cities": provenance,
+            "figures": figures_all,
+            "agents": {
+                a.name: {"folder": str(a.folder), "trained_on": a.trained_on or None, "selected_on": a.selected_on or None}
+                for a in agents
+            },
+        }
         import markupsafe
 
-        page = _templates().get_template("tracking.html.j2").render(
-            css=markupsafe.Markup(_CSS), cities=", ".join(b.city for b in bundles), made=record["created_utc"],
-            command=command, sections=[markupsafe.Markup(s) for s in sections], raw=json.dumps(record, indent=2),
-            findings=findings(table, config.task.horizon),
-        )  # fmt: skip
+        page = (
+            _templates()
+            .get_template("tracking.html.j2")
+            .render(
+                css=markupsafe.Markup(_CSS),
+                cities=", ".join(b.city for b in bundles),
+                made=record["created_utc"],
+                command=command,
+                sections=[markupsafe.Markup(s) for s in sections],
+                raw=json.dumps(record, indent=2),
+                findings=findings(table, config.task.horizon),
+            )
+        )
         (tmp / "tracking.html").write_text(page, encoding="utf-8")
         (tmp / TRACKING_JSON).write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
     return table, out / "tracking.html"

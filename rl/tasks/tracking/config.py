@@ -58,5 +58,5 @@ class TrackingConfig(Contract):
 
     def placement_env(self) -> EnvConfig:
         """The placement ``EnvConfig`` whose canvases (height, blocked, padding) this task shares."""
-        return EnvConfig(p_t_db=self.p_t_db, window=self.window, blind=self.blind, p_h_db=self.p_h_db, p_l_db=self.p_l_db,
-                         edge_height_m=self.edge_height_m, height_clip_m=self.height_clip_m, rotate=False)  # fmt: skip
+        shared = {"p_t_db", *OBSERVATION_FIELDS} - {"age_clip_s"}
+        return EnvConfig(**self.model_dump(include=shared), rotate=False)
