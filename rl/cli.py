@@ -482,13 +482,12 @@ def train_predictor(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from uavplace.dataset.bundle import load_bundle
-    from uavplace.dataset.export import read_radiomapseer
-    from uavplace.dataset.trainmaps import TrainingMaps, list_packs, read_pack
     from uavplace.infra.console import command_line
     from uavplace.infra.files import atomic_directory
     from uavplace.rl.belief import load_constants
     from uavplace.rl.learned import MODEL_CARD, MODEL_JSON, LearnedPredictor, model_card, save_learned, train_learned
-    from uavplace.rl.predictor import PhysicsPredictor, predicted_and_measured, reliability, scores_of
+    from uavplace.rl.predictor import PhysicsPredictor
+    from uavplace.rl.tiers import SCORE_COLUMNS, score_cells, score_tiers, training_maps
 
     if not datasets and not map_folders:
         raise click.UsageError("give training maps: --dataset CITY or --maps FOLDER (or both)")
@@ -499,10 +498,7 @@ def train_predictor(
             f"{widths!r}: expected 1 to 5 positive integers, e.g. 16,32,64 ({str(err)[:80]})", param_hint="--widths"
         ) from None
     physics = load_constants(constants)
-    bundles, users = _training_users(datasets, root)
-    maps = [TrainingMaps.of_bundle(b, u) for b, u in zip(bundles, users, strict=True)]
-    for folder in map_folders:  # a folder of packs, or one RadioMapSeer-style city folder (`uavdata export`)
-        maps += [read_radiomapseer(folder)] if (folder / "scale.json").is_file() else [read_pack(p) for p in list_packs(folder)]
+    maps = training_maps(*_training_users(datasets, root), map_folders)
     overlap = sorted({m.city for m in maps} & set(val_datasets))
     if overlap:
         raise click.BadParameter(
@@ -510,15 +506,9 @@ def train_predictor(
             "predictor on its own training maps)",
             param_hint="--val-dataset",
         )
-    columns = (
-        TextColumn("[bold]train-predictor[/] loss {task.fields[loss]:.4f}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TextColumn("steps"),
-        TimeElapsedColumn(),
-    )
+    columns = (TextColumn("[bold]train-predictor[/] loss {task.fields[loss]:.4f}"), BarColumn(), MofNCompleteColumn())
     log = LogLines(quiet)  # a log: a plain line every LINE_SECONDS instead of a bar
-    with Progress(*columns, console=stdout(), disable=quiet or log.enabled) as bar:
+    with Progress(*columns, TextColumn("steps"), TimeElapsedColumn(), console=stdout(), disable=quiet or log.enabled) as bar:
         task = bar.add_task("train", total=steps, loss=float("nan"))
 
         def on_progress(done: int, loss: float) -> None:
@@ -527,36 +517,17 @@ def train_predictor(
 
         net, facts = train_learned(maps, physics, config, progress=on_progress)
     fields = {"config": config, "constants": physics, "fitted_on": [f"{m.city}@{m.version}" for m in maps], **facts}
-    table = plain_table(
-        "city", "tier", "median |error| [dB]", "p90 |error| [dB]", "dead/live agreement", "calibration error", "ms per map"
-    )
     with atomic_directory(out, marker=MODEL_JSON, what="learned predictor") as tmp:
         model = save_learned(tmp, net, fields)
-        learned = LearnedPredictor(model, net)
-        scores: dict[str, dict[str, float]] = {}
-        diagrams: dict[str, list[list[float]]] = {}
-        for name in val_datasets:
-            b = load_bundle(name, root=root)
-            row = {}
-            for tier, predictor in (("learned", learned), ("physics", PhysicsPredictor(physics))):
-                pm = predicted_and_measured(b, b.user_indices(), predictor)
-                s = scores_of(pm)
-                row.update({f"{tier}_{k}": v for k, v in s.items()})
-                table.add_row(
-                    name,
-                    tier,
-                    f"{s['median_error_db']:.1f}",
-                    f"{s['p90_error_db']:.1f}",
-                    f"{100 * s['dead_live_agreement']:.1f} %",
-                    f"{s['calibration_error']:.3f}",
-                    f"{s['ms_per_map']:.0f}",
-                )
-                if tier == "learned":
-                    diagrams[name] = reliability(pm["p_dead"], pm["low"])[1]
-            scores[name] = row
+        tiers = {"learned": LearnedPredictor(model, net), "physics": PhysicsPredictor(physics)}
+        scores, diagrams = score_tiers([load_bundle(name, root=root) for name in val_datasets], tiers)
         model = model.model_copy(update={"scores": scores, "reliability": diagrams})
         (tmp / MODEL_JSON).write_text(model.model_dump_json(indent=2) + "\n")
         (tmp / MODEL_CARD).write_text(model_card(model, command_line()))
+    table = plain_table("city", "tier", *SCORE_COLUMNS)
+    for name, row in scores.items():
+        for tier in tiers:
+            table.add_row(name, tier, *score_cells(row, f"{tier}_"))
     if val_datasets:
         stdout().print(table)
     scale, bias = facts["calibration"]
