@@ -94,3 +94,15 @@ ROLES_FILE = "cities.toml"
 def read_roles(path: str | Path) -> CityRoles:
     """A roles file (``CityRoles``, TOML); ``InputError`` naming the file and the field."""
     return read_model_toml(path, CityRoles, "a cities' roles file (TOML)", missing="no such roles file")
+
+
+def export_spacing(city: str, root: str | Path) -> float:
+    """The receiver-grid spacing of ``city``'s export (its .txrx grid sets, as ingest recorded them): the grid a
+    build takes when ``--grid`` is not given. ``InputError`` when the city has no receiver grid or grids of several
+    spacings."""
+    manifest = read_city_manifest(Path(root) / city / INGESTED_MANIFEST)
+    spacings = sorted({s.spacing_m for s in manifest.txrx_sets if s.kind == "grid" and s.is_receiver and s.spacing_m})
+    if len(spacings) != 1:
+        found = "no receiver grid" if not spacings else f"receiver grids of {', '.join(f'{v:g}' for v in spacings)} m"
+        raise InputError(Path(root) / city, f"{found} in its .txrx: give the grid spacing (--grid 4m)", field="grid")
+    return float(spacings[0])

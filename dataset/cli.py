@@ -11,7 +11,7 @@ import click
 from pydantic import ValidationError
 from rich.markup import escape
 
-from uavplace.dataset.catalog import ROLES_FILE, list_cities, nearest_names
+from uavplace.dataset.catalog import ROLES_FILE, list_cities
 from uavplace.infra.console import (
     Bounds,
     Metres,
@@ -41,37 +41,25 @@ def _splits(values: tuple[str, ...]) -> dict[str, str | None]:
     return out
 
 
-def export_spacing(city: str, root: Path) -> float:
-    """The receiver-grid spacing of ``city``'s export (its .txrx grid sets, as ingest recorded them): the grid a
-    build takes when ``--grid`` is not given. ``InputError`` when the city has no receiver grid or grids of several
-    spacings."""
-    from uavplace.dataset.catalog import INGESTED_MANIFEST, read_city_manifest
-
-    manifest = read_city_manifest(Path(root) / city / INGESTED_MANIFEST)
-    spacings = sorted({s.spacing_m for s in manifest.txrx_sets if s.kind == "grid" and s.is_receiver and s.spacing_m})
-    if len(spacings) != 1:
-        found = "no receiver grid" if not spacings else f"receiver grids of {', '.join(f'{v:g}' for v in spacings)} m"
-        raise InputError(Path(root) / city, f"{found} in its .txrx: give the grid spacing (--grid 4m)", field="grid")
-    return float(spacings[0])
-
-
-def _declared_roles(path: Path):  # noqa: ANN202 - a CityRoles or None
-    """The roles file ``path`` (``read_roles``); None when it is the default file and absent."""
-    from uavplace.dataset.catalog import read_roles
-
-    if not path.exists() and path == Path("data/raw") / ROLES_FILE:
-        return None
-    return read_roles(path)
-
-
-def _latest_role(city: str, root: Path) -> str | None:
-    """The role of ``city``'s latest bundle (None: no role, or no bundle yet)."""
-    from uavplace.dataset.bundle import read_manifest, resolve
-
-    try:
-        return read_manifest(resolve(city, root=root)).config.role
-    except InputError:
-        return None
+def _say_built(out, name: str, result) -> None:  # noqa: ANN001 - a rich Console and a BuildResult
+    """What ``uavdata build`` made of city ``name``: the bundle, its difficulty, and where ``latest`` moved."""
+    m = result.manifest
+    what = "built" if result.built else "up to date (nothing to do)"
+    out.print(
+        f"{what} {name}@{m.version}: {m.grid.num_x} x {m.grid.num_y} cells of {m.grid.spacing_m:g} m at "
+        f"{m.config.altitude_m:g} m, {m.num_users} users, SINR from {m.sinr.source}, "
+        f"{m.counts['blocked_cells']} blocked cells, {m.counts['dead_cells']} dead user-cells -> {result.path}",
+        highlight=False,
+        soft_wrap=True,
+    )
+    out.print(f"  difficulty: {format_difficulty(m.difficulty)}", highlight=False, soft_wrap=True)
+    if result.previous_latest is not None:
+        out.print(
+            f"  latest: {name} now means {name}@{m.version} (it was {name}@{result.previous_latest}); "
+            f"to keep using the other, name it: --dataset {name}@{result.previous_latest}",
+            highlight=False,
+            soft_wrap=True,
+        )
 
 
 @click.command()
@@ -128,24 +116,15 @@ def _latest_role(city: str, root: Path) -> str | None:
 @click.option("--quiet", is_flag=True, help="Only the summary lines.")
 def build(
     grid_m: float | None,
-    altitude_m: float,
-    altitude_tol_m: float,
     cities: tuple[str, ...],
-    noise_dbm: float,
-    interference_std_db: float,
-    tx_dbm: float | None,
-    sinr_floor_db: float,
-    bounds,
-    crop: bool,
     crop_cities: tuple[str, ...],
     splits: tuple[str, ...],
     roles_file: Path,
     val_users: int | None,
-    seed: int,
-    p_t_db: float,
     force: bool,
     root: Path,
     quiet: bool,
+    **fields: object,
 ) -> None:
     """Rasterise ingested cities into versioned map bundles under ROOT/<city>/<version>/.
 
@@ -159,45 +138,26 @@ def build(
     the linear domain; the export's own SINR is used when it has one.
     """
     from uavplace.dataset.build import build_city
+    from uavplace.dataset.catalog import export_spacing
+    from uavplace.dataset.roles import plan_builds
 
-    role = _splits(splits)
-    for city in cities:
-        check_name(city, "city name")
-    ingested = [c.name for c in list_cities(root)]
-    names = list(cities) or ingested
-    if not names:
-        fail(InputError(root, "no ingested city: run `uavdata ingest data/raw/<city>/` first"))
-    for city in names:  # checked before anything is read: a mistyped name gets the nearest ones
-        if city not in ingested:
-            fail(
-                InputError(root / city, f"no ingested city of that name{nearest_names(city, ingested, 'ingested')}", field="city")
-            )
-    for option, given in (("--split", role), ("--crop-city", crop_cities)):
-        unknown = sorted(set(given) - set(names))
-        if unknown:
-            raise click.BadParameter(f"cities {unknown} are not being built", param_hint=option)
-    declared = _declared_roles(roles_file)
-    held_out = dict.fromkeys(names, 0 if val_users is None else val_users)  # validation users of each train city
-    if declared is not None:  # the roles beside the data, for the cities built; the options win
-        role = {n: declared.role_of(n) for n in names if declared.role_of(n) is not None} | role
-        crop_cities = (*crop_cities, *(n for n in declared.crop if n in names))
-        if val_users is None:  # the file's val_users, for the train cities the file lists
-            held_out |= {n: declared.val_users for n in declared.train if n in held_out}
-    held = {n: r for n in names if n not in role and (r := _latest_role(n, root)) is not None}
-    if held:  # a build without their --split would make new bundles without a role and move `latest` to them
-        fail(
-            InputError(
-                root,
-                f"{', '.join(f'{n} (a {r} city)' for n, r in held.items())}: the latest bundle has a role that "
-                "this build would drop; name it again (--split CITY=ROLE, and --val-users for a train city), "
-                "drop it with --split CITY=none, or build other cities with --city",
-                field="split",
-            )
+    default_roles = Path("data/raw") / ROLES_FILE  # skipped when absent
+    try:
+        plans = plan_builds(
+            cities,
+            root,
+            roles=_splits(splits),
+            crop_cities=crop_cities,
+            roles_file=None if roles_file == default_roles and not roles_file.exists() else roles_file,
+            val_users=val_users,
         )
+    except InputError as err:
+        fail(err)
     out = stdout()
     errors = 0
     warned: list[tuple[str, str]] = []
-    for name in names:
+    for plan in plans:
+        name = plan.city
         try:
             grid = grid_m if grid_m is not None else export_spacing(name, root)
         except InputError as err:
@@ -205,21 +165,8 @@ def build(
             errors += 1
             continue
         try:
-            config = BuildConfig(
-                grid_m=grid,
-                altitude_m=altitude_m,
-                altitude_tol_m=altitude_tol_m,
-                noise_dbm=noise_dbm,
-                interference_std_db=interference_std_db,
-                seed=seed,
-                sinr_floor_db=sinr_floor_db,
-                tx_dbm=tx_dbm,
-                bounds=bounds,
-                crop=crop or name in crop_cities,
-                role=role.get(name),
-                val_users=held_out[name] if role.get(name) == "train" else 0,
-                p_t_db=p_t_db,
-            )
+            declared = {"crop": fields["crop"] or plan.crop, "role": plan.role, "val_users": plan.val_users}
+            config = BuildConfig(**(fields | declared), grid_m=grid)
         except ValidationError as exc:
             field, message = validation_message(exc)
             raise click.BadParameter(f"{message} (got {exc.errors()[0].get('input')!r})", param_hint=field) from None
@@ -235,24 +182,8 @@ def build(
             console.print(f"[bold red]error:[/] {escape(name)}: {escape(str(err))}", highlight=False, soft_wrap=True)
             errors += 1
             continue
-        m = result.manifest
-        warned += [(name, w) for w in m.warnings]
-        what = "built" if result.built else "up to date (nothing to do)"
-        out.print(
-            f"{what} {name}@{m.version}: {m.grid.num_x} x {m.grid.num_y} cells of {m.grid.spacing_m:g} m at "
-            f"{m.config.altitude_m:g} m, {m.num_users} users, SINR from {m.sinr.source}, "
-            f"{m.counts['blocked_cells']} blocked cells, {m.counts['dead_cells']} dead user-cells -> {result.path}",
-            highlight=False,
-            soft_wrap=True,
-        )
-        out.print(f"  difficulty: {format_difficulty(m.difficulty)}", highlight=False, soft_wrap=True)
-        if result.previous_latest is not None:
-            out.print(
-                f"  latest: {name} now means {name}@{m.version} (it was {name}@{result.previous_latest}); "
-                f"to keep using the other, name it: --dataset {name}@{result.previous_latest}",
-                highlight=False,
-                soft_wrap=True,
-            )
+        warned += [(name, w) for w in result.manifest.warnings]
+        _say_built(out, name, result)
     if not quiet:
         for line in warning_lines(warned):
             console.print(f"[yellow]warning:[/] {escape(line)}", highlight=False, soft_wrap=True)
@@ -302,11 +233,6 @@ def format_difficulty(d: dict[str, float | None]) -> str:
     )
 
 
-def _size(path: Path) -> str:
-    total = sum(p.stat().st_size for p in path.iterdir() if p.is_file())
-    return f"{total / 1e6:.1f} MB"
-
-
 @click.command(name="list")
 @root_option
 @click.option(
@@ -325,8 +251,6 @@ def _size(path: Path) -> str:
 )
 def list_(root: Path, table: bool, raw: Path) -> None:
     """List ingested cities and their bundles (versions, grid, altitude, users, size) under ROOT."""
-    from uavplace.dataset.bundle import list_versions, read_latest
-
     out = stdout()
     if table:
         from uavplace.dataset.corpus import corpus_rows
@@ -338,50 +262,14 @@ def list_(root: Path, table: bool, raw: Path) -> None:
     if not cities:
         out.print(f"no ingested city under {root} (run `uavdata ingest data/raw/<city>/`)")
         return
-    ingested = plain_table(
-        "city", "users", "receiver rows", "reached", "buildings", "frequency [MHz]", "ingested (UTC)", title="ingested"
-    )
-    bundles = plain_table(
-        "city",
-        "version",
-        "grid [m]",
-        "alt [m]",
-        "cells",
-        "users",
-        "split",
-        "SINR from",
-        "size",
-        "built (UTC)",
-        title="bundles (* latest)",
-    )
+    from uavplace.dataset.roles import BUNDLE_COLUMNS, INGESTED_COLUMNS, bundle_rows, ingested_row
+
+    ingested = plain_table(*INGESTED_COLUMNS, title="ingested")
+    bundles = plain_table(*BUNDLE_COLUMNS, title="bundles (* latest)")
     for c in cities:
-        k = c.manifest.counts
-        f = c.manifest.frequency_hz
-        ingested.add_row(
-            c.name,
-            str(k["transmitters"]),
-            str(k["receiver_rows"]),
-            str(k["receiver_rows_reached"]),
-            str(k["buildings"]),
-            f"{f / 1e6:g}" if f else "-",
-            c.manifest.created_utc,
-        )
-        latest = read_latest(c.name, root)
-        for m in list_versions(c.name, root):
-            role = m.config.role or "-"
-            split = ", ".join(f"{v} {k}" for k, v in m.split.items() if v) if m.config.role else "-"
-            bundles.add_row(
-                c.name,
-                m.version + (" *" if m.version == latest else ""),
-                f"{m.grid.spacing_m:g}",
-                f"{m.config.altitude_m:g}",
-                f"{m.grid.num_x} x {m.grid.num_y}",
-                str(m.num_users),
-                f"{role} ({split})" if m.config.role else "-",
-                m.sinr.source,
-                _size(c.path / m.version),
-                m.created_utc,
-            )
+        ingested.add_row(*ingested_row(c))
+        for row in bundle_rows(c, root):
+            bundles.add_row(*row)
     out.print(ingested)
     if bundles.row_count:
         out.print(bundles)

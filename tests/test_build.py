@@ -534,7 +534,7 @@ def test_the_grid_is_the_exports_unless_given(tmp_path):
     assert load_bundle("city", root=root).manifest.config.grid_m == 2.0
     res = run(uavdata, ["build", "--root", str(root), "--alt", "10", "--grid", "2m", "--quiet"])
     assert "up to date" in res.output  # the same bundle
-    from uavplace.dataset.cli import export_spacing
+    from uavplace.dataset.catalog import export_spacing
 
     manifest = root / "city" / "ingested" / "manifest.json"
     doc = json.loads(manifest.read_text())
