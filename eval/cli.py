@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -138,12 +140,7 @@ from uavplace.schemas.base import repeated
 @ray_address_option("the methods (with it, --workers is the cluster's CPUs)")
 @root_option
 @click.option("--quiet", is_flag=True, help="No progress bar.")
-def report(
-    runs: tuple[Path, ...], datasets: tuple[str, ...], out: Path | None, episodes: int, t_max: int, p_t_db: float, test_epsilon: float,
-    n_boot: int, trajectories: int, split: str | None, seed: int, groups: tuple[str, ...], agents_dir: Path,
-    markdown: Path | None, task: str, uavs: int, users: int, horizon: int, hold: bool, predictor: str, overwrite: bool,
-    strict: bool, workers: int, ray_address: str | None, root: Path, quiet: bool,
-) -> None:  # fmt: skip
+def report(**v: Any) -> None:
     """Evaluate agents and baselines on the same episodes of a test city; write an HTML report, PNGs, CSV and Parquet.
 
     Methods: every agent, the genie (shortest path, full knowledge), the steered random walk, greedy
@@ -159,155 +156,116 @@ def report(
     (eval/tracking.py).
     """
     from uavplace.dataset.bundle import resolve
-
-    cities = [d.split("@")[0] for d in datasets]
-    twice = repeated(cities)
-    if twice:  # one folder, table and summary row per city: two versions of one city would overwrite each other
-        given = ", ".join(d for d in datasets if d.split("@")[0] in twice)
-        raise click.UsageError(f"--dataset names {', '.join(twice)} more than once ({given}): one report per city; "
-                               "report each version with its own --out")  # fmt: skip
-    for dataset in datasets:  # a mistyped city is named, with the nearest ones, before anything heavy is loaded
-        resolve(dataset, root=root)
-    from uavplace.eval.evaluate import check_unseen_runs, default_agents
-    from uavplace.eval.render import check_summary_page, summary_rows, write_summary_page
     from uavplace.infra.files import check_replaceable_file
     from uavplace.infra.limits import check_limit
 
-    if markdown is not None:  # refused before any work: only a regular file or nothing is replaced
-        check_replaceable_file(markdown)
-    if not datasets:  # the release's cities: those built with the test role
+    cities = [d.split("@")[0] for d in v["datasets"]]
+    twice = repeated(cities)
+    if twice:  # one folder, table and summary row per city: two versions of one city would overwrite each other
+        given = ", ".join(d for d in v["datasets"] if d.split("@")[0] in twice)
+        raise click.UsageError(
+            f"--dataset names {', '.join(twice)} more than once ({given}): one report per city; "
+            "report each version with its own --out"
+        )
+    for dataset in v["datasets"]:  # a mistyped city is named, with the nearest ones, before anything heavy is loaded
+        resolve(dataset, root=v["root"])
+    if v["markdown"] is not None:  # refused before any work: only a regular file or nothing is replaced
+        check_replaceable_file(v["markdown"])
+    if not v["datasets"]:  # the release's cities: those built with the test role
         from uavplace.eval.cities import release_cities
 
-        datasets = tuple(release_cities(root, routes=task == "tracking"))
-    budget, option = (horizon, "--horizon") if task == "tracking" else (t_max, "--t-max")
-    check_limit("episode_steps", episodes * budget, None, f"--episodes x {option}", field="episodes")
+        v["datasets"] = tuple(release_cities(v["root"], routes=v["task"] == "tracking"))
+    budget, option = (v["horizon"], "--horizon") if v["task"] == "tracking" else (v["t_max"], "--t-max")
+    check_limit("episode_steps", v["episodes"] * budget, None, f"--episodes x {option}", field="episodes")
+    if v["task"] != "placement" and (v["groups"] or v["split"]):
+        raise click.UsageError(f"--task {v['task']} plays every user and route of the cities: it takes no --group or --split")
     # One report into a folder at a time: a second one of the same folder, even of other agents, is refused at once
     # (both would publish, the last one winning, and both would say they wrote it).
-    target = out or Path("reports") / ("" if task == "placement" else task)
+    target = v["out"] or Path("reports") / ("" if v["task"] == "placement" else v["task"])
     with exclusive_folder(target, "report", kind="job"), contextlib.ExitStack() as after:
-        if task == "fleet":
-            from uavplace.eval.fleet import DEFAULT_AGENT
+        TASK_REPORTS[v["task"]](v, after)
 
-            if groups or split:
-                raise click.UsageError("--task fleet plays every user set of the cities: it takes no --group or --split")
-            shipped = [p for p in default_agents(agents_dir) if p.name == DEFAULT_AGENT] + default_agents(agents_dir, "fleet")
-            chosen = list(runs) or shipped
-            _check_runs_once(chosen, "--run")
-            check_unseen_runs(chosen, list(datasets), root)
-            _check_training_settings(chosen, datasets, p_t_db, root, strict)
-            _fleet_report(
-                datasets,
-                chosen,
-                out,
-                episodes,
-                t_max,
-                p_t_db,
-                test_epsilon,
-                seed,
-                n_boot,
-                uavs,
-                users,
-                predictor,
-                markdown,
-                root,
-                quiet,
-            )
-            return
-        chosen = list(runs) or default_agents(agents_dir, ("placement", "tracking") if task == "tracking" else "placement")
-        if task == "tracking":
-            _check_runs_once(chosen, "--run")
-            _check_training_settings(chosen, datasets, p_t_db, root, strict)
-            if groups or split:
-                raise click.UsageError("--task tracking plays every route of the cities: it takes no --group or --split")
-            _tracking_report(
-                datasets,
-                chosen,
-                out,
-                episodes,
-                horizon,
-                p_t_db,
-                test_epsilon,
-                seed,
-                n_boot,
-                trajectories,
-                hold,
-                markdown,
-                root,
-                quiet,
-                predictor,
-            )
-            return
 
-        _check_runs_once(chosen, "--run")
-        grouped: dict[str, list[str]] = {}
-        for text in groups:
-            name, _, members = text.partition("=")
-            folders = [m for m in members.split(",") if m]
-            if not name or not folders:
-                raise click.UsageError(f"--group {text!r}: expected NAME=RUN,RUN,...")
-            if name in grouped:
-                raise click.UsageError(f"--group {name} is given twice: one group of each name")
-            if name in _method_names():
-                raise click.UsageError(f"--group {name}: the name of a method of the report; call the group otherwise")
-            _check_runs_once([Path(f) for f in folders], f"--group {name}")
-            grouped[name] = [str(Path(f)) for f in folders]
-            chosen += [Path(f) for f in folders if Path(f).resolve() not in {c.resolve() for c in chosen}]
-        _check_runs_once(chosen, "--run and --group")
-        check_unseen_runs(chosen, list(datasets), root)  # every city before the first city's report
-        _check_training_settings(chosen, datasets, p_t_db, root, strict)
-        if len(datasets) > 1:
-            check_summary_page(out or Path("reports"))
-        folders = {d: out if out and len(datasets) == 1 else (out or Path("reports")) / d.split("@")[0] for d in datasets}
-        if not overwrite:
-            for folder in folders.values():
-                _check_same_agents(folder, chosen)
-        reports = []
-        parallel = ray_address is not None or workers > 1
-        if parallel and start_ray(ray_address, 1, "--workers", workers if ray_address is None else None):
-            import ray
+def _placement_report(v: dict[str, Any], after: contextlib.ExitStack) -> None:
+    """``uavrl report`` of the placement task: one report folder per city, then the page of every city."""
+    from uavplace.eval.evaluate import check_unseen_runs, default_agents
+    from uavplace.eval.render import check_summary_page, summary_rows, write_summary_page
 
-            after.callback(ray.shutdown)
-        for dataset in datasets:
-            shared = report_settings(chosen, episodes, seed, test_epsilon, n_boot, trajectories, predictor)
-            config = ReportConfig(dataset=dataset, t_max=t_max, p_t_db=p_t_db, split=split, groups=grouped, **shared)
-            where = (datasets.index(dataset) + 1, len(datasets))
-            result = _one_report(config, folders[dataset], root, quiet, where, parallel)
-            reports.append(result)
-            title = f"{episodes} episodes in {dataset} (t_max {t_max}, P_T {p_t_db:g} dB)"
-            rows = result.rows
-            if stdout().is_terminal:  # a terminal gets the columns that fit; the full table is in the report and --markdown
-                rows = terminal_columns(rows)
-                title += f"; every column: {result.out / 'report.html'}"
-            stdout().print(plain_table(*rows[0], rows=rows[1:], title=title))
-            if len(result.diff_rows) > 1:
-                stdout().print(
-                    plain_table(
-                        *result.diff_rows[0],
-                        rows=result.diff_rows[1:],
-                        title=f"paired differences in {dataset}, method minus reference, 95 % intervals",
-                    )
-                )
-            if result.group_rows is not None:
-                stdout().print(
-                    plain_table(
-                        *result.group_rows[0],
-                        rows=result.group_rows[1:],
-                        title=f"groups of runs in {dataset}: mean over runs [interval over runs, users, episodes] (runs' range)",
-                    )
-                )
-            stdout().print(f"report: {result.out / 'report.html'}", highlight=False, soft_wrap=True)
-        top = None  # several cities: the page's findings, which the Markdown leads with too
-        if len(datasets) > 1:
-            rows = summary_rows(reports, t_max)
-            stdout().print(plain_table(*rows[0], rows=rows[1:], title="success / median steps per method and city"))
-            page, top = write_summary_page(reports, out or Path("reports"), t_max)
-            stdout().print(f"report (every city): {page}", highlight=False, soft_wrap=True)
-        if markdown is not None:
-            from uavplace.eval.render import markdown_tables
-            from uavplace.infra.files import atomic_write_text
+    datasets, out, t_max = v["datasets"], v["out"], v["t_max"]
+    chosen = list(v["runs"]) or default_agents(v["agents_dir"], "placement")
+    _check_runs_once(chosen, "--run")
+    grouped = _groups(v["groups"], chosen)
+    _check_runs_once(chosen, "--run and --group")
+    check_unseen_runs(chosen, list(datasets), v["root"])  # every city before the first city's report
+    _check_training_settings(chosen, datasets, v["p_t_db"], v["root"], v["strict"])
+    if len(datasets) > 1:
+        check_summary_page(out or Path("reports"))
+    folders = {d: out if out and len(datasets) == 1 else (out or Path("reports")) / d.split("@")[0] for d in datasets}
+    if not v["overwrite"]:
+        for folder in folders.values():
+            _check_same_agents(folder, chosen)
+    reports = []
+    parallel = v["ray_address"] is not None or v["workers"] > 1
+    if parallel and start_ray(v["ray_address"], 1, "--workers", v["workers"] if v["ray_address"] is None else None):
+        import ray
 
-            atomic_write_text(markdown, markdown_tables(reports, t_max, top))
-            stdout().print(f"tables (Markdown): {markdown}", highlight=False, soft_wrap=True)
+        after.callback(ray.shutdown)
+    shared = report_settings(chosen, v)
+    for dataset in datasets:
+        config = ReportConfig(dataset=dataset, t_max=t_max, p_t_db=v["p_t_db"], split=v["split"], groups=grouped, **shared)
+        where = (datasets.index(dataset) + 1, len(datasets))
+        result = _one_report(config, folders[dataset], v["root"], v["quiet"], where, parallel)
+        reports.append(result)
+        _print_city(result, f"{v['episodes']} episodes in {dataset} (t_max {t_max}, P_T {v['p_t_db']:g} dB)", dataset)
+    top = None  # several cities: the page's findings, which the Markdown leads with too
+    if len(datasets) > 1:
+        rows = summary_rows(reports, t_max)
+        stdout().print(plain_table(*rows[0], rows=rows[1:], title="success / median steps per method and city"))
+        page, top = write_summary_page(reports, out or Path("reports"), t_max)
+        stdout().print(f"report (every city): {page}", highlight=False, soft_wrap=True)
+    if v["markdown"] is not None:
+        from uavplace.eval.render import markdown_tables
+        from uavplace.infra.files import atomic_write_text
+
+        atomic_write_text(v["markdown"], markdown_tables(reports, t_max, top))
+        stdout().print(f"tables (Markdown): {v['markdown']}", highlight=False, soft_wrap=True)
+
+
+def _groups(groups: tuple[str, ...], chosen: list[Path]) -> dict[str, list[str]]:
+    """``--group NAME=RUN,RUN,...`` values as ``{name: [run, ...]}``; each group's runs not yet among ``chosen`` are
+    added to it (they are played alone too)."""
+    grouped: dict[str, list[str]] = {}
+    for text in groups:
+        name, _, members = text.partition("=")
+        folders = [m for m in members.split(",") if m]
+        if not name or not folders:
+            raise click.UsageError(f"--group {text!r}: expected NAME=RUN,RUN,...")
+        if name in grouped:
+            raise click.UsageError(f"--group {name} is given twice: one group of each name")
+        if name in _method_names():
+            raise click.UsageError(f"--group {name}: the name of a method of the report; call the group otherwise")
+        _check_runs_once([Path(f) for f in folders], f"--group {name}")
+        grouped[name] = [str(Path(f)) for f in folders]
+        chosen += [Path(f) for f in folders if Path(f).resolve() not in {c.resolve() for c in chosen}]
+    return grouped
+
+
+def _print_city(result, title: str, dataset: str) -> None:  # noqa: ANN001 - a ReportResult
+    """A city's tables as the report printed them: the results (a terminal gets the columns that fit; the full table
+    is in the report and --markdown), the paired differences and the groups of runs."""
+    rows = result.rows
+    if stdout().is_terminal:
+        rows = terminal_columns(rows)
+        title += f"; every column: {result.out / 'report.html'}"
+    stdout().print(plain_table(*rows[0], rows=rows[1:], title=title))
+    titles = (
+        (result.diff_rows, f"paired differences in {dataset}, method minus reference, 95 % intervals"),
+        (result.group_rows, f"groups of runs in {dataset}: mean over runs [interval over runs, users, episodes] (runs' range)"),
+    )
+    for table, caption in titles:
+        if table is not None and len(table) > 1:
+            stdout().print(plain_table(*table[0], rows=table[1:], title=caption))
+    stdout().print(f"report: {result.out / 'report.html'}", highlight=False, soft_wrap=True)
 
 
 def predictor_or_none(text: str) -> str | None:
@@ -315,11 +273,10 @@ def predictor_or_none(text: str) -> str | None:
     return None if text.lower() == "none" else text
 
 
-def report_settings(runs: list[Path], episodes: int, seed: int, test_epsilon: float, n_boot: int, trajectories: int,
-                    predictor: str) -> dict:  # fmt: skip
-    """The settings the placement and tracking reports' configs share, from their command-line values."""
-    return {"runs": [str(r) for r in runs], "episodes": episodes, "seed": seed, "test_epsilon": test_epsilon,
-            "n_boot": n_boot, "trajectories": trajectories, "predictor": predictor_or_none(predictor)}  # fmt: skip
+def report_settings(runs: list[Path], v: dict[str, Any]) -> dict:
+    """The settings the placement and tracking reports' configs share, from the command line's values ``v``."""
+    shared = {k: v[k] for k in ("episodes", "seed", "test_epsilon", "n_boot", "trajectories")}
+    return {"runs": [str(r) for r in runs], **shared, "predictor": predictor_or_none(v["predictor"])}
 
 
 #: The columns of a report's table that a terminal shows (they fit 120 columns).
@@ -384,89 +341,95 @@ def _check_training_settings(runs: list[Path], datasets: tuple[str, ...], p_t_db
     warn_or_refuse(unlike_training(runs, list(datasets), root, p_t_db), strict)
 
 
-def _tracking_report(
-    datasets: tuple[str, ...],
-    runs: list[Path],
-    out: Path | None,
-    episodes: int,
-    horizon: int,
-    p_t_db: float,
-    test_epsilon: float,
-    seed: int,
-    n_boot: int,
-    trajectories: int,
-    hold: bool,
-    markdown: Path | None,
-    root: Path,
-    quiet: bool,
-    predictor: str,
-) -> None:
+def _tracking_report(v: dict[str, Any], after: contextlib.ExitStack) -> None:
+    """``uavrl report --task tracking``: every method on the same episodes of each city's routes, one page."""
+    from uavplace.eval.evaluate import default_agents
     from uavplace.eval.tracking import SUMMARY_TITLE, TrackingReportConfig, make_tracking_report, summary_rows, table_rows
-    from uavplace.infra.files import atomic_write_text
     from uavplace.rl.tasks.tracking import TrackingConfig
 
-    shared = report_settings(runs, episodes, seed, test_epsilon, n_boot, trajectories, predictor)
-    config = TrackingReportConfig(
-        datasets=list(datasets), hold=hold, task=TrackingConfig(horizon=horizon, p_t_db=p_t_db), **shared
-    )
-    log = LogLines(quiet)
-    with console.status("[bold]tracking report[/]", spinner="dots") if not quiet else contextlib.nullcontext() as status:
-
-        def on_progress(what: str) -> None:
-            if status is not None:
-                status.update(f"[bold]tracking report[/] {what}")
-            log(f"tracking report {what}", last=True)
-
-        table, page = make_tracking_report(config, out or Path("reports") / "tracking", root=root, command=command_line(),
-                                           on_progress=on_progress)  # fmt: skip
+    runs = list(v["runs"]) or default_agents(v["agents_dir"], ("placement", "tracking"))
+    _check_runs_once(runs, "--run")
+    _check_training_settings(runs, v["datasets"], v["p_t_db"], v["root"], v["strict"])
+    horizon = v["horizon"]
+    task = TrackingConfig(horizon=horizon, p_t_db=v["p_t_db"])
+    config = TrackingReportConfig(datasets=list(v["datasets"]), hold=v["hold"], task=task, **report_settings(runs, v))
+    with _reporting("tracking report", v["quiet"]) as on_progress:
+        out = v["out"] or Path("reports") / "tracking"
+        table, page = make_tracking_report(config, out, root=v["root"], command=command_line(), on_progress=on_progress)
     for city, rows in table.groupby("city", sort=False):
         cells = table_rows(rows, horizon)
-        title = f"{episodes} tracking episodes in {city} (horizon {horizon}, P_T {p_t_db:g} dB)"
+        title = f"{v['episodes']} tracking episodes in {city} (horizon {horizon}, P_T {v['p_t_db']:g} dB)"
         stdout().print(plain_table(*cells[0], rows=cells[1:], title=title))
     if table["city"].nunique() > 1:
         cells = summary_rows(table)
         stdout().print(plain_table(*cells[0], rows=cells[1:], title=SUMMARY_TITLE))
-    if markdown is not None:
-        atomic_write_text(markdown, (page.parent / "tracking.md").read_text(encoding="utf-8"))
-        stdout().print(f"tables (Markdown): {markdown}", highlight=False, soft_wrap=True)
-    stdout().print(f"report: {page}", highlight=False, soft_wrap=True)
+    _say_written(v["markdown"], page, page.parent / "tracking.md")
 
 
-def _fleet_report(datasets: tuple[str, ...], runs: list[Path], out: Path | None, episodes: int, t_max: int, p_t_db: float,
-                  test_epsilon: float, seed: int, n_boot: int, uavs: int, users: int, predictor: str,
-                  markdown: Path | None, root: Path, quiet: bool) -> None:  # fmt: skip
-    from uavplace.eval.fleet import SUMMARY_TITLE, FleetReportConfig, make_fleet_report, summary_rows, table_rows
+def _fleet_report(v: dict[str, Any], after: contextlib.ExitStack) -> None:
+    """``uavrl report --task fleet``: every method on the same fleet episodes of each city, one page."""
+    from uavplace.eval.evaluate import check_unseen_runs, default_agents
+    from uavplace.eval.fleet import DEFAULT_AGENT, SUMMARY_TITLE, FleetReportConfig, make_fleet_report, summary_rows, table_rows
     from uavplace.eval.render import difference_rows
-    from uavplace.infra.files import atomic_write_text
     from uavplace.rl.tasks.fleet import FleetConfig
 
-    config = FleetReportConfig(datasets=list(datasets), runs=[str(r) for r in runs], test_epsilon=test_epsilon,
-                               episodes=episodes, seed=seed, n_boot=n_boot,
-                               task=FleetConfig(uavs=uavs, users=users, t_max=t_max, p_t_db=p_t_db),
-                               predictor=predictor_or_none(predictor))  # fmt: skip
-    log = LogLines(quiet)
-    with console.status("[bold]fleet report[/]", spinner="dots") if not quiet else contextlib.nullcontext() as status:
-
-        def on_progress(what: str) -> None:
-            if status is not None:
-                status.update(f"[bold]fleet report[/] {what}")
-            log(f"fleet report {what}", last=True)
-
-        table, diff, page = make_fleet_report(config, out or Path("reports") / "fleet", root=root,
-                                              command=command_line(), on_progress=on_progress)  # fmt: skip
+    shipped = [p for p in default_agents(v["agents_dir"]) if p.name == DEFAULT_AGENT]
+    runs = list(v["runs"]) or shipped + default_agents(v["agents_dir"], "fleet")
+    _check_runs_once(runs, "--run")
+    check_unseen_runs(runs, list(v["datasets"]), v["root"])
+    _check_training_settings(runs, v["datasets"], v["p_t_db"], v["root"], v["strict"])
+    t_max, uavs, users = v["t_max"], v["uavs"], v["users"]
+    task = FleetConfig(uavs=uavs, users=users, t_max=t_max, p_t_db=v["p_t_db"])
+    shared = {k: v[k] for k in ("test_epsilon", "episodes", "seed", "n_boot")}
+    config = FleetReportConfig(
+        datasets=list(v["datasets"]),
+        runs=[str(r) for r in runs],
+        task=task,
+        predictor=predictor_or_none(v["predictor"]),
+        **shared,
+    )
+    with _reporting("fleet report", v["quiet"]) as on_progress:
+        out = v["out"] or Path("reports") / "fleet"
+        table, diff, page = make_fleet_report(config, out, root=v["root"], command=command_line(), on_progress=on_progress)
     for city in config.datasets:
         cells = table_rows(table[table["city"] == city], t_max)
-        title = f"{episodes} fleet episodes in {city} ({uavs} UAVs, {users} users, t_max {t_max}, P_T {p_t_db:g} dB)"
+        title = f"{v['episodes']} fleet episodes in {city} ({uavs} UAVs, {users} users, t_max {t_max}, P_T {v['p_t_db']:g} dB)"
         stdout().print(plain_table(*cells[0], rows=cells[1:], title=title))
         cells = difference_rows(diff[diff["city"] == city], t_max)
         stdout().print(plain_table(*cells[0], rows=cells[1:], title=f"paired differences in {city}, 95 % intervals"))
     if len(config.datasets) > 1:
         cells = summary_rows(table, diff, t_max)
         stdout().print(plain_table(*cells[0], rows=cells[1:], title=SUMMARY_TITLE))
+    _say_written(v["markdown"], page, page)
+
+
+@contextlib.contextmanager
+def _reporting(what: str, quiet: bool) -> Iterator[Callable[[str], None]]:
+    """A spinner saying what a tracking or fleet report is on (a log line instead when not a terminal), and the
+    ``on_progress`` that updates it."""
+    log = LogLines(quiet)
+    with console.status(f"[bold]{what}[/]", spinner="dots") if not quiet else contextlib.nullcontext() as status:
+
+        def on_progress(step: str) -> None:
+            if status is not None:
+                status.update(f"[bold]{what}[/] {step}")
+            log(f"{what} {step}", last=True)
+
+        yield on_progress
+
+
+def _say_written(markdown: Path | None, page: Path, tables: Path) -> None:
+    """Copy a report's Markdown ``tables`` to ``markdown`` (when given) and say where the report and the copy are."""
     if markdown is not None:
-        atomic_write_text(markdown, page.read_text(encoding="utf-8"))
+        from uavplace.infra.files import atomic_write_text
+
+        atomic_write_text(markdown, tables.read_text(encoding="utf-8"))
         stdout().print(f"tables (Markdown): {markdown}", highlight=False, soft_wrap=True)
     stdout().print(f"report: {page}", highlight=False, soft_wrap=True)
+
+
+#: ``uavrl report --task``: each task's report.
+TASK_REPORTS = {"placement": _placement_report, "tracking": _tracking_report, "fleet": _fleet_report}
 
 
 def _one_report(config, out: Path, root: Path, quiet: bool, city: tuple[int, int] = (1, 1), parallel: bool = False):
