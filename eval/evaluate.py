@@ -17,15 +17,9 @@ from uavplace.eval.config import ReportConfig
 from uavplace.eval.metrics import bootstrap_table, difference_table
 from uavplace.infra.files import shipped
 from uavplace.rl.agent.checkpoint import best_checkpoint, load_tensors
+from uavplace.rl.agent.cities import training_users
 from uavplace.rl.agent.dqn import DQNConfig
-from uavplace.rl.agent.train import (
-    RUN_JSON,
-    RunRecord,
-    policy_from_checkpoint,
-    read_run_json,
-    settings_unlike,
-    training_users,
-)
+from uavplace.rl.agent.runs import RUN_JSON, RunRecord, policy_from_checkpoint, read_run_json, settings_unlike
 from uavplace.rl.belief import PREDICTIONS, PredictionCache, load_predictor
 from uavplace.rl.config import EnvConfig
 from uavplace.rl.maps import MapSet
@@ -326,7 +320,7 @@ def shown_method(agents: list[Agent]) -> str:
 def upper_bound_db(bundles: list[Bundle], p_t_db: float) -> float:
     """The paper's training bound on the mean SINR gain: mean over users, then start cells, of P_T - start SINR.
 
-    Users and starts as training draws them (``rl.agent.train.training_users``) with at least one
+    Users and starts as training draws them (``rl.agent.cities.training_users``) with at least one
     valid start (``dataset.difficulty.valid_starts``).
     """
     per_user = []

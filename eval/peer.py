@@ -29,7 +29,7 @@ from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.evaluate import ReportConfig, evaluate, load_agent
 from uavplace.eval.metrics import bootstrap_table
 from uavplace.infra.files import atomic_write_bytes, atomic_write_text
-from uavplace.rl.agent.train import plan_cities
+from uavplace.rl.agent.cities import plan_cities
 from uavplace.rl.config import EnvConfig
 from uavplace.rl.maps import MapSet
 from uavplace.rl.policies import GeniePolicy, episode_draws, pick_legal

@@ -2,7 +2,7 @@
 
 A sweep is a TOML file that ``SweepSpec`` validates: the training cities, families of trials (a preset,
 settings that override it, seeds) and ensembles of finished trials. Each trial is a normal run folder
-``OUT/<family>-s<seed>/`` made by the same code as ``uavrl train`` (``rl.agent.train.start_run``):
+``OUT/<family>-s<seed>/`` made by the same code as ``uavrl train`` (``rl.agent.tasks.start_run``):
 ``uavrl report --run`` plays it, ``uavrl train --resume`` continues it. Ray Tune schedules the trials
 (a local Ray by default, a cluster with ``--ray-address``; ``--cpus-per-trial`` CPUs each, the torch
 threads of the trial); resuming is the run folders' own: running the sweep again continues every
@@ -157,7 +157,7 @@ def _remove_unstarted(run_dir: Path, config: DQNConfig, remove: bool = True) -> 
     """Remove a trial's folder that a sweep started but never checkpointed (nothing to continue), and only that: a
     folder that is not a training run of ``config`` (no ``run.json``, another config, or other files beside the run's)
     is refused (``InputError``), never removed. ``remove=False``: only the refusal."""
-    from uavplace.rl.agent.train import read_run_json
+    from uavplace.rl.agent.runs import read_run_json
 
     if run_dir.is_symlink() or not run_dir.is_dir() or not (run_dir / "run.json").is_file():
         raise InputError(
@@ -199,7 +199,8 @@ def _trial(tune_config: dict) -> None:
     from ray import tune
 
     from uavplace.infra.files import exclusive_folder
-    from uavplace.rl.agent.train import run_finished, start_run
+    from uavplace.rl.agent.runs import run_finished
+    from uavplace.rl.agent.tasks import start_run
 
     params = tune_config["trial"]
     config = DQNConfig.model_validate_json(params["config"])
@@ -246,7 +247,7 @@ def run_sweep(
         raise RuntimeError("Ray Tune is not installed: pip install -e '.[sweep]'") from None
     from uavplace.dataset.catalog import expand_datasets
     from uavplace.rl.agent.ensemble import build_ensemble
-    from uavplace.rl.agent.train import run_finished
+    from uavplace.rl.agent.runs import run_finished
 
     out, root = out.resolve(), root.resolve()  # trials run in Tune's working folders
     configs = spec.configs()

@@ -212,7 +212,7 @@ def train(
     from uavplace.dataset.catalog import expand_datasets
     from uavplace.infra.files import check_name, exclusive_folder
     from uavplace.rl.agent.dqn import parse_settings, preset_config
-    from uavplace.rl.agent.train import new_run_dir, read_run_json
+    from uavplace.rl.agent.runs import new_run_dir, read_run_json
     from uavplace.schemas import InputError
 
     if resume is not None:
@@ -249,7 +249,7 @@ def _check_resumed_bundles(doc, datasets: list[str], root: Path, strict: bool) -
     """The training cities' bundles a resumed run reads now, against the settings it was trained on: one warning
     line per city that differs, or a refusal with ``--strict``."""
     from uavplace.dataset.bundle import read_manifest, resolve
-    from uavplace.rl.agent.train import settings_unlike
+    from uavplace.rl.agent.runs import settings_unlike
 
     lines = []
     for city in datasets:
@@ -265,7 +265,8 @@ def _train_in(run_dir: Path, resume, config, datasets, val_datasets, root: Path,
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     from uavplace.infra.console import command_line
-    from uavplace.rl.agent.train import Interrupted, start_run
+    from uavplace.rl.agent.tasks import start_run
+    from uavplace.rl.agent.train import Interrupted
 
     try:
         trainer = start_run(run_dir, config, datasets, val_datasets, root, resume=resume is not None, command=command_line())

@@ -16,6 +16,7 @@ from tests.conftest import REPO, write_grid_city
 from uavplace.dataset.build import build_city
 from uavplace.dataset.bundle import load_bundle
 from uavplace.ingest.pipeline import ingest_city
+from uavplace.rl.agent.cities import plan_cities
 from uavplace.rl.agent.dqn import (
     DQN,
     DQNConfig,
@@ -28,7 +29,8 @@ from uavplace.rl.agent.dqn import (
 from uavplace.rl.agent.network import FoveaQNetwork, QNetwork
 from uavplace.rl.agent.pqn import q_lambda_returns
 from uavplace.rl.agent.replay import Batch, ReplayBuffer
-from uavplace.rl.agent.train import Trainer, load_policy, plan_cities, read_run_json
+from uavplace.rl.agent.runs import load_policy, read_run_json
+from uavplace.rl.agent.train import Trainer
 from uavplace.rl.config import EnvConfig
 from uavplace.rl.maps import MapSet
 from uavplace.rl.vec_env import BatchedEnv

@@ -23,7 +23,7 @@ CLIS = {"uavdata": uavdata, "uavrl": uavrl}
 def shared(tmp_path_factory):
     """Built once: a root with the small city ingested and built, and an agent folder (untrained fast-preset weights)."""
     from uavplace.rl.agent.dqn import make_network, preset_config
-    from uavplace.rl.agent.train import RunRecord
+    from uavplace.rl.agent.runs import RunRecord
 
     base = tmp_path_factory.mktemp("shared")
     ingest_city(write_grid_city(base / "raw" / "city"), base / "root")

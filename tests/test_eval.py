@@ -411,7 +411,7 @@ def test_a_default_build_is_what_the_shipped_agents_expect_and_another_is_named(
     from uavplace.cli import uavrl
     from uavplace.dataset.build import build_city
     from uavplace.eval.evaluate import unlike_training
-    from uavplace.rl.agent.train import read_run_json
+    from uavplace.rl.agent.runs import read_run_json
     from uavplace.schemas.bundle import BuildConfig
 
     agents = sorted(p.parent for p in (REPO / "data" / "agents").glob("*/run.json"))

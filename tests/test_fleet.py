@@ -447,7 +447,8 @@ def test_fleet_agent_trains_resumes_exactly_and_reports(tiny, tmp_path):
     from click.testing import CliRunner
 
     from uavplace.cli import uavrl
-    from uavplace.rl.agent.train import FleetTrainer, read_run_json
+    from uavplace.rl.agent.runs import read_run_json
+    from uavplace.rl.agent.tasks import FleetTrainer
     from uavplace.schemas import InputError
 
     straight = FleetTrainer(_fleet_run_config(), ["tiny"], tiny, tmp_path / "a")

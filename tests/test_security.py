@@ -357,7 +357,7 @@ def test_records_that_are_fifos_or_devices_are_refused_at_once(tmp_path, tiny):
 
     from uavplace.dataset.bundle import read_manifest, resolve
     from uavplace.eval.sweep import read_spec
-    from uavplace.rl.agent.train import read_run_json
+    from uavplace.rl.agent.runs import read_run_json
 
     root = tmp_path / "p"
     shutil.copytree(tiny, root)

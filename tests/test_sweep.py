@@ -58,7 +58,8 @@ def test_sweep_trains_resumes_and_tables(tmp_path, root):
     options), a trial stopped before the sweep is continued, not restarted; the table plays every run on the
     validation city; a second call trains nothing."""
     from uavplace.eval.sweep import paired_differences, read_spec, validation_table
-    from uavplace.rl.agent.train import Trainer, read_run_json
+    from uavplace.rl.agent.runs import read_run_json
+    from uavplace.rl.agent.train import Trainer
 
     spec_file = tmp_path / "tiny.toml"
     spec_file.write_text(TINY)
@@ -143,7 +144,7 @@ def test_sweep_removes_only_what_it_made(tmp_path, root):
     starts, never removed; a run of the trial's settings that never checkpointed is removed (nothing to continue)."""
     from uavplace.eval.sweep import _remove_unstarted, read_spec
     from uavplace.infra.files import write_model_json
-    from uavplace.rl.agent.train import RunRecord
+    from uavplace.rl.agent.runs import RunRecord
     from uavplace.schemas import InputError
 
     spec_file = tmp_path / "s.toml"

@@ -404,7 +404,8 @@ def test_tracking_agent_trains_selects_on_validation_routes_and_reports(val_root
     from click.testing import CliRunner
 
     from uavplace.cli import uavrl
-    from uavplace.rl.agent.train import TrackingTrainer, load_policy, read_run_json
+    from uavplace.rl.agent.runs import load_policy, read_run_json
+    from uavplace.rl.agent.tasks import TrackingTrainer
 
     args = ["train", "--task", "tracking", "--dataset", "walk", "--dataset", "walk-val", "--root", str(val_root),
             "--out", str(tmp_path), "--steps", "512", "--eval-every", "256", "--quiet"]  # fmt: skip
@@ -464,7 +465,7 @@ def test_tracking_agent_trains_selects_on_validation_routes_and_reports(val_root
 
 def test_tracking_runs_need_routes_and_validation_routes(val_root, tmp_path):
     """A tracking run refuses a city without routes and a run without a validation city with routes, naming them."""
-    from uavplace.rl.agent.train import TrackingTrainer
+    from uavplace.rl.agent.tasks import TrackingTrainer
 
     with pytest.raises(InputError, match="selects best.pt on validation cities with routes"):
         TrackingTrainer(_tracking_config(), ["walk"], val_root, tmp_path / "a")

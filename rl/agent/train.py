@@ -29,98 +29,28 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import torch
-from pydantic import Field, ValidationError
-from torch import nn
+from pydantic import ValidationError
 
-from uavplace.dataset.bundle import Bundle, load_bundle
+from uavplace.dataset.bundle import load_bundle
 from uavplace.infra.files import (
     atomic_directory,
     atomic_write_bytes,
     atomic_write_text,
     in_corpus,
-    read_small_file,
     recover_directory,
     write_model_json,
 )
 from uavplace.rl.agent.checkpoint import CHECKPOINT_JSON, CheckpointState, load_tensors, require, save_tensors
-from uavplace.rl.agent.dqn import DQN, DQNConfig, DQNPolicy, make_network
+from uavplace.rl.agent.cities import Cities, plan_cities, play_validation, validation_set
+from uavplace.rl.agent.dqn import DQN, DQNConfig, DQNPolicy
 from uavplace.rl.agent.pqn import Rollout, pqn_round
 from uavplace.rl.agent.replay import ReplayBuffer
+from uavplace.rl.agent.runs import LAST, RUN_JSON, RunRecord, read_run_json
 from uavplace.rl.maps import MapSet
-from uavplace.rl.rollout import run_episodes, summarise
-from uavplace.rl.tasks.fleet import FleetMaps, FleetPlacement, FleetTrainEnv, run_fleet
-from uavplace.rl.tasks.tracking import RouteSet, TrackingEnv, run_tracking
 from uavplace.rl.vec_env import BatchedEnv
 from uavplace.schemas import InputError
-from uavplace.schemas.base import Contract, uavplace_version, validation_message
-from uavplace.schemas.bundle import BundleManifest, BundleSettings
-
-#: The resumable checkpoint folder under ``checkpoints/``.
-LAST = "last"
-
-
-#: The run's record: how it was made.
-RUN_JSON = "run.json"
-
-
-class RunRecord(Contract):
-    """``run.json``: the configuration, the bundles trained on, the command; written when a run starts."""
-
-    config: DQNConfig
-    datasets: dict[str, str] = Field(description="Training city -> bundle version")
-    val_datasets: dict[str, str] = Field(
-        default_factory=dict, description="Validation city -> bundle version: the cities best.pt was selected on"
-    )
-    bundle_settings: dict[str, BundleSettings] = Field(
-        default_factory=dict,
-        description="Training city -> the settings its bundle was built with (grid, altitude, noise): a report warns "
-        "when it plays the agent on a bundle of other settings",
-    )
-    train_split: str | None = Field(description="Users episodes were drawn from (None: all users)")
-    eval_split: str | None = Field(description="Users the periodic evaluation (and best.pt) used")
-    command: str
-    resumed: list[str] = Field(
-        default_factory=list, description="Each later command that continued the run (`--resume`), with the step it resumed from"
-    )
-    uavplace_version: str
-    torch_version: str
-    created_utc: str
-    members: dict[str, RunRecord] = Field(
-        default_factory=dict,
-        description="An ensemble's runs (`uavrl ensemble`): each run folder as it was given, with its run.json",
-    )
-
-    @property
-    def commands(self) -> list[str]:
-        """Every command that made the run, in order: an ensemble's members' first, then the first, then each
-        ``--resume``."""
-        return [*(c for m in self.members.values() for c in m.commands), self.command, *self.resumed]
-
-
-def settings_unlike(record: RunRecord, manifest: BundleManifest, p_t_db: float | None = None) -> list[str]:
-    """How ``manifest``'s bundle differs from every bundle the run was trained on (``BundleSettings.unlike`` against
-    its most common training settings; empty when one of them is alike or none is recorded), and ``p_t_db`` from the
-    P_T a placement agent was trained at, one phrase each."""
-    trained = list(record.bundle_settings.values())
-    mine = BundleSettings.of(manifest)
-    unlike = [] if not trained or mine in trained else mine.unlike(max(trained, key=trained.count))
-    if p_t_db is not None and record.config.task == "placement" and p_t_db != record.config.env.p_t_db:
-        unlike.append(f"P_T {p_t_db:g} dB (trained at {record.config.env.p_t_db:g} dB)")
-    return unlike
-
-
-def read_run_json(folder: str | Path) -> RunRecord:
-    """A run folder's ``run.json``; ``InputError`` naming the file when it is missing or malformed."""
-    path = Path(folder) / RUN_JSON
-    data = read_small_file(path, "a run's record", missing="no run.json: not a folder written by `uavrl train`")
-    try:
-        return RunRecord.model_validate_json(data)
-    except (ValidationError, UnicodeDecodeError, ValueError) as exc:
-        if isinstance(exc, ValidationError):
-            field, message = validation_message(exc)
-        else:
-            field, message = "json", str(exc)
-        raise InputError(path, message, field=field) from None
+from uavplace.schemas.base import uavplace_version, validation_message
+from uavplace.schemas.bundle import BundleSettings
 
 
 @dataclass
@@ -152,77 +82,6 @@ class RunState:
 
 def linear(start: float, end: float, frac: float) -> float:
     return start + (end - start) * min(max(frac, 0.0), 1.0)
-
-
-def role(bundle: Bundle) -> str | None:
-    """The city's role given at build time (``--split CITY=ROLE``): train, val, test, or None."""
-    return bundle.manifest.config.role
-
-
-def training_users(bundle: Bundle) -> np.ndarray:
-    """The users a run trains on in a city: a ``train`` city's training users, every user of a city without a role."""
-    return bundle.user_indices("train") if role(bundle) == "train" else bundle.user_indices()
-
-
-@dataclass
-class Cities:
-    """The bundles a run trains on and selects on, and the users of each it plays."""
-
-    train: list[Bundle]
-    train_users: list[np.ndarray]
-    train_split: str | None
-    val: list[Bundle]
-    val_users: list[np.ndarray]
-    val_split: str | None
-
-
-def plan_cities(bundles: list[Bundle], val_bundles: list[Bundle], eval_split: str | None) -> Cities:
-    """Split the given cities into training and validation ones; refuse a test city.
-
-    A city built as ``val`` goes to validation; one built as ``test`` is refused (never trained or
-    selected on). Training users: a ``train`` city's training users, every user of a city without a
-    role. Validation: every user of the validation cities, each city once however often it is named
-    (``--val-dataset`` and a val city of ``--dataset``); without any, the ``eval_split`` users of
-    the training cities (all of them if none has that split).
-    """
-    for b in [*bundles, *val_bundles]:
-        if role(b) == "test":
-            raise InputError(
-                None, f"{b.city} is a test city (built with --split {b.city}=test): never trained or selected on", field="dataset"
-            )
-    val = list({b.city: b for b in [*val_bundles, *(b for b in bundles if role(b) == "val")]}.values())
-    train = [b for b in bundles if role(b) != "val"]
-    if not train:
-        raise InputError(None, "no training city: every --dataset given is a validation city", field="dataset")
-    if set(b.city for b in train) & set(b.city for b in val):
-        raise InputError(None, "a city cannot be both trained and validated on", field="val_dataset")
-    train_users = [training_users(b) for b in train]
-    train_split = "train" if any(role(b) == "train" for b in train) else None
-    if val:
-        return Cities(train, train_users, train_split, val, [b.user_indices() for b in val], None)
-    has_split = eval_split is not None and any(len(b.user_indices(eval_split)) for b in train)
-    split = eval_split if has_split else None
-    return Cities(train, train_users, train_split, train, [b.user_indices(split) for b in train], split)
-
-
-def validation_set(config: DQNConfig, cities: Cities) -> tuple[MapSet, np.ndarray]:
-    """The maps and the fixed episodes (``config.eval_episodes``, seeded by ``config.seed``) of a run's periodic
-    evaluation, the one that chooses ``best.pt``."""
-    maps = MapSet(cities.val, config.env_config(evaluation=True).model_copy(update={"split": cities.val_split}), cities.val_users)
-    return maps, maps.sample_episodes(config.eval_episodes, np.random.default_rng([config.seed, 2]))
-
-
-def play_validation(
-    policy: DQNPolicy, maps: MapSet, episodes: np.ndarray, on_step: Callable[[int, int], None] | None = None
-) -> dict:
-    """``policy`` on the validation episodes: success rate, median steps and mean return (``on_step``: progress)."""
-    df = run_episodes(maps, policy, episodes, num_envs=min(256, len(episodes)), on_step=on_step)
-    summary = summarise(df)
-    return {
-        "success": float(summary["success"]),
-        "median_steps": float(summary["median_steps"]),
-        "mean_return": float(df.return_.mean()),
-    }
 
 
 class Interrupted(Exception):
@@ -631,82 +490,6 @@ class Trainer:
         return self.run_dir
 
 
-class TrackingTrainer(Trainer):
-    """A run of the tracking task (``DQNConfig.task == "tracking"``, ``rl.tasks.tracking``): placement's learner, loop,
-    checkpoints and run folder; the env is the tracking env over the training cities' routes (5 actions, stay the
-    fifth), and ``best.pt`` is the network that covered the most of the horizon on fixed episodes of the validation
-    cities' routes (ties: the one that reached P_T in more of them). A training city's routes are all trained on: a
-    tracking run needs validation cities with routes of their own (built with ``--split CITY=val``, or
-    ``--val-dataset``)."""
-
-    def setup_task(self, cities: Cities) -> None:
-        task, trained = self.config.tracking_config(), {b.city for b in cities.train}
-        val = [b for b in cities.val if b.city not in trained]  # without validation cities, plan_cities gives the trained ones
-        for b in cities.train + val:
-            if b.routes is None:
-                raise InputError(
-                    None,
-                    f"{b.city} has no routes: the tracking task trains and selects on cities simulated with "
-                    f"`uavdata simulate --routes N`",
-                    field="dataset" if b.city in trained else "val_dataset",
-                )
-        if not val:
-            raise InputError(
-                None,
-                "the tracking task selects best.pt on validation cities with routes, and none is given: build one "
-                "with `uavdata build --split CITY=val` and add it with --dataset or --val-dataset",
-                field="val_dataset",
-            )
-        self.routes, self.eval_routes = RouteSet(cities.train, task, rotate=task.rotate), RouteSet(val, task)
-        self.eval_episodes = self.eval_routes.sample_episodes(
-            self.config.eval_episodes, np.random.default_rng([self.config.seed, 2])
-        )
-        self.env = TrackingEnv(self.routes, self.config.num_envs, compact=True)
-        self.train_bundles, self.val_bundles = self.routes.bundles, self.eval_routes.bundles
-
-    @property
-    def t_max(self) -> int:
-        return self.config.tracking_config().horizon
-
-    def validate(self, policy: DQNPolicy) -> tuple[dict, tuple[float, float]]:
-        table = run_tracking(self.eval_routes, policy, self.eval_episodes).table
-        row = tracking_summary(table)
-        return row, (row["covered_share"], row["success"])
-
-    def episode_values(self, info: dict, row: int, terminated: bool) -> dict:
-        share = float(info["covered_share"][row])
-        return {"success": share > 0, "covered_share": share}
-
-
-class FleetTrainer(Trainer):
-    """A run of the fleet task (``DQNConfig.task == "fleet"``, ``rl.tasks.fleet``): placement's network, learner, loop,
-    checkpoints and run folder; the env is ``FleetTrainEnv`` over fleet episodes of the training cities' training
-    users (a row per UAV), and ``best.pt`` is the network that, run on every UAV of fixed fleet episodes of the
-    validation cities (``FleetPlacement``), served every user in the most of them (ties: the fewer median steps)."""
-
-    def setup_task(self, cities: Cities) -> None:
-        task, env = self.config.fleet, self.config.env_config()
-        self.maps = FleetMaps.of(cities.train, task, cities.train_users)
-        self.eval_maps = FleetMaps.of(cities.val, task, cities.val_users)
-        self.eval_episodes = self.eval_maps.episode_list(self.config.eval_episodes, self.config.seed)
-        self.env = FleetTrainEnv(self.maps, env, self.config.num_envs)
-        self.train_bundles, self.val_bundles = cities.train, cities.val
-
-    @property
-    def t_max(self) -> int:
-        return self.config.fleet.t_max
-
-    def validate(self, policy: DQNPolicy) -> tuple[dict, tuple[float, float]]:
-        fleet = FleetPlacement(policy, self.config.env_config(evaluation=True), prefix="").bind(self.eval_maps)
-        table = run_fleet(self.eval_maps, fleet, self.eval_episodes)
-        row = {
-            "success": float(table["success"].mean()),
-            "median_steps": float(np.median(table["steps"])),
-            "spl": float(table["spl"].mean()),
-        }
-        return row, (row["success"], -row["median_steps"])
-
-
 def start_from(agent: DQN, config: DQNConfig) -> None:
     """Load ``config.init``'s weights (member ``init_member`` of an ensemble) into ``agent``'s networks; ``InputError``
     naming the checkpoint when it holds no such network."""
@@ -727,59 +510,6 @@ def start_from(agent: DQN, config: DQNConfig) -> None:
     agent.target.load_state_dict(agent.online.state_dict())
 
 
-def tracking_summary(table: pd.DataFrame) -> dict:
-    """An evaluation row of tracking episodes (``run_tracking``'s table): the mean share of the horizon covered, the
-    mean coverage after the first reach, the share of episodes that reached P_T (``success``) and the median steps
-    to the first reach (``median_steps``; inf when half never did)."""
-    return {
-        "covered_share": float(table["covered_share"].mean()),
-        "coverage": float(table["coverage"].mean()),
-        "success": float(np.isfinite(table["first_reach"]).mean()),
-        "median_steps": float(np.median(table["first_reach"])),
-    }
-
-
-def start_run(
-    run_dir: Path,
-    config: DQNConfig,
-    datasets: list[str],
-    val_datasets: list[str],
-    root: str | Path,
-    *,
-    resume: bool,
-    command: str = "",
-) -> Trainer:
-    """The trainer of the run in ``run_dir``, ready to ``run(resume=resume)``; call it with the folder's lock held
-    (``exclusive_folder``). A new run claims its folder first (``FileExistsError`` when it exists) and gives the name
-    back if its trainer cannot be made; a resumed one is loaded (every check of the checkpoint before the first
-    step). ``uavrl train`` and every trial of ``uavrl sweep`` start here."""
-    claimed = False
-    if not resume:
-        if run_dir.exists():
-            raise FileExistsError(f"{run_dir} exists: choose another --name, or continue it with --resume {run_dir}")
-        run_dir.mkdir(parents=True)
-        claimed = True
-    kind = {"tracking": TrackingTrainer, "fleet": FleetTrainer}.get(config.task, Trainer)
-    try:
-        trainer = kind(config, list(datasets), root, run_dir, command=command, val_datasets=list(val_datasets))
-    except BaseException:
-        if claimed and not any(run_dir.iterdir()):
-            run_dir.rmdir()  # nothing was written: give the name back
-        raise
-    if resume and trainer.resumable():
-        trainer.load()
-    return trainer
-
-
-def run_finished(run_dir: Path) -> bool:
-    """True when the run's evaluations reached its ``total_steps`` (its schedule is done)."""
-    path = run_dir / "eval.parquet"
-    if not path.is_file() or not (run_dir / RUN_JSON).is_file():
-        return False
-    evals = pd.read_parquet(path, columns=["step"])
-    return bool(len(evals)) and int(evals["step"].max()) >= read_run_json(run_dir).config.total_steps
-
-
 def with_running_means(df: pd.DataFrame) -> pd.DataFrame:
     """Per-episode metrics plus their means over the last 100 episodes (the paper's training curve)."""
     if len(df):
@@ -790,41 +520,6 @@ def with_running_means(df: pd.DataFrame) -> pd.DataFrame:
     return df
 
 
-def new_run_dir(runs: str | Path, config: DQNConfig) -> Path:
-    stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
-    task = "" if config.task == "placement" else f"-{config.task}"
-    return Path(runs) / f"{stamp}-{config.preset}{task}-{config.agent}-s{config.seed}"
-
-
 def _plain(row: dict) -> dict:
     """A row of numbers as plain Python values (what a weights-only checkpoint may hold)."""
     return {k: (v.item() if isinstance(v, np.generic) else v) for k, v in row.items()}
-
-
-def policy_from_checkpoint(ck: dict, path: str | Path, epsilon: float = 0.096, seed: int = 0) -> tuple[DQNPolicy, DQNConfig]:
-    """The policy a loaded ``best.pt`` (``load_tensors``) holds, with its config; ``InputError`` naming ``path``."""
-    net, config = network_from_checkpoint(ck, path)
-    return DQNPolicy.from_config(net, config, epsilon, seed), config
-
-
-def network_from_checkpoint(ck: dict, path: str | Path) -> tuple[nn.Module, DQNConfig]:
-    """The network a loaded ``best.pt`` holds, with its config; ``InputError`` naming ``path``."""
-    require(ck, path, "online", "config")
-    try:
-        config = DQNConfig.model_validate(ck["config"])
-    except ValidationError as exc:
-        field, message = validation_message(exc)
-        raise InputError(path, f"checkpoint config: {message}", field=field) from None
-    net = make_network(config, *config.observation())
-    try:
-        net.load_state_dict(ck["online"])
-    except (RuntimeError, TypeError, AttributeError) as exc:
-        raise InputError(
-            path, f"weights do not fit the network its config describes ({str(exc)[:200]})", field="online"
-        ) from None
-    return net, config
-
-
-def load_policy(path: str | Path, epsilon: float = 0.096, seed: int = 0) -> tuple[DQNPolicy, DQNConfig]:
-    """A ``best.pt`` as a ``Policy``, with the config it was trained with; ``InputError`` for anything but weights."""
-    return policy_from_checkpoint(load_tensors(path), path, epsilon, seed)

@@ -16,7 +16,7 @@ from uavplace.schemas.constants import reaches_target
 
 
 class FleetTrainEnv:
-    """The fleet task as the learner's environment (``rl.agent.train.FleetTrainer``): a row per UAV of ``num_envs /
+    """The fleet task as the learner's environment (``rl.agent.tasks.FleetTrainer``): a row per UAV of ``num_envs /
     K`` fleet episodes (row ``e * K + k``), each observing what ``FleetPlacement`` shows a UAV's agent (the placement
     observation of its dealt users' weakest SINR, from the fleet's shared measurements) and acting with the placement
     network's 4 moves: one network shared by every UAV, each acting from the shared memory and its own position.

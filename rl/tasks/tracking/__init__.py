@@ -21,7 +21,7 @@ most covered steps possible, the upper bound), the placement genie re-planned ev
 current P_T region (``ReplanningGenie``), and the placement baselines, which act through the same
 interface (``rl.policies``), as they are or holding the cell while it covers the user (``Holding``). Agents:
 a placement agent run unchanged (``PlacementInTracking``; also with ``Holding``), or one trained on this task
-(``uavrl train --task tracking``, ``rl.agent.train.TrackingTrainer``) on its own observation (``TrackingAgent``).
+(``uavrl train --task tracking``, ``rl.agent.tasks.TrackingTrainer``) on its own observation (``TrackingAgent``).
 """
 
 from uavplace.rl.tasks.tracking.config import ACTION_OF, OBSERVATION_FIELDS, STAY, TRACK_MOVES, TrackingConfig
