@@ -265,8 +265,8 @@ def _train_in(run_dir: Path, resume, config, datasets, val_datasets, root: Path,
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     from uavplace.infra.console import command_line
+    from uavplace.rl.agent.resume import Interrupted
     from uavplace.rl.agent.tasks import start_run
-    from uavplace.rl.agent.train import Interrupted
 
     try:
         trainer = start_run(run_dir, config, datasets, val_datasets, root, resume=resume is not None, command=command_line())

@@ -826,7 +826,7 @@ def test_ctrl_c_checkpoints_and_only_resumes_that_ran_are_recorded(tmp_path, cit
     import os
     import signal
 
-    from uavplace.rl.agent.train import Interrupted
+    from uavplace.rl.agent.resume import Interrupted
 
     def press_at(step: int):
         def on_progress(p) -> None:

@@ -398,7 +398,7 @@ def test_weights_files_that_are_fifos_are_refused_at_once(tmp_path):
     """Every weights file goes through one regular-file, size-bounded read (``load_tensors``): a FIFO as a resume's
     ``networks.pt`` or as ``--set init=DIR``'s ``best.pt`` is refused in one line, never waited on."""
     from uavplace.rl.agent.checkpoint import load_tensors
-    from uavplace.rl.agent.train import start_from
+    from uavplace.rl.agent.resume import start_from
 
     os.mkfifo(tmp_path / "networks.pt")
     err = _within(10, load_tensors, tmp_path / "networks.pt")

@@ -13,23 +13,19 @@ tracking``) is the same loop, learner and folder on the tracking task (``Trackin
 
 from __future__ import annotations
 
-import contextlib
 import datetime as dt
 import io
 import json
 import os
-import signal
-import threading
 import time
 import zipfile
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import torch
-from pydantic import ValidationError
 
 from uavplace.dataset.bundle import load_bundle
 from uavplace.infra.files import (
@@ -40,16 +36,17 @@ from uavplace.infra.files import (
     recover_directory,
     write_model_json,
 )
-from uavplace.rl.agent.checkpoint import CHECKPOINT_JSON, CheckpointState, load_tensors, require, save_tensors
+from uavplace.rl.agent.checkpoint import CHECKPOINT_JSON, load_tensors, require, save_tensors
 from uavplace.rl.agent.cities import Cities, plan_cities, play_validation, validation_set
 from uavplace.rl.agent.dqn import DQN, DQNConfig, DQNPolicy
 from uavplace.rl.agent.pqn import Rollout, pqn_round
 from uavplace.rl.agent.replay import ReplayBuffer
+from uavplace.rl.agent.resume import Interrupted, RunState, interrupts, read_state, start_from
 from uavplace.rl.agent.runs import LAST, RUN_JSON, RunRecord, read_run_json
 from uavplace.rl.maps import MapSet
 from uavplace.rl.vec_env import BatchedEnv
 from uavplace.schemas import InputError
-from uavplace.schemas.base import uavplace_version, validation_message
+from uavplace.schemas.base import uavplace_version
 from uavplace.schemas.bundle import BundleSettings
 
 
@@ -65,64 +62,8 @@ class Progress:
     best: float | None
 
 
-@dataclass
-class RunState:
-    """What changes while training (and is saved for resuming)."""
-
-    step: int = 0
-    last_action: np.ndarray | None = None
-    start_sinr: np.ndarray | None = None
-    episodes: list[dict] = field(default_factory=list)
-    evals: list[dict] = field(default_factory=list)
-    best_score: tuple[float, float] | None = None
-    synced_at: int = 0
-    losses: list[float] = field(default_factory=list)
-    wall_s: float | None = 0.0  # seconds before this start (the checkpoint's); None: one that did not count them
-
-
 def linear(start: float, end: float, frac: float) -> float:
     return start + (end - start) * min(max(frac, 0.0), 1.0)
-
-
-class Interrupted(Exception):
-    """Training stopped by Ctrl-C (SIGINT) at a step boundary, after a checkpoint there."""
-
-    def __init__(self, run_dir: Path, step: int) -> None:
-        super().__init__(f"interrupted at step {step:,}; checkpoint saved. Continue with: uavrl train --resume {run_dir}")
-        self.run_dir, self.step = run_dir, step
-
-
-@contextlib.contextmanager
-def _interrupts() -> Iterator[Callable[[], bool]]:
-    """While the block runs, Ctrl-C (SIGINT) only sets a flag the training loop reads between steps, so that it can
-    checkpoint a consistent state; a second Ctrl-C interrupts at once. Outside the main thread nothing changes."""
-    if threading.current_thread() is not threading.main_thread():
-        yield lambda: False
-        return
-    pressed = []
-
-    def handler(signum: int, frame: object) -> None:
-        if pressed:
-            raise KeyboardInterrupt
-        pressed.append(signum)
-
-    previous = signal.signal(signal.SIGINT, handler)
-    try:
-        yield lambda: bool(pressed)
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
-def read_state(path: Path, max_step: int) -> CheckpointState:
-    """``checkpoint.json``, checked: its schema (``CheckpointState``) and a step within the run's schedule."""
-    try:
-        state = CheckpointState.model_validate_json(path.read_text(encoding="utf-8"))
-    except ValidationError as exc:
-        field, message = validation_message(exc)
-        raise InputError(path, message, field=field) from None
-    if state.step > max_step:
-        raise InputError(path, f"step {state.step:,} is beyond the run's {max_step:,} steps", field="step")
-    return state
 
 
 def _atomic_parquet(df: pd.DataFrame, path: Path) -> None:
@@ -410,7 +351,7 @@ class Trainer:
         pending = s.step if resume else None  # a resume is recorded in run.json at its first checkpoint: only those that ran
         self._began = time.perf_counter()
         next_eval = (s.step // cfg.eval_every + 1) * cfg.eval_every
-        with _interrupts() as interrupted:
+        with interrupts() as interrupted:
             while s.step < cfg.total_steps and (stop_at is None or s.step < stop_at) and not interrupted():
                 frac = s.step / cfg.total_steps
                 eps = linear(cfg.eps_start, cfg.eps_end, s.step / (cfg.eps_fraction * cfg.total_steps))
@@ -488,26 +429,6 @@ class Trainer:
             self.save(pending)  # a planned stop (`--until`): resumable from here
         s.wall_s = self.wall_s()  # this start's seconds, for a later ``run`` of this trainer
         return self.run_dir
-
-
-def start_from(agent: DQN, config: DQNConfig) -> None:
-    """Load ``config.init``'s weights (member ``init_member`` of an ensemble) into ``agent``'s networks; ``InputError``
-    naming the checkpoint when it holds no such network."""
-    path = Path(config.init)
-    ckpt = path / "checkpoints" / "best.pt" if path.is_dir() else path
-    ck = load_tensors(ckpt)
-    require(ck, ckpt, "online")
-    state = ck["online"]
-    if any(k.startswith("nets.") for k in state):  # an ensemble (MeanQ): its members side by side
-        prefix = f"nets.{config.init_member}."
-        state = {k[len(prefix) :]: v for k, v in state.items() if k.startswith(prefix)}
-        if not state:
-            raise InputError(ckpt, f"an ensemble without a member {config.init_member}", field="init_member")
-    try:
-        agent.online.load_state_dict(state)
-    except (RuntimeError, TypeError, AttributeError) as exc:
-        raise InputError(ckpt, f"its weights do not fit this run's network ({str(exc)[:200]})", field="init") from None
-    agent.target.load_state_dict(agent.online.state_dict())
 
 
 def with_running_means(df: pd.DataFrame) -> pd.DataFrame:
