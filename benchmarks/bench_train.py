@@ -39,7 +39,8 @@ import numpy as np
 import torch
 
 from uavplace.dataset.catalog import expand_datasets
-from uavplace.rl.agent.dqn import DQN, DQNConfig, make_network, preset_config
+from uavplace.rl.agent.config import DQNConfig, preset_config
+from uavplace.rl.agent.dqn import DQN, make_network
 from uavplace.rl.agent.train import Trainer, linear
 from uavplace.rl.config import EnvConfig
 

@@ -18,7 +18,7 @@ from uavplace.eval.metrics import bootstrap_table, difference_table
 from uavplace.infra.files import shipped
 from uavplace.rl.agent.checkpoint import best_checkpoint, load_tensors
 from uavplace.rl.agent.cities import training_users
-from uavplace.rl.agent.dqn import DQNConfig
+from uavplace.rl.agent.config import DQNConfig
 from uavplace.rl.agent.runs import RUN_JSON, RunRecord, policy_from_checkpoint, read_run_json, settings_unlike
 from uavplace.rl.belief import PREDICTIONS, PredictionCache, load_predictor
 from uavplace.rl.config import EnvConfig

@@ -36,7 +36,7 @@ from uavplace.eval.metrics import bootstrap_table, difference_table
 from uavplace.infra.cluster import start_ray
 from uavplace.infra.files import atomic_write_text, check_name, read_model_toml
 from uavplace.infra.limits import check_limit
-from uavplace.rl.agent.dqn import DQNConfig, parse_settings, preset_config
+from uavplace.rl.agent.config import DQNConfig, parse_settings, preset_config
 from uavplace.rl.policies import GeniePolicy
 from uavplace.rl.rollout import format_stat
 from uavplace.schemas import InputError
@@ -51,7 +51,7 @@ class TrialSpec(Contract):
 
     name: str = Field(description="Family name; its runs are OUT/<name>-s<seed>/")
     preset: Literal["paper", "fast", "best", "best-pqn", "best-dqn"] = Field(
-        default="best", description="rl/agent/dqn.py PRESETS"
+        default="best", description="rl/agent/config.py PRESETS"
     )
     agent: Literal["dqn", "blind"] = Field(default="dqn", description="dqn: height map + SINR memory; blind: SINR memory only")
     seeds: list[int] = Field(default=[0], min_length=1, description="One run per seed")

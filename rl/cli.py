@@ -115,7 +115,7 @@ def baselines(
     help="Hyperparameters: best (ours: a recurrent Q-network learnt by PQN, 300 k steps), hybrid (best reading the map "
     "searcher's belief as a channel, env.belief_channel; docs/searcher.md), best-pqn (best without the recurrent core), "
     "best-dqn (that one learnt by replay DQN), paper (docs/method.md, about 7 M steps: days on a CPU), fast (40 k "
-    "steps, for checks). Their settings: rl/agent/dqn.py, PRESETS; what each costs: the README, Training and reporting.",
+    "steps, for checks). Their settings: rl/agent/config.py, PRESETS; what each costs: the README, Training and reporting.",
 )
 @click.option(
     "--task",
@@ -136,7 +136,7 @@ def baselines(
     "settings",
     multiple=True,
     metavar="FIELD=VALUE",
-    help="Override one field of the preset's DQNConfig (rl/agent/dqn.py), env fields as env.FIELD "
+    help="Override one field of the preset's DQNConfig (rl/agent/config.py), env fields as env.FIELD "
     "(rl/config.py), the tracking task's as tracking.FIELD (rl/tasks/tracking/config.py, TrackingConfig), the fleet task's as "
     "fleet.FIELD (rl/tasks/fleet/config.py, FleetConfig), e.g. --set env.shaping=1 --set eval_episodes=1000 --set "
     "tracking.horizon=200; repeatable.",
@@ -211,7 +211,7 @@ def train(
     """
     from uavplace.dataset.catalog import expand_datasets
     from uavplace.infra.files import check_name, exclusive_folder
-    from uavplace.rl.agent.dqn import parse_settings, preset_config
+    from uavplace.rl.agent.config import parse_settings, preset_config
     from uavplace.rl.agent.runs import new_run_dir, read_run_json
     from uavplace.schemas import InputError
 

@@ -201,7 +201,8 @@ def _check_bundle(bundle: object) -> None:
 def _checkpoint(folder: Path) -> Path:
     import torch
 
-    from uavplace.rl.agent.dqn import make_network, preset_config
+    from uavplace.rl.agent.config import preset_config
+    from uavplace.rl.agent.dqn import make_network
 
     config = preset_config("fast")
     env = config.env_config()

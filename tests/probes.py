@@ -413,7 +413,7 @@ def option_probes(base: Base) -> list[Probe]:
 
 
 def set_probes(base: Base) -> list[Probe]:
-    from uavplace.rl.agent.dqn import DQNConfig
+    from uavplace.rl.agent.config import DQNConfig
     from uavplace.rl.config import EnvConfig
 
     keys = [k for k, f in DQNConfig.model_fields.items() if f.annotation in (int, float) and k != "seed"]

@@ -17,15 +17,8 @@ from uavplace.dataset.build import build_city
 from uavplace.dataset.bundle import load_bundle
 from uavplace.ingest.pipeline import ingest_city
 from uavplace.rl.agent.cities import plan_cities
-from uavplace.rl.agent.dqn import (
-    DQN,
-    DQNConfig,
-    DQNPolicy,
-    genie_move_loss,
-    masked_argmax,
-    preset_config,
-    to_tensor,
-)
+from uavplace.rl.agent.config import DQNConfig, preset_config
+from uavplace.rl.agent.dqn import DQN, DQNPolicy, genie_move_loss, masked_argmax, to_tensor
 from uavplace.rl.agent.network import FoveaQNetwork, QNetwork
 from uavplace.rl.agent.pqn import q_lambda_returns
 from uavplace.rl.agent.replay import Batch, ReplayBuffer

@@ -22,7 +22,8 @@ CLIS = {"uavdata": uavdata, "uavrl": uavrl}
 @pytest.fixture(scope="module")
 def shared(tmp_path_factory):
     """Built once: a root with the small city ingested and built, and an agent folder (untrained fast-preset weights)."""
-    from uavplace.rl.agent.dqn import make_network, preset_config
+    from uavplace.rl.agent.config import preset_config
+    from uavplace.rl.agent.dqn import make_network
     from uavplace.rl.agent.runs import RunRecord
 
     base = tmp_path_factory.mktemp("shared")

@@ -132,7 +132,7 @@ def test_the_readmes_numbers_about_the_code_are_the_codes():
     every test)."""
     import json
 
-    from uavplace.rl.agent.dqn import preset_config
+    from uavplace.rl.agent.config import preset_config
 
     readme = (REPO / "README.md").read_text(encoding="utf-8")
     shipped = {json.loads((REPO / "data" / "agents" / a / "run.json").read_text())["config"]["total_steps"]

@@ -14,7 +14,7 @@ from uavplace.cli import uavrl
 from uavplace.dataset.build import build_city
 from uavplace.eval.metrics import bootstrap_table, difference_table, ecdf, format_stat, group_tables
 from uavplace.ingest.pipeline import ingest_city
-from uavplace.rl.agent.dqn import preset_config
+from uavplace.rl.agent.config import preset_config
 from uavplace.rl.agent.train import Trainer
 from uavplace.rl.rollout import summarise
 from uavplace.schemas.bundle import BuildConfig

@@ -385,7 +385,7 @@ def test_fleet_report_writes_its_tables_and_never_replaces_a_stranger(tiny, tmp_
 
 
 def _fleet_run_config(**update):
-    from uavplace.rl.agent.dqn import preset_config
+    from uavplace.rl.agent.config import preset_config
 
     tiny = {"total_steps": 256, "num_envs": 8, "rollout_steps": 8, "batch_size": 32, "epochs": 2, "hidden": 16,
             "fovea": 5, "eval_every": 128, "eval_episodes": 6}  # fmt: skip

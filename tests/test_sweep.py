@@ -129,7 +129,7 @@ def test_shipped_sweep_files_validate():
     from pathlib import Path
 
     from uavplace.eval.sweep import read_spec
-    from uavplace.rl.agent.dqn import preset_config
+    from uavplace.rl.agent.config import preset_config
 
     files = sorted(Path(__file__).parents[1].joinpath("experiments", "sweeps").glob("*.toml"))
     assert files

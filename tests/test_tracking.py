@@ -364,7 +364,7 @@ def val_root(root):
 
 
 def _tracking_config(**update):
-    from uavplace.rl.agent.dqn import preset_config
+    from uavplace.rl.agent.config import preset_config
 
     tiny = {"total_steps": 512, "num_envs": 8, "rollout_steps": 8, "batch_size": 32, "epochs": 2, "hidden": 16,
             "fovea": 5, "eval_every": 256, "eval_episodes": 16}  # fmt: skip

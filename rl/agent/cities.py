@@ -8,7 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from uavplace.dataset.bundle import Bundle
-from uavplace.rl.agent.dqn import DQNConfig, DQNPolicy
+from uavplace.rl.agent.config import DQNConfig
+from uavplace.rl.agent.dqn import DQNPolicy
 from uavplace.rl.maps import MapSet
 from uavplace.rl.rollout import run_episodes, summarise
 from uavplace.schemas import InputError

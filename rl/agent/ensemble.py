@@ -28,7 +28,8 @@ from uavplace.dataset.bundle import load_bundle
 from uavplace.infra.files import atomic_directory, write_model_json
 from uavplace.rl.agent.checkpoint import best_checkpoint, load_tensors, save_tensors
 from uavplace.rl.agent.cities import plan_cities, play_validation, validation_set
-from uavplace.rl.agent.dqn import DQNConfig, DQNPolicy
+from uavplace.rl.agent.config import DQNConfig
+from uavplace.rl.agent.dqn import DQNPolicy
 from uavplace.rl.agent.network import MeanQ
 from uavplace.rl.agent.runs import RUN_JSON, RunRecord, network_from_checkpoint, read_run_json
 from uavplace.schemas import InputError

@@ -14,7 +14,8 @@ import numpy as np
 from pydantic import ValidationError
 
 from uavplace.rl.agent.checkpoint import CheckpointState, load_tensors, require
-from uavplace.rl.agent.dqn import DQN, DQNConfig
+from uavplace.rl.agent.config import DQNConfig
+from uavplace.rl.agent.dqn import DQN
 from uavplace.schemas import InputError
 from uavplace.schemas.base import validation_message
 

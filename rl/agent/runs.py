@@ -14,7 +14,8 @@ from uavplace.infra.files import (
     read_small_file,
 )
 from uavplace.rl.agent.checkpoint import load_tensors, require
-from uavplace.rl.agent.dqn import DQNConfig, DQNPolicy, make_network
+from uavplace.rl.agent.config import DQNConfig
+from uavplace.rl.agent.dqn import DQNPolicy, make_network
 from uavplace.schemas import InputError
 from uavplace.schemas.base import Contract, validation_message
 from uavplace.schemas.bundle import BundleManifest, BundleSettings

@@ -9,7 +9,8 @@ import numpy as np
 import pandas as pd
 
 from uavplace.rl.agent.cities import Cities
-from uavplace.rl.agent.dqn import DQNConfig, DQNPolicy
+from uavplace.rl.agent.config import DQNConfig
+from uavplace.rl.agent.dqn import DQNPolicy
 from uavplace.rl.agent.train import Trainer
 from uavplace.rl.tasks.fleet import FleetMaps, FleetPlacement, FleetTrainEnv, run_fleet
 from uavplace.rl.tasks.tracking import RouteSet, TrackingEnv, run_tracking

@@ -38,7 +38,8 @@ from uavplace.infra.files import (
 )
 from uavplace.rl.agent.checkpoint import CHECKPOINT_JSON, load_tensors, require, save_tensors
 from uavplace.rl.agent.cities import Cities, plan_cities, play_validation, validation_set
-from uavplace.rl.agent.dqn import DQN, DQNConfig, DQNPolicy
+from uavplace.rl.agent.config import DQNConfig
+from uavplace.rl.agent.dqn import DQN, DQNPolicy
 from uavplace.rl.agent.pqn import Rollout, pqn_round
 from uavplace.rl.agent.replay import ReplayBuffer
 from uavplace.rl.agent.resume import Interrupted, RunState, interrupts, read_state, start_from

@@ -131,7 +131,7 @@ class Workspace:
     ) -> Path:
         """A training run folder to resume: run.json of the fast preset on the built city, and a checkpoint (whose
         ``checkpoint.json`` holds ``step``, empty random-generator states and no networks unless given)."""
-        from uavplace.rl.agent.dqn import preset_config
+        from uavplace.rl.agent.config import preset_config
         from uavplace.rl.agent.runs import RunRecord
 
         run = self.tmp / "run"
