@@ -16,7 +16,7 @@ from pathlib import Path
 
 import click
 
-from uavplace.infra.console import fail, stdout
+from uavplace.infra.console import fail, path_option, stdout
 from uavplace.infra.files import describe_os_error
 from uavplace.infra.limits import ENV as LIMITS_ENV
 from uavplace.infra.limits import set_limits
@@ -168,11 +168,10 @@ def uavrl() -> None:
 
 @uavdata.command()
 @click.argument("model", required=False, type=click.Choice(sorted(SCHEMA_MODELS)))
-@click.option(
+@path_option(
     "--out",
     "out_dir",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=None,
+    folder=True,
     help="Write one <name>.schema.json per contract into this folder instead of printing.",
 )
 def schema(model: str | None, out_dir: Path | None) -> None:

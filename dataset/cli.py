@@ -19,6 +19,7 @@ from uavplace.infra.console import (
     console,
     fail,
     folder_option,
+    path_option,
     plain_table,
     root_option,
     stdout,
@@ -93,12 +94,11 @@ def _say_built(out, name: str, result) -> None:  # noqa: ANN001 - a rich Console
     "(repeatable; overrides --roles). Recorded in the bundle. A city whose latest bundle has a role must be given "
     "one again, here or in --roles (a build without it would drop the role).",
 )
-@click.option(
+@path_option(
     "--roles",
     "roles_file",
-    type=click.Path(dir_okay=False, path_type=Path),
+    folder=False,
     default=Path("data/raw") / ROLES_FILE,
-    show_default=True,
     help="The cities' roles, declared beside the data (TOML: train, val, test and crop lists of city names, and "
     "val_users; schemas/bundle.py, CityRoles; the embedded cities': data/raw/cities.toml). Applied to the cities "
     "built; --split, --crop-city and --val-users override it. Skipped when the default file is absent.",
@@ -242,11 +242,10 @@ def format_difficulty(d: dict[str, float | None]) -> str:
     "role, blocked, target and dead shares, the genie's median steps, and how faithful the maps are (constant 4 x 4 "
     "patches, dead/live boundaries and SINR steps on the 64 m and 16 m lines of a coarse gap fill; dataset/corpus.py).",
 )
-@click.option(
+@path_option(
     "--raw",
-    type=click.Path(file_okay=False, path_type=Path),
+    folder=True,
     default=Path("data/raw"),
-    show_default=True,
     help="With --table: where each city's raw folder (its simulation.json: source and building tiers) is.",
 )
 def list_(root: Path, table: bool, raw: Path) -> None:
@@ -281,11 +280,10 @@ def list_(root: Path, table: bool, raw: Path) -> None:
 @click.argument("city")
 @click.option("--version", default=None, help="Bundle version (default: the city's latest). CITY@VERSION works too.")
 @click.option("--user", type=click.IntRange(min=0), default=0, show_default=True, help="User whose SINR map is drawn.")
-@click.option(
+@path_option(
     "--out",
     "out_path",
-    type=click.Path(dir_okay=False, path_type=Path),
-    default=None,
+    folder=False,
     help="PNG to write (default: reports/show/<city>-<version>-user<N>.png).",
 )
 @root_option

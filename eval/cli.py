@@ -20,6 +20,7 @@ from uavplace.infra.console import (
     console,
     fail,
     markdown_table,
+    path_option,
     plain_table,
     ray_address_option,
     root_option,
@@ -49,10 +50,9 @@ from uavplace.schemas.base import repeated
     "city, and OUT/report.html with a summary table and a section per city)  [default: every built city of the test "
     "role (data/raw/cities.toml, or --split CITY=test): those without routes, or with routes for --task tracking].",
 )
-@click.option(
+@path_option(
     "--out",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=None,
+    folder=True,
     help="Report folder (with several --dataset: the folder that holds one per city); an existing report folder "
     "is replaced only if it is a report (holds report.json), anything else is refused.  [default: reports/<dataset>]",
 )
@@ -67,13 +67,16 @@ from uavplace.schemas.base import repeated
     "the runs' range, and an interval that resamples runs, then users, then episodes; with paired differences against "
     "the blind paper agent and the genie (repeatable; groups.csv and a table in the report).",
 )
-@click.option("--agents-dir", type=click.Path(file_okay=False, path_type=Path), default=shipped("data/agents"), show_default=True,
-              help="Where the default agents are looked for (without --run: those of the report's task; a tracking "
-                   "report plays the placement agents too; a fleet report its 'best' on every UAV and the fleet-trained agents).")  # fmt: skip
-@click.option(
+@path_option(
+    "--agents-dir",
+    folder=True,
+    default=shipped("data/agents"),
+    help="Where the default agents are looked for (without --run: those of the report's task; a tracking "
+    "report plays the placement agents too; a fleet report its 'best' on every UAV and the fleet-trained agents).",
+)
+@path_option(
     "--markdown",
-    type=click.Path(dir_okay=False, path_type=Path),
-    default=None,
+    folder=False,
     help="Also write every table (each city's results and paired differences, then the summary) as Markdown to this "
     "file, for a README that cannot drift from what the command printed.",
 )
@@ -305,8 +308,9 @@ def _check_same_agents(folder: Path, runs: list[Path]) -> None:
         return  # not a report this uavplace reads: check_replaceable decides
     if sorted(str(Path(r).resolve()) for r in held) != sorted(str(r.resolve()) for r in runs):
         names = ", ".join(Path(r).name for r in held) or "no agent"
-        raise click.UsageError(f"{folder} holds a report of other agents ({names}): give another --out, or --overwrite "
-                               "to replace it")  # fmt: skip
+        raise click.UsageError(
+            f"{folder} holds a report of other agents ({names}): give another --out, or --overwrite to replace it"
+        )
 
 
 def _check_runs_once(runs: list[Path], option: str) -> None:
@@ -320,8 +324,10 @@ def _check_runs_once(runs: list[Path], option: str) -> None:
             twice = f"{run} is given twice" if run == seen[real] else f"{run} and {seen[real]} are one run"
             raise click.UsageError(f"{option}: {twice}: give each run once")
         if run.name in names:
-            raise click.UsageError(f"{option}: {names[run.name]} and {run} are both named {run.name}: their methods would "
-                                   "share a name; rename one folder")  # fmt: skip
+            raise click.UsageError(
+                f"{option}: {names[run.name]} and {run} are both named {run.name}: their methods would "
+                "share a name; rename one folder"
+            )
         seen[real], names[run.name] = run, run
 
 
@@ -455,16 +461,16 @@ def _one_report(config, out: Path, root: Path, quiet: bool, city: tuple[int, int
             unit = "candidates" if stage.endswith("predicted maps") else "episodes"
             log(f"report {name} {done}/{total} {unit}", last=new or done >= total)
 
-        return make_report(config, out, root=root, command=command_line(), on_progress=on_progress, on_plan=plan.extend,
-                           parallel=parallel)  # fmt: skip
+        return make_report(
+            config, out, root=root, command=command_line(), on_progress=on_progress, on_plan=plan.extend, parallel=parallel
+        )
 
 
 @click.command()
 @click.argument("spec_file", metavar="SPEC", type=click.Path(dir_okay=False, exists=True, path_type=Path))
-@click.option(
+@path_option(
     "--out",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=None,
+    folder=True,
     help="Folder of the sweep's runs and table  [default: runs/<SPEC's name without .toml>]",
 )
 @ray_address_option("the trials")
@@ -478,8 +484,9 @@ def _one_report(config, out: Path, root: Path, quiet: bool, city: tuple[int, int
 @click.option("--table-only", is_flag=True, help="Train nothing: only play the finished runs and write the table.")
 @root_option
 @click.option("--quiet", is_flag=True, help="No progress bar for the table's evaluation.")
-def sweep(spec_file: Path, out: Path | None, ray_address: str | None, cpus_per_trial: float, table_only: bool, root: Path,
-          quiet: bool) -> None:  # fmt: skip
+def sweep(
+    spec_file: Path, out: Path | None, ray_address: str | None, cpus_per_trial: float, table_only: bool, root: Path, quiet: bool
+) -> None:
     """Train the runs of a sweep file SPEC on Ray Tune, then compare them on the validation cities.
 
     \b
@@ -509,8 +516,15 @@ def sweep(spec_file: Path, out: Path | None, ray_address: str | None, cpus_per_t
         spec = read_spec(spec_file)
         check_held_out(spec, spec_file, root)
         if not table_only:
-            failed = run_sweep(spec, out, root=root, address=ray_address, cpus_per_trial=cpus_per_trial,
-                               command=command_line(), on_line=lambda line: say.print(line, highlight=False, markup=False))  # fmt: skip
+            failed = run_sweep(
+                spec,
+                out,
+                root=root,
+                address=ray_address,
+                cpus_per_trial=cpus_per_trial,
+                command=command_line(),
+                on_line=lambda line: say.print(line, highlight=False, markup=False),
+            )
             if failed:
                 fail(f"{len(failed)} trial(s) failed: {', '.join(failed)}; run the command again to continue them")
         folders = [out / name for name in (*spec.run_names(), *(e.name for e in spec.ensembles))]
@@ -526,8 +540,9 @@ def sweep(spec_file: Path, out: Path | None, ray_address: str | None, cpus_per_t
                     tasks[method] = bar.add_task(method, total=total)
                 bar.update(tasks[method], completed=done)
 
-            table = validation_table(folders, list(spec.cities), root=root, episodes=spec.episodes, seed=spec.seed,
-                                     on_progress=on_progress)  # fmt: skip
+            table = validation_table(
+                folders, list(spec.cities), root=root, episodes=spec.episodes, seed=spec.seed, on_progress=on_progress
+            )
     except InputError as err:
         fail(err)
     except RuntimeError as err:  # Ray Tune missing
@@ -542,9 +557,15 @@ def validation_options(command):  # noqa: ANN001, ANN201 - a click command
     that compare runs on the validation cities (``levers``, ``peer table``)."""
     options = (
         click.option("--city", "cities", multiple=True, help="City to play (repeatable; default: every built validation city)."),
-        click.option("--episodes", type=Counted("episodes"), default=1000, show_default=True, help="Episodes a city, the same for every method."),
+        click.option(
+            "--episodes",
+            type=Counted("episodes"),
+            default=1000,
+            show_default=True,
+            help="Episodes a city, the same for every method.",
+        ),
         click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the episodes and of every random move."),
-    )  # fmt: skip
+    )
     for option in reversed(options):
         command = option(command)
     return command
@@ -553,17 +574,17 @@ def validation_options(command):  # noqa: ANN001, ANN201 - a click command
 @click.command()
 @click.argument("runs", nargs=-1, required=True, type=click.Path(file_okay=False, exists=True, path_type=Path))
 @validation_options
-@click.option(
+@path_option(
     "--against",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=None,
+    folder=True,
     help="One of RUNS: every other run's success and median steps minus its, paired on the same episodes, per city and "
     "for the cities pooled, with 95 % intervals over users then episodes (whether a change is more than the noise).",
 )
 @click.option("--release", is_flag=True, help="Allow test cities (release numbers only, never to choose).")
 @root_option
-def levers(runs: tuple[Path, ...], cities: tuple[str, ...], episodes: int, seed: int, against: Path | None, release: bool,
-           root: Path) -> None:  # fmt: skip
+def levers(
+    runs: tuple[Path, ...], cities: tuple[str, ...], episodes: int, seed: int, against: Path | None, release: bool, root: Path
+) -> None:
     """The lever table of run or ensemble folders RUNS: each one's settings that differ from its preset, the evaluation
     that chose its best.pt, then best.pt on the episodes `uavrl report` draws in each validation city, with the genie
     (success and median steps with 95 % intervals over users then episodes, the ratio to the genie's median, the run's
@@ -576,8 +597,9 @@ def levers(runs: tuple[Path, ...], cities: tuple[str, ...], episodes: int, seed:
         raise click.UsageError(f"--against {against}: not one of RUNS")
     played: dict = {}
     try:
-        table = validation_table(list(runs), list(cities) or None, root=root, episodes=episodes, seed=seed, release=release,
-                                 played=played)  # fmt: skip
+        table = validation_table(
+            list(runs), list(cities) or None, root=root, episodes=episodes, seed=seed, release=release, played=played
+        )
     except InputError as err:
         fail(err)
     click.echo(markdown(table), nl=False)
@@ -607,18 +629,34 @@ def peer() -> None:
 )
 @click.option("--cpu-seconds", type=Finite(min=1), default=None, help="The budget of CPU seconds (instead of --match).")
 @click.option(
-    "--max-steps", type=Counted("train_steps"), default=3_000_000, show_default=True,
+    "--max-steps",
+    type=Counted("train_steps"),
+    default=3_000_000,
+    show_default=True,
     help="Env steps at most (SB3's schedules anneal over them).",
-)  # fmt: skip
+)
 @click.option(
-    "--dataset", "datasets", multiple=True, default=("corpus", "oldtown", "train"), show_default=True,
+    "--dataset",
+    "datasets",
+    multiple=True,
+    default=("corpus", "oldtown", "train"),
+    show_default=True,
     help="Training city or corpus (repeatable): their training users, as a `best` run's.",
-)  # fmt: skip
+)
 @click.option("--n-envs", type=click.IntRange(1, 64), default=8, show_default=True, help="Envs SB3 steps side by side.")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of SB3's model and envs.")
 @root_option
-def peer_train(algo: str, out: Path, match: Path | None, cpu_seconds: float | None, max_steps: int, datasets: tuple[str, ...],
-               n_envs: int, seed: int, root: Path) -> None:  # fmt: skip
+def peer_train(
+    algo: str,
+    out: Path,
+    match: Path | None,
+    cpu_seconds: float | None,
+    max_steps: int,
+    datasets: tuple[str, ...],
+    n_envs: int,
+    seed: int,
+    root: Path,
+) -> None:
     """Train one SB3 algorithm ALGO (dqn or ppo) until its CPU budget or --max-steps is spent, on one torch thread
     (OMP_NUM_THREADS=N for more); the weights are saved weights-only (never SB3's pickled zip)."""
     from uavplace.dataset.catalog import expand_datasets
@@ -635,8 +673,16 @@ def peer_train(algo: str, out: Path, match: Path | None, cpu_seconds: float | No
     try:
         budget = cpu_seconds if cpu_seconds is not None else run_wall_seconds(match)
         maps = training_maps(expand_datasets(list(datasets), root), root)
-        record = train_sb3(algo, maps, out, cpu_seconds=budget, max_steps=max_steps, n_envs=n_envs, seed=seed,
-                           on_progress=lambda step, cpu: click.echo(f"{algo}: step {step:,}, {cpu:.0f} CPU s"))  # fmt: skip
+        record = train_sb3(
+            algo,
+            maps,
+            out,
+            cpu_seconds=budget,
+            max_steps=max_steps,
+            n_envs=n_envs,
+            seed=seed,
+            on_progress=lambda step, cpu: click.echo(f"{algo}: step {step:,}, {cpu:.0f} CPU s"),
+        )
     except (InputError, RuntimeError) as err:
         fail(err)
     click.echo(
@@ -651,14 +697,25 @@ def peer_train(algo: str, out: Path, match: Path | None, cpu_seconds: float | No
     required=True,
     help="The `best` run (or ensemble) to compare with.",
 )
-@click.option("--peer", "peers", multiple=True, required=True, type=click.Path(file_okay=False, exists=True, path_type=Path),
-              help="A peer folder of `uavrl peer train` (repeatable).")  # fmt: skip
+@click.option(
+    "--peer",
+    "peers",
+    multiple=True,
+    required=True,
+    type=click.Path(file_okay=False, exists=True, path_type=Path),
+    help="A peer folder of `uavrl peer train` (repeatable).",
+)
 @validation_options
-@click.option("--markdown", "markdown_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Also write the table there (Markdown).")  # fmt: skip
+@path_option(
+    "--markdown",
+    "markdown_path",
+    folder=False,
+    help="Also write the table there (Markdown).",
+)
 @root_option
-def peer_table(best: Path, peers: tuple[Path, ...], cities: tuple[str, ...], episodes: int, seed: int,
-               markdown_path: Path | None, root: Path) -> None:  # fmt: skip
+def peer_table(
+    best: Path, peers: tuple[Path, ...], cities: tuple[str, ...], episodes: int, seed: int, markdown_path: Path | None, root: Path
+) -> None:
     """The `best` run, the peers and the genie on the same episodes of each validation city: success and median steps
     with 95 % intervals over users then episodes, and the ratios best / peer (success) and peer / best (median steps).
     Test cities are refused."""

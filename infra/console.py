@@ -73,11 +73,18 @@ root_option = click.option(
 )
 
 
+def path_option(*decls: str, folder: bool, help: str, default: str | Path | None = None):  # noqa: A002, ANN201
+    """An option naming a folder (``folder``) or a file as a ``Path``: ``decls`` as click takes them (the flag, then
+    the parameter's name where it is not the flag's), ``default`` shown where there is one; one wording of the type
+    for every command."""
+    kind = click.Path(file_okay=not folder, dir_okay=folder, path_type=Path)
+    given = None if default is None else Path(default)
+    return click.option(*decls, type=kind, default=given, show_default=given is not None, help=help)
+
+
 def folder_option(name: str, default: str, help: str):  # noqa: A002, ANN201 - click's word; a click decorator
-    """``name`` (``--out``, ``--raw``): a folder, ``default`` shown, one wording of the type for every command."""
-    return click.option(
-        name, type=click.Path(file_okay=False, path_type=Path), default=Path(default), show_default=True, help=help
-    )
+    """``name`` (``--out``, ``--raw``): a folder, ``default`` shown."""
+    return path_option(name, folder=True, default=default, help=help)
 
 
 def ray_address_option(what: str):  # noqa: ANN201 - a click decorator

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from uavplace.infra.console import LogLines, plain_table, root_option, stdout
+from uavplace.infra.console import LogLines, path_option, plain_table, root_option, stdout
 from uavplace.infra.files import shipped
 from uavplace.infra.options import model_options
 from uavplace.rl.config import UNetConfig
@@ -39,11 +39,10 @@ def _training_users(datasets: tuple[str, ...], root: Path) -> tuple[list, list]:
     multiple=True,
     help="Validation city whose users' maps score the fit (repeatable): median and p90 |error| [dB], dead/live agreement.",
 )
-@click.option(
+@path_option(
     "--out",
-    type=click.Path(dir_okay=False, path_type=Path),
+    folder=False,
     default=Path("data/agents/searcher/predictor.json"),
-    show_default=True,
     help="The constants' JSON file (written atomically; a regular file or absent).",
 )
 @root_option
@@ -105,19 +104,17 @@ def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out:
     help="Validation city whose users' maps score both tiers "
     "(repeatable): median and p90 |error| [dB], dead/live agreement, ms per map; in model.json and the card.",
 )
-@click.option(
+@path_option(
     "--constants",
-    type=click.Path(dir_okay=False, path_type=Path),
+    folder=False,
     default=shipped("data/agents/searcher/predictor.json"),
-    show_default=True,
     help="The physics tier the network corrects (`uavrl fit-predictor` writes it; default: the shipped one, found in "
     "the project wherever the command runs).",
 )
-@click.option(
+@path_option(
     "--out",
-    type=click.Path(file_okay=False, path_type=Path),
+    folder=True,
     default=Path("data/agents/searcher/unet"),
-    show_default=True,
     help="Folder of model.json, weights.pt and MODEL_CARD.md (replaced whole, or left as it was).",
 )
 @model_options(UNetConfig, "steps", "batch", "seed", "threads")
