@@ -9,7 +9,7 @@ from typing import Any
 
 import click
 
-from uavplace.eval.config import ReportConfig
+from uavplace.eval.config import ReportConfig, TrackingReportConfig
 from uavplace.infra.cluster import start_ray
 from uavplace.infra.console import (
     SEED,
@@ -30,6 +30,8 @@ from uavplace.infra.console import (
 from uavplace.infra.files import exclusive_folder, shipped
 from uavplace.infra.options import model_options
 from uavplace.rl.cli import episode_options
+from uavplace.rl.tasks.fleet.config import FleetConfig
+from uavplace.rl.tasks.tracking.config import TrackingConfig
 from uavplace.schemas.base import repeated
 
 
@@ -92,23 +94,9 @@ from uavplace.schemas.base import repeated
     "default: the shipped best and the fleet-trained agents under --agents-dir) run on every UAV on the users dealt "
     "to it, greedy hill-climbing and the random walk (eval/fleet.py; OUT defaults to reports/fleet).",
 )
-@click.option("--uavs", type=click.IntRange(1, 4), default=2, show_default=True, help="Fleet: UAVs in the fleet.")
-@click.option("--users", type=click.IntRange(1, 6), default=3, show_default=True, help="Fleet: users served at once.")
-@click.option(
-    "--horizon",
-    type=Counted("t_max"),
-    default=300,
-    show_default=True,
-    help="Tracking: steps per episode (each 0.4 s at 4 m cells: a 10 m/s UAV crossing one cell).",
-)
-@click.option(
-    "--hold/--no-hold",
-    default=True,
-    show_default=True,
-    help="Tracking: also play each method that has no stay action (placement agents, the random walk, greedy "
-    "hill-climbing) holding its cell while its own measurement is at or above P_T (rl/tasks/tracking/policies.py, Holding), as a "
-    "row '... + hold' after the method as it is.",
-)
+@model_options(FleetConfig, "uavs", "users")
+@model_options(TrackingConfig, "horizon")
+@model_options(TrackingReportConfig, "hold")
 @click.option(
     "--predictor",
     default=str(shipped("data/agents/searcher/unet")),
@@ -350,7 +338,7 @@ def _check_training_settings(runs: list[Path], datasets: tuple[str, ...], p_t_db
 def _tracking_report(v: dict[str, Any], after: contextlib.ExitStack) -> None:
     """``uavrl report --task tracking``: every method on the same episodes of each city's routes, one page."""
     from uavplace.eval.evaluate import default_agents
-    from uavplace.eval.tracking import SUMMARY_TITLE, TrackingReportConfig, make_tracking_report, summary_rows, table_rows
+    from uavplace.eval.tracking import SUMMARY_TITLE, make_tracking_report, summary_rows, table_rows
     from uavplace.rl.tasks.tracking import TrackingConfig
 
     runs = list(v["runs"]) or default_agents(v["agents_dir"], ("placement", "tracking"))
@@ -374,8 +362,9 @@ def _tracking_report(v: dict[str, Any], after: contextlib.ExitStack) -> None:
 
 def _fleet_report(v: dict[str, Any], after: contextlib.ExitStack) -> None:
     """``uavrl report --task fleet``: every method on the same fleet episodes of each city, one page."""
+    from uavplace.eval.config import FleetReportConfig
     from uavplace.eval.evaluate import check_unseen_runs, default_agents
-    from uavplace.eval.fleet import DEFAULT_AGENT, SUMMARY_TITLE, FleetReportConfig, make_fleet_report, summary_rows, table_rows
+    from uavplace.eval.fleet import DEFAULT_AGENT, SUMMARY_TITLE, make_fleet_report, summary_rows, table_rows
     from uavplace.eval.render import difference_rows
     from uavplace.rl.tasks.fleet import FleetConfig
 

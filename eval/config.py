@@ -1,11 +1,15 @@
-"""The settings of a placement report (``uavrl report``): one model, saved in ``report.json``, from which the
-command's options derive (``infra.options``). Light to import: the command line reads it before any heavy work."""
+"""The settings of the reports (``uavrl report``): a model per task (placement, tracking, fleet), saved beside the
+report it made, from which the command's options derive (``infra.options``). Light to import: the command line reads
+them before any heavy work."""
 
 from __future__ import annotations
 
-from pydantic import Field
+from pydantic import ConfigDict, Field
 
 from uavplace.rl.config import DEFAULT_PREDICTOR, EpisodeSettings, SearchConfig
+from uavplace.rl.tasks.fleet.config import FleetConfig
+from uavplace.rl.tasks.tracking.config import MotionModel, TrackingConfig
+from uavplace.schemas.base import MAX_SEED, Contract
 
 
 class ReportConfig(EpisodeSettings):
@@ -47,4 +51,51 @@ class ReportConfig(EpisodeSettings):
     )
     prediction_cache: str | None = Field(
         default=None, description="Folder of the searcher's predicted maps (None: .predictions beside the bundles)"
+    )
+
+
+class TrackingReportConfig(Contract):
+    """Every parameter of one tracking report (saved in ``tracking.json``)."""
+
+    model_config = ConfigDict(allow_inf_nan=False)
+
+    datasets: list[str] = Field(min_length=1, description="Cities with routes (built bundles, optionally city@version)")
+    runs: list[str] = Field(
+        default_factory=list,
+        description="Agents (run folders or shipped agents): tracking agents, and placement agents run unchanged",
+    )
+    test_epsilon: float = Field(default=0.096, ge=0, le=1, description="Random legal move rate of the agents (paper: 0.096)")
+    episodes: int = Field(default=1000, ge=1, description="Episodes per city, the same for every method")
+    task: TrackingConfig = Field(default_factory=TrackingConfig, description="The tracking task (horizon, P_T, speeds)")
+    seed: int = Field(default=0, ge=0, le=MAX_SEED, description="Seed of the episodes and the baselines' random moves")
+    n_boot: int = Field(default=2000, ge=100, description="Bootstrap resamples of the 95 % intervals")
+    trajectories: int = Field(default=3, ge=0, le=3, description="Episodes drawn on the maps, by EPISODE_RULES (0: none)")
+    hold: bool = Field(
+        default=True,
+        description="Tracking: also play each method that has no stay action (placement agents, the random walk, greedy "
+        "hill-climbing) holding its cell while its own measurement is at or above P_T (rl/tasks/tracking/policies.py, "
+        "Holding), as a row '... + hold' after the method as it is",
+    )
+    predictor: str | None = Field(
+        default=str(DEFAULT_PREDICTOR),
+        description="The tracking searcher's radio-map predictor (rl/tasks/tracking/searcher.py; None: the searcher is not played)",
+    )
+    motion: MotionModel = Field(default_factory=MotionModel, description="The tracking searcher's motion model")
+
+
+class FleetReportConfig(Contract):
+    """How a fleet report was made (saved in ``fleet.json``)."""
+
+    datasets: list[str] = Field(min_length=1, description="Cities (built datasets)")
+    episodes: int = Field(default=1000, ge=1, description="Episodes a city, the same for every method")
+    seed: int = Field(default=0, ge=0, le=MAX_SEED, description="Seed of the episodes and of every random move")
+    n_boot: int = Field(default=2000, ge=100, description="Bootstrap resamples for the 95 % intervals")
+    task: FleetConfig = Field(default_factory=FleetConfig, description="The fleet task (rl/tasks/fleet/)")
+    runs: list[str] = Field(
+        default_factory=list, description="Agents' run folders (placement or fleet-trained), each run on every UAV"
+    )
+    test_epsilon: float = Field(default=0.096, ge=0, le=1, description="Random legal move rate of the agents")
+    predictor: str | None = Field(
+        default=str(DEFAULT_PREDICTOR),
+        description="The fleet searcher's predictor (rl.belief.load_predictor); None: no searcher",
     )

@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from pydantic import Field
 
 from uavplace.dataset.bundle import Bundle, load_bundle
+from uavplace.eval.config import FleetReportConfig
 from uavplace.eval.evaluate import load_agent
 from uavplace.eval.figures import Figure
 from uavplace.eval.findings import city_findings, difference_cell
@@ -36,7 +36,7 @@ from uavplace.eval.metrics import bootstrap_table, difference_table
 from uavplace.eval.render import _CSS, _figure, _templates, difference_rows
 from uavplace.infra.console import markdown_list, markdown_table
 from uavplace.infra.files import atomic_directory, check_replaceable
-from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
+from uavplace.rl.belief import PREDICTIONS, PredictionCache, load_predictor
 from uavplace.rl.rollout import STATS, format_stat
 from uavplace.rl.tasks.fleet import (
     FleetConfig,
@@ -47,31 +47,13 @@ from uavplace.rl.tasks.fleet import (
     FleetSearcher,
     run_fleet,
 )
-from uavplace.schemas.base import MAX_SEED, Contract, InputError, uavplace_version
+from uavplace.schemas.base import InputError, uavplace_version
 
 FLEET_JSON = "fleet.json"
 ORACLE = "oracle"
 #: The placement agent each UAV runs by default (``uavrl report --task fleet`` without ``--run``), from ``--agents-dir``,
 #: beside every shipped agent trained on the fleet task (``uavrl train --task fleet``).
 DEFAULT_AGENT = "best"
-
-
-class FleetReportConfig(Contract):
-    """How a fleet report was made (saved in ``fleet.json``)."""
-
-    datasets: list[str] = Field(min_length=1, description="Cities (built datasets)")
-    episodes: int = Field(default=1000, ge=1, description="Episodes a city, the same for every method")
-    seed: int = Field(default=0, ge=0, le=MAX_SEED, description="Seed of the episodes and of every random move")
-    n_boot: int = Field(default=2000, ge=100, description="Bootstrap resamples for the 95 % intervals")
-    task: FleetConfig = Field(default_factory=FleetConfig, description="The fleet task (rl/tasks/fleet/)")
-    runs: list[str] = Field(
-        default_factory=list, description="Agents' run folders (placement or fleet-trained), each run on every UAV"
-    )
-    test_epsilon: float = Field(default=0.096, ge=0, le=1, description="Random legal move rate of the agents")
-    predictor: str | None = Field(
-        default=str(DEFAULT_PREDICTOR),
-        description="The fleet searcher's predictor (rl.belief.load_predictor); None: no searcher",
-    )
 
 
 def fleet_results(

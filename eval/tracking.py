@@ -24,21 +24,20 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from pydantic import ConfigDict, Field
 
 from uavplace.dataset.bundle import load_bundle
+from uavplace.eval.config import TrackingReportConfig
 from uavplace.eval.evaluate import Agent, check_unseen, load_agent
 from uavplace.eval.figures import Figure, _pyplot, draw_blocked
 from uavplace.eval.metrics import _weighted_quantile, resample_counts
 from uavplace.eval.render import _CSS, _figure, _templates
 from uavplace.infra.console import markdown_table
 from uavplace.infra.files import atomic_directory, check_replaceable
-from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
+from uavplace.rl.belief import PREDICTIONS, PredictionCache, load_predictor
 from uavplace.rl.policies import GreedyPolicy, RandomWalkPolicy
 from uavplace.rl.searcher import MapSearchPolicy
 from uavplace.rl.tasks.tracking import (
     Holding,
-    MotionModel,
     MovesOnly,
     OraclePolicy,
     PlacementInTracking,
@@ -51,7 +50,7 @@ from uavplace.rl.tasks.tracking import (
     run_tracking,
 )
 from uavplace.schemas import InputError
-from uavplace.schemas.base import MAX_SEED, Contract, uavplace_version
+from uavplace.schemas.base import uavplace_version
 from uavplace.schemas.constants import reaches_target
 
 TRACKING_JSON = "tracking.json"
@@ -73,34 +72,6 @@ SUMMARY_TITLE = (
 EPISODE_RULES = ("the 10th percentile of its covered share", "its median covered share", "the 90th percentile")
 _QUANTILES = (0.1, 0.5, 0.9)
 _SHORT = ("10th percentile", "median", "90th percentile")
-
-
-class TrackingReportConfig(Contract):
-    """Every parameter of one tracking report (saved in ``tracking.json``)."""
-
-    model_config = ConfigDict(allow_inf_nan=False)
-
-    datasets: list[str] = Field(min_length=1, description="Cities with routes (built bundles, optionally city@version)")
-    runs: list[str] = Field(
-        default_factory=list,
-        description="Agents (run folders or shipped agents): tracking agents, and placement agents run unchanged",
-    )
-    test_epsilon: float = Field(default=0.096, ge=0, le=1, description="Random legal move rate of the agents (paper: 0.096)")
-    episodes: int = Field(default=1000, ge=1, description="Episodes per city, the same for every method")
-    task: TrackingConfig = Field(default_factory=TrackingConfig, description="The tracking task (horizon, P_T, speeds)")
-    seed: int = Field(default=0, ge=0, le=MAX_SEED, description="Seed of the episodes and the baselines' random moves")
-    n_boot: int = Field(default=2000, ge=100, description="Bootstrap resamples of the 95 % intervals")
-    trajectories: int = Field(default=3, ge=0, le=3, description="Episodes drawn on the maps, by EPISODE_RULES (0: none)")
-    hold: bool = Field(
-        default=True,
-        description="Also play each method without a stay action (placement agents, random walk, greedy) holding its "
-        "cell while its own measurement is at or above P_T",
-    )
-    predictor: str | None = Field(
-        default=str(DEFAULT_PREDICTOR),
-        description="The tracking searcher's radio-map predictor (rl/tasks/tracking/searcher.py; None: the searcher is not played)",
-    )
-    motion: MotionModel = Field(default_factory=MotionModel, description="The tracking searcher's motion model")
 
 
 def tracking_methods(

@@ -2,7 +2,7 @@
 
 ``model_options(Model, "episodes", "t_max", ...)`` is a click decorator adding one option a field: ``--t-max`` for
 ``t_max`` (or the name ``names`` gives), its type from the annotation (an integer, a finite number, a choice of a
-``Literal``, a flag of a ``bool``, a path, a repeatable option of a tuple or list of strings), its bounds from the
+``Literal``, a flag of a ``bool`` (``--x/--no-x`` when it is on by default), a path, a repeatable option of a tuple or list of strings), its bounds from the
 field's ``ge``/``gt``/``le``/``lt``, its default from the field's default (shown), its help from the description.
 A field may say more in ``json_schema_extra``: ``{"limit": "episodes"}`` bounds an integer by that resource limit
 too (``infra.console.Counted``), ``{"type": "metres"}`` takes a length as ``4``, ``4m`` or ``2.5 m``. The command
@@ -60,8 +60,8 @@ def option_kwargs(model: type[BaseModel], field: str, override: dict | None = No
     bounds = field_bounds(info)
     if extra.get("type") == "metres":  # a length: 4, 4m or 2.5 m; its bounds checked by the model
         kwargs["type"] = Metres()
-    elif annotation is bool:
-        kwargs.update(is_flag=True, show_default=False)
+    elif annotation is bool:  # a flag; one on by default is a pair, --x/--no-x (``model_options``)
+        kwargs.update(is_flag=True, show_default=bool(default))
     elif annotation is int:
         if "limit" in extra:
             kwargs["type"] = Counted(str(extra["limit"]), min=int(bounds.get("min", 1)))
@@ -101,6 +101,9 @@ def model_options(
         for field in reversed(chosen):
             flag = names.get(field, "--" + field.replace("_", "-"))
             kwargs = option_kwargs(model, field, overrides.get(field))
+            if kwargs.get("is_flag") and kwargs["default"] is True:  # on by default: --x turns it on, --no-x off
+                flag = f"{flag}/--no-{flag.removeprefix('--')}"
+                del kwargs["is_flag"]
             command = click.option(flag, field, cls=FieldOption, field=f"{model.__name__}.{field}", **kwargs)(command)
         return command
 

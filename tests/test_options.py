@@ -20,6 +20,7 @@ class Toy(Contract):
     mode: Literal["a", "b"] = Field(default="a", description="Which.")
     names: tuple[str, ...] = Field(default=(), description="Names (repeatable).")
     fast: bool = Field(default=False, description="Go fast.")
+    loud: bool = Field(default=True, description="Say it.")
     path: Path | None = Field(default=None, description="Where.")
     steps: int = Field(default=10, ge=1, description="Steps.", json_schema_extra={"limit": "episodes"})
 
@@ -47,6 +48,9 @@ def test_the_options_are_the_fields():
         assert isinstance(params[name], FieldOption) and params[name].field == f"Toy.{name}"
         assert params[name].help == field.description
     assert params["fast"].opts == ["--quick"]
+    assert params["loud"].opts == ["--loud"] and params["loud"].secondary_opts == ["--no-loud"]  # on by default
+    assert Toy.model_validate_json(_run("--no-loud").output) == Toy(loud=False)
+    assert Toy.model_validate_json(_run("--loud").output) == Toy()
 
 
 @pytest.mark.parametrize(
@@ -78,6 +82,9 @@ def _commands() -> list[tuple[str, str, str, tuple[str, ...]]]:
         ("uavrl", "report", "ReportConfig", ("test_epsilon", "n_boot", "trajectories")),
         ("uavdata", "build", "BuildConfig", (*build, "crop", "seed", "p_t_db")),
         ("uavrl", "train-predictor", "UNetConfig", ("steps", "batch", "seed", "threads")),
+        ("uavrl", "report", "FleetConfig", ("uavs", "users")),
+        ("uavrl", "report", "TrackingConfig", ("horizon",)),
+        ("uavrl", "report", "TrackingReportConfig", ("hold",)),
     ]
 
 
@@ -86,8 +93,10 @@ def test_a_commands_settings_are_its_models_fields(group, name, model, fields):
     """Each converted command's settings come from its model's fields (``FieldOption``): one default, one bound, one
     help each, written in the model only; the report's config inherits the evaluation protocol's fields."""
     from uavplace.cli import uavdata, uavrl
-    from uavplace.eval.config import ReportConfig
+    from uavplace.eval.config import ReportConfig, TrackingReportConfig
     from uavplace.rl.config import EpisodeSettings, UNetConfig
+    from uavplace.rl.tasks.fleet.config import FleetConfig
+    from uavplace.rl.tasks.tracking.config import TrackingConfig
     from uavplace.schemas.bundle import BuildConfig
 
     command = {"uavdata": uavdata, "uavrl": uavrl}[group].get_command(None, name)
@@ -96,6 +105,9 @@ def test_a_commands_settings_are_its_models_fields(group, name, model, fields):
         "ReportConfig": ReportConfig,
         "BuildConfig": BuildConfig,
         "UNetConfig": UNetConfig,
+        "FleetConfig": FleetConfig,
+        "TrackingConfig": TrackingConfig,
+        "TrackingReportConfig": TrackingReportConfig,
     }[model]
     derived = {p.name: p for p in command.params if isinstance(p, FieldOption) and p.field.startswith(model + ".")}
     assert set(derived) == set(fields)
@@ -103,6 +115,7 @@ def test_a_commands_settings_are_its_models_fields(group, name, model, fields):
         field = cls.model_fields[field_name]
         assert option.help == field.description
         assert option.default == field.default or (option.is_flag and field.default is False)
+        assert not option.is_flag or field.default is False or option.secondary_opts  # on by default: --no-x turns it off
     assert issubclass(ReportConfig, EpisodeSettings)
     assert all(repr(ReportConfig.model_fields[f]) == repr(EpisodeSettings.model_fields[f]) for f in EpisodeSettings.model_fields)
 

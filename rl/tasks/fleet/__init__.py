@@ -28,30 +28,23 @@ one cell wide (a lower bound there; exact elsewhere: ``tests/test_fleet.py`` che
 fleet's joint positions).
 """
 
-from uavplace.rl.tasks.fleet.config import FLEET_MOVES, STAY, FleetConfig
-from uavplace.rl.tasks.fleet.env import BatchedFleet, FleetView
-from uavplace.rl.tasks.fleet.learner import FleetTrainEnv
-from uavplace.rl.tasks.fleet.maps import FleetCity, FleetMaps, assignments, fleet_oracle, oracle_steps, user_subsets
-from uavplace.rl.tasks.fleet.policies import FleetGreedy, FleetPlacement, FleetRandomWalk
-from uavplace.rl.tasks.fleet.rollout import run_fleet
-from uavplace.rl.tasks.fleet.searcher import FleetSearcher
+from __future__ import annotations
 
-__all__ = [
-    "FLEET_MOVES",
-    "STAY",
-    "BatchedFleet",
-    "FleetCity",
-    "FleetConfig",
-    "FleetGreedy",
-    "FleetMaps",
-    "FleetPlacement",
-    "FleetRandomWalk",
-    "FleetSearcher",
-    "FleetTrainEnv",
-    "FleetView",
-    "assignments",
-    "fleet_oracle",
-    "oracle_steps",
-    "run_fleet",
-    "user_subsets",
-]
+from uavplace.rl.tasks import exported
+
+#: What the package offers, by the file that holds it, imported on first use (``rl.tasks.exported``).
+FILES = {
+    "config": ("FLEET_MOVES", "FleetConfig", "STAY"),
+    "maps": ("FleetCity", "FleetMaps", "assignments", "fleet_oracle", "oracle_steps", "user_subsets"),
+    "env": ("BatchedFleet", "FleetView"),
+    "policies": ("FleetGreedy", "FleetPlacement", "FleetRandomWalk"),
+    "searcher": ("FleetSearcher",),
+    "learner": ("FleetTrainEnv",),
+    "rollout": ("run_fleet",),
+}
+EXPORTS = {name: file for file, names in FILES.items() for name in names}
+
+__all__ = sorted(EXPORTS)
+
+
+__getattr__ = exported(__name__, EXPORTS)

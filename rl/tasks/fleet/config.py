@@ -19,8 +19,8 @@ class FleetConfig(Contract):
 
     model_config = ConfigDict(allow_inf_nan=False)
 
-    uavs: int = Field(default=2, ge=1, le=4, description="UAVs K in the fleet")
-    users: int = Field(default=3, ge=1, le=6, description="Users N served at once, drawn from a city's traced users")
+    uavs: int = Field(default=2, ge=1, le=4, description="Fleet: UAVs K in the fleet")
+    users: int = Field(default=3, ge=1, le=6, description="Fleet: users N served at once, drawn from a city's traced users")
     t_max: int = Field(default=500, ge=1, description="Step budget: truncated after t_max steps")
     p_t_db: float = Field(default=P_T_DB, description="SINR target P_T: a user is served by a UAV at or above it [dB]")
     window: int = Field(default=61, ge=3, le=1001, description="Observation side in cells (odd), centred on each UAV")

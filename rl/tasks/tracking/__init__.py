@@ -24,48 +24,22 @@ a placement agent run unchanged (``PlacementInTracking``; also with ``Holding``)
 (``uavrl train --task tracking``, ``rl.agent.tasks.TrackingTrainer``) on its own observation (``TrackingAgent``).
 """
 
-from uavplace.rl.tasks.tracking.config import ACTION_OF, OBSERVATION_FIELDS, STAY, TRACK_MOVES, TrackingConfig
-from uavplace.rl.tasks.tracking.env import TrackingEnv
-from uavplace.rl.tasks.tracking.maps import RouteSet, episode_metrics, oracle_path, user_point
-from uavplace.rl.tasks.tracking.policies import (
-    Holding,
-    MovesOnly,
-    OraclePolicy,
-    PlacementInTracking,
-    ReplanningGenie,
-    TrackingAgent,
-)
-from uavplace.rl.tasks.tracking.rollout import TrackingEpisodes, run_tracking
-from uavplace.rl.tasks.tracking.searcher import (
-    TRACKING_SEARCHER,
-    MotionModel,
-    TrackingSearchPolicy,
-    fit_motion,
-    transition,
-)
+from __future__ import annotations
 
-__all__ = [
-    "ACTION_OF",
-    "OBSERVATION_FIELDS",
-    "STAY",
-    "TRACKING_SEARCHER",
-    "TRACK_MOVES",
-    "Holding",
-    "MotionModel",
-    "MovesOnly",
-    "OraclePolicy",
-    "PlacementInTracking",
-    "ReplanningGenie",
-    "RouteSet",
-    "TrackingAgent",
-    "TrackingConfig",
-    "TrackingEnv",
-    "TrackingEpisodes",
-    "TrackingSearchPolicy",
-    "episode_metrics",
-    "fit_motion",
-    "oracle_path",
-    "run_tracking",
-    "transition",
-    "user_point",
-]
+from uavplace.rl.tasks import exported
+
+#: What the package offers, by the file that holds it, imported on first use (``rl.tasks.exported``).
+FILES = {
+    "config": ("ACTION_OF", "MotionModel", "OBSERVATION_FIELDS", "STAY", "TRACK_MOVES", "TrackingConfig"),
+    "maps": ("RouteSet", "episode_metrics", "oracle_path", "user_point"),
+    "env": ("TrackingEnv",),
+    "policies": ("Holding", "MovesOnly", "OraclePolicy", "PlacementInTracking", "ReplanningGenie", "TrackingAgent"),
+    "searcher": ("TRACKING_SEARCHER", "TrackingSearchPolicy", "fit_motion", "transition"),
+    "rollout": ("TrackingEpisodes", "run_tracking"),
+}
+EXPORTS = {name: file for file, names in FILES.items() for name in names}
+
+__all__ = sorted(EXPORTS)
+
+
+__getattr__ = exported(__name__, EXPORTS)

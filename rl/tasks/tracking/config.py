@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-from pydantic import ConfigDict, Field
+from pydantic import ConfigDict, Field, model_validator
 
 from uavplace.rl.config import EnvConfig
 from uavplace.rl.maps import MOVES
@@ -18,6 +18,8 @@ ACTION_OF = np.full((3, 3), -1, np.int64)
 ACTION_OF[TRACK_MOVES[:, 0] + 1, TRACK_MOVES[:, 1] + 1] = np.arange(len(TRACK_MOVES))
 
 
+#: A horizon's bound beside its field's: the resource limit on steps per episode (``infra.options``).
+STEPS = {"limit": "t_max"}
 #: The fields of ``TrackingConfig`` that shape what an agent observes (the others define the task).
 OBSERVATION_FIELDS = ("window", "blind", "p_h_db", "p_l_db", "age_clip_s", "edge_height_m", "height_clip_m")
 
@@ -28,7 +30,7 @@ class TrackingConfig(Contract):
     model_config = ConfigDict(allow_inf_nan=False)
 
     p_t_db: float = Field(default=P_T_DB, description="SINR target P_T [dB]: a step at or above it is covered")
-    horizon: int = Field(default=300, ge=1, le=100_000, description="Steps per episode")
+    horizon: int = Field(300, ge=1, le=100_000, description="Tracking: steps per episode (0.4 s each)", json_schema_extra=STEPS)
     uav_speed_mps: float = Field(default=10.0, gt=0, le=100, description="UAV speed: one cell per cell side / speed seconds")
     window: int = Field(default=61, ge=3, description="Observation side in cells (odd), centred on the UAV")
     blind: bool = Field(default=False, description="No height channel; blocked cells shown as P_H in the SINR memory")
@@ -60,3 +62,19 @@ class TrackingConfig(Contract):
         """The placement ``EnvConfig`` whose canvases (height, blocked, padding) this task shares."""
         shared = {"p_t_db", *OBSERVATION_FIELDS} - {"age_clip_s"}
         return EnvConfig(**self.model_dump(include=shared), rotate=False)
+
+
+class MotionModel(Contract):
+    """The user's speeds [m/s] and the prior probability of each. The defaults are ``fit_motion`` of the tracking
+    task's training cities, trk-000 ... trk-003 (``tests/test_tracking.py`` holds them to it)."""
+
+    speeds_mps: tuple[float, ...] = Field(default=(1.4, 10.0), min_length=1, description="The speed classes [m/s]")
+    weights: tuple[float, ...] = Field(default=(0.5, 0.5), min_length=1, description="Prior probability of each")
+
+    @model_validator(mode="after")
+    def _check(self) -> MotionModel:
+        if len(self.speeds_mps) != len(self.weights) or min(self.speeds_mps) <= 0 or min(self.weights) <= 0:
+            raise ValueError("one positive weight per positive speed")
+        if abs(sum(self.weights) - 1) > 1e-6:
+            raise ValueError(f"the weights sum to {sum(self.weights):g}, not 1")
+        return self

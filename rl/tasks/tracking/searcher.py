@@ -24,35 +24,17 @@ route, the user's point or a map of the user (``tests/test_tracking.py`` scrambl
 from __future__ import annotations
 
 import numpy as np
-from pydantic import Field, model_validator
 from scipy import sparse
 
 from uavplace.dataset.bundle import Bundle
 from uavplace.rl.belief import CandidateMaps, posterior_cover
 from uavplace.rl.searcher import MapSearchPolicy
-from uavplace.rl.tasks.tracking.config import STAY
+from uavplace.rl.tasks.tracking.config import STAY, MotionModel
 from uavplace.rl.view import public_maps
-from uavplace.schemas.base import Contract
 from uavplace.schemas.constants import reaches_target
 
 #: The tracking searcher's name in tables.
 TRACKING_SEARCHER = "tracking searcher"
-
-
-class MotionModel(Contract):
-    """The user's speeds [m/s] and the prior probability of each. The defaults are ``fit_motion`` of the tracking
-    task's training cities, trk-000 ... trk-003 (``tests/test_tracking.py`` holds them to it)."""
-
-    speeds_mps: tuple[float, ...] = Field(default=(1.4, 10.0), min_length=1, description="The speed classes [m/s]")
-    weights: tuple[float, ...] = Field(default=(0.5, 0.5), min_length=1, description="Prior probability of each")
-
-    @model_validator(mode="after")
-    def _check(self) -> MotionModel:
-        if len(self.speeds_mps) != len(self.weights) or min(self.speeds_mps) <= 0 or min(self.weights) <= 0:
-            raise ValueError("one positive weight per positive speed")
-        if abs(sum(self.weights) - 1) > 1e-6:
-            raise ValueError(f"the weights sum to {sum(self.weights):g}, not 1")
-        return self
 
 
 def fit_motion(bundles: list[Bundle]) -> MotionModel:
