@@ -103,9 +103,12 @@ def read_ingested(city: str, root: str | Path = DEFAULT_ROOT) -> Ingested:
     with folder_lock(folder):
         manifest = read_city_manifest(folder / INGESTED_MANIFEST.name)
         if manifest.schema_version != SCHEMA_VERSION:
-            raise InputError(folder / INGESTED_MANIFEST.name, f"ingested with schema version {manifest.schema_version!r}, "
-                             f"this uavplace reads {SCHEMA_VERSION!r}: run `uavdata ingest` again",
-                             field="schema_version")  # fmt: skip
+            raise InputError(
+                folder / INGESTED_MANIFEST.name,
+                f"ingested with schema version {manifest.schema_version!r}, "
+                f"this uavplace reads {SCHEMA_VERSION!r}: run `uavdata ingest` again",
+                field="schema_version",
+            )
         files = {spec.name: spec.filename for spec in (RECEIVERS, TRANSMITTERS, BUILDINGS, BUILDING_PARTS, ROUTES)}
         files["terrain"] = "terrain.npz"
         hashes: dict[str, str] = {}
@@ -171,23 +174,29 @@ def rasterise_routes(ing: Ingested, config: BuildConfig, grid: GridSpec) -> tupl
     rgrid, arrays, points, *_ = rasterise(ing, config.model_copy(update={"role": None, "val_users": 0}))
     source = ing.folder / ROUTES.filename
     if rgrid != grid:
-        raise InputError(source, f"the route points' receivers span another grid ({rgrid.num_x} x {rgrid.num_y} cells) than "
-                         f"the users' ({grid.num_x} x {grid.num_y})", field="tx_point")  # fmt: skip
+        raise InputError(
+            source,
+            f"the route points' receivers span another grid ({rgrid.num_x} x {rgrid.num_y} cells) than "
+            f"the users' ({grid.num_x} x {grid.num_y})",
+            field="tx_point",
+        )
     index = pd.Series(np.arange(len(points)), index=pd.MultiIndex.from_frame(points[["tx_set_id", "tx_point"]].astype("int64")))
     routes = ing.routes.sort_values(["route", "order"], kind="stable").reset_index(drop=True)
     keys = pd.MultiIndex.from_frame(routes[["tx_set_id", "tx_point"]].astype("int64"))
     missing = ~keys.isin(index.index)
     if missing.any():
         k = int(np.argmax(missing))
-        raise InputError(source, f"route {routes['route'][k]} point {routes['order'][k]} (t{routes['tx_point'][k]:03d}_"
-                         f"{routes['tx_set_id'][k]:02d}) has no receivers at the altitude", field="tx_point")  # fmt: skip
+        raise InputError(
+            source,
+            f"route {routes['route'][k]} point {routes['order'][k]} (t{routes['tx_point'][k]:03d}_"
+            f"{routes['tx_set_id'][k]:02d}) has no receivers at the altitude",
+            field="tx_point",
+        )
     order = index.loc[keys].to_numpy()  # the rasterised map of each route point, in route order
     ix, iy, inside = cell_index(grid, routes["x_m"].to_numpy(), routes["y_m"].to_numpy())
-    table = pd.DataFrame({
-        "point": np.arange(len(routes)), "route": routes["route"], "order": routes["order"], "time_s": routes["time_s"],
-        "tx_set_id": routes["tx_set_id"], "tx_point": routes["tx_point"], "x_m": routes["x_m"], "y_m": routes["y_m"],
-        "ix": np.where(inside, ix, -1), "iy": np.where(inside, iy, -1), "kind": routes["kind"], "speed_mps": routes["speed_mps"],
-    })  # fmt: skip
+    where = {"ix": np.where(inside, ix, -1), "iy": np.where(inside, iy, -1)}
+    copied = _columns(routes, "route", "order", "time_s", "tx_set_id", "tx_point", "x_m", "y_m")
+    table = pd.DataFrame({"point": np.arange(len(routes)), **copied, **where, **_columns(routes, "kind", "speed_mps")})
     return {k: arrays[k][order] for k in ROUTE_ARRAYS}, table
 
 
@@ -210,6 +219,11 @@ def _receivers_at_altitude(ing: Ingested, config: BuildConfig) -> pd.DataFrame:
             field="z_m",
         )
     return rx.loc[keep].reset_index(drop=True)
+
+
+def _columns(frame: pd.DataFrame, *names: str) -> dict[str, pd.Series]:
+    """``frame``'s columns ``names``, in that order, as a table's columns are given to ``pd.DataFrame``."""
+    return {n: frame[n] for n in names}
 
 
 def _export_spacing(ing: Ingested, rx: pd.DataFrame) -> float | None:
@@ -432,23 +446,19 @@ def rasterise(
     ux, uy, uin = cell_index(
         grid, users["x_m"].to_numpy(dtype=float, na_value=np.nan), users["y_m"].to_numpy(dtype=float, na_value=np.nan)
     )
-    users_table = pd.DataFrame(
-        {
-            "user": np.arange(len(users)),
-            "tx_set_id": users["tx_set_id"],
-            "tx_point": users["tx_point"],
-            "x_m": users["x_m"],
-            "y_m": users["y_m"],
-            "z_m": users["z_m"],
-            "ix": ux,
-            "iy": uy,
-            "tx_power_dbm": tx_used,
-            "frequency_hz": users["frequency_hz"],
-            "split": _split(len(users), config),
-            "num_receivers": np.bincount(u[inside], minlength=len(users)),
-            "num_dead_cells": dead.reshape(len(users), -1).sum(axis=1),
-        }
-    )
+    tallies = {
+        "num_receivers": np.bincount(u[inside], minlength=len(users)),
+        "num_dead_cells": dead.reshape(len(users), -1).sum(axis=1),
+    }
+    placed = {
+        "ix": ux,
+        "iy": uy,
+        "tx_power_dbm": tx_used,
+        "frequency_hz": users["frequency_hz"],
+        "split": _split(len(users), config),
+    }
+    copied = _columns(users, "tx_set_id", "tx_point", "x_m", "y_m", "z_m")
+    users_table = pd.DataFrame({"user": np.arange(len(users)), **copied, **placed, **tallies})
     arrays = {
         "x_m": x_m,
         "y_m": y_m,

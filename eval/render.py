@@ -52,8 +52,13 @@ def group_rows(
     interval, the runs' range), then each difference against a reference (the references' own rows only with
     ``references_too``)."""
     refs = list(dict.fromkeys(differences["against"]))
-    header = ["group", "runs", "success", "median steps",
-              *(f"{label} - {ref}" for ref in refs for label in ("success", "median steps"))]  # fmt: skip
+    header = [
+        "group",
+        "runs",
+        "success",
+        "median steps",
+        *(f"{label} - {ref}" for ref in refs for label in ("success", "median steps")),
+    ]
     rows = [header]
     for group in (g for g in groups if references_too or g not in refs):
         cells = [group, ", ".join(groups[group])]
@@ -94,9 +99,11 @@ def _templates():  # noqa: ANN202 - a jinja2.Environment
     import jinja2
 
     return jinja2.Environment(
-        loader=jinja2.PackageLoader("uavplace.eval", "templates"), autoescape=True, undefined=jinja2.StrictUndefined,
+        loader=jinja2.PackageLoader("uavplace.eval", "templates"),
+        autoescape=True,
+        undefined=jinja2.StrictUndefined,
         keep_trailing_newline=True,
-    )  # fmt: skip
+    )
 
 
 def table_rows(table: pd.DataFrame, t_max: int) -> list[list[str]]:
@@ -133,29 +140,38 @@ figure{margin:1.5em 0}figcaption{font-size:14px;color:#333;max-width:1000px}
 pre{background:#f7f7f7;padding:8px;overflow-x:auto;font-size:12px}.prov td,.prov th{text-align:left;vertical-align:top}"""
 
 
-def render_section(config: ReportConfig, rows: list[list[str]], figures: dict[str, Figure | None], provenance: dict,
-                   first_figure: int = 1, diff_rows: list[list[str]] | None = None,
-                   group_rows: list[list[str]] | None = None) -> str:  # fmt: skip
+def render_section(
+    config: ReportConfig,
+    rows: list[list[str]],
+    figures: dict[str, Figure | None],
+    provenance: dict,
+    first_figure: int = 1,
+    diff_rows: list[list[str]] | None = None,
+    group_rows: list[list[str]] | None = None,
+) -> str:
     """One city's results (``templates/section.html.j2``): how the episodes were drawn, the table, the differences,
     then its captioned figures (those in ``figures``: the CDF, the training curves, the trajectories, numbered from
     ``first_figure``)."""
     p = provenance
     penalised = {n: a["config"].get("test_revisit_penalty", 0.0) for n, a in p["agents"].items()}
-    penalties = "; ".join(f"{n}: less {v:g} per earlier visit of the episode to the cell the move leads to"
-                          for n, v in penalised.items() if v)  # fmt: skip
+    penalties = "; ".join(
+        f"{n}: less {v:g} per earlier visit of the episode to the cell the move leads to" for n, v in penalised.items() if v
+    )
     city = p["test_city"]
-    alt = {"cdf": f"CDF of steps to P_T in {city}", "profile": f"performance profiles in {city}",
-           "training": "training curves", "trajectories": f"trajectories in {city}"}  # fmt: skip
+    alt = {
+        "cdf": f"CDF of steps to P_T in {city}",
+        "profile": f"performance profiles in {city}",
+        "training": "training curves",
+        "trajectories": f"trajectories in {city}",
+    }
     shown = [_figure(figures[key], first_figure + i, alt[key]) for i, key in enumerate(k for k in alt if k in figures)]
     headline, detail = split_columns(rows, HEADLINE_COLUMNS)
-    return _templates().get_template("section.html.j2").render(
-        city=p["test_city"], bundle=p["test_bundle"], maps=cell_sources_text(p["test_bundle_cells"]) if p.get("test_bundle_cells")
-        else None, episodes=config.episodes, t_max=config.t_max,
-        p_t=f"{config.p_t_db:g}", penalties=penalties, epsilon=f"{config.test_epsilon:g}", n_boot=config.n_boot,
-        users=p.get("users", "all"), paper_source=PAPER_SOURCE, rows=headline, detail_rows=detail, diff_rows=diff_rows,
-        group_rows=group_rows,
-        figures=shown,
-    )  # fmt: skip
+    maps = cell_sources_text(p["test_bundle_cells"]) if p.get("test_bundle_cells") else None
+    drawn = {"episodes": config.episodes, "t_max": config.t_max, "p_t": f"{config.p_t_db:g}", "penalties": penalties}
+    drawn |= {"epsilon": f"{config.test_epsilon:g}", "n_boot": config.n_boot, "users": p.get("users", "all")}
+    tables = {"rows": headline, "detail_rows": detail, "diff_rows": diff_rows, "group_rows": group_rows, "figures": shown}
+    section = _templates().get_template("section.html.j2")
+    return section.render(city=p["test_city"], bundle=p["test_bundle"], maps=maps, paper_source=PAPER_SOURCE, **drawn, **tables)
 
 
 def provenance_rows(provenances: list[dict]) -> list[list[str]]:
@@ -170,8 +186,13 @@ def provenance_rows(provenances: list[dict]) -> list[list[str]]:
     rows.append(["made", made])
     for p in provenances:
         c = p["test_bundle_config"]
-        rows.append([f"test city {p['test_city']}", f"bundle {p['test_bundle']}: grid {c.get('grid_m')} m, altitude "
-                     f"{c.get('altitude_m')} m, noise + interference {c.get('noise_dbm')} dBm, role {c.get('role')}"])  # fmt: skip
+        rows.append(
+            [
+                f"test city {p['test_city']}",
+                f"bundle {p['test_bundle']}: grid {c.get('grid_m')} m, altitude "
+                f"{c.get('altitude_m')} m, noise + interference {c.get('noise_dbm')} dBm, role {c.get('role')}",
+            ]
+        )
         if p.get("test_bundle_cells"):  # reports from before provenance lack it
             rows.append([f"test city {p['test_city']}: its maps", cell_sources_text(p["test_bundle_cells"])])
     for name, a in first["agents"].items():
@@ -179,10 +200,19 @@ def provenance_rows(provenances: list[dict]) -> list[list[str]]:
         selected = ", ".join(f"{k}@{v}" for k, v in (a.get("selected_on") or {}).items()) or "its training cities' held-out users"
         best = a["best_eval"] or {}
         members = a["config"].get("ensemble", 1)
-        chosen = (f"the mean of {members} runs' best.pt" if members > 1
-                  else f"best.pt from step {best.get('step')}" if best else "best.pt")  # fmt: skip
-        rows.append([f"agent {name}", f"{a['folder']}; {a['config']['total_steps']:,} steps; trained on {trained}; "
-                     f"selected on {selected}; {chosen}"])  # fmt: skip
+        chosen = (
+            f"the mean of {members} runs' best.pt"
+            if members > 1
+            else f"best.pt from step {best.get('step')}"
+            if best
+            else "best.pt"
+        )
+        rows.append(
+            [
+                f"agent {name}",
+                f"{a['folder']}; {a['config']['total_steps']:,} steps; trained on {trained}; selected on {selected}; {chosen}",
+            ]
+        )
         for i, cmd in enumerate(a["commands"] or ["(not recorded)"]):
             rows.append([f"agent {name}: command {i + 1}", cmd])
     return rows
@@ -255,13 +285,25 @@ def render_page(
     raw = provenances[0] if len(provenances) == 1 else provenances
     # One city: its report's time. Several: the page's own, when the last city was done (the first city's is earlier).
     made = provenances[0]["created_utc"] if summary is None else dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
-    return _templates().get_template("page.html.j2").render(
-        generator=GENERATOR, cities=", ".join(p["test_city"] for p in provenances), css=markupsafe.Markup(_CSS),
-        made=made, command=provenances[0]["command"], summary=summary, caption=caption, top=top,
-        top_figure=top.figure and _figure(top.figure, 1, "performance profiles, cities pooled"),
-        training=_figure(training, 2, "training curves"), sections=[markupsafe.Markup(s) for s in sections],
-        provenance=provenance_rows(provenances), raw=json.dumps(raw, indent=2),
-    )  # fmt: skip
+    return (
+        _templates()
+        .get_template("page.html.j2")
+        .render(
+            generator=GENERATOR,
+            cities=", ".join(p["test_city"] for p in provenances),
+            css=markupsafe.Markup(_CSS),
+            made=made,
+            command=provenances[0]["command"],
+            summary=summary,
+            caption=caption,
+            top=top,
+            top_figure=top.figure and _figure(top.figure, 1, "performance profiles, cities pooled"),
+            training=_figure(training, 2, "training curves"),
+            sections=[markupsafe.Markup(s) for s in sections],
+            provenance=provenance_rows(provenances),
+            raw=json.dumps(raw, indent=2),
+        )
+    )
 
 
 #: The marker of a report page: ``write_summary_page`` replaces only a page that carries it.
@@ -296,8 +338,9 @@ def write_summary_page(reports: list[Report], out: str | Path, t_max: int) -> tu
         number += len(figures)
     with tempfile.TemporaryDirectory() as tmp:
         top = across_top(reports, Path(tmp) / "profile.png")
-        page = render_page(sections, [r.provenance for r in reports], top, summary, reports[0].figures.get("training"),
-                           summary_caption(reports))  # fmt: skip
+        page = render_page(
+            sections, [r.provenance for r in reports], top, summary, reports[0].figures.get("training"), summary_caption(reports)
+        )
         atomic_write_bytes(out / "profile.png", top.figure.path.read_bytes())
     for name, text in (("report.html", page), ("summary.csv", summary_frame(reports).to_csv(index=False))):
         atomic_write_text(out / name, text)
@@ -315,9 +358,11 @@ def markdown_tables(reports: list[Report], t_max: int, top: Top | None = None) -
         parts.append(markdown_table(summary_rows(reports, t_max)))
     for r in reports:
         p = r.provenance
-        parts.append(f"**{p['test_city']}** ({r.config.episodes} episodes of {p.get('users', '?')} users, bundle "
-                     f"{p['test_bundle']}, t_max {r.config.t_max}, P_T {r.config.p_t_db:g} dB; 95 % intervals over users, "
-                     "then episodes)")  # fmt: skip
+        parts.append(
+            f"**{p['test_city']}** ({r.config.episodes} episodes of {p.get('users', '?')} users, bundle "
+            f"{p['test_bundle']}, t_max {r.config.t_max}, P_T {r.config.p_t_db:g} dB; 95 % intervals over users, "
+            "then episodes)"
+        )
         headline, detail = split_columns(r.rows, HEADLINE_COLUMNS)
         parts += [markdown_table(headline), f"The other statistics in {p['test_city']}, and the paper's numbers:"]
         parts.append(markdown_table(detail))
@@ -325,8 +370,10 @@ def markdown_tables(reports: list[Report], t_max: int, top: Top | None = None) -
             parts.append(f"Paired differences in {p['test_city']}, method minus reference (95 % intervals):")
             parts.append(markdown_table(r.diff_rows))
         if r.group_rows is not None:
-            parts.append(f"Groups of runs in {p['test_city']}: mean over runs [95 % interval over runs, users, episodes] "
-                         "(the runs' range), differences paired in users and episodes:")  # fmt: skip
+            parts.append(
+                f"Groups of runs in {p['test_city']}: mean over runs [95 % interval over runs, users, episodes] "
+                "(the runs' range), differences paired in users and episodes:"
+            )
             parts.append(markdown_table(r.group_rows))
     return "\n\n".join(parts) + "\n"
 

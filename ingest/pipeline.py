@@ -10,7 +10,6 @@
 
 from __future__ import annotations
 
-import datetime as dt
 from collections import defaultdict
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -34,6 +33,7 @@ from uavplace.ingest.wireless_insite.city import read_city, read_terrain
 from uavplace.ingest.wireless_insite.p2m import COHERENT_MARGIN_DB, POSITION_COLUMNS, P2MStream, antenna_gain_dbi, parse_filename
 from uavplace.ingest.wireless_insite.setup import read_setup
 from uavplace.ingest.wireless_insite.txrx import read_txrx
+from uavplace.ingest.written import made_by, write_tables
 from uavplace.schemas import (
     BUILDING_PARTS,
     BUILDINGS,
@@ -52,7 +52,6 @@ from uavplace.schemas import (
     TerrainInfo,
     TxRxSet,
 )
-from uavplace.schemas.base import uavplace_version
 from uavplace.schemas.provenance import RAY_TRACED, RECEIVER_CODES, SIDE_FILE_SUFFIX, UNREACHED, code_name
 
 if TYPE_CHECKING:
@@ -651,9 +650,7 @@ def ingest_city(
         receivers.check_codes_used()
         tables[RECEIVERS.name] = sha256_file(tmp / RECEIVERS.filename)
         written = [(TRANSMITTERS, transmitters), (BUILDINGS, buildings), (BUILDING_PARTS, parts)]
-        for spec, table in written + ([(ROUTES, routes)] if routes is not None else []):
-            pq.write_table(table, tmp / spec.filename, compression="zstd")
-            tables[spec.name] = sha256_file(tmp / spec.filename)
+        tables |= write_tables(tmp, written + ([(ROUTES, routes)] if routes is not None else []))
         if terrain_arrays is not None:
             np.savez_compressed(tmp / TERRAIN, vertices_m=terrain_arrays[0], triangles=terrain_arrays[1])
             tables["terrain"] = sha256_file(tmp / TERRAIN)
@@ -661,11 +658,7 @@ def ingest_city(
             city=city, files=tuple(reports[f.rel] for f in files), rejections=tuple(rejections), warnings=tuple(warnings)
         )
         manifest = CityManifest(
-            name=city,
-            created_utc=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
-            uavplace_version=uavplace_version(),
-            command=command,
-            source_dir=str(folder),
+            **made_by(city, command, folder),
             origin=origin,
             frequency_hz=freqs[0] if len(freqs) == 1 else None,
             tx_power_dbm=powers,

@@ -13,7 +13,6 @@ quantisation.
 from __future__ import annotations
 
 import csv
-import datetime as dt
 import io
 import json
 from dataclasses import dataclass
@@ -21,13 +20,12 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.parquet as pq
 import shapely
 
 from uavplace.infra.files import atomic_directory, read_small_file, sha256_file, write_model_json
 from uavplace.ingest.buildings import BuildingRecord, Part, buildings_tables
+from uavplace.ingest.written import made_by, write_tables
 from uavplace.schemas import BUILDING_PARTS, BUILDINGS, RECEIVERS, TRANSMITTERS, CityManifest, InputError
-from uavplace.schemas.base import uavplace_version
 from uavplace.schemas.city import FileReport, IngestReport, SourceFile
 from uavplace.schemas.provenance import NOT_RECORDED, RECEIVER_CODES, UNREACHED, code_name
 
@@ -107,8 +105,9 @@ def read_folder(folder: str | Path) -> RadioMapFolder:
     if scale.get("format") != RADIOMAPSEER:
         raise InputError(folder / "scale.json", f"format {scale.get('format')!r}, expected {RADIOMAPSEER}", field="format")
     if not (min(shape) > 0 and float(grid["spacing_m"]) > 0 and step > 0):
-        raise InputError(folder / "scale.json", "the grid needs cells and a positive spacing, the SINR a positive step",
-                         field="grid")  # fmt: skip
+        raise InputError(
+            folder / "scale.json", "the grid needs cells and a positive spacing, the SINR a positive step", field="grid"
+        )
     files = [folder / "scale.json", folder / "png/buildings_complete" / f"{city}.png", folder / "png/heights" / f"{city}.png"]
     blocked = np.flipud(_image(files[1], shape, np.uint8)) > 127
     ground = np.flipud(_image(files[2], shape, np.int64)) / 100.0
@@ -121,8 +120,7 @@ def read_folder(folder: str | Path) -> RadioMapFolder:
             u, r, c = int(row["user"]), int(row["row"]), int(row["col"])
             x, y = float(row["x_m"]), float(row["y_m"])
         except (KeyError, TypeError, ValueError):
-            raise InputError(users_csv, "user, row and col must be integers, x_m and y_m numbers", line=k,
-                             field="user") from None  # fmt: skip
+            raise InputError(users_csv, "user, row and col must be integers, x_m and y_m numbers", line=k, field="user") from None
         if not (0 <= r < shape[0] and 0 <= c < shape[1]):
             raise InputError(users_csv, f"pixel ({r}, {c}) is off the {shape[1]} x {shape[0]} grid", line=k, field="row")
         if u in ids:
@@ -134,8 +132,21 @@ def read_folder(folder: str | Path) -> RadioMapFolder:
         positions.append((x, y))
     if not ids:
         raise InputError(users_csv, "no user", field="user")
-    return RadioMapFolder(city, str(scale.get("bundle_version", "")), settings, grid, floor, step, blocked, ground, ids,
-                          np.array(cells, np.int64), np.array(positions, np.float64), np.stack(codes), files)  # fmt: skip
+    return RadioMapFolder(
+        city,
+        str(scale.get("bundle_version", "")),
+        settings,
+        grid,
+        floor,
+        step,
+        blocked,
+        ground,
+        ids,
+        np.array(cells, np.int64),
+        np.array(positions, np.float64),
+        np.stack(codes),
+        files,
+    )
 
 
 def _buildings(m: RadioMapFolder, source: str) -> list[BuildingRecord]:
@@ -162,11 +173,17 @@ def _receivers(m: RadioMapFolder) -> pa.Table:
         sinr, dead = decode_sinr(codes.ravel(), m.floor_db, m.step_db)
         n = len(sinr)
         given = {
-            "tx_set_id": np.ones(n, np.int32), "tx_point": np.full(n, point, np.int32), "rx_set_id": np.ones(n, np.int32),
-            "rx_index": np.arange(1, n + 1, dtype=np.int32), "x_m": x, "y_m": y,
-            "z_m": np.full(n, float(m.settings["altitude_m"])), "sinr_db": np.where(dead, np.nan, sinr.astype(np.float64)),
-            "reached": ~dead, "provenance": np.where(dead, UNREACHED, NOT_RECORDED).astype(np.uint8),
-        }  # fmt: skip
+            "tx_set_id": np.ones(n, np.int32),
+            "tx_point": np.full(n, point, np.int32),
+            "rx_set_id": np.ones(n, np.int32),
+            "rx_index": np.arange(1, n + 1, dtype=np.int32),
+            "x_m": x,
+            "y_m": y,
+            "z_m": np.full(n, float(m.settings["altitude_m"])),
+            "sinr_db": np.where(dead, np.nan, sinr.astype(np.float64)),
+            "reached": ~dead,
+            "provenance": np.where(dead, UNREACHED, NOT_RECORDED).astype(np.uint8),
+        }
         for c in RECEIVERS.columns:
             columns[c.name].append(given.get(c.name, np.full(n, np.nan)))
     arrays = {}
@@ -180,12 +197,20 @@ def _transmitters(m: RadioMapFolder, source: str) -> pa.Table:
     n = len(m.user_ids)
     power, freq = m.settings.get("tx_power_dbm"), m.settings.get("frequency_hz")
     values = {
-        "tx_set_id": [1] * n, "tx_point": list(range(1, n + 1)), "set_name": [f"user {u}" for u in m.user_ids],
-        "x_m": m.positions_m[:, 0].tolist(), "y_m": m.positions_m[:, 1].tolist(), "z_m": [USER_HEIGHT_M] * n,
-        "power_dbm": [power] * n, "frequency_hz": [freq] * n, "antenna": [None] * n, "source": [source] * n,
-    }  # fmt: skip
-    return pa.table({c.name: pa.array(values[c.name], type=c.type) for c in TRANSMITTERS.columns},
-                    schema=TRANSMITTERS.arrow_schema())  # fmt: skip
+        "tx_set_id": [1] * n,
+        "tx_point": list(range(1, n + 1)),
+        "set_name": [f"user {u}" for u in m.user_ids],
+        "x_m": m.positions_m[:, 0].tolist(),
+        "y_m": m.positions_m[:, 1].tolist(),
+        "z_m": [USER_HEIGHT_M] * n,
+        "power_dbm": [power] * n,
+        "frequency_hz": [freq] * n,
+        "antenna": [None] * n,
+        "source": [source] * n,
+    }
+    return pa.table(
+        {c.name: pa.array(values[c.name], type=c.type) for c in TRANSMITTERS.columns}, schema=TRANSMITTERS.arrow_schema()
+    )
 
 
 def ingest_radiomapseer(
@@ -206,24 +231,36 @@ def ingest_radiomapseer(
     reports = tuple(FileReport(path=r, kind="radiomapseer", status="parsed") for r in rel.values())
     report = IngestReport(city=city, files=reports, rejections=tuple(rejected), warnings=())
     with atomic_directory(out_dir, marker=manifest_json, what="ingested city") as tmp:
-        tables = {}
-        for spec, table in ((RECEIVERS, receivers), (TRANSMITTERS, transmitters), (BUILDINGS, buildings),
-                            (BUILDING_PARTS, parts)):  # fmt: skip
-            pq.write_table(table, tmp / spec.filename, compression="zstd")
-            tables[spec.name] = sha256_file(tmp / spec.filename)
+        tables = write_tables(
+            tmp, [(RECEIVERS, receivers), (TRANSMITTERS, transmitters), (BUILDINGS, buildings), (BUILDING_PARTS, parts)]
+        )
         freq, power = m.settings.get("frequency_hz"), m.settings.get("tx_power_dbm")
         manifest = CityManifest(
-            name=city, created_utc=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"), uavplace_version=uavplace_version(),
-            command=command, source_dir=str(folder), frequency_hz=freq, tx_power_dbm=() if power is None else (float(power),),
-            counts={"files": len(m.files), "files_parsed": len(m.files), "files_skipped": 0, "files_unknown": 0,
-                    "transmitters": len(m.user_ids), "receiver_sets": 1, "receiver_rows": receivers.num_rows,
-                    "receiver_rows_reached": reached, **by_code, "buildings": buildings.num_rows,
-                    "building_parts": parts.num_rows, "terrain_triangles": 0, "rows_rejected": report.rows_rejected,
-                    "route_points": 0},
-            sources=tuple(SourceFile(path=rel[p], sha256=sha256_file(p), size_bytes=p.stat().st_size, kind="radiomapseer",
-                                     status="parsed") for p in m.files),
+            **made_by(city, command, folder),
+            frequency_hz=freq,
+            tx_power_dbm=() if power is None else (float(power),),
+            counts={
+                "files": len(m.files),
+                "files_parsed": len(m.files),
+                "files_skipped": 0,
+                "files_unknown": 0,
+                "transmitters": len(m.user_ids),
+                "receiver_sets": 1,
+                "receiver_rows": receivers.num_rows,
+                "receiver_rows_reached": reached,
+                **by_code,
+                "buildings": buildings.num_rows,
+                "building_parts": parts.num_rows,
+                "terrain_triangles": 0,
+                "rows_rejected": report.rows_rejected,
+                "route_points": 0,
+            },
+            sources=tuple(
+                SourceFile(path=rel[p], sha256=sha256_file(p), size_bytes=p.stat().st_size, kind="radiomapseer", status="parsed")
+                for p in m.files
+            ),
             tables=tables,
-        )  # fmt: skip
+        )
         write_model_json(manifest, tmp / manifest_json)
         write_model_json(report, tmp / report_json)
     return manifest, report
