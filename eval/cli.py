@@ -264,9 +264,13 @@ def predictor_or_none(text: str) -> str | None:
     return None if text.lower() == "none" else text
 
 
+#: The settings every task's report takes from the command line as they are (its config's fields of the same names).
+SHARED_SETTINGS = ("episodes", "seed", "test_epsilon", "n_boot")
+
+
 def report_settings(runs: list[Path], v: dict[str, Any]) -> dict:
     """The settings the placement and tracking reports' configs share, from the command line's values ``v``."""
-    shared = {k: v[k] for k in ("episodes", "seed", "test_epsilon", "n_boot", "trajectories")}
+    shared = {k: v[k] for k in (*SHARED_SETTINGS, "trajectories")}
     return {"runs": [str(r) for r in runs], **shared, "predictor": predictor_or_none(v["predictor"])}
 
 
@@ -375,7 +379,7 @@ def _fleet_report(v: dict[str, Any], after: contextlib.ExitStack) -> None:
     _check_training_settings(runs, v["datasets"], v["p_t_db"], v["root"], v["strict"])
     t_max, uavs, users = v["t_max"], v["uavs"], v["users"]
     task = FleetConfig(uavs=uavs, users=users, t_max=t_max, p_t_db=v["p_t_db"])
-    shared = {k: v[k] for k in ("test_epsilon", "episodes", "seed", "n_boot")}
+    shared = {k: v[k] for k in SHARED_SETTINGS}
     config = FleetReportConfig(
         datasets=list(v["datasets"]),
         runs=[str(r) for r in runs],
