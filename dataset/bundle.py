@@ -150,9 +150,10 @@ def read_latest(city: str, root: str | Path = DEFAULT_ROOT) -> str | None:
         return None
     if not _VERSION.fullmatch(text):
         raise InputError(
-            path, f"{text[:40]!r} is not a bundle version (12 hex digits): run `uavdata build --city {city}` again",
+            path,
+            f"{text[:40]!r} is not a bundle version (12 hex digits): run `uavdata build --city {city}` again",
             field=LATEST,
-        )  # fmt: skip
+        )
     return text
 
 
@@ -326,17 +327,23 @@ def check_cells(path: Path, arrays: dict[str, np.ndarray]) -> None:
         k = int(np.argmax(outside))
         raise InputError(path, f"row {k}: user {user[k]}, cell ({iy[k]}, {ix[k]}) is not in maps.npz", field="user")
     expected = {
-        "sinr_db": arrays["sinr_db"][user, iy, ix], "dead": arrays["dead"][user, iy, ix],
-        "provenance": arrays["provenance"][user, iy, ix], "blocked": arrays["blocked"][iy, ix], "height_rel_m": arrays["height_rel_m"][iy, ix],
-    }  # fmt: skip
+        "sinr_db": arrays["sinr_db"][user, iy, ix],
+        "dead": arrays["dead"][user, iy, ix],
+        "provenance": arrays["provenance"][user, iy, ix],
+        "blocked": arrays["blocked"][iy, ix],
+        "height_rel_m": arrays["height_rel_m"][iy, ix],
+    }
     for name, want in expected.items():
         got = table.column(name).to_numpy(zero_copy_only=False)
         bad = got != want
         if bad.any():
             k = int(np.argmax(bad))
-            raise InputError(path, f"row {k} (user {user[k]}, cell ({iy[k]}, {ix[k]})): {got[k]}, but maps.npz holds "
-                             f"{want[k]}: the bundle's two copies disagree; rebuild it (`uavdata build --force`)",
-                             field=name)  # fmt: skip
+            raise InputError(
+                path,
+                f"row {k} (user {user[k]}, cell ({iy[k]}, {ix[k]})): {got[k]}, but maps.npz holds "
+                f"{want[k]}: the bundle's two copies disagree; rebuild it (`uavdata build --force`)",
+                field=name,
+            )
 
 
 def check_identity(folder: Path, manifest: BundleManifest) -> None:
@@ -352,9 +359,11 @@ def check_identity(folder: Path, manifest: BundleManifest) -> None:
     expected = bundle_version(manifest.inputs, manifest.config)
     if expected != manifest.version:
         raise InputError(
-            path, f"version {manifest.version} is not the hash of its inputs and config ({expected}): the manifest was "
-            "edited after the build", field="version",
-        )  # fmt: skip
+            path,
+            f"version {manifest.version} is not the hash of its inputs and config ({expected}): the manifest was "
+            "edited after the build",
+            field="version",
+        )
 
 
 def expected_shapes(manifest: BundleManifest) -> dict[str, tuple[int, ...]]:
@@ -382,9 +391,11 @@ def read_arrays(path: Path, shapes: dict[str, tuple[int, ...]], dtypes: dict[str
                     got_shape, fortran, got_dtype = reader(f)
                     if got_shape != shape or got_dtype != dtype or fortran:
                         raise InputError(
-                            path, f"array {got_dtype}{list(got_shape)}{' (Fortran order)' if fortran else ''}, expected "
-                            f"{dtype}{list(shape)}", field=name,
-                        )  # fmt: skip
+                            path,
+                            f"array {got_dtype}{list(got_shape)}{' (Fortran order)' if fortran else ''}, expected "
+                            f"{dtype}{list(shape)}",
+                            field=name,
+                        )
                     check_limit("array_bytes", dtype.itemsize * int(np.prod(shape)), path, "array size [bytes]", field=name)
                     f.seek(0)
                     arrays[name] = np.lib.format.read_array(f, allow_pickle=False)
@@ -422,8 +433,11 @@ def check_values(path: Path, manifest: BundleManifest, arrays: dict[str, np.ndar
     buildings = manifest.counts.get("buildings")
     ids = arrays["building_id"]
     if (ids < -1).any() or (buildings is not None and (ids >= buildings).any()):
-        raise InputError(path, f"building id outside -1 .. {buildings - 1 if buildings is not None else 'n'} (the manifest's "
-                         f"{buildings} buildings)", field="building_id")  # fmt: skip
+        raise InputError(
+            path,
+            f"building id outside -1 .. {buildings - 1 if buildings is not None else 'n'} (the manifest's {buildings} buildings)",
+            field="building_id",
+        )
     if arrays["blocked"].all():
         raise InputError(path, "every cell is blocked: the UAV has nowhere to fly", field="blocked")
     for a in arrays.values():
@@ -441,11 +455,19 @@ def check_provenance(path: Path, provenance: np.ndarray, dead: np.ndarray, num_r
         where = tuple(int(i) for i in np.unravel_index(int(np.argmax(wrong)), wrong.shape))
         code = int(provenance[where])
         if code not in CODES:
-            raise InputError(path, f"cell {list(where)}: {code} is not a provenance code (0 .. {max(CODES)}: "
-                             "schemas/provenance.py)", field="provenance")  # fmt: skip
-        raise InputError(path, f"cell {list(where)}: code {code} ({code_name(code)}) but the cell is "
-                         f"{'dead' if dead[where] else 'live'}" + ("" if num_rx is None else f" with {num_rx[where]} "
-                         "receiver(s)") + ": the provenance disagrees with the maps", field="provenance")  # fmt: skip
+            raise InputError(
+                path,
+                f"cell {list(where)}: {code} is not a provenance code (0 .. {max(CODES)}: schemas/provenance.py)",
+                field="provenance",
+            )
+        raise InputError(
+            path,
+            f"cell {list(where)}: code {code} ({code_name(code)}) but the cell is "
+            f"{'dead' if dead[where] else 'live'}"
+            + ("" if num_rx is None else f" with {num_rx[where]} receiver(s)")
+            + ": the provenance disagrees with the maps",
+            field="provenance",
+        )
 
 
 def check_users(path: Path, manifest: BundleManifest, users: pd.DataFrame) -> None:
@@ -466,8 +488,12 @@ def check_users(path: Path, manifest: BundleManifest, users: pd.DataFrame) -> No
     wrong = (users["ix"].to_numpy() != expect_x) | (users["iy"].to_numpy() != expect_y)
     if wrong.any():
         row = int(np.argmax(wrong))
-        raise InputError(path, f"row {row}: position ({x[row]:g}, {y[row]:g}) m is not in its cell ({users['ix'].iloc[row]}, "
-                         f"{users['iy'].iloc[row]}) of the grid", field="x_m")  # fmt: skip
+        raise InputError(
+            path,
+            f"row {row}: position ({x[row]:g}, {y[row]:g}) m is not in its cell ({users['ix'].iloc[row]}, "
+            f"{users['iy'].iloc[row]}) of the grid",
+            field="x_m",
+        )
     splits = set(users["split"].dropna())
     if not splits <= {"train", "val", "test"}:
         raise InputError(path, f"unknown splits {sorted(splits - {'train', 'val', 'test'})}", field="split")

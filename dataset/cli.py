@@ -14,7 +14,6 @@ from rich.markup import escape
 from uavplace.dataset.catalog import ROLES_FILE, list_cities
 from uavplace.infra.console import (
     Bounds,
-    Metres,
     command_line,
     console,
     fail,
@@ -28,7 +27,7 @@ from uavplace.infra.files import check_name
 from uavplace.infra.options import model_options
 from uavplace.schemas import InputError
 from uavplace.schemas.base import validation_message
-from uavplace.schemas.bundle import BuildConfig
+from uavplace.schemas.bundle import BuildConfig, CityRoles
 
 
 def _splits(values: tuple[str, ...]) -> dict[str, str | None]:
@@ -64,13 +63,14 @@ def _say_built(out, name: str, result) -> None:  # noqa: ANN001 - a rich Console
 
 
 @click.command()
-@click.option(
-    "--grid",
+@model_options(
+    BuildConfig,
     "grid_m",
-    type=Metres(),
-    default=None,
-    help="Grid spacing of the maps (e.g. 4m)  [default: each city's receiver-grid spacing from its .txrx; a city "
-    "of point receivers, or of grids of several spacings, needs it given].",
+    names={"grid_m": "--grid"},
+    unset={
+        "grid_m": "each city's receiver-grid spacing from its .txrx; a city of point receivers, or of grids of "
+        "several spacings, needs it given"
+    },
 )
 @model_options(BuildConfig, "altitude_m", "altitude_tol_m", names={"altitude_m": "--alt", "altitude_tol_m": "--alt-tol"})
 @click.option("--city", "cities", multiple=True, help="Build only this ingested city (repeatable; default: all).")
@@ -103,13 +103,7 @@ def _say_built(out, name: str, result) -> None:  # noqa: ANN001 - a rich Console
     "val_users; schemas/bundle.py, CityRoles; the embedded cities': data/raw/cities.toml). Applied to the cities "
     "built; --split, --crop-city and --val-users override it. Skipped when the default file is absent.",
 )
-@click.option(
-    "--val-users",
-    type=click.IntRange(min=0),
-    default=None,
-    help="Users of each train city held out for validation (seeded)  [default: the roles file's val_users for the "
-    "train cities it lists, else 0].",
-)
+@model_options(CityRoles, "val_users", unset={"val_users": "the roles file's val_users for the train cities it lists, else 0"})
 @model_options(BuildConfig, "seed", "p_t_db")
 @click.option("--force", is_flag=True, help="Rebuild even if an identical bundle exists.")
 @root_option

@@ -4,16 +4,15 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import click
 
-from uavplace.eval.config import ReportConfig, TrackingReportConfig
+from uavplace.eval.config import PeerConfig, ReportConfig, TrackingReportConfig
 from uavplace.infra.cluster import start_ray
 from uavplace.infra.console import (
-    SEED,
-    Counted,
     Finite,
     LogLines,
     command_line,
@@ -30,7 +29,9 @@ from uavplace.infra.console import (
 from uavplace.infra.files import exclusive_folder, shipped
 from uavplace.infra.options import model_options
 from uavplace.rl.cli import episode_options
+from uavplace.rl.config import EpisodeSettings
 from uavplace.rl.tasks.fleet.config import FleetConfig
+from uavplace.rl.tasks.registry import TASKS
 from uavplace.rl.tasks.tracking.config import TrackingConfig
 from uavplace.schemas.base import repeated
 
@@ -84,7 +85,7 @@ from uavplace.schemas.base import repeated
 )
 @click.option(
     "--task",
-    type=click.Choice(["placement", "tracking", "fleet"]),
+    type=click.Choice(list(TASKS)),
     default="placement",
     show_default=True,
     help="placement: the paper's task (a user who stays); tracking: a user who moves along the routes of the cities "
@@ -150,6 +151,7 @@ def report(**v: Any) -> None:
     from uavplace.infra.files import check_replaceable_file
     from uavplace.infra.limits import check_limit
 
+    task = TASK_REPORTS[v["task"]]
     cities = [d.split("@")[0] for d in v["datasets"]]
     twice = repeated(cities)
     if twice:  # one folder, table and summary row per city: two versions of one city would overwrite each other
@@ -165,16 +167,16 @@ def report(**v: Any) -> None:
     if not v["datasets"]:  # the release's cities: those built with the test role
         from uavplace.eval.cities import release_cities
 
-        v["datasets"] = tuple(release_cities(v["root"], routes=v["task"] == "tracking"))
-    budget, option = (v["horizon"], "--horizon") if v["task"] == "tracking" else (v["t_max"], "--t-max")
-    check_limit("episode_steps", v["episodes"] * budget, None, f"--episodes x {option}", field="episodes")
-    if v["task"] != "placement" and (v["groups"] or v["split"]):
+        v["datasets"] = tuple(release_cities(v["root"], routes=task.routes))
+    budget, option = task.budget
+    check_limit("episode_steps", v["episodes"] * v[budget], None, f"--episodes x {option}", field="episodes")
+    if not task.selects_users and (v["groups"] or v["split"]):
         raise click.UsageError(f"--task {v['task']} plays every user and route of the cities: it takes no --group or --split")
     # One report into a folder at a time: a second one of the same folder, even of other agents, is refused at once
     # (both would publish, the last one winning, and both would say they wrote it).
-    target = v["out"] or Path("reports") / ("" if v["task"] == "placement" else v["task"])
+    target = v["out"] or Path("reports") / task.folder
     with exclusive_folder(target, "report", kind="job"), contextlib.ExitStack() as after:
-        TASK_REPORTS[v["task"]](v, after)
+        task.play(v, after)
 
 
 def _placement_report(v: dict[str, Any], after: contextlib.ExitStack) -> None:
@@ -428,7 +430,28 @@ def _say_written(markdown: Path | None, page: Path, tables: Path) -> None:
 
 
 #: ``uavrl report --task``: each task's report.
-TASK_REPORTS = {"placement": _placement_report, "tracking": _tracking_report, "fleet": _fleet_report}
+@dataclass(frozen=True)
+class TaskReport:
+    """How ``uavrl report --task NAME`` plays one task (``TASK_REPORTS``)."""
+
+    #: The report: its settings (the command's values by name) and the stack its cleanups go on.
+    play: Callable[[dict[str, Any], contextlib.ExitStack], None]
+    #: Whether its cities need routes (the default cities: the test cities with routes).
+    routes: bool
+    #: The setting that bounds an episode's steps, and its option.
+    budget: tuple[str, str]
+    #: Its default folder under reports/ ("": reports/ itself).
+    folder: str
+    #: Whether it takes --group and --split (the others play every user and route of the cities).
+    selects_users: bool
+
+
+#: Each task's report (``rl.tasks.registry.TASKS`` names the same tasks).
+TASK_REPORTS = {
+    "placement": TaskReport(_placement_report, False, ("t_max", "--t-max"), "", True),
+    "tracking": TaskReport(_tracking_report, True, ("horizon", "--horizon"), "tracking", False),
+    "fleet": TaskReport(_fleet_report, False, ("t_max", "--t-max"), "fleet", False),
+}
 
 
 def _one_report(config, out: Path, root: Path, quiet: bool, city: tuple[int, int] = (1, 1), parallel: bool = False):
@@ -550,14 +573,7 @@ def validation_options(command):  # noqa: ANN001, ANN201 - a click command
     that compare runs on the validation cities (``levers``, ``peer table``)."""
     options = (
         click.option("--city", "cities", multiple=True, help="City to play (repeatable; default: every built validation city)."),
-        click.option(
-            "--episodes",
-            type=Counted("episodes"),
-            default=1000,
-            show_default=True,
-            help="Episodes a city, the same for every method.",
-        ),
-        click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the episodes and of every random move."),
+        model_options(EpisodeSettings, "episodes", "seed"),
     )
     for option in reversed(options):
         command = option(command)
@@ -620,14 +636,7 @@ def peer() -> None:
     help="A finished `best` run whose wall time is the peer's budget of CPU seconds (of this process, on the threads "
     "OMP_NUM_THREADS allows).",
 )
-@click.option("--cpu-seconds", type=Finite(min=1), default=None, help="The budget of CPU seconds (instead of --match).")
-@click.option(
-    "--max-steps",
-    type=Counted("train_steps"),
-    default=3_000_000,
-    show_default=True,
-    help="Env steps at most (SB3's schedules anneal over them).",
-)
+@model_options(PeerConfig, "cpu_seconds", "max_steps")
 @click.option(
     "--dataset",
     "datasets",
@@ -636,8 +645,7 @@ def peer() -> None:
     show_default=True,
     help="Training city or corpus (repeatable): their training users, as a `best` run's.",
 )
-@click.option("--n-envs", type=click.IntRange(1, 64), default=8, show_default=True, help="Envs SB3 steps side by side.")
-@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of SB3's model and envs.")
+@model_options(PeerConfig, "n_envs", "seed")
 @root_option
 def peer_train(
     algo: str,

@@ -99,3 +99,20 @@ class FleetReportConfig(Contract):
         default=str(DEFAULT_PREDICTOR),
         description="The fleet searcher's predictor (rl.belief.load_predictor); None: no searcher",
     )
+
+
+class PeerConfig(Contract):
+    """A peer's training budget and settings (`uavrl peer train`, eval/peer.py: Stable-Baselines3 on the shipped
+    agents' cities)."""
+
+    model_config = ConfigDict(allow_inf_nan=False)
+
+    cpu_seconds: float | None = Field(default=None, ge=1, description="The budget of CPU seconds (instead of --match).")
+    max_steps: int = Field(
+        default=3_000_000,
+        ge=1,
+        description="Env steps at most (SB3's schedules anneal over them).",
+        json_schema_extra={"limit": "train_steps"},
+    )
+    n_envs: int = Field(default=8, ge=1, le=64, description="Envs SB3 steps side by side.")
+    seed: int = Field(default=0, ge=0, le=MAX_SEED, description="Seed of SB3's model and envs.")

@@ -26,6 +26,7 @@ from uavplace.rl.maps import MapSet
 from uavplace.rl.policies import GeniePolicy, GreedyPolicy, Policy, RandomWalkPolicy
 from uavplace.rl.rollout import run_episodes
 from uavplace.rl.searcher import SEARCHER, MapSearchPolicy
+from uavplace.rl.tasks.registry import TASKS
 from uavplace.rl.view import PublicMaps
 from uavplace.schemas import InputError
 from uavplace.schemas.bundle import BundleManifest
@@ -72,7 +73,8 @@ def agent_name(config: DQNConfig) -> str:
     learner = "PQN" if config.learner == "pqn" else "DQN"
     core = " + GRU" if config.recurrent else ""
     members = f" x {config.ensemble}" if config.ensemble > 1 else ""
-    task = "" if config.task == "placement" else f", {config.task}"
+    tag = TASKS[config.task].tag
+    task = f", {tag}" if tag else ""
     return f"{'' if config.agent == 'dqn' else 'blind '}{learner}{core}{members} ({config.preset}{task})"
 
 
@@ -100,8 +102,7 @@ def load_agent(folder: str | Path, epsilon: float, seed: int, task: str | None =
             field="config",
         )
     if task is not None and config.task != task:
-        how = "`uavrl report --task tracking`" if config.task == "tracking" else "a placement report"
-        raise InputError(folder, f"a {config.task} agent, not a {task} one: {how} plays it", field="task")
+        raise InputError(folder, f"a {config.task} agent, not a {task} one: {TASKS[config.task].report} plays it", field="task")
     policy.name = agent_name(config)
     metrics = None
     if (folder / "metrics.parquet").is_file():

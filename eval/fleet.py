@@ -56,6 +56,11 @@ ORACLE = "oracle"
 DEFAULT_AGENT = "best"
 
 
+#: The agents' tasks the fleet report plays, each with the prefix of its name in the tables (None: the placement
+#: agent's, the UAVs playing it independently; "": a fleet-trained agent's name says it, PQN + GRU (best, fleet)).
+_FLEET_PREFIX: dict[str, str | None] = {"placement": None, "fleet": ""}
+
+
 def fleet_results(
     config: FleetReportConfig, bundle: Bundle, root: Path, on_progress: Callable[[str], None] | None = None
 ) -> dict[str, pd.DataFrame]:
@@ -69,9 +74,11 @@ def fleet_results(
         policies.append(FleetSearcher(load_predictor(config.predictor), None, cache).bind(maps))
     for run in config.runs:
         agent = load_agent(run, config.test_epsilon, config.seed, task=None)
-        if agent.config.task == "tracking":
-            raise InputError(run, "a tracking agent: the fleet plays placement agents and fleet-trained ones", field="task")
-        prefix = "" if agent.config.task == "fleet" else None  # its name says it: PQN + GRU (best, fleet)
+        if agent.config.task not in _FLEET_PREFIX:
+            raise InputError(
+                run, f"a {agent.config.task} agent: the fleet plays placement agents and fleet-trained ones", field="task"
+            )
+        prefix = _FLEET_PREFIX[agent.config.task]
         policies.append(
             FleetPlacement(agent.policy, agent.config.env_config(evaluation=True), agent.name, prefix=prefix).bind(maps)
         )

@@ -29,7 +29,8 @@ import pandas as pd
 from uavplace.infra.console import markdown_table
 from uavplace.ingest.pipeline import ingest_city
 from uavplace.schemas.provenance import RAY_TRACED
-from uavplace.simulate.pipeline import SimulationSpec, load_geometry, open_cells, receiver_grid
+from uavplace.simulate.config import SimulationSpec
+from uavplace.simulate.pipeline import load_geometry, open_cells, receiver_grid
 
 
 def receivers(folder: Path, tmp: Path) -> pd.DataFrame:

@@ -27,11 +27,11 @@ import numpy as np
 
 from uavplace.ingest.wireless_insite.p2m import read_p2m
 from uavplace.schemas.provenance import EXACT_PATHS, NOT_RECORDED, SIDE_FILE_SUFFIX, UNREACHED, code_name
+from uavplace.simulate.config import SimulationSpec
 from uavplace.simulate.insite import write_provenance
 from uavplace.simulate.pipeline import (
     GRID_SET,
     PROVENANCE,
-    SimulationSpec,
     as_written,
     load_geometry,
     open_cells,

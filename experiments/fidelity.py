@@ -35,9 +35,9 @@ from pathlib import Path
 
 import numpy as np
 
+from uavplace.simulate.config import SimulationSpec
 from uavplace.simulate.fidelity import fill_scores
 from uavplace.simulate.pipeline import (
-    SimulationSpec,
     direct_maps,
     load_geometry,
     map_quality,

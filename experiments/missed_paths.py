@@ -19,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from uavplace.simulate.pipeline import SimulationSpec, load_geometry, open_cells, place_users, receiver_grid
+from uavplace.simulate.config import SimulationSpec
+from uavplace.simulate.pipeline import load_geometry, open_cells, place_users, receiver_grid
 from uavplace.simulate.raytrace import PATHS_PER_POINT, RayTraceConfig, _scene, _set_users
 from uavplace.simulate.scene import write_scene
 

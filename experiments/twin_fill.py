@@ -32,8 +32,9 @@ from pathlib import Path
 import numpy as np
 
 from uavplace.ingest.wireless_insite.p2m import read_p2m
+from uavplace.simulate.config import SimulationSpec
 from uavplace.simulate.fidelity import error_quantiles, fill_scores
-from uavplace.simulate.pipeline import SimulationSpec, load_geometry, open_cells, receiver_grid, squared_distances
+from uavplace.simulate.pipeline import load_geometry, open_cells, receiver_grid, squared_distances
 from uavplace.simulate.raytrace import (
     RadioMapJob,
     RayTraceConfig,

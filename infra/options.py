@@ -5,8 +5,11 @@
 ``Literal``, a flag of a ``bool`` (``--x/--no-x`` when it is on by default), a path, a repeatable option of a tuple or list of strings), its bounds from the
 field's ``ge``/``gt``/``le``/``lt``, its default from the field's default (shown), its help from the description.
 A field may say more in ``json_schema_extra``: ``{"limit": "episodes"}`` bounds an integer by that resource limit
-too (``infra.console.Counted``), ``{"type": "metres"}`` takes a length as ``4``, ``4m`` or ``2.5 m``. The command
-then builds its model from the options' values (``Model(**values)``), so a bound, a default or a help text is written
+too (``infra.console.Counted``), ``{"type": "metres"}`` takes a length as ``4``, ``4m`` or ``2.5 m``, ``{"type":
+"list"}`` takes a tuple's items as one word, ``a,b`` (``none`` for none; the model's validator splits it). A field
+without a default is a required option. The command
+then builds its model from the options' values (``settings(Model, values)``: a value the model refuses is a usage
+error naming its option), so a bound, a default or a help text is written
 once, in the model.
 """
 
@@ -18,10 +21,13 @@ from collections.abc import Callable
 from pathlib import Path
 
 import click
-from pydantic import BaseModel
+from pydantic import BaseModel, ValidationError
 from pydantic.fields import FieldInfo
 
 from uavplace.infra.console import Counted, Finite, Metres
+from uavplace.schemas.base import validation_message
+
+M = typing.TypeVar("M", bound=BaseModel)
 
 
 def field_bounds(info: FieldInfo) -> dict[str, float]:
@@ -58,8 +64,12 @@ def option_kwargs(model: type[BaseModel], field: str, override: dict | None = No
     kwargs: dict = {"help": info.description or "", "default": default, "show_default": default is not None}
     origin = typing.get_origin(annotation)
     bounds = field_bounds(info)
+    if info.is_required():
+        kwargs.update(required=True, default=None, show_default=False)
     if extra.get("type") == "metres":  # a length: 4, 4m or 2.5 m; its bounds checked by the model
         kwargs["type"] = Metres()
+    elif extra.get("type") == "list":  # items given as one word, a,b ('none': no item); the model splits them
+        kwargs.update(type=click.STRING, default=",".join(map(str, default)) or "none")
     elif annotation is bool:  # a flag; one on by default is a pair, --x/--no-x (``model_options``)
         kwargs.update(is_flag=True, show_default=bool(default))
     elif annotation is int:
@@ -89,13 +99,25 @@ class FieldOption(click.Option):
 
 
 def model_options(
-    model: type[BaseModel], *fields: str, names: dict[str, str] | None = None, **overrides: dict
+    model: type[BaseModel],
+    *fields: str,
+    names: dict[str, str] | None = None,
+    unset: dict[str, str] | None = None,
+    **overrides: dict,
 ) -> Callable[[Callable], Callable]:
     """A click decorator: an option for each of ``model``'s ``fields`` (all of them by default), in that order in
-    ``--help``; ``names`` maps a field to its option's name where it is not ``--field-name``; ``overrides`` maps a
-    field to click.option keyword arguments that replace the derived ones (a type the annotation does not say)."""
+    ``--help``; ``names`` maps a field to its option's name where it is not ``--field-name``; ``unset`` maps a field
+    to where its value comes from when the option is not given (the option's value is then None, its help says
+    ``default: WHERE``: a preset's); ``overrides`` maps a field to click.option keyword arguments that replace the
+    derived ones (a type the annotation does not say)."""
     chosen = fields or tuple(model.model_fields)
     names = names or {}
+    for field, where in (unset or {}).items():
+        help_text = model.model_fields[field].description or ""
+        overrides = overrides | {
+            field: overrides.get(field, {})
+            | {"default": None, "show_default": False, "required": False, "help": f"{help_text} (default: {where})"}
+        }
 
     def decorate(command: Callable) -> Callable:
         for field in reversed(chosen):
@@ -108,3 +130,17 @@ def model_options(
         return command
 
     return decorate
+
+
+def settings(model: type[M], values: dict, names: dict[str, str] | None = None) -> M:
+    """``model`` of a command's option values (those ``model_options`` derived, by field name); a value the model
+    refuses (a cross-field check of its validators too) is click's usage error naming the field's option (``names``
+    as ``model_options`` took them)."""
+    try:
+        return model(**values)
+    except ValidationError as exc:
+        field, message = validation_message(exc)
+        top = field.split(".")[0]
+        option = (names or {}).get(top, "--" + top.replace("_", "-"))
+        hint = f"'{option}'" if top in model.model_fields else None  # as click names an option
+        raise click.BadParameter(message, param_hint=hint) from None

@@ -8,8 +8,9 @@ import click
 
 from uavplace.dataset.bundle import list_versions, read_latest
 from uavplace.dataset.catalog import list_cities
-from uavplace.infra.console import SEED, Counted, LogLines, fail, plain_table, root_option, stdout, warn_or_refuse
+from uavplace.infra.console import LogLines, fail, plain_table, root_option, stdout, warn_or_refuse
 from uavplace.infra.options import model_options
+from uavplace.rl.agent.config import PRESETS, DQNConfig
 from uavplace.rl.config import EpisodeSettings
 from uavplace.rl.rollout import STATS, format_stat, summarise
 
@@ -84,6 +85,10 @@ def baselines(
         stdout().print(table)
 
 
+#: The option names of ``uavrl train``'s settings that are not ``--field-name``.
+_TRAIN_OPTIONS = {"total_steps": "--steps"}
+
+
 @click.command()
 @click.option(
     "--dataset",
@@ -100,16 +105,10 @@ def baselines(
     help="Built city (or corpus) on which best.pt is selected, besides the val cities of --dataset (repeatable). "
     "Without any, the held-out val users of the training cities.",
 )
-@click.option(
-    "--agent",
-    type=click.Choice(["dqn", "blind"]),
-    default="dqn",
-    show_default=True,
-    help="dqn: height map + SINR memory (the paper's proposed agent); blind: SINR memory only.",
-)
+@model_options(DQNConfig, "agent")
 @click.option(
     "--preset",
-    type=click.Choice(["paper", "fast", "best", "hybrid", "best-pqn", "best-dqn"]),
+    type=click.Choice(list(PRESETS)),
     default="best",
     show_default=True,
     help="Hyperparameters: best (ours: a recurrent Q-network learnt by PQN, 300 k steps), hybrid (best reading the map "
@@ -117,20 +116,7 @@ def baselines(
     "best-dqn (that one learnt by replay DQN), paper (docs/method.md, about 7 M steps: days on a CPU), fast (40 k "
     "steps, for checks). Their settings: rl/agent/config.py, PRESETS; what each costs: the README, Training and reporting.",
 )
-@click.option(
-    "--task",
-    type=click.Choice(["placement", "tracking", "fleet"]),
-    default="placement",
-    show_default=True,
-    help="placement: find a user who stands still (the paper's task); tracking: keep a user who walks its route "
-    "covered (rl/tasks/tracking/; 5 actions, stay the fifth; every --dataset and validation city needs routes, "
-    "`uavdata simulate --routes N`; best.pt is the network that covers the most of the horizon on the validation "
-    "cities' routes; the preset's revisit penalties are off); fleet: several UAVs serve several users (rl/tasks/fleet/; "
-    "one network on every UAV, each playing the placement task of the users dealt to it; best.pt is the network that "
-    "serves every user in the most fleet episodes of the validation cities; --set fleet.uavs=2 --set fleet.users=3 "
-    "are the defaults, --set init=data/agents/best starts from a trained network).",
-)
-@click.option("--steps", type=Counted("train_steps"), default=None, help="Environment steps (default: the preset's).")
+@model_options(DQNConfig, "task", "total_steps", names=_TRAIN_OPTIONS, unset={"total_steps": "the preset's"})
 @click.option(
     "--set",
     "settings",
@@ -141,13 +127,7 @@ def baselines(
     "fleet.FIELD (rl/tasks/fleet/config.py, FleetConfig), e.g. --set env.shaping=1 --set eval_episodes=1000 --set "
     "tracking.horizon=200; repeatable.",
 )
-@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the whole run.")
-@click.option(
-    "--eval-every",
-    type=click.IntRange(min=1),
-    default=None,
-    help="Environment steps between evaluations of held-out users (best checkpoint; default: the preset's).",
-)
+@model_options(DQNConfig, "seed", "eval_every", unset={"eval_every": "the preset's"})
 @click.option(
     "--out",
     "runs",
@@ -182,13 +162,8 @@ def baselines(
 def train(
     datasets,
     val_datasets,
-    agent: str,
     preset: str,
-    task: str,
-    steps: int | None,
     settings,
-    seed: int,
-    eval_every: int | None,
     runs: Path,
     name: str | None,
     until: int | None,
@@ -196,6 +171,7 @@ def train(
     strict: bool,
     root: Path,
     quiet: bool,
+    **options: object,
 ) -> None:
     """Train the DQN agent (or its blind twin) on built cities, for placement or tracking; write config, metrics and
     checkpoints to a run folder.
@@ -225,16 +201,13 @@ def train(
         named = runs / check_name(name, "run name") if name else None
         datasets, val_datasets = expand_datasets(datasets, root), expand_datasets(val_datasets, root)
         given = parse_settings(settings)
-        # settings with their own option: the option would win over the --set without a word (--agent and --seed
-        # always, with their defaults; --steps and --eval-every when given)
-        own = {"agent": "--agent", "seed": "--seed", "task": "--task"} | ({"total_steps": "--steps"} if steps else {})
-        own |= {"eval_every": "--eval-every"} if eval_every else {}
-        clash = [f"--set {k} and {own[k]}" for k in given if k in own]
+        # settings with their own option: the option would win over the --set without a word (--agent, --task and
+        # --seed always, with their defaults; --steps and --eval-every when given)
+        chosen = {k: v for k, v in options.items() if v is not None}
+        clash = [f"--set {k} and {_TRAIN_OPTIONS.get(k, '--' + k.replace('_', '-'))}" for k in given if k in chosen]
         if clash:
             raise click.UsageError(f"{', '.join(clash)} set the same field: give it once, with the option")
-        overrides = given | {"agent": agent, "seed": seed, "task": task} | ({"total_steps": steps} if steps else {})
-        overrides |= {"eval_every": eval_every} if eval_every else {}
-        config = preset_config(preset, **overrides)
+        config = preset_config(preset, **given, **chosen)
         run_dir = named or new_run_dir(runs, config)
     # The run folder is held for the whole training: a second command on it (the same --name a second later, or a
     # second --resume) is refused at once, and a new run's folder is claimed before any work.
@@ -300,7 +273,7 @@ def _train_in(run_dir: Path, resume, config, datasets, val_datasets, root: Path,
             raise SystemExit(130) from None  # the shell's status for Ctrl-C
     last = trainer.state.evals[-1] if trainer.state.evals else None
     summary = f"; last evaluation: {100 * last['success']:.1f} % success, median {last['median_steps']:g} steps" if last else ""
-    if last and config.task == "tracking":
+    if last and "covered_share" in last:  # a tracking run's evaluation
         summary = (
             f"; last evaluation: {100 * last['covered_share']:.1f} % of the horizon covered, P_T reached in "
             f"{100 * last['success']:.1f} % of the episodes"

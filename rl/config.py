@@ -205,7 +205,13 @@ class UNetConfig(Contract):
     """The learned radio-map predictor's network and training settings (``rl.learned``; `uavrl train-predictor`'s
     options derive from them)."""
 
-    widths: list[int] = Field(default=[16, 32, 64, 64], min_length=1, max_length=5, description="Channels per level")
+    widths: list[int] = Field(
+        default=[16, 32, 64, 64],
+        min_length=1,
+        max_length=5,
+        description="Channels per U-Net level, comma-separated (1 to 5 levels).",
+        json_schema_extra={"type": "list"},
+    )
     crop: int = Field(default=64, ge=16, le=512, description="Training crops [cells] (a multiple of 2^(levels-1))")
     batch: int = Field(default=16, ge=1, le=1024, description="Crops per step.")
     steps: int = Field(default=2000, ge=1, le=1_000_000, description="Gradient steps.")
@@ -220,3 +226,20 @@ class UNetConfig(Contract):
         description="Share of the training users held out of the gradient steps to calibrate the dead probability "
         "(Platt scaling of its logit, fitted on their legal cells); none when it rounds down to no user",
     )
+
+    @field_validator("widths", mode="before")
+    @classmethod
+    def _levels(cls, value: object) -> object:
+        if isinstance(value, str):  # the option's word: 16,32,64
+            try:
+                return [int(w) for w in value.split(",")]
+            except ValueError:
+                raise ValueError(f"{value!r}: expected 1 to 5 positive integers, e.g. 16,32,64") from None
+        return value
+
+    @field_validator("widths")
+    @classmethod
+    def _positive(cls, value: list[int]) -> list[int]:
+        if any(w < 1 for w in value):
+            raise ValueError(f"{value}: expected 1 to 5 positive integers, e.g. 16,32,64")
+        return value

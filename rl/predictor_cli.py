@@ -10,7 +10,7 @@ import click
 
 from uavplace.infra.console import LogLines, path_option, plain_table, root_option, stdout
 from uavplace.infra.files import shipped
-from uavplace.infra.options import model_options
+from uavplace.infra.options import model_options, settings
 from uavplace.rl.config import UNetConfig
 
 #: The predictors' training cities (``uavrl fit-predictor``, ``uavrl train-predictor``).
@@ -94,9 +94,7 @@ def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out:
     help="A folder of training-maps packs (repeatable; `uavdata pack` writes them, data/trainmaps holds the shipped "
     "ones), or a RadioMapSeer-style city folder (`uavdata export`, dataset/export.py): every user is a training user.",
 )
-@click.option(
-    "--widths", default="16,32,64,64", show_default=True, help="Channels per U-Net level, comma-separated (1 to 5 levels)."
-)
+@model_options(UNetConfig, "widths")
 @click.option(
     "--val-dataset",
     "val_datasets",
@@ -149,12 +147,7 @@ def train_predictor(
 
     if not datasets and not map_folders:
         raise click.UsageError("give training maps: --dataset CITY or --maps FOLDER (or both)")
-    try:
-        config = UNetConfig(widths=[int(w) for w in widths.split(",")], steps=steps, batch=batch, seed=seed, threads=threads)
-    except ValueError as err:  # pydantic ValidationError included
-        raise click.BadParameter(
-            f"{widths!r}: expected 1 to 5 positive integers, e.g. 16,32,64 ({str(err)[:80]})", param_hint="--widths"
-        ) from None
+    config = settings(UNetConfig, {"widths": widths, "steps": steps, "batch": batch, "seed": seed, "threads": threads})
     physics = load_constants(constants)
     maps = training_maps(*_training_users(datasets, root), map_folders)
     overlap = sorted({m.city for m in maps} & set(val_datasets))

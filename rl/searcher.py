@@ -231,8 +231,16 @@ class MapSearchPolicy(BeliefModel):
         out[near] += self.config.info_weight * self.information(maps, log_b, near, floor_db, p_t_db)
         return out
 
-    def first_move(self, public: PublicMaps, canvas: int, maps: CandidateMaps, here: int, score: np.ndarray,
-              seen: np.ndarray, mask: np.ndarray) -> int:  # fmt: skip
+    def first_move(
+        self,
+        public: PublicMaps,
+        canvas: int,
+        maps: CandidateMaps,
+        here: int,
+        score: np.ndarray,
+        seen: np.ndarray,
+        mask: np.ndarray,
+    ) -> int:
         """The first move along a shortest legal path to the unvisited cell of best discounted ``score``."""
         discount, pred = self.paths_from(public, canvas, maps, here)
         score = np.where(seen | (discount < 0), -1.0, score * discount)

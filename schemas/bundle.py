@@ -67,7 +67,7 @@ class BuildConfig(Contract):
 
     model_config = ConfigDict(allow_inf_nan=False)
 
-    grid_m: float = Field(gt=0, le=1000, description="Grid spacing [m]")
+    grid_m: float = Field(gt=0, le=1000, description="Grid spacing of the maps (e.g. 4m)", json_schema_extra={"type": "metres"})
     altitude_m: float = Field(
         default=ALTITUDE_M,
         ge=0,
@@ -212,7 +212,7 @@ class CityRoles(Contract):
     crop: list[str] = Field(
         default_factory=list, description="Cities whose receiver grid covers part of the scene by design (--crop-city)"
     )
-    val_users: int = Field(default=0, ge=0, description="Users of each train city held out for validation (--val-users)")
+    val_users: int = Field(default=0, ge=0, description="Users of each train city held out for validation (seeded)")
 
     @field_validator("train", "val", "test", "crop")
     @classmethod

@@ -16,7 +16,8 @@ from pathlib import Path
 
 from uavplace.infra.cluster import start_ray
 from uavplace.schemas import InputError
-from uavplace.simulate.pipeline import PROVENANCE, SimulationSpec, simulate_city, spec_record
+from uavplace.simulate.config import SimulationSpec
+from uavplace.simulate.pipeline import PROVENANCE, simulate_city, spec_record
 from uavplace.simulate.raytrace import RayTraceConfig, raytrace_record
 
 

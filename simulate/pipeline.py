@@ -28,20 +28,20 @@ import time
 import zipfile
 import zlib
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
 import shapely
-from pydantic import Field
 
 from uavplace.infra.files import atomic_directory, check_name, check_replaceable
 from uavplace.infra.limits import check_limit, limits, shown
 from uavplace.infra.options import field_bounds
 from uavplace.schemas import InputError
-from uavplace.schemas.base import Contract, uavplace_version
+from uavplace.schemas.base import uavplace_version
 from uavplace.schemas.provenance import CODES, ESTIMATED, EXACT_PATHS, UNREACHED, code_name
 from uavplace.simulate.complete import complete_users, missed_cells
+from uavplace.simulate.config import Simulation, SimulationSpec
 from uavplace.simulate.fidelity import lattice_boundary_shares, lattice_step_ratios
 from uavplace.simulate.insite import (
     UNREACHED_POWER_DBM,
@@ -76,25 +76,6 @@ GRID_SET = (2, "Drone_grid")
 PROVENANCE = "simulation.json"
 
 
-@dataclass(frozen=True)
-class SimulationSpec:
-    """Everything `uavdata simulate` was asked for (saved in simulation.json)."""
-
-    source: str
-    name: str
-    num_users: int = 27
-    grid_m: float = 4.0
-    altitude_m: float = 10.0
-    tx_dbm: float = 20.0
-    seed: int = 0
-    extent_m: tuple[float, float, float, float] | None = None
-    users_m: tuple[tuple[float, float], ...] = ()
-    crop_m: tuple[float, float, float, float] | None = None
-    routes: int = 0  # user routes drawn on open ground, every point traced as a user (simulate.routes)
-    route_length_m: float = 120.0
-    route_kinds: tuple[str, ...] = ("pedestrian", "vehicle")
-
-
 #: Scenes shipped with Sionna RT that ``sionna:<name>`` names (any scene of ``sionna.rt.scene`` works).
 SIONNA_SCENES = ("etoile", "florence", "munich", "san_francisco", "simple_street_canyon")
 
@@ -120,59 +101,37 @@ def _size(text: str, source: str) -> tuple[float, float]:
     return (w, h)
 
 
-class SimulationRanges(Contract):
-    """The valid ranges of one ``uavdata simulate`` call's settings, checked before any work (``check_simulation``; each
-    error names its option). A field without an upper bound is bounded by the resource limit of the same name
-    (``infra.limits.Limits``, raised with ``--limit NAME=VALUE``): what the machine can afford, not what physics
-    allows."""
-
-    cities: int = Field(ge=1, description="Cities of one call (--count)")
-    users: int = Field(ge=1, description="Users per city (--users, --user)")
-    grid_m: float = Field(ge=0.5, le=100.0, description="Cell side [m] (--grid)")
-    altitude_m: float = Field(ge=2.0, le=1000.0, description="UAV altitude [m], above the users' 1.5 m (--alt)")
-    tx_dbm: float = Field(ge=-50.0, le=70.0, description="Users' transmit power [dBm] (--tx-dbm)")
-    frequency_hz: float = Field(ge=1e8, le=1e11, description="Carrier [Hz] (--freq)")
-    samples: float = Field(ge=1e3, description="Rays per user (--samples)")
-    depth: int = Field(ge=0, le=10, description="Interactions per path (--depth)")
-    extent_m: float = Field(ge=0.0, description="Side of an --extent or --crop box [m]")
-    user_cells: int = Field(ge=1, description="Users x grid cells: the maps held in memory (8 bytes each)")
-    routes: int = Field(ge=0, description="Routes per city (--routes)")
-    route_length_m: float = Field(ge=4.0, description="Length of a route [m] (--route-length)")
-    simulated_route_points: int = Field(ge=0, description="Route points per city, each traced as a user")
-
-
-def _range(name: str) -> tuple[float, float | None]:
-    """``(lower, upper)`` of ``SimulationRanges``' field ``name`` (upper None: the resource limit of that name)."""
-    bounds = field_bounds(SimulationRanges.model_fields[name])
-    return bounds.get("min"), bounds.get("max")
-
-
-def _bounded(value: float, name: str, option: str) -> None:
-    lo, hi = _range(name)
+def _bounded(value: float, option: str, field: str | None = None, limit: str | None = None) -> None:
+    """``InputError`` naming ``option`` unless ``value`` is finite, within the bounds of ``Simulation``'s ``field`` and
+    within the resource ``limit`` (by default the one the field names; without a field, from 0 up to the limit)."""
+    info = Simulation.model_fields[field] if field is not None else None
+    bounds = field_bounds(info) if info is not None else {}
+    limit = limit or (info.json_schema_extra or {}).get("limit") if info is not None else limit
+    lo, hi = bounds.get("min", 0), bounds.get("max")
     value = float(value)  # an integer option may be of any size (1e300 rays as an int)
     if not (math.isfinite(value) and lo <= value <= (math.inf if hi is None else hi)):
-        upto = f"to {hi:g}" if hi is not None else f"up (and at most the limit {name} = {shown(getattr(limits(), name))})"
-        raise InputError(option, f"{value!r} is out of range: {lo:g} {upto}", field=name)
-    if hi is None:
-        check_limit(name, value, option, "value", field=name)
+        upto = f"to {hi:g}" if hi is not None else f"up (and at most the limit {limit} = {shown(getattr(limits(), limit))})"
+        raise InputError(option, f"{value!r} is out of range: {lo:g} {upto}", field=field or limit)
+    if limit is not None:
+        check_limit(limit, value, option, "value", field=field or limit)
 
 
 def check_simulation(spec: SimulationSpec, config: RayTraceConfig, count: int = 1) -> None:
-    """``InputError`` naming the option unless every setting of the call is finite, in ``SimulationRanges`` and within the resource
+    """``InputError`` naming the option unless every setting of the call is finite, within the bounds of ``Simulation``'s fields and the resource
     limits (also the box of ``--extent``/``--crop`` and the ``--user`` positions), before any geometry is loaded or any
     memory allocated."""
-    _bounded(count, "cities", "--count")
-    _bounded(len(spec.users_m) or spec.num_users, "users", "--users")
-    _bounded(spec.grid_m, "grid_m", "--grid")
-    _bounded(spec.altitude_m, "altitude_m", "--alt")
-    _bounded(spec.tx_dbm, "tx_dbm", "--tx-dbm")
-    _bounded(config.frequency_hz, "frequency_hz", "--freq")
-    _bounded(config.samples_per_tx, "samples", "--samples")
-    _bounded(config.max_depth, "depth", "--depth")
+    _bounded(count, "--count", "count")
+    _bounded(len(spec.users_m) or spec.num_users, "--users", "num_users")
+    _bounded(spec.grid_m, "--grid", "grid_m")
+    _bounded(spec.altitude_m, "--alt", "altitude_m")
+    _bounded(spec.tx_dbm, "--tx-dbm", "tx_dbm")
+    _bounded(config.frequency_hz, "--freq", "frequency_hz")
+    _bounded(config.samples_per_tx, "--samples", "samples")
+    _bounded(config.max_depth, "--depth", "depth")
     if config.solver not in SOLVERS:
         raise InputError("--solver", f"{config.solver!r}: expected one of {', '.join(SOLVERS)}", field="solver")
     if config.complete_missed_samples:
-        _bounded(config.complete_missed_samples, "samples", "--complete-samples")
+        _bounded(config.complete_missed_samples, "--complete-samples", "complete_samples")
         if config.solver == "paths":
             raise InputError(
                 "--complete-missed",
@@ -184,17 +143,17 @@ def check_simulation(spec: SimulationSpec, config: RayTraceConfig, count: int = 
             continue
         if not all(np.isfinite(box)) or box[2] <= box[0] or box[3] <= box[1]:
             raise InputError(option, f"{box}: expected finite XMIN,YMIN,XMAX,YMAX with XMIN < XMAX and YMIN < YMAX", field="box")
-        _bounded(max(box[2] - box[0], box[3] - box[1]), "extent_m", option)
+        _bounded(max(box[2] - box[0], box[3] - box[1]), option, limit="extent_m")
         cells = ((box[2] - box[0]) // spec.grid_m) * ((box[3] - box[1]) // spec.grid_m)
         check_limit("grid_cells", cells, option, "cells of the receiver grid (the extent over the grid squared)", field="grid_m")
-        _bounded(cells * (len(spec.users_m) or spec.num_users), "user_cells", f"{option} with --grid and --users")
+        _bounded(cells * (len(spec.users_m) or spec.num_users), f"{option} with --grid and --users", limit="user_cells")
     for k, (x, y) in enumerate(spec.users_m):
         if not (np.isfinite(x) and np.isfinite(y)):
             raise InputError("--user", f"user {k + 1} at ({x}, {y}): coordinates must be finite", field="user")
-    _bounded(spec.routes, "routes", "--routes")
+    _bounded(spec.routes, "--routes", "routes")
     if spec.routes:
-        _bounded(spec.route_length_m, "route_length_m", "--route-length")
-        _bounded(route_point_count(spec), "simulated_route_points", "--routes with --route-length (their points)")
+        _bounded(spec.route_length_m, "--route-length", "route_length_m")
+        _bounded(route_point_count(spec), "--routes with --route-length (their points)", limit="simulated_route_points")
         unknown = [k for k in spec.route_kinds if k not in KINDS]
         if unknown or not spec.route_kinds:
             raise InputError(
@@ -367,7 +326,7 @@ def receiver_grid(bounds: tuple[float, float, float, float], spec: SimulationSpe
     # The work of the radio maps grows with the cells as well as with the rays: a grid no build could take is refused
     # before the ray tracer starts (a 5 km extent at 1 m held 25 M cells and ran for hours).
     check_limit("grid_cells", nx * ny, "--grid", "cells of the receiver grid (the extent over the grid squared)", field="grid_m")
-    _bounded(nx * ny * (len(spec.users_m) or spec.num_users), "user_cells", "--grid with --users (the city's size)")
+    _bounded(nx * ny * (len(spec.users_m) or spec.num_users), "--grid with --users (the city's size)", limit="user_cells")
     if nx < 2 or ny < 2:
         raise InputError(
             spec.source, f"a {x1 - x0:g} x {y1 - y0:g} m extent holds fewer than 2 x 2 cells of {spec.grid_m:g} m", field="extent"

@@ -12,6 +12,7 @@ from pydantic import Field
 
 from uavplace.infra.options import FieldOption, model_options
 from uavplace.schemas.base import Contract
+from uavplace.simulate.config import Simulation
 
 
 class Toy(Contract):
@@ -80,8 +81,12 @@ def _commands() -> list[tuple[str, str, str, tuple[str, ...]]]:
         ("uavrl", "baselines", "EpisodeSettings", episode),
         ("uavrl", "report", "EpisodeSettings", episode),
         ("uavrl", "report", "ReportConfig", ("test_epsilon", "n_boot", "trajectories")),
-        ("uavdata", "build", "BuildConfig", (*build, "crop", "seed", "p_t_db")),
-        ("uavrl", "train-predictor", "UNetConfig", ("steps", "batch", "seed", "threads")),
+        ("uavdata", "build", "BuildConfig", (*build, "crop", "seed", "p_t_db", "grid_m")),
+        ("uavdata", "build", "CityRoles", ("val_users",)),
+        ("uavdata", "simulate", "Simulation", tuple(Simulation.model_fields)),
+        ("uavrl", "train", "DQNConfig", ("agent", "task", "total_steps", "seed", "eval_every")),
+        ("uavrl", "levers", "EpisodeSettings", ("episodes", "seed")),
+        ("uavrl", "train-predictor", "UNetConfig", ("widths", "steps", "batch", "seed", "threads")),
         ("uavrl", "report", "FleetConfig", ("uavs", "users")),
         ("uavrl", "report", "TrackingConfig", ("horizon",)),
         ("uavrl", "report", "TrackingReportConfig", ("hold",)),
@@ -94,16 +99,20 @@ def test_a_commands_settings_are_its_models_fields(group, name, model, fields):
     help each, written in the model only; the report's config inherits the evaluation protocol's fields."""
     from uavplace.cli import uavdata, uavrl
     from uavplace.eval.config import ReportConfig, TrackingReportConfig
+    from uavplace.rl.agent.config import DQNConfig
     from uavplace.rl.config import EpisodeSettings, UNetConfig
     from uavplace.rl.tasks.fleet.config import FleetConfig
     from uavplace.rl.tasks.tracking.config import TrackingConfig
-    from uavplace.schemas.bundle import BuildConfig
+    from uavplace.schemas.bundle import BuildConfig, CityRoles
 
     command = {"uavdata": uavdata, "uavrl": uavrl}[group].get_command(None, name)
     cls = {
         "EpisodeSettings": EpisodeSettings,
         "ReportConfig": ReportConfig,
         "BuildConfig": BuildConfig,
+        "CityRoles": CityRoles,
+        "Simulation": Simulation,
+        "DQNConfig": DQNConfig,
         "UNetConfig": UNetConfig,
         "FleetConfig": FleetConfig,
         "TrackingConfig": TrackingConfig,
@@ -113,8 +122,16 @@ def test_a_commands_settings_are_its_models_fields(group, name, model, fields):
     assert set(derived) == set(fields)
     for field_name, option in derived.items():
         field = cls.model_fields[field_name]
+        if option.default is None and not option.required and field.default is not None:  # the value comes from elsewhere
+            assert option.help.startswith(field.description.rstrip(".")) and "(default: " in option.help
+            continue
+        if field.is_required():
+            assert option.required and option.help == field.description
+            continue
         assert option.help == field.description
-        assert option.default == field.default or (option.is_flag and field.default is False)
+        listed = (field.json_schema_extra or {}).get("type") == "list"
+        shown = ",".join(map(str, field.default or ())) or "none" if listed else None
+        assert option.default in (field.default, shown) or (option.is_flag and field.default is False), field_name
         assert not option.is_flag or field.default is False or option.secondary_opts  # on by default: --no-x turns it off
     assert issubclass(ReportConfig, EpisodeSettings)
     assert all(repr(ReportConfig.model_fields[f]) == repr(EpisodeSettings.model_fields[f]) for f in EpisodeSettings.model_fields)
@@ -128,3 +145,77 @@ def test_an_option_refuses_what_its_field_refuses():
     assert res.exit_code == 2 and "-250<=x<=100" in res.output
     res = CliRunner().invoke(uavrl, ["train-predictor", "--seed", "-1"])
     assert res.exit_code == 2 and "--seed" in res.output
+
+
+#: The options that are no setting of a model, by what they do: which inputs a command reads, where it writes, how it
+#: runs, which preset, task or role table it picks. Every other option of every command is a model's field
+#: (``FieldOption``): a new option that restates a field by hand fails the test below.
+CLI_SWITCHES = {
+    "what it reads": {
+        "root",
+        "sources",
+        "folders",
+        "datasets",
+        "val_datasets",
+        "cities",
+        "city",
+        "runs",
+        "map_folders",
+        "spec_file",
+        "constants",
+        "agents_dir",
+        "predictor",
+        "resume",
+        "version",
+        "user",
+        "raw",
+        "model",
+        "roles_file",
+        "groups",
+        "against",
+        "best",
+        "peers",
+        "match",
+    },
+    "where it writes": {"out", "out_root", "out_dir", "out_path", "markdown", "markdown_path", "name"},
+    "how it runs": {
+        "ray_address",
+        "cpus_per_city",
+        "cpus_per_trial",
+        "workers",
+        "quiet",
+        "verbose",
+        "force",
+        "overwrite",
+        "strict",
+        "until",
+        "table_only",
+        "table",
+        "release",
+        "trace_cache",
+    },
+    "which preset, task, format, algorithm or roles": {"preset", "task", "settings", "formats", "splits", "crop_cities", "algo"},
+}
+
+
+def test_every_option_is_a_field_or_a_declared_switch():
+    """Every option of every command derives from a model's field (its name, type, bounds, default and help written
+    once, in the model), or is one of the declared switches that are no setting: 0 options restate a field by hand."""
+    from uavplace.cli import uavdata, uavrl
+
+    switches = set().union(*CLI_SWITCHES.values())
+    hand = []
+
+    def walk(group: click.Group, prefix: str) -> None:
+        for name in group.list_commands(None):
+            command = group.get_command(None, name)
+            if isinstance(command, click.Group):
+                walk(command, f"{prefix} {name}")
+                continue
+            for param in command.params:
+                if param.name != "help" and not isinstance(param, FieldOption) and param.name not in switches:
+                    hand.append(f"{prefix} {name} --{param.name}")
+
+    walk(uavdata, "uavdata")
+    walk(uavrl, "uavrl")
+    assert not hand, f"options written by hand, not derived from a model field: {hand}"

@@ -127,10 +127,11 @@ def test_atomic_outputs_take_the_umask_not_a_private_mode(tmp_path):
     [
         ("uavplace.dataset.cli:build", "uavplace.schemas.bundle:BuildConfig"),
         ("uavplace.eval.cli:report", "uavplace.eval.evaluate:ReportConfig"),
-        ("uavplace.simulate.cli:simulate", "uavplace.simulate.pipeline:SimulationSpec"),
+        ("uavplace.simulate.cli:simulate", "uavplace.simulate.config:Simulation"),
+        ("uavplace.simulate.cli:simulate", "uavplace.simulate.config:SimulationSpec"),
         ("uavplace.simulate.cli:simulate", "uavplace.simulate.raytrace:RayTraceConfig"),
     ],  # fmt: skip
-    ids=["build", "report", "simulate-spec", "simulate-raytrace"],
+    ids=["build", "report", "simulate", "simulate-spec", "simulate-raytrace"],
 )
 def test_options_default_to_their_models_fields(command, model):
     """An option named like a field of the model it fills defaults to that field's default: the two cannot drift
@@ -156,7 +157,7 @@ def test_options_default_to_their_models_fields(command, model):
             continue
         field_default = fields[param.name]
         if param.default is None and field_default is not None:  # taken from elsewhere (a roles file), said in its help
-            assert "[default:" in (param.help or ""), param.name
+            assert "[default:" in (param.help or "") or "(default: " in (param.help or ""), param.name
             continue
         default = param.default if param.default is not None else None
         if param.is_flag:
@@ -164,22 +165,26 @@ def test_options_default_to_their_models_fields(command, model):
         elif isinstance(default, str) and not isinstance(field_default, str):
             default = param.type.convert(default, param, None)
         if isinstance(field_default, tuple) and isinstance(default, list | str):
-            default = tuple(default.split(",") if isinstance(default, str) else default)
+            default = () if default == "none" else tuple(default.split(",") if isinstance(default, str) else default)
         assert default == field_default or str(default) == str(field_default), (param.name, default, field_default)
         compared += 1
     assert compared >= 5
 
 
-def test_simulate_ranges_live_in_a_pydantic_model_bounded_by_the_limits():
-    """`uavdata simulate`'s ranges are a pydantic model (simulate/pipeline.py, SimulationRanges), as every stage's
-    settings are; each range without an upper bound is bounded by the resource limit of its name."""
+def test_simulate_ranges_live_in_its_settings_model_bounded_by_the_limits():
+    """`uavdata simulate`'s settings are one pydantic model (simulate/config.py, Simulation), as every stage's are; each
+    numeric setting has a lower bound, and one without an upper bound names the resource limit that bounds it."""
     from uavplace.infra.limits import Limits
-    from uavplace.simulate.pipeline import SimulationRanges, _range
+    from uavplace.infra.options import field_bounds
+    from uavplace.simulate.config import Simulation
 
-    for name in SimulationRanges.model_fields:
-        lo, hi = _range(name)
-        assert lo is not None, name
-        assert hi is not None or name in Limits.model_fields, name
+    numeric = {n: f for n, f in Simulation.model_fields.items() if f.annotation in (int, float)}
+    assert len(numeric) >= 12
+    for name, info in numeric.items():
+        bounds = field_bounds(info)
+        assert "min" in bounds, name
+        limit = (info.json_schema_extra or {}).get("limit")
+        assert "max" in bounds or limit in Limits.model_fields, name
 
 
 def test_duplicate_names_are_found_in_linear_time():

@@ -466,7 +466,8 @@ def test_work_is_bounded_before_it_starts(tmp_path, tiny):
     import json
 
     from uavplace.ingest.geojson import read_geojson
-    from uavplace.simulate.pipeline import SimulationSpec, check_simulation
+    from uavplace.simulate.config import SimulationSpec
+    from uavplace.simulate.pipeline import check_simulation
     from uavplace.simulate.raytrace import RayTraceConfig
 
     spec = SimulationSpec(source="procedural:mixed", name="x", num_users=1, grid_m=1.0, extent_m=(0.0, 0.0, 5000.0, 5000.0))

@@ -22,7 +22,8 @@ from uavplace.ingest.pipeline import ingest_city
 from uavplace.ingest.wireless_insite.city import read_city
 from uavplace.schemas import InputError
 from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM, BuildConfig
-from uavplace.simulate.pipeline import SimulationSpec, load_geometry, place_users, receiver_grid
+from uavplace.simulate.config import SimulationSpec
+from uavplace.simulate.pipeline import load_geometry, place_users, receiver_grid
 from uavplace.simulate.procedural import PRESETS, generate_city
 from uavplace.simulate.raytrace import LLVM_19, fill_gaps
 from uavplace.simulate.scene import GROUND, extrude

@@ -11,7 +11,8 @@ from pydantic import ConfigDict, Field, ValidationError, model_validator
 from uavplace.infra.limits import limits, over_limit
 from uavplace.rl.config import EnvConfig
 from uavplace.rl.tasks.fleet import FleetConfig
-from uavplace.rl.tasks.tracking import TRACK_MOVES, TrackingConfig
+from uavplace.rl.tasks.registry import TASKS
+from uavplace.rl.tasks.tracking import TrackingConfig
 from uavplace.schemas import InputError
 from uavplace.schemas.base import MAX_SEED, Contract, validation_message
 
@@ -22,8 +23,15 @@ class DQNConfig(Contract):
     model_config = ConfigDict(allow_inf_nan=False)
 
     preset: str = Field(default="custom", description="Name of the preset this config came from")
-    agent: Literal["dqn", "blind"] = Field(default="dqn", description="dqn: height + SINR memory; blind: SINR memory only")
-    total_steps: int = Field(default=7_000_000, ge=1, description="Environment steps (all envs together)")
+    agent: Literal["dqn", "blind"] = Field(
+        default="dqn", description="dqn: height map + SINR memory (the paper's proposed agent); blind: SINR memory only."
+    )
+    total_steps: int = Field(
+        default=7_000_000,
+        ge=1,
+        description="Environment steps (all envs together).",
+        json_schema_extra={"limit": "train_steps"},
+    )
     num_envs: int = Field(default=8, ge=1, le=65_536, description="Episodes acted on in parallel (batched env)")
     learner: Literal["replay", "pqn"] = Field(
         default="replay",
@@ -84,7 +92,11 @@ class DQNConfig(Contract):
         "the genie's move at each replayed observation (cross-entropy over the moves that start a shortest path); "
         "privileged information shapes the features, the Q head alone acts (0: off, the paper's)",
     )
-    eval_every: int = Field(default=100_000, ge=1, description="Environment steps between evaluations (best checkpoint)")
+    eval_every: int = Field(
+        default=100_000,
+        ge=1,
+        description="Environment steps between evaluations of held-out users (the best checkpoint).",
+    )
     eval_episodes: int = Field(default=200, ge=1, description="Episodes per evaluation (fixed, seeded)")
     eval_split: Literal["train", "val", "test"] | None = Field(
         default="val", description="Users the evaluation plays (val: held-out users of the training cities)"
@@ -109,7 +121,9 @@ class DQNConfig(Contract):
         "added to its Q-value (the head reads the same observation; 0: the Q head alone acts)",
     )
     eval_t_max: int = Field(default=500, ge=1, description="Step budget of evaluation episodes (paper: 500)")
-    seed: int = Field(default=0, ge=0, le=MAX_SEED, description="Seed of everything (envs, exploration, replay sampling, torch)")
+    seed: int = Field(
+        default=0, ge=0, le=MAX_SEED, description="Seed of the whole run (envs, exploration, replay sampling, torch)."
+    )
     ensemble: int = Field(
         default=1,
         ge=1,
@@ -123,9 +137,13 @@ class DQNConfig(Contract):
     task: Literal["placement", "tracking", "fleet"] = Field(
         default="placement",
         description="placement: find a user who stands still (the paper's task, 4 moves; the env is `env`); tracking: "
-        "keep a user who moves along its route covered (rl/tasks/tracking/: 5 actions, stay the fifth; the task is "
-        "`tracking`, `env` is not read); fleet: several UAVs serve several users (rl/tasks/fleet/, `fleet`: one network on "
-        "every UAV, each playing `env`'s placement observation of the users dealt to it)",
+        "keep a user who walks its route covered (rl/tasks/tracking/; 5 actions, stay the fifth; the task is "
+        "`tracking`, `env` is not read; every training and validation city needs routes, `uavdata simulate --routes "
+        "N`; best.pt is the network that covers the most of the horizon on the validation cities' routes; the preset's "
+        "revisit penalties are off); fleet: several UAVs serve several users (rl/tasks/fleet/, `fleet`: one network on "
+        "every UAV, each playing `env`'s placement observation of the users dealt to it; best.pt is the network that "
+        "serves every user in the most fleet episodes of the validation cities; --set fleet.uavs=2 --set fleet.users=3 "
+        "are the defaults, --set init=data/agents/best starts from a trained network).",
     )
     tracking: TrackingConfig | None = Field(
         default=None, description="The tracking task (horizon, P_T, speeds, observation) of a tracking run; None otherwise"
@@ -151,15 +169,17 @@ class DQNConfig(Contract):
             raise ValueError("recurrent needs learner=pqn (the replay learner samples single transitions, not sequences)")
         if self.test_aux_weight > 0 and self.aux_genie <= 0:
             raise ValueError("test_aux_weight needs a network with a genie-move head (trained with aux_genie > 0)")
-        if (self.task == "tracking") != (self.tracking is not None):
-            raise ValueError("a tracking run needs its task config (tracking), and only a tracking run has one")
-        if (self.task == "fleet") != (self.fleet is not None):
-            raise ValueError("a fleet run needs its task config (fleet), and only a fleet run has one")
-        if self.task == "fleet" and (self.env.belief_channel or self.env.context_zoom):
-            raise ValueError("a fleet run deals each UAV a changing set of users: no belief or context channel")
-        if self.task == "tracking" and (self.train_revisit_penalty or self.test_revisit_penalty):
+        task = TASKS[self.task]
+        for other in TASKS.values():
+            if other.settings is not None and (other is task) != (getattr(self, other.settings) is not None):
+                raise ValueError(
+                    f"a {other.name} run needs its task config ({other.settings}), and only a {other.name} run has one"
+                )
+        if not task.channels and (self.env.belief_channel or self.env.context_zoom):
+            raise ValueError(f"a {task.name} run deals each UAV a changing set of users: no belief or context channel")
+        if not task.revisits and (self.train_revisit_penalty or self.test_revisit_penalty):
             # A user who moves brings the UAV back to cells it has stood in: placement's loop breaker is wrong here.
-            raise ValueError("train_revisit_penalty and test_revisit_penalty are placement's: 0 in a tracking run")
+            raise ValueError(f"train_revisit_penalty and test_revisit_penalty are placement's: 0 in a {task.name} run")
         return self
 
     @model_validator(mode="after")
@@ -185,7 +205,7 @@ class DQNConfig(Contract):
     @property
     def n_actions(self) -> int:
         """The network's outputs: the 4 moves, and in the tracking task stay as well."""
-        return len(TRACK_MOVES) if self.task == "tracking" else 4
+        return TASKS[self.task].actions
 
     def tracking_config(self) -> TrackingConfig:
         """The tracking task as this run plays it (blind as the agent is)."""
@@ -195,7 +215,7 @@ class DQNConfig(Contract):
 
     def observation(self) -> tuple[int, int]:
         """``(channels, window)`` of the observations the network reads, in its task."""
-        task = self.tracking_config() if self.task == "tracking" else self.env_config()
+        task = getattr(self, TASKS[self.task].observation)()
         return task.num_channels, task.window
 
     def env_config(self, *, evaluation: bool = False) -> EnvConfig:
@@ -286,11 +306,11 @@ PRESETS["best"] = PRESETS["best-pqn"] | {
 PRESETS["hybrid"] = PRESETS["best"] | {"env": PRESETS["best"]["env"] | {"belief_channel": True}}
 
 
-#: What a preset changes when it learns the tracking task (``preset_config(..., task="tracking")``): a user who moves
-#: brings the UAV back to cells it has stood in, so placement's revisit penalty is off.
-TRACKING_OVERRIDES = {"train_revisit_penalty": 0.0, "test_revisit_penalty": 0.0}
+#: What a preset changes when it learns a task without placement's revisit penalty (``Task.revisits``, tracking): a
+#: user who moves brings the UAV back to cells it has stood in.
+NO_REVISITS = {"train_revisit_penalty": 0.0, "test_revisit_penalty": 0.0}
 #: The nested configs ``--set PART.FIELD=VALUE`` reaches.
-NESTED = {"env": EnvConfig.model_fields, "tracking": TrackingConfig.model_fields, "fleet": FleetConfig.model_fields}
+NESTED = {"env": EnvConfig.model_fields} | {t.settings: t.model.model_fields for t in TASKS.values() if t.model is not None}
 
 
 def parse_settings(settings: list[str] | tuple[str, ...]) -> dict:
@@ -322,20 +342,19 @@ def preset_config(name: str, **overrides: object) -> DQNConfig:
         raise ValueError(f"unknown preset {name!r} (known: {', '.join(PRESETS)})")
     default_env = DQNConfig.model_fields["env"].default_factory().model_dump()  # type: ignore[misc]
     env = default_env | dict(PRESETS[name].get("env", {})) | dict(overrides.pop("env", None) or {})  # type: ignore[arg-type]
-    tracking, fleet = overrides.pop("tracking", None), overrides.pop("fleet", None)
+    given = {t.settings: overrides.pop(t.settings, None) for t in TASKS.values() if t.settings is not None}
     values = dict(PRESETS[name]) | {"preset": name} | overrides | {"env": env}
-    if values.get("task") == "tracking":  # the preset's learner on the tracking task, without placement's loop breaker
-        values = values | TRACKING_OVERRIDES | {k: overrides[k] for k in TRACKING_OVERRIDES if k in overrides}
-    elif tracking:
-        raise InputError(None, "tracking settings are for --task tracking", field="tracking")
-    if fleet and values.get("task") != "fleet":
-        raise InputError(None, "fleet settings are for --task fleet", field="fleet")
+    task = TASKS.get(str(values.get("task", "placement")))  # an unknown task is refused by DQNConfig below
+    for field, value in given.items():
+        if value and (task is None or task.settings != field):
+            raise InputError(None, f"{field} settings are for --task {field}", field=field)
+    if task is not None and not task.revisits:  # the preset's learner without placement's loop breaker
+        values = values | NO_REVISITS | {k: overrides[k] for k in NO_REVISITS if k in overrides}
     try:
-        if values.get("task") == "fleet":
-            values["fleet"] = FleetConfig(**(fleet or {}))
-        if values.get("task") == "tracking":
-            # the preset's training rotation (env.rotate) for the routes too, unless tracking.rotate says otherwise
-            values["tracking"] = TrackingConfig(**({"rotate": env["rotate"]} | (tracking or {})))
+        if task is not None and task.model is not None:
+            # the preset's training rotation (env.rotate) for the task too, unless its own rotate says otherwise
+            rotate = {"rotate": env["rotate"]} if "rotate" in task.model.model_fields else {}
+            values[task.settings] = task.model(**(rotate | (given[task.settings] or {})))
         return DQNConfig(**(values | {"env": EnvConfig(**env)}))
     except ValidationError as exc:
         field, message = validation_message(exc)

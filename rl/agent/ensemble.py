@@ -32,6 +32,7 @@ from uavplace.rl.agent.config import DQNConfig
 from uavplace.rl.agent.dqn import DQNPolicy
 from uavplace.rl.agent.network import MeanQ
 from uavplace.rl.agent.runs import RUN_JSON, RunRecord, network_from_checkpoint, read_run_json
+from uavplace.rl.tasks.registry import TASKS
 from uavplace.schemas import InputError
 from uavplace.schemas.base import uavplace_version
 
@@ -55,7 +56,7 @@ def read_member(folder: str | Path) -> Member:
     net, config = network_from_checkpoint(load_tensors(ckpt), ckpt)
     if config.ensemble != 1:
         raise InputError(ckpt, "already an ensemble: give the runs it was built from", field="ensemble")
-    if config.task != "placement":
+    if not TASKS[config.task].ensembles:
         raise InputError(ckpt, f"a {config.task} run: an ensemble is validated as a placement agent", field="task")
     if config != run.config:
         raise InputError(ckpt, f"its config is not the one {folder / RUN_JSON} records", field="config")

@@ -18,7 +18,7 @@ from uavplace.schemas import InputError
 
 
 class TrackingTrainer(Trainer):
-    """A run of the tracking task (``DQNConfig.task == "tracking"``, ``rl.tasks.tracking``): placement's learner, loop,
+    """A run of the tracking task (``DQNConfig.task`` "tracking", ``rl.tasks.tracking``): placement's learner, loop,
     checkpoints and run folder; the env is the tracking env over the training cities' routes (5 actions, stay the
     fifth), and ``best.pt`` is the network that covered the most of the horizon on fixed episodes of the validation
     cities' routes (ties: the one that reached P_T in more of them). A training city's routes are all trained on: a
@@ -65,7 +65,7 @@ class TrackingTrainer(Trainer):
 
 
 class FleetTrainer(Trainer):
-    """A run of the fleet task (``DQNConfig.task == "fleet"``, ``rl.tasks.fleet``): placement's network, learner, loop,
+    """A run of the fleet task (``DQNConfig.task`` "fleet", ``rl.tasks.fleet``): placement's network, learner, loop,
     checkpoints and run folder; the env is ``FleetTrainEnv`` over fleet episodes of the training cities' training
     users (a row per UAV), and ``best.pt`` is the network that, run on every UAV of fixed fleet episodes of the
     validation cities (``FleetPlacement``), served every user in the most of them (ties: the fewer median steps)."""
