@@ -26,10 +26,10 @@ from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.evaluate import ReportConfig, baseline_policies, default_agents, evaluate, load_agent
 from uavplace.rl.agent.checkpoint import load_tensors
 from uavplace.rl.agent.dqn import DQNPolicy, make_network, masked_argmax, to_tensor
-from uavplace.rl.config import EnvConfig
-from uavplace.rl.maps import MapSet
-from uavplace.rl.policies import random_legal
-from uavplace.rl.rollout import run_episodes
+from uavplace.rl.tasks.placement.config import EnvConfig
+from uavplace.rl.tasks.placement.maps import MapSet
+from uavplace.rl.tasks.placement.policies import random_legal
+from uavplace.rl.tasks.placement.rollout import run_episodes
 
 
 class LegacyPolicy(DQNPolicy):

@@ -42,7 +42,7 @@ from uavplace.dataset.catalog import expand_datasets
 from uavplace.rl.agent.config import DQNConfig, preset_config
 from uavplace.rl.agent.dqn import DQN, make_network
 from uavplace.rl.agent.train import Trainer, linear
-from uavplace.rl.config import EnvConfig
+from uavplace.rl.tasks.placement.config import EnvConfig
 
 
 def bench_ours(config: DQNConfig, dataset: str | list[str], root: str, steps: int, warmup: int, fast: bool = True) -> dict:
@@ -220,7 +220,7 @@ def time_to_target(args: argparse.Namespace) -> None:
     the preset's test epsilon and revisit penalty): the wall time to the first evaluation at or above
     ``--to-target``, evaluations (and our checkpoints) included."""
     from uavplace.rl.agent.dqn import DQNPolicy
-    from uavplace.rl.rollout import run_episodes, summarise
+    from uavplace.rl.tasks.placement.rollout import run_episodes, summarise
 
     config = preset_config(
         args.preset, total_steps=args.budget, eval_every=args.eval_every, seed=args.seed, buffer_size=args.buffer

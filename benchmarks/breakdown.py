@@ -60,7 +60,7 @@ def instrument(watch: Stopwatch) -> None:
     import uavplace.eval.parallel as parallel
     import uavplace.eval.render as render
     import uavplace.eval.report as report
-    from uavplace.rl.searcher import MapSearchPolicy
+    from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
 
     load_bundle = report.load_bundle
 

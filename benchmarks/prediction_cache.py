@@ -16,9 +16,10 @@ import time
 from pathlib import Path
 
 from uavplace.rl.belief import DEFAULT_PREDICTOR, PredictionCache, load_predictor
-from uavplace.rl.config import EnvConfig, SearchConfig
-from uavplace.rl.maps import MapSet
-from uavplace.rl.searcher import MapSearchPolicy
+from uavplace.rl.config import SearchConfig
+from uavplace.rl.tasks.placement.config import EnvConfig
+from uavplace.rl.tasks.placement.maps import MapSet
+from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
 from uavplace.rl.view import PublicMaps
 
 

@@ -102,7 +102,7 @@ from uavplace.schemas.base import repeated
     "--predictor",
     default=str(shipped("data/agents/searcher/unet")),
     show_default=True,
-    help="The map searcher's radio-map predictor (rl/searcher.py): a learned tier's folder (`uavrl train-predictor`), "
+    help="The map searcher's radio-map predictor (rl/tasks/placement/searcher.py): a learned tier's folder (`uavrl train-predictor`), "
     "the physics tier's constants (data/agents/searcher/predictor.json, `uavrl fit-predictor`), or 'none' "
     "to leave the searcher and its ablation out (with --task tracking, the tracking searcher, rl/tasks/tracking/searcher.py). Its "
     "predicted maps are cached under ROOT/.predictions/.",
@@ -327,8 +327,8 @@ def _check_runs_once(runs: list[Path], option: str) -> None:
 
 def _method_names() -> set[str]:
     """The names of the report's methods other than agents (a group may not take one)."""
-    from uavplace.rl.policies import GeniePolicy, GreedyPolicy, RandomWalkPolicy
-    from uavplace.rl.searcher import SEARCHER
+    from uavplace.rl.tasks.placement.policies import GeniePolicy, GreedyPolicy, RandomWalkPolicy
+    from uavplace.rl.tasks.placement.searcher import SEARCHER
 
     return {GeniePolicy.name, RandomWalkPolicy.name, GreedyPolicy.name, SEARCHER, "oracle"}
 

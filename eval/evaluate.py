@@ -21,11 +21,11 @@ from uavplace.rl.agent.cities import training_users
 from uavplace.rl.agent.config import DQNConfig
 from uavplace.rl.agent.runs import RUN_JSON, RunRecord, policy_from_checkpoint, read_run_json, settings_unlike
 from uavplace.rl.belief import PREDICTIONS, PredictionCache, load_predictor
-from uavplace.rl.config import EnvConfig
-from uavplace.rl.maps import MapSet
-from uavplace.rl.policies import GeniePolicy, GreedyPolicy, Policy, RandomWalkPolicy
-from uavplace.rl.rollout import run_episodes
-from uavplace.rl.searcher import SEARCHER, MapSearchPolicy
+from uavplace.rl.tasks.placement.config import EnvConfig
+from uavplace.rl.tasks.placement.maps import MapSet
+from uavplace.rl.tasks.placement.policies import GeniePolicy, GreedyPolicy, Policy, RandomWalkPolicy
+from uavplace.rl.tasks.placement.rollout import run_episodes
+from uavplace.rl.tasks.placement.searcher import SEARCHER, MapSearchPolicy
 from uavplace.rl.tasks.registry import TASKS
 from uavplace.rl.view import PublicMaps
 from uavplace.schemas import InputError
@@ -73,7 +73,7 @@ def agent_name(config: DQNConfig) -> str:
     learner = "PQN" if config.learner == "pqn" else "DQN"
     core = " + GRU" if config.recurrent else ""
     members = f" x {config.ensemble}" if config.ensemble > 1 else ""
-    tag = TASKS[config.task].tag
+    tag = TASKS[config.task.kind].tag
     task = f", {tag}" if tag else ""
     return f"{'' if config.agent == 'dqn' else 'blind '}{learner}{core}{members} ({config.preset}{task})"
 
@@ -101,8 +101,10 @@ def load_agent(folder: str | Path, epsilon: float, seed: int, task: str | None =
             "differ): the report would describe another agent than it plays",
             field="config",
         )
-    if task is not None and config.task != task:
-        raise InputError(folder, f"a {config.task} agent, not a {task} one: {TASKS[config.task].report} plays it", field="task")
+    if task is not None and config.task.kind != task:
+        raise InputError(
+            folder, f"a {config.task.kind} agent, not a {task} one: {TASKS[config.task.kind].report} plays it", field="task"
+        )
     policy.name = agent_name(config)
     metrics = None
     if (folder / "metrics.parquet").is_file():
@@ -124,7 +126,7 @@ def default_agents(root: str | Path = SHIPPED_AGENTS, task: str | tuple[str, ...
     root = Path(root)
     tasks = (task,) if isinstance(task, str) else task
     found = sorted(p for p in root.iterdir() if (p / "checkpoints" / "best.pt").is_file()) if root.is_dir() else []
-    return [p for p in found if tasks is None or not has_record(p) or read_run_json(p).config.task in tasks]
+    return [p for p in found if tasks is None or not has_record(p) or read_run_json(p).config.task.kind in tasks]
 
 
 def unlike_training(runs: list[Path], datasets: list[str], root: str | Path, p_t_db: float) -> list[str]:
@@ -238,7 +240,7 @@ def report_env(config: ReportConfig) -> EnvConfig:
 
 def baseline_policies(config: ReportConfig, env: EnvConfig, cache: str | Path | None = None) -> list[Policy]:
     """The genie, the steered random walk and greedy hill-climbing, seeded as the report is (their names are the
-    table's); then, with ``config.predictor``, the map searcher and its ablation shown no building (``rl.searcher``), their
+    table's); then, with ``config.predictor``, the map searcher and its ablation shown no building (``rl.tasks.placement.searcher``), their
     predicted maps kept in ``cache`` (None: not on disk)."""
     out: list[Policy] = [GeniePolicy(), RandomWalkPolicy(seed=config.seed), GreedyPolicy(env.p_h_db, seed=config.seed)]
     if config.predictor is not None:

@@ -37,7 +37,6 @@ from uavplace.eval.render import _CSS, _figure, _templates, difference_rows
 from uavplace.infra.console import markdown_list, markdown_table
 from uavplace.infra.files import atomic_directory, check_replaceable
 from uavplace.rl.belief import PREDICTIONS, PredictionCache, load_predictor
-from uavplace.rl.rollout import STATS, format_stat
 from uavplace.rl.tasks.fleet import (
     FleetConfig,
     FleetGreedy,
@@ -47,6 +46,7 @@ from uavplace.rl.tasks.fleet import (
     FleetSearcher,
     run_fleet,
 )
+from uavplace.rl.tasks.placement.rollout import STATS, format_stat
 from uavplace.schemas.base import InputError, uavplace_version
 
 FLEET_JSON = "fleet.json"
@@ -74,11 +74,11 @@ def fleet_results(
         policies.append(FleetSearcher(load_predictor(config.predictor), None, cache).bind(maps))
     for run in config.runs:
         agent = load_agent(run, config.test_epsilon, config.seed, task=None)
-        if agent.config.task not in _FLEET_PREFIX:
+        if agent.config.task.kind not in _FLEET_PREFIX:
             raise InputError(
-                run, f"a {agent.config.task} agent: the fleet plays placement agents and fleet-trained ones", field="task"
+                run, f"a {agent.config.task.kind} agent: the fleet plays placement agents and fleet-trained ones", field="task"
             )
-        prefix = _FLEET_PREFIX[agent.config.task]
+        prefix = _FLEET_PREFIX[agent.config.task.kind]
         policies.append(
             FleetPlacement(agent.policy, agent.config.env_config(evaluation=True), agent.name, prefix=prefix).bind(maps)
         )

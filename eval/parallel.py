@@ -23,9 +23,9 @@ from collections.abc import Callable
 import numpy as np
 import pandas as pd
 
-from uavplace.rl.maps import MapSet
-from uavplace.rl.policies import Policy
-from uavplace.rl.rollout import run_episodes
+from uavplace.rl.tasks.placement.maps import MapSet
+from uavplace.rl.tasks.placement.policies import Policy
+from uavplace.rl.tasks.placement.rollout import run_episodes
 
 #: Seconds between two progress messages of one task.
 PROGRESS_EVERY_S = 1.0

@@ -4,7 +4,7 @@
 ``uavplace/UavPlacement-v0`` (several envs sharing one ``MapSet``; observations scaled by ``OBS_SCALE``,
 the env's ``obs_scale``) until a budget of CPU seconds of this process, or of steps, is spent; the
 policy's weights are saved as a weights-only torch file (never SB3's zip, whose ``load`` unpickles).
-``SB3Policy`` plays a model as a ``rl.policies.Policy``, with the test-epsilon random legal moves of
+``SB3Policy`` plays a model as a ``rl.tasks.placement.policies.Policy``, with the test-epsilon random legal moves of
 uavplace's agents drawn per episode, so that ``eval.evaluate.evaluate`` scores it beside them on the
 same episodes. ``peer_table`` plays a `best` run, the peers and the genie on the same episodes of validation cities.
 ``uavrl peer train`` and ``uavrl peer table`` are the commands; docs/peer.md has the worked example and the results.
@@ -30,12 +30,12 @@ from uavplace.eval.evaluate import ReportConfig, evaluate, load_agent
 from uavplace.eval.metrics import bootstrap_table
 from uavplace.infra.files import atomic_write_bytes, atomic_write_text
 from uavplace.rl.agent.cities import plan_cities
-from uavplace.rl.config import EnvConfig
-from uavplace.rl.maps import MapSet
-from uavplace.rl.policies import GeniePolicy, episode_draws, pick_legal
 from uavplace.rl.randomness import stream_key
-from uavplace.rl.rollout import format_stat
-from uavplace.rl.vec_env import BatchedEnv, decode_obs
+from uavplace.rl.tasks.placement.config import EnvConfig
+from uavplace.rl.tasks.placement.env import BatchedEnv, decode_obs
+from uavplace.rl.tasks.placement.maps import MapSet
+from uavplace.rl.tasks.placement.policies import GeniePolicy, episode_draws, pick_legal
+from uavplace.rl.tasks.placement.rollout import format_stat
 from uavplace.schemas import InputError
 
 #: What the env's observations are divided by for SB3 (uavplace's own networks divide by the same).

@@ -37,8 +37,8 @@ from uavplace.infra.cluster import start_ray
 from uavplace.infra.files import atomic_write_text, check_name, read_model_toml
 from uavplace.infra.limits import check_limit
 from uavplace.rl.agent.config import DQNConfig, parse_settings, preset_config
-from uavplace.rl.policies import GeniePolicy
-from uavplace.rl.rollout import format_stat
+from uavplace.rl.tasks.placement.policies import GeniePolicy
+from uavplace.rl.tasks.placement.rollout import format_stat
 from uavplace.schemas import InputError
 from uavplace.schemas.base import MAX_SEED, Contract, repeated
 

@@ -34,8 +34,8 @@ from uavplace.eval.render import _CSS, _figure, _templates
 from uavplace.infra.console import markdown_table
 from uavplace.infra.files import atomic_directory, check_replaceable
 from uavplace.rl.belief import PREDICTIONS, PredictionCache, load_predictor
-from uavplace.rl.policies import GreedyPolicy, RandomWalkPolicy
-from uavplace.rl.searcher import MapSearchPolicy
+from uavplace.rl.tasks.placement.policies import GreedyPolicy, RandomWalkPolicy
+from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
 from uavplace.rl.tasks.tracking import (
     Holding,
     MovesOnly,
@@ -96,7 +96,7 @@ def tracking_methods(
     the user (``Holding``), right after itself; tracking agents, the searcher, the genie and the oracle stay already."""
     played = []
     for a in agents:
-        played += _AGENTS_IN_TRACKING.get(a.config.task, _placement_in_tracking)(a, hold)
+        played += _AGENTS_IN_TRACKING.get(a.config.task.kind, _placement_in_tracking)(a, hold)
     baselines = [MovesOnly(RandomWalkPolicy(seed=seed)), MovesOnly(GreedyPolicy(task.p_h_db, seed=seed))]
     searchers = [] if searcher is None else [searcher]
     return [OraclePolicy(), *played, ReplanningGenie(), *searchers, *(m for b in baselines for m in _and_holding(b, hold))]

@@ -21,8 +21,8 @@ from uavplace.eval.cities import development_cities
 from uavplace.eval.evaluate import Agent, ReportConfig, evaluate, load_agent
 from uavplace.rl.agent.dqn import DQNPolicy
 from uavplace.rl.agent.network import MeanQ
-from uavplace.rl.policies import GeniePolicy
-from uavplace.rl.rollout import summarise
+from uavplace.rl.tasks.placement.policies import GeniePolicy
+from uavplace.rl.tasks.placement.rollout import summarise
 
 
 def main() -> None:

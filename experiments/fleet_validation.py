@@ -51,7 +51,7 @@ def main() -> None:
     agents = [
         load_agent(f, 0.096, args.seed, task=None) for f in args.agent or [Path("data/agents/best"), Path("data/agents/fleet")]
     ]
-    names = [("" if a.config.task == "fleet" else "independent ") + a.name for a in agents]
+    names = [("" if a.config.task.kind == "fleet" else "independent ") + a.name for a in agents]
     columns = names if args.agents_only else ["random walk", "greedy", *names, "map searcher"]
     print(f"| city | oracle median | {' | '.join(columns)} | last median / oracle's |")
     print("|---|---|" + "---|" * (len(columns) + 1))

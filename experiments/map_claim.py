@@ -32,7 +32,7 @@ from uavplace.eval.evaluate import ReportConfig, evaluate, load_agent
 from uavplace.eval.metrics import group_tables
 from uavplace.eval.render import group_rows
 from uavplace.infra.console import markdown_table
-from uavplace.rl.policies import GeniePolicy
+from uavplace.rl.tasks.placement.policies import GeniePolicy
 from uavplace.schemas import InputError
 
 #: The conditions, in the table's order; the first is the reference of the differences.

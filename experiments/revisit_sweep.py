@@ -24,8 +24,8 @@ import numpy as np
 from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.cities import development_cities
 from uavplace.eval.evaluate import ReportConfig, evaluate, load_agent
-from uavplace.rl.policies import GeniePolicy
-from uavplace.rl.rollout import summarise
+from uavplace.rl.tasks.placement.policies import GeniePolicy
+from uavplace.rl.tasks.placement.rollout import summarise
 
 BETAS = (0.0, 1.0, 3.0, 10.0, 30.0)
 

@@ -45,8 +45,8 @@ from uavplace.dataset.bundle import Bundle, load_bundle
 from uavplace.eval.evaluate import ReportConfig, evaluate
 from uavplace.infra.console import markdown_table
 from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, CandidateMaps, PredictionCache, load_predictor
-from uavplace.rl.policies import GeniePolicy
-from uavplace.rl.searcher import SEARCHER, MapSearchPolicy
+from uavplace.rl.tasks.placement.policies import GeniePolicy
+from uavplace.rl.tasks.placement.searcher import SEARCHER, MapSearchPolicy
 from uavplace.rl.view import AgentView, PublicMaps, public_maps
 from uavplace.schemas.constants import P_T_DB
 

@@ -29,10 +29,10 @@ from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.evaluate import ReportConfig, evaluate
 from uavplace.infra.console import markdown_table
 from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
-from uavplace.rl.maps import transform
-from uavplace.rl.policies import GeniePolicy
 from uavplace.rl.predictor import Scene
-from uavplace.rl.searcher import MapSearchPolicy
+from uavplace.rl.tasks.placement.maps import transform
+from uavplace.rl.tasks.placement.policies import GeniePolicy
+from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
 from uavplace.rl.view import AgentView, public_maps
 
 KNOWN = "searcher told where the user is"

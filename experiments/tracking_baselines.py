@@ -22,7 +22,7 @@ from uavplace.eval.cities import development_cities
 from uavplace.eval.evaluate import check_unseen, load_agent
 from uavplace.eval.tracking import tracking_methods
 from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
-from uavplace.rl.searcher import MapSearchPolicy
+from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
 from uavplace.rl.tasks.tracking import RouteSet, TrackingConfig, TrackingSearchPolicy, fit_motion, run_tracking
 
 

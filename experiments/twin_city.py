@@ -34,10 +34,10 @@ from uavplace.eval.cities import development_cities
 from uavplace.eval.evaluate import ReportConfig, default_agents, evaluate, load_agent
 from uavplace.eval.metrics import bootstrap_table, difference_table
 from uavplace.infra.console import markdown_table
-from uavplace.rl.config import EnvConfig
-from uavplace.rl.maps import MapSet
-from uavplace.rl.policies import GeniePolicy
-from uavplace.rl.rollout import format_stat
+from uavplace.rl.tasks.placement.config import EnvConfig
+from uavplace.rl.tasks.placement.maps import MapSet
+from uavplace.rl.tasks.placement.policies import GeniePolicy
+from uavplace.rl.tasks.placement.rollout import format_stat
 
 #: The two cities' labels in the table.
 PATHS, RADIO = "exact paths", "radio map"

@@ -19,7 +19,7 @@ The predicted maps of a canvas are computed once and kept on disk (``PredictionC
 the symmetry, the candidate lattice, the blanked map and the predictor's version (its weights, constants and code),
 and checked whenever they are read. ``BeliefModel`` holds the arithmetic, ``BeliefTracker`` the belief of every row
 of a ``BatchedEnv`` as an observation channel (the hybrid learner, ``EnvConfig.belief_channel``). The planners
-(``rl.searcher``, ``rl.tasks.tracking.searcher``, ``rl.tasks.fleet``) use it; this module imports none of them.
+(``rl.tasks.placement.searcher``, ``rl.tasks.tracking.searcher``, ``rl.tasks.fleet``) use it; this module imports none of them.
 """
 
 from __future__ import annotations
@@ -38,8 +38,8 @@ from scipy.special import ndtr
 from uavplace.infra.files import atomic_write_bytes, read_model_json, read_small_file
 from uavplace.infra.limits import check_limit, limits
 from uavplace.rl.config import DEFAULT_CONSTANTS, DEFAULT_PREDICTOR, SearchConfig
-from uavplace.rl.maps import MapSet, transform
 from uavplace.rl.predictor import PhysicsConstants, PhysicsPredictor, Predictor, Scene
+from uavplace.rl.tasks.placement.maps import MapSet, transform
 from uavplace.rl.view import PublicMaps
 from uavplace.schemas import InputError
 
@@ -169,7 +169,7 @@ class BeliefModel:
     """The searcher's belief arithmetic over the candidate cells of a canvas: the predicted maps of every candidate
     (``canvas_maps``, cached on disk by ``PredictionCache``), the likelihood of a measurement (``update``), the
     probability that a cell reaches P_T (``cover``) and the information a measurement gives (``information``). No
-    planning: ``rl.searcher.MapSearchPolicy`` plans on it, ``BeliefTracker`` paints it for the hybrid's observation."""
+    planning: ``rl.tasks.placement.searcher.MapSearchPolicy`` plans on it, ``BeliefTracker`` paints it for the hybrid's observation."""
 
     def __init__(
         self, predictor: Predictor | PhysicsConstants, config: SearchConfig | None = None, cache: PredictionCache | None = None

@@ -12,7 +12,8 @@ from uavplace.infra.console import LogLines, fail, plain_table, root_option, std
 from uavplace.infra.options import model_options
 from uavplace.rl.agent.config import PRESETS, DQNConfig
 from uavplace.rl.config import EpisodeSettings
-from uavplace.rl.rollout import STATS, format_stat, summarise
+from uavplace.rl.tasks.placement.rollout import STATS, format_stat, summarise
+from uavplace.rl.tasks.registry import TASKS
 
 
 @click.command()
@@ -63,10 +64,10 @@ def baselines(
     from rich.progress import Progress
 
     from uavplace.infra.limits import check_limit
-    from uavplace.rl.config import EnvConfig
-    from uavplace.rl.maps import MapSet
-    from uavplace.rl.policies import GeniePolicy, GreedyPolicy, RandomWalkPolicy
-    from uavplace.rl.rollout import run_episodes
+    from uavplace.rl.tasks.placement.config import EnvConfig
+    from uavplace.rl.tasks.placement.maps import MapSet
+    from uavplace.rl.tasks.placement.policies import GeniePolicy, GreedyPolicy, RandomWalkPolicy
+    from uavplace.rl.tasks.placement.rollout import run_episodes
 
     check_limit("episode_steps", episodes * t_max, None, "--episodes x --t-max", field="episodes")
     config = EnvConfig(t_max=t_max, p_t_db=p_t_db, split=split, rotate=False)
@@ -116,7 +117,14 @@ _TRAIN_OPTIONS = {"total_steps": "--steps"}
     "best-dqn (that one learnt by replay DQN), paper (docs/method.md, about 7 M steps: days on a CPU), fast (40 k "
     "steps, for checks). Their settings: rl/agent/config.py, PRESETS; what each costs: the README, Training and reporting.",
 )
-@model_options(DQNConfig, "task", "total_steps", names=_TRAIN_OPTIONS, unset={"total_steps": "the preset's"})
+@click.option(
+    "--task",
+    type=click.Choice(list(TASKS)),
+    default="placement",
+    show_default=True,
+    help=DQNConfig.model_fields["task"].description,
+)
+@model_options(DQNConfig, "total_steps", names=_TRAIN_OPTIONS, unset={"total_steps": "the preset's"})
 @click.option(
     "--set",
     "settings",
@@ -163,6 +171,7 @@ def train(
     datasets,
     val_datasets,
     preset: str,
+    task: str,
     settings,
     runs: Path,
     name: str | None,
@@ -203,7 +212,7 @@ def train(
         given = parse_settings(settings)
         # settings with their own option: the option would win over the --set without a word (--agent, --task and
         # --seed always, with their defaults; --steps and --eval-every when given)
-        chosen = {k: v for k, v in options.items() if v is not None}
+        chosen = {k: v for k, v in options.items() if v is not None} | {"task": task}
         clash = [f"--set {k} and {_TRAIN_OPTIONS.get(k, '--' + k.replace('_', '-'))}" for k in given if k in chosen]
         if clash:
             raise click.UsageError(f"{', '.join(clash)} set the same field: give it once, with the option")

@@ -61,9 +61,9 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from uavplace.rl.config import EnvConfig
-from uavplace.rl.maps import MapSet
-from uavplace.rl.vec_env import BatchedEnv
+from uavplace.rl.tasks.placement.config import EnvConfig
+from uavplace.rl.tasks.placement.env import BatchedEnv
+from uavplace.rl.tasks.placement.maps import MapSet
 from uavplace.schemas.constants import reaches_target
 
 

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from uavplace.dataset.bundle import public_settings
-from uavplace.rl.config import EnvConfig
-from uavplace.rl.maps import MOVES, MapSet, transform
+from uavplace.rl.tasks.placement.config import EnvConfig
+from uavplace.rl.tasks.placement.maps import MOVES, MapSet, transform
 
 
 @dataclass(frozen=True)

@@ -190,7 +190,7 @@ class Simulation(Contract):
         try:
             return check_name(value, "city name")
         except InputError as err:
-            raise ValueError(err.message) from None
+            raise ValueError(str(err)) from None
 
     @field_validator("route_kinds", "gap_fill", mode="before")
     @classmethod

@@ -414,7 +414,7 @@ def option_probes(base: Base) -> list[Probe]:
 
 def set_probes(base: Base) -> list[Probe]:
     from uavplace.rl.agent.config import DQNConfig
-    from uavplace.rl.config import EnvConfig
+    from uavplace.rl.tasks.placement.config import EnvConfig
 
     keys = [k for k, f in DQNConfig.model_fields.items() if f.annotation in (int, float) and k != "seed"]
     keys += [f"env.{k}" for k, f in EnvConfig.model_fields.items() if f.annotation in (int, float)]

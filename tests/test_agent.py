@@ -24,9 +24,9 @@ from uavplace.rl.agent.pqn import q_lambda_returns
 from uavplace.rl.agent.replay import Batch, ReplayBuffer
 from uavplace.rl.agent.runs import load_policy, read_run_json
 from uavplace.rl.agent.train import Trainer
-from uavplace.rl.config import EnvConfig
-from uavplace.rl.maps import MapSet
-from uavplace.rl.vec_env import BatchedEnv
+from uavplace.rl.tasks.placement.config import EnvConfig
+from uavplace.rl.tasks.placement.env import BatchedEnv
+from uavplace.rl.tasks.placement.maps import MapSet
 from uavplace.schemas import InputError
 from uavplace.schemas.bundle import BuildConfig
 
@@ -481,8 +481,8 @@ def test_short_training_run_learns(tmp_path, learner):
     recurrent network)."""
     from pathlib import Path
 
-    from uavplace.rl.policies import RandomWalkPolicy
-    from uavplace.rl.rollout import run_episodes, summarise
+    from uavplace.rl.tasks.placement.policies import RandomWalkPolicy
+    from uavplace.rl.tasks.placement.rollout import run_episodes, summarise
 
     raw = Path(__file__).resolve().parents[1] / "data" / "raw" / "tiny"
     ingest_city(raw, tmp_path / "p", name="tiny")
@@ -624,7 +624,7 @@ class BackToVisitedNet(torch.nn.Module):
         self.unused = torch.nn.Parameter(torch.zeros(1))  # DQNPolicy reads the device from the parameters
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        from uavplace.rl.maps import MOVES
+        from uavplace.rl.tasks.placement.maps import MOVES
 
         c = obs.shape[-1] // 2
         return torch.stack([1.0 + obs[:, -2, c + dy, c + dx] for dy, dx in MOVES.tolist()], dim=1)
@@ -633,9 +633,9 @@ class BackToVisitedNet(torch.nn.Module):
 def test_revisit_penalty_breaks_a_loop(city_root):
     """With the penalty, the greedy move leaves cells it has been in: the looping network's episodes cover more
     cells and succeed more often than its plain argmax, which never leaves its first two cells."""
-    from uavplace.rl.config import EnvConfig
-    from uavplace.rl.maps import MapSet
-    from uavplace.rl.rollout import run_episodes, summarise
+    from uavplace.rl.tasks.placement.config import EnvConfig
+    from uavplace.rl.tasks.placement.maps import MapSet
+    from uavplace.rl.tasks.placement.rollout import run_episodes, summarise
 
     maps = MapSet.load(["tiny"], EnvConfig(t_max=60, window=21, visited_channel=True, rotate=False), root=str(city_root))
     episodes = maps.sample_episodes(64, np.random.default_rng(3))
@@ -854,3 +854,29 @@ def test_ctrl_c_checkpoints_and_only_resumes_that_ran_are_recorded(tmp_path, cit
     res = CliRunner().invoke(uavrl, ["train", "--resume", str(early), "--root", str(city_root), "--quiet"])
     assert res.exit_code == 0, res.output
     assert (early / "checkpoints" / "best.pt").is_file() and read_run_json(early).config == _tiny_config()
+
+
+def test_a_runs_task_is_its_settings_and_an_earlier_record_reads_alike():
+    """``DQNConfig.task`` is the task's settings told apart by ``kind`` (a discriminated union); a run.json written
+    before (``"task": "tracking"`` beside ``"tracking": {...}``) reads as the same config, and the settings of one task
+    are refused on another."""
+    from uavplace.rl.agent.config import DQNConfig, preset_config
+    from uavplace.schemas import InputError
+
+    for kind, settings in (("tracking", {"horizon": 24}), ("fleet", {"uavs": 3, "users": 4})):
+        new = preset_config("best", task=kind, **{kind: settings})
+        doc = new.model_dump(mode="json")
+        assert doc["task"]["kind"] == kind and all(doc["task"][k] == v for k, v in settings.items())
+        old = {k: v for k, v in doc.items() if k != "task"}
+        old |= {"task": kind, kind: {k: v for k, v in doc["task"].items() if k != "kind"}}
+        assert DQNConfig.model_validate(old) == new
+        with pytest.raises(InputError, match=f"{kind} settings are for --task {kind}"):
+            preset_config("best", **{kind: settings})
+    placement = preset_config("best")
+    assert placement.task.kind == "placement" and placement.n_actions == 4
+    earlier = {k: v for k, v in placement.model_dump(mode="json").items() if k != "task"}
+    assert DQNConfig.model_validate(earlier | {"tracking": None, "fleet": None}) == placement
+    with pytest.raises(ValidationError):
+        DQNConfig.model_validate(placement.model_dump(mode="json") | {"task": {"kind": "placement", "horizon": 3}})
+    with pytest.raises(InputError, match="unknown task"):
+        preset_config("best", task="swarm")

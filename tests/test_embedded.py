@@ -47,10 +47,10 @@ def test_the_roles_file_declares_the_embedded_cities():
 def test_embedded_city_ingests_builds_and_is_faithful(tmp_path, city):
     """As documented: the users and grid of its simulation.json, no mosaic above the SINR floor, a genie that
     always succeeds, a valid Gymnasium environment."""
-    from uavplace.rl.config import EnvConfig
-    from uavplace.rl.maps import MapSet
-    from uavplace.rl.policies import GeniePolicy
-    from uavplace.rl.rollout import run_episodes
+    from uavplace.rl.tasks.placement.config import EnvConfig
+    from uavplace.rl.tasks.placement.maps import MapSet
+    from uavplace.rl.tasks.placement.policies import GeniePolicy
+    from uavplace.rl.tasks.placement.rollout import run_episodes
     from uavplace.simulate.fidelity import lattice_boundary_shares, lattice_step_ratios
     from uavplace.simulate.raytrace import constant_patch_share
 

@@ -17,12 +17,12 @@ from tests.conftest import write_grid_city
 from uavplace.dataset.build import build_city
 from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target
 from uavplace.ingest.pipeline import ingest_city
-from uavplace.rl.config import EnvConfig
 from uavplace.rl.env import UavPlacementEnv
-from uavplace.rl.maps import MOVES, MapSet
-from uavplace.rl.policies import GeniePolicy, GreedyPolicy, RandomWalkPolicy
-from uavplace.rl.rollout import run_episodes
-from uavplace.rl.vec_env import BatchedEnv, decode_obs, encode_obs
+from uavplace.rl.tasks.placement.config import EnvConfig
+from uavplace.rl.tasks.placement.env import BatchedEnv, decode_obs, encode_obs
+from uavplace.rl.tasks.placement.maps import MOVES, MapSet
+from uavplace.rl.tasks.placement.policies import GeniePolicy, GreedyPolicy, RandomWalkPolicy
+from uavplace.rl.tasks.placement.rollout import run_episodes
 from uavplace.schemas.bundle import BuildConfig
 
 

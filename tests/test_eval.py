@@ -16,7 +16,7 @@ from uavplace.eval.metrics import bootstrap_table, difference_table, ecdf, forma
 from uavplace.ingest.pipeline import ingest_city
 from uavplace.rl.agent.config import preset_config
 from uavplace.rl.agent.train import Trainer
-from uavplace.rl.rollout import summarise
+from uavplace.rl.tasks.placement.rollout import summarise
 from uavplace.schemas.bundle import BuildConfig
 
 
@@ -324,9 +324,9 @@ def test_twin_cities_play_the_same_episodes_where_both_can_start(two_cities):
     same cells in both (``evaluate(episodes=...)``, the exact-path twin's benchmark); one that cannot start is refused."""
     from uavplace.dataset.bundle import load_bundle
     from uavplace.eval.evaluate import ReportConfig, evaluate
-    from uavplace.rl.config import EnvConfig
-    from uavplace.rl.maps import MapSet
-    from uavplace.rl.policies import GeniePolicy
+    from uavplace.rl.tasks.placement.config import EnvConfig
+    from uavplace.rl.tasks.placement.maps import MapSet
+    from uavplace.rl.tasks.placement.policies import GeniePolicy
 
     root, _ = two_cities
     b, c = load_bundle("cityb", root=root), load_bundle("cityc", root=root)
@@ -455,7 +455,7 @@ def test_evaluations_over_the_step_limit_are_refused_before_any_work(tiny):
 
 def test_a_terminal_gets_the_columns_that_fit():
     from uavplace.eval.cli import TERMINAL_COLUMNS, terminal_columns
-    from uavplace.rl.rollout import STATS
+    from uavplace.rl.tasks.placement.rollout import STATS
 
     header = ["method", *STATS.values(), "paper: success", "paper: median steps"]
     rows = terminal_columns([header, [f"m{i}" for i in range(len(header))]])

@@ -8,8 +8,8 @@ from collections import deque
 import numpy as np
 import pytest
 
-from uavplace.rl.maps import MOVES
 from uavplace.rl.tasks.fleet import FLEET_MOVES, BatchedFleet, FleetCity, FleetConfig, FleetMaps, FleetView, oracle_steps
+from uavplace.rl.tasks.placement.maps import MOVES
 
 
 def _city(seed: int, side: int = 7, users: int = 4, walls: int = 6) -> FleetCity:
@@ -403,7 +403,7 @@ def test_fleet_env_for_the_learner_rewards_each_uav_for_its_own_users(tiny):
 
     config = _fleet_run_config()
     env_config = config.env_config()
-    maps = FleetMaps.of([load_bundle("tiny", root=str(tiny))], config.fleet)
+    maps = FleetMaps.of([load_bundle("tiny", root=str(tiny))], config.fleet_config())
     env = FleetTrainEnv(maps, env_config, 8)
     obs, info = env.reset(seed=3)
     assert obs.shape[0] == 8 and info["action_mask"].shape == (8, 4)
@@ -427,7 +427,7 @@ def test_fleet_env_for_the_learner_rewards_each_uav_for_its_own_users(tiny):
                 y, x = f.pos[e, k]
                 after = f.memory[e, mine, y, x]
                 fresh = visits[e, y, x] == 0
-                served = (after >= config.fleet.p_t_db).all() and not (before[e, k, mine] >= config.fleet.p_t_db).all()
+                served = (after >= config.task.p_t_db).all() and not (before[e, k, mine] >= config.task.p_t_db).all()
                 want = after.min() - before[e, k, mine].min() + env_config.c_e * fresh + env_config.success_bonus * served
                 assert r == pytest.approx(want, abs=1e-4)
                 reach = maps.group_reach(int(f.city[e]), tuple(np.flatnonzero(mine)))
@@ -455,7 +455,7 @@ def test_fleet_agent_trains_resumes_exactly_and_reports(tiny, tmp_path):
     straight.run()
     evals = pd.read_parquet(tmp_path / "a" / "eval.parquet")
     assert evals["step"].tolist() == [128, 256] and evals["success"].between(0, 1).all()
-    assert read_run_json(tmp_path / "a").config.task == "fleet"
+    assert read_run_json(tmp_path / "a").config.task.kind == "fleet"
     half = FleetTrainer(_fleet_run_config(), ["tiny"], tiny, tmp_path / "b")
     half.run(stop_at=96)
     resumed = FleetTrainer(_fleet_run_config(), ["tiny"], tiny, tmp_path / "b")

@@ -16,9 +16,9 @@ import pytest
 
 from tests.conftest import REPO
 from uavplace.eval.evaluate import default_agents, load_agent
-from uavplace.rl.maps import MapSet
-from uavplace.rl.policies import GeniePolicy
-from uavplace.rl.rollout import run_episodes
+from uavplace.rl.tasks.placement.maps import MapSet
+from uavplace.rl.tasks.placement.policies import GeniePolicy
+from uavplace.rl.tasks.placement.rollout import run_episodes
 
 EPISODES = 12
 T_MAX = 60
@@ -87,14 +87,14 @@ def test_report_methods_read_only_what_they_measured(tiny):
     (``rl.view.AgentView``) and moves the same when the user's map is scrambled off its route: the random walk, greedy
     hill-climbing, the map searcher and its ablation."""
     from uavplace.eval.evaluate import ReportConfig, baseline_policies
-    from uavplace.rl.config import EnvConfig
+    from uavplace.rl.tasks.placement.config import EnvConfig
     from uavplace.rl.view import AgentView, view_for
 
     env = EnvConfig(t_max=T_MAX, rotate=False)
     maps = MapSet.load("tiny", env, root=str(tiny))
     from uavplace.rl.belief import load_predictor
     from uavplace.rl.config import SearchConfig
-    from uavplace.rl.searcher import MapSearchPolicy
+    from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
 
     policies = [p for p in baseline_policies(ReportConfig(dataset="tiny"), env) if not getattr(p, "privileged", False)]
     assert {"map searcher", "map searcher, no buildings", "greedy hill-climbing"} <= {p.name for p in policies}
@@ -104,7 +104,7 @@ def test_report_methods_read_only_what_they_measured(tiny):
     for policy in policies:
         same, _ = _replay(maps, policy, episodes, np.random.default_rng(3))
         assert all(same), f"{policy.name}: moves changed when cells it never visited changed ({same})"
-    from uavplace.rl.vec_env import BatchedEnv
+    from uavplace.rl.tasks.placement.env import BatchedEnv
 
     batch = BatchedEnv(maps, 2)
     batch.reset(0)
@@ -119,8 +119,8 @@ def test_searcher_reads_only_what_it_measured_on_a_validation_city(tmp_path):
     from uavplace.dataset.build import build_city
     from uavplace.ingest.pipeline import ingest_city
     from uavplace.rl.belief import PredictionCache, load_predictor
-    from uavplace.rl.config import EnvConfig
-    from uavplace.rl.searcher import MapSearchPolicy
+    from uavplace.rl.tasks.placement.config import EnvConfig
+    from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
     from uavplace.schemas.bundle import BuildConfig
 
     ingest_city(REPO / "data" / "raw" / "etoile-val", tmp_path)

@@ -31,7 +31,7 @@ from uavplace.rl.learned import (
     training_examples,
 )
 from uavplace.rl.predictor import PhysicsConstants, PhysicsPredictor, Scene
-from uavplace.rl.searcher import MapSearchPolicy
+from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
 from uavplace.schemas import InputError
 
 SMALL = UNetConfig(widths=[4, 8], crop=16, batch=4, steps=40, lr=5e-3, threads=1)
@@ -103,9 +103,9 @@ def test_learned_files_round_trip_and_refuse_foreign_weights(tiny, tmp_path):
 
 
 def test_searcher_with_the_learned_tier_finds_the_tiny_users(tiny, tmp_path):
-    from uavplace.rl.config import EnvConfig
-    from uavplace.rl.maps import MapSet
-    from uavplace.rl.rollout import run_episodes
+    from uavplace.rl.tasks.placement.config import EnvConfig
+    from uavplace.rl.tasks.placement.maps import MapSet
+    from uavplace.rl.tasks.placement.rollout import run_episodes
 
     bundle = load_bundle("tiny", root=tiny)
     _, folder = _trained_and_saved(bundle, tmp_path / "unet")

@@ -84,7 +84,7 @@ def _commands() -> list[tuple[str, str, str, tuple[str, ...]]]:
         ("uavdata", "build", "BuildConfig", (*build, "crop", "seed", "p_t_db", "grid_m")),
         ("uavdata", "build", "CityRoles", ("val_users",)),
         ("uavdata", "simulate", "Simulation", tuple(Simulation.model_fields)),
-        ("uavrl", "train", "DQNConfig", ("agent", "task", "total_steps", "seed", "eval_every")),
+        ("uavrl", "train", "DQNConfig", ("agent", "total_steps", "seed", "eval_every")),
         ("uavrl", "levers", "EpisodeSettings", ("episodes", "seed")),
         ("uavrl", "train-predictor", "UNetConfig", ("widths", "steps", "batch", "seed", "threads")),
         ("uavrl", "report", "FleetConfig", ("uavs", "users")),

@@ -129,7 +129,7 @@ def test_p_t_and_the_target_rule_have_one_home_each():
                 if default.search(line) or (rule.search(line) and not line.lstrip().startswith(("#", '"', "``"))):
                     found.append(f"{path.relative_to(REPO)}:{n}: {line.strip()}")
     assert not found, "\n".join(found)
-    from uavplace.rl.config import EnvConfig
+    from uavplace.rl.tasks.placement.config import EnvConfig
     from uavplace.schemas.constants import P_T_DB, reaches_target
 
     assert EnvConfig().p_t_db == P_T_DB == 5.0
@@ -141,8 +141,9 @@ def test_the_env_and_the_belief_import_no_policy():
     and arithmetic) and the settings import no policy: the env's belief channel reads ``rl.belief``, never the
     searcher; the policies sit above them."""
     graph = _imports()
-    below = ["uavplace.rl." + m for m in ("env", "vec_env", "maps", "view", "belief", "config", "randomness", "predictor")]
-    policies = {"uavplace.rl." + m for m in ("searcher", "tracksearch", "policies")}
+    below = ["uavplace.rl." + m for m in ("env", "view", "belief", "config", "randomness", "predictor")]
+    below += ["uavplace.rl.tasks.placement." + m for m in ("config", "maps", "env")]
+    policies = {f"uavplace.rl.tasks.{t}.{m}" for t in ("placement", "tracking", "fleet") for m in ("searcher", "policies")}
     found = {m: sorted(i for i in graph[m] if i in policies or i.startswith("uavplace.rl.agent")) for m in below}
     assert not any(found.values()), found
 

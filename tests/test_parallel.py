@@ -81,7 +81,7 @@ def test_a_policy_in_a_task_finds_the_prediction_cache_from_another_folder(tmp_p
 
     from tests.test_searcher import _constants
     from uavplace.rl.belief import PredictionCache
-    from uavplace.rl.searcher import MapSearchPolicy
+    from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
 
     monkeypatch.chdir(tmp_path)
     policy = MapSearchPolicy(_constants(), cache=PredictionCache("data/processed/.predictions"))

@@ -11,12 +11,13 @@ from scipy.special import fresnel
 
 from tests.conftest import REPO
 from uavplace.rl.belief import load_constants
-from uavplace.rl.config import EnvConfig, SearchConfig
-from uavplace.rl.maps import MapSet
-from uavplace.rl.policies import RandomWalkPolicy
+from uavplace.rl.config import SearchConfig
 from uavplace.rl.predictor import PhysicsConstants, Scene, fresnel_nu, knife_edge_db, path_features
-from uavplace.rl.rollout import episode_stats, run_episodes
-from uavplace.rl.searcher import MapSearchPolicy
+from uavplace.rl.tasks.placement.config import EnvConfig
+from uavplace.rl.tasks.placement.maps import MapSet
+from uavplace.rl.tasks.placement.policies import RandomWalkPolicy
+from uavplace.rl.tasks.placement.rollout import episode_stats, run_episodes
+from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
 from uavplace.schemas import InputError
 
 
@@ -197,8 +198,8 @@ def test_belief_channel_is_the_searchers_belief_turned_with_the_map(tiny):
     """The hybrid's channel (``BeliefTracker``): the belief after a few measurements is the searcher's own, and a
     canvas turned by a quarter turn, measured at the turned cells, shows the same cover canvas turned."""
     from uavplace.rl.belief import BeliefTracker, PredictionCache
-    from uavplace.rl.maps import transform
     from uavplace.rl.predictor import PhysicsPredictor
+    from uavplace.rl.tasks.placement.maps import transform
     from uavplace.rl.view import PublicMaps
 
     maps = MapSet.load("tiny", EnvConfig(t_max=50, rotate=True, symmetries=4), root=str(tiny))
@@ -235,7 +236,7 @@ def maps_legal(cm) -> np.ndarray:  # noqa: ANN001
 def test_belief_channel_in_the_observation(tiny):
     """``EnvConfig.belief_channel`` adds the tracker's cover window before the SINR memory; blanking the buildings
     (the ablation) changes it, as it changes the predicted maps."""
-    from uavplace.rl.vec_env import BatchedEnv
+    from uavplace.rl.tasks.placement.env import BatchedEnv
 
     constants = str(REPO / "data" / "agents" / "searcher" / "predictor.json")
     cfg = EnvConfig(t_max=50, homing_channel=True, belief_channel=True, belief_predictor=constants)

@@ -176,7 +176,7 @@ def test_env_steps_time_and_the_oracle_bounds_every_method(root):
     """The env moves the user by speed x step time, keeps the UAV in place on stay, truncates at the horizon; on the
     same episodes the oracle covers at least as much as the re-planning genie and a random walk, and exactly what
     its dynamic programme promised."""
-    from uavplace.rl.policies import RandomWalkPolicy
+    from uavplace.rl.tasks.placement.policies import RandomWalkPolicy
 
     config = TrackingConfig(horizon=20, window=9, p_t_db=5.0)
     routes = RouteSet([load_bundle("walk", root=root)], config)
@@ -254,7 +254,7 @@ def test_holding_stays_exactly_while_its_own_measurement_covers(root):
     """``Holding`` stays on every step whose measurement reached P_T and otherwise makes the wrapped method's move; the
     wrapped method is called on every step (so a recurrent agent's state follows the episode), and what it would
     have done while holding is overridden."""
-    from uavplace.rl.policies import RandomWalkPolicy
+    from uavplace.rl.tasks.placement.policies import RandomWalkPolicy
 
     config = TrackingConfig(horizon=25, window=9, p_t_db=5.0)
     routes = RouteSet([load_bundle("walk", root=root)], config)
@@ -417,13 +417,13 @@ def test_tracking_agent_trains_selects_on_validation_routes_and_reports(val_root
     assert "of the horizon covered" in result.output
     run = tmp_path / "straight"
     record = read_run_json(run)
-    assert record.config.task == "tracking" and record.config.n_actions == 5 and record.config.train_revisit_penalty == 0
+    assert record.config.task.kind == "tracking" and record.config.n_actions == 5 and record.config.train_revisit_penalty == 0
     assert set(record.datasets) == {"walk"} and set(record.val_datasets) == {"walk-val"}
     evals, metrics = pd.read_parquet(run / "eval.parquet"), pd.read_parquet(run / "metrics.parquet")
     assert evals["step"].tolist() == [256, 512] and evals["covered_share"].between(0, 1).all()
     assert len(metrics) and metrics["covered_share"].between(0, 1).all() and (metrics["length"] == 24).all()
     policy, config = load_policy(run / "checkpoints" / "best.pt")
-    assert config.task == "tracking" and policy.net.head(torch.zeros(1, 16)).shape == (1, 5)
+    assert config.task.kind == "tracking" and policy.net.head(torch.zeros(1, 16)).shape == (1, 5)
 
     # Stopped at 200 and resumed: the same network as the straight run.
     half = tmp_path / "half"
@@ -539,7 +539,7 @@ def test_rotated_routes_are_their_citys_quarter_turns(root):
     """Training's rotate: each route also under the quarter turns of its city; the identity comes first and is the
     unrotated RouteSet (same maps, same keys: evaluation episodes do not move); each turn's maps are the turned maps
     on the turned canvas, and the oracle bounds the re-planning genie there too."""
-    from uavplace.rl.maps import transform
+    from uavplace.rl.tasks.placement.maps import transform
 
     b = load_bundle("walk", root=root)
     config = TrackingConfig(horizon=20, window=9)
@@ -603,7 +603,7 @@ def test_tracking_searcher_reads_only_what_it_measures(root):
 
     from uavplace.rl.config import SearchConfig
     from uavplace.rl.predictor import PhysicsConstants
-    from uavplace.rl.searcher import MapSearchPolicy
+    from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
     from uavplace.rl.tasks.tracking import TrackingSearchPolicy, fit_motion
 
     bundle = load_bundle("walk", root=root)
@@ -648,7 +648,7 @@ def test_tracking_searcher_plays_one_city_after_another(root, tmp_path):
     but other candidates gets its own motion (the first report of three cities once failed on it)."""
     from uavplace.rl.config import SearchConfig
     from uavplace.rl.predictor import PhysicsConstants
-    from uavplace.rl.searcher import MapSearchPolicy
+    from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
     from uavplace.rl.tasks.tracking import MotionModel, TrackingSearchPolicy
 
     other = tmp_path / "p"

@@ -10,8 +10,8 @@ import numpy as np
 from uavplace.dataset.bundle import Bundle
 from uavplace.rl.agent.config import DQNConfig
 from uavplace.rl.agent.dqn import DQNPolicy
-from uavplace.rl.maps import MapSet
-from uavplace.rl.rollout import run_episodes, summarise
+from uavplace.rl.tasks.placement.maps import MapSet
+from uavplace.rl.tasks.placement.rollout import run_episodes, summarise
 from uavplace.schemas import InputError
 
 

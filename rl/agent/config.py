@@ -9,9 +9,9 @@ from typing import Literal
 from pydantic import ConfigDict, Field, ValidationError, model_validator
 
 from uavplace.infra.limits import limits, over_limit
-from uavplace.rl.config import EnvConfig
 from uavplace.rl.tasks.fleet import FleetConfig
-from uavplace.rl.tasks.registry import TASKS
+from uavplace.rl.tasks.placement.config import EnvConfig
+from uavplace.rl.tasks.registry import TASKS, FleetTask, LearnerTask, PlacementTask, TrackingTask
 from uavplace.rl.tasks.tracking import TrackingConfig
 from uavplace.schemas import InputError
 from uavplace.schemas.base import MAX_SEED, Contract, validation_message
@@ -134,22 +134,16 @@ class DQNConfig(Contract):
         default="auto", description="Where the networks train: auto (CUDA if present, else CPU), cpu, cuda, cuda:N"
     )
     env: EnvConfig = Field(default_factory=lambda: EnvConfig(t_max=800, rotate=True), description="Training environment")
-    task: Literal["placement", "tracking", "fleet"] = Field(
-        default="placement",
-        description="placement: find a user who stands still (the paper's task, 4 moves; the env is `env`); tracking: "
-        "keep a user who walks its route covered (rl/tasks/tracking/; 5 actions, stay the fifth; the task is "
-        "`tracking`, `env` is not read; every training and validation city needs routes, `uavdata simulate --routes "
-        "N`; best.pt is the network that covers the most of the horizon on the validation cities' routes; the preset's "
-        "revisit penalties are off); fleet: several UAVs serve several users (rl/tasks/fleet/, `fleet`: one network on "
-        "every UAV, each playing `env`'s placement observation of the users dealt to it; best.pt is the network that "
+    task: LearnerTask = Field(
+        default_factory=PlacementTask,
+        description="The task learnt (its kind) and its settings. placement: find a user who stands still (the "
+        "paper's task, 4 moves; the env is `env`); tracking: keep a user who walks its route covered "
+        "(rl/tasks/tracking/; 5 actions, stay the fifth; `env` is not read; every training and validation city needs "
+        "routes, `uavdata simulate --routes N`; best.pt is the network that covers the most of the horizon on the "
+        "validation cities' routes; the preset's revisit penalties are off); fleet: several UAVs serve several users "
+        "(rl/tasks/fleet/: one network on every UAV, each playing `env`'s placement observation of the users dealt to it; best.pt is the network that "
         "serves every user in the most fleet episodes of the validation cities; --set fleet.uavs=2 --set fleet.users=3 "
         "are the defaults, --set init=data/agents/best starts from a trained network).",
-    )
-    tracking: TrackingConfig | None = Field(
-        default=None, description="The tracking task (horizon, P_T, speeds, observation) of a tracking run; None otherwise"
-    )
-    fleet: FleetConfig | None = Field(
-        default=None, description="The fleet task (UAVs, users, step budget, reward) of a fleet run; None otherwise"
     )
     init: str | None = Field(
         default=None,
@@ -157,6 +151,18 @@ class DQNConfig(Contract):
         "same network as this config's); None: random weights",
     )
     init_member: int = Field(default=0, ge=0, description="With init an ensemble: the member whose weights start the run")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _task_of_a_record(cls, data: object) -> object:
+        """A record written before the task held its settings (``"task": "tracking"`` beside ``"tracking": {...}``)
+        read as the task it describes."""
+        if isinstance(data, dict) and isinstance(data.get("task", "placement"), str):
+            data = dict(data)
+            kind = data.pop("task", "placement")
+            own = {t.settings: data.pop(t.settings, None) for t in TASKS.values() if t.settings is not None}
+            data["task"] = {"kind": kind, **(own.get(kind) or {})}
+        return data
 
     @model_validator(mode="after")
     def _rollout_holds_a_batch(self) -> DQNConfig:
@@ -169,12 +175,7 @@ class DQNConfig(Contract):
             raise ValueError("recurrent needs learner=pqn (the replay learner samples single transitions, not sequences)")
         if self.test_aux_weight > 0 and self.aux_genie <= 0:
             raise ValueError("test_aux_weight needs a network with a genie-move head (trained with aux_genie > 0)")
-        task = TASKS[self.task]
-        for other in TASKS.values():
-            if other.settings is not None and (other is task) != (getattr(self, other.settings) is not None):
-                raise ValueError(
-                    f"a {other.name} run needs its task config ({other.settings}), and only a {other.name} run has one"
-                )
+        task = TASKS[self.task.kind]
         if not task.channels and (self.env.belief_channel or self.env.context_zoom):
             raise ValueError(f"a {task.name} run deals each UAV a changing set of users: no belief or context channel")
         if not task.revisits and (self.train_revisit_penalty or self.test_revisit_penalty):
@@ -191,7 +192,7 @@ class DQNConfig(Contract):
             ("eval_episodes", "episodes", self.eval_episodes),
             ("eval_t_max", "t_max", self.eval_t_max),
             ("env.t_max", "t_max", self.env.t_max),
-            ("fleet.t_max", "t_max", self.fleet.t_max if self.fleet else 0),
+            ("task.t_max", "t_max", getattr(self.task, "t_max", 0)),
         ):
             if value > getattr(limits(), limit):
                 raise ValueError(over_limit(limit, value, field))
@@ -205,17 +206,23 @@ class DQNConfig(Contract):
     @property
     def n_actions(self) -> int:
         """The network's outputs: the 4 moves, and in the tracking task stay as well."""
-        return TASKS[self.task].actions
+        return TASKS[self.task.kind].actions
 
     def tracking_config(self) -> TrackingConfig:
         """The tracking task as this run plays it (blind as the agent is)."""
-        if self.tracking is None:
+        if not isinstance(self.task, TrackingTask):
             raise ValueError("not a tracking run")
-        return self.tracking.model_copy(update={"blind": self.agent == "blind"})
+        return TrackingConfig(**self.task.model_dump(exclude={"kind"}) | {"blind": self.agent == "blind"})
+
+    def fleet_config(self) -> FleetConfig:
+        """The fleet task as this run plays it."""
+        if not isinstance(self.task, FleetTask):
+            raise ValueError("not a fleet run")
+        return FleetConfig(**self.task.model_dump(exclude={"kind"}))
 
     def observation(self) -> tuple[int, int]:
         """``(channels, window)`` of the observations the network reads, in its task."""
-        task = getattr(self, TASKS[self.task].observation)()
+        task = getattr(self, TASKS[self.task.kind].observation)()
         return task.num_channels, task.window
 
     def env_config(self, *, evaluation: bool = False) -> EnvConfig:
@@ -310,7 +317,9 @@ PRESETS["hybrid"] = PRESETS["best"] | {"env": PRESETS["best"]["env"] | {"belief_
 #: user who moves brings the UAV back to cells it has stood in.
 NO_REVISITS = {"train_revisit_penalty": 0.0, "test_revisit_penalty": 0.0}
 #: The nested configs ``--set PART.FIELD=VALUE`` reaches.
-NESTED = {"env": EnvConfig.model_fields} | {t.settings: t.model.model_fields for t in TASKS.values() if t.model is not None}
+NESTED = {"env": EnvConfig.model_fields} | {
+    t.settings: {k: f for k, f in t.model.model_fields.items() if k != "kind"} for t in TASKS.values() if t.settings
+}
 
 
 def parse_settings(settings: list[str] | tuple[str, ...]) -> dict:
@@ -344,17 +353,18 @@ def preset_config(name: str, **overrides: object) -> DQNConfig:
     env = default_env | dict(PRESETS[name].get("env", {})) | dict(overrides.pop("env", None) or {})  # type: ignore[arg-type]
     given = {t.settings: overrides.pop(t.settings, None) for t in TASKS.values() if t.settings is not None}
     values = dict(PRESETS[name]) | {"preset": name} | overrides | {"env": env}
-    task = TASKS.get(str(values.get("task", "placement")))  # an unknown task is refused by DQNConfig below
+    task = TASKS.get(str(values.pop("task", "placement")))
+    if task is None:
+        raise InputError(None, f"unknown task (known: {', '.join(TASKS)})", field="task")
     for field, value in given.items():
-        if value and (task is None or task.settings != field):
+        if value and task.settings != field:
             raise InputError(None, f"{field} settings are for --task {field}", field=field)
-    if task is not None and not task.revisits:  # the preset's learner without placement's loop breaker
+    if not task.revisits:  # the preset's learner without placement's loop breaker
         values = values | NO_REVISITS | {k: overrides[k] for k in NO_REVISITS if k in overrides}
     try:
-        if task is not None and task.model is not None:
-            # the preset's training rotation (env.rotate) for the task too, unless its own rotate says otherwise
-            rotate = {"rotate": env["rotate"]} if "rotate" in task.model.model_fields else {}
-            values[task.settings] = task.model(**(rotate | (given[task.settings] or {})))
+        # the preset's training rotation (env.rotate) for the task too, unless its own rotate says otherwise
+        rotate = {"rotate": env["rotate"]} if "rotate" in task.model.model_fields else {}
+        values["task"] = task.model(**(rotate | (given.get(task.settings) or {})))
         return DQNConfig(**(values | {"env": EnvConfig(**env)}))
     except ValidationError as exc:
         field, message = validation_message(exc)

@@ -24,9 +24,9 @@ from uavplace.infra.limits import check_limit
 from uavplace.rl.agent.config import DQNConfig
 from uavplace.rl.agent.network import FoveaQNetwork, MeanQ, QNetwork
 from uavplace.rl.agent.replay import Batch
-from uavplace.rl.policies import episode_draws, pick_legal, random_legal
 from uavplace.rl.randomness import stream_key
-from uavplace.rl.vec_env import OBS_OFFSET, BatchedEnv
+from uavplace.rl.tasks.placement.env import OBS_OFFSET, BatchedEnv
+from uavplace.rl.tasks.placement.policies import episode_draws, pick_legal, random_legal
 
 
 def revisit_penalty(visits: np.ndarray, weight: float, device: torch.device) -> torch.Tensor:

@@ -56,8 +56,8 @@ def read_member(folder: str | Path) -> Member:
     net, config = network_from_checkpoint(load_tensors(ckpt), ckpt)
     if config.ensemble != 1:
         raise InputError(ckpt, "already an ensemble: give the runs it was built from", field="ensemble")
-    if not TASKS[config.task].ensembles:
-        raise InputError(ckpt, f"a {config.task} run: an ensemble is validated as a placement agent", field="task")
+    if not TASKS[config.task.kind].ensembles:
+        raise InputError(ckpt, f"a {config.task.kind} run: an ensemble is validated as a placement agent", field="task")
     if config != run.config:
         raise InputError(ckpt, f"its config is not the one {folder / RUN_JSON} records", field="config")
     return Member(folder, run, config, net)

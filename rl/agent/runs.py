@@ -70,7 +70,7 @@ def settings_unlike(record: RunRecord, manifest: BundleManifest, p_t_db: float |
     trained = list(record.bundle_settings.values())
     mine = BundleSettings.of(manifest)
     unlike = [] if not trained or mine in trained else mine.unlike(max(trained, key=trained.count))
-    if p_t_db is not None and TASKS[record.config.task].env_p_t and p_t_db != record.config.env.p_t_db:
+    if p_t_db is not None and TASKS[record.config.task.kind].env_p_t and p_t_db != record.config.env.p_t_db:
         unlike.append(f"P_T {p_t_db:g} dB (trained at {record.config.env.p_t_db:g} dB)")
     return unlike
 
@@ -100,7 +100,7 @@ def run_finished(run_dir: Path) -> bool:
 
 def new_run_dir(runs: str | Path, config: DQNConfig) -> Path:
     stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
-    tag = TASKS[config.task].tag
+    tag = TASKS[config.task.kind].tag
     task = f"-{tag}" if tag else ""
     return Path(runs) / f"{stamp}-{config.preset}{task}-{config.agent}-s{config.seed}"
 

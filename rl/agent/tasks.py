@@ -71,7 +71,7 @@ class FleetTrainer(Trainer):
     validation cities (``FleetPlacement``), served every user in the most of them (ties: the fewer median steps)."""
 
     def setup_task(self, cities: Cities) -> None:
-        task, env = self.config.fleet, self.config.env_config()
+        task, env = self.config.fleet_config(), self.config.env_config()
         self.maps = FleetMaps.of(cities.train, task, cities.train_users)
         self.eval_maps = FleetMaps.of(cities.val, task, cities.val_users)
         self.eval_episodes = self.eval_maps.episode_list(self.config.eval_episodes, self.config.seed)
@@ -80,7 +80,7 @@ class FleetTrainer(Trainer):
 
     @property
     def t_max(self) -> int:
-        return self.config.fleet.t_max
+        return self.config.task.t_max
 
     def validate(self, policy: DQNPolicy) -> tuple[dict, tuple[float, float]]:
         fleet = FleetPlacement(policy, self.config.env_config(evaluation=True), prefix="").bind(self.eval_maps)
@@ -129,7 +129,7 @@ def start_run(
             raise FileExistsError(f"{run_dir} exists: choose another --name, or continue it with --resume {run_dir}")
         run_dir.mkdir(parents=True)
         claimed = True
-    kind = TRAINERS[config.task]
+    kind = TRAINERS[config.task.kind]
     try:
         trainer = kind(config, list(datasets), root, run_dir, command=command, val_datasets=list(val_datasets))
     except BaseException:

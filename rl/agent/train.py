@@ -44,8 +44,8 @@ from uavplace.rl.agent.pqn import Rollout, pqn_round
 from uavplace.rl.agent.replay import ReplayBuffer
 from uavplace.rl.agent.resume import Interrupted, RunState, interrupts, read_state, start_from
 from uavplace.rl.agent.runs import LAST, RUN_JSON, RunRecord, read_run_json
-from uavplace.rl.maps import MapSet
-from uavplace.rl.vec_env import BatchedEnv
+from uavplace.rl.tasks.placement.env import BatchedEnv
+from uavplace.rl.tasks.placement.maps import MapSet
 from uavplace.schemas import InputError
 from uavplace.schemas.base import uavplace_version
 from uavplace.schemas.bundle import BundleSettings

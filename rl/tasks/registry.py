@@ -7,24 +7,49 @@ entry (and its folder under ``rl/tasks/``), not a branch in every module.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Annotated, Literal
 
-from pydantic import BaseModel
+from pydantic import BaseModel, Field
 
 from uavplace.rl.tasks.fleet.config import FleetConfig
 from uavplace.rl.tasks.tracking.config import TRACK_MOVES, TrackingConfig
+from uavplace.schemas.base import Contract
+
+
+class PlacementTask(Contract):
+    """A run's task when it is placement: no settings beyond the run's environment (``DQNConfig.env``)."""
+
+    kind: Literal["placement"] = "placement"
+
+
+class TrackingTask(TrackingConfig):
+    """A run's task when it is tracking: the tracking task's settings (``TrackingConfig``)."""
+
+    kind: Literal["tracking"] = "tracking"
+
+
+class FleetTask(FleetConfig):
+    """A run's task when it is the fleet's: the fleet task's settings (``FleetConfig``)."""
+
+    kind: Literal["fleet"] = "fleet"
+
+
+#: A learner's task and its settings, told apart by ``kind`` (``DQNConfig.task``).
+LearnerTask = Annotated[PlacementTask | TrackingTask | FleetTask, Field(discriminator="kind")]
 
 
 @dataclass(frozen=True)
 class Task:
     """One task as a run (``DQNConfig.task``) and a report see it."""
 
-    #: Its name: ``DQNConfig.task``, ``uavrl train --task`` and ``uavrl report --task``.
+    #: Its name: ``DQNConfig.task.kind``, ``uavrl train --task`` and ``uavrl report --task``.
     name: str
     #: The network's outputs: the 4 moves, and stay where the task has it.
     actions: int
-    #: The ``DQNConfig`` field that holds the task's own settings (None: placement's, ``env``), and their model.
+    #: The prefix of its settings in ``uavrl train --set PREFIX.FIELD=VALUE`` (None: placement's are ``env.``), and
+    #: the model of a run's task (``DQNConfig.task``, one of ``LearnerTask``).
     settings: str | None
-    model: type[BaseModel] | None
+    model: type[BaseModel]
     #: The ``DQNConfig`` method that gives the settings of the observation the network reads.
     observation: str
     #: Whether the env's belief and context channels may be on (a fleet UAV's users change as they are dealt).
@@ -46,7 +71,7 @@ PLACEMENT = Task(
     name="placement",
     actions=4,
     settings=None,
-    model=None,
+    model=PlacementTask,
     observation="env_config",
     channels=True,
     revisits=True,
@@ -63,7 +88,7 @@ TASKS: dict[str, Task] = {
         name="tracking",
         actions=len(TRACK_MOVES),
         settings="tracking",
-        model=TrackingConfig,
+        model=TrackingTask,
         observation="tracking_config",
         revisits=False,
         env_p_t=False,
@@ -75,7 +100,7 @@ TASKS: dict[str, Task] = {
         PLACEMENT,
         name="fleet",
         settings="fleet",
-        model=FleetConfig,
+        model=FleetTask,
         channels=False,
         env_p_t=False,
         ensembles=False,

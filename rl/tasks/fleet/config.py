@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from pydantic import ConfigDict, Field, field_validator
 
-from uavplace.rl.maps import MOVES
+from uavplace.rl.tasks.placement.maps import MOVES
 from uavplace.schemas.base import Contract
 from uavplace.schemas.constants import P_T_DB
 

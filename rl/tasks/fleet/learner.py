@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 
 from uavplace.dataset.difficulty import UNREACHABLE
-from uavplace.rl.config import EnvConfig
-from uavplace.rl.maps import MOVES
 from uavplace.rl.tasks.fleet.config import STAY
 from uavplace.rl.tasks.fleet.env import BatchedFleet, FleetView
 from uavplace.rl.tasks.fleet.maps import FleetMaps
 from uavplace.rl.tasks.fleet.policies import FleetPlacement
+from uavplace.rl.tasks.placement.config import EnvConfig
+from uavplace.rl.tasks.placement.maps import MOVES
 from uavplace.schemas.base import InputError
 from uavplace.schemas.constants import reaches_target
 
@@ -28,7 +28,7 @@ class FleetTrainEnv:
     with it (every user served, or ``t_max``); a finished episode starts another, drawn with ``rng`` from the
     training cities (``FleetMaps.draw``). The genie's moves of a row (the auxiliary head's labels): those that start a
     shortest path to a cell serving every user dealt to its UAV (``FleetMaps.group_reach``; none where no cell
-    does). The trainer's interface is ``rl.vec_env.EpisodeRows``'s, checkpoints included (``state_arrays``: the
+    does). The trainer's interface is ``rl.tasks.placement.env.EpisodeRows``'s, checkpoints included (``state_arrays``: the
     fleet's episode state; the dealt rows are read afresh from it)."""
 
     state_arrays = ("city", "users", "pos", "t", "memory", "visits", "best", "served_at", "done", "episode_id", "keys")

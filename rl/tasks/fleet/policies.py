@@ -6,12 +6,12 @@ from __future__ import annotations
 import numpy as np
 
 from uavplace.dataset.difficulty import UNREACHABLE
-from uavplace.rl.config import EnvConfig
 from uavplace.rl.randomness import combine, stream_key, uniforms
 from uavplace.rl.tasks.fleet.config import FLEET_MOVES, STAY
 from uavplace.rl.tasks.fleet.env import FleetView
 from uavplace.rl.tasks.fleet.maps import FleetMaps
-from uavplace.rl.vec_env import BatchedEnv
+from uavplace.rl.tasks.placement.config import EnvConfig
+from uavplace.rl.tasks.placement.env import BatchedEnv
 from uavplace.schemas.constants import reaches_target
 
 
@@ -135,7 +135,7 @@ class FleetPlacement:
         prefix: str | None = None,  # noqa: ANN001
         compact: bool = False,
     ) -> None:
-        """``policy``: a ``rl.policies.Policy`` (None: only ``dealt`` is used, as ``FleetTrainEnv`` does); ``prefix``
+        """``policy``: a ``rl.tasks.placement.policies.Policy`` (None: only ``dealt`` is used, as ``FleetTrainEnv`` does); ``prefix``
         before its name (default ``FleetPlacement.prefix``: a placement agent run as it is); ``compact``: the agent's
         observations as the learner stores them (``BatchedEnv``'s)."""
         name = name or policy.name
@@ -153,7 +153,7 @@ class FleetPlacement:
     def bind(self, maps: FleetMaps) -> FleetPlacement:
         """Play on ``maps``' cities: a placement env (``BatchedEnv``) row per UAV and episode row keeps its agent's
         channels; that env's maps hold no user's map (SINR, dead cells and the genie's distances blanked)."""
-        from uavplace.rl.maps import MapSet
+        from uavplace.rl.tasks.placement.maps import MapSet
 
         if maps.bundles is None:
             raise ValueError("independent placement agents read the bundles: FleetMaps.of(bundles, config)")

@@ -11,7 +11,7 @@ from uavplace.schemas.constants import reaches_target
 
 
 class FleetSearcher:
-    """The map searcher run for the fleet (``rl.searcher``): one belief per user over its candidate cells, updated by
+    """The map searcher run for the fleet (``rl.tasks.placement.searcher``): one belief per user over its candidate cells, updated by
     every UAV's first measurement of each cell (a cell measured again tells nothing new), and one plan for the fleet.
 
     Per user ``n`` the posterior probability ``P_n(c)`` that each legal cell ``c`` serves it (1 or 0 at a visited
@@ -23,8 +23,8 @@ class FleetSearcher:
 
     name = "map searcher"
 
-    def __init__(self, predictor, config=None, cache=None) -> None:  # noqa: ANN001 - rl.searcher's types
-        from uavplace.rl.searcher import MapSearchPolicy
+    def __init__(self, predictor, config=None, cache=None) -> None:  # noqa: ANN001 - rl.tasks.placement.searcher's types
+        from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
 
         self.searcher = MapSearchPolicy(predictor, config, cache)
         self.public = None
@@ -32,8 +32,8 @@ class FleetSearcher:
 
     def bind(self, maps: FleetMaps) -> FleetSearcher:
         """Read ``maps``' public maps (its bundles' heights, grid and settings; never a user's map)."""
-        from uavplace.rl.config import EnvConfig
-        from uavplace.rl.maps import MapSet
+        from uavplace.rl.tasks.placement.config import EnvConfig
+        from uavplace.rl.tasks.placement.maps import MapSet
         from uavplace.rl.view import PublicMaps
 
         if maps.bundles is None:

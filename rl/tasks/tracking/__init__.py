@@ -19,7 +19,7 @@ or above P_T (coverage), the longest outage after it, and the share of the whole
 Baselines: the ``oracle`` (dynamic programming over (time, cell) on the whole route and every map: the
 most covered steps possible, the upper bound), the placement genie re-planned every step toward the
 current P_T region (``ReplanningGenie``), and the placement baselines, which act through the same
-interface (``rl.policies``), as they are or holding the cell while it covers the user (``Holding``). Agents:
+interface (``rl.tasks.placement.policies``), as they are or holding the cell while it covers the user (``Holding``). Agents:
 a placement agent run unchanged (``PlacementInTracking``; also with ``Holding``), or one trained on this task
 (``uavrl train --task tracking``, ``rl.agent.tasks.TrackingTrainer``) on its own observation (``TrackingAgent``).
 """

@@ -6,7 +6,7 @@ import numpy as np
 
 from uavplace.dataset.bundle import Bundle
 from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target
-from uavplace.rl.maps import MOVES, MapSet, transform
+from uavplace.rl.tasks.placement.maps import MOVES, MapSet, transform
 from uavplace.rl.tasks.tracking.config import STAY, TRACK_MOVES, TrackingConfig
 from uavplace.schemas.constants import reaches_target
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from uavplace.rl.config import EnvConfig
-from uavplace.rl.maps import MapSet
+from uavplace.rl.tasks.placement.config import EnvConfig
+from uavplace.rl.tasks.placement.maps import MapSet
 from uavplace.rl.tasks.tracking.config import ACTION_OF, STAY, TrackingConfig
 from uavplace.rl.tasks.tracking.env import TrackingEnv
 from uavplace.rl.tasks.tracking.maps import oracle_path
@@ -13,10 +13,10 @@ from uavplace.schemas.constants import reaches_target
 
 
 class MovesOnly:
-    """A placement policy (``rl.policies``: 4 moves, never stays) acting in the tracking env: it is shown the moves'
+    """A placement policy (``rl.tasks.placement.policies``: 4 moves, never stays) acting in the tracking env: it is shown the moves'
     legal mask only, and keeps acting by its own rule after it first reaches P_T."""
 
-    def __init__(self, policy) -> None:  # noqa: ANN001 - a rl.policies.Policy
+    def __init__(self, policy) -> None:  # noqa: ANN001 - a rl.tasks.placement.policies.Policy
         self.policy, self.name = policy, policy.name
 
     def reset(self, rows: np.ndarray, num_envs: int) -> None:
@@ -51,7 +51,7 @@ class PlacementInTracking:
     measurements, as if the user's map were the placement episode's; the agent sees its observations, moves by its
     own rule (never stays) and keeps acting after it first reaches P_T."""
 
-    def __init__(self, policy, env: EnvConfig, name: str | None = None) -> None:  # noqa: ANN001 - a rl.policies.Policy
+    def __init__(self, policy, env: EnvConfig, name: str | None = None) -> None:  # noqa: ANN001 - a rl.tasks.placement.policies.Policy
         self.policy, self.name = policy, name or policy.name
         self.env_config = env.model_copy(update={"rotate": False, "city_weights": {}, "split": None})
         self.mirror = None
@@ -61,7 +61,7 @@ class PlacementInTracking:
         self.policy.reset(rows, num_envs)
 
     def _mirror(self, env: TrackingEnv):  # noqa: ANN202 - a BatchedEnv
-        from uavplace.rl.vec_env import BatchedEnv
+        from uavplace.rl.tasks.placement.env import BatchedEnv
 
         if env.routes.turns != 1:
             raise ValueError("a placement agent plays the routes as they are: a RouteSet without rotate")

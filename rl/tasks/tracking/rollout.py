@@ -31,7 +31,7 @@ def run_tracking(
     num_envs: int = 256,
     record: bool = False,  # noqa: ANN001
 ) -> TrackingEpisodes:
-    """Play ``episodes`` (``[K, 4]`` specs) to the horizon with ``policy`` (``rl.policies`` interface: ``reset``,
+    """Play ``episodes`` (``[K, 4]`` specs) to the horizon with ``policy`` (``rl.tasks.placement.policies`` interface: ``reset``,
     ``act(obs, mask, env)``); one row per episode with the metrics of ``episode_metrics`` (and with ``record``, the
     UAV's path and the user's route points, for drawing). A ``TrackingAgent`` whose observation differs from
     ``routes.config``'s plays the same episodes on routes laid out for its own (cells and paths shifted between

@@ -1,6 +1,6 @@
 """The tracking searcher: the map searcher's belief carried through time for a user who walks (``rl.tasks.tracking``).
 
-Its candidates and their predicted maps are the placement searcher's (``rl.searcher.MapSearchPolicy``: open-ground
+Its candidates and their predicted maps are the placement searcher's (``rl.tasks.placement.searcher.MapSearchPolicy``: open-ground
 cells on a lattice of ``stride`` cells, a map of each predicted from the buildings and cached). Each row keeps a
 belief over (speed class, candidate): the user walks at one of the speeds of the training routes
 (``MotionModel``, fitted by ``fit_motion``), unknown to the UAV, with the share of routes of that speed as its prior.
@@ -28,7 +28,7 @@ from scipy import sparse
 
 from uavplace.dataset.bundle import Bundle
 from uavplace.rl.belief import CandidateMaps, posterior_cover
-from uavplace.rl.searcher import MapSearchPolicy
+from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
 from uavplace.rl.tasks.tracking.config import STAY, MotionModel
 from uavplace.rl.view import public_maps
 from uavplace.schemas.constants import reaches_target

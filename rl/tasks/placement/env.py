@@ -29,9 +29,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from uavplace.rl.config import EnvConfig
-from uavplace.rl.maps import MOVES, MapSet
 from uavplace.rl.randomness import combine
+from uavplace.rl.tasks.placement.config import EnvConfig
+from uavplace.rl.tasks.placement.maps import MOVES, MapSet
 from uavplace.schemas.constants import reaches_target
 
 #: ``encode_obs``: uint8 = round(value) + OBS_OFFSET, clipped to [0, 255]: values -150 .. +105 (dB or m).

@@ -22,8 +22,8 @@ from scipy.sparse.csgraph import shortest_path
 
 from uavplace.rl.belief import BeliefModel, CandidateMaps, PredictionCache, posterior_cover, rows_of
 from uavplace.rl.config import SearchConfig
-from uavplace.rl.maps import MOVES
 from uavplace.rl.predictor import PhysicsConstants, Predictor
+from uavplace.rl.tasks.placement.maps import MOVES
 from uavplace.rl.view import AgentView, PublicMaps
 from uavplace.schemas.constants import reaches_target
 
@@ -32,7 +32,7 @@ SEARCHER = "map searcher"
 
 
 class MapSearchPolicy(BeliefModel):
-    """The searcher of the module's docstring as an ``rl.policies.Policy``: the belief of ``rl.belief.BeliefModel``
+    """The searcher of the module's docstring as an ``rl.tasks.placement.policies.Policy``: the belief of ``rl.belief.BeliefModel``
     and a planner."""
 
     def __init__(

@@ -7,9 +7,9 @@ from collections.abc import Callable
 import numpy as np
 import pandas as pd
 
-from uavplace.rl.maps import MOVES, MapSet
-from uavplace.rl.policies import Policy
-from uavplace.rl.vec_env import BatchedEnv
+from uavplace.rl.tasks.placement.env import BatchedEnv
+from uavplace.rl.tasks.placement.maps import MOVES, MapSet
+from uavplace.rl.tasks.placement.policies import Policy
 from uavplace.rl.view import view_for
 
 

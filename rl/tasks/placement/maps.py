@@ -20,8 +20,8 @@ import numpy as np
 from uavplace.dataset.bundle import Bundle, load_bundle
 from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target, valid_starts
 from uavplace.infra.files import in_corpus
-from uavplace.rl.config import EnvConfig
 from uavplace.rl.randomness import canvas_key, stream_key, uniforms
+from uavplace.rl.tasks.placement.config import EnvConfig
 from uavplace.schemas import InputError
 from uavplace.schemas.constants import reaches_target
 
