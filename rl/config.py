@@ -7,17 +7,37 @@ from __future__ import annotations
 
 from typing import Literal
 
+import numpy as np
 from pydantic import ConfigDict, Field, field_validator
 
 from uavplace.infra.files import shipped
 from uavplace.schemas.base import MAX_SEED, Contract
 from uavplace.schemas.bundle import UserSplit as Split
-from uavplace.schemas.constants import P_T_DB
+from uavplace.schemas.constants import P_T_DB, reaches_target
 
 #: Where the shipped physics tier's constants live (in the project, wherever a command runs).
 DEFAULT_CONSTANTS = shipped("data/agents/searcher/predictor.json")
 #: The shipped predictor the searcher uses: the learned tier (chosen on the validation cities, docs/searcher.md).
 DEFAULT_PREDICTOR = shipped("data/agents/searcher/unet")
+
+
+class TaskSettings(Contract):
+    """What the settings of every task hold (placement's ``EnvConfig``, ``TrackingConfig``, ``FleetConfig``): the SINR
+    target P_T and the rule that says which cells reach it (``schemas.constants.reaches_target``, its one home). Each
+    task adds its step budget (placement's and the fleet's ``t_max``; tracking's ``horizon``, a fixed length: its
+    episodes do not end at P_T) and its observation."""
+
+    model_config = ConfigDict(allow_inf_nan=False)  # a NaN target would train and report without a word
+
+    p_t_db: float = Field(
+        default=P_T_DB,
+        description="SINR target P_T [dB]: placement's episode ends when it is reached, a tracking step is covered and "
+        "a fleet's user served at or above it",
+    )
+
+    def reaches(self, sinr_db: np.ndarray | float, dead: np.ndarray | None = None, legal: np.ndarray | None = None) -> np.ndarray:
+        """Which cells (or measurements) reach this task's P_T (``reaches_target``)."""
+        return reaches_target(sinr_db, self.p_t_db, dead, legal)
 
 
 class SearchConfig(Contract):

@@ -64,7 +64,6 @@ import numpy as np
 from uavplace.rl.tasks.placement.config import EnvConfig
 from uavplace.rl.tasks.placement.env import BatchedEnv
 from uavplace.rl.tasks.placement.maps import MapSet
-from uavplace.schemas.constants import reaches_target
 
 
 def with_overrides(kind: type, config: object, overrides: dict) -> object:
@@ -235,7 +234,7 @@ class UavFleetEnv(gym.Env):
             "action_mask": e.action_mask(rows)[0].astype(np.int8),
             "positions": e.pos[0] - e.maps.pad,
             "sinr_db": values,
-            "served": reaches_target(values, self.config.p_t_db).any(axis=0),
+            "served": self.config.reaches(values).any(axis=0),
         }
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:

@@ -252,7 +252,7 @@ def code_digest() -> str:
 
 
 class PhysicsPredictor:
-    """The physics tier as a predictor of many users' maps (the interface ``rl.searcher`` and ``prediction_scores``
+    """The physics tier as a predictor of many users' maps (the interface the map searchers and ``prediction_scores``
     use; ``rl.learned.LearnedPredictor`` is the other)."""
 
     tier = "physics"

@@ -47,25 +47,6 @@ def _items(value: object) -> object:
     return value
 
 
-@dataclass(frozen=True)
-class SimulationSpec:
-    """Everything `uavdata simulate` was asked for (saved in simulation.json)."""
-
-    source: str
-    name: str
-    num_users: int = 27
-    grid_m: float = 4.0
-    altitude_m: float = 10.0
-    tx_dbm: float = 20.0
-    seed: int = 0
-    extent_m: tuple[float, float, float, float] | None = None
-    users_m: tuple[tuple[float, float], ...] = ()
-    crop_m: tuple[float, float, float, float] | None = None
-    routes: int = 0  # user routes drawn on open ground, every point traced as a user (simulate.routes)
-    route_length_m: float = 120.0
-    route_kinds: tuple[str, ...] = ("pedestrian", "vehicle")
-
-
 class Simulation(Contract):
     """One ``uavdata simulate`` call: the city, its users and routes, the receiver grid, the ray tracer and the fill
     of what it misses."""
@@ -131,13 +112,15 @@ class Simulation(Contract):
     )
     depth: int = Field(default=_DEFAULT.max_depth, ge=0, le=10, description="Maximum interactions per path.")
     solver: Literal["radio-map", "paths"] = Field(
-        default="radio-map",
+        default=_DEFAULT.solver,
         description="radio-map: Sionna's radio map of every cell, the gaps filled by --gap-fill-method. paths: exact "
         "paths (Sionna's PathSolver, every path found, as InSite computes them) at every open cell, nothing filled, "
         "--samples rays per user for each cell (2e6 is the fidelity reference's): about a second a cell and user on 2 "
         "cores, so for small cities (simulate/raytrace.py, exact_path_maps; docs/fidelity.md, the exact-path twin).",
     )
-    diffraction: bool = Field(default=True, description="Edge diffraction (--no-diffraction: faster, more dead cells).")
+    diffraction: bool = Field(
+        default=_DEFAULT.diffraction, description="Edge diffraction (--no-diffraction: faster, more dead cells)."
+    )
     gap_fill: tuple[int, ...] = Field(
         default=(),
         description="Coarser maps (cell x factor, same samples, e.g. 4,16) traced as well, which the smooth and parent "
@@ -145,7 +128,7 @@ class Simulation(Contract):
         json_schema_extra=_LIST,
     )
     gap_fill_method: Literal["geodesic", "smooth", "parent"] = Field(
-        default="geodesic",
+        default=_DEFAULT.gap_fill_method,
         description="How cells no ray hit are filled. geodesic: the exact straight path from the user through the walls "
         "it crosses (simulate/transmission.py; none beyond --depth walls), then a walk of --gap-fill-reach metres from "
         "the hit cells through open ground, losing --gap-fill-decay dB per metre; the rest stays unreached. The "
@@ -162,11 +145,10 @@ class Simulation(Contract):
         default=_DEFAULT.gap_fill_decay_db_per_m, ge=0.0, le=100.0, description="geodesic: loss of the walk [dB per metre]."
     )
     gap_fill_walk: Literal["euclidean", "4-neighbour"] = Field(
-        default="euclidean",
+        default=_DEFAULT.gap_fill_walk,
         description="geodesic: how the walk measures its reach. euclidean: the shortest way through open ground in "
-        "steps of 1, sqrt 2 and sqrt 5 cells (within 3 % of a straight line), so what it lights follows the streets; "
-        "4-neighbour: steps along the axes only (an isolated lit patch is a diamond; the fill of the cities simulated "
-        "before this option).",
+        "steps of 1, sqrt 2 and sqrt 5 cells, so what it lights follows the streets; 4-neighbour: steps along the axes "
+        "only (a lit patch is a diamond; the fill of the cities simulated before this option).",
     )
     complete_missed: bool = Field(
         default=False,
@@ -267,6 +249,32 @@ class Simulation(Contract):
             complete_missed_samples=_count(self.complete_samples) if self.complete_missed else 0,
             solver=self.solver,
         )
+
+
+def _default(name: str) -> object:
+    """``Simulation``'s default of setting ``name``: a city's record (``SimulationSpec``) defaults as the call does."""
+    return Simulation.model_fields[name].default
+
+
+@dataclass(frozen=True)
+class SimulationSpec:
+    """One city of a ``uavdata simulate`` call as ``simulation.json`` records it (its ``spec``): the source, the name and
+    what to trace, made by ``Simulation.city`` (a corpus's cities by ``simulate.corpus.corpus_specs``); its defaults
+    are the call's."""
+
+    source: str
+    name: str
+    num_users: int = _default("num_users")
+    grid_m: float = _default("grid_m")
+    altitude_m: float = _default("altitude_m")
+    tx_dbm: float = _default("tx_dbm")
+    seed: int = _default("seed")
+    extent_m: tuple[float, float, float, float] | None = None
+    users_m: tuple[tuple[float, float], ...] = ()
+    crop_m: tuple[float, float, float, float] | None = None
+    routes: int = _default("routes")  # user routes drawn on open ground, every point traced as a user (simulate.routes)
+    route_length_m: float = _default("route_length_m")
+    route_kinds: tuple[str, ...] = _default("route_kinds")
 
 
 def _count(value: float) -> int | float:

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from uavplace.schemas.constants import CARRIER_HZ
 from uavplace.schemas.provenance import COARSE_MAP, EXACT_PATHS, RAY_TRACED, STRAIGHT_PATH, UNREACHED, WALKED
 
 LLVM_19 = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
@@ -33,9 +34,11 @@ SOLVERS = ("radio-map", "paths")
 
 @dataclass(frozen=True)
 class RayTraceConfig:
-    """Solver settings (Sionna ``RadioMapSolver``, or ``PathSolver`` with ``solver="paths"``)."""
+    """Solver settings (Sionna ``RadioMapSolver``, or ``PathSolver`` with ``solver="paths"``): the record of
+    ``simulation.json``'s ``raytrace`` and of the trace cache, made from a call's settings by
+    ``simulate.config.Simulation.raytrace``; the solver's own defaults (refraction, antenna, users per call) are here."""
 
-    frequency_hz: float = 800e6
+    frequency_hz: float = CARRIER_HZ
     samples_per_tx: int = 1_000_000
     max_depth: int = 5
     diffraction: bool = True

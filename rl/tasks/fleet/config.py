@@ -3,26 +3,22 @@
 from __future__ import annotations
 
 import numpy as np
-from pydantic import ConfigDict, Field, field_validator
+from pydantic import Field, field_validator
 
+from uavplace.rl.config import TaskSettings
 from uavplace.rl.tasks.placement.maps import MOVES
-from uavplace.schemas.base import Contract
-from uavplace.schemas.constants import P_T_DB
 
 #: The fleet's 5 actions per UAV in map coordinates (dy, dx): the 4 placement moves, then 4 = stay.
 FLEET_MOVES = np.vstack([MOVES, [[0, 0]]])
 STAY = 4
 
 
-class FleetConfig(Contract):
+class FleetConfig(TaskSettings):
     """Everything that defines the fleet task (saved with every run and report that uses it)."""
-
-    model_config = ConfigDict(allow_inf_nan=False)
 
     uavs: int = Field(default=2, ge=1, le=4, description="Fleet: UAVs K in the fleet")
     users: int = Field(default=3, ge=1, le=6, description="Fleet: users N served at once, drawn from a city's traced users")
     t_max: int = Field(default=500, ge=1, description="Step budget: truncated after t_max steps")
-    p_t_db: float = Field(default=P_T_DB, description="SINR target P_T: a user is served by a UAV at or above it [dB]")
     window: int = Field(default=61, ge=3, le=1001, description="Observation side in cells (odd), centred on each UAV")
     p_h_db: float = Field(default=50.0, description="P_H: the memory value of unvisited cells [dB]")
     p_l_db: float = Field(default=-150.0, description="P_L: the memory value of blocked cells and beyond the edge [dB]")

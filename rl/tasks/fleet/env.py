@@ -8,7 +8,6 @@ import numpy as np
 
 from uavplace.rl.tasks.fleet.config import FLEET_MOVES, STAY, FleetConfig
 from uavplace.rl.tasks.fleet.maps import FleetMaps
-from uavplace.schemas.constants import reaches_target
 
 
 class BatchedFleet:
@@ -67,7 +66,7 @@ class BatchedFleet:
         for n in range(self.config.users):
             self.memory[rows[:, None], n, y, x] = values[:, :, n]
         self.best[rows] = values.max(axis=1)
-        served = reaches_target(values, self.config.p_t_db)
+        served = self.config.reaches(values)
         newly = served.any(axis=1) & (self.served_at[rows] < 0)
         self.served_at[rows] = np.where(newly, self.t[rows, None], self.served_at[rows])
         return fresh.sum(axis=1), served.any(axis=1).all(axis=1)

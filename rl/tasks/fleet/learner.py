@@ -12,7 +12,6 @@ from uavplace.rl.tasks.fleet.policies import FleetPlacement
 from uavplace.rl.tasks.placement.config import EnvConfig
 from uavplace.rl.tasks.placement.maps import MOVES
 from uavplace.schemas.base import InputError
-from uavplace.schemas.constants import reaches_target
 
 
 class FleetTrainEnv:
@@ -124,7 +123,7 @@ class FleetTrainEnv:
         here = FleetView.of(self.fleet).at_uavs()
         weakest = np.where(groups, here, np.inf).min(axis=2)
         has = groups.any(axis=2)
-        return np.where(has, weakest, 0.0), has & reaches_target(weakest, self.maps.config.p_t_db)
+        return np.where(has, weakest, 0.0), has & self.maps.config.reaches(weakest)
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
         k, cfg, f = self.uavs, self.env_config, self.fleet

@@ -12,7 +12,6 @@ from uavplace.rl.tasks.fleet.env import FleetView
 from uavplace.rl.tasks.fleet.maps import FleetMaps
 from uavplace.rl.tasks.placement.config import EnvConfig
 from uavplace.rl.tasks.placement.env import BatchedEnv
-from uavplace.schemas.constants import reaches_target
 
 
 class FleetRandomWalk:
@@ -70,7 +69,7 @@ class FleetGreedy:
         e, k = mask.shape[:2]
         rows = np.arange(e)
         here = view.at_uavs()  # [E, K, N]
-        served = reaches_target(here, cfg.p_t_db)
+        served = cfg.reaches(here)
         to = view.pos[:, :, None, :] + FLEET_MOVES[None, None, :STAY]  # [E, K, 4, 2]
         seen = view.visits[rows[:, None, None], to[..., 0], to[..., 1]] > 0  # [E, K, 4]
         value = np.minimum(
@@ -188,7 +187,7 @@ class FleetPlacement:
         cfg = view.config
         e, k, n = len(view.t), cfg.uavs, cfg.users
         here = view.at_uavs()
-        served = reaches_target(here, cfg.p_t_db)
+        served = cfg.reaches(here)
         groups = np.zeros((e, k, n), bool)
         kept = np.zeros((e, n), bool)
         for uav in range(k):

@@ -7,7 +7,6 @@ import numpy as np
 from uavplace.rl.tasks.fleet.config import FLEET_MOVES, STAY
 from uavplace.rl.tasks.fleet.env import FleetView
 from uavplace.rl.tasks.fleet.maps import FleetMaps, assignments, user_subsets
-from uavplace.schemas.constants import reaches_target
 
 
 class FleetSearcher:
@@ -83,7 +82,7 @@ class FleetSearcher:
         cfg, p, k = view.config, view.config.window // 2, len(mask)
         cols = cm.index[view.pos[r, :, 0] - p, view.pos[r, :, 1] - p]
         seen = view.visits[r, cm.legal[:, 0] + p, cm.legal[:, 1] + p] > 0
-        known = reaches_target(view.memory[r][:, cm.legal[:, 0] + p, cm.legal[:, 1] + p], cfg.p_t_db)  # [N, M]
+        known = cfg.reaches(view.memory[r][:, cm.legal[:, 0] + p, cm.legal[:, 1] + p])  # [N, M]
         cover = np.where(seen[None], known.astype(np.float32), cover)
         paths = [self.searcher.paths_from(self.public, canvas, cm, int(c)) for c in cols]  # (discount, predecessors)
         discounts = [np.where(d < 0, 0.0, d) for d, _ in paths]

@@ -5,19 +5,15 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import ConfigDict, Field, field_validator
+from pydantic import Field, field_validator
 
-from uavplace.schemas.base import Contract
+from uavplace.rl.config import TaskSettings
 from uavplace.schemas.bundle import UserSplit as Split
-from uavplace.schemas.constants import P_T_DB
 
 
-class EnvConfig(Contract):
+class EnvConfig(TaskSettings):
     """Everything that defines the UAV placement problem (docs/method.md: Problem, Observation, Reward)."""
 
-    model_config = ConfigDict(allow_inf_nan=False)  # a NaN target or reward would train and report without a word
-
-    p_t_db: float = Field(default=P_T_DB, description="SINR target P_T: the episode ends (terminated) when reached [dB]")
     t_max: int = Field(
         default=800, ge=1, description="Step budget: the episode is truncated after t_max moves (paper: 800 train, 500 test)"
     )

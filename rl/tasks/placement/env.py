@@ -32,7 +32,6 @@ import numpy as np
 from uavplace.rl.randomness import combine
 from uavplace.rl.tasks.placement.config import EnvConfig
 from uavplace.rl.tasks.placement.maps import MOVES, MapSet
-from uavplace.schemas.constants import reaches_target
 
 #: ``encode_obs``: uint8 = round(value) + OBS_OFFSET, clipped to [0, 255]: values -150 .. +105 (dB or m).
 OBS_OFFSET = 150
@@ -363,7 +362,7 @@ class BatchedEnv(EpisodeRows):
         before = self.measure(rows, new)  # earlier visits of the cell it now stands in
         fresh = before == 0
         self.t += 1
-        terminated = reaches_target(new, cfg.p_t_db)
+        terminated = cfg.reaches(new)
         reward = new - old + cfg.c_e * fresh + cfg.success_bonus * terminated - cfg.step_cost
         if cfg.revisit_cost:
             reward = reward - cfg.revisit_cost * before

@@ -23,7 +23,6 @@ from uavplace.infra.files import in_corpus
 from uavplace.rl.randomness import canvas_key, stream_key, uniforms
 from uavplace.rl.tasks.placement.config import EnvConfig
 from uavplace.schemas import InputError
-from uavplace.schemas.constants import reaches_target
 
 #: Moves of the 4 actions in canvas coordinates (dy, dx): 0 north (+y), 1 east (+x), 2 south (-y), 3 west (-x).
 MOVES = np.array([[1, 0], [0, 1], [-1, 0], [0, -1]], dtype=np.int64)
@@ -103,7 +102,7 @@ class MapSet:
         for s, sc in enumerate(scenarios):
             b = bundles[sc.bundle]
             legal = ~b.blocked
-            target = reaches_target(b.sinr_db[sc.user], config.p_t_db, b.dead[sc.user], legal)
+            target = config.reaches(b.sinr_db[sc.user], b.dead[sc.user], legal)
             steps = steps_to_target(legal, target)
             for k in range(S):
                 v = S * s + k

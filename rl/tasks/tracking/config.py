@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
-from pydantic import ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
 
+from uavplace.rl.config import TaskSettings
 from uavplace.rl.tasks.placement.config import EnvConfig
 from uavplace.rl.tasks.placement.maps import MOVES
 from uavplace.schemas.base import Contract
-from uavplace.schemas.constants import P_T_DB
 
 #: The 5 tracking actions in canvas coordinates (dy, dx): the 4 placement moves, then 4 = stay.
 TRACK_MOVES = np.vstack([MOVES, [[0, 0]]])
@@ -24,12 +24,9 @@ STEPS = {"limit": "t_max"}
 OBSERVATION_FIELDS = ("window", "blind", "p_h_db", "p_l_db", "age_clip_s", "edge_height_m", "height_clip_m")
 
 
-class TrackingConfig(Contract):
+class TrackingConfig(TaskSettings):
     """Everything that defines the tracking task (saved with every run and report that uses it)."""
 
-    model_config = ConfigDict(allow_inf_nan=False)
-
-    p_t_db: float = Field(default=P_T_DB, description="SINR target P_T [dB]: a step at or above it is covered")
     horizon: int = Field(300, ge=1, le=100_000, description="Tracking: steps per episode (0.4 s each)", json_schema_extra=STEPS)
     uav_speed_mps: float = Field(default=10.0, gt=0, le=100, description="UAV speed: one cell per cell side / speed seconds")
     window: int = Field(default=61, ge=3, description="Observation side in cells (odd), centred on the UAV")

@@ -8,7 +8,6 @@ from uavplace.rl.randomness import combine
 from uavplace.rl.tasks.placement.env import EpisodeRows, encode_obs, refuse_bad_rows
 from uavplace.rl.tasks.tracking.config import TRACK_MOVES
 from uavplace.rl.tasks.tracking.maps import RouteSet
-from uavplace.schemas.constants import reaches_target
 
 
 class TrackingEnv(EpisodeRows):
@@ -140,7 +139,7 @@ class TrackingEnv(EpisodeRows):
         self.pos = np.where(legal[:, None], target, self.pos)
         self.t += 1
         new = self._measure(self._rows)
-        covered = reaches_target(new, self.config.p_t_db)
+        covered = self.config.reaches(new)
         self.covered_steps += covered
         reward = (self.config.cover_reward * covered + self.config.gain_weight * (new - old)).astype(np.float32)
         truncated = self.t >= self.config.horizon

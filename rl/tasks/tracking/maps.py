@@ -8,7 +8,6 @@ from uavplace.dataset.bundle import Bundle
 from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target
 from uavplace.rl.tasks.placement.maps import MOVES, MapSet, transform
 from uavplace.rl.tasks.tracking.config import STAY, TRACK_MOVES, TrackingConfig
-from uavplace.schemas.constants import reaches_target
 
 
 def user_point(times_s: np.ndarray, start_s: np.ndarray, t: np.ndarray, step_s: np.ndarray) -> np.ndarray:
@@ -52,7 +51,7 @@ class RouteSet:
         start_cells: list[np.ndarray] = []  # per route point: the canvas cells an episode may start in then
         offset = 0
         for i, b in enumerate(with_routes):
-            target = reaches_target(b.route_sinr_db, config.p_t_db, b.route_dead, ~b.blocked)
+            target = config.reaches(b.route_sinr_db, b.route_dead, ~b.blocked)
             steps = steps_to_target(~b.blocked, target)
             for k in range(self.turns):
                 ny, nx = self.maps.shapes[S * i + k]
@@ -60,7 +59,7 @@ class RouteSet:
                 self.sinr[sl, p : p + ny, p : p + nx] = transform(b.route_sinr_db, k)
                 self.dead[sl, p : p + ny, p : p + nx] = transform(b.route_dead, k)
                 self.steps[sl, p : p + ny, p : p + nx] = transform(steps, k)
-                starts = ~self.maps.blocked[S * i + k] & ~self.dead[sl] & ~reaches_target(self.sinr[sl], config.p_t_db)
+                starts = ~self.maps.blocked[S * i + k] & ~self.dead[sl] & ~config.reaches(self.sinr[sl])
                 start_cells += [np.flatnonzero(ok) for ok in starts & (self.steps[sl] != UNREACHABLE)]
                 for route, rows in b.routes.groupby("route", sort=False):
                     first.append(offset + int(rows.index[0]))

@@ -9,7 +9,6 @@ from uavplace.rl.tasks.placement.maps import MapSet
 from uavplace.rl.tasks.tracking.config import ACTION_OF, STAY, TrackingConfig
 from uavplace.rl.tasks.tracking.env import TrackingEnv
 from uavplace.rl.tasks.tracking.maps import oracle_path
-from uavplace.schemas.constants import reaches_target
 
 
 class MovesOnly:
@@ -41,7 +40,7 @@ class Holding:
     def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingEnv) -> np.ndarray:
         action = self.policy.act(obs, mask, env)
         centre = env.config.window // 2
-        return np.where(reaches_target(obs[:, -1, centre, centre], env.config.p_t_db), STAY, action)
+        return np.where(env.config.reaches(obs[:, -1, centre, centre]), STAY, action)
 
 
 class PlacementInTracking:
@@ -145,7 +144,7 @@ class OraclePolicy:
         t = np.arange(1, env.config.horizon + 1)
         points = env.routes.point(np.full(len(t), r), np.full(len(t), env.start_s[row]), t)
         sinr = env.routes.sinr[points, p : p + ny, p : p + nx]
-        covered = reaches_target(sinr, env.config.p_t_db, env.routes.dead[points, p : p + ny, p : p + nx])
+        covered = env.config.reaches(sinr, env.routes.dead[points, p : p + ny, p : p + nx])
         legal = ~env.maps.blocked[canvas, p : p + ny, p : p + nx]
         path, _ = oracle_path(legal, covered, (int(env.pos[row, 0]) - p, int(env.pos[row, 1]) - p))
         return path + p

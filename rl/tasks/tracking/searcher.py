@@ -31,7 +31,6 @@ from uavplace.rl.belief import CandidateMaps, posterior_cover
 from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
 from uavplace.rl.tasks.tracking.config import STAY, MotionModel
 from uavplace.rl.view import public_maps
-from uavplace.schemas.constants import reaches_target
 
 #: The tracking searcher's name in tables.
 TRACKING_SEARCHER = "tracking searcher"
@@ -129,7 +128,7 @@ class TrackingSearchPolicy:
                 log_b = self.step_belief(self.belief[r], moves)
             log_b = np.stack([s.update(maps, row, column, measured, float(settings["floor_db"])) for row in log_b])
             self.belief[r] = log_b - log_b.max()
-            if not reaches_target(measured, env.config.p_t_db):
+            if not env.config.reaches(measured):
                 rows_of.setdefault(canvas, []).append(r)
         for canvas, rows in rows_of.items():  # the plans, a canvas's rows in one product
             maps = s.canvas_maps(public, canvas)
