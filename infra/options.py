@@ -7,10 +7,9 @@ field's ``ge``/``gt``/``le``/``lt``, its default from the field's default (shown
 A field may say more in ``json_schema_extra``: ``{"limit": "episodes"}`` bounds an integer by that resource limit
 too (``infra.console.Counted``), ``{"type": "metres"}`` takes a length as ``4``, ``4m`` or ``2.5 m``, ``{"type":
 "list"}`` takes a tuple's items as one word, ``a,b`` (``none`` for none; the model's validator splits it). A field
-without a default is a required option. The command
-then builds its model from the options' values (``settings(Model, values)``: a value the model refuses is a usage
-error naming its option), so a bound, a default or a help text is written
-once, in the model.
+without a default is a required option. The command then builds its model from the options' values
+(``settings(Model, values)``: a value the model refuses is a usage error naming its option), so a bound, a default
+or a help text is written once, in the model.
 """
 
 from __future__ import annotations
@@ -116,7 +115,7 @@ def model_options(
         help_text = model.model_fields[field].description or ""
         overrides = overrides | {
             field: overrides.get(field, {})
-            | {"default": None, "show_default": False, "required": False, "help": f"{help_text} (default: {where})"}
+            | {"default": None, "show_default": False, "required": False, "help": f"{help_text.rstrip('.')} (default: {where})."}
         }
 
     def decorate(command: Callable) -> Callable:

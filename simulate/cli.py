@@ -140,16 +140,8 @@ def _simulate_one(
                 if lines and done:
                     console.print(f"simulate {name}: {stage} {done}/{total}", highlight=False, markup=False)
 
-            folder, record = simulate_city(
-                spec,
-                rt,
-                out_root,
-                command=command_line(),
-                on_progress=on_progress,
-                trace_cache=trace_cache,
-                ray_address=address,
-                cpus_per_user=cpus,
-            )
+            where = {"command": command_line(), "trace_cache": trace_cache, "ray_address": address, "cpus_per_user": cpus}
+            folder, record = simulate_city(spec, rt, out_root, on_progress=on_progress, **where)
     except RuntimeError as err:  # Sionna RT missing or its child process failed
         fail(err)
     g = record["grid"]
