@@ -208,13 +208,6 @@ class Simulation(Contract):
             raise ValueError(f"the {value} method takes its levels from coarse maps: add --gap-fill 4,16")
         return value
 
-    @field_validator("complete_missed")
-    @classmethod
-    def _not_twice(cls, value: bool, info) -> bool:  # noqa: ANN001 - pydantic's ValidationInfo
-        if value and info.data.get("solver") == "paths":
-            raise ValueError("--solver paths traces exact paths at every cell already: nothing is missed")
-        return value
-
     def city(self, source: str) -> SimulationSpec:
         """The first (or only) city of the call: its source, name and the settings of what to trace."""
         return SimulationSpec(
