@@ -102,8 +102,8 @@ from uavplace.schemas.base import repeated
     "--predictor",
     default=str(shipped("data/agents/searcher/unet")),
     show_default=True,
-    help="The map searcher's radio-map predictor (rl/tasks/placement/searcher.py): a learned tier's folder (`uavrl train-predictor`), "
-    "the physics tier's constants (data/agents/searcher/predictor.json, `uavrl fit-predictor`), or 'none' "
+    help="The map searcher's radio-map predictor (rl/tasks/placement/searcher.py): a learned tier's folder "
+    "(`uavrl train-predictor`), the physics tier's constants (data/agents/searcher/predictor.json, `uavrl fit-predictor`), or 'none' "
     "to leave the searcher and its ablation out (with --task tracking, the tracking searcher, rl/tasks/tracking/searcher.py). Its "
     "predicted maps are cached under ROOT/.predictions/.",
 )
@@ -174,7 +174,7 @@ def report(**v: Any) -> None:
         raise click.UsageError(f"--task {v['task']} plays every user and route of the cities: it takes no --group or --split")
     # One report into a folder at a time: a second one of the same folder, even of other agents, is refused at once
     # (both would publish, the last one winning, and both would say they wrote it).
-    target = v["out"] or Path("reports") / task.folder
+    target = v["out"] or Path("reports") / TASKS[v["task"]].tag  # placement's: reports/ itself
     with exclusive_folder(target, "report", kind="job"), contextlib.ExitStack() as after:
         task.play(v, after)
 
@@ -429,7 +429,6 @@ def _say_written(markdown: Path | None, page: Path, tables: Path) -> None:
     stdout().print(f"report: {page}", highlight=False, soft_wrap=True)
 
 
-#: ``uavrl report --task``: each task's report.
 @dataclass(frozen=True)
 class TaskReport:
     """How ``uavrl report --task NAME`` plays one task (``TASK_REPORTS``)."""
@@ -440,17 +439,15 @@ class TaskReport:
     routes: bool
     #: The setting that bounds an episode's steps, and its option.
     budget: tuple[str, str]
-    #: Its default folder under reports/ ("": reports/ itself).
-    folder: str
     #: Whether it takes --group and --split (the others play every user and route of the cities).
     selects_users: bool
 
 
 #: Each task's report (``rl.tasks.registry.TASKS`` names the same tasks).
 TASK_REPORTS = {
-    "placement": TaskReport(_placement_report, False, ("t_max", "--t-max"), "", True),
-    "tracking": TaskReport(_tracking_report, True, ("horizon", "--horizon"), "tracking", False),
-    "fleet": TaskReport(_fleet_report, False, ("t_max", "--t-max"), "fleet", False),
+    "placement": TaskReport(_placement_report, False, ("t_max", "--t-max"), True),
+    "tracking": TaskReport(_tracking_report, True, ("horizon", "--horizon"), False),
+    "fleet": TaskReport(_fleet_report, False, ("t_max", "--t-max"), False),
 }
 
 

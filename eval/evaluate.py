@@ -240,8 +240,8 @@ def report_env(config: ReportConfig) -> EnvConfig:
 
 def baseline_policies(config: ReportConfig, env: EnvConfig, cache: str | Path | None = None) -> list[Policy]:
     """The genie, the steered random walk and greedy hill-climbing, seeded as the report is (their names are the
-    table's); then, with ``config.predictor``, the map searcher and its ablation shown no building (``rl.tasks.placement.searcher``), their
-    predicted maps kept in ``cache`` (None: not on disk)."""
+    table's); then, with ``config.predictor``, the map searcher and its ablation shown no building
+    (``rl.tasks.placement.searcher``), their predicted maps kept in ``cache`` (None: not on disk)."""
     out: list[Policy] = [GeniePolicy(), RandomWalkPolicy(seed=config.seed), GreedyPolicy(env.p_h_db, seed=config.seed)]
     if config.predictor is not None:
         predictor = load_predictor(config.predictor)

@@ -104,8 +104,9 @@ def weighted_stats(steps: np.ndarray, success: np.ndarray, genie_steps: np.ndarr
 
 
 def weighted_iqm(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """``rl.tasks.placement.rollout.interquartile_mean`` of the sample in which value ``i`` occurs ``weights[b, i]`` times (bootstrap
-    counts: whole numbers), for each row ``b``: [B]. The same values as expanding the sample and trimming it."""
+    """``rl.tasks.placement.rollout.interquartile_mean`` of the sample in which value ``i`` occurs ``weights[b, i]``
+    times (bootstrap counts: whole numbers), for each row ``b``: [B]. The same values as expanding the sample and
+    trimming it."""
     order = np.argsort(values, kind="stable")
     v = np.asarray(values, np.float64)[order]
     w = np.asarray(weights, np.float64)[:, order]

@@ -74,18 +74,6 @@ _QUANTILES = (0.1, 0.5, 0.9)
 _SHORT = ("10th percentile", "median", "90th percentile")
 
 
-def _placement_in_tracking(agent, hold: bool) -> list:  # noqa: ANN001 - an eval.evaluate.Agent
-    """A placement (or fleet) agent played unchanged on the moving user, and holding its cell with ``hold``."""
-    return _and_holding(PlacementInTracking(agent.policy, agent.config.env_config(evaluation=True), agent.name), hold)
-
-
-#: How the tracking report plays the agents of a task other than placement's: a tracking agent on the observation
-#: it was trained with (it stays already).
-_AGENTS_IN_TRACKING = {
-    "tracking": lambda agent, hold: [TrackingAgent(agent.policy, agent.config.tracking_config(), agent.name)],
-}
-
-
 def tracking_methods(
     task: TrackingConfig, seed: int, agents: list[Agent] = (), hold: bool = True, searcher: TrackingSearchPolicy | None = None
 ) -> list:
@@ -96,7 +84,10 @@ def tracking_methods(
     the user (``Holding``), right after itself; tracking agents, the searcher, the genie and the oracle stay already."""
     played = []
     for a in agents:
-        played += _AGENTS_IN_TRACKING.get(a.config.task.kind, _placement_in_tracking)(a, hold)
+        if isinstance(a.config.task, TrackingConfig):  # trained on the task: its own observation, it stays already
+            played.append(TrackingAgent(a.policy, a.config.tracking_config(), a.name))
+        else:
+            played += _and_holding(PlacementInTracking(a.policy, a.config.env_config(evaluation=True), a.name), hold)
     baselines = [MovesOnly(RandomWalkPolicy(seed=seed)), MovesOnly(GreedyPolicy(task.p_h_db, seed=seed))]
     searchers = [] if searcher is None else [searcher]
     return [OraclePolicy(), *played, ReplanningGenie(), *searchers, *(m for b in baselines for m in _and_holding(b, hold))]

@@ -1,8 +1,8 @@
 """The map searcher on validation cities: the report's methods that matter to it, paired on the same episodes.
 
 Per validation city (never a test city: this is where the searcher's settings are chosen): the genie, the shipped
-``best`` (or the agents of ``--agent``, the first the reference), the map searcher (rl/tasks/placement/searcher.py) and its ablation
-shown open ground, on the episodes ``uavrl report`` draws; success, median steps, ratio to the genie's median and SPL
+``best`` (or the agents of ``--agent``, the first the reference), the map searcher (rl/tasks/placement/searcher.py)
+and its ablation shown open ground, on the episodes ``uavrl report`` draws; success, median steps, ratio to the genie's median and SPL
 with 95 % intervals over users then episodes, and every method's paired differences against the first agent and
 against the searcher. Settings of the searcher as ``--set name=value`` (``SearchConfig`` fields).
 

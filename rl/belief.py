@@ -169,7 +169,8 @@ class BeliefModel:
     """The searcher's belief arithmetic over the candidate cells of a canvas: the predicted maps of every candidate
     (``canvas_maps``, cached on disk by ``PredictionCache``), the likelihood of a measurement (``update``), the
     probability that a cell reaches P_T (``cover``) and the information a measurement gives (``information``). No
-    planning: ``rl.tasks.placement.searcher.MapSearchPolicy`` plans on it, ``BeliefTracker`` paints it for the hybrid's observation."""
+    planning: ``rl.tasks.placement.searcher.MapSearchPolicy`` plans on it, ``BeliefTracker`` paints it for the hybrid's
+    observation."""
 
     def __init__(
         self, predictor: Predictor | PhysicsConstants, config: SearchConfig | None = None, cache: PredictionCache | None = None

@@ -1,7 +1,9 @@
 """The settings of rl/, each declared once as a pydantic model (the commands' options derive from their fields,
-``infra.options``) beside placement's environment (``rl.tasks.placement.config.EnvConfig``): the evaluation protocol's
-(``EpisodeSettings``), the map searcher's (``SearchConfig``), the learned predictor's (``UNetConfig``) and where the
-shipped predictor lives. Light to import: pydantic only, read by the command line before any heavy work."""
+``infra.options``) that every task shares: the base of each task's settings (``TaskSettings``: P_T and its rule),
+the evaluation protocol's (``EpisodeSettings``), the map searcher's (``SearchConfig``), the learned predictor's
+(``UNetConfig``) and where the shipped predictor lives; placement's environment is
+``rl.tasks.placement.config.EnvConfig``. Light to import (pydantic and numpy), read by the command line before any
+heavy work."""
 
 from __future__ import annotations
 

@@ -106,7 +106,8 @@ def _bounded(value: float, option: str, field: str | None = None, limit: str | N
     within the resource ``limit`` (by default the one the field names; without a field, from 0 up to the limit)."""
     info = Simulation.model_fields[field] if field is not None else None
     bounds = field_bounds(info) if info is not None else {}
-    limit = limit or (info.json_schema_extra or {}).get("limit") if info is not None else limit
+    extra = (info.json_schema_extra or {}) if info is not None else {}
+    limit = limit or extra.get("limit")
     lo, hi = bounds.get("min", 0), bounds.get("max")
     value = float(value)  # an integer option may be of any size (1e300 rays as an int)
     if not (math.isfinite(value) and lo <= value <= (math.inf if hi is None else hi)):
@@ -117,8 +118,8 @@ def _bounded(value: float, option: str, field: str | None = None, limit: str | N
 
 
 def check_simulation(spec: SimulationSpec, config: RayTraceConfig, count: int = 1) -> None:
-    """``InputError`` naming the option unless every setting of the call is finite, within the bounds of ``Simulation``'s fields and the resource
-    limits (also the box of ``--extent``/``--crop`` and the ``--user`` positions), before any geometry is loaded or any
+    """``InputError`` naming the option unless every setting of the call is finite, within the bounds of
+    ``Simulation``'s fields and the resource limits (also the box of ``--extent``/``--crop`` and the ``--user`` positions), before any geometry is loaded or any
     memory allocated."""
     _bounded(count, "--count", "count")
     _bounded(len(spec.users_m) or spec.num_users, "--users", "num_users")

@@ -141,8 +141,8 @@ class DQNConfig(Contract):
         "(rl/tasks/tracking/; 5 actions, stay the fifth; `env` is not read; every training and validation city needs "
         "routes, `uavdata simulate --routes N`; best.pt is the network that covers the most of the horizon on the "
         "validation cities' routes; the preset's revisit penalties are off); fleet: several UAVs serve several users "
-        "(rl/tasks/fleet/: one network on every UAV, each playing `env`'s placement observation of the users dealt to it; best.pt is the network that "
-        "serves every user in the most fleet episodes of the validation cities; --set fleet.uavs=2 --set fleet.users=3 "
+        "(rl/tasks/fleet/: one network on every UAV, each playing `env`'s placement observation of the users dealt to "
+        "it; best.pt is the network that serves every user in the most fleet episodes of the validation cities; --set fleet.uavs=2 --set fleet.users=3 "
         "are the defaults, --set init=data/agents/best starts from a trained network).",
     )
     init: str | None = Field(

@@ -52,7 +52,7 @@ class TrackingTrainer(Trainer):
 
     @property
     def t_max(self) -> int:
-        return self.config.tracking_config().horizon
+        return self.config.task.horizon
 
     def validate(self, policy: DQNPolicy) -> tuple[dict, tuple[float, float]]:
         table = run_tracking(self.eval_routes, policy, self.eval_episodes).table

@@ -60,7 +60,8 @@ class Task:
     env_p_t: bool
     #: Whether its runs make an ensemble (``uavrl ensemble`` validates one as a placement agent).
     ensembles: bool
-    #: How the run's folder and its name in tables say the task (placement says nothing).
+    #: How the run's folder, its name in tables and the report's folder under reports/ say the task (placement says
+    #: nothing).
     tag: str
     #: The report that plays an agent of this task.
     report: str

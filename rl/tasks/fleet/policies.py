@@ -134,8 +134,8 @@ class FleetPlacement:
         prefix: str | None = None,  # noqa: ANN001
         compact: bool = False,
     ) -> None:
-        """``policy``: a ``rl.tasks.placement.policies.Policy`` (None: only ``dealt`` is used, as ``FleetTrainEnv`` does); ``prefix``
-        before its name (default ``FleetPlacement.prefix``: a placement agent run as it is); ``compact``: the agent's
+        """``policy``: a ``rl.tasks.placement.policies.Policy`` (None: only ``dealt`` is used, as ``FleetTrainEnv``
+        does); ``prefix`` before its name (default ``FleetPlacement.prefix``: a placement agent run as it is); ``compact``: the agent's
         observations as the learner stores them (``BatchedEnv``'s)."""
         name = name or policy.name
         if env.belief_channel or env.context_zoom:

@@ -10,8 +10,8 @@ from uavplace.rl.tasks.fleet.maps import FleetMaps, assignments, user_subsets
 
 
 class FleetSearcher:
-    """The map searcher run for the fleet (``rl.tasks.placement.searcher``): one belief per user over its candidate cells, updated by
-    every UAV's first measurement of each cell (a cell measured again tells nothing new), and one plan for the fleet.
+    """The map searcher run for the fleet (``rl.tasks.placement.searcher``): one belief per user over its candidate
+    cells, updated by every UAV's first measurement of each cell (a cell measured again tells nothing new), and one plan for the fleet.
 
     Per user ``n`` the posterior probability ``P_n(c)`` that each legal cell ``c`` serves it (1 or 0 at a visited
     cell: its SINR is known). A set of users ``S`` is served at ``c`` with probability ``prod_{n in S} P_n(c)``. Over

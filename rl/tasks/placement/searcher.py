@@ -32,8 +32,8 @@ SEARCHER = "map searcher"
 
 
 class MapSearchPolicy(BeliefModel):
-    """The searcher of the module's docstring as an ``rl.tasks.placement.policies.Policy``: the belief of ``rl.belief.BeliefModel``
-    and a planner."""
+    """The searcher of the module's docstring as an ``rl.tasks.placement.policies.Policy``: the belief of
+    ``rl.belief.BeliefModel`` and a planner."""
 
     def __init__(
         self,

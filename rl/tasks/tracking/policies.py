@@ -12,8 +12,8 @@ from uavplace.rl.tasks.tracking.maps import oracle_path
 
 
 class MovesOnly:
-    """A placement policy (``rl.tasks.placement.policies``: 4 moves, never stays) acting in the tracking env: it is shown the moves'
-    legal mask only, and keeps acting by its own rule after it first reaches P_T."""
+    """A placement policy (``rl.tasks.placement.policies``: 4 moves, never stays) acting in the tracking env: it is
+    shown the moves' legal mask only, and keeps acting by its own rule after it first reaches P_T."""
 
     def __init__(self, policy) -> None:  # noqa: ANN001 - a rl.tasks.placement.policies.Policy
         self.policy, self.name = policy, policy.name
@@ -50,7 +50,7 @@ class PlacementInTracking:
     measurements, as if the user's map were the placement episode's; the agent sees its observations, moves by its
     own rule (never stays) and keeps acting after it first reaches P_T."""
 
-    def __init__(self, policy, env: EnvConfig, name: str | None = None) -> None:  # noqa: ANN001 - a rl.tasks.placement.policies.Policy
+    def __init__(self, policy, env: EnvConfig, name: str | None = None) -> None:  # noqa: ANN001 - a placement Policy
         self.policy, self.name = policy, name or policy.name
         self.env_config = env.model_copy(update={"rotate": False, "city_weights": {}, "split": None})
         self.mirror = None
