@@ -94,6 +94,15 @@ def posterior_cover(log_b: np.ndarray, cover: np.ndarray) -> np.ndarray:
     return b @ cover
 
 
+def shared_posterior_cover(log_b: np.ndarray, cover: np.ndarray) -> np.ndarray:
+    """``posterior_cover`` of rows ``log_b`` as a product with more rows gives them. The product gives each row the
+    same sums however many rows it holds, save a lone row, which numpy hands to a matrix-vector product that orders
+    its sums otherwise: a lone row is computed beside a copy of itself."""
+    if len(log_b) == 1:
+        return posterior_cover(np.repeat(log_b, 2, axis=0), cover)[:1]
+    return posterior_cover(log_b, cover)
+
+
 class PredictionCache:
     """Predicted maps on disk, one ``.npz`` per canvas, named by the hash of everything they depend on (the bundle, the
     symmetry, the lattice, the blanked map, the predictor's weights, constants and code: ``Predictor.version``).
@@ -285,16 +294,27 @@ class BeliefModel:
 
     def update(self, maps: CandidateMaps, log_b: np.ndarray, column: int, measured: float, floor_db: float) -> np.ndarray:
         """``log_b`` [C] after measuring ``measured`` [dB] at legal cell ``column`` (the module's likelihood)."""
-        mu, p_dead = maps.mu[:, column], maps.p_dead[:, column]
+        return self.update_rows(maps, log_b[None], np.array([column]), np.array([measured], np.float32), floor_db)[0]
+
+    def update_rows(
+        self, maps: CandidateMaps, log_b: np.ndarray, columns: np.ndarray, measured: np.ndarray, floor_db: float
+    ) -> np.ndarray:
+        """``log_b`` [R, C] after row ``i`` measured ``measured[i]`` [dB] at legal cell ``columns[i]``: ``update`` of
+        each row, the same numbers, the rows at once."""
         sigma = self.sigma
         eps = self.config.outlier
-        if measured <= floor_db + 1e-3:  # censored: the probability of a value at or below the floor
-            like = (1 - eps) * (p_dead + (1 - p_dead) * ndtr((floor_db - mu) / sigma)) + eps
-        else:  # a density over dB; the flat part spreads its share over OUTLIER_SPAN_DB
-            z = (measured - mu) / sigma
-            like = (1 - eps) * (1 - p_dead) * np.exp(-0.5 * z * z) / (sigma * math.sqrt(2 * math.pi)) + eps / OUTLIER_SPAN_DB
+        mu, p_dead = maps.mu[:, columns].T, maps.p_dead[:, columns].T  # [R, C]
+        like = np.empty(mu.shape, np.float32)
+        floor = np.asarray(measured, np.float64) <= floor_db + 1e-3  # censored: the probability of a value at or below the floor
+        if floor.any():
+            d = p_dead[floor]
+            like[floor] = (1 - eps) * (d + (1 - d) * ndtr((floor_db - mu[floor]) / sigma)) + eps
+        if not floor.all():  # a density over dB; the flat part spreads its share over OUTLIER_SPAN_DB
+            z = (np.asarray(measured, np.float32)[~floor, None] - mu[~floor]) / sigma
+            live = (1 - eps) * (1 - p_dead[~floor]) * np.exp(-0.5 * z * z) / (sigma * math.sqrt(2 * math.pi))
+            like[~floor] = live + eps / OUTLIER_SPAN_DB
         out = log_b + self.config.temper * np.log(like + 1e-30)
-        return out - out.max()
+        return out - out.max(axis=1, keepdims=True)
 
 
 def load_predictor(path: str | Path = DEFAULT_PREDICTOR) -> Predictor:
@@ -324,18 +344,29 @@ class BeliefTracker:
 
     Per row, ``log_b`` [N, C_max] the log-belief over the candidate cells of its city (the searcher's ``update`` after
     every measurement, the start's included; -inf past the city's candidates) and ``cover`` [N, L, L] the posterior
-    probability [%] that each legal canvas cell reaches P_T (0 on blocked cells and beyond the map). A canvas under
+    probability [%] that each legal canvas cell reaches P_T (0 on blocked cells and beyond the map; with ``window``,
+    current only in the window centred on the row's last measurement, what its observation reads). A canvas under
     symmetry ``k`` reads its city's predictions at ``k = 0`` through the turned column map (``candidates``): the
     predicted maps of the unturned city, turned, never predicted again. It is told only what the UAV measures
     (``start``, ``measure``): the users' maps stay in the env. With ``MapSet.buildings_shown`` False (after
     ``show_buildings(None)``) the predictor is shown open ground, as in the searcher's ablation.
     """
 
-    def __init__(self, maps: MapSet, num_envs: int, predictor: Predictor, config: SearchConfig, cache: PredictionCache) -> None:
+    def __init__(
+        self,
+        maps: MapSet,
+        num_envs: int,
+        predictor: Predictor,
+        config: SearchConfig,
+        cache: PredictionCache,
+        window: int | None = None,
+    ) -> None:
         self.maps = maps
+        self.window = window
         self.public = PublicMaps.of(maps)
         self.models = {b: BeliefModel(predictor, config.model_copy(update={"buildings": b}), cache) for b in (True, False)}
         self._columns: dict[tuple[int, bool], np.ndarray] = {}
+        self._around: dict[tuple[int, bool], np.ndarray] = {}
         S = self.public.symmetries
         width = max(len(self.candidates(S * i)[0].cells) for i in range(len(maps.bundles)))
         self.log_b = np.full((num_envs, width), -np.inf, np.float32)
@@ -355,36 +386,89 @@ class BeliefTracker:
             self._columns[canvas, shown] = np.ascontiguousarray(transform(cm.index, k))
         return cm, self._columns[canvas, shown]
 
-    def start(self, rows: np.ndarray, canvases: np.ndarray, y: np.ndarray, x: np.ndarray, first: np.ndarray) -> None:
+    def start(
+        self,
+        rows: np.ndarray,
+        canvases: np.ndarray,
+        y: np.ndarray,
+        x: np.ndarray,
+        first: np.ndarray,
+        unread: np.ndarray | None = None,
+    ) -> None:
         """Rows ``rows`` begin over ``canvases``, measuring ``first`` at map cells ``(y, x)``: a uniform belief
-        updated by that measurement."""
+        updated by that measurement (``unread``: as ``measure``'s)."""
         self.canvas[rows] = canvases
         self.log_b[rows] = -np.inf
         for r, c in zip(rows, canvases, strict=True):
             self.log_b[r, : len(self.candidates(int(c))[0].cells)] = 0.0
-        self.measure(rows, y, x, first)
+        self.measure(rows, y, x, first, unread)
 
-    def measure(self, rows: np.ndarray, y: np.ndarray, x: np.ndarray, values: np.ndarray) -> None:
-        """Rows ``rows`` measured ``values`` [dB] at map cells ``(y, x)``: their beliefs, then their cover canvases."""
+    def measure(
+        self, rows: np.ndarray, y: np.ndarray, x: np.ndarray, values: np.ndarray, unread: np.ndarray | None = None
+    ) -> None:
+        """Rows ``rows`` measured ``values`` [dB] at map cells ``(y, x)``: their beliefs, then their cover canvases
+        (with ``window``, only the window centred on ``(y, x)``: all an observation reads before the next measurement).
+        ``unread`` [len(rows)]: rows whose canvas no one reads (a played-out queue's placeholders), left as they are."""
         public, model = self.public, self.models[self.maps.buildings_shown]
-        for r, yy, xx, v in zip(rows, y, x, values, strict=True):
-            c = int(self.canvas[r])
+        read = np.ones(len(rows), bool) if unread is None else ~np.asarray(unread, bool)
+        for c, members in self._groups(rows, read).items():  # a canvas's rows updated at once
             cm, columns = self.candidates(c)
             floor_db = float(public.settings[public.bundle_of(c)]["floor_db"])
-            n = len(cm.cells)
-            self.log_b[r, :n] = model.update(cm, self.log_b[r, :n], int(columns[yy, xx]), float(v), floor_db)
-        self.paint(rows)
+            r, n, at = rows[members], len(cm.cells), columns[y[members], x[members]]
+            self.log_b[r, :n] = model.update_rows(cm, self.log_b[r, :n], at, values[members], floor_db)
+        if self.window is None:
+            self.paint(rows, read)
+        else:
+            self.paint(rows, read, (np.asarray(y), np.asarray(x)))
 
-    def paint(self, rows: np.ndarray) -> None:
-        """The cover canvases of rows ``rows`` from their beliefs: a canvas's rows in one matrix product."""
-        groups: dict[int, list[int]] = {}
-        for r in rows:
-            groups.setdefault(int(self.canvas[r]), []).append(int(r))
+    def paint(self, rows: np.ndarray, read: np.ndarray | None = None, at: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+        """The cover canvases of rows ``rows`` (those of ``read`` only) from their beliefs, a canvas's rows in one
+        matrix product; ``at``: only the ``window`` centred on each row's map cell ``(y, x)``, else the whole canvas.
+
+        Rows that shared their product with rows left unread are computed as that product computed them
+        (``shared_posterior_cover``)."""
+        read = np.ones(len(rows), bool) if read is None else read
         p = self.public.pad
-        for c, members in groups.items():
+        for c, members in self._groups(rows).items():
+            kept = [i for i in members if read[i]]
+            if not kept:
+                continue
             cm, columns = self.candidates(c)
-            scores = np.zeros((len(members), cm.cover.shape[1] + 1), np.float32)  # the last column: -1's zero
-            scores[:, :-1] = posterior_cover(self.log_b[members, : len(cm.cells)], cm.cover) * np.float32(100.0)
+            log_b = self.log_b[rows[kept], : len(cm.cells)]
+            scores = np.zeros((len(kept), cm.cover.shape[1] + 1), np.float32)  # the last column: -1's zero
+            product = shared_posterior_cover if len(kept) < len(members) else posterior_cover
+            scores[:, :-1] = product(log_b, cm.cover)
+            scores *= np.float32(100.0)
+            targets = rows[kept]
+            if at is None:
+                ny, nx = columns.shape
+                self.cover[targets] = 0.0  # a turned map of another shape may have painted beyond this one
+                self.cover[targets, p : p + ny, p : p + nx] = scores[:, columns]
+            else:
+                self._paint_windows(c, targets, scores, at[0][kept], at[1][kept])
+
+    def _groups(self, rows: np.ndarray, read: np.ndarray | None = None) -> dict[int, list[int]]:
+        """``{canvas: [i, ...]}``: the positions in ``rows`` (of ``read`` only) of each canvas's rows, in order."""
+        groups: dict[int, list[int]] = {}
+        for i, r in enumerate(rows):
+            if read is None or read[i]:
+                groups.setdefault(int(self.canvas[r]), []).append(i)
+        return groups
+
+    def _paint_windows(self, canvas: int, targets: np.ndarray, scores: np.ndarray, y: np.ndarray, x: np.ndarray) -> None:
+        """Write ``scores`` [R, M + 1] into the ``window`` of rows ``targets`` (over ``canvas``) centred on map cells
+        ``(y, x)``: the canvas there as ``paint`` would make it whole (0 off the map and where the UAV may not go)."""
+        w, h, p = self.window, self.window // 2, self.public.pad
+        if h > p:
+            raise ValueError(f"a window of {w} cells reaches past the canvas's pad of {p}")
+        key = (canvas, self.maps.buildings_shown)
+        if key not in self._around:  # a column per cell a window centred on the map covers
+            columns = self.candidates(canvas)[1]
             ny, nx = columns.shape
-            self.cover[members] = 0.0  # a turned map of another shape may have painted beyond this one
-            self.cover[members, p : p + ny, p : p + nx] = scores[:, columns]
+            self._around[key] = np.full((ny + 2 * h, nx + 2 * h), -1, np.int64)
+            self._around[key][h : h + ny, h : h + nx] = columns
+        around = self._around[key]
+        cells = np.lib.stride_tricks.sliding_window_view(around, (w, w))[y, x]  # [R, w, w]
+        values = scores[np.arange(len(targets))[:, None, None], cells]
+        windows = np.lib.stride_tricks.sliding_window_view(self.cover, (w, w), axis=(1, 2), writeable=True)
+        windows[targets, y + p - h, x + p - h] = values

@@ -260,6 +260,49 @@ def test_belief_channel_in_the_observation(tiny):
     assert not np.allclose(again[:, -2], obs[:, -2])
 
 
+def test_belief_channel_paints_what_the_whole_canvas_shows(tiny):
+    """The channel is painted only in the window an observation reads, and not for a played-out queue's placeholders:
+    every observation of a row still playing is, to the bit, the one of the canvas painted whole for every row (lone
+    restarts and the last rows of a queue included), and the episodes are the same."""
+    from uavplace.rl.tasks.placement.env import BatchedEnv
+
+    constants = str(REPO / "data" / "agents" / "searcher" / "predictor.json")
+    cfg = EnvConfig(t_max=30, homing_channel=True, belief_channel=True, belief_predictor=constants)
+    maps = MapSet.load("tiny", cfg, root=str(tiny))
+    queue = maps.episode_list(17, 2)
+    envs = [BatchedEnv(maps, 5, queue=queue) for _ in range(2)]
+    whole = envs[1].belief
+    whole.window = None
+    for name, given in (("start", 5), ("measure", 4)):  # every row painted whole, as if someone read them all
+        method = getattr(whole, name)
+        setattr(whole, name, lambda *args, unread=None, _m=method, _n=given: _m(*args[:_n]))
+    (obs, info), (ref, _) = envs[0].reset(), envs[1].reset()
+    rng = np.random.default_rng(0)
+    played = 0
+    while not envs[0].exhausted.all():
+        live = ~envs[0].exhausted
+        np.testing.assert_array_equal(obs[live], ref[live])
+        actions = np.array([rng.choice(np.flatnonzero(m)) for m in info["action_mask"]])
+        obs, _, term, trunc, info = envs[0].step(actions)
+        ref, _, term1, trunc1, _ = envs[1].step(actions)
+        np.testing.assert_array_equal(term, term1)
+        played += int(((term | trunc) & live).sum())
+    assert played == len(queue)
+
+
+def test_a_row_of_a_shared_product_is_computed_as_the_product_computed_it():
+    """``shared_posterior_cover``: each row, alone or with a few, gets to the bit what the product of all rows gave it
+    (the windowed channel computes only the rows someone reads)."""
+    from uavplace.rl.belief import posterior_cover, shared_posterior_cover
+
+    rng = np.random.default_rng(3)
+    cover = rng.random((1500, 700), dtype=np.float32)
+    log_b = (3 * rng.standard_normal((12, 1500))).astype(np.float32)
+    whole = posterior_cover(log_b, cover)
+    for rows in ([0], [5], [11], [2, 7], [1, 3, 4, 9]):
+        np.testing.assert_array_equal(shared_posterior_cover(log_b[rows], cover), whole[rows])
+
+
 def _cache_entry(tmp_path):  # noqa: ANN001, ANN202
     """(cache, key, mu, p_dead): one entry saved, as the searcher saves it."""
     from uavplace.rl.belief import PredictionCache

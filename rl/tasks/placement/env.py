@@ -169,7 +169,7 @@ class BatchedEnv(EpisodeRows):
 
             predictor = load_predictor(self.config.belief_predictor or DEFAULT_PREDICTOR)
             cache = PredictionCache(maps.bundles[0].path.parent.parent / PREDICTIONS)
-            self.belief = BeliefTracker(maps, n, predictor, SearchConfig(), cache)
+            self.belief = BeliefTracker(maps, n, predictor, SearchConfig(), cache, window=w)
             self._belief_windows = np.lib.stride_tricks.sliding_window_view(self.belief.cover, (w, w), axis=(1, 2))
 
     @property
@@ -239,7 +239,8 @@ class BatchedEnv(EpisodeRows):
             self.context_seen[idx] = False
             self._remember_context(idx, y, x, first)
         if self.belief is not None:
-            self.belief.start(idx, self.maps.view_map[view], y - self.maps.pad, x - self.maps.pad, first)
+            pad, unread = self.maps.pad, self.exhausted[idx]  # a played-out queue's placeholders: no one reads their belief
+            self.belief.start(idx, self.maps.view_map[view], y - pad, x - pad, first, unread)
 
     def _remember_context(self, idx: np.ndarray, y: np.ndarray, x: np.ndarray, sinr: np.ndarray) -> None:
         """Envs ``idx`` measured ``sinr`` at canvas cells ``(y, x)``: their context blocks keep the best."""
@@ -346,7 +347,7 @@ class BatchedEnv(EpisodeRows):
             better = new > self.best_sinr[rows]  # the first cell of the best SINR stays the best
             self.best_sinr[rows[better]], self.best_pos[rows[better]] = new[better], self.pos[rows[better]]
         if self.belief is not None:
-            self.belief.measure(rows, y - self.maps.pad, x - self.maps.pad, new)
+            self.belief.measure(rows, y - self.maps.pad, x - self.maps.pad, new, unread=self.exhausted[rows])
         return before
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
