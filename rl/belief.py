@@ -294,7 +294,7 @@ class BeliefModel:
 
     def update(self, maps: CandidateMaps, log_b: np.ndarray, column: int, measured: float, floor_db: float) -> np.ndarray:
         """``log_b`` [C] after measuring ``measured`` [dB] at legal cell ``column`` (the module's likelihood)."""
-        return self.update_rows(maps, log_b[None], np.array([column]), np.array([measured], np.float32), floor_db)[0]
+        return self.update_rows(maps, log_b[None], np.array([column]), np.array([measured], np.float64), floor_db)[0]
 
     def update_rows(
         self, maps: CandidateMaps, log_b: np.ndarray, columns: np.ndarray, measured: np.ndarray, floor_db: float
