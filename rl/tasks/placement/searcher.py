@@ -120,23 +120,28 @@ class MapSearchPolicy(BeliefModel):
         p = public.pad
         here = np.full(n, -1, np.int64)
         by_canvas: dict[int, list[int]] = {}
+        going_on: dict[int, list[int]] = {}  # rows whose belief takes their last measurement: a canvas's at once
         for r in range(n):  # the beliefs, row by row
             if env.exhausted[r] or not mask[r].any():
                 continue
             c = int(canvas[r])
             maps = self.canvas_maps(public, c)
             here[r] = maps.index[pos[r, 0] - p, pos[r, 1] - p]
-            floor_db = float(public.settings[public.bundle_of(c)]["floor_db"])
-            if self.belief[r] is None or t[r] == 0 or self.belief_canvas[r] != c:
-                log_b = self.prior(maps, r)
-                # Every cell measured so far (at t = 0 the start), as the memory holds it.
-                for y, x in np.argwhere(visits[r] > 0):
-                    log_b = self.update(maps, log_b, int(maps.index[y - p, x - p]), float(env.memory[r, y, x]), floor_db)
-                self.belief_canvas[r] = c
-            else:
-                log_b = self.update(maps, self.belief[r], int(here[r]), float(measured[r]), floor_db)
-            self.belief[r] = log_b
             by_canvas.setdefault(c, []).append(r)
+            if self.belief[r] is not None and t[r] > 0 and self.belief_canvas[r] == c:
+                going_on.setdefault(c, []).append(r)
+                continue
+            floor_db = float(public.settings[public.bundle_of(c)]["floor_db"])
+            log_b = self.prior(maps, r)
+            for y, x in np.argwhere(visits[r] > 0):  # every cell measured so far (at t = 0 the start), as memory holds it
+                log_b = self.update(maps, log_b, int(maps.index[y - p, x - p]), float(env.memory[r, y, x]), floor_db)
+            self.belief_canvas[r], self.belief[r] = c, log_b
+        for c, rows in going_on.items():  # the same numbers as row by row (``update_rows``)
+            floor_db = float(public.settings[public.bundle_of(c)]["floor_db"])
+            log_b = np.stack([self.belief[r] for r in rows])
+            at, values = here[rows], np.asarray(measured, np.float64)[rows]
+            for r, row in zip(rows, self.update_rows(self.canvas_maps(public, c), log_b, at, values, floor_db), strict=True):
+                self.belief[r] = row
         for c, rows in by_canvas.items():  # the plans, a canvas's rows in one product
             maps = self.canvas_maps(public, c)
             scores = posterior_cover(np.stack([self.belief[r] for r in rows]), maps.cover)
