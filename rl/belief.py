@@ -366,12 +366,18 @@ class BeliefTracker:
         self.public = PublicMaps.of(maps)
         self.models = {b: BeliefModel(predictor, config.model_copy(update={"buildings": b}), cache) for b in (True, False)}
         self._columns: dict[tuple[int, bool], np.ndarray] = {}
-        self._around: dict[tuple[int, bool], np.ndarray] = {}
+        self._around: dict[tuple[int, bool], np.ndarray] = {}  # [.., w, w] windows of each canvas's column map
+        if window is not None and window // 2 > self.public.pad:
+            raise ValueError(f"a window of {window} cells reaches past the canvas's pad of {self.public.pad}")
         S = self.public.symmetries
         width = max(len(self.candidates(S * i)[0].cells) for i in range(len(maps.bundles)))
         self.log_b = np.full((num_envs, width), -np.inf, np.float32)
         self.canvas = np.zeros(num_envs, np.int64)
         self.cover = np.zeros((num_envs, maps.side, maps.side), np.float32)
+        if window is not None:  # window (y0, x0) of row r is [r, y0, x0], written through
+            self._cover_windows = np.lib.stride_tricks.sliding_window_view(
+                self.cover, (window, window), axis=(1, 2), writeable=True
+            )
 
     def candidates(self, canvas: int) -> tuple[CandidateMaps, np.ndarray]:
         """The predictions of ``canvas``'s city (at symmetry 0, with or without its buildings as the maps show them)
@@ -416,14 +422,12 @@ class BeliefTracker:
             floor_db = float(public.settings[public.bundle_of(c)]["floor_db"])
             r, n, at = rows[members], len(cm.cells), columns[y[members], x[members]]
             self.log_b[r, :n] = model.update_rows(cm, self.log_b[r, :n], at, values[members], floor_db)
-        if self.window is None:
-            self.paint(rows, read)
-        else:
-            self.paint(rows, read, (np.asarray(y), np.asarray(x)))
+        self.paint(rows, read, (np.asarray(y), np.asarray(x)))
 
     def paint(self, rows: np.ndarray, read: np.ndarray | None = None, at: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         """The cover canvases of rows ``rows`` (those of ``read`` only) from their beliefs, a canvas's rows in one
-        matrix product; ``at``: only the ``window`` centred on each row's map cell ``(y, x)``, else the whole canvas.
+        matrix product; with ``window`` and ``at``, only the window centred on each row's map cell ``(y, x)``, else
+        the whole canvas.
 
         Rows that shared their product with rows left unread are computed as that product computed them
         (``shared_posterior_cover``)."""
@@ -440,7 +444,7 @@ class BeliefTracker:
             scores[:, :-1] = product(log_b, cm.cover)
             scores *= np.float32(100.0)
             targets = rows[kept]
-            if at is None:
+            if at is None or self.window is None:
                 ny, nx = columns.shape
                 self.cover[targets] = 0.0  # a turned map of another shape may have painted beyond this one
                 self.cover[targets, p : p + ny, p : p + nx] = scores[:, columns]
@@ -459,16 +463,12 @@ class BeliefTracker:
         """Write ``scores`` [R, M + 1] into the ``window`` of rows ``targets`` (over ``canvas``) centred on map cells
         ``(y, x)``: the canvas there as ``paint`` would make it whole (0 off the map and where the UAV may not go)."""
         w, h, p = self.window, self.window // 2, self.public.pad
-        if h > p:
-            raise ValueError(f"a window of {w} cells reaches past the canvas's pad of {p}")
         key = (canvas, self.maps.buildings_shown)
-        if key not in self._around:  # a column per cell a window centred on the map covers
+        if key not in self._around:  # a column per cell a window centred on the map covers, -1 off the map
             columns = self.candidates(canvas)[1]
             ny, nx = columns.shape
-            self._around[key] = np.full((ny + 2 * h, nx + 2 * h), -1, np.int64)
-            self._around[key][h : h + ny, h : h + nx] = columns
-        around = self._around[key]
-        cells = np.lib.stride_tricks.sliding_window_view(around, (w, w))[y, x]  # [R, w, w]
-        values = scores[np.arange(len(targets))[:, None, None], cells]
-        windows = np.lib.stride_tricks.sliding_window_view(self.cover, (w, w), axis=(1, 2), writeable=True)
-        windows[targets, y + p - h, x + p - h] = values
+            around = np.full((ny + 2 * h, nx + 2 * h), -1, np.int64)
+            around[h : h + ny, h : h + nx] = columns
+            self._around[key] = np.lib.stride_tricks.sliding_window_view(around, (w, w))
+        cells = self._around[key][y, x]  # [R, w, w]
+        self._cover_windows[targets, y + p - h, x + p - h] = scores[np.arange(len(targets))[:, None, None], cells]
