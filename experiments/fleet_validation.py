@@ -2,17 +2,20 @@
 
 Per validation city (never a test city), the same episodes (``FleetMaps.episode_list``) for the fleet's steered
 random walk, greedy hill-climbing, each agent of ``--agent`` run on every UAV on the users dealt to it (default: the
-shipped ``best`` and the fleet-trained ``fleet``) and the map searcher run for the fleet (rl/tasks/fleet/), scored against
-the oracle by ``run_fleet``. Prints one Markdown row per city. ``--agents-only``: the agents alone.
+shipped ``best`` and the fleet-trained ``fleet``) and the map searcher run for the fleet (rl/tasks/fleet/) with each
+``--plan`` (``SearchConfig.fleet_plan``; default: the default plan), scored against the oracle by ``run_fleet``.
+Prints one Markdown row per city. ``--agents-only``: the agents alone; ``--searcher-only``: the searcher alone.
 
     python experiments/fleet_validation.py [--city corpus-016] [--episodes 100] [--uavs 2] [--users 3]
                                           [--agent data/agents/best --agent data/agents/fleet] [--agents-only]
+                                          [--searcher-only] [--plan product --plan makespan]
 """
 
 from __future__ import annotations
 
 import argparse
 import time
+import typing
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +23,7 @@ import numpy as np
 from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.evaluate import load_agent
 from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
+from uavplace.rl.config import SearchConfig
 from uavplace.rl.tasks.fleet import (
     FleetConfig,
     FleetGreedy,
@@ -44,15 +48,24 @@ def main() -> None:
     ap.add_argument("--predictor", type=Path, default=DEFAULT_PREDICTOR, help="Constants' JSON or a learned tier's folder")
     ap.add_argument("--agent", type=Path, action="append", default=None, help="Agent run on every UAV (repeatable)")
     ap.add_argument("--agents-only", action="store_true", help="The agents alone: no random walk, greedy or searcher")
+    ap.add_argument("--searcher-only", action="store_true", help="The searcher alone: no random walk, greedy or agent")
+    plans = typing.get_args(SearchConfig.model_fields["fleet_plan"].annotation)
+    ap.add_argument("--plan", action="append", choices=plans, default=None, help="The searcher's plan (repeatable)")
     args = ap.parse_args()
     config = FleetConfig(uavs=args.uavs, users=args.users)
     predictor, cache = load_predictor(args.predictor), PredictionCache(args.root / PREDICTIONS)
     print(f"{args.uavs} UAVs, {args.users} users, {args.episodes} episodes a city; success / median steps / SPL (seconds)")
-    agents = [
-        load_agent(f, 0.096, args.seed, task=None) for f in args.agent or [Path("data/agents/best"), Path("data/agents/fleet")]
-    ]
+    folders = [] if args.searcher_only else args.agent or [Path("data/agents/best"), Path("data/agents/fleet")]
+    agents = [load_agent(f, 0.096, args.seed, task=None) for f in folders]
     names = [("" if a.config.task.kind == "fleet" else "independent ") + a.name for a in agents]
-    columns = names if args.agents_only else ["random walk", "greedy", *names, "map searcher"]
+    searchers = [SearchConfig(fleet_plan=p) for p in args.plan or [SearchConfig().fleet_plan]]
+    searcher_names = [f"map searcher ({s.fleet_plan})" for s in searchers]
+    if args.agents_only:
+        columns = names
+    elif args.searcher_only:
+        columns = searcher_names
+    else:
+        columns = ["random walk", "greedy", *names, *searcher_names]
     print(f"| city | oracle median | {' | '.join(columns)} | last median / oracle's |")
     print("|---|---|" + "---|" * (len(columns) + 1))
     for city in args.city or VALIDATION:
@@ -65,12 +78,8 @@ def main() -> None:
         players = [FleetPlacement(a.policy, a.config.env_config(evaluation=True), name, prefix="").bind(maps)
                    for a, name in zip(agents, names, strict=True)]  # fmt: skip
         if not args.agents_only:
-            players = [
-                FleetRandomWalk(args.seed),
-                FleetGreedy(args.seed),
-                *players,
-                FleetSearcher(predictor, None, cache).bind(maps),
-            ]
+            baselines = [] if args.searcher_only else [FleetRandomWalk(args.seed), FleetGreedy(args.seed)]
+            players = [*baselines, *players, *(FleetSearcher(predictor, s, cache).bind(maps) for s in searchers)]
         for policy in players:
             t0 = time.perf_counter()
             table = run_fleet(maps, policy, episodes)

@@ -261,18 +261,21 @@ def test_baselines_read_only_what_the_fleet_measured():
         assert (table["steps"][won] >= table["oracle_steps"][won]).all() and (table["spl"] <= 1).all()
 
 
-def test_fleet_searcher_serves_the_tiny_city_from_what_it_measured(tiny):
+@pytest.mark.parametrize("plan", ["makespan", "product"])
+def test_fleet_searcher_serves_the_tiny_city_from_what_it_measured(tiny, plan):
     """The map searcher run for the fleet (one belief per user, physics tier) serves the tiny city's user sets, and
-    moves the same when every user's map is scrambled off the cells the fleet visited."""
+    moves the same when every user's map is scrambled off the cells the fleet visited, with either plan."""
     from tests.conftest import REPO
     from uavplace.dataset.bundle import load_bundle
     from uavplace.rl.belief import load_predictor
+    from uavplace.rl.config import SearchConfig
     from uavplace.rl.tasks.fleet import FleetSearcher, run_fleet
 
     config = FleetConfig(uavs=2, users=2, window=9, t_max=60)
     maps = FleetMaps.of([load_bundle("tiny", root=str(tiny))], config)
     episodes = maps.episode_list(6, 0)
-    policy = FleetSearcher(load_predictor(REPO / "data" / "agents" / "searcher" / "predictor.json")).bind(maps)
+    predictor = load_predictor(REPO / "data" / "agents" / "searcher" / "predictor.json")
+    policy = FleetSearcher(predictor, SearchConfig(fleet_plan=plan)).bind(maps)
     table = run_fleet(maps, policy, episodes, num_envs=3)
     assert table["success"].mean() >= 0.8
     rng = np.random.default_rng(1)
@@ -283,9 +286,39 @@ def test_fleet_searcher_serves_the_tiny_city_from_what_it_measured(tiny):
         other = _scrambled(maps, int(city[0]), users[0], keep, rng)
         np.testing.assert_array_equal(_paths(other, policy, episodes[e : e + 1])[0], path)
     with pytest.raises(ValueError, match="bundles"):
-        FleetSearcher(load_predictor(REPO / "data" / "agents" / "searcher" / "predictor.json")).bind(
-            FleetMaps([_city(0)], FleetConfig(window=3))
-        )
+        FleetSearcher(predictor).bind(FleetMaps([_city(0)], FleetConfig(window=3)))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_fleet_searchers_makespan_plan_is_the_best_by_brute_force(seed):
+    """The makespan plan's assignment and cells score as much as the best of every assignment of the users to the UAVs
+    and every cell of each UAV that has users, scored by brute force: the product of the UAVs' probabilities of
+    serving their users times the discount of the longest of their paths."""
+    import itertools
+
+    from tests.conftest import REPO
+    from uavplace.rl.belief import load_predictor
+    from uavplace.rl.tasks.fleet import FleetSearcher
+
+    rng = np.random.default_rng(seed)
+    users, uavs, cells = 3, 2, 7
+    cover = rng.choice([0.0, 0.1, 0.5, 0.9, 1.0], size=(users, cells)).astype(np.float32)
+    moves = rng.integers(0, 9, size=(uavs, cells)).astype(np.float32)
+    moves[:, rng.integers(cells)] = np.inf  # a cell neither UAV reaches
+    policy = FleetSearcher(load_predictor(REPO / "data" / "agents" / "searcher" / "predictor.json"))
+    paths = [(None, None, m) for m in moves]
+
+    def score(plan: dict[int, int], owner: tuple[int, ...]) -> float:
+        p = np.prod([cover[n, plan[owner[n]]] for n in range(users)])
+        return float(p * policy.searcher.discount(np.float32(max(moves[u, c] for u, c in plan.items()))))
+
+    best = 0.0
+    for owner in itertools.product(range(uavs), repeat=users):
+        mine = sorted(set(owner))
+        for where in itertools.product(*(np.flatnonzero(np.isfinite(moves[u])) for u in mine)):
+            best = max(best, score(dict(zip(mine, where, strict=True)), owner))
+    plan = policy._makespan_plan(cover, paths)
+    assert np.isclose(max(score(plan, o) for o in itertools.product(sorted(plan), repeat=users)), best, rtol=1e-6)
 
 
 def test_independent_agents_deal_users_and_read_only_what_the_fleet_measured(tiny):

@@ -15,10 +15,12 @@ class FleetSearcher:
 
     Per user ``n`` the posterior probability ``P_n(c)`` that each legal cell ``c`` serves it (1 or 0 at a visited
     cell: its SINR is known). A set of users ``S`` is served at ``c`` with probability ``prod_{n in S} P_n(c)``. Over
-    the K^N assignments of users to UAVs, each UAV's best cell for its users scores that probability times the
-    searcher's distance discount from the UAV; the assignment of the largest product of its UAVs' scores is
-    followed, each UAV one cell along a shortest legal path to its cell (staying when it stands on it). Needs the
-    bundles' public maps (``FleetMaps.of``)."""
+    the K^N assignments of users to UAVs and the cells of the UAVs that have users, the plan takes the largest score
+    (``SearchConfig.fleet_plan``): with ``makespan``, the product of the UAVs' probabilities times the searcher's
+    distance discount of the longest of their paths, since the fleet succeeds when its last UAV arrives; with
+    ``product``, the product over UAVs of each one's probability times the discount of its own path. Each UAV moves
+    one cell along a shortest legal path to its cell (staying when it stands on it; a UAV without users stays).
+    Needs the bundles' public maps (``FleetMaps.of``)."""
 
     name = "map searcher"
 
@@ -84,24 +86,57 @@ class FleetSearcher:
         seen = view.visits[r, cm.legal[:, 0] + p, cm.legal[:, 1] + p] > 0
         known = cfg.reaches(view.memory[r][:, cm.legal[:, 0] + p, cm.legal[:, 1] + p])  # [N, M]
         cover = np.where(seen[None], known.astype(np.float32), cover)
-        paths = [self.searcher.paths_from(self.public, canvas, cm, int(c)) for c in cols]  # (discount, predecessors)
-        discounts = [np.where(d < 0, 0.0, d) for d, _ in paths]
+        paths = [self.searcher.paths_from(self.public, canvas, cm, int(c)) for c in cols]  # (discount, predecessors, moves)
+        plan = (
+            self._makespan_plan(cover, paths)
+            if self.searcher.config.fleet_plan == "makespan"
+            else self._product_plan(cover, paths)
+        )
+        return np.array([self._step(cm, int(cols[u]), plan.get(u, int(cols[u])), paths[u][1], mask[u]) for u in range(k)])
+
+    @staticmethod
+    def _product_plan(cover: np.ndarray, paths: list[tuple[np.ndarray, ...]]) -> dict[int, int]:
+        """``{UAV: its cell}`` of the assignment of the largest product of its UAVs' best scores: a UAV's score of a cell
+        is the probability that it serves the UAV's users times the discount of the UAV's path to it."""
         best_cell = {}  # (users, UAV) -> (its best cell for those users, the cell's value)
-        for mine in user_subsets(cfg.users):
+        for mine in user_subsets(len(cover)):
             served = np.prod(cover[list(mine)], axis=0)
-            for uav in range(k):
-                value = served * discounts[uav]
+            for uav, (discount, _, _) in enumerate(paths):
+                value = served * np.where(discount < 0, 0.0, discount)
                 c = int(np.argmax(value))
                 best_cell[mine, uav] = c, float(value[c])
-        best, plan = -1.0, [int(c) for c in cols]
-        for groups in assignments(cfg.users, k):
-            score, targets = 1.0, [int(c) for c in cols]  # a UAV without users stays where it is
-            for uav, mine in groups:
-                targets[uav], value = best_cell[mine, uav]
-                score *= value
+        best, plan = -1.0, {}
+        for groups in assignments(len(cover), len(paths)):
+            score = np.prod([best_cell[mine, uav][1] for uav, mine in groups])
             if score > best:
-                best, plan = score, targets
-        return np.array([self._step(cm, int(cols[u]), plan[u], paths[u][1], mask[u]) for u in range(k)])
+                best, plan = score, {uav: best_cell[mine, uav][0] for uav, mine in groups}
+        return plan
+
+    def _makespan_plan(self, cover: np.ndarray, paths: list[tuple[np.ndarray, ...]]) -> dict[int, int]:
+        """``{UAV: its cell}`` of the assignment and the cells of the largest product of the UAVs' probabilities of
+        serving their users times the discount of the longest of their paths: for every length ``D``, each UAV takes
+        its most likely cell within ``D`` moves (the nearest of equals)."""
+        horizon = int(max(np.max(moves[np.isfinite(moves)]) for _, _, moves in paths))
+        lengths = np.arange(horizon + 1)
+        served = {mine: np.prod(cover[list(mine)], axis=0) for mine in user_subsets(len(cover))}
+        within = {}  # (users, UAV) -> (the best probability within D moves [D], its cell [D])
+        for uav, (_, _, moves) in enumerate(paths):
+            order = np.argsort(moves, kind="stable")  # nearest first, unreachable (inf) last
+            last = np.searchsorted(moves[order], lengths, side="right") - 1  # the farthest cell within D moves
+            for mine, p in served.items():
+                p = p[order]
+                best = np.maximum.accumulate(p)
+                rises = np.flatnonzero(np.r_[True, p[1:] > best[:-1]])  # where the running best rises: its nearest cell
+                at = rises[np.searchsorted(rises, last, side="right") - 1]
+                within[mine, uav] = np.where(last >= 0, best[last], 0.0), order[at]  # none within D moves: 0
+        discount = self.searcher.discount(lengths.astype(np.float32))
+        best, plan = -1.0, {}
+        for groups in assignments(len(cover), len(paths)):
+            score = discount * np.prod([within[mine, uav][0] for uav, mine in groups], axis=0)
+            d = int(np.argmax(score))
+            if score[d] > best:
+                best, plan = float(score[d]), {uav: int(within[mine, uav][1][d]) for uav, mine in groups}
+        return plan
 
     @staticmethod
     def _step(cm, here: int, target: int, pred: np.ndarray, mask: np.ndarray) -> int:  # noqa: ANN001

@@ -73,14 +73,15 @@ class MapSearchPolicy(BeliefModel):
             self._graphs[key] = sparse.csr_matrix((np.ones(len(r), np.float32), (r, c)), shape=(len(legal), len(legal)))
         return self._graphs[key]
 
-    def paths_from(self, public: PublicMaps, canvas: int, maps: CandidateMaps, cell: int) -> tuple[np.ndarray, np.ndarray]:
-        """(discount [M], predecessors [M]) of the shortest legal paths from legal cell ``cell``: each cell's discount
-        by its fewest moves (``SearchConfig.discount``; -1 where unreachable); kept for the most recent 4096 cells."""
-        discount, pred, _ = self._shortest(public, canvas, maps, cell)
-        return discount, pred
+    def discount(self, moves: np.ndarray) -> np.ndarray:
+        """The discount of a cell ``moves`` moves away (``SearchConfig.discount``, ``reach_cells``)."""
+        scale = moves / self.config.reach_cells
+        return np.exp(-scale) if self.config.discount == "exp" else 1.0 / (1.0 + scale)
 
-    def _shortest(self, public: PublicMaps, canvas: int, maps: CandidateMaps, cell: int) -> tuple[np.ndarray, ...]:
-        """(discount, predecessors, fewest moves: inf where unreachable) of ``paths_from``, kept."""
+    def paths_from(self, public: PublicMaps, canvas: int, maps: CandidateMaps, cell: int) -> tuple[np.ndarray, ...]:
+        """(discount [M], predecessors [M], fewest moves [M]) of the shortest legal paths from legal cell ``cell``: each
+        cell's discount by its fewest moves (``SearchConfig.discount``; -1 where unreachable, where the moves are inf);
+        kept for the most recent 4096 cells."""
         key = (canvas, cell, public.settings[public.bundle_of(canvas)]["version"])
         hit = self._paths.get(key)
         if hit is not None:
@@ -88,9 +89,7 @@ class MapSearchPolicy(BeliefModel):
             return hit
         d, pred = shortest_path(self._graph(public, canvas, maps), unweighted=True, indices=cell, return_predecessors=True)
         d = d.astype(np.float32)
-        scale = d / self.config.reach_cells
-        discount = np.exp(-scale) if self.config.discount == "exp" else 1.0 / (1.0 + scale)
-        hit = (np.where(np.isfinite(d), discount, np.float32(-1.0)), pred.astype(np.int32), d)
+        hit = (np.where(np.isfinite(d), self.discount(d), np.float32(-1.0)), pred.astype(np.int32), d)
         self._paths[key] = hit
         if len(self._paths) > 4096:
             self._paths.popitem(last=False)
@@ -181,7 +180,7 @@ class MapSearchPolicy(BeliefModel):
         keep = b > 1e-6
         b = (b[keep] / b[keep].sum()).astype(np.float64)
         cover = maps.cover[keep].astype(np.float64)
-        discount, _, _ = self._shortest(public, canvas, maps, here)
+        discount, _, _ = self.paths_from(public, canvas, maps, here)
         score = np.where(seen | (discount < 0), -1.0, (b @ cover) * discount)
         k = min(self.config.lookahead_targets, len(score))
         targets = np.argpartition(-score, k - 1)[:k]
@@ -197,7 +196,7 @@ class MapSearchPolicy(BeliefModel):
             if not mask[a] or not (0 <= y < maps.index.shape[0] and 0 <= x < maps.index.shape[1]) or maps.index[y, x] < 0:
                 continue
             n = int(maps.index[y, x])
-            disc_n, _, _ = self._shortest(public, canvas, maps, n)
+            disc_n, _, _ = self.paths_from(public, canvas, maps, n)
             t = targets[(targets != n) & (disc_n[targets] >= 0)]
             if not len(t):
                 continue
@@ -228,7 +227,7 @@ class MapSearchPolicy(BeliefModel):
     ) -> np.ndarray:
         """``score`` [M] plus ``info_weight`` times the information of a measurement at each unvisited cell within
         ``info_radius`` moves of legal cell ``here`` (the ``info`` planner)."""
-        _, _, d = self._shortest(public, canvas, maps, here)
+        _, _, d = self.paths_from(public, canvas, maps, here)
         near = np.flatnonzero((d <= self.config.info_radius) & ~seen)
         if not len(near):
             return score
@@ -247,7 +246,7 @@ class MapSearchPolicy(BeliefModel):
         mask: np.ndarray,
     ) -> int:
         """The first move along a shortest legal path to the unvisited cell of best discounted ``score``."""
-        discount, pred = self.paths_from(public, canvas, maps, here)
+        discount, pred, _ = self.paths_from(public, canvas, maps, here)
         score = np.where(seen | (discount < 0), -1.0, score * discount)
         target = int(np.argmax(score))
         if target == here or score[target] < 0:
