@@ -263,8 +263,9 @@ def test_baselines_read_only_what_the_fleet_measured():
 
 @pytest.mark.parametrize("plan", ["makespan", "product"])
 def test_fleet_searcher_serves_the_tiny_city_from_what_it_measured(tiny, plan):
-    """The map searcher run for the fleet (one belief per user, physics tier) serves the tiny city's user sets, and
-    moves the same when every user's map is scrambled off the cells the fleet visited, with either plan."""
+    """The map searcher run for the fleet (one belief per user, physics tier) serves the tiny city's user sets, the
+    same in a batch and alone, and moves the same when every user's map is scrambled off the cells the fleet visited,
+    with either plan."""
     from tests.conftest import REPO
     from uavplace.dataset.bundle import load_bundle
     from uavplace.rl.belief import load_predictor
@@ -278,6 +279,8 @@ def test_fleet_searcher_serves_the_tiny_city_from_what_it_measured(tiny, plan):
     policy = FleetSearcher(predictor, SearchConfig(fleet_plan=plan)).bind(maps)
     table = run_fleet(maps, policy, episodes, num_envs=3)
     assert table["success"].mean() >= 0.8
+    alone = [run_fleet(maps, policy, episodes[e : e + 1], num_envs=1)["steps"][0] for e in range(len(episodes))]
+    np.testing.assert_array_equal(table["steps"], alone)  # a batch whose rows end one by one plays each as alone
     rng = np.random.default_rng(1)
     for e, path in enumerate(_paths(maps, policy, episodes[:3])):
         keep = np.zeros(maps.sinr.shape[2:], bool)

@@ -140,8 +140,8 @@ class FleetView:
     """What a fleet policy other than the oracle may read: per row, the UAVs' canvas cells (``pos`` [E, K, 2]), the
     step (``t``), the fleet's shared measurements (``memory`` [E, N, L, L]: each user's SINR at the visited cells,
     P_H unvisited, P_L blocked) and visits (``visits`` [E, L, L]), the episode's key for random draws (``keys``), its
-    city (``city``), the cities' public maps (``height`` and ``blocked`` [B, L, L]) and the task's settings. No
-    user's map; every array read-only."""
+    city (``city``), the cities' public maps (``height`` and ``blocked`` [B, L, L]), the task's settings and which
+    rows have ended (``done`` [E]: their moves are not played). No user's map; every array read-only."""
 
     pos: np.ndarray
     t: np.ndarray
@@ -152,6 +152,7 @@ class FleetView:
     height: np.ndarray
     blocked: np.ndarray
     config: FleetConfig
+    done: np.ndarray
 
     def at_uavs(self) -> np.ndarray:
         """``[E, K, N]`` each user's SINR measured at each UAV's cell (the shared memory there)."""
@@ -160,8 +161,8 @@ class FleetView:
 
     @classmethod
     def of(cls, env: BatchedFleet) -> FleetView:
-        arrays = (env.pos, env.t, env.memory, env.visits, env.keys, env.city, env.maps.height, env.maps.blocked)
-        frozen = [a.view() for a in arrays]
-        for a in frozen:
+        arrays = (env.pos, env.t, env.memory, env.visits, env.keys, env.city, env.maps.height, env.maps.blocked, env.done)
+        *frozen, done = [a.view() for a in arrays]
+        for a in (*frozen, done):
             a.flags.writeable = False
-        return cls(*frozen, config=env.config)
+        return cls(*frozen, config=env.config, done=done)

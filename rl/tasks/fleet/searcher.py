@@ -50,7 +50,7 @@ class FleetSearcher:
             self.log_b[int(r)] = []
 
     def act(self, mask: np.ndarray, view: FleetView) -> np.ndarray:
-        from uavplace.rl.belief import posterior_cover
+        from uavplace.rl.belief import shared_posterior_cover
 
         if self.public is None:
             raise ValueError("FleetSearcher.bind(maps) first: it predicts from the bundles' public maps")
@@ -58,7 +58,7 @@ class FleetSearcher:
         e, k = mask.shape[:2]
         out = np.full((e, k), STAY, np.int64)
         by_canvas: dict[int, list[int]] = {}
-        for r in range(e):  # the beliefs, row by row
+        for r in np.flatnonzero(~view.done):  # the beliefs of the rows still playing, row by row
             canvas = self.symmetries * int(view.city[r])
             cm = self.searcher.canvas_maps(public, canvas)
             floor_db = float(public.settings[int(view.city[r])]["floor_db"])
@@ -74,7 +74,7 @@ class FleetSearcher:
             by_canvas.setdefault(canvas, []).append(r)
         for canvas, rows in by_canvas.items():  # the plans: a city's rows' users in one matrix product
             cm = self.searcher.canvas_maps(public, canvas)
-            covers = posterior_cover(np.concatenate([np.stack(self.log_b[r]) for r in rows]), cm.cover)
+            covers = shared_posterior_cover(np.concatenate([np.stack(self.log_b[r]) for r in rows]), cm.cover)
             for i, r in enumerate(rows):
                 out[r] = self._plan(cm, canvas, covers[i * cfg.users : (i + 1) * cfg.users], view, r, mask[r])
         return out
