@@ -98,11 +98,12 @@ class FleetSearcher:
     def _product_plan(cover: np.ndarray, paths: list[tuple[np.ndarray, ...]]) -> dict[int, int]:
         """``{UAV: its cell}`` of the assignment of the largest product of its UAVs' best scores: a UAV's score of a cell
         is the probability that it serves the UAV's users times the discount of the UAV's path to it."""
+        discounts = [np.where(discount < 0, 0.0, discount) for discount, _, _ in paths]
         best_cell = {}  # (users, UAV) -> (its best cell for those users, the cell's value)
         for mine in user_subsets(len(cover)):
             served = np.prod(cover[list(mine)], axis=0)
-            for uav, (discount, _, _) in enumerate(paths):
-                value = served * np.where(discount < 0, 0.0, discount)
+            for uav, discount in enumerate(discounts):
+                value = served * discount
                 c = int(np.argmax(value))
                 best_cell[mine, uav] = c, float(value[c])
         best, plan = -1.0, {}
