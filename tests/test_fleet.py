@@ -302,6 +302,7 @@ def test_fleet_searchers_makespan_plan_is_the_best_by_brute_force(seed):
     from tests.conftest import REPO
     from uavplace.rl.belief import load_predictor
     from uavplace.rl.tasks.fleet import FleetSearcher
+    from uavplace.rl.tasks.fleet.maps import user_subsets
 
     rng = np.random.default_rng(seed)
     users, uavs, cells = 3, 2, 7
@@ -320,7 +321,8 @@ def test_fleet_searchers_makespan_plan_is_the_best_by_brute_force(seed):
         mine = sorted(set(owner))
         for where in itertools.product(*(np.flatnonzero(np.isfinite(moves[u])) for u in mine)):
             best = max(best, score(dict(zip(mine, where, strict=True)), owner))
-    plan = policy._makespan_plan(cover, paths)
+    served = {mine: np.prod(cover[list(mine)], axis=0) for mine in user_subsets(users)}
+    plan = policy._makespan_plan(served, users, paths)
     assert np.isclose(max(score(plan, o) for o in itertools.product(sorted(plan), repeat=users)), best, rtol=1e-6)
 
 

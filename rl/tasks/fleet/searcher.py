@@ -87,39 +87,38 @@ class FleetSearcher:
         known = cfg.reaches(view.memory[r][:, cm.legal[:, 0] + p, cm.legal[:, 1] + p])  # [N, M]
         cover = np.where(seen[None], known.astype(np.float32), cover)
         paths = [self.searcher.paths_from(self.public, canvas, cm, int(c)) for c in cols]  # (discount, predecessors, moves)
+        served = {mine: np.prod(cover[list(mine)], axis=0) for mine in user_subsets(cfg.users)}  # [M] a set of users
         plan = (
-            self._makespan_plan(cover, paths)
+            self._makespan_plan(served, cfg.users, paths)
             if self.searcher.config.fleet_plan == "makespan"
-            else self._product_plan(cover, paths)
+            else self._product_plan(served, cfg.users, paths)
         )
         return np.array([self._step(cm, int(cols[u]), plan.get(u, int(cols[u])), paths[u][1], mask[u]) for u in range(k)])
 
     @staticmethod
-    def _product_plan(cover: np.ndarray, paths: list[tuple[np.ndarray, ...]]) -> dict[int, int]:
+    def _product_plan(served: dict, users: int, paths: list[tuple[np.ndarray, ...]]) -> dict[int, int]:
         """``{UAV: its cell}`` of the assignment of the largest product of its UAVs' best scores: a UAV's score of a cell
-        is the probability that it serves the UAV's users times the discount of the UAV's path to it."""
+        is the probability that it serves the UAV's users (``served[users]``) times the discount of its path to it."""
         discounts = [np.where(discount < 0, 0.0, discount) for discount, _, _ in paths]
         best_cell = {}  # (users, UAV) -> (its best cell for those users, the cell's value)
-        for mine in user_subsets(len(cover)):
-            served = np.prod(cover[list(mine)], axis=0)
+        for mine, p in served.items():
             for uav, discount in enumerate(discounts):
-                value = served * discount
+                value = p * discount
                 c = int(np.argmax(value))
                 best_cell[mine, uav] = c, float(value[c])
         best, plan = -1.0, {}
-        for groups in assignments(len(cover), len(paths)):
+        for groups in assignments(users, len(paths)):
             score = np.prod([best_cell[mine, uav][1] for uav, mine in groups])
             if score > best:
                 best, plan = score, {uav: best_cell[mine, uav][0] for uav, mine in groups}
         return plan
 
-    def _makespan_plan(self, cover: np.ndarray, paths: list[tuple[np.ndarray, ...]]) -> dict[int, int]:
+    def _makespan_plan(self, served: dict, users: int, paths: list[tuple[np.ndarray, ...]]) -> dict[int, int]:
         """``{UAV: its cell}`` of the assignment and the cells of the largest product of the UAVs' probabilities of
         serving their users times the discount of the longest of their paths: for every length ``D``, each UAV takes
         its most likely cell within ``D`` moves (the nearest of equals)."""
         horizon = int(max(np.max(moves[np.isfinite(moves)]) for _, _, moves in paths))
         lengths = np.arange(horizon + 1)
-        served = {mine: np.prod(cover[list(mine)], axis=0) for mine in user_subsets(len(cover))}
         within = {}  # (users, UAV) -> (the best probability within D moves [D], its cell [D])
         for uav, (_, _, moves) in enumerate(paths):
             order = np.argsort(moves, kind="stable")  # nearest first, unreachable (inf) last
@@ -132,7 +131,7 @@ class FleetSearcher:
                 within[mine, uav] = np.where(last >= 0, best[last], 0.0), order[at]  # none within D moves: 0
         discount = self.searcher.discount(lengths.astype(np.float32))
         best, plan = -1.0, {}
-        for groups in assignments(len(cover), len(paths)):
+        for groups in assignments(users, len(paths)):
             score = discount * np.prod([within[mine, uav][0] for uav, mine in groups], axis=0)
             d = int(np.argmax(score))
             if score[d] > best:
