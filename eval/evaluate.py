@@ -67,14 +67,15 @@ class Agent:
 
 def agent_name(config: DQNConfig) -> str:
     """The method's name in tables: the paper's ``DQN`` and ``blind DQN``, or the learner that trained it (``PQN``,
-    ``+ GRU`` for a recurrent core, ``x N`` for an ensemble of N runs), then the preset (and the task, but placement):
-    ``DQN (paper)``, ``PQN + GRU (best)``, ``PQN + GRU x 3 (best)``, ``PQN + GRU (best, tracking)``, ``PQN + GRU (best,
-    fleet)``."""
+    ``+ GRU`` for a recurrent core, ``x N`` for an ensemble of N runs), then the preset (and the task, but placement,
+    and whether a fleet agent sees the other UAVs, ``EnvConfig.fleet_channel``): ``DQN (paper)``, ``PQN + GRU (best)``,
+    ``PQN + GRU x 3 (best)``, ``PQN + GRU (best, tracking)``, ``PQN + GRU (best, fleet)``, ``PQN + GRU (best, fleet,
+    sees the fleet)``."""
     learner = "PQN" if config.learner == "pqn" else "DQN"
     core = " + GRU" if config.recurrent else ""
     members = f" x {config.ensemble}" if config.ensemble > 1 else ""
     tag = TASKS[config.task.kind].tag
-    task = f", {tag}" if tag else ""
+    task = (f", {tag}" if tag else "") + (", sees the fleet" if config.env.fleet_channel else "")
     return f"{'' if config.agent == 'dqn' else 'blind '}{learner}{core}{members} ({config.preset}{task})"
 
 

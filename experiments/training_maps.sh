@@ -10,6 +10,7 @@
 # 2-core machine; the cities are Ray tasks (RAY_ADDRESS=ray://head:10001 for a cluster; one city a task).
 #
 #     COUNT=200 bash experiments/training_maps.sh          # trace, then pack every traced city
+#     FIRST=42 COUNT=200 bash experiments/training_maps.sh # continue after the packed tm-000..041 on a fresh clone
 #     PACK_ONLY=1 bash experiments/training_maps.sh        # pack the cities traced so far (while a trace runs)
 #     uavrl train-predictor --maps data/trainmaps ...      # then (docs/searcher.md)
 set -euo pipefail
@@ -18,7 +19,7 @@ raw=runs/trainmaps/raw
 root=runs/trainmaps/processed
 out=${OUT:-data/trainmaps}
 if [ -z "${PACK_ONLY:-}" ]; then
-    uavdata simulate procedural:mixed --count "$count" --name tm --seed 1000 --users 25 --samples 1.6e7 \
+    uavdata simulate procedural:mixed --count "$count" --first "${FIRST:-0}" --name tm --seed 1000 --users 25 --samples 1.6e7 \
         --gap-fill-walk 4-neighbour --out "$raw" --trace-cache runs/traces ${RAY_ADDRESS:+--ray-address "$RAY_ADDRESS"}
 fi
 cities=()

@@ -96,7 +96,7 @@ def simulate(
     base, rt = call.city(sources[0]), call.raytrace()
     try:
         check_simulation(base, rt, call.count)  # every setting, before any list of cities is made or any work starts
-        specs = corpus_specs(list(sources), call.name, call.count, base)
+        specs = corpus_specs(list(sources), call.name, call.count, base, call.first)
     except InputError as err:
         fail(err)
     if len(specs) > 1 or ray_address is not None:

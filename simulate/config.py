@@ -60,6 +60,12 @@ class Simulation(Contract):
         description="Cities to draw from one procedural SOURCE, seeds SEED, SEED+1, ... (a corpus).",
         json_schema_extra={"limit": "cities"},
     )
+    first: int = Field(
+        default=0,
+        ge=0,
+        description="With --count: the corpus's first city index, NAME-FIRST at seed SEED+FIRST (continue a corpus on a "
+        "machine that lacks the earlier cities' exports; a city's name and seed do not depend on where a call starts).",
+    )
     num_users: int = Field(
         default=27,
         ge=1,

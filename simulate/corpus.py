@@ -21,16 +21,21 @@ from uavplace.simulate.pipeline import PROVENANCE, simulate_city, spec_record
 from uavplace.simulate.raytrace import RayTraceConfig, raytrace_record
 
 
-def corpus_specs(sources: list[str], name: str, count: int, base: SimulationSpec) -> list[SimulationSpec]:
-    """The cities of one call: ``count`` seeds of one source, or one city per source; names ``NAME-000``...
+def corpus_specs(sources: list[str], name: str, count: int, base: SimulationSpec, first: int = 0) -> list[SimulationSpec]:
+    """The cities of one call: ``count`` seeds of one source (from index ``first``), or one city per source; names
+    ``NAME-000``...
 
     City ``i`` takes seed ``base.seed + i``, so adding cities never changes the earlier ones.
     """
     if count > 1 and len(sources) > 1:
         raise InputError(None, "give several SOURCES or --count N, not both", field="count")
+    if first and count == 1:
+        raise InputError(None, f"--first {first} needs --count N above it (the corpus's cities FIRST..N-1)", field="first")
+    if first >= count > 1:
+        raise InputError(None, f"--first {first} leaves no city of --count {count}", field="first")
     if count == 1 and len(sources) == 1:
         return [replace(base, source=sources[0], name=name)]
-    pairs = [(sources[0], i) for i in range(count)] if count > 1 else list(zip(sources, range(len(sources)), strict=True))
+    pairs = [(sources[0], i) for i in range(first, count)] if count > 1 else list(zip(sources, range(len(sources)), strict=True))
     return [replace(base, source=src, name=f"{name}-{i:03d}", seed=base.seed + i) for src, i in pairs]
 
 

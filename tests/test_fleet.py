@@ -428,7 +428,8 @@ def _fleet_run_config(**update):
     tiny = {"total_steps": 256, "num_envs": 8, "rollout_steps": 8, "batch_size": 32, "epochs": 2, "hidden": 16,
             "fovea": 5, "eval_every": 128, "eval_episodes": 6}  # fmt: skip
     fleet = {"uavs": 2, "users": 2, "window": 9, "t_max": 30}
-    return preset_config("best", task="fleet", fleet=fleet, env={"window": 9}, **(tiny | update))
+    env = {"window": 9} | update.pop("env", {})
+    return preset_config("best", task="fleet", fleet=fleet, env=env, **(tiny | update))
 
 
 def test_fleet_env_for_the_learner_rewards_each_uav_for_its_own_users(tiny):
@@ -476,6 +477,69 @@ def test_fleet_env_for_the_learner_rewards_each_uav_for_its_own_users(tiny):
     assert checked > 50
 
 
+def test_the_fleet_channel_marks_the_other_uavs_and_a_placement_agent_widened_to_it_acts_the_same(tiny):
+    """``EnvConfig.fleet_channel``: each UAV's observation marks (p_h_db) the cells of the other UAVs inside its
+    window and nothing else, the other channels as without it; a network started from one without the channel
+    (``add_input_channel``, for both architectures) gives the same Q values whatever the channel holds; placement
+    and tracking runs refuse it."""
+    import torch
+
+    from uavplace.dataset.bundle import load_bundle
+    from uavplace.eval.evaluate import agent_name
+    from uavplace.rl.agent.config import preset_config
+    from uavplace.rl.agent.network import FoveaQNetwork, QNetwork, add_input_channel
+    from uavplace.rl.tasks.fleet import FleetPlacement, FleetView
+    from uavplace.schemas import InputError
+
+    config = _fleet_run_config()
+    maps = FleetMaps.of([load_bundle("tiny", root=str(tiny))], FleetConfig(uavs=2, users=2, window=9, t_max=30))
+    plain_env = config.env_config()
+    env = plain_env.model_copy(update={"fleet_channel": True})
+    assert env.num_channels == plain_env.num_channels + 1 and env.fleet_index == env.num_channels - 4
+    episodes = maps.episode_list(5, 1)
+    fleet = BatchedFleet(maps, len(episodes))
+    fleet.begin(np.arange(len(episodes)), episodes, np.arange(len(episodes)))
+    rng = np.random.default_rng(1)
+    inside = []
+    for _ in range(12):
+        view, mask = FleetView.of(fleet), fleet.action_mask()
+        obs = FleetPlacement(None, env, "f").bind(maps)
+        obs.reset_deal(np.arange(len(episodes)), len(episodes), 2)
+        seen = obs.dealt(mask, view)[0].reshape(len(episodes), 2, env.num_channels, 9, 9)
+        plain = FleetPlacement(None, plain_env, "p").bind(maps)
+        plain.reset_deal(np.arange(len(episodes)), len(episodes), 2)
+        without = plain.dealt(mask, view)[0].reshape(len(episodes), 2, plain_env.num_channels, 9, 9)
+        np.testing.assert_array_equal(np.delete(seen, env.fleet_index, axis=2), without)
+        for e in range(len(episodes)):
+            for k in range(2):
+                want = np.zeros((9, 9), np.float32)
+                for j in set(range(2)) - {k}:
+                    dy, dx = fleet.pos[e, j] - fleet.pos[e, k] + 4
+                    inside.append(0 <= dy < 9 and 0 <= dx < 9)
+                    if inside[-1]:
+                        want[dy, dx] = env.p_h_db
+                np.testing.assert_array_equal(seen[e, k, env.fleet_index], want)
+        fleet.step(np.where(fleet.action_mask(), rng.random((len(episodes), 2, 5)), -1).argmax(axis=2))
+    assert any(inside) and not all(inside)  # other UAVs inside a window and beyond it
+
+    torch.manual_seed(0)
+    c = plain_env.num_channels
+    for net, wide in (
+        (QNetwork(c, window=21, hidden=16, channels=(4, 4, 4)), QNetwork(c + 1, window=21, hidden=16, channels=(4, 4, 4))),
+        (FoveaQNetwork(c, window=21, hidden=16, fovea=5, middle=True), FoveaQNetwork(c + 1, 21, hidden=16, fovea=5, middle=True)),
+    ):
+        net.eval(), wide.eval()
+        wide.load_state_dict(add_input_channel(net.state_dict(), wide, 2))
+        x = torch.randn(6, c, 21, 21) * 30
+        x_wide = torch.cat([x[:, :2], torch.randn(6, 1, 21, 21) * 50, x[:, 2:]], dim=1)
+        torch.testing.assert_close(wide(x_wide), net(x), rtol=0, atol=1e-5)
+    for task in ("placement", "tracking"):
+        with pytest.raises(InputError, match="fleet_channel marks the fleet's other UAVs"):
+            preset_config("best", task=task, env={"fleet_channel": True})
+    seeing = preset_config("best", task="fleet", env={"fleet_channel": True})
+    assert agent_name(seeing) == "PQN + GRU (best, fleet, sees the fleet)"
+
+
 def test_fleet_agent_trains_resumes_exactly_and_reports(tiny, tmp_path):
     """`uavrl train --task fleet`: one network for every UAV, learnt on fleet episodes, chosen on fixed validation
     episodes of the fleet; started from a trained network's weights (`init`); stopped and resumed it ends where a
@@ -508,6 +572,13 @@ def test_fleet_agent_trains_resumes_exactly_and_reports(tiny, tmp_path):
         assert torch.equal(value, best[name])
     with pytest.raises(InputError, match="do not fit"):
         FleetTrainer(_fleet_run_config(init=str(tmp_path / "a"), hidden=8), ["tiny"], tiny, tmp_path / "d")
+    seeing = FleetTrainer(
+        _fleet_run_config(init=str(tmp_path / "a"), env={"fleet_channel": True}), ["tiny"], tiny, tmp_path / "e"
+    )
+    index = seeing.config.env.fleet_index  # the fleet channel added at zero weight to what it started from
+    first = seeing.agent.online.state_dict()["fc.1.weight"].reshape(16, 2, -1, 25)
+    assert not first[:, :, index].any()
+    assert torch.equal(torch.cat([first[:, :, :index], first[:, :, index + 1 :]], 2).reshape(16, -1), best["fc.1.weight"])
 
     # A city it never saw: a synthetic grid city.
     from tests.conftest import write_grid_city

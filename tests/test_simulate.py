@@ -449,6 +449,20 @@ def test_a_corpus_runs_on_local_ray_and_resumes(tmp_path):
     assert "simulated 0 of 2 cities" in res.stdout and "2 already done with the same settings: c-000, c-001" in res.stdout
 
 
+def test_a_corpus_continued_from_an_index_names_and_seeds_its_cities_as_the_whole_corpus_does():
+    from uavplace.schemas import InputError
+    from uavplace.simulate.config import Simulation
+    from uavplace.simulate.corpus import corpus_specs
+
+    base = Simulation(name="tm", seed=1000).city("procedural:mixed")
+    whole = corpus_specs(["procedural:mixed"], "tm", 5, base)
+    later = corpus_specs(["procedural:mixed"], "tm", 5, base, first=3)
+    assert [(s.name, s.seed) for s in later] == [("tm-003", 1003), ("tm-004", 1004)] and later == whole[3:]
+    for first, count in ((5, 5), (1, 1)):
+        with pytest.raises(InputError, match="--first"):
+            corpus_specs(["procedural:mixed"], "tm", count, base, first=first)
+
+
 def test_styles_are_seeded_and_varied():
     from uavplace.simulate.styles import MIXED, STYLES, styled_city
 

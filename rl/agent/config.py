@@ -178,6 +178,8 @@ class DQNConfig(Contract):
         task = TASKS[self.task.kind]
         if not task.channels and (self.env.belief_channel or self.env.context_zoom):
             raise ValueError(f"a {task.name} run deals each UAV a changing set of users: no belief or context channel")
+        if self.env.fleet_channel and self.task.kind != "fleet":
+            raise ValueError(f"env.fleet_channel marks the fleet's other UAVs: a fleet run's, not a {task.name} run's")
         if not task.revisits and (self.train_revisit_penalty or self.test_revisit_penalty):
             # A user who moves brings the UAV back to cells it has stood in: placement's loop breaker is wrong here.
             raise ValueError(f"train_revisit_penalty and test_revisit_penalty are placement's: 0 in a {task.name} run")

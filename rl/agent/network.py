@@ -227,6 +227,26 @@ class FoveaQNetwork(DuelingQ):
         return self.fc(torch.cat(views, dim=1))
 
 
+def add_input_channel(state: dict[str, torch.Tensor], net: DuelingQ, index: int) -> dict[str, torch.Tensor]:
+    """``state``, the weights of ``net``'s architecture with one input channel fewer, with input channel ``index``
+    added at zero weight: ``net`` loaded with them computes what the narrower network did, whatever the new channel
+    holds, until training moves those weights (a fleet agent with the fleet channel started from a placement
+    agent's weights, ``EnvConfig.fleet_channel``)."""
+    if isinstance(net, QNetwork):  # the first convolution's [c1, C, k, k]
+        key, views = "features.0.weight", 1
+    elif isinstance(net, FoveaQNetwork):  # the first dense layer's [hidden, views * C * f * f]
+        key, views = "fc.1.weight", 2 + 2 * net.extremes + net.middle
+    else:
+        raise TypeError(f"no input channel can be added to a {type(net).__name__}")
+    w = state[key]
+    grouped = w.reshape(w.shape[0], views, -1, *w.shape[2:]) if views == 1 else w.reshape(w.shape[0], views, -1, net.fovea**2)
+    if not 0 <= index <= grouped.shape[2]:
+        raise ValueError(f"input channel {index} is beyond the {grouped.shape[2]} channels of {key}")
+    zero = torch.zeros_like(grouped[:, :, :1])
+    wider = torch.cat([grouped[:, :, :index], zero, grouped[:, :, index:]], dim=2)
+    return {**state, key: wider.reshape(w.shape[0], -1, *w.shape[2:]) if views == 1 else wider.reshape(w.shape[0], -1)}
+
+
 class MeanQ(nn.Module):
     """Networks of one architecture acting as one agent (``DQNConfig.ensemble``, built by ``uavrl ensemble``): the
     Q values are the mean of theirs, each network reading the same observation with its own features and, when

@@ -16,6 +16,7 @@ from pydantic import ValidationError
 from uavplace.rl.agent.checkpoint import CheckpointState, load_tensors, require
 from uavplace.rl.agent.config import DQNConfig
 from uavplace.rl.agent.dqn import DQN
+from uavplace.rl.agent.network import add_input_channel
 from uavplace.schemas import InputError
 from uavplace.schemas.base import validation_message
 
@@ -89,6 +90,13 @@ def start_from(agent: DQN, config: DQNConfig) -> None:
         state = {k[len(prefix) :]: v for k, v in state.items() if k.startswith(prefix)}
         if not state:
             raise InputError(ckpt, f"an ensemble without a member {config.init_member}", field="init_member")
+    own = agent.online.state_dict()
+    if config.env.fleet_channel and any(k in own and v.shape != own[k].shape for k, v in state.items()):
+        # a network without the fleet channel (a placement agent's): the channel added at zero weight
+        try:
+            state = add_input_channel(state, agent.online, config.env.fleet_index)
+        except (KeyError, RuntimeError, TypeError, ValueError) as exc:
+            raise InputError(ckpt, f"its weights do not fit this run's network ({str(exc)[:200]})", field="init") from None
     try:
         agent.online.load_state_dict(state)
     except (RuntimeError, TypeError, AttributeError) as exc:

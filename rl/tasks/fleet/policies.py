@@ -99,14 +99,24 @@ class FleetGreedy:
 
 class _DealtEnv(BatchedEnv):
     """A placement env that keeps an agent's channels for ``FleetPlacement``: its rows' episodes are named (for the
-    agent's random draws, ``rl.randomness``) by the fleet episode's key and the UAV (``keys``)."""
+    agent's random draws, ``rl.randomness``) by the fleet episode's key and the UAV (``keys``); ``others`` ``[N,
+    K - 1, 2]`` holds the cells of each row's other UAVs, which its fleet channel marks (``EnvConfig.fleet_channel``)."""
 
-    def __init__(self, maps, num_envs: int, autoreset: bool = False, compact: bool = False) -> None:  # noqa: ANN001
+    def __init__(self, maps, num_envs: int, uavs: int, autoreset: bool = False, compact: bool = False) -> None:  # noqa: ANN001
         super().__init__(maps, num_envs, autoreset=autoreset, compact=compact)
         self.keys = np.zeros(num_envs, np.uint64)
+        self.others = np.zeros((num_envs, uavs - 1, 2), np.int64)
 
     def episode_keys(self) -> np.ndarray:
         return self.keys.copy()
+
+    def fleet_plane(self, idx: np.ndarray, y0: np.ndarray, x0: np.ndarray, out: np.ndarray) -> None:
+        out[...] = 0.0
+        w = self.config.window
+        for j in range(self.others.shape[1]):
+            oy, ox = self.others[idx, j, 0] - y0, self.others[idx, j, 1] - x0
+            inside = np.flatnonzero((oy >= 0) & (oy < w) & (ox >= 0) & (ox < w))
+            out[inside, oy[inside], ox[inside]] = np.float32(self.config.p_h_db)
 
 
 class FleetPlacement:
@@ -121,7 +131,8 @@ class FleetPlacement:
     task of that weakest SINR: its memory is, at every cell the fleet visited, the lowest of its users' shared
     measurements there (P_H unvisited, P_L blocked), its visits are the fleet's and its homing cone starts from the
     best of those. A UAV stays when it has no user or serves all of its users, and when every move is held by another
-    UAV; otherwise it moves by its agent's rule. Reads only the fleet's measurements (``FleetView``)."""
+    UAV; otherwise it moves by its agent's rule. An agent trained with the fleet channel (``EnvConfig.fleet_channel``)
+    also sees where the other UAVs stand. Reads only the fleet's measurements and positions (``FleetView``)."""
 
     prefix = "independent "
 
@@ -176,7 +187,7 @@ class FleetPlacement:
         if self.maps is None:
             raise ValueError("FleetPlacement.bind(maps) first: its agents play on the bundles' maps")
         if self.mirror is None or self.mirror.num_envs != num_envs * uavs:
-            self.mirror = _DealtEnv(self.placement, num_envs * uavs, autoreset=False, compact=self.compact)
+            self.mirror = _DealtEnv(self.placement, num_envs * uavs, uavs, autoreset=False, compact=self.compact)
             self.groups = np.zeros((num_envs, uavs, self.maps.config.users), bool)
             self.fresh = np.ones(num_envs, bool)
         self.groups[rows] = False
@@ -238,6 +249,7 @@ class FleetPlacement:
             m = rows * k + uav
             mirror.pos[m, 0], mirror.pos[m, 1], mirror.t[m] = y[:, uav] + s, x[:, uav] + s, view.t
             mirror.keys[m] = combine(view.keys, np.uint64(uav))
+            mirror.others[m] = np.delete(view.pos, uav, axis=1) + s
         changed = (groups != self.groups).any(axis=2) | self.fresh[:, None]
         for r, uav in zip(*np.nonzero(changed), strict=True):
             self._rebuild(r * k + uav, view, r, np.flatnonzero(groups[r, uav]))

@@ -52,6 +52,11 @@ class EnvConfig(TaskSettings):
     )
     shaping_gamma: float = Field(default=1.0, gt=0, le=1, description="The gamma of the shaping term (the learner's discount)")
     reward_scale: float = Field(default=1.0, gt=0, description="Every reward (all terms) is multiplied by this")
+    fleet_channel: bool = Field(
+        default=False,
+        description="Fleet task only: add a channel, before the visited channel, of the fleet's other UAVs (p_h_db where "
+        "one stands, 0 elsewhere), so that an agent on every UAV sees where the others are (rl/tasks/fleet/learner.py)",
+    )
     visited_channel: bool = Field(
         default=False,
         description="Add a channel of the visited cells (value p_h_db where visited, 0 elsewhere) before the SINR memory, "
@@ -133,5 +138,13 @@ class EnvConfig(TaskSettings):
 
     @property
     def num_channels(self) -> int:
-        extra = int(self.visited_channel) + int(self.homing_channel) + int(self.belief_channel)
+        extra = int(self.fleet_channel) + int(self.visited_channel) + int(self.homing_channel) + int(self.belief_channel)
         return (1 if self.blind else 2) + self.num_context + extra
+
+    @property
+    def fleet_index(self) -> int:
+        """The fleet channel's index in an observation (``fleet_channel``): before the visited, homing, belief and SINR
+        memory channels."""
+        if not self.fleet_channel:
+            raise ValueError("no fleet channel: EnvConfig.fleet_channel is off")
+        return self.num_channels - 2 - int(self.visited_channel) - int(self.homing_channel) - int(self.belief_channel)

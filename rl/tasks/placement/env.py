@@ -3,6 +3,7 @@
 Observation ``[N, C, window, window]`` (C = 2: height channel, then SINR memory;
 blind: the SINR memory only; with ``context_zoom`` the context channels after the
 height channel, the window again in blocks of ``context_zoom`` cells; with
+``fleet_channel`` the fleet's other UAVs (``fleet_plane``: none in placement); with
 ``visited_channel`` a channel of the visited cells, then with ``homing_channel`` the
 homing cone (the best SINR measured so far less ``homing_slope_db`` per cell of
 distance from where it was measured), then with ``belief_channel`` the map searcher's
@@ -314,6 +315,8 @@ class BatchedEnv(EpisodeRows):
             if m is not None:
                 obs[:, 1] = self._context_height_windows[m, cy0, cx0]
             obs[:, 0 if cfg.blind else 2] = self._context_memory_windows[idx, cy0, cx0]
+        if cfg.fleet_channel:
+            self.fleet_plane(idx, y0, x0, out=obs[:, cfg.fleet_index])
         if cfg.visited_channel:
             obs[:, -2 - cfg.homing_channel - cfg.belief_channel] = (self._visits_windows[idx, y0, x0] > 0) * np.float32(
                 cfg.p_h_db
@@ -324,6 +327,12 @@ class BatchedEnv(EpisodeRows):
             obs[:, -2] = self._belief_windows[idx, y0, x0]
         obs[:, -1] = mem
         return encode_obs(obs) if self.compact else obs
+
+    def fleet_plane(self, idx: np.ndarray, y0: np.ndarray, x0: np.ndarray, out: np.ndarray) -> None:
+        """Write into ``out`` ``[len(idx), w, w]`` the fleet channel of the windows whose corners are canvas cells
+        ``(y0, x0)``: p_h_db where another UAV stands. A placement UAV flies alone (zeros); the fleet's agents' env
+        (``rl.tasks.fleet.policies``) marks its other UAVs."""
+        out[...] = 0.0
 
     def _homing(self, idx: np.ndarray, y0: np.ndarray, x0: np.ndarray, out: np.ndarray) -> None:
         """Write into ``out`` ``[len(idx), w, w]`` the homing cone over the windows whose corners are canvas cells
