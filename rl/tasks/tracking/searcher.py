@@ -12,7 +12,7 @@ Every step:
    building keeping its share in place (``transition``): the belief leaves a candidate as often as the user leaves a
    lattice cell at that speed;
 2. **measurement**: the SINR the UAV measures where it is, now, updates every class and candidate as the placement
-   searcher's likelihood does (``MapSearchPolicy.update``);
+   searcher's likelihood does (``MapSearchPolicy.update_rows``, a canvas's rows at once);
 3. **move**: on a cell that measured P_T or more it stays; else it takes one step along a shortest legal path to the
    cell of best discounted posterior probability of reaching P_T (the placement planner, every cell but its own a
    candidate, since the user moves and an old measurement says little).
@@ -100,9 +100,10 @@ class TrackingSearchPolicy:
         return self._moves[key]
 
     def step_belief(self, log_b: np.ndarray, moves: list[sparse.csr_matrix]) -> np.ndarray:
-        """``log_b`` [K, C] after one step of motion (each speed class by its own transition)."""
-        b = np.exp(log_b - log_b.max())
-        moved = np.stack([m @ row for m, row in zip(moves, b, strict=True)])
+        """``log_b`` [R, K, C] (each row's speed classes over the candidates) after one step of motion, each speed
+        class by its own transition: row by row the same numbers as the rows at once."""
+        b = np.exp(log_b - log_b.max(axis=(1, 2), keepdims=True))
+        moved = np.stack([(m @ b[:, k].T).T for k, m in enumerate(moves)], axis=1)
         return np.log(np.maximum(moved, 1e-300))
 
     def act(self, obs: np.ndarray, mask: np.ndarray, env: object) -> np.ndarray:
@@ -112,31 +113,37 @@ class TrackingSearchPolicy:
         public = public_maps(env)
         p, s = public.pad, self.searcher
         actions = np.full(n, STAY, np.int64)
-        rows_of: dict[int, list[int]] = {}
-        for r in np.flatnonzero(~env.exhausted):
-            canvas = int(env.canvas(np.array([r]))[0])
-            maps = s.canvas_maps(public, canvas)
-            settings = public.settings[public.bundle_of(canvas)]
-            y, x = int(env.pos[r, 0]), int(env.pos[r, 1])
-            measured = float(env.memory[r, y, x])  # measured now, at this cell
-            column = int(maps.index[y - p, x - p])
-            if self.belief[r] is None or env.t[r] == 0:
-                log_b = np.repeat(self.prior[:, None], len(maps.cells), axis=1)
-            else:
+        live = np.flatnonzero(~env.exhausted)
+        canvases = env.canvas(live)
+        for canvas in np.unique(canvases):  # a canvas's rows at once: each row's numbers as alone
+            rows = live[canvases == canvas]
+            maps = s.canvas_maps(public, int(canvas))
+            settings = public.settings[public.bundle_of(int(canvas))]
+            y, x = env.pos[rows, 0], env.pos[rows, 1]
+            measured = env.memory[rows, y, x].astype(np.float64)  # measured now, at these cells
+            columns = maps.index[y - p, x - p]
+            classes, cells = len(self.prior), len(maps.cells)
+            log_b = np.empty((len(rows), classes, cells))
+            fresh = np.array([self.belief[r] is None for r in rows]) | (env.t[rows] == 0)
+            log_b[fresh] = self.prior[:, None]
+            if not fresh.all():
                 step_s = float(settings["spacing_m"]) / env.config.uav_speed_mps
-                moves = self.moves(settings["version"], canvas, maps, step_s, float(settings["spacing_m"]))
-                log_b = self.step_belief(self.belief[r], moves)
-            log_b = np.stack([s.update(maps, row, column, measured, float(settings["floor_db"])) for row in log_b])
-            self.belief[r] = log_b - log_b.max()
-            if not env.config.reaches(measured):
-                rows_of.setdefault(canvas, []).append(r)
-        for canvas, rows in rows_of.items():  # the plans, a canvas's rows in one product
-            maps = s.canvas_maps(public, canvas)
-            marginal = np.stack([np.logaddexp.reduce(self.belief[r], axis=0) for r in rows])
-            scores = posterior_cover(marginal, maps.cover)
-            for i, r in enumerate(rows):
+                moves = self.moves(settings["version"], int(canvas), maps, step_s, float(settings["spacing_m"]))
+                log_b[~fresh] = self.step_belief(np.stack([self.belief[r] for r in rows[~fresh]]), moves)
+            at, values = np.repeat(columns, classes), np.repeat(measured, classes)
+            log_b = s.update_rows(maps, log_b.reshape(-1, cells), at, values, float(settings["floor_db"]))
+            log_b = log_b.reshape(len(rows), classes, cells)
+            log_b -= log_b.max(axis=(1, 2), keepdims=True)
+            for r, row in zip(rows, log_b, strict=True):
+                self.belief[r] = row
+            going = ~env.config.reaches(measured)
+            if not going.any():
+                continue
+            # the plans, the canvas's rows still below P_T in one product
+            scores = posterior_cover(np.logaddexp.reduce(log_b[going], axis=1), maps.cover)
+            for r, score in zip(rows[going], scores, strict=True):
                 here = int(maps.index[env.pos[r, 0] - p, env.pos[r, 1] - p])
                 others = np.zeros(len(maps.legal), bool)
                 others[here] = True  # only its own cell is not a target: the user moves
-                actions[r] = s.first_move(public, canvas, maps, here, scores[i], others, mask[r, :4])
+                actions[r] = s.first_move(public, int(canvas), maps, here, score, others, mask[r, :4])
         return actions
