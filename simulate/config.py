@@ -65,6 +65,7 @@ class Simulation(Contract):
         ge=0,
         description="With --count: the corpus's first city index, NAME-FIRST at seed SEED+FIRST (continue a corpus on a "
         "machine that lacks the earlier cities' exports; a city's name and seed do not depend on where a call starts).",
+        json_schema_extra={"limit": "cities"},
     )
     num_users: int = Field(
         default=27,
