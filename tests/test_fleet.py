@@ -579,6 +579,22 @@ def test_fleet_agent_trains_resumes_exactly_and_reports(tiny, tmp_path):
     first = seeing.agent.online.state_dict()["fc.1.weight"].reshape(16, 2, -1, 25)
     assert not first[:, :, index].any()
     assert torch.equal(torch.cat([first[:, :, :index], first[:, :, index + 1 :]], 2).reshape(16, -1), best["fc.1.weight"])
+    seeing.run()  # trained, it moves the same when every user's map is scrambled off the cells the fleet visited
+    from uavplace.dataset.bundle import load_bundle
+    from uavplace.eval.evaluate import load_agent
+    from uavplace.rl.tasks.fleet import FleetPlacement
+
+    agent = load_agent(tmp_path / "e", 0.096, 0, task="fleet")
+    maps = FleetMaps.of([load_bundle("tiny", root=str(tiny))], seeing.config.fleet_config())
+    policy = FleetPlacement(agent.policy, agent.config.env_config(evaluation=True), agent.name, prefix="").bind(maps)
+    episodes = maps.episode_list(4, 0)
+    rng = np.random.default_rng(3)
+    for e, path in enumerate(_paths(maps, policy, episodes)):
+        keep = np.zeros(maps.sinr.shape[2:], bool)
+        keep[path[..., 0].ravel(), path[..., 1].ravel()] = True
+        city, users, _ = maps.split(episodes[e : e + 1])
+        other = _scrambled(maps, int(city[0]), users[0], keep, rng)
+        np.testing.assert_array_equal(_paths(other, policy, episodes[e : e + 1])[0], path)
 
     # A city it never saw: a synthetic grid city.
     from tests.conftest import write_grid_city
