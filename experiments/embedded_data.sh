@@ -28,6 +28,9 @@ routes=(--users 1 --routes 2 --route-length 40m)
 uavdata simulate procedural:test --name test-routes --seed 2 "${routes[@]}" "${common[@]}"
 uavdata simulate sionna:etoile --crop=-200,-200,200,200 --name etoile-routes --seed 4 "${routes[@]}" "${common[@]}"
 uavdata simulate sionna:florence --crop=-200,-250,200,250 --name florence-routes --seed 5 "${routes[@]}" "${common[@]}"
+# A validation twin for the tracking task on real geometry: etoile-val's crop and seed with the same one user and two
+# 40 m routes (about 3 MB; florence-val's twin, about 5 MB, does not fit data/raw's budget beside it).
+uavdata simulate sionna:etoile --crop=200,-200,400,200 --name etoile-val-routes --seed 6 "${routes[@]}" "${common[@]}"
 # The tracking task's training corpus (trk-000 ... trk-003) and its validation city (trk-val): procedural mixed
 # cities with one user and the same two 40 m routes a city, on the central 256 x 256 m of each (64 x 64 cells):
 # about 2.5 MB and 7 minutes of the 2 cores each (docs/tracking.md).
