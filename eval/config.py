@@ -8,7 +8,7 @@ from pydantic import ConfigDict, Field
 
 from uavplace.rl.config import DEFAULT_PREDICTOR, EpisodeSettings, SearchConfig
 from uavplace.rl.tasks.fleet.config import FleetConfig
-from uavplace.rl.tasks.tracking.config import MotionModel, TrackingConfig
+from uavplace.rl.tasks.tracking.config import MotionModel, TrackingConfig, tracking_search
 from uavplace.schemas.base import MAX_SEED, Contract
 
 
@@ -81,6 +81,11 @@ class TrackingReportConfig(Contract):
         description="The tracking searcher's radio-map predictor (rl/tasks/tracking/searcher.py; None: the searcher is not played)",
     )
     motion: MotionModel = Field(default_factory=MotionModel, description="The tracking searcher's motion model")
+    search: SearchConfig = Field(
+        default_factory=tracking_search,
+        description="The tracking searcher's settings (rl/tasks/tracking/config.py, tracking_search: the map searcher's "
+        "with a flatter discount)",
+    )
 
 
 class FleetReportConfig(Contract):

@@ -348,7 +348,7 @@ def make_tracking_report(
     searcher = None
     if config.predictor is not None:
         cache = PredictionCache(Path(root) / PREDICTIONS)
-        searcher = TrackingSearchPolicy(MapSearchPolicy(load_predictor(config.predictor), cache=cache), config.motion)
+        searcher = TrackingSearchPolicy(MapSearchPolicy(load_predictor(config.predictor), config.search, cache), config.motion)
     for number, b in enumerate(bundles, 1):
         routes = RouteSet([b], config.task)
         try:

@@ -23,7 +23,7 @@ from uavplace.eval.evaluate import check_unseen, load_agent
 from uavplace.eval.tracking import tracking_methods
 from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
 from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
-from uavplace.rl.tasks.tracking import RouteSet, TrackingConfig, TrackingSearchPolicy, fit_motion, run_tracking
+from uavplace.rl.tasks.tracking import RouteSet, TrackingConfig, TrackingSearchPolicy, fit_motion, run_tracking, tracking_search
 
 
 def main() -> None:
@@ -59,7 +59,8 @@ def main() -> None:
     if args.searcher:
         motion = fit_motion([load_bundle(c, root=args.root) for c in args.motion_from])
         print(f"motion fitted on {', '.join(args.motion_from)}: {motion}")
-        searcher = MapSearchPolicy(load_predictor(DEFAULT_PREDICTOR), cache=PredictionCache(f"{args.root}/{PREDICTIONS}"))
+        cache = PredictionCache(f"{args.root}/{PREDICTIONS}")
+        searcher = MapSearchPolicy(load_predictor(DEFAULT_PREDICTOR), tracking_search(), cache)
         policies.append(TrackingSearchPolicy(searcher, motion))
     print(
         f"{', '.join(b.city for b in bundles)}: {args.episodes} episodes, horizon {args.horizon}, P_T {args.p_t_db:g} dB, seed {args.seed}"

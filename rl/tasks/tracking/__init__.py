@@ -30,7 +30,7 @@ from uavplace.rl.tasks import exported
 
 #: What the package offers, by the file that holds it, imported on first use (``rl.tasks.exported``).
 FILES = {
-    "config": ("ACTION_OF", "MotionModel", "OBSERVATION_FIELDS", "STAY", "TRACK_MOVES", "TrackingConfig"),
+    "config": ("ACTION_OF", "MotionModel", "OBSERVATION_FIELDS", "STAY", "TRACK_MOVES", "TrackingConfig", "tracking_search"),
     "maps": ("RouteSet", "episode_metrics", "oracle_path", "user_point"),
     "env": ("TrackingEnv",),
     "policies": ("Holding", "MovesOnly", "OraclePolicy", "PlacementInTracking", "ReplanningGenie", "TrackingAgent"),

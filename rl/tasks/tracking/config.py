@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from pydantic import Field, model_validator
 
-from uavplace.rl.config import TaskSettings
+from uavplace.rl.config import SearchConfig, TaskSettings
 from uavplace.rl.tasks.placement.config import EnvConfig
 from uavplace.rl.tasks.placement.maps import MOVES
 from uavplace.schemas.base import Contract
@@ -75,3 +75,11 @@ class MotionModel(Contract):
         if abs(sum(self.weights) - 1) > 1e-6:
             raise ValueError(f"the weights sum to {sum(self.weights):g}, not 1")
         return self
+
+
+def tracking_search() -> SearchConfig:
+    """The tracking searcher's settings: the map searcher's with a distance scale of 192 cells (``reach_cells``; the
+    placement searcher's is 12), so that a likely cell far away beats an unlikely one nearby: the user moves, and a
+    cell near the UAV stays unlikely. Chosen on the validation cities etoile-val-routes and trk-val
+    (experiments/log/tracking.md)."""
+    return SearchConfig(reach_cells=192.0)

@@ -15,7 +15,8 @@ Every step:
    searcher's likelihood does (``MapSearchPolicy.update_rows``, a canvas's rows at once);
 3. **move**: on a cell that measured P_T or more it stays; else it takes one step along a shortest legal path to the
    cell of best discounted posterior probability of reaching P_T (the placement planner, every cell but its own a
-   candidate, since the user moves and an old measurement says little).
+   candidate, since the user moves and an old measurement says little; its discount far flatter than placement's,
+   ``tracking_search``).
 
 It reads what the UAV knows: its position, the step, its own current measurement and the public maps; never the
 route, the user's point or a map of the user (``tests/test_tracking.py`` scrambles them).
