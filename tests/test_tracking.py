@@ -340,6 +340,7 @@ def test_tracking_report_from_the_command_line(root, tmp_path):
         assert (out / name).is_file(), name
     record = json.loads((out / "tracking.json").read_text())
     assert record["config"]["task"]["horizon"] == 20 and record["cities"][0]["city"] == "walk"
+    assert record["config"]["search"]["reach_cells"] == 192.0  # the tracking searcher's own discount (tracking_search)
     assert (tmp_path / "t.md").read_text() == (out / "tracking.md").read_text()
     plain = CliRunner().invoke(uavrl, [str(tmp_path / "plain") if a == str(out) else a for a in args] + ["--no-hold"])
     assert plain.exit_code == 0 and "+ hold" not in (tmp_path / "plain" / "tracking.md").read_text()
