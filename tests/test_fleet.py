@@ -236,6 +236,17 @@ def _paths(maps: FleetMaps, policy, episodes: np.ndarray) -> list[np.ndarray]:  
     return out
 
 
+def _moves_alike_scrambled(maps: FleetMaps, policy, episodes: np.ndarray, paths, rng: np.random.Generator) -> None:  # noqa: ANN001
+    """Each episode's ``paths[e]`` (``_paths``) played again, alone, with its users' maps scrambled off the cells the
+    fleet visited (``_scrambled``): the same path."""
+    for e, path in enumerate(paths):
+        keep = np.zeros(maps.sinr.shape[2:], bool)
+        keep[path[..., 0].ravel(), path[..., 1].ravel()] = True
+        city, users, _ = maps.split(episodes[e : e + 1])
+        other = _scrambled(maps, int(city[0]), users[0], keep, rng)
+        np.testing.assert_array_equal(_paths(other, policy, episodes[e : e + 1])[0], path, err_msg=policy.name)
+
+
 def test_baselines_read_only_what_the_fleet_measured():
     """The fleet's random walk and greedy hill-climbing move the same when every user's map is scrambled off the
     cells the fleet visited; they play the same episodes alike in a batch and alone."""
@@ -247,13 +258,7 @@ def test_baselines_read_only_what_the_fleet_measured():
     rng = np.random.default_rng(0)
     for policy in (FleetRandomWalk(seed=2), FleetGreedy(seed=2)):
         first = _paths(maps, policy, episodes)
-        for e, path in enumerate(first):
-            keep = np.zeros(maps.sinr.shape[2:], bool)
-            keep[path[..., 0].ravel(), path[..., 1].ravel()] = True
-            city, users, _ = maps.split(episodes[e : e + 1])
-            other = _scrambled(maps, int(city[0]), users[0], keep, rng)
-            again = _paths(other, policy, episodes[e : e + 1])[0]
-            np.testing.assert_array_equal(again, path, err_msg=policy.name)
+        _moves_alike_scrambled(maps, policy, episodes, first, rng)
         table = run_fleet(maps, policy, episodes, num_envs=4)
         alone = [len(p) - 1 for p in first]
         won = table["success"].to_numpy()
@@ -281,13 +286,7 @@ def test_fleet_searcher_serves_the_tiny_city_from_what_it_measured(tiny, plan):
     assert table["success"].mean() >= 0.8
     alone = [run_fleet(maps, policy, episodes[e : e + 1], num_envs=1)["steps"][0] for e in range(len(episodes))]
     np.testing.assert_array_equal(table["steps"], alone)  # a batch whose rows end one by one plays each as alone
-    rng = np.random.default_rng(1)
-    for e, path in enumerate(_paths(maps, policy, episodes[:3])):
-        keep = np.zeros(maps.sinr.shape[2:], bool)
-        keep[path[..., 0].ravel(), path[..., 1].ravel()] = True
-        city, users, _ = maps.split(episodes[e : e + 1])
-        other = _scrambled(maps, int(city[0]), users[0], keep, rng)
-        np.testing.assert_array_equal(_paths(other, policy, episodes[e : e + 1])[0], path)
+    _moves_alike_scrambled(maps, policy, episodes, _paths(maps, policy, episodes[:3]), np.random.default_rng(1))
     with pytest.raises(ValueError, match="bundles"):
         FleetSearcher(predictor).bind(FleetMaps([_city(0)], FleetConfig(window=3)))
 
@@ -366,13 +365,7 @@ def test_independent_agents_deal_users_and_read_only_what_the_fleet_measured(tin
     won = table["success"].to_numpy()
     assert won.any()
     np.testing.assert_array_equal(table["steps"].to_numpy()[won], np.array([len(p) - 1 for p in alone])[won])
-    rng = np.random.default_rng(2)
-    for e, path in enumerate(alone[:3]):
-        keep = np.zeros(maps.sinr.shape[2:], bool)
-        keep[path[..., 0].ravel(), path[..., 1].ravel()] = True
-        city, users, _ = maps.split(episodes[e : e + 1])
-        other = _scrambled(maps, int(city[0]), users[0], keep, rng)
-        np.testing.assert_array_equal(_paths(other, policy, episodes[e : e + 1])[0], path)
+    _moves_alike_scrambled(maps, policy, episodes, alone[:3], np.random.default_rng(2))
     with pytest.raises(ValueError, match="belief"):
         hybrid = load_agent(REPO / "data" / "agents" / "hybrid", 0.096, 0)
         FleetPlacement(hybrid.policy, hybrid.config.env_config(evaluation=True), hybrid.name)
@@ -488,7 +481,7 @@ def test_the_fleet_channel_marks_the_other_uavs_and_a_placement_agent_widened_to
     from uavplace.eval.evaluate import agent_name
     from uavplace.rl.agent.config import preset_config
     from uavplace.rl.agent.network import FoveaQNetwork, QNetwork, add_input_channel
-    from uavplace.rl.tasks.fleet import FleetPlacement, FleetView
+    from uavplace.rl.tasks.fleet import FleetPlacement
     from uavplace.schemas import InputError
 
     config = _fleet_run_config()
@@ -588,13 +581,7 @@ def test_fleet_agent_trains_resumes_exactly_and_reports(tiny, tmp_path):
     maps = FleetMaps.of([load_bundle("tiny", root=str(tiny))], seeing.config.fleet_config())
     policy = FleetPlacement(agent.policy, agent.config.env_config(evaluation=True), agent.name, prefix="").bind(maps)
     episodes = maps.episode_list(4, 0)
-    rng = np.random.default_rng(3)
-    for e, path in enumerate(_paths(maps, policy, episodes)):
-        keep = np.zeros(maps.sinr.shape[2:], bool)
-        keep[path[..., 0].ravel(), path[..., 1].ravel()] = True
-        city, users, _ = maps.split(episodes[e : e + 1])
-        other = _scrambled(maps, int(city[0]), users[0], keep, rng)
-        np.testing.assert_array_equal(_paths(other, policy, episodes[e : e + 1])[0], path)
+    _moves_alike_scrambled(maps, policy, episodes, _paths(maps, policy, episodes), np.random.default_rng(3))
 
     # A city it never saw: a synthetic grid city.
     from tests.conftest import write_grid_city

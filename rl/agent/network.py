@@ -233,18 +233,17 @@ def add_input_channel(state: dict[str, torch.Tensor], net: DuelingQ, index: int)
     holds, until training moves those weights (a fleet agent with the fleet channel started from a placement
     agent's weights, ``EnvConfig.fleet_channel``)."""
     if isinstance(net, QNetwork):  # the first convolution's [c1, C, k, k]
-        key, views = "features.0.weight", 1
+        key, views, cell = "features.0.weight", 1, state["features.0.weight"].shape[2:]
     elif isinstance(net, FoveaQNetwork):  # the first dense layer's [hidden, views * C * f * f]
-        key, views = "fc.1.weight", 2 + 2 * net.extremes + net.middle
+        key, views, cell = "fc.1.weight", 2 + 2 * net.extremes + net.middle, (net.fovea**2,)
     else:
         raise TypeError(f"no input channel can be added to a {type(net).__name__}")
     w = state[key]
-    grouped = w.reshape(w.shape[0], views, -1, *w.shape[2:]) if views == 1 else w.reshape(w.shape[0], views, -1, net.fovea**2)
+    grouped = w.reshape(w.shape[0], views, -1, *cell)  # [out, views, C, the weights of one channel]
     if not 0 <= index <= grouped.shape[2]:
         raise ValueError(f"input channel {index} is beyond the {grouped.shape[2]} channels of {key}")
-    zero = torch.zeros_like(grouped[:, :, :1])
-    wider = torch.cat([grouped[:, :, :index], zero, grouped[:, :, index:]], dim=2)
-    return {**state, key: wider.reshape(w.shape[0], -1, *w.shape[2:]) if views == 1 else wider.reshape(w.shape[0], -1)}
+    wider = torch.cat([grouped[:, :, :index], torch.zeros_like(grouped[:, :, :1]), grouped[:, :, index:]], dim=2)
+    return {**state, key: wider.reshape(w.shape[0], -1, *w.shape[2:])}
 
 
 class MeanQ(nn.Module):

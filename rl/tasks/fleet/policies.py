@@ -111,7 +111,7 @@ class _DealtEnv(BatchedEnv):
         return self.keys.copy()
 
     def fleet_plane(self, idx: np.ndarray, y0: np.ndarray, x0: np.ndarray, out: np.ndarray) -> None:
-        out[...] = 0.0
+        super().fleet_plane(idx, y0, x0, out)
         w = self.config.window
         for j in range(self.others.shape[1]):
             oy, ox = self.others[idx, j, 0] - y0, self.others[idx, j, 1] - x0
@@ -249,7 +249,8 @@ class FleetPlacement:
             m = rows * k + uav
             mirror.pos[m, 0], mirror.pos[m, 1], mirror.t[m] = y[:, uav] + s, x[:, uav] + s, view.t
             mirror.keys[m] = combine(view.keys, np.uint64(uav))
-            mirror.others[m] = np.delete(view.pos, uav, axis=1) + s
+            if self.env_config.fleet_channel:  # read only by that channel
+                mirror.others[m] = np.delete(view.pos, uav, axis=1) + s
         changed = (groups != self.groups).any(axis=2) | self.fresh[:, None]
         for r, uav in zip(*np.nonzero(changed), strict=True):
             self._rebuild(r * k + uav, view, r, np.flatnonzero(groups[r, uav]))
