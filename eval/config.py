@@ -104,6 +104,10 @@ class FleetReportConfig(Contract):
         default=str(DEFAULT_PREDICTOR),
         description="The fleet searcher's predictor (rl.belief.load_predictor); None: no searcher",
     )
+    search: SearchConfig = Field(
+        default_factory=SearchConfig,
+        description="The fleet searcher's settings (its plan: fleet_plan; rl/tasks/fleet/searcher.py)",
+    )
 
 
 class PeerConfig(Contract):

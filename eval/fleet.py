@@ -71,7 +71,7 @@ def fleet_results(
     policies = []
     if config.predictor is not None:
         cache = PredictionCache(Path(root) / PREDICTIONS)
-        policies.append(FleetSearcher(load_predictor(config.predictor), None, cache).bind(maps))
+        policies.append(FleetSearcher(load_predictor(config.predictor), config.search, cache).bind(maps))
     for run in config.runs:
         agent = load_agent(run, config.test_epsilon, config.seed, task=None)
         if agent.config.task.kind not in _FLEET_PREFIX:

@@ -70,12 +70,14 @@ class SearchConfig(Contract):
         "move whose measurement, over its possible outcomes, leaves the best expected discounted score (1 where it "
         "reaches P_T) among the lookahead_targets cells the cover planner scores best",
     )
-    fleet_plan: Literal["makespan", "product"] = Field(
-        default="makespan",
+    fleet_plan: Literal["makespan", "product", "union"] = Field(
+        default="union",
         description="The fleet searcher's score of an assignment of users to UAVs: 'makespan': the product of the "
         "UAVs' probabilities of serving their users at their cells times the discount of the longest of their paths "
         "(the episode ends when the last UAV arrives); 'product': the product of each UAV's best probability times "
-        "the discount of its own path",
+        "the discount of its own path; 'union': the makespan plan's cells, then each UAV's cell moved in turn while it "
+        "raises the product over users of the probability that some UAV serves the user times the discount of the "
+        "longest path (a UAV without users goes where it helps most)",
     )
     lookahead_targets: int = Field(default=64, ge=1, le=4096, description="lookahead: target cells it weighs")
     info_weight: float = Field(default=0.1, ge=0, description="info: the worth of one bit, in probability of reaching P_T")

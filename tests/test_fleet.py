@@ -266,7 +266,7 @@ def test_baselines_read_only_what_the_fleet_measured():
         assert (table["steps"][won] >= table["oracle_steps"][won]).all() and (table["spl"] <= 1).all()
 
 
-@pytest.mark.parametrize("plan", ["makespan", "product"])
+@pytest.mark.parametrize("plan", ["makespan", "product", "union"])
 def test_fleet_searcher_serves_the_tiny_city_from_what_it_measured(tiny, plan):
     """The map searcher run for the fleet (one belief per user, physics tier) serves the tiny city's user sets, the
     same in a batch and alone, and moves the same when every user's map is scrambled off the cells the fleet visited,
@@ -323,6 +323,36 @@ def test_fleet_searchers_makespan_plan_is_the_best_by_brute_force(seed):
     served = {mine: np.prod(cover[list(mine)], axis=0) for mine in user_subsets(users)}
     plan = policy._makespan_plan(served, users, paths)
     assert np.isclose(max(score(plan, o) for o in itertools.product(sorted(plan), repeat=users)), best, rtol=1e-6)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_fleet_searchers_union_plan_no_uav_can_raise_by_brute_force(seed):
+    """The union plan's cells score, by brute force, the probability that every user is served by some UAV (the
+    cells' covers independent) times the discount of the longest path; it scores at least its start, and no UAV
+    moved alone to any reachable cell scores more (a coordinate-wise optimum); a UAV without users may move."""
+    from tests.conftest import REPO
+    from uavplace.rl.belief import load_predictor
+    from uavplace.rl.tasks.fleet import FleetSearcher
+
+    rng = np.random.default_rng(seed)
+    users, uavs, cells = 3, 2, 7
+    cover = rng.choice([0.0, 0.1, 0.5, 0.9, 1.0], size=(users, cells)).astype(np.float32)
+    moves = rng.integers(0, 9, size=(uavs, cells)).astype(np.float32)
+    moves[:, rng.integers(cells)] = np.inf  # a cell neither UAV reaches
+    moves[0, 0] = moves[1, 1] = 0  # where the UAVs stand
+    policy = FleetSearcher(load_predictor(REPO / "data" / "agents" / "searcher" / "predictor.json"))
+
+    def score(plan: dict[int, int]) -> float:
+        served = [1 - np.prod([1 - float(cover[n, c]) for c in plan.values()]) for n in range(users)]
+        return float(np.prod(served) * policy.searcher.discount(np.float32(max(moves[u, c] for u, c in plan.items()))))
+
+    start = {0: 0, 1: 1}
+    plan = policy._union_plan(cover, [(None, None, m) for m in moves], start)
+    assert set(plan) == {0, 1} and all(np.isfinite(moves[u, c]) for u, c in plan.items())
+    assert score(plan) >= score(start) * (1 - 1e-6)
+    for u in range(uavs):
+        for c in np.flatnonzero(np.isfinite(moves[u])):
+            assert score({**plan, u: int(c)}) <= score(plan) * (1 + 1e-6), (u, c)
 
 
 def test_independent_agents_deal_users_and_read_only_what_the_fleet_measured(tiny):
@@ -393,6 +423,9 @@ def test_fleet_report_writes_its_tables_and_never_replaces_a_stranger(tiny, tmp_
     assert list(table["method"]) == ["oracle", "map searcher", best, fleet, "steered random walk", "greedy hill-climbing"]
     assert table.loc[table.method == "oracle", "spl"].item() == 1.0
     assert f"success - {best}" in (out / "fleet.md").read_text()
+    import json
+
+    assert json.loads((out / "fleet.json").read_text())["config"]["search"]["fleet_plan"] == "union"  # what played
     from uavplace.eval.fleet import summary_rows
 
     rows = summary_rows(table, pd.read_csv(out / "differences.csv"), 60)

@@ -8,6 +8,26 @@ from uavplace.rl.tasks.fleet.config import FLEET_MOVES, STAY
 from uavplace.rl.tasks.fleet.env import FleetView
 from uavplace.rl.tasks.fleet.maps import FleetMaps, assignments, user_subsets
 
+#: The most rounds of the ``union`` plan's coordinate ascent (on the validation cities it settles within two).
+UNION_ROUNDS = 4
+
+
+def _horizon(paths: list[tuple[np.ndarray, ...]]) -> int:
+    """The most moves to any reachable cell from any UAV of ``paths`` ((discount, predecessors, moves) a UAV)."""
+    return int(max(np.max(moves[np.isfinite(moves)]) for _, _, moves in paths))
+
+
+def _best_within(value: np.ndarray, moves: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For every length ``D`` of ``lengths``, the largest ``value`` [M] of a cell within ``D`` ``moves`` [M] (0 where
+    none is) and that cell, the nearest of equals: each ``[len(lengths)]``."""
+    order = np.argsort(moves, kind="stable")  # nearest first, unreachable (inf) last
+    last = np.searchsorted(moves[order], lengths, side="right") - 1  # the farthest cell within D moves
+    v = value[order]
+    best = np.maximum.accumulate(v)
+    rises = np.flatnonzero(np.r_[True, v[1:] > best[:-1]])  # where the running best rises: its nearest cell
+    at = rises[np.searchsorted(rises, last, side="right") - 1]
+    return np.where(last >= 0, best[last], 0.0), order[at]
+
 
 class FleetSearcher:
     """The map searcher run for the fleet (``rl.tasks.placement.searcher``): one belief per user over its candidate
@@ -18,8 +38,12 @@ class FleetSearcher:
     the K^N assignments of users to UAVs and the cells of the UAVs that have users, the plan takes the largest score
     (``SearchConfig.fleet_plan``): with ``makespan``, the product of the UAVs' probabilities times the searcher's
     distance discount of the longest of their paths, since the fleet succeeds when its last UAV arrives; with
-    ``product``, the product over UAVs of each one's probability times the discount of its own path. Each UAV moves
-    one cell along a shortest legal path to its cell (staying when it stands on it; a UAV without users stays).
+    ``product``, the product over UAVs of each one's probability times the discount of its own path. With ``union``
+    (the default) the makespan plan's cells are then moved, a UAV at a time, while that raises the probability that
+    every user is served by some UAV times the discount of the longest path: a UAV may serve users assigned to
+    another, and a UAV without users goes where it adds most. Each UAV moves
+    one cell along a shortest legal path to its cell (staying when it stands on it; in the other plans a UAV without
+    users stays).
     Needs the bundles' public maps (``FleetMaps.of``)."""
 
     name = "map searcher"
@@ -88,11 +112,13 @@ class FleetSearcher:
         cover = np.where(seen[None], known.astype(np.float32), cover)
         paths = [self.searcher.paths_from(self.public, canvas, cm, int(c)) for c in cols]  # (discount, predecessors, moves)
         served = {mine: np.prod(cover[list(mine)], axis=0) for mine in user_subsets(cfg.users)}  # [M] a set of users
-        plan = (
-            self._makespan_plan(served, cfg.users, paths)
-            if self.searcher.config.fleet_plan == "makespan"
-            else self._product_plan(served, cfg.users, paths)
-        )
+        kind = self.searcher.config.fleet_plan
+        if kind == "product":
+            plan = self._product_plan(served, cfg.users, paths)
+        else:
+            plan = self._makespan_plan(served, cfg.users, paths)
+            if kind == "union":
+                plan = self._union_plan(cover, paths, {u: plan.get(u, int(cols[u])) for u in range(k)})
         return np.array([self._step(cm, int(cols[u]), plan.get(u, int(cols[u])), paths[u][1], mask[u]) for u in range(k)])
 
     @staticmethod
@@ -117,18 +143,11 @@ class FleetSearcher:
         """``{UAV: its cell}`` of the assignment and the cells of the largest product of the UAVs' probabilities of
         serving their users times the discount of the longest of their paths: for every length ``D``, each UAV takes
         its most likely cell within ``D`` moves (the nearest of equals)."""
-        horizon = int(max(np.max(moves[np.isfinite(moves)]) for _, _, moves in paths))
-        lengths = np.arange(horizon + 1)
+        lengths = np.arange(_horizon(paths) + 1)
         within = {}  # (users, UAV) -> (the best probability within D moves [D], its cell [D])
         for uav, (_, _, moves) in enumerate(paths):
-            order = np.argsort(moves, kind="stable")  # nearest first, unreachable (inf) last
-            last = np.searchsorted(moves[order], lengths, side="right") - 1  # the farthest cell within D moves
             for mine, p in served.items():
-                p = p[order]
-                best = np.maximum.accumulate(p)
-                rises = np.flatnonzero(np.r_[True, p[1:] > best[:-1]])  # where the running best rises: its nearest cell
-                at = rises[np.searchsorted(rises, last, side="right") - 1]
-                within[mine, uav] = np.where(last >= 0, best[last], 0.0), order[at]  # none within D moves: 0
+                within[mine, uav] = _best_within(p, moves, lengths)
         discount = self.searcher.discount(lengths.astype(np.float32))
         best, plan = -1.0, {}
         for groups in assignments(users, len(paths)):
@@ -137,6 +156,33 @@ class FleetSearcher:
             if score[d] > best:
                 best, plan = float(score[d]), {uav: int(within[mine, uav][1][d]) for uav, mine in groups}
         return plan
+
+    def _union_plan(self, cover: np.ndarray, paths: list[tuple[np.ndarray, ...]], start: dict[int, int]) -> dict[int, int]:
+        """``{UAV: its cell}`` for every UAV, from the cells ``start`` (the makespan plan's; a UAV without users at
+        its own), by coordinate ascent on the probability that every user is served by some UAV, ``prod_n (1 -
+        prod_k (1 - P_n(c_k)))`` (the cells' covers taken as independent), times the discount of the longest path:
+        each UAV in turn takes the cell (the nearest of equals) that raises it most with the others' cells held,
+        round the fleet until a round moves no UAV (at most ``UNION_ROUNDS``)."""
+        lengths = np.arange(_horizon(paths) + 1)
+        discount = self.searcher.discount(lengths.astype(np.float32))
+        moves = [m for _, _, m in paths]
+        cells = dict(start)
+        miss = np.prod([1.0 - cover[:, c] for c in cells.values()], axis=0)  # [N] no UAV serves the user
+        best = float(discount[int(max(moves[u][c] for u, c in cells.items()))] * np.prod(1.0 - miss))
+        for _ in range(UNION_ROUNDS):
+            before = dict(cells)
+            for u in cells:
+                others = [c for j, c in cells.items() if j != u]
+                miss = np.prod([1.0 - cover[:, c] for c in others], axis=0)  # [N] without UAV u
+                value, at = _best_within(np.prod(1.0 - (1.0 - cover) * miss[:, None], axis=0), moves[u], lengths)
+                far = int(max((moves[j][c] for j, c in cells.items() if j != u), default=0))
+                total = value * discount[np.maximum(lengths, far)]
+                d = int(np.argmax(total))
+                if total[d] > best * (1 + 1e-9):  # a UAV moves only for a gain beyond rounding
+                    best, cells[u] = float(total[d]), int(at[d])
+            if cells == before:
+                break
+        return cells
 
     @staticmethod
     def _step(cm, here: int, target: int, pred: np.ndarray, mask: np.ndarray) -> int:  # noqa: ANN001
