@@ -68,7 +68,8 @@ class SearchConfig(Contract):
         "info: add to that probability info_weight times the information [bits] a measurement at the cell gives "
         "about the user's cell (mutual information), for the cells within info_radius moves; lookahead: take the "
         "move whose measurement, over its possible outcomes, leaves the best expected discounted score (1 where it "
-        "reaches P_T) among the lookahead_targets cells the cover planner scores best",
+        "reaches P_T) among the lookahead_targets cells the cover planner scores best. The fleet searcher reads "
+        "info (each user's information, within info_radius moves of a UAV) and plans as cover otherwise",
     )
     fleet_plan: Literal["makespan", "product", "union"] = Field(
         default="union",

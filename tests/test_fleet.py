@@ -266,11 +266,13 @@ def test_baselines_read_only_what_the_fleet_measured():
         assert (table["steps"][won] >= table["oracle_steps"][won]).all() and (table["spl"] <= 1).all()
 
 
-@pytest.mark.parametrize("plan", ["makespan", "product", "union"])
-def test_fleet_searcher_serves_the_tiny_city_from_what_it_measured(tiny, plan):
+@pytest.mark.parametrize(
+    ("plan", "planner"), [("makespan", "cover"), ("product", "cover"), ("union", "cover"), ("union", "info")]
+)
+def test_fleet_searcher_serves_the_tiny_city_from_what_it_measured(tiny, plan, planner):
     """The map searcher run for the fleet (one belief per user, physics tier) serves the tiny city's user sets, the
     same in a batch and alone, and moves the same when every user's map is scrambled off the cells the fleet visited,
-    with either plan."""
+    with every plan, and with the information of a measurement near the UAVs added (``planner`` info)."""
     from tests.conftest import REPO
     from uavplace.dataset.bundle import load_bundle
     from uavplace.rl.belief import load_predictor
@@ -281,7 +283,7 @@ def test_fleet_searcher_serves_the_tiny_city_from_what_it_measured(tiny, plan):
     maps = FleetMaps.of([load_bundle("tiny", root=str(tiny))], config)
     episodes = maps.episode_list(6, 0)
     predictor = load_predictor(REPO / "data" / "agents" / "searcher" / "predictor.json")
-    policy = FleetSearcher(predictor, SearchConfig(fleet_plan=plan)).bind(maps)
+    policy = FleetSearcher(predictor, SearchConfig(fleet_plan=plan, planner=planner)).bind(maps)
     table = run_fleet(maps, policy, episodes, num_envs=3)
     assert table["success"].mean() >= 0.8
     alone = [run_fleet(maps, policy, episodes[e : e + 1], num_envs=1)["steps"][0] for e in range(len(episodes))]
@@ -353,6 +355,41 @@ def test_fleet_searchers_union_plan_no_uav_can_raise_by_brute_force(seed):
     for u in range(uavs):
         for c in np.flatnonzero(np.isfinite(moves[u])):
             assert score({**plan, u: int(c)}) <= score(plan) * (1 + 1e-6), (u, c)
+
+
+def test_fleet_searchers_information_is_each_users_near_the_uavs(tiny):
+    """With ``planner`` info, each user's cover gains ``info_weight`` times the information a measurement tells about
+    that user's cell (``BeliefModel.information``, checked by hand in tests/test_searcher.py) at the unvisited cells
+    within ``info_radius`` moves of some UAV, capped at 1, and nothing elsewhere."""
+    from tests.conftest import REPO
+    from uavplace.dataset.bundle import load_bundle
+    from uavplace.rl.belief import load_predictor
+    from uavplace.rl.config import SearchConfig
+    from uavplace.rl.tasks.fleet import FleetSearcher, FleetView
+
+    config = FleetConfig(uavs=2, users=2, window=9, t_max=60)
+    maps = FleetMaps.of([load_bundle("tiny", root=str(tiny))], config)
+    predictor = load_predictor(REPO / "data" / "agents" / "searcher" / "predictor.json")
+    policy = FleetSearcher(predictor, SearchConfig(planner="info", info_weight=0.5)).bind(maps)
+    env = BatchedFleet(maps, 1)
+    env.begin(np.array([0]), maps.episode_list(1, 3), np.array([0]))
+    view = FleetView.of(env)
+    policy.reset(np.arange(1), 1, config.uavs)
+    policy.act(env.action_mask(), view)  # the beliefs after the first measurements
+    cm = policy.searcher.canvas_maps(policy.public, policy.symmetries * int(view.city[0]))
+    p = config.window // 2
+    cols = cm.index[view.pos[0, :, 0] - p, view.pos[0, :, 1] - p]
+    paths = [policy.searcher.paths_from(policy.public, policy.symmetries * int(view.city[0]), cm, int(c)) for c in cols]
+    seen = view.visits[0, cm.legal[:, 0] + p, cm.legal[:, 1] + p] > 0
+    cover = np.full((config.users, len(cm.legal)), 0.3, np.float32)
+    got = policy._with_information(cm, cover, seen, paths, 0, view)
+    near = (np.min([m for _, _, m in paths], axis=0) <= policy.searcher.config.info_radius) & ~seen
+    assert near.any() and (~near).any()
+    np.testing.assert_array_equal(got[:, ~near], cover[:, ~near])
+    floor_db = float(policy.public.settings[int(view.city[0])]["floor_db"])
+    for n in range(config.users):
+        bits = policy.searcher.information(cm, policy.log_b[0][n], np.flatnonzero(near), floor_db, config.p_t_db)
+        np.testing.assert_allclose(got[n, near], np.minimum(1.0, 0.3 + 0.5 * bits), rtol=1e-6)
 
 
 def test_independent_agents_deal_users_and_read_only_what_the_fleet_measured(tiny):

@@ -111,6 +111,8 @@ class FleetSearcher:
         known = cfg.reaches(view.memory[r][:, cm.legal[:, 0] + p, cm.legal[:, 1] + p])  # [N, M]
         cover = np.where(seen[None], known.astype(np.float32), cover)
         paths = [self.searcher.paths_from(self.public, canvas, cm, int(c)) for c in cols]  # (discount, predecessors, moves)
+        if self.searcher.config.planner == "info":
+            cover = self._with_information(cm, cover, seen, paths, r, view)
         served = {mine: np.prod(cover[list(mine)], axis=0) for mine in user_subsets(cfg.users)}  # [M] a set of users
         kind = self.searcher.config.fleet_plan
         if kind == "product":
@@ -120,6 +122,20 @@ class FleetSearcher:
             if kind == "union":
                 plan = self._union_plan(cover, paths, {u: plan.get(u, int(cols[u])) for u in range(k)})
         return np.array([self._step(cm, int(cols[u]), plan.get(u, int(cols[u])), paths[u][1], mask[u]) for u in range(k)])
+
+    def _with_information(self, cm, cover: np.ndarray, seen: np.ndarray, paths: list, r: int, view: FleetView) -> np.ndarray:  # noqa: ANN001
+        """``cover`` [N, M] plus ``info_weight`` times the information a measurement tells about each user's cell at every
+        unvisited cell within ``info_radius`` moves of a UAV (the placement searcher's ``info`` planner per user)."""
+        d = np.min([moves for _, _, moves in paths], axis=0)
+        near = np.flatnonzero((d <= self.searcher.config.info_radius) & ~seen)
+        if not len(near):
+            return cover
+        floor_db = float(self.public.settings[int(view.city[r])]["floor_db"])
+        out = cover.astype(np.float64)
+        for n in range(len(cover)):
+            bits = self.searcher.information(cm, self.log_b[r][n], near, floor_db, view.config.p_t_db)
+            out[n, near] = np.minimum(1.0, out[n, near] + self.searcher.config.info_weight * bits)
+        return out
 
     @staticmethod
     def _product_plan(served: dict, users: int, paths: list[tuple[np.ndarray, ...]]) -> dict[int, int]:
