@@ -41,10 +41,9 @@ class FleetSearcher:
     ``product``, the product over UAVs of each one's probability times the discount of its own path. With ``union``
     (the default) the makespan plan's cells are then moved, a UAV at a time, while that raises the probability that
     every user is served by some UAV times the discount of the longest path: a UAV may serve users assigned to
-    another, and a UAV without users goes where it adds most. Each UAV moves
-    one cell along a shortest legal path to its cell (staying when it stands on it; in the other plans a UAV without
-    users stays).
-    Needs the bundles' public maps (``FleetMaps.of``)."""
+    another, and a UAV without users goes where it adds most. Each UAV moves one cell along a shortest legal path to
+    its cell (staying when it stands on it; in the other plans a UAV without users stays). Needs the bundles' public
+    maps (``FleetMaps.of``)."""
 
     name = "map searcher"
 
