@@ -74,8 +74,9 @@ def simulate(
     SOURCE is one of:
       procedural:train|test|tiny   the original generator (552 x 500, 400 x 500, 96 x 80 m)
       procedural:STYLE[:WxH]       generator v2: grid, rotated, perimeter, towers, organic,
-                                   plazas, oldtown (narrow lanes), or mixed (the first six
-                                   styles in turn by seed); 400 x 400 m
+                                   plazas, oldtown (narrow lanes), tiered (large blocks of
+                                   many roof tiers), or mixed (the first six styles in turn
+                                   by seed); 400 x 400 m
       an InSite .city, a GeoJSON of footprints (OpenStreetMap heights and levels understood)
       a Mitsuba .xml scene with its PLY/OBJ meshes, or sionna:etoile, sionna:florence (the
       scenes Sionna RT ships): a building per connected body, no ground, roofs in height tiers

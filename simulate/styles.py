@@ -17,6 +17,9 @@ heights 8-30 m, courtyards in the perimeter style).
 - ``plazas``: a grid with large open squares and parks.
 - ``oldtown``: a historic centre: small irregular blocks between narrow lanes (3-9 m), a few
   piazzas, mid-rise buildings of similar height, each block split into several buildings.
+- ``tiered``: the real scenes' kind of geometry (etoile, florence: a few dozen buildings in hundreds of
+  roof tiers): large irregular blocks (60-120 m apart) between streets of 10-30 m, most around a
+  courtyard, each block one building cut into several roof tiers of heights around its own.
 
 ``mixed`` takes the first six styles in turn by seed (seed modulo 6; ``MIXED``), so that a
 corpus of consecutive seeds covers them evenly; a style added later never changes a mixed city.
@@ -204,6 +207,42 @@ def _oldtown(size: tuple[float, float], rng: np.random.Generator) -> list[Part]:
             for p in _clean([piece], area):
                 out.append((p, float(h), k))
                 k += 1
+    return out
+
+
+@style("tiered")
+def _tiered(size: tuple[float, float], rng: np.random.Generator) -> list[Part]:
+    area = _inside(size)
+    spacing = rng.uniform(60, 120)  # few large blocks, each one building of many roof tiers
+    n = max(2, int(size[0] * size[1] / spacing**2))
+    seeds = shapely.MultiPoint(np.c_[rng.uniform(0, size[0], n), rng.uniform(0, size[1], n)])
+    cells = shapely.get_parts(shapely.voronoi_polygons(seeds, extend_to=area))
+    street = rng.uniform(10, 30)
+    open_share = rng.uniform(0.03, 0.15)
+    out: list[Part] = []
+    for k, cell in enumerate(cells):
+        if rng.random() < open_share:
+            continue  # a square or a park
+        block = cell.buffer(-street / 2, join_style="mitre")
+        if block.is_empty:
+            continue
+        depth = rng.uniform(12, 22)
+        court = block.buffer(-depth, join_style="mitre")
+        if not court.is_empty and rng.random() < 0.7:  # a courtyard
+            block = block.difference(court)
+        pieces = [block]  # the roof tiers: the block cut by a few random lines, each piece at its own height
+        for _ in range(int(rng.integers(2, 5))):
+            c = block.centroid
+            angle = rng.uniform(0, np.pi)
+            dx, dy = np.cos(angle) * 400, np.sin(angle) * 400
+            offset = rng.normal(0, spacing / 6, 2)
+            cut = shapely.LineString([(c.x - dx + offset[0], c.y - dy + offset[1]), (c.x + dx + offset[0], c.y + dy + offset[1])])
+            pieces = [g for p in pieces for g in shapely.get_parts(shapely.ops.split(p, cut))]
+        base = rng.uniform(12, 28)
+        low = rng.random(len(pieces)) < 0.15  # annexes and low wings
+        heights = np.where(low, rng.uniform(4, 9, len(pieces)), np.maximum(6.0, base + rng.normal(0, 3.5, len(pieces))))
+        for piece, h in zip(pieces, np.round(heights, 1), strict=True):
+            out += [(p, float(h), k) for p in _clean([piece], area)]
     return out
 
 

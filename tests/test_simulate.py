@@ -476,7 +476,10 @@ def test_styles_are_seeded_and_varied():
     picked = [styled_city("mixed", (100.0, 100.0), s)[0] for s in range(100, 106)]
     # The corpus's recipe (seeds 100..117) names its cities by seed: mixed keeps the first six styles in turn.
     assert picked == ["rotated", "towers", "grid", "organic", "perimeter", "plazas"] and set(picked) == set(MIXED)
-    assert set(STYLES) - set(MIXED) == {"oldtown"}
+    assert set(STYLES) - set(MIXED) == {"oldtown", "tiered"}
+    _, tiered = styled_city("tiered", (400.0, 400.0), 3000)
+    high = shapely.union_all([p for p, h, _ in tiered if h > 10]).area / 400**2
+    assert len(tiered) > 2 * len({k for *_, k in tiered}) and 0.15 < high < 0.45  # few buildings, many roof tiers
     _, old = styled_city("oldtown", (200.0, 200.0), 5)
     lanes = shapely.box(0, 0, 200, 200).difference(shapely.union_all([p for p, *_ in old]))
     assert 0.3 < lanes.area / 200**2 < 0.6  # dense: narrow lanes and a few piazzas between small blocks
