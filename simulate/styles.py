@@ -70,6 +70,13 @@ def _clean(polys, area: shapely.Polygon, min_area: float = 16.0) -> list[shapely
     return out
 
 
+def _voronoi_blocks(size: tuple[float, float], rng: np.random.Generator, spacing: float) -> list[shapely.Polygon]:
+    """The Voronoi cells of seeds drawn uniformly over the city, about ``spacing`` [m] apart (two at least)."""
+    n = max(2, int(size[0] * size[1] / spacing**2))
+    seeds = shapely.MultiPoint(np.c_[rng.uniform(0, size[0], n), rng.uniform(0, size[1], n)])
+    return list(shapely.get_parts(shapely.voronoi_polygons(seeds, extend_to=_inside(size))))
+
+
 @style("grid")
 def _grid(size: tuple[float, float], rng: np.random.Generator) -> list[Part]:
     params = CityStyle(
@@ -179,10 +186,7 @@ def _plazas(size: tuple[float, float], rng: np.random.Generator) -> list[Part]:
 @style("oldtown")
 def _oldtown(size: tuple[float, float], rng: np.random.Generator) -> list[Part]:
     area = _inside(size)
-    spacing = rng.uniform(24, 40)  # small blocks
-    n = max(2, int(size[0] * size[1] / spacing**2))
-    seeds = shapely.MultiPoint(np.c_[rng.uniform(0, size[0], n), rng.uniform(0, size[1], n)])
-    cells = shapely.get_parts(shapely.voronoi_polygons(seeds, extend_to=area))
+    cells = _voronoi_blocks(size, rng, rng.uniform(24, 40))  # small blocks
     open_share = rng.uniform(0.03, 0.12)
     top = rng.uniform(18, 28)
     out: list[Part] = []
@@ -214,9 +218,7 @@ def _oldtown(size: tuple[float, float], rng: np.random.Generator) -> list[Part]:
 def _tiered(size: tuple[float, float], rng: np.random.Generator) -> list[Part]:
     area = _inside(size)
     spacing = rng.uniform(60, 120)  # few large blocks, each one building of many roof tiers
-    n = max(2, int(size[0] * size[1] / spacing**2))
-    seeds = shapely.MultiPoint(np.c_[rng.uniform(0, size[0], n), rng.uniform(0, size[1], n)])
-    cells = shapely.get_parts(shapely.voronoi_polygons(seeds, extend_to=area))
+    cells = _voronoi_blocks(size, rng, spacing)
     street = rng.uniform(10, 30)
     open_share = rng.uniform(0.03, 0.15)
     out: list[Part] = []
