@@ -7,7 +7,7 @@ trained on, never a validation or test city); and with Platt scaling fitted on t
 one city out: the city scored is never one it was fitted on). The reliability diagrams of all three in one figure
 (``--figure``).
 
-    python experiments/calibration.py [--predictor data/agents/searcher/unet] [--maps data/trainmaps]
+    python experiments/calibration.py [--predictor data/agents/searcher/unet] [--maps data/trainmaps] [--packs tt-]
         [--figure docs/img/reliability.png] [--city etoile-val ...]
 """
 
@@ -31,10 +31,11 @@ def logit(p: np.ndarray) -> np.ndarray:
     return np.log(p) - np.log1p(-p)
 
 
-def pack_outcomes(predictor: object, folder: Path) -> tuple[np.ndarray, np.ndarray]:
-    """(dead logits, dead-or-at-floor outcomes) of every user of every pack in ``folder``, at the legal cells."""
+def pack_outcomes(predictor: object, folder: Path, prefix: str = "") -> tuple[np.ndarray, np.ndarray]:
+    """(dead logits, dead-or-at-floor outcomes) of every user of every pack in ``folder`` whose city's name starts with
+    ``prefix``, at the legal cells."""
     logits, lows = [], []
-    for path in list_packs(folder):
+    for path in (p for p in list_packs(folder) if p.stem.startswith(prefix)):
         maps = read_pack(path)
         scene = Scene.from_settings(maps.settings, maps.height_rel_m)
         cells = np.argwhere(~maps.blocked)
@@ -50,14 +51,15 @@ def main() -> None:
     ap = validation_parser(__doc__, episodes=0)
     ap.add_argument("--predictor", type=Path, default=DEFAULT_PREDICTOR)
     ap.add_argument("--maps", type=Path, default=Path("data/trainmaps"), help="Training-maps packs to fit the scaling on")
+    ap.add_argument("--packs", default="", help="Only the packs whose city's name starts with this (tt-: the tiered ones)")
     ap.add_argument("--figure", type=Path, default=None, help="Write the reliability diagrams here (PNG)")
     ap.add_argument("--root", type=Path, default=Path("data/processed"))
     args = ap.parse_args()
     predictor = load_predictor(args.predictor)
     t0 = time.perf_counter()
-    z, y = pack_outcomes(predictor, args.maps)
+    z, y = pack_outcomes(predictor, args.maps, args.packs)
     scale, bias = platt_scaling(z, y)
-    print(f"Platt scaling on {len(z):,} cells of the packs in {args.maps}: scale {scale:.3f}, bias {bias:+.3f} "
+    print(f"Platt scaling on {len(z):,} cells of the packs {args.packs}* in {args.maps}: scale {scale:.3f}, bias {bias:+.3f} "
           f"({time.perf_counter() - t0:.0f} s)")  # fmt: skip
     rows = [["city", "predictor", "median |error| [dB]", "p90 |error| [dB]", "dead/live agreement", "calibration error"]]
     diagrams = {}
