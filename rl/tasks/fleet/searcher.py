@@ -17,11 +17,18 @@ def _horizon(paths: list[tuple[np.ndarray, ...]]) -> int:
     return int(max(np.max(moves[np.isfinite(moves)]) for _, _, moves in paths))
 
 
-def _best_within(value: np.ndarray, moves: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """For every length ``D`` of ``lengths``, the largest ``value`` [M] of a cell within ``D`` ``moves`` [M] (0 where
-    none is) and that cell, the nearest of equals: each ``[len(lengths)]``."""
-    order = np.argsort(moves, kind="stable")  # nearest first, unreachable (inf) last
-    last = np.searchsorted(moves[order], lengths, side="right") - 1  # the farthest cell within D moves
+def _nearest_first(moves: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(the cells nearest first by ``moves`` [M], unreachable (inf) last; for every length ``D`` of ``lengths``, the
+    position in that order of the farthest cell within ``D`` moves, -1 where none is): what ``_best_within`` reads,
+    sorted once per UAV and step."""
+    order = np.argsort(moves, kind="stable")
+    return order, np.searchsorted(moves[order], lengths, side="right") - 1
+
+
+def _best_within(value: np.ndarray, ranked: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """For every length ``D`` of ``ranked`` (``_nearest_first``), the largest ``value`` [M] of a cell within ``D``
+    moves (0 where none is) and that cell, the nearest of equals: each ``[len(lengths)]``."""
+    order, last = ranked
     v = value[order]
     best = np.maximum.accumulate(v)
     rises = np.flatnonzero(np.r_[True, v[1:] > best[:-1]])  # where the running best rises: its nearest cell
@@ -161,8 +168,9 @@ class FleetSearcher:
         lengths = np.arange(_horizon(paths) + 1)
         within = {}  # (users, UAV) -> (the best probability within D moves [D], its cell [D])
         for uav, (_, _, moves) in enumerate(paths):
+            ranked = _nearest_first(moves, lengths)
             for mine, p in served.items():
-                within[mine, uav] = _best_within(p, moves, lengths)
+                within[mine, uav] = _best_within(p, ranked)
         discount = self.searcher.discount(lengths.astype(np.float32))
         best, plan = -1.0, {}
         for groups in assignments(users, len(paths)):
@@ -181,6 +189,7 @@ class FleetSearcher:
         lengths = np.arange(_horizon(paths) + 1)
         discount = self.searcher.discount(lengths.astype(np.float32))
         moves = [m for _, _, m in paths]
+        ranked = [_nearest_first(m, lengths) for m in moves]
         cells = dict(start)
         miss = np.prod([1.0 - cover[:, c] for c in cells.values()], axis=0)  # [N] no UAV serves the user
         best = float(discount[int(max(moves[u][c] for u, c in cells.items()))] * np.prod(1.0 - miss))
@@ -189,7 +198,7 @@ class FleetSearcher:
             for u in cells:
                 others = [c for j, c in cells.items() if j != u]
                 miss = np.prod([1.0 - cover[:, c] for c in others], axis=0)  # [N] without UAV u
-                value, at = _best_within(np.prod(1.0 - (1.0 - cover) * miss[:, None], axis=0), moves[u], lengths)
+                value, at = _best_within(np.prod(1.0 - (1.0 - cover) * miss[:, None], axis=0), ranked[u])
                 far = int(max((moves[j][c] for j, c in cells.items() if j != u), default=0))
                 total = value * discount[np.maximum(lengths, far)]
                 d = int(np.argmax(total))
