@@ -145,6 +145,7 @@ uavdata.help = uavdata.help.format(noise=EMBEDDED_NOISE_DBM)
         "ensemble": "uavplace.rl.cli:ensemble",
         "fit-predictor": "uavplace.rl.predictor_cli:fit_predictor",
         "train-predictor": "uavplace.rl.predictor_cli:train_predictor",
+        "calibrate-predictor": "uavplace.rl.predictor_cli:calibrate_predictor",
         "report": "uavplace.eval.cli:report",
         "sweep": "uavplace.eval.cli:sweep",
         "levers": "uavplace.eval.cli:levers",

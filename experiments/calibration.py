@@ -2,10 +2,10 @@
 
 Per validation city, the predictor's scores (``rl.predictor.scores_of``: median and p90 |error|, dead/live agreement,
 expected calibration error, ms per map) as it is; with Platt scaling of its dead-cell logit
-(``rl.predictor.platt_scaling``) fitted on the users of training-maps packs (``--maps``: cities the predictor was not
-trained on, never a validation or test city); and with Platt scaling fitted on the other validation cities (leave
-one city out: the city scored is never one it was fitted on). The reliability diagrams of all three in one figure
-(``--figure``).
+(``rl.learned.pack_calibration``, what ``uavrl calibrate-predictor`` fits) on the users of training-maps packs
+(``--maps``: cities the predictor was not trained on, never a validation or test city); and with Platt scaling fitted
+on the other validation cities (leave one city out: the city scored is never one it was fitted on). The reliability
+diagrams of all three in one figure (``--figure``).
 
     python experiments/calibration.py [--predictor data/agents/searcher/unet] [--maps data/trainmaps] [--packs tt-]
         [--figure docs/img/reliability.png] [--city etoile-val ...]
@@ -23,28 +23,13 @@ from uavplace.dataset.bundle import load_bundle
 from uavplace.dataset.trainmaps import list_packs, read_pack
 from uavplace.infra.console import markdown_table
 from uavplace.rl.belief import DEFAULT_PREDICTOR, load_predictor
-from uavplace.rl.predictor import Scene, platt_scaling, predicted_and_measured, reliability, scores_of
+from uavplace.rl.learned import pack_calibration
+from uavplace.rl.predictor import platt_scaling, predicted_and_measured, reliability, scores_of
 
 
 def logit(p: np.ndarray) -> np.ndarray:
     p = np.clip(np.asarray(p, np.float64), 1e-7, 1 - 1e-7)
     return np.log(p) - np.log1p(-p)
-
-
-def pack_outcomes(predictor: object, folder: Path, prefix: str = "") -> tuple[np.ndarray, np.ndarray]:
-    """(dead logits, dead-or-at-floor outcomes) of every user of every pack in ``folder`` whose city's name starts with
-    ``prefix``, at the legal cells."""
-    logits, lows = [], []
-    for path in (p for p in list_packs(folder) if p.stem.startswith(prefix)):
-        maps = read_pack(path)
-        scene = Scene.from_settings(maps.settings, maps.height_rel_m)
-        cells = np.argwhere(~maps.blocked)
-        _, p_dead = predictor.predict(scene, maps.users, cells)
-        sinr = maps.sinr_db[:, cells[:, 0], cells[:, 1]]
-        dead = maps.dead[:, cells[:, 0], cells[:, 1]]
-        logits.append(logit(p_dead).ravel())
-        lows.append((dead | (sinr <= maps.floor_db + 1e-3)).ravel())
-    return np.concatenate(logits), np.concatenate(lows)
 
 
 def main() -> None:
@@ -57,10 +42,10 @@ def main() -> None:
     args = ap.parse_args()
     predictor = load_predictor(args.predictor)
     t0 = time.perf_counter()
-    z, y = pack_outcomes(predictor, args.maps, args.packs)
-    scale, bias = platt_scaling(z, y)
-    print(f"Platt scaling on {len(z):,} cells of the packs {args.packs}* in {args.maps}: scale {scale:.3f}, bias {bias:+.3f} "
-          f"({time.perf_counter() - t0:.0f} s)")  # fmt: skip
+    packs = [read_pack(p) for p in list_packs(args.maps) if p.stem.startswith(args.packs)]
+    scale, bias = pack_calibration(predictor, packs)  # what `uavrl calibrate-predictor` fits
+    print(f"Platt scaling on {sum(len(m.users) for m in packs)} users of the packs {args.packs}* in {args.maps}: scale "
+          f"{scale:.3f}, bias {bias:+.3f} ({time.perf_counter() - t0:.0f} s)")  # fmt: skip
     rows = [["city", "predictor", "median |error| [dB]", "p90 |error| [dB]", "dead/live agreement", "calibration error"]]
     diagrams = {}
     cities = args.city or list(VALIDATION)

@@ -74,6 +74,12 @@ class LearnedModel(Contract):
         "training users ((1, 0): uncalibrated)",
     )
     calibration_users: int = Field(default=0, ge=0, description="Training users held out to fit the calibration")
+    calibrated_on: list[str] = Field(
+        default_factory=list,
+        description="city@version of the training-maps packs the calibration was fitted on by `uavrl calibrate-predictor` "
+        "(cities the network was not trained on); empty: fitted on the held-out training users",
+    )
+    made_by: list[str] = Field(default_factory=list, description="The commands that made it, in order")
     reliability: dict[str, list[list[float]]] = Field(
         default_factory=dict,
         description="Per validation city: this tier's reliability diagram of the dead probability, rows [mean p, "
@@ -183,22 +189,35 @@ class LearnedPredictor:
         return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:12]
 
     @torch.no_grad()
-    def predict(self, scene: Scene, users: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(``mu``, ``p_dead``), each ``[U, M]`` float32, as ``PhysicsPredictor.predict``."""
-        users, cells = np.asarray(users, np.int64).reshape(-1, 2), np.asarray(cells, np.int64).reshape(-1, 2)
+    def _chunks(self, scene: Scene, users: np.ndarray, cells: np.ndarray):  # noqa: ANN202 - a generator of tensors
+        """Per chunk of at most ``batch`` users: (its first row, ``mu`` [b, M], the uncalibrated dead logit [b, M])."""
         ny, nx = scene.ground_height_m.shape
         py, px = _padded(ny, nx, self.net.multiple)
         floor = torch.tensor([scene.floor_db], dtype=torch.float32)
-        scale, bias = (float(v) for v in self.model.calibration)
-        mu = np.empty((len(users), len(cells)), np.float32)
-        p_dead = np.empty_like(mu)
         for i in range(0, len(users), self.batch):
             chunk = users[i : i + self.batch]
             x = np.stack([_pad_to(input_planes(scene, self.constants, (int(u[0]), int(u[1]))), py, px) for u in chunk])
             mu_b, logit_b = _outputs(self.net, torch.from_numpy(x), floor.expand(len(chunk)))
-            mu[i : i + len(chunk)] = mu_b[:, cells[:, 0], cells[:, 1]].numpy()
-            p_dead[i : i + len(chunk)] = torch.sigmoid(scale * logit_b[:, cells[:, 0], cells[:, 1]] + bias).numpy()
+            yield i, mu_b[:, cells[:, 0], cells[:, 1]], logit_b[:, cells[:, 0], cells[:, 1]]
+
+    def predict(self, scene: Scene, users: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(``mu``, ``p_dead``), each ``[U, M]`` float32, as ``PhysicsPredictor.predict``."""
+        users, cells = np.asarray(users, np.int64).reshape(-1, 2), np.asarray(cells, np.int64).reshape(-1, 2)
+        scale, bias = (float(v) for v in self.model.calibration)
+        mu = np.empty((len(users), len(cells)), np.float32)
+        p_dead = np.empty_like(mu)
+        for i, mu_b, logit_b in self._chunks(scene, users, cells):
+            mu[i : i + len(mu_b)] = mu_b.numpy()
+            p_dead[i : i + len(mu_b)] = torch.sigmoid(scale * logit_b + bias).numpy()
         return mu, p_dead
+
+    def dead_logits(self, scene: Scene, users: np.ndarray, cells: np.ndarray) -> np.ndarray:
+        """``[U, M]`` float32: the dead-cell logit before the calibration (what Platt scaling is fitted on)."""
+        users, cells = np.asarray(users, np.int64).reshape(-1, 2), np.asarray(cells, np.int64).reshape(-1, 2)
+        out = np.empty((len(users), len(cells)), np.float32)
+        for i, _mu, logit_b in self._chunks(scene, users, cells):
+            out[i : i + len(logit_b)] = logit_b.numpy()
+        return out
 
 
 def load_learned(folder: str | Path) -> LearnedPredictor:
@@ -347,6 +366,23 @@ def fit_calibration(net: MapUNet, examples: list[tuple]) -> tuple[float, float]:
     return platt_scaling(np.concatenate(logits), np.concatenate(lows))
 
 
+def pack_calibration(predictor: LearnedPredictor, maps: list[TrainingMaps]) -> tuple[float, float]:
+    """Platt scaling of ``predictor``'s uncalibrated dead-cell logit fitted on every user of ``maps`` (training-maps
+    packs the network was not trained on), at their legal cells, against the cells dead or at the SINR floor
+    (``rl.predictor.platt_scaling``). Whatever calibration ``predictor`` carries is not used: fitting twice gives the
+    same numbers."""
+    logits, lows = [], []
+    for m in maps:
+        scene = Scene.from_settings(m.settings, m.height_rel_m)
+        cells = np.argwhere(~m.blocked)
+        logits.append(predictor.dead_logits(scene, m.users, cells).astype(np.float64).ravel())
+        sinr, dead = m.sinr_db[:, cells[:, 0], cells[:, 1]], m.dead[:, cells[:, 0], cells[:, 1]]
+        lows.append((dead | (sinr <= scene.floor_db + 1e-3)).ravel())
+    if not logits:
+        raise ValueError("pack_calibration: no map to fit on")
+    return platt_scaling(np.concatenate(logits), np.concatenate(lows))
+
+
 def save_learned(folder: Path, net: MapUNet, model_fields: dict) -> LearnedModel:
     """Write ``weights.pt`` (tensors only) and ``model.json`` into ``folder`` (a fresh folder that the caller
     publishes); returns the description."""
@@ -380,7 +416,8 @@ def model_card(model: LearnedModel, command: str) -> str:
         [
             "# Model card: the map searcher's learned radio-map predictor",
             "",
-            "Written by `uavrl train-predictor` (rl/learned.py); every number below is measured by that command.",
+            "Written by `uavrl train-predictor` and `uavrl calibrate-predictor` (rl/learned.py); every number below is",
+            'measured by the commands under "Made by".',
             "",
             "- **What it predicts**: the SINR map [dB] at the UAV plane of a ground user at a given cell, and the",
             "  probability that each cell is dead or at the SINR floor, from public inputs only (building heights, grid,",
@@ -394,7 +431,13 @@ def model_card(model: LearnedModel, command: str) -> str:
             f"threads; final loss {model.final_loss:.4f}; residual std on the training users' live cells "
             f"{model.error_db:.1f} dB.",
             f"- **Calibration**: the dead-cell logit scaled by {scale:.3f} and shifted by {bias:+.3f} (Platt scaling on "
-            f"the legal cells of {model.calibration_users} training users held out of the gradient steps; 1 and 0: none).",
+            + (
+                f"the legal cells of every user of {len(model.calibrated_on)} training-maps packs the network was not "
+                f"trained on: {', '.join(model.calibrated_on)}; `uavrl calibrate-predictor`)."
+                if model.calibrated_on
+                else f"the legal cells of {model.calibration_users} training users held out of the gradient steps; 1 and "
+                "0: none)."
+            ),
             "- **Weights**: `weights.pt`, tensors only (loaded with `torch.load(weights_only=True)`), sha256 "
             f"`{model.weights_sha256}`.",
             "",
@@ -411,7 +454,7 @@ def model_card(model: LearnedModel, command: str) -> str:
             "## Made by",
             "",
             "```bash",
-            command,
+            *(model.made_by or [command]),
             "```",
             "",
         ]

@@ -23,6 +23,16 @@ training_cities_option = click.option(
 )
 
 
+#: The learned tier's validation cities (``uavrl train-predictor``, ``uavrl calibrate-predictor``).
+learned_validation_option = click.option(
+    "--val-dataset",
+    "val_datasets",
+    multiple=True,
+    help="Validation city whose users' maps score the learned and the physics tier (repeatable): median and p90 "
+    "|error| [dB], dead/live agreement, calibration error, ms per map; in model.json and the card.",
+)
+
+
 def _training_users(datasets: tuple[str, ...], root: Path) -> tuple[list, list]:
     """(bundles, their training users): a city with a declared role gives its train users only, any other all."""
     from uavplace.dataset.bundle import load_bundle
@@ -95,13 +105,7 @@ def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out:
     "ones), or a RadioMapSeer-style city folder (`uavdata export`, dataset/export.py): every user is a training user.",
 )
 @model_options(UNetConfig, "widths")
-@click.option(
-    "--val-dataset",
-    "val_datasets",
-    multiple=True,
-    help="Validation city whose users' maps score both tiers "
-    "(repeatable): median and p90 |error| [dB], dead/live agreement, ms per map; in model.json and the card.",
-)
+@learned_validation_option
 @path_option(
     "--constants",
     folder=False,
@@ -143,7 +147,7 @@ def train_predictor(
     from uavplace.rl.belief import load_constants
     from uavplace.rl.learned import MODEL_CARD, MODEL_JSON, LearnedPredictor, model_card, save_learned, train_learned
     from uavplace.rl.predictor import PhysicsPredictor
-    from uavplace.rl.tiers import SCORE_COLUMNS, score_cells, score_tiers, training_maps
+    from uavplace.rl.tiers import score_tiers, training_maps
 
     if not datasets and not map_folders:
         raise click.UsageError("give training maps: --dataset CITY or --maps FOLDER (or both)")
@@ -167,7 +171,8 @@ def train_predictor(
             log(f"train-predictor: step {done:,}/{steps:,} loss {loss:.4f}", last=done >= steps)
 
         net, facts = train_learned(maps, physics, config, progress=on_progress)
-    fields = {"config": config, "constants": physics, "fitted_on": [f"{m.city}@{m.version}" for m in maps], **facts}
+    fields = {"config": config, "constants": physics, "fitted_on": [f"{m.city}@{m.version}" for m in maps], **facts,
+              "made_by": [command_line()]}  # fmt: skip
     with atomic_directory(out, marker=MODEL_JSON, what="learned predictor") as tmp:
         model = save_learned(tmp, net, fields)
         tiers = {"learned": LearnedPredictor(model, net), "physics": PhysicsPredictor(physics)}
@@ -175,12 +180,7 @@ def train_predictor(
         model = model.model_copy(update={"scores": scores, "reliability": diagrams})
         (tmp / MODEL_JSON).write_text(model.model_dump_json(indent=2) + "\n")
         (tmp / MODEL_CARD).write_text(model_card(model, command_line()))
-    table = plain_table("city", "tier", *SCORE_COLUMNS)
-    for name, row in scores.items():
-        for tier in tiers:
-            table.add_row(name, tier, *score_cells(row, f"{tier}_"))
-    if val_datasets:
-        stdout().print(table)
+    _print_scores(scores, list(tiers))
     scale, bias = facts["calibration"]
     stdout().print(
         f"wrote {out}: trained on {facts['users']} users of {len(maps)} cities in "
@@ -189,3 +189,121 @@ def train_predictor(
         highlight=False,
         soft_wrap=True,
     )
+
+
+@click.command("calibrate-predictor")
+@path_option(
+    "--predictor",
+    folder=True,
+    default=Path("data/agents/searcher/unet"),
+    help="The learned predictor's folder (`uavrl train-predictor` writes it): its weights are kept, its calibration refitted.",
+)
+@click.option(
+    "--maps",
+    "map_folders",
+    multiple=True,
+    required=True,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="A folder of training-maps packs (repeatable; `uavdata pack` writes them, data/trainmaps holds the shipped "
+    "ones) of cities the network was not trained on: the calibration is fitted on every user of each.",
+)
+@click.option(
+    "--packs",
+    default="",
+    help="Only the packs whose city's name starts with this (tt-: the tiered cities, the real crops' kind of geometry; "
+    "docs/searcher.md).",
+)
+@learned_validation_option
+@path_option(
+    "--out",
+    folder=True,
+    default=None,
+    help="Folder to write the calibrated predictor to (replaced whole, or left as it was; default: --predictor itself).",
+)
+@root_option
+def calibrate_predictor(
+    predictor: Path, map_folders: tuple[Path, ...], packs: str, val_datasets: tuple[str, ...], out: Path | None, root: Path
+) -> None:
+    """Refit the dead-cell probability's calibration of a learned predictor (Platt scaling of its uncalibrated dead
+    logit) on training-maps packs its network was not trained on, score it on validation cities' users, and write it
+    with its model card: the same weights, a new calibration, scores and reliability diagrams."""
+    import shutil
+
+    from uavplace.dataset.bundle import load_bundle
+    from uavplace.dataset.trainmaps import list_packs, read_pack
+    from uavplace.infra.console import command_line
+    from uavplace.infra.files import atomic_directory
+    from uavplace.rl.learned import MODEL_CARD, MODEL_JSON, WEIGHTS, LearnedPredictor, load_learned, model_card, pack_calibration
+    from uavplace.rl.predictor import PhysicsPredictor
+    from uavplace.rl.tiers import score_tiers
+
+    folder, out = predictor, predictor if out is None else out
+    learned = load_learned(folder)
+    model = learned.model
+    paths = [p for f in map_folders for p in list_packs(f) if p.stem.startswith(packs)]
+    if not paths:
+        raise click.BadParameter(
+            f"no pack of {', '.join(map(str, map_folders))} is of a city named {packs}*", param_hint="--packs"
+        )
+    maps = [read_pack(p) for p in paths]
+    trained = {entry.rsplit("@", 1)[0] for entry in model.fitted_on}
+    overlap = sorted({m.city for m in maps} & (trained | set(val_datasets)))
+    if overlap:
+        raise click.BadParameter(
+            f"{', '.join(overlap)}: the network was trained on it, or it is a validation city (the calibration "
+            "would be fitted on maps it is scored or trained on)",
+            param_hint="--maps",
+        )
+    t0 = time.perf_counter()
+    scale, bias = pack_calibration(learned, maps)
+    made_by = model.made_by or _card_commands(folder / MODEL_CARD)
+    model = model.model_copy(
+        update={
+            "calibration": (scale, bias),
+            "calibration_users": 0,
+            "calibrated_on": [f"{m.city}@{m.version}" for m in maps],
+            "made_by": [*made_by, command_line()],
+        }
+    )
+    calibrated = LearnedPredictor(model, learned.net)
+    tiers = {"learned": calibrated, "physics": PhysicsPredictor(model.constants)}
+    scores, diagrams = score_tiers([load_bundle(name, root=root) for name in val_datasets], tiers)
+    model = model.model_copy(update={"scores": scores, "reliability": diagrams})  # the old ones scored another calibration
+    with atomic_directory(out, marker=MODEL_JSON, what="learned predictor") as tmp:
+        shutil.copyfile(folder / WEIGHTS, tmp / WEIGHTS)
+        (tmp / MODEL_JSON).write_text(model.model_dump_json(indent=2) + "\n")
+        (tmp / MODEL_CARD).write_text(model_card(model, command_line()))
+    load_learned(out)  # the weights still the ones model.json names
+    _print_scores(scores, list(tiers))
+    users = sum(len(m.users) for m in maps)
+    stdout().print(
+        f"wrote {out}: dead logit calibrated x {scale:.3f} {bias:+.3f} on {users} users of {len(maps)} packs in "
+        f"{time.perf_counter() - t0:.0f} s",
+        highlight=False,
+        soft_wrap=True,
+    )
+
+
+def _card_commands(card: Path) -> list[str]:
+    """The commands of a model card's "Made by" block (a card written before ``made_by`` was recorded), or none."""
+    try:
+        text = card.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError):
+        return []
+    _, found, rest = text.partition("## Made by")
+    if not found or "```bash" not in rest:
+        return []
+    block = rest.split("```bash", 1)[1].split("```", 1)[0]
+    return [line for line in block.strip().splitlines() if line.strip()]
+
+
+def _print_scores(scores: dict[str, dict[str, float]], tiers: list[str]) -> None:
+    """Every tier's scores on every validation city (``rl.tiers.score_tiers``), one row each; nothing without any."""
+    from uavplace.rl.tiers import SCORE_COLUMNS, score_cells
+
+    table = plain_table("city", "tier", *SCORE_COLUMNS)
+    for name, row in scores.items():
+        for tier in tiers:
+            table.add_row(name, tier, *score_cells(row, f"{tier}_"))
+    if scores:
+        stdout().print(table)

@@ -207,6 +207,47 @@ def test_training_holds_out_users_to_calibrate(tiny):
     assert LearnedPredictor(model, net).version() != LearnedPredictor(plain, net).version()
 
 
+def test_calibrate_predictor_fits_platt_scaling_on_packs_it_was_not_trained_on(tiny, tmp_path):
+    """`uavrl calibrate-predictor`: the Platt scaling of the uncalibrated dead logit on every user of the packs (by
+    hand: ``platt_scaling`` of ``dead_logits``), the same weights, a card saying where it was fitted; fitting the
+    calibrated folder again gives the same numbers; a pack of a city the network was trained on is refused and nothing
+    is written."""
+    from uavplace.cli import uavdata
+    from uavplace.dataset.trainmaps import read_pack
+    from uavplace.rl.predictor import platt_scaling
+
+    packs = tmp_path / "packs"
+    assert CliRunner().invoke(uavdata, ["pack", "tiny", "--root", str(tiny), "--out", str(packs)]).exit_code == 0
+    net, folder = _trained_and_saved(load_bundle("tiny", root=tiny), tmp_path / "unet")  # fitted_on names no city
+    out = tmp_path / "calibrated"
+    args = ["calibrate-predictor", "--predictor", str(folder), "--maps", str(packs), "--root", str(tiny)]
+    result = CliRunner().invoke(uavrl, [*args, "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    maps = read_pack(packs / "tiny.npz")
+    scene, cells = Scene.from_settings(maps.settings, maps.height_rel_m), np.argwhere(~maps.blocked)
+    raw = load_learned(folder).dead_logits(scene, maps.users, cells)
+    low = maps.dead[:, cells[:, 0], cells[:, 1]] | (maps.sinr_db[:, cells[:, 0], cells[:, 1]] <= scene.floor_db + 1e-3)
+    expected = platt_scaling(raw.astype(np.float64).ravel(), low.ravel())
+    calibrated = load_learned(out)
+    assert calibrated.model.calibration == pytest.approx(expected, rel=1e-9) and expected != pytest.approx((1.0, 0.0))
+    assert calibrated.model.calibrated_on == [f"tiny@{maps.version}"]
+    assert calibrated.model.weights_sha256 == load_learned(folder).model.weights_sha256
+    scale, bias = expected
+    _, p_dead = calibrated.predict(scene, maps.users, cells)
+    np.testing.assert_allclose(p_dead, 1 / (1 + np.exp(-(scale * raw + bias))), atol=1e-6)
+    card = (out / MODEL_CARD).read_text()
+    assert "uavrl calibrate-predictor" in card and f"tiny@{maps.version}" in card
+    again = CliRunner().invoke(uavrl, [*args[:2], str(out), *args[3:], "--out", str(tmp_path / "again")])
+    assert again.exit_code == 0, again.output
+    assert load_learned(tmp_path / "again").model.calibration == pytest.approx(expected, rel=1e-9)
+    model = json.loads((folder / MODEL_JSON).read_text())
+    (folder / MODEL_JSON).write_text(json.dumps({**model, "fitted_on": [f"tiny@{maps.version}"]}))
+    refused = CliRunner().invoke(uavrl, [*args, "--out", str(tmp_path / "refused")])
+    assert refused.exit_code != 0 and "trained on it" in refused.output and not (tmp_path / "refused").exists()
+    none = CliRunner().invoke(uavrl, [*args, "--packs", "tt-", "--out", str(tmp_path / "none")])
+    assert none.exit_code != 0 and "--packs" in none.output and not (tmp_path / "none").exists()
+
+
 def test_a_training_step_too_large_for_memory_is_refused_before_any_map_is_read(tiny):
     """`--batch 1024` (inside UNetConfig's range) would hold about 4 GB of activations a step: refused by the limit
     predictor_step_bytes before any training map is read, naming --batch."""

@@ -176,6 +176,7 @@ CLI_SWITCHES = {
         "best",
         "peers",
         "match",
+        "packs",
     },
     "where it writes": {"out", "out_root", "out_dir", "out_path", "markdown", "markdown_path", "name"},
     "how it runs": {
