@@ -237,8 +237,8 @@ def calibrate_predictor(
     from uavplace.rl.predictor import PhysicsPredictor
     from uavplace.rl.tiers import score_tiers
 
-    folder, out = predictor, predictor if out is None else out
-    learned = load_learned(folder)
+    out = predictor if out is None else out
+    learned = load_learned(predictor)
     model = learned.model
     paths = [p for f in map_folders for p in list_packs(f) if p.stem.startswith(packs)]
     if not paths:
@@ -256,7 +256,7 @@ def calibrate_predictor(
         )
     t0 = time.perf_counter()
     scale, bias = pack_calibration(learned, maps)
-    made_by = model.made_by or _card_commands(folder / MODEL_CARD)
+    made_by = model.made_by or _card_commands(predictor / MODEL_CARD)
     model = model.model_copy(
         update={
             "calibration": (scale, bias),
@@ -270,7 +270,7 @@ def calibrate_predictor(
     scores, diagrams = score_tiers([load_bundle(name, root=root) for name in val_datasets], tiers)
     model = model.model_copy(update={"scores": scores, "reliability": diagrams})  # the old ones scored another calibration
     with atomic_directory(out, marker=MODEL_JSON, what="learned predictor") as tmp:
-        shutil.copyfile(folder / WEIGHTS, tmp / WEIGHTS)
+        shutil.copyfile(predictor / WEIGHTS, tmp / WEIGHTS)
         (tmp / MODEL_JSON).write_text(model.model_dump_json(indent=2) + "\n")
         (tmp / MODEL_CARD).write_text(model_card(model, command_line()))
     load_learned(out)  # the weights still the ones model.json names

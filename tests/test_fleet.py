@@ -323,7 +323,7 @@ def test_fleet_searchers_makespan_plan_is_the_best_by_brute_force(seed):
         for where in itertools.product(*(np.flatnonzero(np.isfinite(moves[u])) for u in mine)):
             best = max(best, score(dict(zip(mine, where, strict=True)), owner))
     served = {mine: np.prod(cover[list(mine)], axis=0) for mine in user_subsets(users)}
-    plan = policy._makespan_plan(served, users, paths)
+    plan = policy._makespan_plan(served, users, policy._reach(paths))
     assert np.isclose(max(score(plan, o) for o in itertools.product(sorted(plan), repeat=users)), best, rtol=1e-6)
 
 
@@ -349,7 +349,8 @@ def test_fleet_searchers_union_plan_no_uav_can_raise_by_brute_force(seed):
         return float(np.prod(served) * policy.searcher.discount(np.float32(max(moves[u, c] for u, c in plan.items()))))
 
     start = {0: 0, 1: 1}
-    plan = policy._union_plan(cover, [(None, None, m) for m in moves], start)
+    paths = [(None, None, m) for m in moves]
+    plan = policy._union_plan(cover, paths, policy._reach(paths), start)
     assert set(plan) == {0, 1} and all(np.isfinite(moves[u, c]) for u, c in plan.items())
     assert score(plan) >= score(start) * (1 - 1e-6)
     for u in range(uavs):

@@ -12,11 +12,6 @@ from uavplace.rl.tasks.fleet.maps import FleetMaps, assignments, user_subsets
 UNION_ROUNDS = 4
 
 
-def _horizon(paths: list[tuple[np.ndarray, ...]]) -> int:
-    """The most moves to any reachable cell from any UAV of ``paths`` ((discount, predecessors, moves) a UAV)."""
-    return int(max(np.max(moves[np.isfinite(moves)]) for _, _, moves in paths))
-
-
 def _nearest_first(moves: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(the cells nearest first by ``moves`` [M], unreachable (inf) last; for every length ``D`` of ``lengths``, the
     position in that order of the farthest cell within ``D`` moves, -1 where none is): what ``_best_within`` reads,
@@ -124,9 +119,10 @@ class FleetSearcher:
         if kind == "product":
             plan = self._product_plan(served, cfg.users, paths)
         else:
-            plan = self._makespan_plan(served, cfg.users, paths)
+            reach = self._reach(paths)  # what both plans read, sorted once a step
+            plan = self._makespan_plan(served, cfg.users, reach)
             if kind == "union":
-                plan = self._union_plan(cover, paths, {u: plan.get(u, int(cols[u])) for u in range(k)})
+                plan = self._union_plan(cover, paths, reach, {u: plan.get(u, int(cols[u])) for u in range(k)})
         return np.array([self._step(cm, int(cols[u]), plan.get(u, int(cols[u])), paths[u][1], mask[u]) for u in range(k)])
 
     def _with_information(self, cm, cover: np.ndarray, seen: np.ndarray, paths: list, r: int, view: FleetView) -> np.ndarray:  # noqa: ANN001
@@ -161,35 +157,42 @@ class FleetSearcher:
                 best, plan = score, {uav: best_cell[mine, uav][0] for uav, mine in groups}
         return plan
 
-    def _makespan_plan(self, served: dict, users: int, paths: list[tuple[np.ndarray, ...]]) -> dict[int, int]:
-        """``{UAV: its cell}`` of the assignment and the cells of the largest product of the UAVs' probabilities of
-        serving their users times the discount of the longest of their paths: for every length ``D``, each UAV takes
-        its most likely cell within ``D`` moves (the nearest of equals)."""
-        lengths = np.arange(_horizon(paths) + 1)
-        within = {}  # (users, UAV) -> (the best probability within D moves [D], its cell [D])
-        for uav, (_, _, moves) in enumerate(paths):
-            ranked = _nearest_first(moves, lengths)
-            for mine, p in served.items():
-                within[mine, uav] = _best_within(p, ranked)
+    def _reach(self, paths: list[tuple[np.ndarray, ...]]) -> tuple[np.ndarray, np.ndarray, list]:
+        """(the path lengths ``D`` from 0 to the most moves to any reachable cell of any UAV of ``paths``
+        ((discount, predecessors, moves) a UAV), the searcher's discount of each, each UAV's ``_nearest_first``)."""
+        lengths = np.arange(int(max(np.max(moves[np.isfinite(moves)]) for _, _, moves in paths)) + 1)
         discount = self.searcher.discount(lengths.astype(np.float32))
+        return lengths, discount, [_nearest_first(moves, lengths) for _, _, moves in paths]
+
+    @staticmethod
+    def _makespan_plan(served: dict, users: int, reach: tuple[np.ndarray, np.ndarray, list]) -> dict[int, int]:
+        """``{UAV: its cell}`` of the assignment and the cells of the largest product of the UAVs' probabilities of
+        serving their users times the discount of the longest of their paths (``reach``: ``_reach``): for every length
+        ``D``, each UAV takes its most likely cell within ``D`` moves (the nearest of equals)."""
+        _, discount, ranked = reach
+        within = {}  # (users, UAV) -> (the best probability within D moves [D], its cell [D])
+        for uav, nearest in enumerate(ranked):
+            for mine, p in served.items():
+                within[mine, uav] = _best_within(p, nearest)
         best, plan = -1.0, {}
-        for groups in assignments(users, len(paths)):
+        for groups in assignments(users, len(ranked)):
             score = discount * np.prod([within[mine, uav][0] for uav, mine in groups], axis=0)
             d = int(np.argmax(score))
             if score[d] > best:
                 best, plan = float(score[d]), {uav: int(within[mine, uav][1][d]) for uav, mine in groups}
         return plan
 
-    def _union_plan(self, cover: np.ndarray, paths: list[tuple[np.ndarray, ...]], start: dict[int, int]) -> dict[int, int]:
+    @staticmethod
+    def _union_plan(
+        cover: np.ndarray, paths: list[tuple[np.ndarray, ...]], reach: tuple[np.ndarray, np.ndarray, list], start: dict[int, int]
+    ) -> dict[int, int]:
         """``{UAV: its cell}`` for every UAV, from the cells ``start`` (the makespan plan's; a UAV without users at
         its own), by coordinate ascent on the probability that every user is served by some UAV, ``prod_n (1 -
         prod_k (1 - P_n(c_k)))`` (the cells' covers taken as independent), times the discount of the longest path:
         each UAV in turn takes the cell (the nearest of equals) that raises it most with the others' cells held,
-        round the fleet until a round moves no UAV (at most ``UNION_ROUNDS``)."""
-        lengths = np.arange(_horizon(paths) + 1)
-        discount = self.searcher.discount(lengths.astype(np.float32))
+        round the fleet until a round moves no UAV (at most ``UNION_ROUNDS``). ``reach``: ``_reach`` of ``paths``."""
+        lengths, discount, ranked = reach
         moves = [m for _, _, m in paths]
-        ranked = [_nearest_first(m, lengths) for m in moves]
         cells = dict(start)
         miss = np.prod([1.0 - cover[:, c] for c in cells.values()], axis=0)  # [N] no UAV serves the user
         best = float(discount[int(max(moves[u][c] for u, c in cells.items()))] * np.prod(1.0 - miss))
