@@ -229,7 +229,11 @@ class BeliefModel:
             self.cache.save(cache_key, mu, p_dead)
             hit = tuple(a.astype(np.float16).astype(np.float32) for a in (mu, p_dead))  # as stored: cold = warm
         mu, p_dead = hit
-        out = self._canvases[key] = CandidateMaps(cells, legal, index, mu, p_dead, self.cover(mu, p_dead, public.config.p_t_db))
+        cover = self.cover(mu, p_dead, public.config.p_t_db)
+        # a measurement reads one cell of every candidate: held cell by cell (the same values, column-major), that read
+        # is one contiguous row instead of a stride through every candidate's map
+        mu, p_dead = np.asfortranarray(mu), np.asfortranarray(p_dead)
+        out = self._canvases[key] = CandidateMaps(cells, legal, index, mu, p_dead, cover)
         return out
 
     def predict_all(self, scene: Scene, cells: np.ndarray, legal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

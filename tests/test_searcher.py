@@ -3,6 +3,7 @@ episodes named by what they are, and SPL."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -18,6 +19,7 @@ from uavplace.rl.tasks.placement.maps import MapSet
 from uavplace.rl.tasks.placement.policies import RandomWalkPolicy
 from uavplace.rl.tasks.placement.rollout import episode_stats, run_episodes
 from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
+from uavplace.rl.view import PublicMaps
 from uavplace.schemas import InputError
 
 
@@ -117,8 +119,6 @@ def test_belief_is_bayes_by_brute_force(tiny):
     the product over measurements of each candidate's likelihood (censored at the floor), tempered, normalised."""
     maps = MapSet.load("tiny", EnvConfig(t_max=50), root=str(tiny))
     policy = MapSearchPolicy(_constants(), SearchConfig(stride=1, temper=0.7, outlier=0.05))
-    from uavplace.rl.view import PublicMaps
-
     public = PublicMaps.of(maps)
     cm = policy.canvas_maps(public, 0)
     rng = np.random.default_rng(0)
@@ -155,6 +155,49 @@ def test_searcher_finds_users_of_the_tiny_city(tiny):
     assert df["success"].mean() >= 0.9
 
 
+class _CheckedSeen(MapSearchPolicy):
+    """The searcher, checking after every step that the cells it keeps as visited are the env's visited cells."""
+
+    checked = 0
+
+    def act(self, obs, mask, env):  # noqa: ANN001, ANN201 - Policy's
+        actions = super().act(obs, mask, env)
+        p = env.public.pad
+        for r in np.flatnonzero(~env.exhausted & mask.any(axis=1)):
+            legal = self.canvas_maps(env.public, int(env.canvas[r])).legal
+            np.testing.assert_array_equal(self.seen[r], env.visits[r, legal[:, 0] + p, legal[:, 1] + p] > 0)
+            self.checked += 1
+        return actions
+
+
+def test_searcher_keeps_the_visited_cells_of_every_row(tiny):
+    """The searcher adds the cell a step stands in to its row's visited cells instead of reading the whole visit map
+    again: the same cells as the env's at every step, through episodes that end and rows that start again."""
+    maps = MapSet.load("tiny", EnvConfig(t_max=60), root=str(tiny))
+    for buildings in (True, False):
+        policy = _CheckedSeen(_constants(), SearchConfig(buildings=buildings))
+        run_episodes(maps, policy, maps.episode_list(40, 5), num_envs=5)
+        assert policy.checked > 80
+
+
+def test_a_measurement_reads_the_same_numbers_from_column_major_maps(tiny):
+    """The belief update reads a cell of every candidate's predicted map: held column-major (``canvas_maps``) or
+    row-major, the same posterior to the bit."""
+    maps = MapSet.load("tiny", EnvConfig(t_max=60), root=str(tiny))
+    policy = MapSearchPolicy(_constants())
+    cm = policy.canvas_maps(PublicMaps.of(maps), 0)
+    assert cm.mu.flags.f_contiguous and cm.p_dead.flags.f_contiguous and cm.cover.flags.c_contiguous
+    rows = dataclasses.replace(cm, mu=np.ascontiguousarray(cm.mu), p_dead=np.ascontiguousarray(cm.p_dead))
+    rng = np.random.default_rng(0)
+    log_b = rng.normal(size=(6, len(cm.cells))).astype(np.float32)
+    at = rng.integers(0, len(cm.legal), 6)
+    measured = np.array([-200.0, -3.0, 0.5, 7.0, 12.0, 30.0])
+    for floor_db in (-10.0, 5.0):
+        np.testing.assert_array_equal(
+            policy.update_rows(cm, log_b, at, measured, floor_db), policy.update_rows(rows, log_b, at, measured, floor_db)
+        )
+
+
 def test_episode_lists_are_prefixes_and_episodes_play_alike_anywhere(tiny):
     maps = MapSet.load("tiny", EnvConfig(t_max=40), root=str(tiny))
     long, short = maps.episode_list(30, 3), maps.episode_list(10, 3)
@@ -185,7 +228,6 @@ def test_bad_predictor_file_is_refused(tmp_path):
 
 def test_predicted_maps_are_bounded_by_the_limits(tiny, monkeypatch):
     from uavplace.infra import limits
-    from uavplace.rl.view import PublicMaps
 
     monkeypatch.setenv(limits.ENV, "prediction_bytes=1000")
     monkeypatch.setattr(limits, "_current", None)
@@ -200,7 +242,6 @@ def test_belief_channel_is_the_searchers_belief_turned_with_the_map(tiny):
     from uavplace.rl.belief import BeliefTracker, PredictionCache
     from uavplace.rl.predictor import PhysicsPredictor
     from uavplace.rl.tasks.placement.maps import transform
-    from uavplace.rl.view import PublicMaps
 
     maps = MapSet.load("tiny", EnvConfig(t_max=50, rotate=True, symmetries=4), root=str(tiny))
     policy = MapSearchPolicy(_constants())

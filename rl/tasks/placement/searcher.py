@@ -47,6 +47,7 @@ class MapSearchPolicy(BeliefModel):
         self._graphs: dict[tuple, sparse.csr_matrix] = {}
         self._paths: OrderedDict[tuple, tuple[np.ndarray, np.ndarray]] = OrderedDict()
         self.belief: list[np.ndarray | None] = []
+        self.seen: list[np.ndarray | None] = []  # per row, the legal cells visited so far (with its belief)
         self.belief_canvas = np.zeros(0, np.int64)
         self.started = np.zeros(0, bool)
 
@@ -98,10 +99,10 @@ class MapSearchPolicy(BeliefModel):
     # -- the policy --------------------------------------------------------------------------------
     def reset(self, rows: np.ndarray, num_envs: int) -> None:
         if len(self.belief) != num_envs:
-            self.belief = [None] * num_envs
+            self.belief, self.seen = [None] * num_envs, [None] * num_envs
             self.belief_canvas = np.full(num_envs, -1, np.int64)
         for r in np.asarray(rows, np.int64):
-            self.belief[r] = None
+            self.belief[r] = self.seen[r] = None
 
     def prior(self, maps: CandidateMaps, row: int) -> np.ndarray:
         """``[C]`` the log-belief of row ``row`` before its first measurement: uniform over the candidates (an oracle
@@ -129,12 +130,14 @@ class MapSearchPolicy(BeliefModel):
             by_canvas.setdefault(c, []).append(r)
             if self.belief[r] is not None and t[r] > 0 and self.belief_canvas[r] == c:
                 going_on.setdefault(c, []).append(r)
+                self.seen[r][here[r]] = True  # a step visits one cell: the one it stands in
                 continue
             floor_db = float(public.settings[public.bundle_of(c)]["floor_db"])
             log_b = self.prior(maps, r)
             for y, x in np.argwhere(visits[r] > 0):  # every cell measured so far (at t = 0 the start), as memory holds it
                 log_b = self.update(maps, log_b, int(maps.index[y - p, x - p]), float(env.memory[r, y, x]), floor_db)
             self.belief_canvas[r], self.belief[r] = c, log_b
+            self.seen[r] = visits[r, maps.legal[:, 0] + p, maps.legal[:, 1] + p] > 0
         for c, rows in going_on.items():  # the same numbers as row by row (``update_rows``)
             floor_db = float(public.settings[public.bundle_of(c)]["floor_db"])
             log_b = np.stack([self.belief[r] for r in rows])
@@ -147,7 +150,7 @@ class MapSearchPolicy(BeliefModel):
             floor_db = float(public.settings[public.bundle_of(c)]["floor_db"])
             p_t = public.config.p_t_db
             for i, r in enumerate(rows):
-                seen = visits[r, maps.legal[:, 0] + p, maps.legal[:, 1] + p] > 0
+                seen = self.seen[r]
                 score = scores[i]
                 if self.config.planner == "info":
                     score = self.with_information(public, c, maps, int(here[r]), score, self.belief[r], seen, floor_db, p_t)
