@@ -7,6 +7,9 @@
 # About 90 minutes on the 2-core machine alone (fine radio maps at 1.6e7 rays per user, then the direct paths).
 #
 #     bash experiments/embedded_data.sh [OUT]
+#
+# To replace committed cities with a re-trace that records provenance: trace into runs/retrace, then
+#     python experiments/retrace_compare.py --city test --install   # what moved, then the swap
 set -euo pipefail
 out=${1:-data/raw}
 traces=${TRACES:-runs/traces}
