@@ -111,7 +111,8 @@ def main() -> None:
             continue
         codes, why = side_file(folder, args.traces, args.tol_db, args.max_share)
         if codes is not None and not args.dry_run:
-            write_provenance(folder, folder.name, GRID_SET[0], codes)
+            p2m = [p for p in folder.iterdir() if p.name.lower().endswith((".p2m", ".p2m.gz"))]
+            write_provenance(folder, folder.name, GRID_SET[0], codes, p2m)  # the sha256 of the export it describes
         print(f"{folder.name}: {why}", flush=True)
 
 
