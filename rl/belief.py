@@ -58,7 +58,8 @@ class CandidateMaps:
     """One canvas's predictions: ``cells`` [C, 2] candidate cells ``(iy, ix)`` of the (transformed) map, ``legal``
     [M, 2] the map cells the UAV may enter, ``index`` [num_y, num_x] a legal cell's column (-1 elsewhere), ``mu``
     [C, M] float32 predicted SINR [dB], ``p_dead`` [C, M] float32, ``cover`` [C, M] float32 the probability of
-    reaching P_T."""
+    reaching P_T (``canvas_maps`` holds ``mu`` and ``p_dead`` column-major, ``cover`` row-major: the order each is
+    read in)."""
 
     cells: np.ndarray
     legal: np.ndarray
