@@ -180,6 +180,28 @@ def test_searcher_keeps_the_visited_cells_of_every_row(tiny):
         assert policy.checked > 80
 
 
+def test_paths_fetched_together_are_the_paths_one_at_a_time(tiny):
+    """A step's missing shortest paths are searched in one call (``prefetch_paths``): the same discounts,
+    predecessors and moves as a search from one cell."""
+    from scipy.sparse.csgraph import shortest_path
+
+    maps = MapSet.load("tiny", EnvConfig(t_max=60), root=str(tiny))
+    public = PublicMaps.of(maps)
+    policy = MapSearchPolicy(_constants())
+    cm = policy.canvas_maps(public, 0)
+    cells = np.random.default_rng(1).choice(len(cm.legal), 12, replace=False)
+    policy.prefetch_paths(public, 0, cm, np.concatenate([cells, cells[:3]]))  # repeats fetched once
+    assert len(policy._paths) == 12
+    graph = policy._graph(public, 0, cm)
+    for c in cells:
+        d, pred = shortest_path(graph, unweighted=True, indices=int(c), return_predecessors=True)
+        d = d.astype(np.float32)
+        alone = (np.where(np.isfinite(d), policy.discount(d), np.float32(-1.0)), pred.astype(np.int32), d)
+        for a, b in zip(alone, policy.paths_from(public, 0, cm, int(c)), strict=True):
+            assert a.dtype == b.dtype
+            np.testing.assert_array_equal(a, b)
+
+
 def test_a_measurement_reads_the_same_numbers_from_column_major_maps(tiny):
     """The belief update reads a cell of every candidate's predicted map: held column-major (``canvas_maps``) or
     row-major, the same posterior to the bit."""

@@ -84,17 +84,29 @@ class MapSearchPolicy(BeliefModel):
         cell's discount by its fewest moves (``SearchConfig.discount``; -1 where unreachable, where the moves are inf);
         kept for the most recent 4096 cells."""
         key = (canvas, cell, public.settings[public.bundle_of(canvas)]["version"])
-        hit = self._paths.get(key)
-        if hit is not None:
-            self._paths.move_to_end(key)
-            return hit
-        d, pred = shortest_path(self._graph(public, canvas, maps), unweighted=True, indices=cell, return_predecessors=True)
-        d = d.astype(np.float32)
-        hit = (np.where(np.isfinite(d), self.discount(d), np.float32(-1.0)), pred.astype(np.int32), d)
-        self._paths[key] = hit
-        if len(self._paths) > 4096:
+        if key not in self._paths:
+            self.prefetch_paths(public, canvas, maps, np.array([cell]))
+        self._paths.move_to_end(key)
+        return self._paths[key]
+
+    def prefetch_paths(self, public: PublicMaps, canvas: int, maps: CandidateMaps, cells: np.ndarray) -> None:
+        """``paths_from`` of each legal cell of ``cells`` not held yet, in one call of the shortest-path search (the
+        same paths as one cell a call, the graph checked once)."""
+        version = public.settings[public.bundle_of(canvas)]["version"]
+        missing = [c for c in dict.fromkeys(int(c) for c in cells) if (canvas, c, version) not in self._paths]
+        if not missing:
+            return
+        graph = self._graph(public, canvas, maps)
+        moves, preds = shortest_path(graph, unweighted=True, indices=missing, return_predecessors=True)
+        for cell, d, pred in zip(missing, moves.astype(np.float32), preds, strict=True):
+            d = d.copy()  # a row of its own: an entry keeps no other cell's arrays alive
+            self._paths[canvas, cell, version] = (
+                np.where(np.isfinite(d), self.discount(d), np.float32(-1.0)),
+                pred.astype(np.int32),
+                d,
+            )
+        while len(self._paths) > 4096:
             self._paths.popitem(last=False)
-        return hit
 
     # -- the policy --------------------------------------------------------------------------------
     def reset(self, rows: np.ndarray, num_envs: int) -> None:
@@ -146,6 +158,7 @@ class MapSearchPolicy(BeliefModel):
                 self.belief[r] = row
         for c, rows in by_canvas.items():  # the plans, a canvas's rows in one product
             maps = self.canvas_maps(public, c)
+            self.prefetch_paths(public, c, maps, here[rows])
             scores = posterior_cover(np.stack([self.belief[r] for r in rows]), maps.cover)
             floor_db = float(public.settings[public.bundle_of(c)]["floor_db"])
             p_t = public.config.p_t_db
