@@ -107,7 +107,7 @@ def simulate(
             f"{call.name}: already done with the same settings in {out_root / call.name}", highlight=False, soft_wrap=True
         )
     else:
-        _simulate_one(specs[0], rt, out_root, ray_address, cpus_per_city, quiet, trace_cache)
+        _simulate_one(specs[0], city_config(rt, specs[0]), out_root, ray_address, cpus_per_city, quiet, trace_cache)
 
 
 def _simulate_one(

@@ -447,6 +447,10 @@ def test_a_corpus_runs_on_local_ray_and_resumes(tmp_path):
     assert records[0]["spec"]["source"] == "procedural:mixed:96x96" and "procedural style" in records[0]["geometry"]
     res = _simulate(tmp_path, *args)
     assert "simulated 0 of 2 cities" in res.stdout and "2 already done with the same settings: c-000, c-001" in res.stdout
+    # the last city alone (--first 1: one city left, traced in this process) takes the ray seed the corpus gave it
+    _simulate(tmp_path / "alone", *args, "--first", "1")
+    alone = json.loads((tmp_path / "alone" / "raw" / "c-001" / "simulation.json").read_text())
+    assert (alone["spec"]["seed"], alone["raytrace"]["seed"]) == (11, 11)
 
 
 def test_a_corpus_continued_from_an_index_names_and_seeds_its_cities_as_the_whole_corpus_does():
