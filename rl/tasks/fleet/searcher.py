@@ -83,6 +83,7 @@ class FleetSearcher:
         e, k = mask.shape[:2]
         out = np.full((e, k), STAY, np.int64)
         by_canvas: dict[int, list[int]] = {}
+        uav_cells: dict[int, list[np.ndarray]] = {}  # per canvas, its rows' UAVs' cells: their paths fetched at once
         for r in np.flatnonzero(~view.done):  # the beliefs of the rows still playing, row by row
             canvas = self.symmetries * int(view.city[r])
             cm = self.searcher.canvas_maps(public, canvas)
@@ -97,8 +98,10 @@ class FleetSearcher:
                     value = float(view.memory[r, n, y[uav], x[uav]])
                     self.log_b[r][n] = self.searcher.update(cm, self.log_b[r][n], int(cols[uav]), value, floor_db)
             by_canvas.setdefault(canvas, []).append(r)
+            uav_cells.setdefault(canvas, []).append(cols)
         for canvas, rows in by_canvas.items():  # the plans: a city's rows' users in one matrix product
             cm = self.searcher.canvas_maps(public, canvas)
+            self.searcher.prefetch_paths(public, canvas, cm, np.concatenate(uav_cells[canvas]))
             covers = shared_posterior_cover(np.concatenate([np.stack(self.log_b[r]) for r in rows]), cm.cover)
             for i, r in enumerate(rows):
                 out[r] = self._plan(cm, canvas, covers[i * cfg.users : (i + 1) * cfg.users], view, r, mask[r])
