@@ -22,7 +22,7 @@ from unittest import mock
 import numpy as np
 
 from uavplace.dataset.bundle import load_bundle
-from uavplace.eval.evaluate import ReportConfig, load_agent, report_env
+from uavplace.eval.evaluate import ReportConfig, agent_env, load_agent, report_env
 from uavplace.rl.tasks.placement import rollout
 from uavplace.rl.tasks.placement.env import BatchedEnv
 from uavplace.rl.tasks.placement.maps import MapSet
@@ -63,7 +63,7 @@ def main() -> None:
         episodes = MapSet([bundle], report_env(config)).episode_list(config.episodes, config.seed)
         for shown in (True, False):
             agent = load_agent(args.agent, config.test_epsilon, config.seed)
-            env = agent.config.env_config(evaluation=True).model_copy(update={"t_max": config.t_max, "p_t_db": config.p_t_db})
+            env = agent_env(config, agent)
             if not env.belief_channel:
                 ap.error(f"{args.agent} has no belief channel")
             maps = MapSet([bundle], env)

@@ -35,18 +35,21 @@ METHODS = ("searcher", "searcher-blank", "hybrid", "hybrid-blank")
 
 
 def play(city: str, method: str, episodes: int, out: Path) -> None:
-    """One child: ``method`` on ``city``'s report episodes with whatever ``uavplace`` imports; prints its seconds."""
+    """One child: ``method`` on ``city``'s report episodes with whatever ``uavplace`` imports; prints its seconds.
+    It runs with an earlier commit's code too, so it reads only what those have (not ``evaluate.agent_env``)."""
     from uavplace.dataset.bundle import load_bundle
-    from uavplace.eval.evaluate import ReportConfig, baseline_policies, load_agent, report_env
+    from uavplace.eval.evaluate import NO_BUILDINGS, ReportConfig, baseline_policies, load_agent, report_env
     from uavplace.rl.tasks.placement import rollout
     from uavplace.rl.tasks.placement.maps import MapSet
+    from uavplace.rl.tasks.placement.searcher import SEARCHER
 
     bundle = load_bundle(city, root=str(REPO / "data" / "processed"))
     config = ReportConfig(dataset=city, episodes=episodes)
     env = report_env(config)
     chosen = MapSet([bundle], env).episode_list(config.episodes, config.seed)
     if method.startswith("searcher"):
-        policy = baseline_policies(config, env, REPO / "data" / "processed" / ".predictions")[3 if method == "searcher" else 4]
+        policies = {p.name: p for p in baseline_policies(config, env, REPO / "data" / "processed" / ".predictions")}
+        policy = policies[SEARCHER if method == "searcher" else SEARCHER + NO_BUILDINGS]
     else:
         agent = load_agent(str(REPO / "data" / "agents" / "hybrid"), config.test_epsilon, config.seed)
         policy = agent.policy

@@ -180,9 +180,7 @@ def evaluate(
     record = np.arange(len(episodes)) if config.trajectories else None  # the rule picks among all episodes
     methods: list[tuple[str, Policy, MapSet]] = []
     for a in agents:
-        env = a.config.env_config(evaluation=True).model_copy(
-            update={"t_max": config.t_max, "p_t_db": config.p_t_db, "split": config.split}
-        )
+        env = agent_env(config, a)
         key = env.model_dump_json()
         if key not in maps:
             maps[key] = MapSet([bundle], env)
@@ -232,6 +230,13 @@ def default_baselines(config: ReportConfig, bundle: Bundle) -> list[Policy]:
     ``config.prediction_cache``)."""
     cache = config.prediction_cache or bundle.path.parent.parent / PREDICTIONS
     return baseline_policies(config, report_env(config), cache=cache)
+
+
+def agent_env(config: ReportConfig, agent: Agent) -> EnvConfig:
+    """The env the report plays ``agent`` in: its own evaluation env at the report's horizon, P_T and split."""
+    return agent.config.env_config(evaluation=True).model_copy(
+        update={"t_max": config.t_max, "p_t_db": config.p_t_db, "split": config.split}
+    )
 
 
 def report_env(config: ReportConfig) -> EnvConfig:
