@@ -44,13 +44,17 @@ from uavplace.simulate.pipeline import (
 from uavplace.simulate.raytrace import config_of_record, fill
 
 
+def receiver_power(path: Path) -> np.ndarray:
+    """Received power [dBm] of every receiver of one power file (NaN where unreached)."""
+    return read_p2m(path)[1].column("power_dbm").to_numpy(zero_copy_only=False).astype(float)
+
+
 def committed_power(folder: Path, spec: SimulationSpec, sources: int, users: int) -> np.ndarray:
     """The committed export's received power [sources, cells] (dBm; NaN where unreached)."""
     out = []
     for s in range(sources):
         (tx_set, _), point = transmitter_of(s, users)
-        _, table = read_p2m(folder / f"{spec.name}.power.t{point:03d}_{tx_set:02d}.r{GRID_SET[0]:03d}.p2m.gz")
-        out.append(table.column("power_dbm").to_numpy(zero_copy_only=False).astype(float))
+        out.append(receiver_power(folder / f"{spec.name}.power.t{point:03d}_{tx_set:02d}.r{GRID_SET[0]:03d}.p2m.gz"))
     return np.stack(out)
 
 

@@ -21,17 +21,12 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+from embedded_provenance import receiver_power
 
-from uavplace.ingest.wireless_insite.p2m import read_p2m
 from uavplace.schemas.provenance import SIDE_FILE_SUFFIX
 from uavplace.simulate.pipeline import PROVENANCE
 
 SAME_FILES = (".city", ".txrx", ".setup")
-
-
-def power(path: Path) -> np.ndarray:
-    """Received power [dBm] of every receiver of one power file (NaN where unreached)."""
-    return read_p2m(path)[1].column("power_dbm").to_numpy(zero_copy_only=False).astype(float)
 
 
 def compare(committed: Path, again: Path, tol_db: float) -> dict:
@@ -47,7 +42,7 @@ def compare(committed: Path, again: Path, tol_db: float) -> dict:
         raise SystemExit(f"{again}: not the same power files as {committed}")
     out = {"receivers": 0, "differ": 0, "beyond_tol": 0, "beyond_1db": 0, "dead_to_live": 0, "live_to_dead": 0, "max_db": 0.0}
     for f in files:
-        a, b = power(committed / f), power(again / f)
+        a, b = receiver_power(committed / f), receiver_power(again / f)
         out["receivers"] += len(a)
         out["dead_to_live"] += int((np.isnan(a) & ~np.isnan(b)).sum())
         out["live_to_dead"] += int((~np.isnan(a) & np.isnan(b)).sum())
