@@ -303,7 +303,7 @@ class _ReceiverReader:
             if known is None:
                 raise InputError(
                     self.codes_source,
-                    f"no runs for transmitter {key[1]} of set {key[0]} and receiver set "
+                    f"no rows for transmitter {key[1]} of set {key[0]} and receiver set "
                     f"{key[2]} ({source} has {table.num_rows} receivers)",
                     field="tx_point",
                 )
@@ -312,9 +312,9 @@ class _ReceiverReader:
             if off.any():
                 raise InputError(
                     self.codes_source,
-                    f"runs of transmitter {key[1]} of set {key[0]} and receiver set {key[2]} "
+                    f"the rows of transmitter {key[1]} of set {key[0]} and receiver set {key[2]} "
                     f"describe receivers 1..{len(known)}, {source} has receiver {index[np.argmax(off)] + 1}",
-                    field="count",
+                    field="codes",
                 )
             codes = known[index]
             live = ~np.equal(reached, False) if reached is not None else np.ones(len(codes), bool)
@@ -333,16 +333,16 @@ class _ReceiverReader:
         return table.append_column("provenance", pa.array(codes, pa.uint8()))
 
     def check_codes_used(self) -> None:
-        """Every run of the side file described a receiver of the export: none left over."""
+        """Every row of the side file described receivers of the export: none left over."""
         if self.codes is None:
             return
         for key, known in self.codes.items():
             if self.seen.get(key, 0) != len(known):
                 raise InputError(
                     self.codes_source,
-                    f"runs of transmitter {key[1]} of set {key[0]} and receiver set {key[2]} "
+                    f"the rows of transmitter {key[1]} of set {key[0]} and receiver set {key[2]} "
                     f"describe {len(known)} receivers, the export has {self.seen.get(key, 0)}",
-                    field="count",
+                    field="codes",
                 )
 
     def _open(self, f: Classified) -> tuple[P2MStream, TxRxSet | None]:

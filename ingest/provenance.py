@@ -1,9 +1,10 @@
 """``<city>.provenance.csv.gz``: where each receiver's value came from (``schemas.provenance``), beside an export.
 
-The side file ``uavdata simulate`` writes: comment lines (``#``), the header ``PROVENANCE_COLUMNS``, then runs of
-consecutive receivers of one transmitter and receiver set that share a code. Refused, with the file, line and field,
-unless every field is an integer, every code a receiver's code, and the runs of each transmitter and receiver set
-follow each other from receiver 1 with no gap or overlap. ``ingest_city`` then checks that the runs cover exactly
+The side file ``uavdata simulate`` writes: comment lines (``#``), the header ``PROVENANCE_COLUMNS``, then rows of the
+codes of consecutive receivers of one transmitter and receiver set, a digit each (or, in a file of an earlier version,
+``RUN_COLUMNS``: runs of receivers that share a code). Refused, with the file, line and field, unless every field is
+an integer (the codes a string of digits), every code a receiver's code, and the rows of each transmitter and receiver
+set follow each other from receiver 1 with no gap or overlap. ``ingest_city`` then checks that the runs cover exactly
 the receivers of the .p2m files and that a receiver is "unreached" exactly where its file says no path reached it.
 Without the side file, ``default_code`` says what an export's reached receivers are.
 """
@@ -24,15 +25,18 @@ from uavplace.infra.limits import check_limit
 from uavplace.ingest.routes import csv_rows
 from uavplace.schemas import InputError
 from uavplace.schemas.provenance import (
+    CODES_PER_ROW,
     EXACT_PATHS,
     NOT_RECORDED,
     PROVENANCE_COLUMNS,
     RAY_TRACED,
     RECEIVER_CODES,
+    RUN_COLUMNS,
     code_name,
 )
 
-#: The longest line a side file may hold [characters]: a run is six integers.
+#: The longest line a side file may hold [characters]: four integers and ``CODES_PER_ROW`` digits, or a run's six
+#: integers.
 MAX_LINE = 4096
 #: Bytes of text a side file may hold per receiver it describes, and for its comments.
 BYTES_PER_RECEIVER, COMMENT_BYTES = 64, 1 << 16
@@ -52,7 +56,7 @@ def _lines(path: Path, source: str, max_bytes: float):
                 if size > max_bytes:
                     raise InputError(
                         source,
-                        f"over {max_bytes:,.0f} characters of text: more than runs of the export's receivers take",
+                        f"over {max_bytes:,.0f} characters of text: more than the codes of the export's receivers take",
                         field="row",
                     )
                 check_limit("export_bytes", size, source, "size of the (decompressed) text [bytes]")
@@ -92,68 +96,81 @@ def recorded_export(path: Path, source: str) -> str | None:
 
 def read_provenance(path: Path, source: str, receivers: int | None = None) -> dict[tuple[int, int, int], np.ndarray]:
     """The codes of a side file: ``{(tx_set, tx_point, rx_set): codes [N] of receivers 1..N}`` (uint8); ``InputError``
-    naming the file, line and field of the first problem. ``receivers``: how many the export holds (its receiver
-    sets times its transmitters, when known): the text may hold ``BYTES_PER_RECEIVER`` for each and
-    ``COMMENT_BYTES`` more, and is read as a stream."""
+    naming the file, line and field of the first problem. Its rows are the codes of consecutive receivers, a digit
+    each (``PROVENANCE_COLUMNS``), or, in a file of an earlier version, runs of receivers that share a code
+    (``RUN_COLUMNS``): the header says which. ``receivers``: how many the export holds (its receiver sets times its
+    transmitters, when known): the text may hold ``BYTES_PER_RECEIVER`` for each and ``COMMENT_BYTES`` more, and is
+    read as a stream."""
     bound = float("inf") if receivers is None else BYTES_PER_RECEIVER * receivers + COMMENT_BYTES
     reader = csv.reader(_lines(path, source, bound))
-    runs: dict[tuple[int, int, int], list[tuple[int, int]]] = {}
+    parts: dict[tuple[int, int, int], list[np.ndarray]] = {}
     ends: dict[tuple[int, int, int], int] = {}
-    header_seen = False
+    columns: tuple[str, ...] | None = None
     total = 0
     for row in csv_rows(reader, source):
         line = reader.line_num
         if not row or all(not c.strip() for c in row) or row[0].lstrip().startswith("#"):
             continue
-        if not header_seen:
-            if tuple(c.strip() for c in row) != PROVENANCE_COLUMNS:
+        if columns is None:
+            columns = tuple(c.strip() for c in row)
+            if columns not in (PROVENANCE_COLUMNS, RUN_COLUMNS):
                 raise InputError(source, f"header {row}: expected {', '.join(PROVENANCE_COLUMNS)}", line=line, field="header")
-            header_seen = True
             continue
-        if len(row) != len(PROVENANCE_COLUMNS):
-            raise InputError(source, f"{len(row)} fields, expected {len(PROVENANCE_COLUMNS)}", line=line, field="row")
-        values = {}
-        for name, cell in zip(PROVENANCE_COLUMNS, row, strict=True):
+        if len(row) != len(columns):
+            raise InputError(source, f"{len(row)} fields, expected {len(columns)}", line=line, field="row")
+        values = dict(zip(columns, row, strict=True))
+        for name in (c for c in columns if c != "codes"):
             try:
-                values[name] = int(cell)
+                values[name] = int(values[name])
             except ValueError:
-                raise InputError(source, f"{cell!r} is not an integer", line=line, field=name) from None
-        for name in ("tx_set", "tx_point", "rx_set", "first_rx", "count"):
-            if values[name] < (0 if name.endswith("_set") else 1):
-                raise InputError(
-                    source,
-                    f"{values[name]} is not a {'set id' if name.endswith('_set') else 'count'} "
-                    f"(at least {0 if name.endswith('_set') else 1})",
-                    line=line,
-                    field=name,
-                )
-        if values["code"] not in RECEIVER_CODES:
-            raise InputError(
-                source,
-                f"{values['code']} is not a receiver's code (" + ", ".join(f"{c} {code_name(c)}" for c in RECEIVER_CODES) + ")",
-                line=line,
-                field="code",
-            )
+                raise InputError(source, f"{values[name]!r} is not an integer", line=line, field=name) from None
+            least = 0 if name.endswith("_set") else 1
+            if name != "code" and values[name] < least:
+                kind = "set id" if name.endswith("_set") else "count"
+                raise InputError(source, f"{values[name]} is not a {kind} (at least {least})", line=line, field=name)
+        codes = _row_codes(values, source, line)
         key = (values["tx_set"], values["tx_point"], values["rx_set"])
         expected = ends.get(key, 0) + 1
         if values["first_rx"] != expected:
             raise InputError(
                 source,
-                f"run starts at receiver {values['first_rx']}; the runs of transmitter {key[1]} of set "
+                f"row starts at receiver {values['first_rx']}; the rows of transmitter {key[1]} of set "
                 f"{key[0]} and receiver set {key[2]} reach {expected - 1}: they must follow each other from "
                 "1, with no gap or overlap",
                 line=line,
                 field="first_rx",
             )
-        total += values["count"]
-        check_limit("export_bytes", total, source, "receivers the runs describe", line=line, field="count")
-        runs.setdefault(key, []).append((values["count"], values["code"]))
-        ends[key] = values["first_rx"] + values["count"] - 1
-    if not header_seen:
+        total += len(codes)
+        check_limit("export_bytes", total, source, "receivers the rows describe", line=line, field=columns[-1])
+        parts.setdefault(key, []).append(codes)
+        ends[key] = values["first_rx"] + len(codes) - 1
+    if columns is None:
         raise InputError(source, f"no header line ({', '.join(PROVENANCE_COLUMNS)})", field="header")
-    return {
-        key: np.repeat(np.array([c for _, c in r], np.uint8), np.array([n for n, _ in r], np.int64)) for key, r in runs.items()
-    }
+    return {key: np.concatenate(p) for key, p in parts.items()}
+
+
+def _not_a_code(code: int) -> str:
+    return f"{code} is not a receiver's code (" + ", ".join(f"{c} {code_name(c)}" for c in RECEIVER_CODES) + ")"
+
+
+def _row_codes(values: dict, source: str, line: int) -> np.ndarray:
+    """The codes a checked row gives, uint8: its digits, or its run (``RUN_COLUMNS``)."""
+    if "codes" not in values:
+        if values["code"] not in RECEIVER_CODES:
+            raise InputError(source, _not_a_code(values["code"]), line=line, field="code")
+        return np.full(values["count"], values["code"], np.uint8)
+    text = values["codes"].strip()
+    if not text:
+        raise InputError(source, "no code: a row holds the codes of one receiver or more", line=line, field="codes")
+    if len(text) > CODES_PER_ROW:
+        raise InputError(source, f"{len(text)} codes, more than a row holds ({CODES_PER_ROW})", line=line, field="codes")
+    codes = np.frombuffer(text.encode("ascii", "replace"), np.uint8) - np.uint8(ord("0"))
+    bad = np.flatnonzero(~np.isin(codes, RECEIVER_CODES))
+    if len(bad):
+        i = int(bad[0])
+        what = _not_a_code(int(codes[i])) if text[i].isdigit() else f"{text[i]!r} is not a code (a digit)"
+        raise InputError(source, f"receiver {values['first_rx'] + i}: {what}", line=line, field="codes")
+    return codes
 
 
 def default_code(provenance_json: Path | None, source: str | None = None) -> int:

@@ -3,7 +3,8 @@
 A map's value at a cell is measured (a ray tracer's paths reached it) or estimated (a fill made it up from its
 neighbours), and a user must be able to tell which. ``uavdata simulate`` records the code of every receiver and
 transmitter in a side file beside its InSite-shaped export (``<city>.provenance.csv.gz``, ``PROVENANCE_COLUMNS``:
-one row a run of consecutive receivers that share a code; InSite-compatible readers do not read it), ingest keeps it
+one row the codes of up to ``CODES_PER_ROW`` consecutive receivers, a digit each; ``RUN_COLUMNS``, runs of receivers
+that share a code, is the form earlier versions wrote, still read; InSite-compatible readers read neither), ingest keeps it
 as the ``provenance`` column of the receivers table, and a bundle carries it per user and cell (``maps.npz``,
 ``provenance``), checked against the bundle's ``dead`` and ``num_rx`` when it is loaded.
 
@@ -60,9 +61,14 @@ TRUST = (EXACT_PATHS, RAY_TRACED, STRAIGHT_PATH, NOT_RECORDED, COARSE_MAP, WALKE
 
 #: The side file beside a simulated export: ``<city>`` + this suffix (gzip-compressed CSV).
 SIDE_FILE_SUFFIX = ".provenance.csv.gz"
-#: Its header, in order: a run of ``count`` receivers ``first_rx``, ``first_rx + 1``, ... of receiver set ``rx_set``
-#: (numbered as in the .p2m files) of transmitter ``tx_point`` of set ``tx_set``, all of them with ``code``.
-PROVENANCE_COLUMNS = ("tx_set", "tx_point", "rx_set", "first_rx", "count", "code")
+#: Its header, in order: the codes of receivers ``first_rx``, ``first_rx + 1``, ... of receiver set ``rx_set``
+#: (numbered as in the .p2m files) of transmitter ``tx_point`` of set ``tx_set``, one digit a receiver (``codes``).
+PROVENANCE_COLUMNS = ("tx_set", "tx_point", "rx_set", "first_rx", "codes")
+#: How many receivers' codes a row holds at most (a line stays short; gzip packs the digits about ten to a byte).
+CODES_PER_ROW = 2000
+#: The header of the side files of earlier versions, still read: a run of ``count`` receivers from ``first_rx`` on,
+#: all of them with ``code`` (five to six times the bytes of ``PROVENANCE_COLUMNS``'s rows for the same codes).
+RUN_COLUMNS = ("tx_set", "tx_point", "rx_set", "first_rx", "count", "code")
 
 
 def code_name(code: int) -> str:

@@ -26,7 +26,7 @@ import shapely
 
 from uavplace.infra.files import atomic_write_bytes
 from uavplace.ingest.provenance import EXPORT_LINE, export_digest
-from uavplace.schemas.provenance import PROVENANCE_COLUMNS, SIDE_FILE_SUFFIX, code_table
+from uavplace.schemas.provenance import CODES_PER_ROW, PROVENANCE_COLUMNS, SIDE_FILE_SUFFIX, code_table
 
 #: Output kinds the writer knows: file name token -> (column titles after the position, format of one row's values).
 P2M_OUTPUTS = {
@@ -233,14 +233,6 @@ def write_p2m(
     return _write(path, text, gz=gz, crlf=crlf)
 
 
-def provenance_runs(codes: np.ndarray) -> list[tuple[int, int, int]]:
-    """``codes`` [N] (one receiver each, in the .p2m's order) as runs ``(first receiver, 1-based; count; code)``."""
-    c = np.asarray(codes).ravel()
-    starts = np.flatnonzero(np.r_[True, c[1:] != c[:-1]])
-    counts = np.diff(np.r_[starts, len(c)])
-    return [(int(s) + 1, int(n), int(c[s])) for s, n in zip(starts, counts, strict=True)]
-
-
 def write_provenance(
     folder: str | Path,
     project: str,
@@ -249,19 +241,24 @@ def write_provenance(
     p2m_files: list[Path] | None = None,
 ) -> Path:
     """The side file ``<project>.provenance.csv.gz`` (``schemas.provenance``): the provenance code of every receiver
-    of set ``rx_set_id`` for each transmitter, ``codes`` ``{(tx_set, tx_point): [N] codes in the .p2m's order}``, as
-    runs of equal codes. InSite-compatible readers do not read it; uavplace's ingest does. ``p2m_files``: the export's
+    of set ``rx_set_id`` for each transmitter, ``codes`` ``{(tx_set, tx_point): [N] codes in the .p2m's order}``, a
+    digit each, ``CODES_PER_ROW`` a row. InSite-compatible readers do not read it; uavplace's ingest does. ``p2m_files``: the export's
     receiver outputs, whose sha256 the file records (``ingest.provenance.export_digest``): ingest refuses the side
     file beside any other export."""
     lines = [
         f"# {line}"
-        for line in ("uavplace cell provenance (docs/data.md): runs of receivers that share a code", *code_table().splitlines())
+        for line in (
+            "uavplace cell provenance (docs/data.md): the code of every receiver, a digit each, from first_rx on",
+            *code_table().splitlines(),
+        )
     ]
     if p2m_files is not None:
         lines.append(EXPORT_LINE + export_digest(list(p2m_files)))
     lines.append(",".join(PROVENANCE_COLUMNS))
     for (tx_set, tx_point), c in sorted(codes.items()):
-        lines += [f"{tx_set},{tx_point},{rx_set_id},{first},{n},{code}" for first, n, code in provenance_runs(c)]
+        digits = (np.asarray(c, np.uint8).ravel() + np.uint8(ord("0"))).tobytes().decode("ascii")
+        rows = range(0, len(digits), CODES_PER_ROW)
+        lines += [f"{tx_set},{tx_point},{rx_set_id},{i + 1},{digits[i : i + CODES_PER_ROW]}" for i in rows]
     path = Path(folder) / f"{project}{SIDE_FILE_SUFFIX}"
     # mtime 0: the same codes give the same bytes; written beside and renamed, so a reader never sees half of it
     atomic_write_bytes(path, gzip.compress(("\n".join(lines) + "\n").encode(), mtime=0))

@@ -5,7 +5,7 @@
   the data root, a FIFO, a folder, sparse gigabytes, a zip bomb. Every one must give the clean report's episodes to
   the bit (predicted again), a link must stay a link to its untouched target.
 - ``sidefile``: the provenance side file beside a simulated export: another simulation's, a gzip of newlines, a long
-  line, a truncated gzip, a code that is none, runs that overlap, a FIFO, sparse gigabytes.
+  line, a truncated gzip, a code that is none, rows that overlap, a FIFO, sparse gigabytes.
 - ``roles``: the cities' roles file of ``uavdata build --roles``: 1.3 M names (the duplicate check must be linear),
   a name twice, a city of two roles, a FIFO, sparse gigabytes, not TOML.
 - ``zoo``: the PettingZoo env (``uavplace.rl.tasks.fleet.zoo``; and the Gymnasium placement env's overrides) driven by a script:
@@ -274,7 +274,7 @@ def sidefile_probes(base: Base) -> list[Probe]:
         "a gzip of a GB of newlines": newlines,
         "a line of 1 MB": lines(lambda t: [*t[:1], "#" + "x" * (1 << 20), *t[1:]]),
         "a code that is none": lines(code),
-        "a run twice (overlap)": lines(overlap),
+        "a row twice (overlap)": lines(overlap),
         "the header only": lines(lambda t: t[: header_row(t) + 1]),
         "truncated": lambda p, w: p.write_bytes(p.read_bytes()[: p.stat().st_size // 2]),
         "random bytes": lambda p, w: p.write_bytes(os.urandom(4096)),

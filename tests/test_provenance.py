@@ -18,15 +18,20 @@ from uavplace.schemas import InputError
 from uavplace.schemas.bundle import BuildConfig
 from uavplace.schemas.provenance import (
     COARSE_MAP,
+    CODES,
+    CODES_PER_ROW,
     EXACT_PATHS,
     NO_RECEIVER,
     NOT_RECORDED,
+    PROVENANCE_COLUMNS,
     RAY_TRACED,
+    RECEIVER_CODES,
+    RUN_COLUMNS,
     STRAIGHT_PATH,
     UNREACHED,
     WALKED,
 )
-from uavplace.simulate.insite import provenance_runs, write_provenance
+from uavplace.simulate.insite import write_provenance
 from uavplace.simulate.raytrace import RayTraceConfig, fill, fill_geodesic
 
 
@@ -85,29 +90,57 @@ def test_the_fills_say_which_cells_were_hit_walked_given_their_straight_path_or_
     np.testing.assert_array_equal(c[0, 0], np.where(np.arange(8) % 2, EXACT_PATHS, UNREACHED))
 
 
-def _side_file(path, lines: list[str]) -> None:
+def _side_file(path, lines: list[str], columns: tuple[str, ...] = PROVENANCE_COLUMNS) -> None:
     with gzip.open(path, "wt") as f:
-        f.write("# comment\ntx_set,tx_point,rx_set,first_rx,count,code\n" + "".join(f"{line}\n" for line in lines))
+        f.write(f"# comment\n{','.join(columns)}\n" + "".join(f"{line}\n" for line in lines))
 
 
-def test_the_side_file_round_trips_and_refuses_what_is_not_a_run_of_codes(tmp_path):
-    codes = {(1, 1): np.array([1, 1, 4, 4, 4, 0, 3, 1], np.uint8), (1, 2): np.zeros(8, np.uint8)}
-    assert provenance_runs(codes[(1, 1)]) == [(1, 2, 1), (3, 3, 4), (6, 1, 0), (7, 1, 3), (8, 1, 1)]
+def test_every_code_is_one_digit():
+    """The side file writes a receiver's code as one digit."""
+    assert all(0 <= code <= 9 for code in CODES) and set(RECEIVER_CODES) <= set(CODES)
+
+
+def test_the_side_file_round_trips_and_refuses_what_is_not_a_row_of_codes(tmp_path):
+    long = np.resize(np.array([1, 4, 4, 0, 3, 2, 5, 6], np.uint8), 2 * CODES_PER_ROW + 7)  # three rows
+    codes = {(1, 1): np.array([1, 1, 4, 4, 4, 0, 3, 1], np.uint8), (1, 2): np.zeros(8, np.uint8), (2, 1): long}
     path = write_provenance(tmp_path, "c", 2, codes)
+    text = gzip.decompress(path.read_bytes()).decode().splitlines()
+    assert "1,1,2,1,11444031" in text and "2,1,2,4001," + "".join(map(str, long[4000:])) in text
+    assert max(len(line) for line in text if not line.startswith("#")) <= len("2,1,2,4001,") + CODES_PER_ROW
     got = read_provenance(path, path.name)
-    assert got.keys() == {(1, 1, 2), (1, 2, 2)} and np.array_equal(got[(1, 1, 2)], codes[(1, 1)])
+    assert got.keys() == {(1, 1, 2), (1, 2, 2), (2, 1, 2)}
+    assert all(np.array_equal(got[(*k, 2)], c) and got[(*k, 2)].dtype == np.uint8 for k, c in codes.items())
     assert path.read_bytes() == write_provenance(tmp_path, "c", 2, codes).read_bytes()  # the same codes, the same bytes
     bad = {
-        "1,1,2,1,x,1": (r":3: count: 'x' is not an integer", None),
-        "1,1,2,1,4,7": (r":3: code: 7 is not a receiver's code", None),
-        "1,1,2,1,4": (r":3: row: 5 fields, expected 6", None),
-        "1,1,2,1,0,1": (r":3: count: 0 is not a count", None),
-        "1,1,2,1,4,1\n1,1,2,6,2,1": (r":4: first_rx: run starts at receiver 6; .* reach 4", None),
-        "1,1,2,1,4,1\n1,1,2,3,2,1": (r":4: first_rx: run starts at receiver 3", None),
+        "1,1,2,1,14x1": r":3: codes: receiver 3: 'x' is not a code \(a digit\)",
+        "1,1,2,1,1471": r":3: codes: receiver 3: 7 is not a receiver's code",
+        "1,1,2,1,": r":3: codes: no code",
+        "1,1,2,1," + "1" * (CODES_PER_ROW + 1): rf":3: codes: {CODES_PER_ROW + 1} codes, more than a row holds",
+        "1,1,2,1": r":3: row: 4 fields, expected 5",
+        "1,1,2,0,1": r":3: first_rx: 0 is not a count",
+        "1,x,2,1,1": r":3: tx_point: 'x' is not an integer",
+        "1,1,2,1,1111\n1,1,2,6,11": r":4: first_rx: row starts at receiver 6; .* reach 4",
+        "1,1,2,1,1111\n1,1,2,3,11": r":4: first_rx: row starts at receiver 3",
     }
-    for k, (text, (pattern, _)) in enumerate(bad.items()):
+    for k, (text, pattern) in enumerate(bad.items()):
         f = tmp_path / f"bad{k}.provenance.csv.gz"
         _side_file(f, text.split("\n"))
+        with pytest.raises(InputError, match=pattern):
+            read_provenance(f, f.name)
+    # The runs of an earlier version's side files: read, and checked as before.
+    f = tmp_path / "runs.provenance.csv.gz"
+    _side_file(f, ["1,1,2,1,2,1", "1,1,2,3,3,4", "1,1,2,6,1,0", "1,1,2,7,1,3", "1,1,2,8,1,1"], RUN_COLUMNS)
+    np.testing.assert_array_equal(read_provenance(f, f.name)[(1, 1, 2)], codes[(1, 1)])
+    runs = {
+        "1,1,2,1,x,1": r":3: count: 'x' is not an integer",
+        "1,1,2,1,4,7": r":3: code: 7 is not a receiver's code",
+        "1,1,2,1,4": r":3: row: 5 fields, expected 6",
+        "1,1,2,1,0,1": r":3: count: 0 is not a count",
+        "1,1,2,1,4,1\n1,1,2,6,2,1": r":4: first_rx: row starts at receiver 6; .* reach 4",
+    }
+    for k, (text, pattern) in enumerate(runs.items()):
+        f = tmp_path / f"runs{k}.provenance.csv.gz"
+        _side_file(f, text.split("\n"), RUN_COLUMNS)
         with pytest.raises(InputError, match=pattern):
             read_provenance(f, f.name)
     f = tmp_path / "empty.provenance.csv.gz"
@@ -120,7 +153,7 @@ def test_the_side_file_round_trips_and_refuses_what_is_not_a_run_of_codes(tmp_pa
     # A small gzip of newlines (2 GB of text) or of one endless line is refused as it streams, past what runs of the
     # export's receivers take, never read whole (it once reached 4.6 GB of memory).
     f.write_bytes(gzip.compress(b"\n" * 20_000_000))
-    with pytest.raises(InputError, match="more than runs of the export's receivers take"):
+    with pytest.raises(InputError, match="more than the codes of the export's receivers take"):
         read_provenance(f, f.name, receivers=16)
     f.write_bytes(gzip.compress(b"1" * 10_000))
     with pytest.raises(InputError, match="a line longer than 4096 characters"):
@@ -163,13 +196,15 @@ def test_ingest_reads_the_side_file_against_the_export_and_says_what_an_export_w
                        r"\(unreached\), but city.pl.t001_01.r002.p2m says a path reached it"):  # fmt: skip
         ingest_city(folder, tmp_path / "p")
     write_provenance(folder, "city", 2, {key: c[:-1] for key, c in codes.items()})
-    with pytest.raises(InputError, match=r"count: runs of transmitter 1 of set 1 and receiver set 2 describe receivers 1..29"):
+    with pytest.raises(
+        InputError, match=r"codes: the rows of transmitter 1 of set 1 and receiver set 2 describe receivers 1..29"
+    ):
         ingest_city(folder, tmp_path / "p")
     write_provenance(folder, "city", 2, {(1, 1): codes[(1, 1)]})
-    with pytest.raises(InputError, match=r"tx_point: no runs for transmitter 2 of set 1 and receiver set 2"):
+    with pytest.raises(InputError, match=r"tx_point: no rows for transmitter 2 of set 1 and receiver set 2"):
         ingest_city(folder, tmp_path / "p")
     write_provenance(folder, "city", 2, codes | {(1, 9): codes[(1, 1)]})
-    with pytest.raises(InputError, match=r"count: runs of transmitter 9 of set 1 and receiver set 2 describe 30 receivers, "
+    with pytest.raises(InputError, match=r"codes: the rows of transmitter 9 of set 1 and receiver set 2 describe 30 receivers, "
                        r"the export has 0"):  # fmt: skip
         ingest_city(folder, tmp_path / "p")
     assert b.path.is_dir()  # nothing refused replaced the good ingest's bundle
