@@ -114,6 +114,22 @@ def test_path_features_are_each_path_sampled_by_itself(tiny):
     np.testing.assert_array_equal(whole["walls"][cells[:, 0], cells[:, 1]], f["walls"])
 
 
+def test_a_paths_features_do_not_depend_on_the_paths_beside_it():
+    """A map's paths computed in many chunks (by length, each padded to its longest) give each path the features it
+    has when computed among a few others, to the bit: the chunking is a matter of time only."""
+    rng = np.random.default_rng(11)
+    heights = np.where(rng.random((72, 64)) < 0.3, rng.uniform(4, 40, (72, 64)), 0).astype(np.float32)
+    scene = Scene(heights, 4.0, 10.0, 8e8, 20.0, -75.0, -40.0)
+    user = (30, 21)
+    whole = path_features(scene, user, 1.5)
+    for _ in range(3):
+        cells = np.stack([rng.integers(72, size=50), rng.integers(64, size=50)], axis=1)
+        few = path_features(scene, user, 1.5, cells)  # one chunk
+        for name, values in few.items():
+            np.testing.assert_array_equal(whole[name][cells[:, 0], cells[:, 1]], values)
+    assert whole["diffraction_db"].max() > 0 and whole["walls"].max() > 1
+
+
 def test_belief_is_bayes_by_brute_force(tiny):
     """The searcher's belief after a few measurements, one update at a time, equals the posterior computed at once:
     the product over measurements of each candidate's likelihood (censored at the floor), tempered, normalised."""
