@@ -4,7 +4,7 @@ The side file ``uavdata simulate`` writes: comment lines (``#``), the header ``P
 codes of consecutive receivers of one transmitter and receiver set, a digit each (or, in a file of an earlier version,
 ``RUN_COLUMNS``: runs of receivers that share a code). Refused, with the file, line and field, unless every field is
 an integer (the codes a string of digits), every code a receiver's code, and the rows of each transmitter and receiver
-set follow each other from receiver 1 with no gap or overlap. ``ingest_city`` then checks that the runs cover exactly
+set follow each other from receiver 1 with no gap or overlap. ``ingest_city`` then checks that the rows cover exactly
 the receivers of the .p2m files and that a receiver is "unreached" exactly where its file says no path reached it.
 Without the side file, ``default_code`` says what an export's reached receivers are.
 """
@@ -128,7 +128,10 @@ def read_provenance(path: Path, source: str, receivers: int | None = None) -> di
             if name != "code" and values[name] < least:
                 kind = "set id" if name.endswith("_set") else "count"
                 raise InputError(source, f"{values[name]} is not a {kind} (at least {least})", line=line, field=name)
-        codes = _row_codes(values, source, line)
+        if "code" in values and values["code"] not in RECEIVER_CODES:
+            raise InputError(source, _not_a_code(values["code"]), line=line, field="code")
+        codes = _digits(values["codes"], values["first_rx"], source, line) if "codes" in values else None
+        count = len(codes) if codes is not None else values["count"]
         key = (values["tx_set"], values["tx_point"], values["rx_set"])
         expected = ends.get(key, 0) + 1
         if values["first_rx"] != expected:
@@ -140,10 +143,11 @@ def read_provenance(path: Path, source: str, receivers: int | None = None) -> di
                 line=line,
                 field="first_rx",
             )
-        total += len(codes)
-        check_limit("export_bytes", total, source, "receivers the rows describe", line=line, field=columns[-1])
-        parts.setdefault(key, []).append(codes)
-        ends[key] = values["first_rx"] + len(codes) - 1
+        total += count
+        check_limit("export_bytes", total, source, "receivers the rows describe", line=line, field=columns[4])
+        # a run's codes are made only within the limit: a count of 10**12 is refused above, never allocated
+        parts.setdefault(key, []).append(codes if codes is not None else np.full(count, values["code"], np.uint8))
+        ends[key] = values["first_rx"] + count - 1
     if columns is None:
         raise InputError(source, f"no header line ({', '.join(PROVENANCE_COLUMNS)})", field="header")
     return {key: np.concatenate(p) for key, p in parts.items()}
@@ -153,13 +157,10 @@ def _not_a_code(code: int) -> str:
     return f"{code} is not a receiver's code (" + ", ".join(f"{c} {code_name(c)}" for c in RECEIVER_CODES) + ")"
 
 
-def _row_codes(values: dict, source: str, line: int) -> np.ndarray:
-    """The codes a checked row gives, uint8: its digits, or its run (``RUN_COLUMNS``)."""
-    if "codes" not in values:
-        if values["code"] not in RECEIVER_CODES:
-            raise InputError(source, _not_a_code(values["code"]), line=line, field="code")
-        return np.full(values["count"], values["code"], np.uint8)
-    text = values["codes"].strip()
+def _digits(field: str, first_rx: int, source: str, line: int) -> np.ndarray:
+    """The codes of a row's ``codes`` field, uint8, one a digit: ``InputError`` naming the first receiver that is
+    not a code."""
+    text = field.strip()
     if not text:
         raise InputError(source, "no code: a row holds the codes of one receiver or more", line=line, field="codes")
     if len(text) > CODES_PER_ROW:
@@ -169,7 +170,7 @@ def _row_codes(values: dict, source: str, line: int) -> np.ndarray:
     if len(bad):
         i = int(bad[0])
         what = _not_a_code(int(codes[i])) if text[i].isdigit() else f"{text[i]!r} is not a code (a digit)"
-        raise InputError(source, f"receiver {values['first_rx'] + i}: {what}", line=line, field="codes")
+        raise InputError(source, f"receiver {first_rx + i}: {what}", line=line, field="codes")
     return codes
 
 

@@ -242,9 +242,9 @@ def write_provenance(
 ) -> Path:
     """The side file ``<project>.provenance.csv.gz`` (``schemas.provenance``): the provenance code of every receiver
     of set ``rx_set_id`` for each transmitter, ``codes`` ``{(tx_set, tx_point): [N] codes in the .p2m's order}``, a
-    digit each, ``CODES_PER_ROW`` a row. InSite-compatible readers do not read it; uavplace's ingest does. ``p2m_files``: the export's
-    receiver outputs, whose sha256 the file records (``ingest.provenance.export_digest``): ingest refuses the side
-    file beside any other export."""
+    digit each, ``CODES_PER_ROW`` a row. InSite-compatible readers do not read it; uavplace's ingest does.
+    ``p2m_files``: the export's receiver outputs, whose sha256 the file records (``ingest.provenance.export_digest``):
+    ingest refuses the side file beside any other export."""
     lines = [
         f"# {line}"
         for line in (

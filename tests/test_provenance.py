@@ -132,6 +132,7 @@ def test_the_side_file_round_trips_and_refuses_what_is_not_a_row_of_codes(tmp_pa
         "1,1,2,1,4": r":3: row: 5 fields, expected 6",
         "1,1,2,1,0,1": r":3: count: 0 is not a count",
         "1,1,2,1,4,1\n1,1,2,6,2,1": r":4: first_rx: row starts at receiver 6; .* reach 4",
+        "1,1,2,1,1000000000000,1": r":3: count: receivers the rows describe: .* over the limit",  # never allocated
     }
     for columns, cases in ((PROVENANCE_COLUMNS, bad), (RUN_COLUMNS, runs)):
         for k, (text, pattern) in enumerate(cases.items()):
