@@ -67,7 +67,7 @@ PROVENANCE_COLUMNS = ("tx_set", "tx_point", "rx_set", "first_rx", "codes")
 #: How many receivers' codes a row holds at most (a line stays short; gzip packs the digits about ten to a byte).
 CODES_PER_ROW = 2000
 #: The header of the side files of earlier versions, still read: a run of ``count`` receivers from ``first_rx`` on,
-#: all of them with ``code`` (five to six times the bytes of ``PROVENANCE_COLUMNS``'s rows for the same codes).
+#: all of them with ``code`` (about four times the bytes of ``PROVENANCE_COLUMNS``'s rows for the same codes).
 RUN_COLUMNS = ("tx_set", "tx_point", "rx_set", "first_rx", "count", "code")
 
 
