@@ -67,8 +67,9 @@ def product_shapes(city: str, root: str) -> tuple[dict[tuple[str, int], tuple[in
     shapes: dict[tuple[str, int], tuple[int, int]] = {}
     maps = MapSet([bundle], report_env(config))
     public = PublicMaps.of(maps)
+    policies = {p.name: p for p in default_baselines(config, bundle)}
     for suffix in ("", NO_BUILDINGS):  # the searcher given the buildings, then its ablation (a policy of its own)
-        searcher = next(p for p in default_baselines(config, bundle) if p.name == PRODUCT_METHODS[0] + suffix)
+        searcher = policies[PRODUCT_METHODS[0] + suffix]
         for canvas in np.unique(maps.view_map):
             cover = searcher.canvas_maps(public, int(canvas)).cover
             for method in PRODUCT_METHODS:

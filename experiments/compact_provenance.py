@@ -12,20 +12,13 @@ quarter of the bytes (the embedded side files: 1.07 MB -> 0.25 MB; docs/data.md,
 from __future__ import annotations
 
 import argparse
-import gzip
 from pathlib import Path
 
 import numpy as np
 
-from uavplace.ingest.provenance import export_digest, read_provenance, recorded_export
+from uavplace.ingest.provenance import export_digest, preamble, read_provenance, recorded_export
 from uavplace.schemas.provenance import RUN_COLUMNS, SIDE_FILE_SUFFIX
 from uavplace.simulate.insite import write_provenance
-
-
-def header(path: Path) -> tuple[str, ...]:
-    """The side file's header row (the first line that is not a comment)."""
-    with gzip.open(path, "rt", encoding="utf-8") as f:
-        return tuple(c.strip() for c in next(line for line in f if not line.startswith("#")).strip().split(","))
 
 
 def main() -> None:
@@ -36,7 +29,7 @@ def main() -> None:
     before_all = after_all = 0
     for path in sorted(args.raw.glob(f"*/*{SIDE_FILE_SUFFIX}")):
         folder, name = path.parent, path.name[: -len(SIDE_FILE_SUFFIX)]
-        if header(path) != RUN_COLUMNS:
+        if preamble(path, str(path))[1] != RUN_COLUMNS:
             print(f"{path}: already in today's form")
             continue
         codes = read_provenance(path, str(path))

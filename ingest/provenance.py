@@ -84,14 +84,21 @@ def export_digest(p2m_files: list[Path]) -> str:
     return digest.hexdigest()
 
 
-def recorded_export(path: Path, source: str) -> str | None:
-    """The export sha256 a side file records (its ``EXPORT_LINE`` among the comments before the header), or None."""
+def preamble(path: Path, source: str) -> tuple[list[str], tuple[str, ...] | None]:
+    """A side file's comment lines before its header, and the header's columns (``PROVENANCE_COLUMNS``, an earlier
+    version's ``RUN_COLUMNS``, or whatever else it holds; None when there is none), read within ``COMMENT_BYTES``."""
+    comments = []
     for line in _lines(path, source, COMMENT_BYTES):
         if not line.startswith("#"):
-            return None
-        if line.startswith(EXPORT_LINE):
-            return line[len(EXPORT_LINE) :].strip()
-    return None
+            return comments, tuple(c.strip() for c in line.strip().split(","))
+        comments.append(line)
+    return comments, None
+
+
+def recorded_export(path: Path, source: str) -> str | None:
+    """The export sha256 a side file records (its ``EXPORT_LINE`` among the comments before the header), or None."""
+    comments, _ = preamble(path, source)
+    return next((line[len(EXPORT_LINE) :].strip() for line in comments if line.startswith(EXPORT_LINE)), None)
 
 
 def read_provenance(path: Path, source: str, receivers: int | None = None) -> dict[tuple[int, int, int], np.ndarray]:
