@@ -8,13 +8,14 @@ For each city folder with a simulation.json and no ``<city>.provenance.csv.gz``:
   the settings its simulation.json records. Ray tracing on the CPU does not reproduce a trace exactly: a few rays
   take other branches. A live receiver whose power the fill reproduces within ``--tol-db`` takes the code the
   re-trace gives it (ray-traced, straight path, walked); one it does not reproduce is "not recorded"; a dead one
-  "unreached". A city where more than ``--max-share`` of the live receivers do not reproduce is left alone.
+  "unreached". Each code is thus vouched for by its own receiver; a city where more than ``--max-share`` (half) of
+  the live receivers do not reproduce is left alone, its re-trace taken for one made otherwise.
 
 The maps themselves are not rewritten, so the embedded data keeps its values (and git its history); the side file
 is what `uavdata simulate` writes today (``simulate.insite.write_provenance``).
 
-    python experiments/embedded_provenance.py [--raw data/raw] [--traces runs/traces] [--tol-db 0.01] [--max-share 0.01]
-        [--dry-run]
+    python experiments/embedded_provenance.py [--raw data/raw] [--traces runs/traces] [--tol-db 0.01] [--max-share 0.5]
+        [--city NAME ...] [--dry-run]
 """
 
 from __future__ import annotations
@@ -106,10 +107,13 @@ def main() -> None:
     ap.add_argument("--raw", type=Path, default=Path("data/raw"), help="folder of city exports")
     ap.add_argument("--traces", type=Path, default=Path("runs/traces"), help="trace cache of the re-trace")
     ap.add_argument("--tol-db", type=float, default=0.01, help="largest power difference of a reproduced receiver [dB]")
-    ap.add_argument("--max-share", type=float, default=0.01, help="largest share of live receivers left 'not recorded'")
+    ap.add_argument("--max-share", type=float, default=0.5, help="largest share of live receivers left 'not recorded'")
+    ap.add_argument("--city", action="append", default=[], help="only these cities (repeatable; default: every one)")
     ap.add_argument("--dry-run", action="store_true", help="check, write nothing")
     args = ap.parse_args()
     for folder in sorted(p.parent for p in args.raw.glob(f"*/{PROVENANCE}")):
+        if args.city and folder.name not in args.city:
+            continue
         if (folder / f"{folder.name}{SIDE_FILE_SUFFIX}").exists():
             print(f"{folder.name}: has a side file")
             continue

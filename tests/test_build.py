@@ -512,15 +512,22 @@ def test_show_leaves_buildings_out_of_the_sinr_panel_and_the_dead_count(tiny):
         assert dead_open == int((b.dead[user] & ~b.blocked).sum()) <= int(b.dead[user].sum())
 
 
-def test_show_hatches_only_what_is_known_to_be_estimated(tiny):
-    """The embedded tiny city's provenance is "not recorded" (its export predates the side file): `uavdata show`
-    hatches none of it, and its legend says the share in words."""
+def test_show_hatches_only_what_is_known_to_be_estimated(tiny, tmp_path):
+    """The embedded tiny city's side file says every live receiver was ray-traced; the same export without it reads
+    "not recorded" (an export that predates the side file): `uavdata show` hatches neither, and its legend says the
+    share of "not recorded" in words."""
     from uavplace.dataset.preview import HATCHES, estimated_cells
-    from uavplace.schemas.provenance import NOT_RECORDED
+    from uavplace.schemas.provenance import NOT_RECORDED, RAY_TRACED, SIDE_FILE_SUFFIX
 
     b = load_bundle("tiny", root=tiny)
-    assert (b.provenance[0][~b.blocked & ~b.dead[0]] == NOT_RECORDED).all()
-    assert NOT_RECORDED not in HATCHES and estimated_cells(b, 0) == {}
+    assert (b.provenance[0][~b.blocked & ~b.dead[0]] == RAY_TRACED).all() and estimated_cells(b, 0) == {}
+    bare = tmp_path / "raw" / "tiny"
+    shutil.copytree(REPO / "data" / "raw" / "tiny", bare, ignore=shutil.ignore_patterns(f"*{SIDE_FILE_SUFFIX}"))
+    ingest_city(bare, tmp_path / "p")
+    old = load_bundle(build_city("tiny", BuildConfig(grid_m=4.0, altitude_m=10.0), tmp_path / "p").path)
+    np.testing.assert_array_equal(old.sinr_db, b.sinr_db)
+    assert old.version != b.version and (old.provenance[0][~old.blocked & ~old.dead[0]] == NOT_RECORDED).all()
+    assert NOT_RECORDED not in HATCHES and estimated_cells(old, 0) == {}
 
 
 def test_the_grid_is_the_exports_unless_given(tmp_path):

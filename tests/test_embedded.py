@@ -15,6 +15,7 @@ from uavplace.dataset.build import build_city
 from uavplace.dataset.bundle import load_bundle
 from uavplace.ingest.pipeline import ingest_city
 from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM, BuildConfig
+from uavplace.schemas.provenance import NOT_RECORDED, SIDE_FILE_SUFFIX
 
 RAW = REPO / "data" / "raw"
 #: Every embedded city: a folder of data/raw made by the commands in the README.
@@ -62,6 +63,11 @@ def test_embedded_city_ingests_builds_and_is_faithful(tmp_path, city):
     b = load_bundle(build_city(city, config, tmp_path).path)
     assert b.num_users == len(record["users_m"]) and b.shape == (record["grid"]["num_y"], record["grid"]["num_x"])
     assert b.manifest.counts["buildings"] == record.get("num_buildings")
+    # Every shipped map says where its values came from (docs/data.md, "Provenance"): a side file whose codes leave at
+    # most half the live receivers "not recorded" (experiments/embedded_provenance.py's rule), as the cells show.
+    assert (RAW / city / f"{city}{SIDE_FILE_SUFFIX}").is_file()
+    live_open = ~b.dead & ~b.blocked[None]
+    assert (b.provenance[live_open] == NOT_RECORDED).mean() <= 0.5
     d = b.manifest.difficulty
     assert 0 < d["target_share"] < 1 and d["num_starts"] > 0
     if city == "test":  # the calibration: at the documented level the genie needs the paper's 14 +- 3 moves
