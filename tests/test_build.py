@@ -514,8 +514,7 @@ def test_show_leaves_buildings_out_of_the_sinr_panel_and_the_dead_count(tiny):
 
 def test_show_hatches_only_what_is_known_to_be_estimated(tiny, tmp_path):
     """The embedded tiny city's side file says every live receiver was ray-traced; the same export without it reads
-    "not recorded" (an export that predates the side file): `uavdata show` hatches neither, and its legend says the
-    share of "not recorded" in words."""
+    "not recorded" (an export that predates the side file), with the same maps: `uavdata show` hatches neither."""
     from uavplace.dataset.preview import HATCHES, estimated_cells
     from uavplace.schemas.provenance import NOT_RECORDED, RAY_TRACED, SIDE_FILE_SUFFIX
 
