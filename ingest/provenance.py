@@ -151,7 +151,8 @@ def read_provenance(path: Path, source: str, receivers: int | None = None) -> di
                 field="first_rx",
             )
         total += count
-        check_limit("export_bytes", total, source, "receivers the rows describe", line=line, field=columns[4])
+        field = "codes" if codes is not None else "count"
+        check_limit("export_bytes", total, source, "receivers the rows describe", line=line, field=field)
         # a run's codes are made only within the limit: a count of 10**12 is refused above, never allocated
         parts.setdefault(key, []).append(codes if codes is not None else np.full(count, values["code"], np.uint8))
         ends[key] = values["first_rx"] + count - 1

@@ -523,7 +523,7 @@ def test_show_hatches_only_what_is_known_to_be_estimated(tiny, tmp_path):
     bare = tmp_path / "raw" / "tiny"
     shutil.copytree(REPO / "data" / "raw" / "tiny", bare, ignore=shutil.ignore_patterns(f"*{SIDE_FILE_SUFFIX}"))
     ingest_city(bare, tmp_path / "p")
-    old = load_bundle(build_city("tiny", BuildConfig(grid_m=4.0, altitude_m=10.0), tmp_path / "p").path)
+    old = load_bundle(build_city("tiny", cfg(), tmp_path / "p").path)
     np.testing.assert_array_equal(old.sinr_db, b.sinr_db)
     assert old.version != b.version and (old.provenance[0][~old.blocked & ~old.dead[0]] == NOT_RECORDED).all()
     assert NOT_RECORDED not in HATCHES and estimated_cells(old, 0) == {}
