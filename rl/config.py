@@ -80,10 +80,44 @@ class SearchConfig(Contract):
         "raises the product over users of the probability that some UAV serves the user times the discount of the "
         "longest path (a UAV without users goes where it helps most)",
     )
+    error_share: float = Field(
+        default=0.0,
+        ge=0,
+        lt=1,
+        description="The correlation of the predictor's errors at two cells a cell apart, before its decay with "
+        "distance (error_range_cells): the cover planner moves each candidate's predicted chance of reaching P_T at "
+        "the cells within error_reach of the cells measured by what those measurements say of its map's error "
+        "there (kriging, rl.belief.BeliefModel.kriged_cover); 0: every cell's chance as predicted",
+    )
+    kriging: Literal["planner", "belief", "both"] = Field(
+        default="planner",
+        description="What the errors' correlation (error_share > 0) moves: 'planner': each candidate's chance of "
+        "reaching P_T near the cells measured; 'belief': the likelihood of a measurement is its probability given "
+        "the measurements before it, so a candidate is not charged again for an error its map made nearby; 'both'",
+    )
+    error_range_cells: float = Field(
+        default=9.8,
+        gt=0,
+        le=256,
+        description="The errors' correlation decays as exp(-d / this) [cells] (fitted with error_share 0.8 on the "
+        "training cities: experiments/error_correlation.py)",
+    )
+    error_reach: int = Field(default=12, ge=1, le=64, description="Cells within this many cells of a measured cell are kriged")
+    error_memory: int = Field(default=96, ge=1, le=1024, description="The kriging reads the most recent this many measured cells")
     lookahead_targets: int = Field(default=64, ge=1, le=4096, description="lookahead: target cells it weighs")
     info_weight: float = Field(default=0.1, ge=0, description="info: the worth of one bit, in probability of reaching P_T")
     info_radius: int = Field(default=3, ge=1, le=32, description="info: cells within this many moves get the term")
     info_bin_db: float = Field(default=4.0, gt=0, le=40, description="info: width of the SINR bins a measurement falls in")
+
+    @property
+    def kriged_planner(self) -> bool:
+        """Whether the cover planner krigs the predictor's errors (``error_share``, ``kriging``)."""
+        return self.error_share > 0 and self.kriging != "belief"
+
+    @property
+    def kriged_belief(self) -> bool:
+        """Whether the belief takes each measurement given those before it (``error_share``, ``kriging``)."""
+        return self.error_share > 0 and self.kriging != "planner"
 
 
 class EpisodeSettings(Contract):

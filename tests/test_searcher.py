@@ -502,3 +502,88 @@ def test_other_planners_find_the_tiny_users(tiny, planner):
     policy = MapSearchPolicy(constants, SearchConfig(planner=planner, info_weight=0.5))
     df = run_episodes(maps, policy, maps.episode_list(16, 0), num_envs=8)
     assert df["success"].mean() >= 0.9
+
+
+def test_kriged_cover_by_hand():
+    """One measurement at cell 0, the chance of reaching P_T at cells 1 and 3 cells away: each candidate's error latent
+    there, Phi^-1 of its predicted probability of a value at or below the measurement, pulls its chance by the
+    correlation rho = share * exp(-d / range): Phi((rho * eps + Phi^-1(cover)) / sqrt(1 - rho^2)); at the floor the
+    latent is the normal's mean below the floor's; no correlation leaves the predicted chance."""
+    from scipy.special import ndtr, ndtri
+    from scipy.stats import norm
+
+    from uavplace.rl.belief import CandidateMaps
+
+    mu = np.array([[10.0, 12.0, 0.0, 8.0], [-5.0, 3.0, 6.0, 20.0]], np.float32)
+    p_dead = np.array([[0.1, 0.2, 0.5, 0.0], [0.3, 0.05, 0.1, 0.4]], np.float32)
+    legal = np.array([[0, 0], [0, 1], [0, 2], [0, 3]])
+    config = SearchConfig(error_share=0.8, error_range_cells=4.0, outlier=0.0)
+    searcher = MapSearchPolicy(_constants(), config)  # sigma: the constants' 10 dB
+    maps = CandidateMaps(np.zeros((2, 2), np.int64), legal, np.arange(4)[None], mu, p_dead, searcher.cover(mu, p_dead, 5.0))
+    b = np.array([0.3, 0.7])
+    floor = -20.0
+    for measured in (-2.0, floor):
+        got = searcher.kriged_cover(maps, np.log(b), np.array([0]), np.array([measured]), floor, np.array([1, 3]))
+        want = np.zeros(2)
+        for c in range(2):
+            level = max(measured, floor)
+            k = ndtri(p_dead[c, 0] + (1 - p_dead[c, 0]) * ndtr((level - mu[c, 0]) / 10.0))
+            eps = -norm.pdf(k) / ndtr(k) if measured <= floor else k
+            for j, (cell, d) in enumerate(((1, 1.0), (3, 3.0))):
+                rho = 0.8 * math.exp(-d / 4.0)
+                want[j] += b[c] * ndtr((rho * eps + ndtri(maps.cover[c, cell])) / math.sqrt(1 - rho**2))
+        np.testing.assert_allclose(got, want, rtol=1e-6)
+    faint = MapSearchPolicy(_constants(), config.model_copy(update={"error_share": 1e-9}))
+    got = faint.kriged_cover(maps, np.log(b), np.array([0, 2]), np.array([-2.0, floor]), floor, np.array([1, 3]))
+    np.testing.assert_allclose(got, b @ maps.cover[:, [1, 3]], rtol=1e-5)
+
+
+def test_correlated_belief_is_bayes_by_brute_force(tiny):
+    """The belief updated one measurement at a time, each given those before it (``kriging="belief"``), equals the posterior
+    computed at once from the joint Gaussian copula of the values above the floor: each candidate's predicted densities
+    times the joint normal density of its error latents over the product of their marginal normal densities."""
+    from scipy.special import ndtr, ndtri
+
+    maps = MapSet.load("tiny", EnvConfig(t_max=50), root=str(tiny))
+    config = SearchConfig(stride=1, temper=1.0, outlier=0.0, error_share=0.7, error_range_cells=3.0, kriging="belief")
+    policy = MapSearchPolicy(_constants(), config)
+    public = PublicMaps.of(maps)
+    cm = policy.canvas_maps(public, 0)
+    floor = public.settings[0]["floor_db"]
+    columns = np.random.default_rng(1).choice(len(cm.legal), 5, replace=False)
+    measured = np.array([12.0, -3.5, 30.0, 0.0, 7.0])
+    log_b, before = np.zeros(len(cm.cells), np.float32), {}
+    for col, m in zip(columns, measured, strict=True):
+        log_b = policy.update(cm, log_b, int(col), float(m), floor, before)
+        before[int(col)] = float(m)
+    got = np.exp(log_b - log_b.max())
+    got /= got.sum()
+    sigma = policy.predictor.error_db
+    at = cm.legal[columns].astype(float)
+    cov = 0.7 * np.exp(-np.linalg.norm(at[:, None] - at[None], axis=-1) / 3.0)
+    np.fill_diagonal(cov, 1.0)
+    inverse, (_, log_det) = np.linalg.inv(cov), np.linalg.slogdet(cov)
+    total = np.zeros(len(cm.cells))
+    for c in range(len(cm.cells)):
+        mu = cm.mu[c, columns].astype(float)
+        dead = cm.p_dead[c, columns].astype(float)
+        z = (measured - mu) / sigma
+        latent = ndtri(np.clip(dead + (1 - dead) * ndtr(z), 1e-6, 1 - 1e-6))
+        density = np.log(1 - dead) - 0.5 * z * z - math.log(sigma * math.sqrt(2 * math.pi))
+        total[c] = density.sum() - 0.5 * latent @ inverse @ latent - 0.5 * log_det + 0.5 * latent @ latent
+    want = np.exp(total - total.max())
+    want /= want.sum()
+    np.testing.assert_allclose(got, want, atol=2e-4)
+    independent = MapSearchPolicy(_constants(), config.model_copy(update={"error_share": 0.0}))
+    log_i = np.zeros(len(cm.cells), np.float32)
+    for col, m in zip(columns, measured, strict=True):
+        log_i = independent.update(cm, log_i, int(col), float(m), floor, before)
+    assert np.abs(np.exp(log_i - log_i.max()) / np.exp(log_i - log_i.max()).sum() - want).max() > 1e-2
+
+
+def test_kriging_searcher_finds_the_tiny_users(tiny):
+    maps = MapSet.load("tiny", EnvConfig(t_max=100), root=str(tiny))
+    for kriging in ("planner", "belief", "both"):
+        policy = MapSearchPolicy(_constants(), SearchConfig(error_share=0.85, kriging=kriging))
+        df = run_episodes(maps, policy, maps.episode_list(20, 0), num_envs=8)
+        assert df["success"].mean() >= 0.9

@@ -6,7 +6,8 @@ unvisited legal cell ``x'`` by the posterior probability that it reaches P_T, ``
 Phi((mu_c(x') - P_T) / sigma)``, discounted by its fewest legal moves ``d`` from the UAV (``SearchConfig.discount``),
 and moves one cell along a shortest path to the best; it plans again at every step. Two planners that localise
 (``SearchConfig.planner``): ``info`` adds the information a measurement gives, ``lookahead`` weighs the outcomes of
-the next measurement.
+the next measurement. With ``SearchConfig.error_share`` > 0 the cover planner krigs the predictor's errors: each
+candidate's chance near the cells measured moved by what they say of its map there (``BeliefModel.kriged_cover``).
 
 It reads only what the UAV knows (an ``rl.view.AgentView``): its position, its own measurements and the public
 maps. ``rl.tasks.fleet`` runs the searcher for a fleet of UAVs, ``rl.tasks.tracking.searcher`` for a user who walks.
@@ -18,6 +19,7 @@ from collections import OrderedDict
 
 import numpy as np
 from scipy import sparse
+from scipy.ndimage import maximum_filter
 from scipy.sparse.csgraph import shortest_path
 
 from uavplace.rl.belief import BeliefModel, CandidateMaps, PredictionCache, posterior_cover, rows_of
@@ -48,6 +50,8 @@ class MapSearchPolicy(BeliefModel):
         self._paths: OrderedDict[tuple, tuple[np.ndarray, np.ndarray]] = OrderedDict()
         self.belief: list[np.ndarray | None] = []
         self.seen: list[np.ndarray | None] = []  # per row, the legal cells visited so far (with its belief)
+        self.measured: list[dict[int, float]] = []  # per row, each legal cell measured so far: its value, in order
+        self.latents: list[list[np.ndarray]] = []  # per row where the errors are kriged: each measured cell's [C] latents
         self.belief_canvas = np.zeros(0, np.int64)
         self.started = np.zeros(0, bool)
 
@@ -112,9 +116,12 @@ class MapSearchPolicy(BeliefModel):
     def reset(self, rows: np.ndarray, num_envs: int) -> None:
         if len(self.belief) != num_envs:
             self.belief, self.seen = [None] * num_envs, [None] * num_envs
+            self.measured = [{} for _ in range(num_envs)]
+            self.latents = [[] for _ in range(num_envs)]
             self.belief_canvas = np.full(num_envs, -1, np.int64)
         for r in np.asarray(rows, np.int64):
             self.belief[r] = self.seen[r] = None
+            self.measured[r], self.latents[r] = {}, []
 
     def prior(self, maps: CandidateMaps, row: int) -> np.ndarray:
         """``[C]`` the log-belief of row ``row`` before its first measurement: uniform over the candidates (an oracle
@@ -133,6 +140,7 @@ class MapSearchPolicy(BeliefModel):
         here = np.full(n, -1, np.int64)
         by_canvas: dict[int, list[int]] = {}
         going_on: dict[int, list[int]] = {}  # rows whose belief takes their last measurement: a canvas's at once
+        again: set[int] = set()  # rows of going_on that measured their cell before
         for r in range(n):  # the beliefs, row by row
             if env.exhausted[r] or not mask[r].any():
                 continue
@@ -143,19 +151,36 @@ class MapSearchPolicy(BeliefModel):
             if self.belief[r] is not None and t[r] > 0 and self.belief_canvas[r] == c:
                 going_on.setdefault(c, []).append(r)
                 self.seen[r][here[r]] = True  # a step visits one cell: the one it stands in
+                if int(here[r]) in self.measured[r]:
+                    again.add(r)
                 continue
             floor_db = float(public.settings[public.bundle_of(c)]["floor_db"])
             log_b = self.prior(maps, r)
+            self.measured[r], self.latents[r] = {}, []
             for y, x in np.argwhere(visits[r] > 0):  # every cell measured so far (at t = 0 the start), as memory holds it
-                log_b = self.update(maps, log_b, int(maps.index[y - p, x - p]), float(env.memory[r, y, x]), floor_db)
+                column, value = int(maps.index[y - p, x - p]), float(env.memory[r, y, x])
+                log_b = self.update(maps, log_b, column, value, floor_db, self.measured[r], self.latents_of(r))
+                self.remember(maps, r, column, value, floor_db)
             self.belief_canvas[r], self.belief[r] = c, log_b
             self.seen[r] = visits[r, maps.legal[:, 0] + p, maps.legal[:, 1] + p] > 0
         for c, rows in going_on.items():  # the same numbers as row by row (``update_rows``)
             floor_db = float(public.settings[public.bundle_of(c)]["floor_db"])
-            log_b = np.stack([self.belief[r] for r in rows])
-            at, values = here[rows], np.asarray(measured, np.float64)[rows]
-            for r, row in zip(rows, self.update_rows(self.canvas_maps(public, c), log_b, at, values, floor_db), strict=True):
-                self.belief[r] = row
+            maps = self.canvas_maps(public, c)
+            if self.config.kriged_belief:  # each row given its own measurements before
+                for r in rows:  # a cell measured again tells nothing new under the correlation (1 at the same cell)
+                    if r not in again:
+                        value, before = float(measured[r]), self.measured[r]
+                        self.belief[r] = self.update(
+                            maps, self.belief[r], int(here[r]), value, floor_db, before, self.latents_of(r)
+                        )
+            else:
+                log_b = np.stack([self.belief[r] for r in rows])
+                at, values = here[rows], np.asarray(measured, np.float64)[rows]
+                for r, row in zip(rows, self.update_rows(maps, log_b, at, values, floor_db), strict=True):
+                    self.belief[r] = row
+            for r in rows:
+                if r not in again:
+                    self.remember(maps, r, int(here[r]), float(measured[r]), floor_db)
         for c, rows in by_canvas.items():  # the plans, a canvas's rows in one product
             maps = self.canvas_maps(public, c)
             self.prefetch_paths(public, c, maps, here[rows])
@@ -165,6 +190,8 @@ class MapSearchPolicy(BeliefModel):
             for i, r in enumerate(rows):
                 seen = self.seen[r]
                 score = scores[i]
+                if self.config.kriged_planner:
+                    score = self.with_kriging(maps, score, self.belief[r], r, seen, floor_db)
                 if self.config.planner == "info":
                     score = self.with_information(public, c, maps, int(here[r]), score, self.belief[r], seen, floor_db, p_t)
                 actions[r] = self.first_move(public, c, maps, int(here[r]), score, seen, mask[r])
@@ -228,6 +255,37 @@ class MapSearchPolicy(BeliefModel):
         if not np.isfinite(values).any() or values[default] >= values.max() - 1e-12:
             return default
         return int(np.argmax(values))
+
+    def remember(self, maps: CandidateMaps, row: int, column: int, value: float, floor_db: float) -> None:
+        """Row ``row`` measured ``value`` at legal cell ``column`` for the first time: kept in order, with its error
+        latents where the errors are kriged (computed once: they do not change)."""
+        self.measured[row][column] = value
+        if self.config.error_share > 0:
+            self.latents[row].append(self.error_latent(maps, np.array([column]), np.array([value]), floor_db)[:, 0])
+
+    def latents_of(self, row: int) -> np.ndarray | None:
+        """``[C, V]`` the error latents of row ``row``'s ``error_memory`` cells measured last, or None where not kriged."""
+        kept = self.latents[row][-self.config.error_memory :]
+        return np.stack(kept, axis=1) if kept else None
+
+    def with_kriging(
+        self, maps: CandidateMaps, score: np.ndarray, log_b: np.ndarray, row: int, seen: np.ndarray, floor_db: float
+    ) -> np.ndarray:
+        """``score`` [M] with the unvisited cells within ``error_reach`` cells (Chebyshev) of the ``error_memory`` cells
+        row ``row`` measured last scored by ``kriged_cover``: their chance of reaching P_T moved by what the
+        measurements say of each candidate's map errors nearby."""
+        cfg, measured = self.config, self.measured[row]
+        columns = np.fromiter(measured, np.int64)[-cfg.error_memory :]
+        values = np.fromiter(measured.values(), np.float64)[-cfg.error_memory :]
+        near = np.zeros(maps.index.shape, np.uint8)
+        near[maps.legal[columns, 0], maps.legal[columns, 1]] = 1
+        near = maximum_filter(near, size=2 * cfg.error_reach + 1)[maps.legal[:, 0], maps.legal[:, 1]] > 0
+        targets = np.flatnonzero(near & ~seen)
+        if not len(targets):
+            return score
+        out = score.astype(np.float64)
+        out[targets] = self.kriged_cover(maps, log_b, columns, values, floor_db, targets, self.latents_of(row))
+        return out
 
     def with_information(
         self,
