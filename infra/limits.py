@@ -97,7 +97,9 @@ class Limits(Contract):
         "channels x 32 bytes (forward and backward) [bytes]",
     )
     prediction_bytes: int = Field(
-        default=4 * GiB, ge=1, description="The map searcher's predicted maps of one city, candidates x legal cells x 12 bytes (16 where it krigs)"
+        default=4 * GiB,
+        ge=1,
+        description="The map searcher's predicted maps of one city, candidates x legal cells x 12 bytes (16 where it krigs)",
     )
     train_steps: int = Field(default=10_000_000_000, ge=1, description="Environment steps of one training (--steps, total_steps)")
 
