@@ -26,6 +26,12 @@ The dense validation crop (a 120 x 120 m piece of etoile-val's region, 160 users
     uavdata build --grid 4m --alt 10 --root runs/bounds/processed --city etoile-val-dense
     python experiments/searcher_bounds.py --root runs/bounds/processed --city etoile-val-dense --true-maps [--p-t-db 20]
 
+A built-up one, 120 x 120 m of florence-val's region where buildings above the UAV cover half the cells (51 %), the
+same way (66 minutes of tracing on 2 cores shared with other work; docs/searcher.md has its bounds):
+
+    uavdata simulate sionna:florence --crop=322,32,442,152 --name florence-val-dense --users 160 --seed 12 \
+        --samples 1.6e7 --gap-fill-walk 4-neighbour --out runs/bounds/raw --trace-cache runs/traces
+
     python experiments/searcher_bounds.py [--city etoile-val] [--episodes 300] [--radius 2]
 
 Test cities are refused: nothing is learnt from them.
