@@ -87,7 +87,8 @@ class SearchConfig(Contract):
         description="The correlation of the predictor's errors at two cells a cell apart, before its decay with "
         "distance (error_range_cells): the cover planner moves each candidate's predicted chance of reaching P_T at "
         "the cells within error_reach of the cells measured by what those measurements say of its map's error "
-        "there (kriging, rl.belief.BeliefModel.kriged_cover); 0: every cell's chance as predicted",
+        "there (kriging, rl.belief.BeliefModel.kriged_cover); 0: every cell's chance as predicted. The placement "
+        "searcher's: the tracking and fleet searchers plan as without it",
     )
     kriging: Literal["planner", "belief", "both"] = Field(
         default="planner",
