@@ -52,8 +52,9 @@ def _training_users(datasets: tuple[str, ...], root: Path) -> tuple[list, list]:
 @path_option(
     "--out",
     folder=False,
-    default=Path("data/agents/searcher/predictor.json"),
-    help="The constants' JSON file (written atomically; a regular file or absent).",
+    default=Path("runs/predictor/predictor.json"),
+    help="The constants' JSON file (written atomically; a regular file or absent). The shipped constants are "
+    "data/agents/searcher/predictor.json: name it to replace them.",
 )
 @root_option
 def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out: Path, root: Path) -> None:
@@ -116,8 +117,9 @@ def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out:
 @path_option(
     "--out",
     folder=True,
-    default=Path("data/agents/searcher/unet"),
-    help="Folder of model.json, weights.pt and MODEL_CARD.md (replaced whole, or left as it was).",
+    default=Path("runs/predictor/unet"),
+    help="Folder of model.json, weights.pt and MODEL_CARD.md (replaced whole, or left as it was). The shipped tier is "
+    "data/agents/searcher/unet: name it to replace it.",
 )
 @model_options(UNetConfig, "steps", "batch", "seed", "threads")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
@@ -217,12 +219,13 @@ def train_predictor(
 @path_option(
     "--out",
     folder=True,
-    default=None,
-    help="Folder to write the calibrated predictor to (replaced whole, or left as it was; default: --predictor itself).",
+    default=Path("runs/predictor/calibrated"),
+    help="Folder to write the calibrated predictor to (replaced whole, or left as it was). --predictor's own folder "
+    "refits it in place (the shipped tier's calibration: --out data/agents/searcher/unet).",
 )
 @root_option
 def calibrate_predictor(
-    predictor: Path, map_folders: tuple[Path, ...], packs: str, val_datasets: tuple[str, ...], out: Path | None, root: Path
+    predictor: Path, map_folders: tuple[Path, ...], packs: str, val_datasets: tuple[str, ...], out: Path, root: Path
 ) -> None:
     """Refit the dead-cell probability's calibration of a learned predictor (Platt scaling of its uncalibrated dead
     logit) on training-maps packs its network was not trained on, score it on validation cities' users, and write it
@@ -237,7 +240,6 @@ def calibrate_predictor(
     from uavplace.rl.predictor import PhysicsPredictor
     from uavplace.rl.tiers import score_tiers
 
-    out = predictor if out is None else out
     learned = load_learned(predictor)
     model = learned.model
     paths = [p for f in map_folders for p in list_packs(f) if p.stem.startswith(packs)]
