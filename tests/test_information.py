@@ -100,6 +100,8 @@ def test_report_methods_read_only_what_they_measured(tiny):
     assert {"map searcher", "map searcher, no buildings", "greedy hill-climbing"} <= {p.name for p in policies}
     for planner in ("info", "lookahead"):
         policies.append(MapSearchPolicy(load_predictor(), SearchConfig(planner=planner), name=f"map searcher, {planner}"))
+    kriged = SearchConfig(error_share=0.8, kriging="both")  # its own measurements' errors, kriged
+    policies.append(MapSearchPolicy(load_predictor(), kriged, name="map searcher, kriging"))
     episodes = maps.episode_list(EPISODES, 1)
     for policy in policies:
         same, _ = _replay(maps, policy, episodes, np.random.default_rng(3))
