@@ -583,7 +583,7 @@ def test_correlated_belief_is_bayes_by_brute_force(tiny):
 
 def test_kriging_searcher_finds_the_tiny_users(tiny):
     maps = MapSet.load("tiny", EnvConfig(t_max=100), root=str(tiny))
-    for kriging in ("planner", "belief", "both"):
-        policy = MapSearchPolicy(_constants(), SearchConfig(error_share=0.85, kriging=kriging))
+    for kriging, memory in (("planner", 96), ("belief", 96), ("both", 96), ("both", 3)):
+        policy = MapSearchPolicy(_constants(), SearchConfig(error_share=0.85, kriging=kriging, error_memory=memory))
         df = run_episodes(maps, policy, maps.episode_list(20, 0), num_envs=8)
         assert df["success"].mean() >= 0.9

@@ -258,10 +258,11 @@ class MapSearchPolicy(BeliefModel):
 
     def remember(self, maps: CandidateMaps, row: int, column: int, value: float, floor_db: float) -> None:
         """Row ``row`` measured ``value`` at legal cell ``column`` for the first time: kept in order, with its error
-        latents where the errors are kriged (computed once: they do not change)."""
+        latents where the errors are kriged (computed once: they do not change; the last ``error_memory`` kept)."""
         self.measured[row][column] = value
         if self.config.error_share > 0:
             self.latents[row].append(self.error_latent(maps, np.array([column]), np.array([value]), floor_db)[:, 0])
+            del self.latents[row][: -self.config.error_memory]
 
     def latents_of(self, row: int) -> np.ndarray | None:
         """``[C, V]`` the error latents of row ``row``'s ``error_memory`` cells measured last, or None where not kriged."""
