@@ -51,7 +51,10 @@ class MapSearchPolicy(BeliefModel):
         self.belief: list[np.ndarray | None] = []
         self.seen: list[np.ndarray | None] = []  # per row, the legal cells visited so far (with its belief)
         self.measured: list[dict[int, float]] = []  # per row, each legal cell measured so far: its value, in order
-        self.latents: list[list[np.ndarray]] = []  # per row where the errors are kriged: each measured cell's [C] latents
+        # per row where the errors are kriged: the [C] latents of its last error_memory measured cells, in the order
+        # measured ([C, error_memory], the first latent_count[row] columns filled): appended in place, never stacked
+        self.latents: list[np.ndarray | None] = []
+        self.latent_count = np.zeros(0, np.int64)
         self.belief_canvas = np.zeros(0, np.int64)
         self.started = np.zeros(0, bool)
 
@@ -117,11 +120,11 @@ class MapSearchPolicy(BeliefModel):
         if len(self.belief) != num_envs:
             self.belief, self.seen = [None] * num_envs, [None] * num_envs
             self.measured = [{} for _ in range(num_envs)]
-            self.latents = [[] for _ in range(num_envs)]
+            self.latents, self.latent_count = [None] * num_envs, np.zeros(num_envs, np.int64)
             self.belief_canvas = np.full(num_envs, -1, np.int64)
         for r in np.asarray(rows, np.int64):
             self.belief[r] = self.seen[r] = None
-            self.measured[r], self.latents[r] = {}, []
+            self.measured[r], self.latents[r], self.latent_count[r] = {}, None, 0
 
     def prior(self, maps: CandidateMaps, row: int) -> np.ndarray:
         """``[C]`` the log-belief of row ``row`` before its first measurement: uniform over the candidates (an oracle
@@ -156,7 +159,7 @@ class MapSearchPolicy(BeliefModel):
                 continue
             floor_db = float(public.settings[public.bundle_of(c)]["floor_db"])
             log_b = self.prior(maps, r)
-            self.measured[r], self.latents[r] = {}, []
+            self.measured[r], self.latents[r], self.latent_count[r] = {}, None, 0
             for y, x in np.argwhere(visits[r] > 0):  # every cell measured so far (at t = 0 the start), as memory holds it
                 column, value = int(maps.index[y - p, x - p]), float(env.memory[r, y, x])
                 log_b = self.update(maps, log_b, column, value, floor_db, self.measured[r], self.latents_of(r))
@@ -261,13 +264,20 @@ class MapSearchPolicy(BeliefModel):
         latents where the errors are kriged (computed once: they do not change; the last ``error_memory`` kept)."""
         self.measured[row][column] = value
         if self.config.error_share > 0:
-            self.latents[row].append(self.error_latent(maps, np.array([column]), np.array([value]), floor_db)[:, 0])
-            del self.latents[row][: -self.config.error_memory]
+            latent = self.error_latent(maps, np.array([column]), np.array([value]), floor_db)[:, 0]
+            if self.latents[row] is None:
+                self.latents[row] = np.empty((len(latent), self.config.error_memory))
+            n = int(self.latent_count[row])
+            if n == self.config.error_memory:  # full: the oldest goes
+                self.latents[row][:, :-1] = self.latents[row][:, 1:]
+                n -= 1
+            self.latents[row][:, n] = latent
+            self.latent_count[row] = n + 1
 
     def latents_of(self, row: int) -> np.ndarray | None:
-        """``[C, V]`` the error latents of row ``row``'s ``error_memory`` cells measured last, or None where not kriged."""
-        kept = self.latents[row][-self.config.error_memory :]
-        return np.stack(kept, axis=1) if kept else None
+        """``[C, V]`` the error latents of row ``row``'s ``error_memory`` cells measured last (a view, no copy), or None
+        where not kriged or before its first measurement."""
+        return None if self.latents[row] is None else self.latents[row][:, : self.latent_count[row]]
 
     def with_kriging(
         self, maps: CandidateMaps, score: np.ndarray, log_b: np.ndarray, row: int, seen: np.ndarray, floor_db: float
