@@ -9,8 +9,9 @@ from pathlib import Path
 from typing import Any
 
 import click
+from pydantic import BaseModel
 
-from uavplace.eval.config import PeerConfig, ReportConfig, TrackingReportConfig
+from uavplace.eval.config import FleetReportConfig, PeerConfig, ReportConfig, TrackingReportConfig
 from uavplace.infra.cluster import start_ray
 from uavplace.infra.console import (
     Finite,
@@ -27,9 +28,9 @@ from uavplace.infra.console import (
     warn_or_refuse,
 )
 from uavplace.infra.files import exclusive_folder, shipped
-from uavplace.infra.options import model_options
+from uavplace.infra.options import model_options, with_pairs
 from uavplace.rl.cli import episode_options
-from uavplace.rl.config import EpisodeSettings
+from uavplace.rl.config import EpisodeSettings, SearchConfig
 from uavplace.rl.tasks.fleet.config import FleetConfig
 from uavplace.rl.tasks.registry import TASKS
 from uavplace.rl.tasks.tracking.config import TrackingConfig
@@ -108,6 +109,14 @@ from uavplace.schemas.base import repeated
     "predicted maps are cached under ROOT/.predictions/.",
 )
 @click.option(
+    "--search",
+    multiple=True,
+    metavar="NAME=VALUE",
+    help="A setting of the searcher the task plays (a field of SearchConfig, rl/config.py, where each is explained; "
+    "repeatable), e.g. --search planner=info --search error_share=0.8: every other setting is the task's default "
+    "(docs/searcher.md). Saved in the report's record.",
+)
+@click.option(
     "--overwrite",
     is_flag=True,
     help="Replace a report folder that holds a report of other agents (refused by default: `--run X` would otherwise "
@@ -152,6 +161,7 @@ def report(**v: Any) -> None:
     from uavplace.infra.limits import check_limit
 
     task = TASK_REPORTS[v["task"]]
+    v["search"] = task.search(v["search"])  # a mistyped setting is refused before anything is loaded
     cities = [d.split("@")[0] for d in v["datasets"]]
     twice = repeated(cities)
     if twice:  # one folder, table and summary row per city: two versions of one city would overwrite each other
@@ -272,7 +282,7 @@ SHARED_SETTINGS = ("episodes", "seed", "test_epsilon", "n_boot")
 
 def report_settings(runs: list[Path], v: dict[str, Any]) -> dict:
     """The settings the placement and tracking reports' configs share, from the command line's values ``v``."""
-    shared = {k: v[k] for k in (*SHARED_SETTINGS, "trajectories")}
+    shared = {k: v[k] for k in (*SHARED_SETTINGS, "trajectories", "search")}
     return {"runs": [str(r) for r in runs], **shared, "predictor": predictor_or_none(v["predictor"])}
 
 
@@ -368,7 +378,6 @@ def _tracking_report(v: dict[str, Any], after: contextlib.ExitStack) -> None:
 
 def _fleet_report(v: dict[str, Any], after: contextlib.ExitStack) -> None:
     """``uavrl report --task fleet``: every method on the same fleet episodes of each city, one page."""
-    from uavplace.eval.config import FleetReportConfig
     from uavplace.eval.evaluate import check_unseen_runs, default_agents
     from uavplace.eval.fleet import DEFAULT_AGENT, SUMMARY_TITLE, make_fleet_report, summary_rows, table_rows
     from uavplace.eval.render import difference_rows
@@ -387,6 +396,7 @@ def _fleet_report(v: dict[str, Any], after: contextlib.ExitStack) -> None:
         runs=[str(r) for r in runs],
         task=task,
         predictor=predictor_or_none(v["predictor"]),
+        search=v["search"],
         **shared,
     )
     with _reporting("fleet report", v["quiet"]) as on_progress:
@@ -441,13 +451,20 @@ class TaskReport:
     budget: tuple[str, str]
     #: Whether it takes --group and --split (the others play every user and route of the cities).
     selects_users: bool
+    #: Its report's settings, whose ``search`` field ``--search`` changes.
+    config: type[BaseModel]
+
+    def search(self, pairs: tuple[str, ...]) -> SearchConfig:
+        """The task's searcher settings (its report config's default) with ``--search``'s ``NAME=VALUE`` set."""
+        default = self.config.model_fields["search"].get_default(call_default_factory=True)
+        return with_pairs(default, pairs, "--search")
 
 
 #: Each task's report (``rl.tasks.registry.TASKS`` names the same tasks).
 TASK_REPORTS = {
-    "placement": TaskReport(_placement_report, False, ("t_max", "--t-max"), True),
-    "tracking": TaskReport(_tracking_report, True, ("horizon", "--horizon"), False),
-    "fleet": TaskReport(_fleet_report, False, ("t_max", "--t-max"), False),
+    "placement": TaskReport(_placement_report, False, ("t_max", "--t-max"), True, ReportConfig),
+    "tracking": TaskReport(_tracking_report, True, ("horizon", "--horizon"), False, TrackingReportConfig),
+    "fleet": TaskReport(_fleet_report, False, ("t_max", "--t-max"), False, FleetReportConfig),
 }
 
 

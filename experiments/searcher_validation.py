@@ -13,28 +13,30 @@ against the searcher. Settings of the searcher as ``--set name=value`` (``Search
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
+import click
 from common import VALIDATION, validation_parser
 
 from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.evaluate import ReportConfig, evaluate, load_agent
 from uavplace.eval.metrics import bootstrap_table, difference_table
 from uavplace.infra.console import markdown_table
+from uavplace.infra.options import with_pairs
 from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
 from uavplace.rl.config import SearchConfig
 from uavplace.rl.tasks.placement.policies import GeniePolicy
 from uavplace.rl.tasks.placement.searcher import SEARCHER, MapSearchPolicy
 
 
-def _value(text: str) -> object:
-    """A ``--set`` value: JSON if it parses (numbers, true), else the text itself (a word such as hyperbolic)."""
+def _settings(ap, base: SearchConfig, pairs: list[str], option: str) -> SearchConfig:  # noqa: ANN001 - its parser
+    """``base`` with ``pairs`` (``name=value``, JSON values) set, as ``uavrl report --search`` sets them; a bad one ends
+    the script with the parser's usage error."""
     try:
-        return json.loads(text)
-    except json.JSONDecodeError:
-        return text
+        return with_pairs(base, pairs, option)
+    except click.BadParameter as exc:
+        ap.error(exc.format_message())
 
 
 def main() -> None:
@@ -66,8 +68,7 @@ def main() -> None:
     )
     ap.add_argument("--quick", action="store_true", help="The genie and the searcher only (no best, no ablation)")
     args = ap.parse_args()
-    settings = {k: _value(v) for k, v in (s.split("=", 1) for s in args.set)}
-    search = SearchConfig(**settings)
+    search = _settings(ap, SearchConfig(), args.set, "--set")
     predictor, cache = load_predictor(args.predictor), PredictionCache(args.root / PREDICTIONS)
     versus = [(other, load_predictor(other)) for other in args.versus]
     folders = args.agent or [Path("data/agents/best")]
@@ -86,9 +87,8 @@ def main() -> None:
             for b in ((True,) if args.quick else (True, False))
         ]
         for text in args.variant:
-            changed = {k: _value(v) for k, v in (p.split("=", 1) for p in text.split(","))}
-            policies.append(MapSearchPolicy(predictor, SearchConfig(**{**search.model_dump(), **changed}), cache,
-                                            name=f"{SEARCHER} [{text}]"))  # fmt: skip
+            changed = _settings(ap, search, text.split(","), "--variant")
+            policies.append(MapSearchPolicy(predictor, changed, cache, name=f"{SEARCHER} [{text}]"))
         for other, tier in versus:
             policies.append(MapSearchPolicy(tier, search, cache, name=f"{SEARCHER} [{other.name}]"))
         t0 = time.perf_counter()

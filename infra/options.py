@@ -14,6 +14,7 @@ or a help text is written once, in the model.
 
 from __future__ import annotations
 
+import json
 import types
 import typing
 from collections.abc import Callable
@@ -143,3 +144,32 @@ def settings(model: type[M], values: dict, names: dict[str, str] | None = None) 
         option = (names or {}).get(top, "--" + top.replace("_", "-"))
         hint = f"'{option}'" if top in model.model_fields else None  # as click names an option
         raise click.BadParameter(message, param_hint=hint) from None
+
+
+def _pair_value(text: str) -> object:
+    """A ``NAME=VALUE`` value: JSON where it parses (a number, true, null), else the text itself (a word such as
+    hyperbolic); the model converts and checks it."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
+
+
+def with_pairs(config: M, pairs: tuple[str, ...] | list[str], option: str) -> M:
+    """``config`` with the fields ``pairs`` name (``NAME=VALUE`` texts, a later one of a name winning) set, checked by
+    its model as a whole (a cross-field validator too); a text without ``=``, a name the model lacks or a value it
+    refuses is click's usage error naming ``option`` and the model's fields."""
+    model = type(config)
+    changed: dict[str, object] = {}
+    for text in pairs:
+        name, sep, value = text.partition("=")
+        name = name.strip().replace("-", "_")
+        if not sep or name not in model.model_fields:
+            fields = ", ".join(model.model_fields)
+            raise click.BadParameter(f"{text!r}: expected NAME=VALUE, NAME one of {fields}", param_hint=f"'{option}'")
+        changed[name] = _pair_value(value.strip())
+    try:
+        return model(**(config.model_dump() | changed))
+    except ValidationError as exc:
+        field, message = validation_message(exc)
+        raise click.BadParameter(f"{field}: {message}", param_hint=f"'{option}'") from None

@@ -530,3 +530,26 @@ def test_report_progress_names_the_city_the_method_and_the_predicted_maps(tiny, 
     counts = {tuple(map(int, pattern.match(line).groups())) for line in lines}
     total = {m for _, m in counts}
     assert len(total) == 1 and {j for j, _ in counts} == set(range(1, total.pop() + 1)), counts  # every stage, counted
+
+
+def test_report_search_sets_the_searchers_settings(tiny, tmp_path):
+    """``--search NAME=VALUE`` sets the searcher's settings on top of each task's default (the record says them); a
+    mistyped name or a refused value ends the command before anything is played or written."""
+    from uavplace.eval.cli import TASK_REPORTS
+    from uavplace.rl.config import SearchConfig
+    from uavplace.rl.tasks.tracking.config import tracking_search
+
+    out = tmp_path / "rep"
+    args = ["report", "--dataset", "tiny", "--root", str(tiny), "--episodes", "4", "--bootstrap", "100", "--out", str(out),
+            "--quiet", "--search", "planner=info", "--search", "info-weight=0.3"]  # fmt: skip
+    res = CliRunner().invoke(uavrl, args)
+    assert res.exit_code == 0, res.output
+    search = json.loads((out / "report.json").read_text())["report_config"]["search"]
+    assert search == SearchConfig(planner="info", info_weight=0.3).model_dump(mode="json")
+    for bad, says in (("plan=info", "NAME one of stride"), ("stride=0", "stride"), ("planner=best", "planner")):
+        res = CliRunner().invoke(uavrl, [*args[:-4], "--out", str(tmp_path / "no"), "--search", bad])
+        assert res.exit_code == 2 and "--search" in res.output and says in res.output, res.output
+        assert not (tmp_path / "no").exists()
+    assert TASK_REPORTS["tracking"].search(()) == tracking_search()  # each task's own default, changed name by name
+    assert TASK_REPORTS["tracking"].search(("stride=4",)) == tracking_search().model_copy(update={"stride": 4})
+    assert TASK_REPORTS["fleet"].search(("fleet_plan=makespan",)).fleet_plan == "makespan"

@@ -196,6 +196,7 @@ CLI_SWITCHES = {
         "trace_cache",
     },
     "which preset, task, format, algorithm or roles": {"preset", "task", "settings", "formats", "splits", "crop_cities", "algo"},
+    "a nested model's fields as NAME=VALUE, each checked by that model (infra.options.with_pairs)": {"search"},
 }
 
 
@@ -220,3 +221,18 @@ def test_every_option_is_a_field_or_a_declared_switch():
     walk(uavdata, "uavdata")
     walk(uavrl, "uavrl")
     assert not hand, f"options written by hand, not derived from a model field: {hand}"
+
+
+def test_pairs_set_a_models_fields_checked_by_it():
+    """``NAME=VALUE`` texts set a config's fields (JSON values, words as text, dashes for underscores), the rest kept;
+    a text without '=', an unknown name or a value the model refuses is a usage error naming the option."""
+    from uavplace.infra.options import with_pairs
+
+    base = Toy(count=4)
+    assert with_pairs(base, ["rate=0.25", "mode=b", "fast=true"], "--set") == Toy(count=4, rate=0.25, mode="b", fast=True)
+    assert with_pairs(base, ["count=2", "count=7"], "--set").count == 7  # the last one wins
+    assert with_pairs(base, [], "--set") == base
+    for bad, says in (("rate", "expected NAME=VALUE"), ("speed=3", "NAME one of count, rate"), ("count=10", "count")):
+        with pytest.raises(click.BadParameter, match=says) as err:
+            with_pairs(base, [bad], "--set")
+        assert "--set" in err.value.format_message() or err.value.param_hint == "'--set'"
