@@ -1,0 +1,136 @@
+"""Learned-predictor recipes judged by the searcher they serve, each on several training seeds, on validation cities.
+
+Each ``--recipe NAME=OPTIONS`` (options of `uavrl train-predictor`, e.g. ``--maps data/trainmaps --steps 4000``) is
+trained once per ``--seeds`` seed on the 22 training cities (corpus-000..015, oldtown-000..004, train) into
+OUT/NAME-sSEED (a folder whose model.json was made by the same command is kept: the script resumes), scored on the
+validation cities' users (model.json), then played by the map searcher (the shipped settings) beside the shipped
+predictor's searcher and the genie on the same episodes of each validation city. A recipe is worth keeping where it
+beats the shipped tier by more than its own seeds spread: the table gives each recipe's mean over seeds and their
+range, per city, for SPL and median steps, and the predictor's scores the same way.
+
+    python experiments/predictor_recipes.py --recipe 'packs4k=--maps data/trainmaps --steps 4000' --seeds 0 1 2
+        [--episodes 300] [--city etoile-val] [--out runs/predictor/recipes] [--train-only]
+
+Validation cities only: a test city is refused. Each city's outcome is written to OUT/judged-<city>.json once its
+episodes are played (the same predictors, episodes and seed are not played again).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+from common import VALIDATION, validation_parser
+
+from uavplace.dataset.bundle import load_bundle
+from uavplace.eval.evaluate import ReportConfig, evaluate
+from uavplace.eval.metrics import bootstrap_table
+from uavplace.infra.console import markdown_table
+from uavplace.infra.files import atomic_write_text
+from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
+from uavplace.rl.config import SearchConfig
+from uavplace.rl.tasks.placement.policies import GeniePolicy
+from uavplace.rl.tasks.placement.searcher import SEARCHER, MapSearchPolicy
+
+#: The training cities of every recipe (the shipped tier's), before the recipe's own options.
+TRAINING = [
+    *(f"--dataset=corpus-{i:03d}" for i in range(16)),
+    *(f"--dataset=oldtown-{i:03d}" for i in range(5)),
+    "--dataset=train",
+]
+#: What a model folder's record says made it.
+COMMAND_FILE = "recipe-command.json"
+SHIPPED = "shipped"
+
+
+def train(name: str, options: str, seed: int, out: Path, root: Path) -> Path:
+    """Train recipe ``name`` at ``seed`` into ``out/name-sSEED`` unless a finished folder of the same command is there."""
+    folder = out / f"{name}-s{seed}"
+    command = ["uavrl", "train-predictor", *TRAINING, *shlex.split(options), "--seed", str(seed), "--root", str(root),
+               *(f"--val-dataset={c}" for c in VALIDATION), "--out", str(folder), "--quiet"]  # fmt: skip
+    record = folder / COMMAND_FILE
+    if (folder / "model.json").is_file() and record.is_file() and json.loads(record.read_text()) == command:
+        print(f"{folder}: trained already, kept", flush=True)
+        return folder
+    print("$ " + shlex.join(command), flush=True)
+    subprocess.run(command, check=True)
+    atomic_write_text(record, json.dumps(command))
+    return folder
+
+
+def judge(city: str, tiers: dict[str, Path], args, out: Path) -> dict:  # noqa: ANN001 - the parsed arguments
+    """The genie and a searcher per tier on the same ``args.episodes`` episodes of ``city``: each method's success,
+    median steps and SPL (written to OUT/judged-<city>.json; read back when it holds the same tiers and episodes)."""
+    key = {
+        "tiers": {n: hashlib.sha256((p / "weights.pt").read_bytes()).hexdigest() for n, p in tiers.items()},
+        "episodes": args.episodes,
+        "seed": args.seed,
+    }
+    path = out / f"judged-{city}.json"
+    if path.is_file() and (held := json.loads(path.read_text())).get("key") == key:
+        return held["methods"]
+    bundle = load_bundle(city, root=args.root)
+    if bundle.manifest.config.role == "test":
+        sys.exit(f"{city} is a test city: release numbers come from `uavrl report`, never a choice")
+    cache = PredictionCache(args.root / PREDICTIONS)
+    policies = [GeniePolicy()] + [
+        MapSearchPolicy(load_predictor(p), SearchConfig(), cache, name=f"{SEARCHER} [{n}]") for n, p in tiers.items()
+    ]
+    config = ReportConfig(dataset=city, episodes=args.episodes, seed=args.seed, predictor=None)
+    table = bootstrap_table(evaluate(config, bundle, [], baselines=policies), n_boot=200, seed=args.seed)
+    methods = {
+        r["method"].removeprefix(f"{SEARCHER} [").removesuffix("]"): {k: float(r[k]) for k in ("success", "median_steps", "spl")}
+        for r in table.to_dict("records")
+    }
+    atomic_write_text(path, json.dumps({"key": key, "methods": methods}, indent=1))
+    return methods
+
+
+def spread(values: list[float], digits: int) -> str:
+    """Mean over seeds, with their range where there are several."""
+    mean = f"{np.mean(values):.{digits}f}"
+    return mean if len(values) == 1 else f"{mean} [{min(values):.{digits}f}, {max(values):.{digits}f}]"
+
+
+def main() -> None:
+    ap = validation_parser(__doc__, episodes=300)
+    ap.add_argument("--recipe", action="append", required=True, help="NAME=OPTIONS of `uavrl train-predictor` (repeatable)")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="Training seeds of every recipe")
+    ap.add_argument("--out", type=Path, default=Path("runs/predictor/recipes"), help="Where the trained tiers go")
+    ap.add_argument("--root", type=Path, default=Path("data/processed"))
+    ap.add_argument("--shipped", type=Path, default=DEFAULT_PREDICTOR, help="The tier the recipes are set against")
+    ap.add_argument("--train-only", action="store_true", help="Train (or resume training) and stop before the episodes")
+    args = ap.parse_args()
+    recipes = dict(r.split("=", 1) for r in args.recipe)
+    if SHIPPED in recipes or len(recipes) != len(args.recipe):
+        ap.error(f"--recipe: one NAME each, none called {SHIPPED!r}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    tiers = {SHIPPED: args.shipped}
+    for name, options in recipes.items():
+        for seed in args.seeds:
+            tiers[f"{name}-s{seed}"] = train(name, options, seed, args.out, args.root)
+    if args.train_only:
+        return
+    groups = {SHIPPED: [SHIPPED]} | {n: [f"{n}-s{s}" for s in args.seeds] for n in recipes}
+    rows = [["recipe", "city", "success", "median steps", "SPL", "median |error| [dB]", "p90 [dB]", "dead/live", "ECE"]]
+    for city in args.city or VALIDATION:
+        methods = judge(city, tiers, args, args.out)
+        print(f"{city}: genie median {methods[GeniePolicy.name]['median_steps']:g} steps", flush=True)
+        for group, members in groups.items():
+            played = [methods[m] for m in members]
+            scores = [json.loads((tiers[m] / "model.json").read_text())["scores"].get(city) for m in members]
+            scores = [s for s in scores if s]
+            cells = [spread([s[f"learned_{k}"] for s in scores], d) if scores else "" for k, d in
+                     (("median_error_db", 1), ("p90_error_db", 1), ("dead_live_agreement", 3), ("calibration_error", 3))]  # fmt: skip
+            rows.append([group, city, spread([100 * p["success"] for p in played], 1),
+                         spread([p["median_steps"] for p in played], 1), spread([p["spl"] for p in played], 3), *cells])  # fmt: skip
+    print(markdown_table(rows), flush=True)
+
+
+if __name__ == "__main__":
+    main()
