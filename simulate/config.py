@@ -34,6 +34,7 @@ OPTION_NAMES = {
     "altitude_m": "--alt",
     "extent_m": "--extent",
     "crop_m": "--crop",
+    "surround_m": "--surround",
     "frequency_hz": "--freq",
     "gap_fill_reach_m": "--gap-fill-reach",
     "gap_fill_decay_db_per_m": "--gap-fill-decay",
@@ -108,6 +109,15 @@ class Simulation(Contract):
         default=None,
         description="Real geometry only: keep the buildings inside XMIN,YMIN,XMAX,YMAX [m] (clipped; counted) and make "
         "that the city.",
+    )
+    surround_m: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=2000.0,
+        description="With --crop: also trace the buildings within this distance around the crop (clipped there), "
+        "whose shadows and reflections reach the crop's cells; the city (its grid, users and written buildings) "
+        "stays the crop. 0: the crop's buildings only.",
+        json_schema_extra=_METRES,
     )
     frequency_hz: float = Field(default=CARRIER_HZ, ge=1e8, le=1e11, description="Carrier frequency [Hz].")
     tx_dbm: float = Field(default=TX_POWER_DBM, ge=-50.0, le=70.0, description="User transmit power [dBm].")
@@ -228,6 +238,7 @@ class Simulation(Contract):
             extent_m=self.extent_m,
             users_m=self.users_m,
             crop_m=self.crop_m,
+            surround_m=self.surround_m,
             routes=self.routes,
             route_length_m=self.route_length_m,
             route_kinds=self.route_kinds,
@@ -272,6 +283,7 @@ class SimulationSpec:
     extent_m: tuple[float, float, float, float] | None = None
     users_m: tuple[tuple[float, float], ...] = ()
     crop_m: tuple[float, float, float, float] | None = None
+    surround_m: float = 0.0  # with crop_m: the buildings this far around it are traced too, not written
     routes: int = _default("routes")  # user routes drawn on open ground, every point traced as a user (simulate.routes)
     route_length_m: float = _default("route_length_m")
     route_kinds: tuple[str, ...] = _default("route_kinds")

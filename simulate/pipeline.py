@@ -67,7 +67,7 @@ from uavplace.simulate.raytrace import (
     sionna_versions,
 )
 from uavplace.simulate.routes import KINDS, MAX_STEP_M, ROUTE_SET, Route, draw_routes, write_routes_csv
-from uavplace.simulate.scene import CONCRETE, Block, write_scene
+from uavplace.simulate.scene import CONCRETE, GROUND_MARGIN_M, Block, write_scene
 from uavplace.simulate.styles import STYLE_SIZE_M, STYLES, styled_city
 
 USER_SET = (1, "User")
@@ -139,6 +139,8 @@ def check_simulation(spec: SimulationSpec, config: RayTraceConfig, count: int = 
                 "--solver paths traces exact paths at every cell already: nothing is missed",
                 field="complete_missed",
             )
+    if spec.surround_m and spec.crop_m is None:
+        raise InputError("--surround", "traces the buildings around a --crop: give --crop too", field="surround")
     for option, box in (("--extent", spec.extent_m), ("--crop", spec.crop_m)):
         if box is None:
             continue
@@ -148,6 +150,9 @@ def check_simulation(spec: SimulationSpec, config: RayTraceConfig, count: int = 
         cells = ((box[2] - box[0]) // spec.grid_m) * ((box[3] - box[1]) // spec.grid_m)
         check_limit("grid_cells", cells, option, "cells of the receiver grid (the extent over the grid squared)", field="grid_m")
         _bounded(cells * (len(spec.users_m) or spec.num_users), f"{option} with --grid and --users", limit="user_cells")
+    if spec.surround_m and spec.crop_m is not None and all(np.isfinite(spec.crop_m)):
+        x0, y0, x1, y1 = surrounded(spec.crop_m, spec.surround_m)
+        _bounded(max(x1 - x0, y1 - y0), "--crop with --surround (the traced box)", limit="extent_m")
     for k, (x, y) in enumerate(spec.users_m):
         if not (np.isfinite(x) and np.isfinite(y)):
             raise InputError("--user", f"user {k + 1} at ({x}, {y}): coordinates must be finite", field="user")
@@ -160,6 +165,11 @@ def check_simulation(spec: SimulationSpec, config: RayTraceConfig, count: int = 
             raise InputError(
                 "--route-kinds", f"{unknown or 'none'}: expected kinds among {', '.join(KINDS)}", field="route_kinds"
             )
+
+
+def surrounded(box: tuple[float, float, float, float], margin_m: float) -> tuple[float, float, float, float]:
+    """``box`` (XMIN, YMIN, XMAX, YMAX) grown by ``margin_m`` on every side: the buildings ``--surround`` traces."""
+    return (box[0] - margin_m, box[1] - margin_m, box[2] + margin_m, box[3] + margin_m)
 
 
 def route_point_count(spec: SimulationSpec) -> int:
@@ -441,6 +451,8 @@ def trace_key(spec: SimulationSpec, config: RayTraceConfig) -> str:
 def spec_record(spec: SimulationSpec) -> dict:
     """``spec`` as simulation.json records it: without the route settings when it has no routes (as before routes)."""
     doc = asdict(spec)
+    if not spec.surround_m:  # as before --surround: a crop's buildings only
+        del doc["surround_m"]
     return doc if spec.routes else {k: v for k, v in doc.items() if not k.startswith("route")}
 
 
@@ -601,6 +613,10 @@ def simulate_city(
     check_replaceable(Path(out_root) / spec.name, PROVENANCE, "simulated city")  # before minutes of ray tracing
     t_start = time.perf_counter()
     blocks, bounds, described = load_geometry(spec.source, spec.seed, spec.crop_m)
+    traced = blocks  # what the ray tracer sees: the city's buildings, and with --surround those around the crop
+    if spec.surround_m:
+        traced = load_geometry(spec.source, spec.seed, surrounded(spec.crop_m, spec.surround_m))[0]
+        described += f"; traced with the buildings within {spec.surround_m:g} m around it ({len(traced)} roof tiers in all)"
     grid = receiver_grid(bounds, spec)
     users = place_users(blocks, grid, spec)
     routes = city_routes(blocks, grid, spec)
@@ -614,7 +630,8 @@ def simulate_city(
     progress("scene", 0, len(users))
     opened = open_cells(blocks, grid)
     with tempfile.TemporaryDirectory(prefix="uavplace-scene-") as tmp:
-        xml, materials = write_scene(tmp, blocks, box, rt_config.frequency_hz)
+        margin = GROUND_MARGIN_M + spec.surround_m  # the ground under every traced building
+        xml, materials = write_scene(tmp, traced, box, rt_config.frequency_hz, ground_margin_m=margin)
         job = RadioMapJob(str(xml), tuple(map(tuple, sources.tolist())), center, size, spec.grid_m)
         seconds = {"raytrace": 0.0, "direct": 0.0}
 

@@ -88,13 +88,17 @@ def extrude(footprint: shapely.Polygon, base_z: float, roof_z: float) -> trimesh
     return trimesh.Trimesh(vertices=np.vstack(verts), faces=np.vstack(faces), process=True)
 
 
+#: How far the ground reaches beyond the traced buildings' box [m].
+GROUND_MARGIN_M = 50.0
+
+
 def write_scene(
     folder: str | Path,
     blocks: Sequence[Block],
     bounds_m: tuple[float, float, float, float],
     frequency_hz: float,
     *,
-    ground_margin_m: float = 50.0,
+    ground_margin_m: float = GROUND_MARGIN_M,
 ) -> tuple[Path, list[dict[str, float | str]]]:
     """Write ``scene.xml`` and ``meshes/*.ply`` into ``folder``; returns (xml path, materials used).
 

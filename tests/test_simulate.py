@@ -396,6 +396,40 @@ def test_simulate_with_exact_paths_at_every_open_cell(tmp_path):
 
 
 @needs_sionna
+def test_surround_traces_the_buildings_around_a_crop_and_writes_the_crops_only(tmp_path):
+    """``--surround M``: the buildings within M of a ``--crop`` are traced too (a wall 4 m beyond the crop's edge
+    reflects rays into the block's shadow: cells there gain power, those far from it hardly), while the city written, its
+    grid, users and buildings, is the crop's, as without it; the record says so. Without --crop it is refused."""
+    block = shapely.box(36, 36, 44, 44)  # inside the crop
+    wall = shapely.box(64, -40, 70, 100)  # outside the crop (0..60), within 20 m of it
+    features = [{"type": "Feature", "properties": {"height_m": h}, "geometry": shapely.geometry.mapping(g)}
+                for g, h in ((block, 20.0), (wall, 40.0))]  # fmt: skip
+    source = tmp_path / "two.geojson"
+    source.write_text(json.dumps({"type": "FeatureCollection", "features": features}))
+    common = [str(source), "--crop=0,0,60,60", "--user", "20,20", "--samples", "1e5", "--seed", "3"]
+    _simulate(tmp_path, *common, "--name", "bare")
+    _simulate(tmp_path, *common, "--name", "walled", "--surround", "20")
+    bundles = {}
+    for name in ("bare", "walled"):
+        raw = tmp_path / "raw" / name
+        assert len(read_city(raw / f"{name}.city")) == 1  # the crop's building only
+        ingest_city(raw, tmp_path / "p")
+        bundles[name] = load_bundle(build_city(name, BuildConfig(grid_m=4.0, altitude_m=10.0), tmp_path / "p").path)
+    record = json.loads((tmp_path / "raw" / "walled" / "simulation.json").read_text())
+    assert record["spec"]["surround_m"] == 20.0 and "traced with the buildings within 20 m around it" in record["geometry"]
+    assert "surround_m" not in json.loads((tmp_path / "raw" / "bare" / "simulation.json").read_text())["spec"]
+    bare, walled = bundles["bare"], bundles["walled"]
+    assert bare.shape == walled.shape == (15, 15)
+    np.testing.assert_array_equal(bare.blocked, walled.blocked)
+    np.testing.assert_array_equal(bare.height_rel_m, walled.height_rel_m)
+    gained = np.where(bare.dead[0] | walled.dead[0], np.nan, walled.sinr_db[0] - bare.sinr_db[0])
+    assert np.nanmax(gained[:, -4:]) > 3.0  # near the wall, behind the block: its reflections light the shadow
+    assert np.nanmedian(np.abs(gained[:, :7])) < 0.2  # the crop's far half: about the same values
+    res = CliRunner().invoke(uavdata, ["simulate", "procedural:tiny", "--name", "t", "--out", str(tmp_path), "--surround", "20"])
+    assert res.exit_code == 2 and "--surround" in res.output and "give --crop too" in res.output, res.output
+
+
+@needs_sionna
 def test_simulate_ingest_build_round_trip(tmp_path):
     """The tiny city through the real commands; the bundle's SINR equals the radio map's, computed here again."""
     from uavplace.simulate.insite import ReceiverGrid
