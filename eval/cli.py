@@ -114,7 +114,7 @@ from uavplace.schemas.base import repeated
     metavar="NAME=VALUE",
     help="A setting of the searcher the task plays (a field of SearchConfig, rl/config.py, where each is explained; "
     "repeatable), e.g. --search planner=info --search error_share=0.8: every other setting is the task's default "
-    "(docs/searcher.md). Saved in the report's record.",
+    "(docs/searcher.md); one the task's searcher does not read is refused. Saved in the report's record.",
 )
 @click.option(
     "--overwrite",
@@ -453,18 +453,58 @@ class TaskReport:
     selects_users: bool
     #: Its report's settings, whose ``search`` field ``--search`` changes.
     config: type[BaseModel]
+    #: Its searcher's class, ``module:Class`` (imported when asked): the ``SearchConfig`` fields it does not read
+    #: (``unread_settings``), and the planners it has where not every one (``planners``).
+    searcher: str
+    #: The ``SearchConfig`` fields the report sets itself (placement plays the searcher with the buildings and without).
+    sets: frozenset[str] = frozenset()
 
     def search(self, pairs: tuple[str, ...]) -> SearchConfig:
-        """The task's searcher settings (its report config's default) with ``--search``'s ``NAME=VALUE`` set."""
+        """The task's searcher settings (its report config's default) with ``--search``'s ``NAME=VALUE`` set; a
+        setting its searcher does not read (or a planner it has not) is refused, not recorded as if it were played."""
+        import importlib
+
+        module, _, name = self.searcher.partition(":")
+        searcher = getattr(importlib.import_module(module), name)
         default = self.config.model_fields["search"].get_default(call_default_factory=True)
-        return with_pairs(default, pairs, "--search")
+        search = with_pairs(default, pairs, "--search")
+        unread = sorted(f for f in searcher.unread_settings | self.sets if getattr(search, f) != getattr(default, f))
+        planners = getattr(searcher, "planners", None)
+        if planners is not None and search.planner not in planners:
+            unread.append(f"planner={search.planner} (it plans with {' or '.join(planners)})")
+        if unread:
+            why = " (the report plays it with the buildings and without)" if self.sets & set(unread) else ""
+            raise click.BadParameter(
+                f"the {searcher.name} ({name}) of this report does not read {', '.join(unread)}{why}: it would be "
+                "recorded, not played",
+                param_hint="'--search'",
+            )
+        return search
 
 
+_RL = "uavplace.rl.tasks"
 #: Each task's report (``rl.tasks.registry.TASKS`` names the same tasks).
 TASK_REPORTS = {
-    "placement": TaskReport(_placement_report, False, ("t_max", "--t-max"), True, ReportConfig),
-    "tracking": TaskReport(_tracking_report, True, ("horizon", "--horizon"), False, TrackingReportConfig),
-    "fleet": TaskReport(_fleet_report, False, ("t_max", "--t-max"), False, FleetReportConfig),
+    "placement": TaskReport(
+        _placement_report,
+        False,
+        ("t_max", "--t-max"),
+        True,
+        ReportConfig,
+        f"{_RL}.placement.searcher:MapSearchPolicy",
+        frozenset({"buildings"}),
+    ),
+    "tracking": TaskReport(
+        _tracking_report,
+        True,
+        ("horizon", "--horizon"),
+        False,
+        TrackingReportConfig,
+        f"{_RL}.tracking.searcher:TrackingSearchPolicy",
+    ),
+    "fleet": TaskReport(
+        _fleet_report, False, ("t_max", "--t-max"), False, FleetReportConfig, f"{_RL}.fleet.searcher:FleetSearcher"
+    ),
 }
 
 

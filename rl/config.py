@@ -121,6 +121,13 @@ class SearchConfig(Contract):
         return self.error_share > 0 and self.kriging != "planner"
 
 
+#: The settings only the placement searcher's own planner reads (its kriging and lookahead): the tracking and fleet
+#: searchers plan without them.
+PLACEMENT_PLAN_SETTINGS = frozenset(
+    {"error_share", "kriging", "error_range_cells", "error_reach", "error_memory", "lookahead_targets"}
+)
+
+
 class EpisodeSettings(Contract):
     """The evaluation protocol: which episodes every method plays (``uavrl baselines``, ``uavrl report``; their
     options derive from these fields, ``infra.options``)."""

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import click
 import numpy as np
 import pandas as pd
 import pytest
@@ -534,7 +535,8 @@ def test_report_progress_names_the_city_the_method_and_the_predicted_maps(tiny, 
 
 def test_report_search_sets_the_searchers_settings(tiny, tmp_path):
     """``--search NAME=VALUE`` sets the searcher's settings on top of each task's default (the record says them); a
-    mistyped name or a refused value ends the command before anything is played or written."""
+    mistyped name, a refused value or a setting the task's searcher does not read ends the command before anything is
+    played or written."""
     from uavplace.eval.cli import TASK_REPORTS
     from uavplace.rl.config import SearchConfig
     from uavplace.rl.tasks.tracking.config import tracking_search
@@ -553,3 +555,9 @@ def test_report_search_sets_the_searchers_settings(tiny, tmp_path):
     assert TASK_REPORTS["tracking"].search(()) == tracking_search()  # each task's own default, changed name by name
     assert TASK_REPORTS["tracking"].search(("stride=4",)) == tracking_search().model_copy(update={"stride": 4})
     assert TASK_REPORTS["fleet"].search(("fleet_plan=makespan",)).fleet_plan == "makespan"
+    refused = (("tracking", "planner=info", "does not read planner"), ("fleet", "error_share=0.5", "error_share"),
+               ("fleet", "planner=lookahead", "it plans with cover or info"), ("placement", "fleet_plan=product",
+               "fleet_plan"), ("placement", "buildings=false", "with the buildings and without"))  # fmt: skip
+    for task, pair, says in refused:  # a setting its searcher does not read would be recorded and not played
+        with pytest.raises(click.BadParameter, match=says):
+            TASK_REPORTS[task].search((pair,))

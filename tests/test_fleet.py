@@ -669,3 +669,25 @@ def test_fleet_agent_trains_resumes_exactly_and_reports(tiny, tmp_path):
     result = CliRunner().invoke(uavrl, args)
     assert result.exit_code == 0, result.output
     assert "PQN + GRU (best, fleet)" in result.output
+
+
+def test_fleet_searcher_moves_the_same_whatever_the_settings_it_does_not_read(tiny):
+    """``FleetSearcher.unread_settings`` (which ``uavrl report --task fleet --search`` refuses) are unread: changed
+    from their defaults, the fleet searcher makes the same moves (where a setting it reads, ``reach_cells``, moves it)."""
+    from tests.conftest import REPO
+    from uavplace.dataset.bundle import load_bundle
+    from uavplace.rl.belief import load_predictor
+    from uavplace.rl.config import SearchConfig
+    from uavplace.rl.tasks.fleet import FleetSearcher
+
+    config = FleetConfig(uavs=2, users=2, window=9, t_max=60)
+    maps = FleetMaps.of([load_bundle("tiny", root=str(tiny))], config)
+    episodes = maps.episode_list(8, 0)
+    predictor = load_predictor(REPO / "data" / "agents" / "searcher" / "predictor.json")
+    changed = {"error_share": 0.8, "kriging": "both", "error_range_cells": 3.0, "error_reach": 4, "error_memory": 8,
+               "lookahead_targets": 4}  # fmt: skip
+    assert set(changed) == set(FleetSearcher.unread_settings)
+    paths = [_paths(maps, FleetSearcher(predictor, c).bind(maps), episodes)
+             for c in (SearchConfig(), SearchConfig(**changed), SearchConfig(reach_cells=2.0))]  # fmt: skip
+    assert all(np.array_equal(a, b) for a, b in zip(paths[0], paths[1], strict=True))
+    assert not all(np.array_equal(a, b) for a, b in zip(paths[0], paths[2], strict=True))

@@ -664,3 +664,28 @@ def test_tracking_searcher_plays_one_city_after_another(root, tmp_path):
         routes = RouteSet([bundle], task)
         played = run_tracking(routes, policy, routes.sample_episodes(6, np.random.default_rng(0)), num_envs=3)
         assert len(played.table) == 6
+
+
+def test_tracking_searcher_moves_the_same_whatever_the_settings_it_does_not_read(root):
+    """``TrackingSearchPolicy.unread_settings`` (which ``uavrl report --task tracking --search`` refuses) are unread:
+    each changed from its default, the searcher moves exactly as before (where a setting it reads moves it)."""
+    from uavplace.rl.config import SearchConfig
+    from uavplace.rl.predictor import PhysicsConstants
+    from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
+    from uavplace.rl.tasks.tracking import TrackingSearchPolicy, fit_motion
+
+    bundle = load_bundle("walk", root=root)
+    constants = PhysicsConstants(intercept_db=-20, log_d_db=-23, wall_db=-9, diffraction_weight=0.1,
+                                 dead_level_db=-13, dead_scale_db=4, error_db=10)  # fmt: skip
+    routes = RouteSet([bundle], TrackingConfig(horizon=24, window=9))
+    episodes = routes.sample_episodes(6, np.random.default_rng(2))
+    changed = {"planner": "info", "fleet_plan": "makespan", "info_weight": 0.9, "info_radius": 5, "info_bin_db": 2.0,
+               "error_share": 0.8, "kriging": "both", "error_range_cells": 3.0, "error_reach": 4, "error_memory": 8,
+               "lookahead_targets": 4}  # fmt: skip
+    assert set(changed) == set(TrackingSearchPolicy.unread_settings)
+    paths = []
+    for config in (SearchConfig(stride=1), SearchConfig(stride=1, **changed), SearchConfig(stride=1, temper=1.0)):
+        policy = TrackingSearchPolicy(MapSearchPolicy(constants, config), fit_motion([bundle]))
+        paths.append(run_tracking(routes, policy, episodes, num_envs=3, record=True).path)
+    np.testing.assert_array_equal(paths[0], paths[1])
+    assert not np.array_equal(paths[0], paths[2])  # a setting it reads moves it

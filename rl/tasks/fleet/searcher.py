@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from uavplace.rl.config import PLACEMENT_PLAN_SETTINGS
 from uavplace.rl.tasks.fleet.config import FLEET_MOVES, STAY
 from uavplace.rl.tasks.fleet.env import FleetView
 from uavplace.rl.tasks.fleet.maps import FleetMaps, assignments, user_subsets
@@ -48,6 +49,9 @@ class FleetSearcher:
     maps (``FleetMaps.of``)."""
 
     name = "map searcher"
+    #: The ``SearchConfig`` fields it does not read (its planner is cover, or cover with information: ``planners``).
+    unread_settings = PLACEMENT_PLAN_SETTINGS
+    planners = ("cover", "info")
 
     def __init__(self, predictor, config=None, cache=None) -> None:  # noqa: ANN001 - rl.tasks.placement.searcher's types
         from uavplace.rl.tasks.placement.searcher import MapSearchPolicy

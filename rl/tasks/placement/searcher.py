@@ -37,6 +37,10 @@ class MapSearchPolicy(BeliefModel):
     """The searcher of the module's docstring as an ``rl.tasks.placement.policies.Policy``: the belief of
     ``rl.belief.BeliefModel`` and a planner."""
 
+    name = SEARCHER  # an instance's: SEARCHER, its ablation's, or the name given
+    #: The ``SearchConfig`` fields it does not read (the fleet's plan).
+    unread_settings = frozenset({"fleet_plan"})
+
     def __init__(
         self,
         predictor: Predictor | PhysicsConstants,

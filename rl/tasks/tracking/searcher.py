@@ -29,6 +29,7 @@ from scipy import sparse
 
 from uavplace.dataset.bundle import Bundle
 from uavplace.rl.belief import CandidateMaps, posterior_cover
+from uavplace.rl.config import PLACEMENT_PLAN_SETTINGS
 from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
 from uavplace.rl.tasks.tracking.config import STAY, MotionModel
 from uavplace.rl.view import public_maps
@@ -76,6 +77,8 @@ class TrackingSearchPolicy:
     ``rl.tasks.tracking.TrackingEnv``, 5 actions)."""
 
     name = TRACKING_SEARCHER
+    #: The ``SearchConfig`` fields it does not read (it plans as the cover planner, a step at a time).
+    unread_settings = PLACEMENT_PLAN_SETTINGS | {"planner", "fleet_plan", "info_weight", "info_radius", "info_bin_db"}
 
     def __init__(self, searcher: MapSearchPolicy, motion: MotionModel, name: str | None = None) -> None:
         self.searcher, self.motion = searcher, motion
