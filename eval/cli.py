@@ -161,7 +161,6 @@ def report(**v: Any) -> None:
     from uavplace.infra.limits import check_limit
 
     task = TASK_REPORTS[v["task"]]
-    v["search"] = task.search(v["search"])  # a mistyped setting is refused before anything is loaded
     cities = [d.split("@")[0] for d in v["datasets"]]
     twice = repeated(cities)
     if twice:  # one folder, table and summary row per city: two versions of one city would overwrite each other
@@ -172,6 +171,7 @@ def report(**v: Any) -> None:
         )
     for dataset in v["datasets"]:  # a mistyped city is named, with the nearest ones, before anything heavy is loaded
         resolve(dataset, root=v["root"])
+    v["search"] = task.search(v["search"])  # a setting refused before any city is loaded (its searcher imports torch)
     if v["markdown"] is not None:  # refused before any work: only a regular file or nothing is replaced
         check_replaceable_file(v["markdown"])
     if not v["datasets"]:  # the release's cities: those built with the test role
