@@ -17,7 +17,6 @@ episodes are played (the same predictors, episodes and seed are not played again
 
 from __future__ import annotations
 
-import hashlib
 import json
 import shlex
 import subprocess
@@ -65,12 +64,10 @@ def train(name: str, options: str, seed: int, out: Path, root: Path) -> Path:
 
 def judge(city: str, tiers: dict[str, Path], args, out: Path) -> dict:  # noqa: ANN001 - the parsed arguments
     """The genie and a searcher per tier on the same ``args.episodes`` episodes of ``city``: each method's success,
-    median steps and SPL (written to OUT/judged-<city>.json; read back when it holds the same tiers and episodes)."""
-    key = {
-        "tiers": {n: hashlib.sha256((p / "weights.pt").read_bytes()).hexdigest() for n, p in tiers.items()},
-        "episodes": args.episodes,
-        "seed": args.seed,
-    }
+    median steps and SPL (written to OUT/judged-<city>.json; read back when it holds the same tiers, by their versions:
+    weights, calibration and code, and the same episodes)."""
+    predictors = {n: load_predictor(p) for n, p in tiers.items()}
+    key = {"tiers": {n: t.version() for n, t in predictors.items()}, "episodes": args.episodes, "seed": args.seed}
     path = out / f"judged-{city}.json"
     if path.is_file() and (held := json.loads(path.read_text())).get("key") == key:
         return held["methods"]
@@ -79,7 +76,7 @@ def judge(city: str, tiers: dict[str, Path], args, out: Path) -> dict:  # noqa: 
         sys.exit(f"{city} is a test city: release numbers come from `uavrl report`, never a choice")
     cache = PredictionCache(args.root / PREDICTIONS)
     policies = [GeniePolicy()] + [
-        MapSearchPolicy(load_predictor(p), SearchConfig(), cache, name=f"{SEARCHER} [{n}]") for n, p in tiers.items()
+        MapSearchPolicy(t, SearchConfig(), cache, name=f"{SEARCHER} [{n}]") for n, t in predictors.items()
     ]
     config = ReportConfig(dataset=city, episodes=args.episodes, seed=args.seed, predictor=None)
     table = bootstrap_table(evaluate(config, bundle, [], baselines=policies), n_boot=200, seed=args.seed)

@@ -597,19 +597,25 @@ def test_fit_motion_reads_the_routes_speeds(root):
     assert set(motion.speeds_mps) == set(speeds) and sum(motion.weights) == pytest.approx(1.0)
 
 
+def _walk_constants():  # noqa: ANN202 - a PhysicsConstants
+    """A physics tier for the tracking searcher's tests on the walk cities (constants set by hand, no fit)."""
+    from uavplace.rl.predictor import PhysicsConstants
+
+    return PhysicsConstants(intercept_db=-20, log_d_db=-23, wall_db=-9, diffraction_weight=0.1,
+                            dead_level_db=-13, dead_scale_db=4, error_db=10)  # fmt: skip
+
+
 def test_tracking_searcher_reads_only_what_it_measures(root):
     """The tracking searcher (predicted maps, a belief carried through time) moves exactly as before when the user's
     maps are scrambled off its path at every route point, and covers the user in some steps."""
     import copy
 
     from uavplace.rl.config import SearchConfig
-    from uavplace.rl.predictor import PhysicsConstants
     from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
     from uavplace.rl.tasks.tracking import TrackingSearchPolicy, fit_motion
 
     bundle = load_bundle("walk", root=root)
-    constants = PhysicsConstants(intercept_db=-20, log_d_db=-23, wall_db=-9, diffraction_weight=0.1,
-                                 dead_level_db=-13, dead_scale_db=4, error_db=10)  # fmt: skip
+    constants = _walk_constants()
     policy = TrackingSearchPolicy(MapSearchPolicy(constants, SearchConfig(stride=1)), fit_motion([bundle]))
     task = TrackingConfig(horizon=24, window=9)
     routes = RouteSet([bundle], task)
@@ -648,7 +654,6 @@ def test_tracking_searcher_plays_one_city_after_another(root, tmp_path):
     """The report plays each city with the same searcher: a city whose canvas has the same number as the last one's
     but other candidates gets its own motion (the first report of three cities once failed on it)."""
     from uavplace.rl.config import SearchConfig
-    from uavplace.rl.predictor import PhysicsConstants
     from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
     from uavplace.rl.tasks.tracking import MotionModel, TrackingSearchPolicy
 
@@ -656,8 +661,7 @@ def test_tracking_searcher_plays_one_city_after_another(root, tmp_path):
     ingest_city(write_grid_city(tmp_path / "raw", nx=8, ny=6, n_tx=3, seed=5, dead_share=0.0, routes=ROUTES), other,
                 name="walk2")  # fmt: skip
     build_city("walk2", BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=-45.0), other)
-    constants = PhysicsConstants(intercept_db=-20, log_d_db=-23, wall_db=-9, diffraction_weight=0.1,
-                                 dead_level_db=-13, dead_scale_db=4, error_db=10)  # fmt: skip
+    constants = _walk_constants()
     policy = TrackingSearchPolicy(MapSearchPolicy(constants, SearchConfig(stride=1)), MotionModel())
     task = TrackingConfig(horizon=12, window=9)
     for bundle in (load_bundle("walk", root=root), load_bundle("walk2", root=other)):
@@ -670,13 +674,11 @@ def test_tracking_searcher_moves_the_same_whatever_the_settings_it_does_not_read
     """``TrackingSearchPolicy.unread_settings`` (which ``uavrl report --task tracking --search`` refuses) are unread:
     each changed from its default, the searcher moves exactly as before (where a setting it reads moves it)."""
     from uavplace.rl.config import SearchConfig
-    from uavplace.rl.predictor import PhysicsConstants
     from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
     from uavplace.rl.tasks.tracking import TrackingSearchPolicy, fit_motion
 
     bundle = load_bundle("walk", root=root)
-    constants = PhysicsConstants(intercept_db=-20, log_d_db=-23, wall_db=-9, diffraction_weight=0.1,
-                                 dead_level_db=-13, dead_scale_db=4, error_db=10)  # fmt: skip
+    constants = _walk_constants()
     routes = RouteSet([bundle], TrackingConfig(horizon=24, window=9))
     episodes = routes.sample_episodes(6, np.random.default_rng(2))
     changed = {"planner": "info", "fleet_plan": "makespan", "info_weight": 0.9, "info_radius": 5, "info_bin_db": 2.0,
