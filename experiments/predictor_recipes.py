@@ -8,8 +8,11 @@ predictor's searcher and the genie on the same episodes of each validation city.
 beats the shipped tier by more than its own seeds spread: the table gives each recipe's mean over seeds and their
 range, per city, for SPL and median steps, and the predictor's scores the same way.
 
+With ``--calibrate PACKS`` each trained tier is first calibrated on the packs in PACKS, cities none was trained on
+(`uavrl calibrate-predictor`, into OUT/NAME-sSEED-cal), and judged so: the shipped tier's calibration was fitted so.
+
     python experiments/predictor_recipes.py --recipe 'packs4k=--maps data/trainmaps --steps 4000' --seeds 0 1 2
-        [--episodes 300] [--city etoile-val] [--out runs/predictor/recipes] [--train-only]
+        [--episodes 300] [--city etoile-val] [--out runs/predictor/recipes] [--train-only] [--calibrate PACKS]
 
 Validation cities only: a test city is refused. Each city's outcome is written to OUT/judged-<city>.json once its
 episodes are played (the same predictors, episodes and seed are not played again).
@@ -47,19 +50,31 @@ COMMAND_FILE = "recipe-command.json"
 SHIPPED = "shipped"
 
 
-def train(name: str, options: str, seed: int, out: Path, root: Path) -> Path:
-    """Train recipe ``name`` at ``seed`` into ``out/name-sSEED`` unless a finished folder of the same command is there."""
-    folder = out / f"{name}-s{seed}"
-    command = ["uavrl", "train-predictor", *TRAINING, *shlex.split(options), "--seed", str(seed), "--root", str(root),
-               *(f"--val-dataset={c}" for c in VALIDATION), "--out", str(folder), "--quiet"]  # fmt: skip
+def made(folder: Path, command: list[str]) -> Path:
+    """``folder`` made by ``command``, run unless a finished folder of the same command is there already."""
     record = folder / COMMAND_FILE
     if (folder / "model.json").is_file() and record.is_file() and json.loads(record.read_text()) == command:
-        print(f"{folder}: trained already, kept", flush=True)
+        print(f"{folder}: made already, kept", flush=True)
         return folder
     print("$ " + shlex.join(command), flush=True)
     subprocess.run(command, check=True)
     atomic_write_text(record, json.dumps(command))
     return folder
+
+
+def train(name: str, options: str, seed: int, out: Path, root: Path) -> Path:
+    """Train recipe ``name`` at ``seed`` into ``out/name-sSEED``."""
+    folder = out / f"{name}-s{seed}"
+    return made(folder, ["uavrl", "train-predictor", *TRAINING, *shlex.split(options), "--seed", str(seed), "--root",
+                         str(root), *(f"--val-dataset={c}" for c in VALIDATION), "--out", str(folder), "--quiet"])  # fmt: skip
+
+
+def calibrate(folder: Path, packs: Path, root: Path) -> Path:
+    """``folder``'s network calibrated on the packs in ``packs`` (cities it was not trained on) into ``folder``-cal, as
+    the shipped tier was (docs/searcher.md, "Calibration of the dead-cell probability")."""
+    out = folder.with_name(folder.name + "-cal")
+    return made(out, ["uavrl", "calibrate-predictor", "--predictor", str(folder), "--maps", str(packs), "--root", str(root),
+                      *(f"--val-dataset={c}" for c in VALIDATION), "--out", str(out)])  # fmt: skip
 
 
 def judge(city: str, tiers: dict[str, Path], args, out: Path) -> dict:  # noqa: ANN001 - the parsed arguments
@@ -102,6 +117,12 @@ def main() -> None:
     ap.add_argument("--root", type=Path, default=Path("data/processed"))
     ap.add_argument("--shipped", type=Path, default=DEFAULT_PREDICTOR, help="The tier the recipes are set against")
     ap.add_argument("--train-only", action="store_true", help="Train (or resume training) and stop before the episodes")
+    ap.add_argument(
+        "--calibrate",
+        type=Path,
+        help="A folder of packs of cities no recipe trained on: every tier is "
+        "calibrated on them (into NAME-sSEED-cal) and judged so, as the shipped tier was",
+    )
     args = ap.parse_args()
     recipes = dict(r.split("=", 1) for r in args.recipe)
     if SHIPPED in recipes or len(recipes) != len(args.recipe):
@@ -110,7 +131,8 @@ def main() -> None:
     tiers = {SHIPPED: args.shipped}
     for name, options in recipes.items():
         for seed in args.seeds:
-            tiers[f"{name}-s{seed}"] = train(name, options, seed, args.out, args.root)
+            folder = train(name, options, seed, args.out, args.root)
+            tiers[f"{name}-s{seed}"] = calibrate(folder, args.calibrate, args.root) if args.calibrate else folder
     if args.train_only:
         return
     groups = {SHIPPED: [SHIPPED]} | {n: [f"{n}-s{s}" for s in args.seeds] for n in recipes}
