@@ -45,6 +45,8 @@ TRAINING = [
     *(f"--dataset=oldtown-{i:03d}" for i in range(5)),
     "--dataset=train",
 ]
+#: The cities every tier is scored on (model.json's scores, the table's error columns).
+SCORED = [f"--val-dataset={c}" for c in VALIDATION]
 #: What a model folder's record says made it.
 COMMAND_FILE = "recipe-command.json"
 SHIPPED = "shipped"
@@ -66,7 +68,7 @@ def train(name: str, options: str, seed: int, out: Path, root: Path) -> Path:
     """Train recipe ``name`` at ``seed`` into ``out/name-sSEED``."""
     folder = out / f"{name}-s{seed}"
     return made(folder, ["uavrl", "train-predictor", *TRAINING, *shlex.split(options), "--seed", str(seed), "--root",
-                         str(root), *(f"--val-dataset={c}" for c in VALIDATION), "--out", str(folder), "--quiet"])  # fmt: skip
+                         str(root), *SCORED, "--out", str(folder), "--quiet"])  # fmt: skip
 
 
 def calibrate(folder: Path, packs: Path, root: Path) -> Path:
@@ -74,7 +76,7 @@ def calibrate(folder: Path, packs: Path, root: Path) -> Path:
     the shipped tier was (docs/searcher.md, "Calibration of the dead-cell probability")."""
     out = folder.with_name(folder.name + "-cal")
     return made(out, ["uavrl", "calibrate-predictor", "--predictor", str(folder), "--maps", str(packs), "--root", str(root),
-                      *(f"--val-dataset={c}" for c in VALIDATION), "--out", str(out)])  # fmt: skip
+                      *SCORED, "--out", str(out)])  # fmt: skip
 
 
 def judge(city: str, tiers: dict[str, Path], args, out: Path) -> dict:  # noqa: ANN001 - the parsed arguments
