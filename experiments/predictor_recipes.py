@@ -2,11 +2,11 @@
 
 Each ``--recipe NAME=OPTIONS`` (options of `uavrl train-predictor`, e.g. ``--maps data/trainmaps --steps 4000``) is
 trained once per ``--seeds`` seed on the 22 training cities (corpus-000..015, oldtown-000..004, train) into
-OUT/NAME-sSEED (a folder whose model.json was made by the same command is kept: the script resumes), scored on the
-validation cities' users (model.json), then played by the map searcher (the shipped settings) beside the shipped
-predictor's searcher and the genie on the same episodes of each validation city. A recipe is worth keeping where it
-beats the shipped tier by more than its own seeds spread: the table gives each recipe's mean over seeds and their
-range, per city, for SPL and median steps, and the predictor's scores the same way.
+OUT/NAME-sSEED (a folder whose model.json was made by the same command, from the same bundles, packs and training code,
+is kept: the script resumes), scored on the validation cities' users (model.json), then played by the map searcher (the
+shipped settings) beside the shipped predictor's searcher and the genie on the same episodes of each validation city. A
+recipe is worth keeping where it beats the shipped tier by more than its own seeds spread: the table gives each recipe's
+mean over seeds and their range, per city, for SPL and median steps, and the predictor's scores the same way.
 
 With ``--calibrate PACKS`` each trained tier is first calibrated on the packs in PACKS, cities none was trained on
 (`uavrl calibrate-predictor`, into OUT/NAME-sSEED-cal), and judged so: the shipped tier's calibration was fitted so.
@@ -20,6 +20,8 @@ episodes are played (the same predictors, episodes and seed are not played again
 
 from __future__ import annotations
 
+import hashlib
+import importlib
 import json
 import shlex
 import subprocess
@@ -29,11 +31,11 @@ from pathlib import Path
 import numpy as np
 from common import VALIDATION, validation_parser
 
-from uavplace.dataset.bundle import load_bundle
+from uavplace.dataset.bundle import load_bundle, resolve
 from uavplace.eval.evaluate import ReportConfig, evaluate
 from uavplace.eval.metrics import bootstrap_table
 from uavplace.infra.console import markdown_table
-from uavplace.infra.files import atomic_write_text
+from uavplace.infra.files import atomic_write_text, sha256_file
 from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
 from uavplace.rl.config import SearchConfig
 from uavplace.rl.tasks.placement.policies import GeniePolicy
@@ -52,15 +54,52 @@ COMMAND_FILE = "recipe-command.json"
 SHIPPED = "shipped"
 
 
-def made(folder: Path, command: list[str]) -> Path:
-    """``folder`` made by ``command``, run unless a finished folder of the same command is there already."""
-    record = folder / COMMAND_FILE
-    if (folder / "model.json").is_file() and record.is_file() and json.loads(record.read_text()) == command:
+#: The code that trains and calibrates a tier: part of what made a model folder.
+TRAINING_CODE = (
+    "uavplace.rl.learned",
+    "uavplace.rl.predictor",
+    "uavplace.rl.predictor_cli",
+    "uavplace.rl.config",
+    "uavplace.dataset.trainmaps",
+)
+
+
+def _option_values(command: list[str], name: str) -> list[str]:
+    """Every value ``command`` gives option ``name`` (``--name value`` or ``--name=value``)."""
+    values = [a.split("=", 1)[1] for a in command if a.startswith(name + "=")]
+    return values + [command[i + 1] for i, a in enumerate(command[:-1]) if a == name]
+
+
+def _files_digest(folder: Path) -> str:
+    """The sha256 of a folder's regular files, by name and content (the packs a tier read, a tier's weights)."""
+    digest = hashlib.sha256()
+    for path in sorted(p for p in folder.iterdir() if p.is_file() and p.name != COMMAND_FILE):
+        digest.update(path.name.encode() + b"\0" + sha256_file(path).encode())
+    return digest.hexdigest()
+
+
+def made_by(command: list[str], root: Path) -> dict:
+    """What made a model folder: ``command``, the content of what it reads (each city's bundle version, which hashes the
+    bundle's inputs and config; every pack in a ``--maps`` folder; the ``--predictor`` it starts from) and the training
+    code. A folder whose record differs (more packs since, a rebuilt city, changed code) is made again."""
+    return {
+        "command": command,
+        "bundles": {c: resolve(c, root=root).name for o in ("--dataset", "--val-dataset") for c in _option_values(command, o)},
+        "folders": {f: _files_digest(Path(f)) for o in ("--maps", "--predictor") for f in _option_values(command, o)},
+        "code": {m: sha256_file(importlib.import_module(m).__file__) for m in TRAINING_CODE},
+    }
+
+
+def made(folder: Path, command: list[str], root: Path) -> Path:
+    """``folder`` made by ``command``, run unless a finished folder made by the same command, from the same inputs and
+    code (``made_by``), is there already."""
+    record, key = folder / COMMAND_FILE, made_by(command, root)
+    if (folder / "model.json").is_file() and record.is_file() and json.loads(record.read_text()) == key:
         print(f"{folder}: made already, kept", flush=True)
         return folder
     print("$ " + shlex.join(command), flush=True)
     subprocess.run(command, check=True)
-    atomic_write_text(record, json.dumps(command))
+    atomic_write_text(record, json.dumps(key, indent=1))
     return folder
 
 
@@ -68,7 +107,7 @@ def train(name: str, options: str, seed: int, out: Path, root: Path) -> Path:
     """Train recipe ``name`` at ``seed`` into ``out/name-sSEED``."""
     folder = out / f"{name}-s{seed}"
     return made(folder, ["uavrl", "train-predictor", *TRAINING, *shlex.split(options), "--seed", str(seed), "--root",
-                         str(root), *SCORED, "--out", str(folder), "--quiet"])  # fmt: skip
+                         str(root), *SCORED, "--out", str(folder), "--quiet"], root)  # fmt: skip
 
 
 def calibrate(folder: Path, packs: Path, root: Path) -> Path:
@@ -76,7 +115,7 @@ def calibrate(folder: Path, packs: Path, root: Path) -> Path:
     the shipped tier was (docs/searcher.md, "Calibration of the dead-cell probability")."""
     out = folder.with_name(folder.name + "-cal")
     return made(out, ["uavrl", "calibrate-predictor", "--predictor", str(folder), "--maps", str(packs), "--root", str(root),
-                      *SCORED, "--out", str(out)])  # fmt: skip
+                      *SCORED, "--out", str(out)], root)  # fmt: skip
 
 
 def judge(city: str, tiers: dict[str, Path], args, out: Path) -> dict:  # noqa: ANN001 - the parsed arguments
