@@ -27,7 +27,9 @@ import hashlib
 import io
 import json
 import zipfile
+from collections.abc import Iterable
 from dataclasses import dataclass
+from fnmatch import fnmatchcase
 from pathlib import Path
 
 import numpy as np
@@ -223,6 +225,14 @@ def list_packs(folder: str | Path) -> list[Path]:
     if not packs:
         raise InputError(folder, "holds no training-maps pack (*.npz)")
     return packs
+
+
+def select_packs(folders: Iterable[str | Path], patterns: Iterable[str] = ()) -> list[Path]:
+    """The packs of ``folders`` (``list_packs``) whose city's name matches one of ``patterns``, shell-style and whole
+    (``tt-*``, ``tt-00[0-4]``, a city's name), or every pack without a pattern. A pattern names its packs for good: a
+    pack added later is selected by ``tt-*`` and not by ``tt-00[0-4]``."""
+    patterns = tuple(patterns)
+    return [p for f in folders for p in list_packs(f) if not patterns or any(fnmatchcase(p.stem, q) for q in patterns)]
 
 
 def simulation_record(raw_folder: str | Path) -> dict:

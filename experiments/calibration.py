@@ -7,7 +7,7 @@ expected calibration error, ms per map) as it is; with Platt scaling of its dead
 on the other validation cities (leave one city out: the city scored is never one it was fitted on). The reliability
 diagrams of all three in one figure (``--figure``).
 
-    python experiments/calibration.py [--predictor data/agents/searcher/unet] [--maps data/trainmaps] [--packs tt-]
+    python experiments/calibration.py [--predictor data/agents/searcher/unet] [--maps data/trainmaps] [--packs 'tt-*']
         [--figure docs/img/reliability.png] [--city etoile-val ...]
 """
 
@@ -20,7 +20,7 @@ import numpy as np
 from common import VALIDATION, validation_parser
 
 from uavplace.dataset.bundle import load_bundle
-from uavplace.dataset.trainmaps import list_packs, read_pack
+from uavplace.dataset.trainmaps import read_pack, select_packs
 from uavplace.infra.console import markdown_table
 from uavplace.rl.belief import DEFAULT_PREDICTOR, load_predictor
 from uavplace.rl.learned import pack_calibration
@@ -36,15 +36,20 @@ def main() -> None:
     ap = validation_parser(__doc__, episodes=0)
     ap.add_argument("--predictor", type=Path, default=DEFAULT_PREDICTOR)
     ap.add_argument("--maps", type=Path, default=Path("data/trainmaps"), help="Training-maps packs to fit the scaling on")
-    ap.add_argument("--packs", default="", help="Only the packs whose city's name starts with this (tt-: the tiered ones)")
+    ap.add_argument(
+        "--packs",
+        action="append",
+        default=[],
+        help="Only the packs whose city's name matches this pattern (tt-*: the tiered ones)",
+    )
     ap.add_argument("--figure", type=Path, default=None, help="Write the reliability diagrams here (PNG)")
     ap.add_argument("--root", type=Path, default=Path("data/processed"))
     args = ap.parse_args()
     predictor = load_predictor(args.predictor)
     t0 = time.perf_counter()
-    packs = [read_pack(p) for p in list_packs(args.maps) if p.stem.startswith(args.packs)]
+    packs = [read_pack(p) for p in select_packs([args.maps], args.packs)]
     scale, bias = pack_calibration(predictor, packs)  # what `uavrl calibrate-predictor` fits
-    print(f"Platt scaling on {sum(len(m.users) for m in packs)} users of the packs {args.packs}* in {args.maps}: scale "
+    print(f"Platt scaling on {sum(len(m.users) for m in packs)} users of the packs {args.packs or '*'} in {args.maps}: scale "
           f"{scale:.3f}, bias {bias:+.3f} ({time.perf_counter() - t0:.0f} s)")  # fmt: skip
     rows = [["city", "predictor", "median |error| [dB]", "p90 |error| [dB]", "dead/live agreement", "calibration error"]]
     diagrams = {}

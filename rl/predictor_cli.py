@@ -211,9 +211,11 @@ def train_predictor(
 )
 @click.option(
     "--packs",
-    default="",
-    help="Only the packs whose city's name starts with this (tt-: the tiered cities, the real crops' kind of geometry; "
-    "docs/searcher.md).",
+    "patterns",
+    multiple=True,
+    help="Only the packs whose city's name matches this shell-style pattern, whole (repeatable; 'tt-*': the tiered "
+    "cities, the real crops' kind of geometry, docs/searcher.md; 'tt-00[0-4]': five of them, for good). Default: every "
+    "pack.",
 )
 @learned_validation_option
 @path_option(
@@ -225,7 +227,12 @@ def train_predictor(
 )
 @root_option
 def calibrate_predictor(
-    predictor: Path, map_folders: tuple[Path, ...], packs: str, val_datasets: tuple[str, ...], out: Path, root: Path
+    predictor: Path,
+    map_folders: tuple[Path, ...],
+    patterns: tuple[str, ...],
+    val_datasets: tuple[str, ...],
+    out: Path,
+    root: Path,
 ) -> None:
     """Refit the dead-cell probability's calibration of a learned predictor (Platt scaling of its uncalibrated dead
     logit) on training-maps packs its network was not trained on, score it on validation cities' users, and write it
@@ -233,7 +240,7 @@ def calibrate_predictor(
     import shutil
 
     from uavplace.dataset.bundle import load_bundle
-    from uavplace.dataset.trainmaps import list_packs, read_pack
+    from uavplace.dataset.trainmaps import read_pack, select_packs
     from uavplace.infra.console import command_line
     from uavplace.infra.files import atomic_directory
     from uavplace.rl.learned import MODEL_CARD, MODEL_JSON, WEIGHTS, LearnedPredictor, load_learned, model_card, pack_calibration
@@ -242,10 +249,10 @@ def calibrate_predictor(
 
     learned = load_learned(predictor)
     model = learned.model
-    paths = [p for f in map_folders for p in list_packs(f) if p.stem.startswith(packs)]
+    paths = select_packs(map_folders, patterns)
     if not paths:
         raise click.BadParameter(
-            f"no pack of {', '.join(map(str, map_folders))} is of a city named {packs}*", param_hint="--packs"
+            f"no pack of {', '.join(map(str, map_folders))} is of a city named {' or '.join(patterns)}", param_hint="--packs"
         )
     maps = [read_pack(p) for p in paths]
     trained = {entry.rsplit("@", 1)[0] for entry in model.fitted_on}

@@ -160,6 +160,24 @@ def test_shipped_learned_tier_loads_and_says_how_it_was_made():
     assert predictor.model.weights_sha256 in card
 
 
+def test_shipped_calibration_command_selects_the_packs_it_was_calibrated_on():
+    """The shipped card's `uavrl calibrate-predictor` line, run on today's data/trainmaps, reads exactly the packs
+    ``calibrated_on`` names, with their versions: more packs landing there does not change what it reproduces."""
+    import shlex
+
+    from tests.conftest import REPO
+    from uavplace.dataset.trainmaps import read_pack, select_packs
+    from uavplace.rl.belief import DEFAULT_PREDICTOR
+
+    model = load_predictor(REPO / DEFAULT_PREDICTOR).model
+    [line] = [shlex.split(c) for c in model.made_by if "calibrate-predictor" in c]
+    values = {o: [line[i + 1] for i, a in enumerate(line[:-1]) if a == o] for o in ("--maps", "--packs")}
+    paths = select_packs([REPO / m for m in values["--maps"]], values["--packs"])
+    assert len(select_packs([REPO / m for m in values["--maps"]], ["tt-*"])) > len(paths)  # others there, not read
+    assert [f"{m.city}@{m.version}" for m in map(read_pack, paths)] == model.calibrated_on
+    assert shlex.join(line) in (REPO / DEFAULT_PREDICTOR / MODEL_CARD).read_text()
+
+
 def test_reliability_by_hand():
     """Ten equal-width bins; the error is the count-weighted |frequency - mean probability|."""
     from uavplace.rl.predictor import reliability
@@ -244,8 +262,9 @@ def test_calibrate_predictor_fits_platt_scaling_on_packs_it_was_not_trained_on(t
     (folder / MODEL_JSON).write_text(json.dumps({**model, "fitted_on": [f"tiny@{maps.version}"]}))
     refused = CliRunner().invoke(uavrl, [*args, "--out", str(tmp_path / "refused")])
     assert refused.exit_code != 0 and "trained on it" in refused.output and not (tmp_path / "refused").exists()
-    none = CliRunner().invoke(uavrl, [*args, "--packs", "tt-", "--out", str(tmp_path / "none")])
-    assert none.exit_code != 0 and "--packs" in none.output and not (tmp_path / "none").exists()
+    for pattern in ("tt-*", "tin"):  # a pattern matches the whole name: "tin" is not a prefix of "tiny"
+        none = CliRunner().invoke(uavrl, [*args, "--packs", pattern, "--out", str(tmp_path / "none")])
+        assert none.exit_code != 0 and "--packs" in none.output and not (tmp_path / "none").exists()
 
 
 def test_a_training_step_too_large_for_memory_is_refused_before_any_map_is_read(tiny):
