@@ -4,7 +4,7 @@ the tables of results and of the map ablation (what ``uavrl report``, the sweeps
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -176,7 +176,6 @@ def evaluate(
         episodes = maps[""].episode_list(config.episodes, config.seed)  # as `uavrl baselines`
     elif not maps[""].can_start(episodes).all():
         raise ValueError("evaluate: an episode given does not start on a start cell of this city")
-    shown = shown_method(agents)
     record = np.arange(len(episodes)) if config.trajectories else None  # the rule picks among all episodes
     methods: list[tuple[str, Policy, MapSet]] = []
     for a in agents:
@@ -193,6 +192,7 @@ def evaluate(
     names = [m[0] for m in methods]
     if len(set(names)) != len(names):
         raise ValueError(f"two methods share a name: {names}")
+    shown = shown_method(agents, names)
     results = {}
     # Each method's episodes on its own canvas (an agent's window pads its canvas by another margin), made once.
     specs = {name: mapset.episodes_from(episodes, maps[""]) for name, _, mapset in methods}
@@ -321,8 +321,11 @@ def groups_of(config: ReportConfig, agents: list[Agent]) -> dict[str, list[str]]
     return {g: [by_folder[str(Path(r))] for r in runs] for g, runs in config.groups.items()}
 
 
-def shown_method(agents: list[Agent]) -> str:
-    """The method whose trajectories the report draws: the first agent, else the genie."""
+def shown_method(agents: list[Agent], methods: Iterable[str]) -> str:
+    """The method whose trajectories the report draws: the map searcher where it plays (what the report leads with,
+    eval/findings.py), else the first agent, else the genie."""
+    if SEARCHER in methods:
+        return SEARCHER
     return agents[0].name if agents else "genie"
 
 

@@ -112,7 +112,7 @@ def make_report(
         bands = profiles(results, n_boot=config.n_boot, seed=config.seed)
         figures["profile"] = plot_profiles(bands, bundle.city, tmp / "profile.png")
         figures["training"] = plot_training(agents, bounds, tmp / "training.png", bound_notes)
-        shown = shown_method(agents)
+        shown = shown_method(agents, results)
         picked = pick_trajectories(results, shown, config.trajectories)
         figures["trajectories"] = plot_trajectories(bundle, results, shown, picked, config.p_t_db, tmp / "trajectories.png")
         table.to_csv(tmp / "results.csv", index=False)

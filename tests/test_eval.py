@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import click
 import numpy as np
@@ -216,8 +217,10 @@ def test_report_end_to_end(tmp_path, two_cities):
     # where the test city's values came from (an InSite-like export: every reached receiver ray-traced), in the page too
     cells = doc["test_bundle_cells"]
     assert set(cells) == {"unreached", "ray-traced"} and f"{sum(cells.values()):,} user-cells outside buildings" in page
-    # The trajectories follow the stated rule: the success nearest the median, the successes' p90, a failure.
-    shown = eps[eps.method == "PQN + GRU (best)"].set_index("episode")
+    # The searcher's trajectories (what the page leads with), by the stated rule: the success nearest the median, the
+    # successes' p90, a failure.
+    assert doc["trajectories"]["agent"] == "map searcher" and re.search(r"map searcher: \d+ of its 60 episodes in cityb", page)
+    shown = eps[eps.method == "map searcher"].set_index("episode")
     picks = dict(zip(doc["trajectories"]["rules"], doc["trajectories"]["episodes"], strict=True))
     ok = shown[shown.success]
     median = np.quantile(np.where(shown.success, shown.steps, np.inf), 0.5, method="inverted_cdf")
