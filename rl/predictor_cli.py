@@ -23,6 +23,23 @@ training_cities_option = click.option(
 )
 
 
+#: Which packs of the --maps folders a learned tier reads (``uavrl train-predictor``, ``uavrl calibrate-predictor``).
+packs_option = click.option(
+    "--packs",
+    "patterns",
+    multiple=True,
+    help="Only the packs of --maps whose city's name matches this shell-style pattern, whole (repeatable; 'tt-*': the "
+    "tiered cities, the real crops' kind of geometry, docs/searcher.md; 'tt-00[0-4]': five of them, for good). Default: "
+    "every pack.",
+)
+
+
+def _no_pack_matched(folders: tuple[Path, ...], patterns: tuple[str, ...]) -> click.BadParameter:
+    return click.BadParameter(
+        f"no pack of {', '.join(map(str, folders))} is of a city named {' or '.join(patterns)}", param_hint="--packs"
+    )
+
+
 #: The learned tier's validation cities (``uavrl train-predictor``, ``uavrl calibrate-predictor``).
 learned_validation_option = click.option(
     "--val-dataset",
@@ -105,6 +122,7 @@ def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out:
     help="A folder of training-maps packs (repeatable; `uavdata pack` writes them, data/trainmaps holds the shipped "
     "ones), or a RadioMapSeer-style city folder (`uavdata export`, dataset/export.py): every user is a training user.",
 )
+@packs_option
 @model_options(UNetConfig, "widths")
 @learned_validation_option
 @path_option(
@@ -127,6 +145,7 @@ def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out:
 def train_predictor(
     datasets: tuple[str, ...],
     map_folders: tuple[Path, ...],
+    patterns: tuple[str, ...],
     widths: str,
     val_datasets: tuple[str, ...],
     constants: Path,
@@ -155,7 +174,11 @@ def train_predictor(
         raise click.UsageError("give training maps: --dataset CITY or --maps FOLDER (or both)")
     config = settings(UNetConfig, {"widths": widths, "steps": steps, "batch": batch, "seed": seed, "threads": threads})
     physics = load_constants(constants)
-    maps = training_maps(*_training_users(datasets, root), map_folders)
+    if patterns and not map_folders:
+        raise click.UsageError("--packs selects among the packs of --maps: give --maps FOLDER")
+    maps = training_maps(*_training_users(datasets, root), map_folders, patterns)
+    if patterns and not {m.city for m in maps} - set(datasets):
+        raise _no_pack_matched(map_folders, patterns)
     overlap = sorted({m.city for m in maps} & set(val_datasets))
     if overlap:
         raise click.BadParameter(
@@ -209,14 +232,7 @@ def train_predictor(
     help="A folder of training-maps packs (repeatable; `uavdata pack` writes them, data/trainmaps holds the shipped "
     "ones) of cities the network was not trained on: the calibration is fitted on every user of each.",
 )
-@click.option(
-    "--packs",
-    "patterns",
-    multiple=True,
-    help="Only the packs whose city's name matches this shell-style pattern, whole (repeatable; 'tt-*': the tiered "
-    "cities, the real crops' kind of geometry, docs/searcher.md; 'tt-00[0-4]': five of them, for good). Default: every "
-    "pack.",
-)
+@packs_option
 @learned_validation_option
 @path_option(
     "--out",
@@ -251,9 +267,7 @@ def calibrate_predictor(
     model = learned.model
     paths = select_packs(map_folders, patterns)
     if not paths:
-        raise click.BadParameter(
-            f"no pack of {', '.join(map(str, map_folders))} is of a city named {' or '.join(patterns)}", param_hint="--packs"
-        )
+        raise _no_pack_matched(map_folders, patterns)
     maps = [read_pack(p) for p in paths]
     trained = {entry.rsplit("@", 1)[0] for entry in model.fitted_on}
     overlap = sorted({m.city for m in maps} & (trained | set(val_datasets)))

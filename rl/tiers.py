@@ -7,19 +7,23 @@ from pathlib import Path
 
 from uavplace.dataset.bundle import Bundle
 from uavplace.dataset.export import read_radiomapseer
-from uavplace.dataset.trainmaps import TrainingMaps, list_packs, read_pack
+from uavplace.dataset.trainmaps import TrainingMaps, read_pack, select_packs
 from uavplace.rl.predictor import PhysicsPredictor, predicted_and_measured, reliability, scores_of
 
 #: The columns of a tier's scores on a validation city, as the model card and the command print them.
 SCORE_COLUMNS = ("median |error| [dB]", "p90 |error| [dB]", "dead/live agreement", "calibration error", "ms per map")
 
 
-def training_maps(bundles: list[Bundle], users: list, folders: tuple[Path, ...] = ()) -> list[TrainingMaps]:
-    """The maps a predictor trains on: ``users`` of each of ``bundles``, then every pack of each folder of packs, or
-    one RadioMapSeer-style city folder (`uavdata export`: it has a ``scale.json``)."""
+def training_maps(
+    bundles: list[Bundle], users: list, folders: tuple[Path, ...] = (), patterns: tuple[str, ...] = ()
+) -> list[TrainingMaps]:
+    """The maps a predictor trains on: ``users`` of each of ``bundles``, then the packs of each folder of packs whose
+    city matches one of ``patterns`` (``select_packs``; every pack without one), or one RadioMapSeer-style city folder
+    (`uavdata export`: it has a ``scale.json``)."""
     maps = [TrainingMaps.of_bundle(b, u) for b, u in zip(bundles, users, strict=True)]
     for folder in folders:
-        maps += [read_radiomapseer(folder)] if (folder / "scale.json").is_file() else [read_pack(p) for p in list_packs(folder)]
+        is_radiomapseer = (folder / "scale.json").is_file()
+        maps += [read_radiomapseer(folder)] if is_radiomapseer else [read_pack(p) for p in select_packs([folder], patterns)]
     return maps
 
 

@@ -115,6 +115,13 @@ def test_pack_cli_and_train_predictor_on_packs(tiny, tmp_path):
     assert overlap.exit_code != 0 and "also a training city" in overlap.output and not (tmp_path / "u2").exists()
     nothing = CliRunner().invoke(uavrl, ["train-predictor", "--out", str(tmp_path / "u3"), *common])
     assert nothing.exit_code != 0 and "--maps" in nothing.output
+    # --packs selects among the packs by whole name: "tiny" reads the pack, "tin" none (refused, nothing written)
+    picked = CliRunner().invoke(uavrl, ["train-predictor", "--maps", str(out), "--packs", "tiny", "--out", str(tmp_path / "u4"),
+                                        *common])  # fmt: skip
+    assert picked.exit_code == 0 and "users of 1 cities" in picked.output, picked.output
+    for extra in (["--maps", str(out), "--packs", "tin"], ["--dataset", "tiny", "--packs", "tiny"]):
+        none = CliRunner().invoke(uavrl, ["train-predictor", *extra, "--out", str(tmp_path / "u5"), *common])
+        assert none.exit_code != 0 and "--packs" in none.output and not (tmp_path / "u5").exists(), none.output
 
 
 def test_shipped_training_maps_are_valid_small_and_of_training_cities_only():
