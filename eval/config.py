@@ -31,9 +31,9 @@ class ReportConfig(EpisodeSettings):
         default=3,
         ge=0,
         le=3,
-        description="Episodes of the map searcher (else the first agent) drawn on the maps, by rule (eval/figures.py, TRAJECTORY_RULES): the "
-        "success closest to its median steps, the success at the 90th percentile of its successes, its first failure "
-        "(0: no trajectory figure).",
+        description="Episodes of the map searcher (else the first agent) drawn on the maps, by rule (eval/figures.py, "
+        "TRAJECTORY_RULES): the success closest to its median steps, the success at the 90th percentile of its "
+        "successes, its first failure (0: no trajectory figure).",
     )
     groups: dict[str, list[str]] = Field(
         default_factory=dict,
