@@ -26,7 +26,6 @@ training_cities_option = click.option(
 #: Which packs of the --maps folders a learned tier reads (``uavrl train-predictor``, ``uavrl calibrate-predictor``).
 packs_option = click.option(
     "--packs",
-    "patterns",
     multiple=True,
     help="Only the packs of --maps whose city's name matches this shell-style pattern, whole (repeatable; 'tt-*': the "
     "tiered cities, the real crops' kind of geometry, docs/searcher.md; 'tt-00[0-4]': five of them, for good). Default: "
@@ -145,7 +144,7 @@ def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out:
 def train_predictor(
     datasets: tuple[str, ...],
     map_folders: tuple[Path, ...],
-    patterns: tuple[str, ...],
+    packs: tuple[str, ...],
     widths: str,
     val_datasets: tuple[str, ...],
     constants: Path,
@@ -174,11 +173,11 @@ def train_predictor(
         raise click.UsageError("give training maps: --dataset CITY or --maps FOLDER (or both)")
     config = settings(UNetConfig, {"widths": widths, "steps": steps, "batch": batch, "seed": seed, "threads": threads})
     physics = load_constants(constants)
-    if patterns and not map_folders:
+    if packs and not map_folders:
         raise click.UsageError("--packs selects among the packs of --maps: give --maps FOLDER")
-    maps = training_maps(*_training_users(datasets, root), map_folders, patterns)
-    if patterns and not {m.city for m in maps} - set(datasets):
-        raise _no_pack_matched(map_folders, patterns)
+    maps = training_maps(*_training_users(datasets, root), map_folders, packs)
+    if packs and not {m.city for m in maps} - set(datasets):
+        raise _no_pack_matched(map_folders, packs)
     overlap = sorted({m.city for m in maps} & set(val_datasets))
     if overlap:
         raise click.BadParameter(
@@ -245,7 +244,7 @@ def train_predictor(
 def calibrate_predictor(
     predictor: Path,
     map_folders: tuple[Path, ...],
-    patterns: tuple[str, ...],
+    packs: tuple[str, ...],
     val_datasets: tuple[str, ...],
     out: Path,
     root: Path,
@@ -265,9 +264,9 @@ def calibrate_predictor(
 
     learned = load_learned(predictor)
     model = learned.model
-    paths = select_packs(map_folders, patterns)
+    paths = select_packs(map_folders, packs)
     if not paths:
-        raise _no_pack_matched(map_folders, patterns)
+        raise _no_pack_matched(map_folders, packs)
     maps = [read_pack(p) for p in paths]
     trained = {entry.rsplit("@", 1)[0] for entry in model.fitted_on}
     overlap = sorted({m.city for m in maps} & (trained | set(val_datasets)))
