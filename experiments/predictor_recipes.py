@@ -20,7 +20,6 @@ episodes are played (the same predictors, episodes and seed are not played again
 
 from __future__ import annotations
 
-import hashlib
 import importlib
 import json
 import shlex
@@ -32,12 +31,14 @@ import numpy as np
 from common import VALIDATION, validation_parser
 
 from uavplace.dataset.bundle import load_bundle, resolve
+from uavplace.dataset.trainmaps import select_packs
 from uavplace.eval.evaluate import ReportConfig, evaluate
 from uavplace.eval.metrics import bootstrap_table
 from uavplace.infra.console import markdown_table
 from uavplace.infra.files import atomic_write_text, sha256_file
 from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
 from uavplace.rl.config import SearchConfig
+from uavplace.rl.predictor import code_digest
 from uavplace.rl.tasks.placement.policies import GeniePolicy
 from uavplace.rl.tasks.placement.searcher import SEARCHER, MapSearchPolicy
 
@@ -54,14 +55,9 @@ COMMAND_FILE = "recipe-command.json"
 SHIPPED = "shipped"
 
 
-#: The code that trains and calibrates a tier: part of what made a model folder.
-TRAINING_CODE = (
-    "uavplace.rl.learned",
-    "uavplace.rl.predictor",
-    "uavplace.rl.predictor_cli",
-    "uavplace.rl.config",
-    "uavplace.dataset.trainmaps",
-)
+#: The code that trains and calibrates a tier, beside the predictor's own (``rl.predictor.code_digest``): part of what
+#: made a model folder.
+TRAINING_CODE = ("uavplace.rl.predictor_cli", "uavplace.rl.config", "uavplace.dataset.trainmaps")
 
 
 def _option_values(command: list[str], name: str) -> list[str]:
@@ -70,23 +66,18 @@ def _option_values(command: list[str], name: str) -> list[str]:
     return values + [command[i + 1] for i, a in enumerate(command[:-1]) if a == name]
 
 
-def _files_digest(folder: Path) -> str:
-    """The sha256 of a folder's regular files, by name and content (the packs a tier read, a tier's weights)."""
-    digest = hashlib.sha256()
-    for path in sorted(p for p in folder.iterdir() if p.is_file() and p.name != COMMAND_FILE):
-        digest.update(path.name.encode() + b"\0" + sha256_file(path).encode())
-    return digest.hexdigest()
-
-
 def made_by(command: list[str], root: Path) -> dict:
     """What made a model folder: ``command``, the content of what it reads (each city's bundle version, which hashes the
-    bundle's inputs and config; every pack in a ``--maps`` folder; the ``--predictor`` it starts from) and the training
-    code. A folder whose record differs (more packs since, a rebuilt city, changed code) is made again."""
+    bundle's inputs and config; the packs its ``--maps`` and ``--packs`` select; the version of the ``--predictor`` it
+    starts from) and the code. A folder whose record differs (more packs since, a rebuilt city, changed code) is made
+    again."""
+    packs = select_packs(_option_values(command, "--maps"), _option_values(command, "--packs"))
     return {
         "command": command,
         "bundles": {c: resolve(c, root=root).name for o in ("--dataset", "--val-dataset") for c in _option_values(command, o)},
-        "folders": {f: _files_digest(Path(f)) for o in ("--maps", "--predictor") for f in _option_values(command, o)},
-        "code": {m: sha256_file(importlib.import_module(m).__file__) for m in TRAINING_CODE},
+        "packs": {str(p): sha256_file(p) for p in packs},
+        "predictors": {f: load_predictor(Path(f)).version() for f in _option_values(command, "--predictor")},
+        "code": {"predictor": code_digest()} | {m: sha256_file(importlib.import_module(m).__file__) for m in TRAINING_CODE},
     }
 
 

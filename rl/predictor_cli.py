@@ -162,6 +162,7 @@ def train_predictor(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from uavplace.dataset.bundle import load_bundle
+    from uavplace.dataset.trainmaps import select_packs
     from uavplace.infra.console import command_line
     from uavplace.infra.files import atomic_directory
     from uavplace.rl.belief import load_constants
@@ -175,9 +176,9 @@ def train_predictor(
     physics = load_constants(constants)
     if packs and not map_folders:
         raise click.UsageError("--packs selects among the packs of --maps: give --maps FOLDER")
-    maps = training_maps(*_training_users(datasets, root), map_folders, packs)
-    if packs and not {m.city for m in maps} - set(datasets):
+    if packs and not select_packs(map_folders, packs):  # before any map is read
         raise _no_pack_matched(map_folders, packs)
+    maps = training_maps(*_training_users(datasets, root), map_folders, packs)
     overlap = sorted({m.city for m in maps} & set(val_datasets))
     if overlap:
         raise click.BadParameter(
