@@ -17,8 +17,9 @@ from __future__ import annotations
 import argparse
 import time
 
-from uavplace.rl.belief import PredictionCache, load_predictor
+from uavplace.rl.belief import PredictionCache
 from uavplace.rl.config import SearchConfig
+from uavplace.rl.predictor import load_predictor
 from uavplace.rl.tasks.placement.config import EnvConfig
 from uavplace.rl.tasks.placement.maps import MapSet
 from uavplace.rl.tasks.placement.rollout import run_episodes

@@ -24,7 +24,7 @@ import torch
 
 from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.evaluate import ReportConfig, baseline_policies, default_agents, evaluate, load_agent
-from uavplace.rl.agent.checkpoint import load_tensors
+from uavplace.infra.tensors import load_tensors
 from uavplace.rl.agent.dqn import DQNPolicy, make_network, masked_argmax, to_tensor
 from uavplace.rl.tasks.placement.config import EnvConfig
 from uavplace.rl.tasks.placement.maps import MapSet

@@ -37,7 +37,8 @@ from torch.utils.flop_counter import FlopCounterMode
 
 from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.evaluate import NO_BUILDINGS, ReportConfig, default_agents, default_baselines, load_agent, report_env
-from uavplace.rl.belief import PredictionCache, load_predictor
+from uavplace.rl.belief import PredictionCache
+from uavplace.rl.predictor import load_predictor
 from uavplace.rl.tasks.placement.maps import MapSet
 from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
 from uavplace.rl.view import PublicMaps

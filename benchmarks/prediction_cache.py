@@ -15,8 +15,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from uavplace.rl.belief import DEFAULT_PREDICTOR, PredictionCache, load_predictor
-from uavplace.rl.config import SearchConfig
+from uavplace.rl.belief import PredictionCache
+from uavplace.rl.config import DEFAULT_PREDICTOR, SearchConfig
+from uavplace.rl.predictor import load_predictor
 from uavplace.rl.tasks.placement.config import EnvConfig
 from uavplace.rl.tasks.placement.maps import MapSet
 from uavplace.rl.tasks.placement.searcher import MapSearchPolicy

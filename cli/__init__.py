@@ -1,7 +1,7 @@
 """The ``uavdata`` and ``uavrl`` command groups: the one module that knows every stage.
 
 Each stage keeps its commands in its own package (``ingest/cli.py``, ``simulate/cli.py``, ``dataset/cli.py``,
-``rl/cli.py`` and ``rl/predictor_cli.py``, ``eval/cli.py``). The groups here name them by import path and load a
+``rl/cli.py`` and ``rl/predictor/cli.py``, ``eval/cli.py``). The groups here name them by import path and load a
 command's module only when that command (or ``--help``) needs it, so that no stage imports another for its command
 line, and ``uavdata ingest`` never loads the ray tracer. Every failure is one ``error: ...`` line and exit status 2 (``UavGroup``).
 """
@@ -143,9 +143,10 @@ uavdata.help = uavdata.help.format(noise=EMBEDDED_NOISE_DBM)
         "baselines": "uavplace.rl.cli:baselines",
         "train": "uavplace.rl.cli:train",
         "ensemble": "uavplace.rl.cli:ensemble",
-        "fit-predictor": "uavplace.rl.predictor_cli:fit_predictor",
-        "train-predictor": "uavplace.rl.predictor_cli:train_predictor",
-        "calibrate-predictor": "uavplace.rl.predictor_cli:calibrate_predictor",
+        "fit-predictor": "uavplace.rl.predictor.cli:fit_predictor",
+        "train-predictor": "uavplace.rl.predictor.cli:train_predictor",
+        "calibrate-predictor": "uavplace.rl.predictor.cli:calibrate_predictor",
+        "trace-predictor": "uavplace.rl.predictor.cli:trace_predictor",
         "report": "uavplace.eval.cli:report",
         "sweep": "uavplace.eval.cli:sweep",
         "levers": "uavplace.eval.cli:levers",

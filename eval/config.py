@@ -41,7 +41,7 @@ class ReportConfig(EpisodeSettings):
     )
     predictor: str | None = Field(
         default=str(DEFAULT_PREDICTOR),
-        description="The map searcher's predictor: the physics tier's constants (a JSON file) or a learned tier (a folder; rl.belief.load_predictor); None: no searcher is played",
+        description="The map searcher's predictor: the physics tier's constants (a JSON file) or a learned tier (a folder; rl.predictor.load_predictor); None: no searcher is played",
     )
     search: SearchConfig = Field(default_factory=SearchConfig, description="The map searcher's settings")
     ablate: bool = Field(
@@ -102,7 +102,7 @@ class FleetReportConfig(Contract):
     test_epsilon: float = Field(default=0.096, ge=0, le=1, description="Random legal move rate of the agents")
     predictor: str | None = Field(
         default=str(DEFAULT_PREDICTOR),
-        description="The fleet searcher's predictor (rl.belief.load_predictor); None: no searcher",
+        description="The fleet searcher's predictor (rl.predictor.load_predictor); None: no searcher",
     )
     search: SearchConfig = Field(
         default_factory=SearchConfig,

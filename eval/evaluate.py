@@ -16,11 +16,13 @@ from uavplace.dataset.difficulty import valid_starts
 from uavplace.eval.config import ReportConfig
 from uavplace.eval.metrics import bootstrap_table, difference_table
 from uavplace.infra.files import shipped
-from uavplace.rl.agent.checkpoint import best_checkpoint, load_tensors
+from uavplace.infra.tensors import load_tensors
+from uavplace.rl.agent.checkpoint import best_checkpoint
 from uavplace.rl.agent.cities import training_users
 from uavplace.rl.agent.config import DQNConfig
 from uavplace.rl.agent.runs import RUN_JSON, RunRecord, policy_from_checkpoint, read_run_json, settings_unlike
-from uavplace.rl.belief import PREDICTIONS, PredictionCache, load_predictor
+from uavplace.rl.belief import PREDICTIONS, PredictionCache
+from uavplace.rl.predictor import load_predictor
 from uavplace.rl.tasks.placement.config import EnvConfig
 from uavplace.rl.tasks.placement.maps import MapSet
 from uavplace.rl.tasks.placement.policies import GeniePolicy, GreedyPolicy, Policy, RandomWalkPolicy

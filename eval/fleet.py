@@ -36,7 +36,8 @@ from uavplace.eval.metrics import bootstrap_table, difference_table
 from uavplace.eval.render import _CSS, _figure, _templates, difference_rows
 from uavplace.infra.console import markdown_list, markdown_table
 from uavplace.infra.files import atomic_directory, check_replaceable
-from uavplace.rl.belief import PREDICTIONS, PredictionCache, load_predictor
+from uavplace.rl.belief import PREDICTIONS, PredictionCache
+from uavplace.rl.predictor import load_predictor
 from uavplace.rl.tasks.fleet import (
     FleetConfig,
     FleetGreedy,

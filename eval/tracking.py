@@ -33,7 +33,8 @@ from uavplace.eval.metrics import _weighted_quantile, resample_counts
 from uavplace.eval.render import _CSS, _figure, _templates
 from uavplace.infra.console import markdown_table
 from uavplace.infra.files import atomic_directory, check_replaceable
-from uavplace.rl.belief import PREDICTIONS, PredictionCache, load_predictor
+from uavplace.rl.belief import PREDICTIONS, PredictionCache
+from uavplace.rl.predictor import load_predictor
 from uavplace.rl.tasks.placement.policies import GreedyPolicy, RandomWalkPolicy
 from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
 from uavplace.rl.tasks.tracking import (

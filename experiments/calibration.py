@@ -2,7 +2,7 @@
 
 Per validation city, the predictor's scores (``rl.predictor.scores_of``: median and p90 |error|, dead/live agreement,
 expected calibration error, ms per map) as it is; with Platt scaling of its dead-cell logit
-(``rl.learned.pack_calibration``, what ``uavrl calibrate-predictor`` fits) on the users of training-maps packs
+(``rl.predictor.learned.pack_calibration``, what ``uavrl calibrate-predictor`` fits) on the users of training-maps packs
 (``--maps``: cities the predictor was not trained on, never a validation or test city); and with Platt scaling fitted
 on the other validation cities (leave one city out: the city scored is never one it was fitted on). The reliability
 diagrams of all three in one figure (``--figure``).
@@ -22,9 +22,9 @@ from common import VALIDATION, validation_parser
 from uavplace.dataset.bundle import load_bundle
 from uavplace.dataset.trainmaps import read_pack, select_packs
 from uavplace.infra.console import markdown_table
-from uavplace.rl.belief import DEFAULT_PREDICTOR, load_predictor
-from uavplace.rl.learned import pack_calibration
-from uavplace.rl.predictor import platt_scaling, predicted_and_measured, reliability, scores_of
+from uavplace.rl.config import DEFAULT_PREDICTOR
+from uavplace.rl.predictor import load_predictor, platt_scaling, predicted_and_measured, reliability, scores_of
+from uavplace.rl.predictor.learned import pack_calibration
 
 
 def logit(p: np.ndarray) -> np.ndarray:

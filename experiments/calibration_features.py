@@ -21,8 +21,8 @@ from common import VALIDATION, validation_parser
 
 from uavplace.dataset.bundle import load_bundle
 from uavplace.dataset.trainmaps import list_packs, read_pack
-from uavplace.rl.belief import DEFAULT_PREDICTOR, load_predictor
-from uavplace.rl.predictor import Scene, path_features, reliability
+from uavplace.rl.config import DEFAULT_PREDICTOR
+from uavplace.rl.predictor import Scene, load_predictor, path_features, reliability
 
 FEATURES = ("logit", "walls", "log_d", "diffraction", "cell density 7", "user density 7", "user density 15", "cover",
             "mean height")  # fmt: skip

@@ -18,9 +18,9 @@ import numpy as np
 
 from uavplace.dataset.bundle import load_bundle
 from uavplace.infra.console import markdown_table
-from uavplace.rl.belief import BeliefModel, CandidateMaps, load_predictor
+from uavplace.rl.belief import BeliefModel, CandidateMaps
 from uavplace.rl.config import DEFAULT_PREDICTOR
-from uavplace.rl.predictor import Scene
+from uavplace.rl.predictor import Scene, load_predictor
 
 #: The searcher's training cities (the learned tier's; docs/searcher.md).
 TRAINING = tuple(f"corpus-{i:03d}" for i in range(16)) + tuple(f"oldtown-{i:03d}" for i in range(5)) + ("train",)

@@ -22,8 +22,9 @@ import numpy as np
 
 from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.evaluate import load_agent
-from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
-from uavplace.rl.config import SearchConfig
+from uavplace.rl.belief import PREDICTIONS, PredictionCache
+from uavplace.rl.config import DEFAULT_PREDICTOR, SearchConfig
+from uavplace.rl.predictor import load_predictor
 from uavplace.rl.tasks.fleet import (
     FleetConfig,
     FleetGreedy,

@@ -36,9 +36,9 @@ from uavplace.eval.evaluate import ReportConfig, evaluate
 from uavplace.eval.metrics import bootstrap_table
 from uavplace.infra.console import markdown_table
 from uavplace.infra.files import atomic_write_text, sha256_file
-from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
-from uavplace.rl.config import SearchConfig
-from uavplace.rl.predictor import code_digest
+from uavplace.rl.belief import PREDICTIONS, PredictionCache
+from uavplace.rl.config import DEFAULT_PREDICTOR, SearchConfig
+from uavplace.rl.predictor import code_digest, load_predictor
 from uavplace.rl.tasks.placement.policies import GeniePolicy
 from uavplace.rl.tasks.placement.searcher import SEARCHER, MapSearchPolicy
 
@@ -55,9 +55,9 @@ COMMAND_FILE = "recipe-command.json"
 SHIPPED = "shipped"
 
 
-#: The code that trains and calibrates a tier, beside the predictor's own (``rl.predictor.code_digest``): part of what
-#: made a model folder.
-TRAINING_CODE = ("uavplace.rl.predictor_cli", "uavplace.rl.config", "uavplace.dataset.trainmaps")
+#: The code that trains and calibrates a tier beside the predictor family's own (``rl.predictor.code_digest``, which
+#: covers its commands too): part of what made a model folder.
+TRAINING_CODE = ("uavplace.rl.config", "uavplace.dataset.trainmaps")
 
 
 def _option_values(command: list[str], name: str) -> list[str]:

@@ -50,7 +50,9 @@ from searcher_steps import user_cells
 from uavplace.dataset.bundle import Bundle, load_bundle
 from uavplace.eval.evaluate import ReportConfig, evaluate
 from uavplace.infra.console import markdown_table
-from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, CandidateMaps, PredictionCache, load_predictor
+from uavplace.rl.belief import PREDICTIONS, CandidateMaps, PredictionCache
+from uavplace.rl.config import DEFAULT_PREDICTOR
+from uavplace.rl.predictor import load_predictor
 from uavplace.rl.tasks.placement.policies import GeniePolicy
 from uavplace.rl.tasks.placement.searcher import SEARCHER, MapSearchPolicy
 from uavplace.rl.view import AgentView, PublicMaps, public_maps

@@ -28,8 +28,9 @@ from common import VALIDATION, validation_parser
 from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.evaluate import ReportConfig, evaluate
 from uavplace.infra.console import markdown_table
-from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
-from uavplace.rl.predictor import Scene
+from uavplace.rl.belief import PREDICTIONS, PredictionCache
+from uavplace.rl.config import DEFAULT_PREDICTOR
+from uavplace.rl.predictor import Scene, load_predictor
 from uavplace.rl.tasks.placement.maps import transform
 from uavplace.rl.tasks.placement.policies import GeniePolicy
 from uavplace.rl.tasks.placement.searcher import MapSearchPolicy

@@ -24,8 +24,9 @@ from uavplace.eval.evaluate import ReportConfig, evaluate, load_agent
 from uavplace.eval.metrics import bootstrap_table, difference_table
 from uavplace.infra.console import markdown_table
 from uavplace.infra.options import with_pairs
-from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
-from uavplace.rl.config import SearchConfig
+from uavplace.rl.belief import PREDICTIONS, PredictionCache
+from uavplace.rl.config import DEFAULT_PREDICTOR, SearchConfig
+from uavplace.rl.predictor import load_predictor
 from uavplace.rl.tasks.placement.policies import GeniePolicy
 from uavplace.rl.tasks.placement.searcher import SEARCHER, MapSearchPolicy
 
@@ -57,20 +58,34 @@ def main() -> None:
         "(repeatable; named 'map searcher [name=value,...]'; paired against the searcher)",
     )
     ap.add_argument("--root", type=Path, default=Path("data/processed"))
-    ap.add_argument("--predictor", type=Path, default=DEFAULT_PREDICTOR, help="Constants' JSON or a learned tier's folder")
+    ap.add_argument("--predictor", type=Path, default=DEFAULT_PREDICTOR, help="Constants' JSON or a tier's folder")
     ap.add_argument(
         "--versus",
         type=Path,
         action="append",
         default=[],
-        help="Another predictor (a learned tier's folder or constants' JSON) whose searcher plays beside it on the same "
+        help="Another predictor (a tier's folder or constants' JSON) whose searcher plays beside it on the same "
         "episodes, named 'map searcher [FOLDER]' (repeatable; paired against the searcher)",
     )
     ap.add_argument("--quick", action="store_true", help="The genie and the searcher only (no best, no ablation)")
+    ap.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        help="Ray tasks a ray-traced tier traces its candidates in (a local Ray of that many CPUs; the maps are the "
+        "same whatever the number)",
+    )
     args = ap.parse_args()
     search = _settings(ap, SearchConfig(), args.set, "--set")
     predictor, cache = load_predictor(args.predictor), PredictionCache(args.root / PREDICTIONS)
     versus = [(other, load_predictor(other)) for other in args.versus]
+    for tier in [predictor] + [t for _, t in versus]:
+        if hasattr(tier, "workers"):  # the ray-traced tier: its candidates as Ray tasks
+            tier.workers = args.workers
+    if args.workers > 1:
+        from uavplace.infra.cluster import start_ray
+
+        start_ray(None, 1.0, "--workers", num_cpus=args.workers)
     folders = args.agent or [Path("data/agents/best")]
     agents = [] if args.quick else [load_agent(f, epsilon=0.096, seed=args.seed) for f in folders]
     if len({a.name for a in agents}) != len(agents):  # two runs of one preset: named by their folders

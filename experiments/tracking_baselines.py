@@ -21,7 +21,9 @@ from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.cities import development_cities
 from uavplace.eval.evaluate import check_unseen, load_agent
 from uavplace.eval.tracking import tracking_methods
-from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, PredictionCache, load_predictor
+from uavplace.rl.belief import PREDICTIONS, PredictionCache
+from uavplace.rl.config import DEFAULT_PREDICTOR
+from uavplace.rl.predictor import load_predictor
 from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
 from uavplace.rl.tasks.tracking import RouteSet, TrackingConfig, TrackingSearchPolicy, fit_motion, run_tracking, tracking_search
 

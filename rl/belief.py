@@ -1,7 +1,7 @@
 """The map searcher's belief, apart from any policy: the predicted maps of every candidate user cell, their cache,
 the predictor's loader and the belief arithmetic (docs/searcher.md).
 
-For each canvas (a city under a symmetry) the predictor (``rl.predictor``, ``rl.learned``) gives the SINR map of a
+For each canvas (a city under a symmetry) the predictor (a tier of ``rl.predictor``) gives the SINR map of a
 user at every *candidate* cell (open ground on a lattice of ``stride`` cells; with ``buildings=False`` every lattice
 cell, the predictor shown open ground: the map ablation): ``CandidateMaps``. A belief is the log-probability of each
 candidate, uniform at the start. After every measurement ``m`` at cell ``x``:
@@ -36,9 +36,9 @@ import numpy as np
 import torch
 from scipy.special import ndtr, ndtri
 
-from uavplace.infra.files import atomic_write_bytes, read_model_json, read_small_file
+from uavplace.infra.files import atomic_write_bytes, read_small_file
 from uavplace.infra.limits import check_limit, limits
-from uavplace.rl.config import DEFAULT_CONSTANTS, DEFAULT_PREDICTOR, SearchConfig
+from uavplace.rl.config import SearchConfig
 from uavplace.rl.predictor import PhysicsConstants, PhysicsPredictor, Predictor, Scene
 from uavplace.rl.tasks.placement.maps import MapSet, transform
 from uavplace.rl.view import PublicMaps
@@ -103,15 +103,6 @@ def posterior_cover(log_b: np.ndarray, cover: np.ndarray) -> np.ndarray:
     b = np.exp(log_b - log_b.max(axis=1, keepdims=True))
     b /= b.sum(axis=1, keepdims=True)
     return b @ cover
-
-
-def shared_posterior_cover(log_b: np.ndarray, cover: np.ndarray) -> np.ndarray:
-    """``posterior_cover`` of rows ``log_b`` as a product with more rows gives them. The product gives each row the
-    same sums however many rows it holds, save a lone row, which numpy hands to a matrix-vector product that orders
-    its sums otherwise: a lone row is computed beside a copy of itself."""
-    if len(log_b) == 1:
-        return posterior_cover(np.repeat(log_b, 2, axis=0), cover)[:1]
-    return posterior_cover(log_b, cover)
 
 
 class PredictionCache:
@@ -440,27 +431,6 @@ class BeliefModel:
         return out - out.max(axis=1, keepdims=True)
 
 
-def load_predictor(path: str | Path = DEFAULT_PREDICTOR) -> Predictor:
-    """The predictor at ``path``: a folder is a learned tier (``rl.learned.load_learned``), a file the physics tier's
-    constants (``load_constants``); ``InputError`` saying where the shipped ones live when there is none."""
-    if Path(path).is_dir():
-        from uavplace.rl.learned import load_learned
-
-        return load_learned(path)
-    if not Path(path).exists() and not Path(path).is_symlink():
-        raise InputError(
-            path,
-            f"no predictor here: give a learned tier's folder or a physics tier's constants (the "
-            f"shipped ones are {DEFAULT_PREDICTOR} and {DEFAULT_CONSTANTS})",
-        )
-    return PhysicsPredictor(load_constants(path))
-
-
-def load_constants(path: str | Path = DEFAULT_CONSTANTS) -> PhysicsConstants:
-    """The predictor's constants from their JSON file (``InputError`` naming it when unreadable or invalid)."""
-    return read_model_json(path, PhysicsConstants, "a predictor's constants (`uavrl fit-predictor` writes them)")
-
-
 class BeliefTracker:
     """The searcher's belief for every row of a ``BatchedEnv``, as an observation channel (``EnvConfig.belief_channel``):
     the hybrid of docs/searcher.md, a learner that reads where the belief says P_T is likely.
@@ -552,8 +522,9 @@ class BeliefTracker:
         matrix product; with ``window`` and ``at``, only the window centred on each row's map cell ``(y, x)``, else
         the whole canvas.
 
-        Rows that shared their product with rows left unread are computed as that product computed them
-        (``shared_posterior_cover``)."""
+        The product takes every row of ``rows`` on the canvas, read or not, and the unread ones are dropped after it:
+        a row's sums then never depend on which of its neighbours someone reads (a BLAS orders a product's sums by
+        its shape, so a row computed among fewer rows may differ in the last bit)."""
         read = np.ones(len(rows), bool) if read is None else read
         p = self.public.pad
         for c, members in self._groups(rows).items():
@@ -561,10 +532,9 @@ class BeliefTracker:
             if not kept:
                 continue
             cm, columns = self.candidates(c)
-            log_b = self.log_b[rows[kept], : len(cm.cells)]
+            log_b = self.log_b[rows[members], : len(cm.cells)]
             scores = np.zeros((len(kept), cm.cover.shape[1] + 1), np.float32)  # the last column: -1's zero
-            product = shared_posterior_cover if len(kept) < len(members) else posterior_cover
-            scores[:, :-1] = product(log_b, cm.cover)
+            scores[:, :-1] = posterior_cover(log_b, cm.cover)[[members.index(i) for i in kept]]
             scores *= np.float32(100.0)
             targets = rows[kept]
             if at is None or self.window is None:

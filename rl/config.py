@@ -146,7 +146,7 @@ class EpisodeSettings(Contract):
 
 
 class UNetConfig(Contract):
-    """The learned radio-map predictor's network and training settings (``rl.learned``; `uavrl train-predictor`'s
+    """The learned radio-map predictor's network and training settings (``rl.predictor.learned``; `uavrl train-predictor`'s
     options derive from them)."""
 
     widths: list[int] = Field(

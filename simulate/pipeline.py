@@ -212,19 +212,27 @@ def load_geometry(
     path = _sionna_scene(source.partition(":")[2]) if source.startswith("sionna:") else Path(source)
     if not path.is_file():
         raise InputError(
-            path, "no such file: expected procedural[:preset], sionna:<scene>, a .city, .geojson or Mitsuba .xml", field="source"
+            path,
+            "no such file: expected procedural[:preset], sionna:<scene>, a .city, .geojson, CityJSON .json or Mitsuba .xml",
+            field="source",
         )
     suffix = path.suffix.lower()
     cropped = left_out = 0
     rejected = []
+    heights = ""  # how a format's building heights were taken, where it says
     if suffix == ".city":
         from uavplace.ingest.wireless_insite.city import read_city
 
         records = read_city(path)
     elif suffix in (".geojson", ".json"):
+        from uavplace.ingest.cityjson import is_cityjson, load_json, read_cityjson
         from uavplace.ingest.geojson import read_geojson
 
-        records, rejected = read_geojson(path)
+        doc = load_json(path, str(path))
+        if is_cityjson(doc):
+            records, rejected, heights = read_cityjson(path, doc=doc)
+        else:
+            records, rejected = read_geojson(path)
         left_out = sum(r.count for r in rejected)
     elif suffix == ".xml":
         from uavplace.ingest.mitsuba import read_mitsuba
@@ -232,7 +240,9 @@ def load_geometry(
         scene = read_mitsuba(path, crop=crop)
         records, cropped = scene.buildings, scene.num_cropped
     else:
-        raise InputError(path, f"unknown geometry format '{path.suffix}' (expected .city, .geojson or .xml)", field="source")
+        raise InputError(
+            path, f"unknown geometry format '{path.suffix}' (expected .city, .geojson, CityJSON .json or .xml)", field="source"
+        )
     if crop is not None and suffix != ".xml":
         from uavplace.ingest.buildings import crop_records
 
@@ -262,6 +272,8 @@ def load_geometry(
     described = f"{source if source.startswith('sionna:') else path.name}: {len(records)} buildings in {tiers} roof tiers"
     if left_out:
         described += f", {left_out} feature(s) left out ({rejected[0].field}: {rejected[0].reason}, ...)"
+    if heights:
+        described += f"; heights: {heights}"
     if crop is not None:
         described += f", cropped to x {crop[0]:g}..{crop[2]:g}, y {crop[1]:g}..{crop[3]:g} m ({cropped} buildings outside)"
     return blocks, (float(b[0]), float(b[1]), float(b[2]), float(b[3])), described

@@ -466,12 +466,16 @@ def require_raytrace() -> None:
         )
 
 
-def import_sionna():
-    """Import sionna.rt with a CPU LLVM variant; a clear error when the extra or LLVM is missing."""
+def import_sionna(variant: str | None = None):
+    """Import sionna.rt, in Mitsuba's ``variant`` when given (``llvm_ad_mono_polarized`` on a CPU,
+    ``cuda_ad_mono_polarized`` on a GPU; None: Sionna's own choice); a clear error when the extra or LLVM is missing."""
     if "DRJIT_LIBLLVM_PATH" not in os.environ and Path(LLVM_19).exists():
         os.environ["DRJIT_LIBLLVM_PATH"] = LLVM_19
     try:
         import mitsuba as mi
+
+        if variant is not None:
+            mi.set_variant(variant)
         import sionna.rt as rt
     except ImportError as exc:
         raise RuntimeError(
@@ -480,10 +484,11 @@ def import_sionna():
     return mi, rt
 
 
-def _scene(job: RadioMapJob, config: RayTraceConfig):  # noqa: ANN202 - (mitsuba, sionna.rt, Scene)
+def _scene(job: RadioMapJob, config: RayTraceConfig, variant: str | None = None):  # noqa: ANN202 - (mitsuba, sionna.rt, Scene)
     """The scene with the users' antenna (``config.antenna``) and an isotropic receiver, which is what Sionna's
-    radio map assumes; exact paths take the same receiver, so that both estimate the same path gain."""
-    mi, rt = import_sionna()
+    radio map assumes; exact paths take the same receiver, so that both estimate the same path gain. ``variant``:
+    Mitsuba's (``import_sionna``)."""
+    mi, rt = import_sionna(variant)
     scene = rt.load_scene(job.scene_xml)
     scene.frequency = config.frequency_hz
     scene.tx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern=config.antenna, polarization="V")
@@ -503,6 +508,7 @@ def path_gain_maps(
     config: RayTraceConfig,
     on_batch: Callable[[int, int], None] | None = None,
     edge_diffraction: bool = False,
+    variant: str | None = None,
 ) -> dict[int, np.ndarray]:
     """Raw path gain maps (linear), by cell factor: ``{1: [num_users, num_y, num_x], f: [num_users, cy, cx], ...}``.
 
@@ -510,8 +516,9 @@ def path_gain_maps(
     Besides the grid (factor 1), each of ``config.gap_fill_factors`` traces a map of cells that many times
     larger over the same corner (``fill`` uses them). ``on_batch(done, total)`` reports progress in users.
     ``edge_diffraction``: free edges diffract too (a screen's top; a city's extruded buildings have none).
+    ``variant``: Mitsuba's (``import_sionna``; None: Sionna's choice).
     """
-    mi, rt, scene = _scene(job, config)
+    mi, rt, scene = _scene(job, config, variant)
     solver = rt.RadioMapSolver()
     users = np.asarray(job.users_m, dtype=float)
     center_m, size_m, cell_m = job.center_m, job.size_m, job.cell_m
@@ -586,14 +593,18 @@ def point_path_gains(
 
 
 def direct_gains(
-    job: RadioMapJob, config: RayTraceConfig, material: dict, on_batch: Callable[[int, int], None] | None = None
+    job: RadioMapJob,
+    config: RayTraceConfig,
+    material: dict,
+    on_batch: Callable[[int, int], None] | None = None,
+    variant: str | None = None,
 ) -> dict[str, np.ndarray]:
     """The exact straight path through the walls from each user to each cell of the job's grid
     (``simulate.transmission``; ``material``: the buildings' radio material as ``Material.at`` gives it):
     ``{"direct": gain [U, ny, nx], "crossings": walls crossed [U, ny, nx]}`` (``max_depth + 1`` where too many)."""
     from uavplace.simulate.transmission import complex_permittivity, direct_path_gains
 
-    mi, _, scene = _scene(job, config)
+    mi, _, scene = _scene(job, config, variant)
     ny, nx = job.shape
     cells = job.cell_centres()
     eta = complex_permittivity(material["relative_permittivity"], material["conductivity_s_m"], config.frequency_hz)
@@ -657,10 +668,19 @@ def path_gain_maps_isolated(
     config: RayTraceConfig,
     on_batch: Callable[[int, int], None] | None = None,
     edge_diffraction: bool = False,
-) -> dict[int, np.ndarray]:
-    """``path_gain_maps`` in a child Python process (see ``_isolated``)."""
-    arrays = _isolated("maps", {"job": asdict(job), "config": asdict(config), "edge_diffraction": edge_diffraction}, on_batch)
-    return {int(k.removeprefix("f")): v for k, v in arrays.items()}
+    variant: str | None = None,
+    material: dict | None = None,
+    threads: int | None = None,
+) -> dict[int | str, np.ndarray]:
+    """``path_gain_maps`` in a child Python process (see ``_isolated``); with ``material`` (``Material.at``) also the
+    straight paths through the walls of that material, ``direct_gains``'s ``"direct"`` and ``"crossings"``, in the
+    same process (one start of the ray tracer). ``threads``: Dr.Jit's CPU threads in the child (None: all; 1: the
+    radio map's sums in one order, so the same rays give the same map to the bit, which several threads' atomic
+    additions do not)."""
+    payload = {"job": asdict(job), "config": asdict(config), "edge_diffraction": edge_diffraction, "variant": variant}
+    payload["threads"] = threads
+    arrays = _isolated("maps", payload | ({"material": material} if material is not None else {}), on_batch)
+    return {(int(k.removeprefix("f")) if k.startswith("f") else k): v for k, v in arrays.items()}
 
 
 def point_path_gains_isolated(
@@ -705,6 +725,10 @@ def direct_gains_isolated(
 
 def _child(job_path: str) -> None:
     doc = json.loads(Path(job_path).read_text())
+    if doc.get("threads"):
+        import drjit as dr
+
+        dr.set_thread_count(int(doc["threads"]))
     j = doc["job"]
     job = RadioMapJob(j["scene_xml"], tuple(map(tuple, j["users_m"])), tuple(j["center_m"]), tuple(j["size_m"]), j["cell_m"])
     config = RayTraceConfig(**doc["config"] | {"gap_fill_factors": tuple(doc["config"]["gap_fill_factors"])})
@@ -713,8 +737,12 @@ def _child(job_path: str) -> None:
         print(f"progress {d} {t}", flush=True)
 
     if doc["kind"] == "maps":
-        maps = path_gain_maps(job, config, on_batch=report, edge_diffraction=doc.get("edge_diffraction", False))
+        maps = path_gain_maps(
+            job, config, on_batch=report, edge_diffraction=doc.get("edge_diffraction", False), variant=doc.get("variant")
+        )
         arrays = {f"f{k}": v for k, v in maps.items()}
+        if doc.get("material") is not None:
+            arrays |= direct_gains(job, config, doc["material"], variant=doc.get("variant"))
     elif doc["kind"] == "direct":
         arrays = direct_gains(job, config, doc["material"], on_batch=report)
     else:

@@ -213,7 +213,7 @@ def _checkpoint(folder: Path) -> Path:
 
 
 def _load_checkpoint(path: Path) -> object:
-    from uavplace.rl.agent.checkpoint import load_tensors
+    from uavplace.infra.tensors import load_tensors
 
     return load_tensors(path)
 

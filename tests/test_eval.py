@@ -469,7 +469,8 @@ def test_a_terminal_gets_the_columns_that_fit():
 def test_shipped_agents_and_predictor_are_found_from_any_working_folder(tiny, tmp_path, monkeypatch):
     """`uavrl report` run from a folder that is not the repository finds the shipped agents and predictor (the
     project's data/agents, not the working folder's); a predictor path that does not exist says where they are."""
-    from uavplace.rl.belief import DEFAULT_PREDICTOR, load_predictor
+    from uavplace.rl.config import DEFAULT_PREDICTOR
+    from uavplace.rl.predictor import load_predictor
     from uavplace.schemas import InputError
 
     monkeypatch.chdir(tmp_path)

@@ -275,8 +275,8 @@ def test_fleet_searcher_serves_the_tiny_city_from_what_it_measured(tiny, plan, p
     with every plan, and with the information of a measurement near the UAVs added (``planner`` info)."""
     from tests.conftest import REPO
     from uavplace.dataset.bundle import load_bundle
-    from uavplace.rl.belief import load_predictor
     from uavplace.rl.config import SearchConfig
+    from uavplace.rl.predictor import load_predictor
     from uavplace.rl.tasks.fleet import FleetSearcher, run_fleet
 
     config = FleetConfig(uavs=2, users=2, window=9, t_max=60)
@@ -301,7 +301,7 @@ def test_fleet_searchers_makespan_plan_is_the_best_by_brute_force(seed):
     import itertools
 
     from tests.conftest import REPO
-    from uavplace.rl.belief import load_predictor
+    from uavplace.rl.predictor import load_predictor
     from uavplace.rl.tasks.fleet import FleetSearcher
     from uavplace.rl.tasks.fleet.maps import user_subsets
 
@@ -333,7 +333,7 @@ def test_fleet_searchers_union_plan_no_uav_can_raise_by_brute_force(seed):
     cells' covers independent) times the discount of the longest path; it scores at least its start, and no UAV
     moved alone to any reachable cell scores more (a coordinate-wise optimum); a UAV without users may move."""
     from tests.conftest import REPO
-    from uavplace.rl.belief import load_predictor
+    from uavplace.rl.predictor import load_predictor
     from uavplace.rl.tasks.fleet import FleetSearcher
 
     rng = np.random.default_rng(seed)
@@ -364,8 +364,8 @@ def test_fleet_searchers_information_is_each_users_near_the_uavs(tiny):
     within ``info_radius`` moves of some UAV, capped at 1, and nothing elsewhere."""
     from tests.conftest import REPO
     from uavplace.dataset.bundle import load_bundle
-    from uavplace.rl.belief import load_predictor
     from uavplace.rl.config import SearchConfig
+    from uavplace.rl.predictor import load_predictor
     from uavplace.rl.tasks.fleet import FleetSearcher, FleetView
 
     config = FleetConfig(uavs=2, users=2, window=9, t_max=60)
@@ -676,8 +676,8 @@ def test_fleet_searcher_moves_the_same_whatever_the_settings_it_does_not_read(ti
     from their defaults, the fleet searcher makes the same moves (where a setting it reads, ``reach_cells``, moves it)."""
     from tests.conftest import REPO
     from uavplace.dataset.bundle import load_bundle
-    from uavplace.rl.belief import load_predictor
     from uavplace.rl.config import SearchConfig
+    from uavplace.rl.predictor import load_predictor
     from uavplace.rl.tasks.fleet import FleetSearcher
 
     config = FleetConfig(uavs=2, users=2, window=9, t_max=60)

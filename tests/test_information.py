@@ -92,8 +92,8 @@ def test_report_methods_read_only_what_they_measured(tiny):
 
     env = EnvConfig(t_max=T_MAX, rotate=False)
     maps = MapSet.load("tiny", env, root=str(tiny))
-    from uavplace.rl.belief import load_predictor
     from uavplace.rl.config import SearchConfig
+    from uavplace.rl.predictor import load_predictor
     from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
 
     policies = [p for p in baseline_policies(ReportConfig(dataset="tiny"), env) if not getattr(p, "privileged", False)]
@@ -120,7 +120,8 @@ def test_searcher_reads_only_what_it_measured_on_a_validation_city(tmp_path):
     predictor: each episode played again alone with the user's map scrambled off its route moves the same."""
     from uavplace.dataset.build import build_city
     from uavplace.ingest.pipeline import ingest_city
-    from uavplace.rl.belief import PredictionCache, load_predictor
+    from uavplace.rl.belief import PredictionCache
+    from uavplace.rl.predictor import load_predictor
     from uavplace.rl.tasks.placement.config import EnvConfig
     from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
     from uavplace.schemas.bundle import BuildConfig

@@ -13,9 +13,10 @@ from click.testing import CliRunner
 from uavplace.cli import uavrl
 from uavplace.dataset.bundle import load_bundle
 from uavplace.dataset.trainmaps import TrainingMaps
-from uavplace.rl.belief import PredictionCache, load_predictor
+from uavplace.rl.belief import PredictionCache
 from uavplace.rl.config import SearchConfig
-from uavplace.rl.learned import (
+from uavplace.rl.predictor import PhysicsConstants, PhysicsPredictor, Scene, load_predictor
+from uavplace.rl.predictor.learned import (
     MODEL_CARD,
     MODEL_JSON,
     WEIGHTS,
@@ -30,7 +31,6 @@ from uavplace.rl.learned import (
     train_learned,
     training_examples,
 )
-from uavplace.rl.predictor import PhysicsConstants, PhysicsPredictor, Scene
 from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
 from uavplace.schemas import InputError
 
@@ -151,7 +151,7 @@ def test_train_predictor_cli_writes_weights_model_and_card(tiny, tmp_path):
 
 def test_shipped_learned_tier_loads_and_says_how_it_was_made():
     from tests.conftest import REPO
-    from uavplace.rl.belief import DEFAULT_PREDICTOR
+    from uavplace.rl.config import DEFAULT_PREDICTOR
 
     predictor = load_predictor(REPO / DEFAULT_PREDICTOR)
     assert predictor.tier == "learned" and predictor.error_db > 0
@@ -167,7 +167,7 @@ def test_shipped_calibration_command_selects_the_packs_it_was_calibrated_on():
 
     from tests.conftest import REPO
     from uavplace.dataset.trainmaps import read_pack, select_packs
-    from uavplace.rl.belief import DEFAULT_PREDICTOR
+    from uavplace.rl.config import DEFAULT_PREDICTOR
 
     model = load_predictor(REPO / DEFAULT_PREDICTOR).model
     [line] = [shlex.split(c) for c in model.made_by if "calibrate-predictor" in c]
@@ -270,7 +270,7 @@ def test_calibrate_predictor_fits_platt_scaling_on_packs_it_was_not_trained_on(t
 def test_a_training_step_too_large_for_memory_is_refused_before_any_map_is_read(tiny):
     """`--batch 1024` (inside UNetConfig's range) would hold about 4 GB of activations a step: refused by the limit
     predictor_step_bytes before any training map is read, naming --batch."""
-    from uavplace.rl.learned import step_bytes
+    from uavplace.rl.predictor.learned import step_bytes
 
     assert step_bytes(UNetConfig(batch=1024)) > 2 * 2**30 > step_bytes(UNetConfig())
     maps = [TrainingMaps.of_bundle(load_bundle("tiny", root=tiny))]

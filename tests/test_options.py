@@ -177,6 +177,7 @@ CLI_SWITCHES = {
         "peers",
         "match",
         "packs",
+        "users_per_pack",
     },
     "where it writes": {"out", "out_root", "out_dir", "out_path", "markdown", "markdown_path", "name"},
     "how it runs": {

@@ -11,9 +11,8 @@ import pytest
 from scipy.special import fresnel
 
 from tests.conftest import REPO
-from uavplace.rl.belief import load_constants
 from uavplace.rl.config import SearchConfig
-from uavplace.rl.predictor import PhysicsConstants, Scene, fresnel_nu, knife_edge_db, path_features
+from uavplace.rl.predictor import PhysicsConstants, Scene, fresnel_nu, knife_edge_db, load_constants, path_features
 from uavplace.rl.tasks.placement.config import EnvConfig
 from uavplace.rl.tasks.placement.maps import MapSet
 from uavplace.rl.tasks.placement.policies import RandomWalkPolicy
@@ -369,19 +368,6 @@ def test_belief_channel_paints_what_the_whole_canvas_shows(tiny):
     assert played == len(queue)
 
 
-def test_a_row_of_a_shared_product_is_computed_as_the_product_computed_it():
-    """``shared_posterior_cover``: each row, alone or with a few, gets to the bit what the product of all rows gave it
-    (the windowed channel computes only the rows someone reads)."""
-    from uavplace.rl.belief import posterior_cover, shared_posterior_cover
-
-    rng = np.random.default_rng(3)
-    cover = rng.random((1500, 700), dtype=np.float32)
-    log_b = (3 * rng.standard_normal((12, 1500))).astype(np.float32)
-    whole = posterior_cover(log_b, cover)
-    for rows in ([0], [5], [11], [2, 7], [1, 3, 4, 9]):
-        np.testing.assert_array_equal(shared_posterior_cover(log_b[rows], cover), whole[rows])
-
-
 def _cache_entry(tmp_path):  # noqa: ANN001, ANN202
     """(cache, key, mu, p_dead): one entry saved, as the searcher saves it."""
     from uavplace.rl.belief import PredictionCache
@@ -450,11 +436,12 @@ def test_prediction_cache_uses_only_whole_entries_of_its_own_key(tmp_path):
     assert time.process_time() - cpu < 1.0
 
 
-def test_predictor_versions_name_their_code(monkeypatch):
-    """The prediction cache's key holds the predictor's code: a change to rl/predictor.py or rl/learned.py changes
-    every predictor's version, so its maps are predicted again."""
-    from uavplace.rl import learned, predictor
-    from uavplace.rl.learned import LearnedModel, LearnedPredictor, MapUNet, UNetConfig
+def test_predictor_versions_name_their_code():
+    """The prediction cache's key holds the predictor family's code: a module added to (or changed in) rl/predictor/
+    changes every tier's version, so its maps are predicted again. The test writes real code into the folder."""
+    from uavplace.rl import predictor
+    from uavplace.rl.predictor.base import FAMILY
+    from uavplace.rl.predictor.learned import LearnedModel, LearnedPredictor, MapUNet, UNetConfig
 
     physics = predictor.PhysicsPredictor(_constants())
     config = UNetConfig(widths=[4, 8])
@@ -463,10 +450,17 @@ def test_predictor_versions_name_their_code(monkeypatch):
     net = LearnedPredictor(model, MapUNet(config.widths))
     before = (physics.version(), net.version())
     assert len(predictor.code_digest()) == 64
-    monkeypatch.setattr(predictor, "code_digest", lambda: "1" * 64)
-    monkeypatch.setattr(learned, "code_digest", lambda: "1" * 64)
-    after = (physics.version(), net.version())
+    extra = FAMILY / "_test_version_probe.py"
+    try:
+        extra.write_text("OFFSET_DB = 1.0\n")
+        after = (physics.version(), net.version())
+        extra.write_text("OFFSET_DB = 2.0\n")
+        edited = (physics.version(), net.version())
+    finally:
+        extra.unlink(missing_ok=True)
     assert before[0] != after[0] and before[1] != after[1]
+    assert after[0] != edited[0] and after[1] != edited[1]
+    assert (physics.version(), net.version()) == before
 
 
 def _hand_maps(p_dead: list[list[float]], mu: list[list[float]]):  # noqa: ANN202

@@ -185,7 +185,7 @@ def test_checkpoint_payloads_are_named_whatever_torch_says(tmp_path):
     the refusal still says the file holds Python objects and names what it would call, and nothing runs."""
     import pickle
 
-    from uavplace.rl.agent.checkpoint import load_tensors
+    from uavplace.infra.tensors import load_tensors
 
     marker = tmp_path / "PWNED"
 
@@ -205,7 +205,7 @@ def test_non_finite_weights_are_refused_on_save_and_on_load(tmp_path):
     the tensor; the file a refused save would have replaced is untouched."""
     import torch
 
-    from uavplace.rl.agent.checkpoint import load_tensors, save_tensors
+    from uavplace.infra.tensors import load_tensors, save_tensors
 
     good = {"online": {"w": torch.ones(3), "steps": torch.tensor([1, 2])}, "config": {"lr": 1e-3}}
     path = tmp_path / "best.pt"
@@ -397,7 +397,7 @@ def test_names_are_drawn_as_they_are_never_as_mathtext(tmp_path, shared):  # noq
 def test_weights_files_that_are_fifos_are_refused_at_once(tmp_path):
     """Every weights file goes through one regular-file, size-bounded read (``load_tensors``): a FIFO as a resume's
     ``networks.pt`` or as ``--set init=DIR``'s ``best.pt`` is refused in one line, never waited on."""
-    from uavplace.rl.agent.checkpoint import load_tensors
+    from uavplace.infra.tensors import load_tensors
     from uavplace.rl.agent.resume import start_from
 
     os.mkfifo(tmp_path / "networks.pt")
@@ -424,19 +424,19 @@ def test_weights_files_that_are_fifos_are_refused_at_once(tmp_path):
 
 
 def test_predictor_weights_are_bounded_before_they_are_hashed(tmp_path):
-    """The learned predictor's weights.pt of 2 GB (sparse) is refused by its size, in one line naming the limit, before
-    a byte of it is hashed (it had been hashed whole, 11 s, before the sha256 refused it)."""
+    """The learned predictor's weights.pt of 2 GB (sparse) is refused by its size (its network's parameters), in one
+    line naming the limit, before a byte of it is hashed (it had been hashed whole, 11 s, before the sha256 refused it)."""
     import shutil
     import time
 
-    from uavplace.rl.belief import DEFAULT_PREDICTOR
-    from uavplace.rl.learned import load_learned
+    from uavplace.rl.config import DEFAULT_PREDICTOR
+    from uavplace.rl.predictor.learned import load_learned
 
     folder = shutil.copytree(DEFAULT_PREDICTOR, tmp_path / "unet")
     sparse_file(folder / "weights.pt")
     cpu = time.process_time()
     err = _within(30, load_learned, folder)
-    assert isinstance(err, InputError) and "network_params" in str(err) and "weights.pt" in str(err), err
+    assert isinstance(err, InputError) and "parameters of float32" in str(err) and "weights.pt" in str(err), err
     assert time.process_time() - cpu < 2.0  # nothing of the 2 GB was read
     (folder / "weights.pt").write_bytes((DEFAULT_PREDICTOR / "weights.pt").read_bytes()[:-1] + b"x")
     err = _within(30, load_learned, folder)

@@ -26,7 +26,8 @@ import torch
 
 from uavplace.dataset.bundle import load_bundle
 from uavplace.infra.files import atomic_directory, write_model_json
-from uavplace.rl.agent.checkpoint import best_checkpoint, load_tensors, save_tensors
+from uavplace.infra.tensors import load_tensors, save_tensors
+from uavplace.rl.agent.checkpoint import best_checkpoint
 from uavplace.rl.agent.cities import plan_cities, play_validation, validation_set
 from uavplace.rl.agent.config import DQNConfig
 from uavplace.rl.agent.dqn import DQNPolicy

@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 from pydantic import ValidationError
 
-from uavplace.rl.agent.checkpoint import CheckpointState, load_tensors, require
+from uavplace.infra.tensors import load_tensors
+from uavplace.rl.agent.checkpoint import CheckpointState, require
 from uavplace.rl.agent.config import DQNConfig
 from uavplace.rl.agent.dqn import DQN
 from uavplace.rl.agent.network import add_input_channel

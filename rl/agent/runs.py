@@ -13,7 +13,8 @@ from torch import nn
 from uavplace.infra.files import (
     read_small_file,
 )
-from uavplace.rl.agent.checkpoint import load_tensors, require
+from uavplace.infra.tensors import load_tensors
+from uavplace.rl.agent.checkpoint import require
 from uavplace.rl.agent.config import DQNConfig
 from uavplace.rl.agent.dqn import DQNPolicy, make_network
 from uavplace.rl.tasks.registry import TASKS

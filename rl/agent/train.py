@@ -36,7 +36,8 @@ from uavplace.infra.files import (
     recover_directory,
     write_model_json,
 )
-from uavplace.rl.agent.checkpoint import CHECKPOINT_JSON, load_tensors, require, save_tensors
+from uavplace.infra.tensors import load_tensors, save_tensors
+from uavplace.rl.agent.checkpoint import CHECKPOINT_JSON, require
 from uavplace.rl.agent.cities import Cities, plan_cities, play_validation, validation_set
 from uavplace.rl.agent.config import DQNConfig
 from uavplace.rl.agent.dqn import DQN, DQNPolicy

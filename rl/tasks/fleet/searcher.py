@@ -79,7 +79,7 @@ class FleetSearcher:
             self.log_b[int(r)] = []
 
     def act(self, mask: np.ndarray, view: FleetView) -> np.ndarray:
-        from uavplace.rl.belief import shared_posterior_cover
+        from uavplace.rl.belief import posterior_cover
 
         if self.public is None:
             raise ValueError("FleetSearcher.bind(maps) first: it predicts from the bundles' public maps")
@@ -106,7 +106,7 @@ class FleetSearcher:
         for canvas, rows in by_canvas.items():  # the plans: a city's rows' users in one matrix product
             cm = self.searcher.canvas_maps(public, canvas)
             self.searcher.prefetch_paths(public, canvas, cm, np.concatenate(uav_cells[canvas]))
-            covers = shared_posterior_cover(np.concatenate([np.stack(self.log_b[r]) for r in rows]), cm.cover)
+            covers = posterior_cover(np.concatenate([np.stack(self.log_b[r]) for r in rows]), cm.cover)
             for i, r in enumerate(rows):
                 out[r] = self._plan(cm, canvas, covers[i * cfg.users : (i + 1) * cfg.users], view, r, mask[r])
         return out

@@ -165,8 +165,9 @@ class BatchedEnv(EpisodeRows):
             self._context_height_windows = np.lib.stride_tricks.sliding_window_view(maps.context_height, (w, w), axis=(1, 2))
         self.belief = None
         if self.config.belief_channel:  # imported here: the predictors (torch) load only for the envs that use them
-            from uavplace.rl.belief import DEFAULT_PREDICTOR, PREDICTIONS, BeliefTracker, PredictionCache, load_predictor
-            from uavplace.rl.config import SearchConfig
+            from uavplace.rl.belief import PREDICTIONS, BeliefTracker, PredictionCache
+            from uavplace.rl.config import DEFAULT_PREDICTOR, SearchConfig
+            from uavplace.rl.predictor import load_predictor
 
             predictor = load_predictor(self.config.belief_predictor or DEFAULT_PREDICTOR)
             cache = PredictionCache(maps.bundles[0].path.parent.parent / PREDICTIONS)

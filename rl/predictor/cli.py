@@ -7,11 +7,13 @@ import time
 from pathlib import Path
 
 import click
+import numpy as np
 
 from uavplace.infra.console import LogLines, path_option, plain_table, root_option, stdout
 from uavplace.infra.files import shipped
 from uavplace.infra.options import model_options, settings
 from uavplace.rl.config import UNetConfig
+from uavplace.rl.predictor.raytraced import RayTracedModel
 
 #: The predictors' training cities (``uavrl fit-predictor``, ``uavrl train-predictor``).
 training_cities_option = click.option(
@@ -74,7 +76,7 @@ def _training_users(datasets: tuple[str, ...], root: Path) -> tuple[list, list]:
 )
 @root_option
 def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out: Path, root: Path) -> None:
-    """Fit the map searcher's radio-map predictor (rl/predictor.py: free space, walls crossed and Deygout's knife
+    """Fit the map searcher's radio-map predictor (rl/predictor/physics.py: free space, walls crossed and Deygout's knife
     edges on the straight path) on the users of training cities, and score it on validation cities' users."""
     from uavplace.dataset.bundle import load_bundle
     from uavplace.infra.files import atomic_write_text, check_replaceable_file
@@ -156,7 +158,7 @@ def train_predictor(
     quiet: bool,
     root: Path,
 ) -> None:
-    """Train the map searcher's learned radio-map predictor (rl/learned.py: a U-Net correcting the physics tier)
+    """Train the map searcher's learned radio-map predictor (rl/predictor/learned.py: a U-Net correcting the physics tier)
     on the users of training cities (--dataset) and of training-maps packs (--maps), score it and the physics tier on
     validation cities' users, and write it with its model card. A validation city may not be a training city."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -165,10 +167,17 @@ def train_predictor(
     from uavplace.dataset.trainmaps import select_packs
     from uavplace.infra.console import command_line
     from uavplace.infra.files import atomic_directory
-    from uavplace.rl.belief import load_constants
-    from uavplace.rl.learned import MODEL_CARD, MODEL_JSON, LearnedPredictor, model_card, save_learned, train_learned
-    from uavplace.rl.predictor import PhysicsPredictor
-    from uavplace.rl.tiers import score_tiers, training_maps
+    from uavplace.rl.predictor import PhysicsPredictor, load_constants
+    from uavplace.rl.predictor.learned import (
+        MODEL_CARD,
+        MODEL_JSON,
+        LearnedPredictor,
+        model_card,
+        save_learned,
+        train_learned,
+        training_maps,
+    )
+    from uavplace.rl.predictor.scores import score_tiers
 
     if not datasets and not map_folders:
         raise click.UsageError("give training maps: --dataset CITY or --maps FOLDER (or both)")
@@ -196,8 +205,13 @@ def train_predictor(
             log(f"train-predictor: step {done:,}/{steps:,} loss {loss:.4f}", last=done >= steps)
 
         net, facts = train_learned(maps, physics, config, progress=on_progress)
-    fields = {"config": config, "constants": physics, "fitted_on": [f"{m.city}@{m.version}" for m in maps], **facts,
-              "made_by": [command_line()]}  # fmt: skip
+    fields = {
+        "config": config,
+        "constants": physics,
+        "fitted_on": [f"{m.city}@{m.version}" for m in maps],
+        **facts,
+        "made_by": [command_line()],
+    }
     with atomic_directory(out, marker=MODEL_JSON, what="learned predictor") as tmp:
         model = save_learned(tmp, net, fields)
         tiers = {"learned": LearnedPredictor(model, net), "physics": PhysicsPredictor(physics)}
@@ -259,9 +273,17 @@ def calibrate_predictor(
     from uavplace.dataset.trainmaps import read_pack, select_packs
     from uavplace.infra.console import command_line
     from uavplace.infra.files import atomic_directory
-    from uavplace.rl.learned import MODEL_CARD, MODEL_JSON, WEIGHTS, LearnedPredictor, load_learned, model_card, pack_calibration
     from uavplace.rl.predictor import PhysicsPredictor
-    from uavplace.rl.tiers import score_tiers
+    from uavplace.rl.predictor.learned import (
+        MODEL_CARD,
+        MODEL_JSON,
+        WEIGHTS,
+        LearnedPredictor,
+        load_learned,
+        model_card,
+        pack_calibration,
+    )
+    from uavplace.rl.predictor.scores import score_tiers
 
     learned = load_learned(predictor)
     model = learned.model
@@ -321,8 +343,8 @@ def _card_commands(card: Path) -> list[str]:
 
 
 def _print_scores(scores: dict[str, dict[str, float]], tiers: list[str]) -> None:
-    """Every tier's scores on every validation city (``rl.tiers.score_tiers``), one row each; nothing without any."""
-    from uavplace.rl.tiers import SCORE_COLUMNS, score_cells
+    """Every tier's scores on every validation city (``rl.predictor.scores.score_tiers``), one row each; nothing without any."""
+    from uavplace.rl.predictor.scores import SCORE_COLUMNS, score_cells
 
     table = plain_table("city", "tier", *SCORE_COLUMNS)
     for name, row in scores.items():
@@ -330,3 +352,126 @@ def _print_scores(scores: dict[str, dict[str, float]], tiers: list[str]) -> None
             table.add_row(name, tier, *score_cells(row, f"{tier}_"))
     if scores:
         stdout().print(table)
+
+
+@click.command("trace-predictor")
+@click.option(
+    "--maps",
+    "map_folders",
+    multiple=True,
+    required=True,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="A folder of training-maps packs (repeatable; data/trainmaps holds the shipped ones): the ray-traced tier's "
+    "spread and dead probability are calibrated on the first --users users of each selected pack.",
+)
+@packs_option
+@click.option(
+    "--users",
+    "users_per_pack",
+    type=click.IntRange(1, 64),
+    default=4,
+    show_default=True,
+    help="Users of each pack the calibration traces.",
+)
+@model_options(
+    RayTracedModel,
+    "samples",
+    "device",
+    "seed",
+    "walk_reach_m",
+    names={"walk_reach_m": "--walk-reach"},
+    samples={"type": click.FloatRange(1e3, 1e8), "default": 1e5, "show_default": True},
+)
+@learned_validation_option
+@path_option(
+    "--constants",
+    folder=False,
+    default=shipped("data/agents/searcher/predictor.json"),
+    help="The physics tier that predicts the cells no ray reached (default: the shipped one).",
+)
+@path_option(
+    "--out",
+    folder=True,
+    default=Path("runs/predictor/raytraced"),
+    help="Folder of the tier's model.json (replaced whole, or left as it was); `uavrl report --predictor` takes it.",
+)
+@root_option
+def trace_predictor(
+    map_folders: tuple[Path, ...],
+    packs: tuple[str, ...],
+    users_per_pack: int,
+    samples: float,
+    device: str,
+    seed: int,
+    walk_reach_m: float,
+    val_datasets: tuple[str, ...],
+    constants: Path,
+    out: Path,
+    root: Path,
+) -> None:
+    """Make the ray-traced tier of the map searcher's predictor (rl/predictor/raytraced.py: Sionna RT over the
+    city's public 3D map, one generic material): calibrate its spread and dead-cell probability on training-maps
+    packs, score it and the physics tier on validation cities' users, and write its model card. Needs the raytrace
+    extra (pip install -e '.[raytrace]'; on a CPU also libllvm19)."""
+    from uavplace.dataset.bundle import load_bundle
+    from uavplace.dataset.trainmaps import read_pack, select_packs
+    from uavplace.infra.console import command_line
+    from uavplace.infra.files import atomic_directory
+    from uavplace.rl.predictor import MODEL_JSON, PhysicsPredictor, Scene, load_constants
+    from uavplace.rl.predictor.raytraced import RayTracedPredictor, calibrate, variant
+    from uavplace.rl.predictor.scores import score_tiers
+    from uavplace.simulate.raytrace import require_raytrace
+
+    try:
+        require_raytrace()
+        variant(device)
+    except (RuntimeError, ValueError) as err:
+        raise click.UsageError(str(err)) from None
+    paths = select_packs(map_folders, packs)
+    if not paths:
+        raise _no_pack_matched(map_folders, packs)
+    maps = [read_pack(p) for p in paths]
+    overlap = sorted({m.city for m in maps} & set(val_datasets))
+    if overlap:
+        raise click.BadParameter(f"{', '.join(overlap)}: a validation city is also a calibration city", param_hint="--maps")
+    model = RayTracedModel(
+        constants=load_constants(constants), samples=int(samples), device=device, seed=seed, walk_reach_m=walk_reach_m
+    )
+    t0 = time.perf_counter()
+    rows: dict[str, list] = {"traced": [], "physics": [], "measured": [], "low": [], "dead": []}
+    log = LogLines(False)
+    for i, m in enumerate(maps):
+        scene = Scene.from_settings(m.settings, m.height_rel_m)
+        cells = np.argwhere(~m.blocked)
+        users = m.users[:users_per_pack]
+        predictor = RayTracedPredictor(model)
+        traced = predictor.traced_sinr(scene, users)[:, cells[:, 0], cells[:, 1]]
+        rows["physics"].append(predictor.physics.predict(scene, users, cells)[0].ravel())
+        sinr = m.sinr_db[: len(users), cells[:, 0], cells[:, 1]]
+        dead = m.dead[: len(users), cells[:, 0], cells[:, 1]]
+        rows["traced"].append(traced.ravel())
+        rows["measured"].append(sinr.ravel())
+        rows["dead"].append(dead.ravel())
+        rows["low"].append((dead | (sinr <= scene.floor_db + 1e-3)).ravel())
+        log(f"trace-predictor: {m.city} traced ({i + 1}/{len(maps)}, {time.perf_counter() - t0:.0f} s)", last=True)
+    model = calibrate(model, *(np.concatenate(rows[k]) for k in ("traced", "physics", "measured", "low", "dead")))
+    model = model.model_copy(
+        update={
+            "calibrated_on": [f"{m.city}@{m.version}" for m in maps],
+            "calibration_users": sum(min(users_per_pack, len(m.users)) for m in maps),
+            "made_by": [command_line()],
+        }
+    )
+    tiers = {"raytraced": RayTracedPredictor(model), "physics": PhysicsPredictor(model.constants)}
+    scores, _ = score_tiers([load_bundle(name, root=root) for name in val_datasets], tiers)
+    model = model.model_copy(update={"scores": scores})
+    with atomic_directory(out, marker=MODEL_JSON, what="ray-traced predictor") as tmp:
+        (tmp / MODEL_JSON).write_text(model.model_dump_json(indent=2) + "\n")
+    _print_scores(scores, list(tiers))
+    stdout().print(
+        f"wrote {out}: calibrated on {model.calibration_users} users of {len(maps)} packs in "
+        f"{time.perf_counter() - t0:.0f} s at {model.samples:g} rays; spread {model.error_db:.1f} dB, dead at "
+        f"{model.dead_level_db:.1f} dB (width {model.dead_scale_db:.1f} dB)",
+        highlight=False,
+        soft_wrap=True,
+    )

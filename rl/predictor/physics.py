@@ -22,22 +22,17 @@ from __future__ import annotations
 
 import hashlib
 import json
-import time
-from dataclasses import dataclass
-from pathlib import Path
-from typing import Protocol
 
 import numpy as np
 from pydantic import Field
 
-from uavplace.dataset.bundle import Bundle, public_settings
+from uavplace.dataset.bundle import Bundle
+from uavplace.rl.predictor.base import code_digest, version_of
+from uavplace.rl.predictor.scene import Scene
 from uavplace.schemas.base import Contract
-from uavplace.schemas.constants import CARRIER_HZ, PAPER_NOISE_DBM, TX_POWER_DBM
 
 #: The version of the features' code: a cache of predicted maps is keyed by it and by the constants.
 FEATURES_VERSION = 3
-#: Speed of light [m/s].
-C_M_S = 299_792_458.0
 #: Below this Fresnel parameter a knife edge costs nothing (ITU-R P.526-15, eq. 31's domain).
 NU_MIN = -0.78
 
@@ -58,50 +53,6 @@ def fresnel_nu(h_m: np.ndarray, d1_m: np.ndarray, d2_m: np.ndarray, wavelength_m
     d1 = np.maximum(d1_m, 1e-3)
     d2 = np.maximum(d2_m, 1e-3)
     return (h_m * np.sqrt(np.float32(2.0 / wavelength_m) * (1.0 / d1 + 1.0 / d2))).astype(np.float32)
-
-
-@dataclass(frozen=True)
-class Scene:
-    """What the UAV knows of a city, on one grid: the public inputs of a prediction."""
-
-    ground_height_m: np.ndarray  # [num_y, num_x] building height above the ground [m], 0 where none
-    spacing_m: float
-    altitude_m: float
-    frequency_hz: float
-    tx_power_dbm: float
-    noise_dbm: float
-    floor_db: float
-
-    @property
-    def wavelength_m(self) -> float:
-        return C_M_S / self.frequency_hz
-
-    @classmethod
-    def from_settings(cls, settings: dict, heights_rel_m: np.ndarray) -> Scene:
-        """The scene of a city's public settings (``dataset.bundle.public_settings``) over heights ``heights_rel_m`` [num_y,
-        num_x] (building height minus altitude; ``-altitude`` everywhere is open ground, the map ablation). Settings a
-        bundle leaves open take the paper's: 800 MHz, 20 dBm, -104 dBm."""
-
-        def given(name: str, default: float) -> float:
-            return float(default if settings[name] is None else settings[name])
-
-        altitude = float(settings["altitude_m"])
-        ground = np.maximum(np.asarray(heights_rel_m, np.float32) + np.float32(altitude), 0).astype(np.float32)
-        return cls(
-            ground_height_m=ground,
-            spacing_m=float(settings["spacing_m"]),
-            altitude_m=altitude,
-            frequency_hz=given("frequency_hz", CARRIER_HZ),
-            tx_power_dbm=given("tx_power_dbm", TX_POWER_DBM),
-            noise_dbm=given("noise_dbm", PAPER_NOISE_DBM),
-            floor_db=float(settings["floor_db"]),
-        )
-
-    @classmethod
-    def of(cls, bundle: Bundle) -> Scene:
-        """The scene of ``bundle`` with its buildings: its public settings (the carrier the users', one for all; the
-        power and noise the manifest's)."""
-        return cls.from_settings(public_settings(bundle), bundle.height_rel_m)
 
 
 def path_features(scene: Scene, user: tuple[int, int], user_height_m: float, cells: np.ndarray | None = None) -> dict:
@@ -230,30 +181,9 @@ def dead_probability(predicted_db: np.ndarray, constants: PhysicsConstants) -> n
     return (1.0 / (1.0 + np.exp(z))).astype(np.float32)
 
 
-class Predictor(Protocol):
-    """What predicts users' maps for the searcher: ``PhysicsPredictor`` or ``rl.learned.LearnedPredictor``."""
-
-    tier: str
-    error_db: float  # the spread of (measured - predicted) SINR on live cells [dB]
-
-    def version(self) -> str: ...
-
-    def predict(self, scene: Scene, users: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
-
-
-def code_digest() -> str:
-    """The sha256 of the code that turns a scene into predicted maps (this module and ``rl/learned.py``): part of every
-    predictor's version, so that a change to the code is never served the maps of the code before it."""
-    here = Path(__file__).resolve()
-    digest = hashlib.sha256()
-    for path in (here, here.with_name("learned.py")):
-        digest.update(path.read_bytes())
-    return digest.hexdigest()
-
-
 class PhysicsPredictor:
     """The physics tier as a predictor of many users' maps (the interface the map searchers and ``prediction_scores``
-    use; ``rl.learned.LearnedPredictor`` is the other)."""
+    use; ``rl.predictor.TIERS`` names the others)."""
 
     tier = "physics"
 
@@ -263,8 +193,7 @@ class PhysicsPredictor:
 
     def version(self) -> str:
         """12 hex digits of the constants and the predictors' code (``code_digest``): a cache of its maps' key."""
-        doc = {"tier": self.tier, "constants": self.constants.version(), "code": code_digest()}
-        return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:12]
+        return version_of({"tier": self.tier, "constants": self.constants.version(), "code": code_digest()})
 
     def predict(self, scene: Scene, users: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(``mu``, ``p_dead``), each ``[U, M]`` float32: the predicted SINR [dB] of a user at each of ``users`` [U, 2]
@@ -341,96 +270,3 @@ def _fit_logistic(pred: np.ndarray, low: np.ndarray) -> tuple[float, float]:
             break
     scale = -1.0 / w[1] if w[1] < 0 else 1e3
     return float(w[0] * scale), float(max(scale, 1e-3))
-
-
-def reliability(p: np.ndarray, outcome: np.ndarray, bins: int = 10) -> tuple[float, list[list[float]]]:
-    """(expected calibration error, the reliability diagram's rows) of probabilities ``p`` of events ``outcome``
-    (bool), in ``bins`` equal-width bins of ``p``: per non-empty bin ``[mean p, observed frequency, count]``; the
-    error is the count-weighted mean of ``|frequency - mean p|`` (Guo et al. 2017)."""
-    p = np.asarray(p, np.float64).ravel()
-    outcome = np.asarray(outcome, bool).ravel()
-    which = np.minimum((p * bins).astype(np.int64), bins - 1)
-    count = np.bincount(which, minlength=bins)
-    mean_p = np.bincount(which, weights=p, minlength=bins)
-    hits = np.bincount(which, weights=outcome.astype(np.float64), minlength=bins)
-    rows = [[mean_p[b] / count[b], hits[b] / count[b], float(count[b])] for b in range(bins) if count[b]]
-    ece = sum(n * abs(f - m) for m, f, n in rows) / max(len(p), 1)
-    return float(ece), rows
-
-
-def platt_scaling(logit: np.ndarray, outcome: np.ndarray) -> tuple[float, float]:
-    """(scale, bias) of least binary cross-entropy of ``sigmoid(scale * logit + bias)`` against events ``outcome``
-    (Platt 1999): Newton's method on the two parameters from (1, 0), steps halved until the loss falls, a ridge of 1e-6 keeping it defined when the
-    events are separable."""
-    z = np.asarray(logit, np.float64).ravel()
-    y = np.asarray(outcome, np.float64).ravel()
-    x = np.stack([z, np.ones_like(z)], axis=1)
-
-    def loss(t: np.ndarray) -> float:  # the mean cross-entropy, from the logits (no log of 0)
-        a = x @ t
-        return float(np.mean(np.logaddexp(0, a) - y * a))
-
-    theta = np.array([1.0, 0.0])
-    current = loss(theta)
-    for _ in range(100):
-        p = 1 / (1 + np.exp(-np.clip(x @ theta, -50, 50)))
-        hess = (x * (p * (1 - p))[:, None]).T @ x + 1e-6 * np.eye(2)
-        step = np.linalg.solve(hess, x.T @ (p - y))
-        shrink = 1.0  # halve the Newton step until the loss falls (Newton alone overshoots far from the optimum)
-        while shrink > 1e-6 and loss(theta - shrink * step) > current:
-            shrink /= 2
-        theta = theta - shrink * step
-        new = loss(theta)
-        if current - new < 1e-12:
-            break
-        current = new
-    return float(theta[0]), float(theta[1])
-
-
-def predicted_and_measured(bundle: Bundle, users: np.ndarray, predictor: PhysicsPredictor) -> dict:
-    """``predictor``'s maps (a ``PhysicsPredictor`` or an ``rl.learned.LearnedPredictor``) of ``users`` of ``bundle``
-    beside the measured ones, at the legal cells, flattened: ``mu``, ``p_dead``, ``sinr``, ``dead``, ``low`` (dead or
-    at the SINR floor: the event ``p_dead`` predicts), ``floor_db`` and ``ms_per_map`` (the milliseconds per
-    predicted map of the legal cells)."""
-    scene = Scene.of(bundle)
-    cells = np.argwhere(~bundle.blocked)
-    where = bundle.user_cells(users)
-    t0 = time.perf_counter()
-    mu, p_dead = predictor.predict(scene, where, cells)
-    ms = 1000 * (time.perf_counter() - t0) / max(len(users), 1)
-    sinr = bundle.sinr_db[np.asarray(users)[:, None], cells[None, :, 0], cells[None, :, 1]].ravel()
-    dead = bundle.dead[np.asarray(users)[:, None], cells[None, :, 0], cells[None, :, 1]].ravel()
-    low = dead | (sinr <= scene.floor_db + 1e-3)
-    return {
-        "mu": mu.ravel(),
-        "p_dead": p_dead.ravel(),
-        "sinr": sinr,
-        "dead": dead,
-        "low": low,
-        "floor_db": scene.floor_db,
-        "ms_per_map": ms,
-    }
-
-
-def prediction_scores(bundle: Bundle, users: np.ndarray, predictor: PhysicsPredictor) -> dict[str, float]:
-    """How well ``predictor``'s maps match ``users``' maps of ``bundle`` (``predicted_and_measured``): ``scores_of``."""
-    return scores_of(predicted_and_measured(bundle, users, predictor))
-
-
-def scores_of(pm: dict) -> dict[str, float]:
-    """The scores of predicted beside measured maps ``pm`` (``predicted_and_measured``): ``median_error_db`` and
-    ``p90_error_db`` of |predicted - measured| SINR on the live cells (the prediction floored, and the floor's value
-    where it says dead), ``dead_live_agreement``, the share of cells whose dead-or-live call (dead where the dead
-    probability > 1/2) is right, ``calibration_error``, the expected calibration error (``reliability``) of the dead
-    probability against what it predicts (a cell dead or at the floor), ``ms_per_map`` and ``cells``."""
-    called_dead = pm["p_dead"] > 0.5
-    shown = np.where(called_dead, pm["floor_db"], np.maximum(pm["mu"], pm["floor_db"]))
-    err = np.abs(shown - pm["sinr"])[~pm["dead"]]
-    return {
-        "median_error_db": float(np.median(err)),
-        "p90_error_db": float(np.percentile(err, 90)),
-        "dead_live_agreement": float((called_dead == pm["dead"]).mean()),
-        "calibration_error": reliability(pm["p_dead"], pm["low"])[0],
-        "ms_per_map": float(pm["ms_per_map"]),
-        "cells": int(len(pm["sinr"])),
-    }

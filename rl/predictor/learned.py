@@ -2,7 +2,7 @@
 
 Input planes of a user at cell ``(iy, ix)``, each ``[num_y, num_x]``, all public (``input_planes``): the building
 height and the cells the UAV may not enter, the user's cell, and the physics tier's features and prediction of
-that user's map (``rl.predictor.path_features``: log distance, walls crossed, Deygout's loss; the predicted SINR over
+that user's map (``physics.path_features``: log distance, walls crossed, Deygout's loss; the predicted SINR over
 the floor and the dead-cell probability). The network (``MapUNet``: ``len(widths)`` levels, two 3 x 3 convolutions
 each, max-pooling down, transposed convolutions up, skip connections) outputs two planes: a correction of the
 physics SINR, in units of ``SCALE_DB``, and a correction of the dead-cell logit. With both corrections zero it is the
@@ -17,8 +17,6 @@ the physics constants it refines, the residual's spread and the scores it was me
 
 from __future__ import annotations
 
-import hashlib
-import json
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -29,21 +27,18 @@ from pydantic import Field
 from torch import nn
 from torch.nn import functional as F
 
-from uavplace.dataset.trainmaps import TrainingMaps
+from uavplace.dataset.bundle import Bundle
+from uavplace.dataset.export import read_radiomapseer
+from uavplace.dataset.trainmaps import TrainingMaps, read_pack, select_packs
 from uavplace.infra.files import read_model_json, sha256_file, write_model_json
 from uavplace.infra.limits import check_limit
-from uavplace.rl.agent.checkpoint import load_tensors, save_tensors
+from uavplace.infra.tensors import save_tensors
 from uavplace.rl.config import UNetConfig
-from uavplace.rl.predictor import (
-    PhysicsConstants,
-    Scene,
-    code_digest,
-    dead_probability,
-    path_features,
-    platt_scaling,
-    sinr_from_features,
-)
-from uavplace.schemas import InputError
+from uavplace.rl.predictor.base import code_digest, version_of
+from uavplace.rl.predictor.physics import PhysicsConstants, dead_probability, path_features, sinr_from_features
+from uavplace.rl.predictor.scene import Scene
+from uavplace.rl.predictor.scores import platt_scaling
+from uavplace.rl.predictor.weights import load_weights
 from uavplace.schemas.base import Contract
 
 #: The learned tier's files in its folder.
@@ -83,7 +78,7 @@ class LearnedModel(Contract):
     reliability: dict[str, list[list[float]]] = Field(
         default_factory=dict,
         description="Per validation city: this tier's reliability diagram of the dead probability, rows [mean p, "
-        "observed frequency, cells] of ten equal-width bins (rl.predictor.reliability)",
+        "observed frequency, cells] of ten equal-width bins (rl/predictor/scores.py, reliability)",
     )
 
 
@@ -168,7 +163,7 @@ def _pad_to(a: np.ndarray, ny: int, nx: int) -> np.ndarray:
 
 
 class LearnedPredictor:
-    """The learned tier as a predictor of many users' maps (``rl.predictor.PhysicsPredictor``'s interface)."""
+    """The learned tier as a predictor of many users' maps (the ``Predictor`` protocol)."""
 
     tier = "learned"
 
@@ -178,15 +173,16 @@ class LearnedPredictor:
         self.error_db = model.error_db
 
     def version(self) -> str:
-        doc = {
-            "tier": self.tier,
-            "weights": self.model.weights_sha256,
-            "constants": self.constants.version(),
-            "config": self.model.config.model_dump(mode="json"),
-            "code": code_digest(),
-            "calibration": list(self.model.calibration),
-        }
-        return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:12]
+        return version_of(
+            {
+                "tier": self.tier,
+                "weights": self.model.weights_sha256,
+                "constants": self.constants.version(),
+                "config": self.model.config.model_dump(mode="json"),
+                "code": code_digest(),
+                "calibration": list(self.model.calibration),
+            }
+        )
 
     @torch.no_grad()
     def _chunks(self, scene: Scene, users: np.ndarray, cells: np.ndarray):  # noqa: ANN202 - a generator of tensors
@@ -226,14 +222,22 @@ def load_learned(folder: str | Path) -> LearnedPredictor:
     folder = Path(folder)
     what = "a learned predictor's description (`uavrl train-predictor` writes it)"
     model = read_model_json(folder / MODEL_JSON, LearnedModel, what)
-    weights = folder / WEIGHTS
-    state = load_tensors(weights, sha256=model.weights_sha256)  # its size bounded before a byte is hashed
     net = MapUNet(model.config.widths)
-    try:
-        net.load_state_dict(state)
-    except RuntimeError as exc:
-        raise InputError(weights, f"weights do not fit widths {model.config.widths}: {str(exc)[:200]}") from None
+    load_weights(net, folder / WEIGHTS, model.weights_sha256, f"widths {model.config.widths}")
     return LearnedPredictor(model, net)
+
+
+def training_maps(
+    bundles: list[Bundle], users: list, folders: tuple[Path, ...] = (), patterns: tuple[str, ...] = ()
+) -> list[TrainingMaps]:
+    """The maps a predictor trains on: ``users`` of each of ``bundles``, then the packs of each folder of packs whose
+    city matches one of ``patterns`` (``select_packs``; every pack without one), or one RadioMapSeer-style city folder
+    (`uavdata export`: it has a ``scale.json``)."""
+    maps = [TrainingMaps.of_bundle(b, u) for b, u in zip(bundles, users, strict=True)]
+    for folder in folders:
+        is_radiomapseer = (folder / "scale.json").is_file()
+        maps += [read_radiomapseer(folder)] if is_radiomapseer else [read_pack(p) for p in select_packs([folder], patterns)]
+    return maps
 
 
 def training_examples(maps: list[TrainingMaps], constants: PhysicsConstants) -> list[tuple]:
@@ -358,7 +362,7 @@ def _whole_maps(net: MapUNet, examples: list[tuple]):  # noqa: ANN202 - a genera
 def fit_calibration(net: MapUNet, examples: list[tuple]) -> tuple[float, float]:
     """Platt scaling of the dead-cell logit on ``examples``' legal cells: the (scale, bias) of least binary
     cross-entropy of ``sigmoid(scale * logit + bias)`` against the cells dead or at the floor (Newton's method on the
-    two parameters: ``rl.predictor.platt_scaling``)."""
+    two parameters: ``scores.platt_scaling``)."""
     logits, lows = [], []
     for _mu, logit, _sinr, _live, low, legal in _whole_maps(net, examples):
         logits.append(logit[legal].astype(np.float64))
@@ -369,7 +373,7 @@ def fit_calibration(net: MapUNet, examples: list[tuple]) -> tuple[float, float]:
 def pack_calibration(predictor: LearnedPredictor, maps: list[TrainingMaps]) -> tuple[float, float]:
     """Platt scaling of ``predictor``'s uncalibrated dead-cell logit fitted on every user of ``maps`` (training-maps
     packs the network was not trained on), at their legal cells, against the cells dead or at the SINR floor
-    (``rl.predictor.platt_scaling``). Whatever calibration ``predictor`` carries is not used: fitting twice gives the
+    (``scores.platt_scaling``). Whatever calibration ``predictor`` carries is not used: fitting twice gives the
     same numbers."""
     logits, lows = [], []
     for m in maps:
@@ -416,12 +420,12 @@ def model_card(model: LearnedModel, command: str) -> str:
         [
             "# Model card: the map searcher's learned radio-map predictor",
             "",
-            "Written by `uavrl train-predictor` and `uavrl calibrate-predictor` (rl/learned.py); every number below is",
+            "Written by `uavrl train-predictor` and `uavrl calibrate-predictor` (rl/predictor/learned.py); every number below is",
             'measured by the commands under "Made by".',
             "",
             "- **What it predicts**: the SINR map [dB] at the UAV plane of a ground user at a given cell, and the",
             "  probability that each cell is dead or at the SINR floor, from public inputs only (building heights, grid,",
-            "  altitude, carrier, transmit power, noise level, floor) and the physics tier's map (rl/predictor.py).",
+            "  altitude, carrier, transmit power, noise level, floor) and the physics tier's map (rl/predictor/physics.py).",
             f"- **Network**: a U-Net of widths {model.config.widths} ({params} parameters), {len(PLANES)} input planes "
             f"({', '.join(PLANES)}), two outputs correcting the physics tier's SINR and dead-cell logit.",
             f"- **Data**: {model.users} users of {len(model.fitted_on)} training bundles ({', '.join(model.fitted_on)}), "
