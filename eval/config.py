@@ -41,7 +41,7 @@ class ReportConfig(EpisodeSettings):
     )
     predictor: str | None = Field(
         default=str(DEFAULT_PREDICTOR),
-        description="The map searcher's predictor: the physics tier's constants (a JSON file) or a learned tier (a folder; rl.predictor.load_predictor); None: no searcher is played",
+        description="The map searcher's predictor: the physics tier's constants (a JSON file) or a tier's folder, learned or ray-traced (its model.json says which; rl.predictor.load_predictor); None: no searcher is played",
     )
     search: SearchConfig = Field(default_factory=SearchConfig, description="The map searcher's settings")
     ablate: bool = Field(

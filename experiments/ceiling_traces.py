@@ -4,9 +4,10 @@ so that the searcher can be played with the true map of every candidate.
 
 The candidates are the searcher's own lattice (``rl.belief.candidate_cells`` over the bundle's heights). They are
 traced ``--chunk`` users at a time as cities ``<city>-ceil-NNN`` under ``--raw`` (``uavdata simulate --user X,Y ...``),
-one after another; a chunk traced with the same settings is skipped, so running the command again resumes it. After
-the trace (or alone, ``--pack-only``) every traced chunk is ingested, built and packed into ``--out`` (the compact
-training-maps form, dataset/trainmaps.py, a few kB a user), which is what the ceiling reads.
+one after another; a chunk traced with the same settings, or already packed in ``--out``, is skipped, so running the
+command again resumes it (on a fresh clone too: the packs are committed, data/ceiling/, 10 MB budget). After the
+trace (or alone, ``--pack-only``) every traced chunk is ingested, built and packed into ``--out`` (the compact
+training-maps form, dataset/trainmaps.py, about 4 kB a user), which is what the ceiling reads.
 
     nohup nice -n 19 python experiments/ceiling_traces.py etoile-val florence-val > runs/ceiling.log 2>&1 &
     python experiments/ceiling_traces.py etoile-val florence-val --pack-only   # pack what is traced so far
@@ -67,7 +68,7 @@ def main() -> None:
     ap.add_argument("--root", type=Path, default=Path("data/processed"))
     ap.add_argument("--raw", type=Path, default=Path("runs/ceiling/raw"))
     ap.add_argument("--processed", type=Path, default=Path("runs/ceiling/processed"))
-    ap.add_argument("--out", type=Path, default=Path("runs/ceiling/packs"))
+    ap.add_argument("--out", type=Path, default=Path("data/ceiling"))
     ap.add_argument("--pack-only", action="store_true")
     args = ap.parse_args()
     val = set(read_roles(Path("data/raw/cities.toml")).val)
@@ -83,11 +84,11 @@ def main() -> None:
         for i, part in enumerate(chunks):
             name = f"{city}-ceil-{i:03d}"
             names.append(name)
-            if not args.pack_only:
+            if not args.pack_only and not (args.out / f"{name}.npz").is_file():
                 subprocess.run(chunk_command(record, name, part, args.raw) + ["--quiet"], check=True)
-    traced = [n for n in names if (args.raw / n / "simulation.json").is_file()]
+    traced = [n for n in names if (args.raw / n / "simulation.json").is_file() and not (args.out / f"{n}.npz").is_file()]
     if not traced:
-        print("no chunk traced yet")
+        print("no chunk traced and not packed yet")
         return
     for n in traced:
         subprocess.run(["uavdata", "ingest", str(args.raw / n), "--out", str(args.processed), "--quiet"], check=True)

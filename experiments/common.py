@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 #: The validation cities: every choice is made on them, never on a test city.
-VALIDATION = ("corpus-016", "corpus-017", "oldtown-005", "etoile-val", "florence-val")
+VALIDATION = ("corpus-016", "corpus-017", "oldtown-005", "etoile-val", "florence-val", "delfshaven-val", "denhaag-val")
 
 
 def validation_parser(doc: str, episodes: int) -> argparse.ArgumentParser:

@@ -77,7 +77,8 @@ def simulate(
                                    plazas, oldtown (narrow lanes), tiered (large blocks of
                                    many roof tiers), or mixed (the first six styles in turn
                                    by seed); 400 x 400 m
-      an InSite .city, a GeoJSON of footprints (OpenStreetMap heights and levels understood)
+      an InSite .city, a GeoJSON of footprints (OpenStreetMap heights and levels understood),
+      a CityJSON .json (0.2 to 2.0, LoD1/LoD2: roof surfaces as tiers; data/geometry/ has two)
       a Mitsuba .xml scene with its PLY/OBJ meshes, or sionna:etoile, sionna:florence (the
       scenes Sionna RT ships): a building per connected body, no ground, roofs in height tiers
     Several SOURCEs, or --count N, make a corpus (OUT/<name>-000/, ...), traced as Ray

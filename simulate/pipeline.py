@@ -62,6 +62,7 @@ from uavplace.simulate.raytrace import (
     direct_gains_isolated,
     exact_path_maps,
     fill,
+    free_space_cap,
     path_gain_maps_isolated,
     raytrace_record,
     sionna_versions,
@@ -667,7 +668,11 @@ def simulate_city(
         maps, cached = _cached_traces(
             Path(trace_cache) if trace_cache else None, spec.name, trace_key(spec, rt_config), trace, most
         )
-        gain, source = fill(maps, rt_config, opened, squared_distances(sources, grid), cell_m=grid.spacing_m)
+        d2 = squared_distances(sources, grid)
+        gain, source = fill(maps, rt_config, opened, d2, cell_m=grid.spacing_m)
+        cap = free_space_cap(d2, rt_config.frequency_hz, rt_config.antenna)  # d2: 3D, the users at their height
+        capped = gain > cap  # grazing rays' artifacts: above free space and paths in phase
+        gain = np.where(capped, cap, gain)
         completion = None
         if rt_config.complete_missed_samples:  # exact paths where the rays missed: their values, not the fill's estimates
             missed = missed_cells(maps[1], opened)
@@ -766,6 +771,7 @@ def simulate_city(
                 "hit_by_rays": int((reached & ~filled).sum()),
                 "monte_carlo_gaps_filled": int(filled.sum()),
                 "unreached": int((~reached).sum()),
+                "capped_at_free_space": int(capped.sum()),
                 "gap_fill": gap_fill_text(rt_config),
                 "provenance": {
                     code_name(c): int(n) for c, n in enumerate(np.bincount(source.ravel(), minlength=len(CODES))) if n

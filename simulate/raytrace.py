@@ -388,6 +388,22 @@ def fill(
     return gain, code.astype(np.uint8)
 
 
+#: The largest gain of each user antenna the radio map takes (linear, over isotropic): a vertical half-wave dipole's
+#: 2.15 dBi, a short dipole's 1.76 dBi, an isotropic one's 0.
+ANTENNA_GAIN = {"hw_dipole": 1.64, "dipole": 1.5, "iso": 1.0}
+#: Paths adding in phase raise a sum above free space by at most this [dB] (two equal paths: +6 dB).
+IN_PHASE_DB = 6.0
+
+
+def free_space_cap(d2: np.ndarray, frequency_hz: float, antenna: str) -> np.ndarray:
+    """The largest path gain (linear) a cell at squared distance ``d2`` [m^2] from its user can have: free space with
+    the user antenna's largest gain (``ANTENNA_GAIN``) and ``IN_PHASE_DB`` for paths in phase. A radio map's cell
+    above it is a Monte Carlo artifact (a ray grazing the plane counts as 1 / cos of its angle), never physics."""
+    wavelength = 299_792_458.0 / frequency_hz
+    gain = ANTENNA_GAIN.get(antenna, max(ANTENNA_GAIN.values()))
+    return gain * 10 ** (IN_PHASE_DB / 10) * (wavelength / (4 * np.pi)) ** 2 / np.maximum(d2, 1e-6)
+
+
 def constant_patch_share(gain: np.ndarray, live: np.ndarray, size: int = 4) -> float:
     """Share of ``live`` cells [U, ny, nx] inside a ``size`` x ``size`` patch of exactly equal value (a mosaic)."""
     from numpy.lib.stride_tricks import sliding_window_view

@@ -24,9 +24,10 @@ CITIES = sorted(p.name for p in RAW.iterdir() if (p / "simulation.json").is_file
 
 def test_embedded_data_is_small_and_complete():
     size = sum(p.stat().st_size for p in RAW.rglob("*") if p.is_file())
-    # 100 MB for the placement cities and the tracking task's test routes, and 10 MB more for its training corpus and
-    # validation city (trk-000 ... trk-003, trk-val: 12.5 MB; docs/tracking.md)
-    assert size <= 110e6, f"data/raw holds {size / 1e6:.1f} MB, more than the 110 MB budget"
+    # 100 MB for the placement cities and the tracking task's test routes, 10 MB more for its training corpus and
+    # validation city (trk-000 ... trk-003, trk-val: 12.5 MB; docs/tracking.md), and 5 MB for the real-layout
+    # validation cities traced from data/geometry/ (delfshaven-val, denhaag-val: about 4 MB; docs/searcher.md)
+    assert size <= 115e6, f"data/raw holds {size / 1e6:.1f} MB, more than the 115 MB budget"
     corpus = [c for c in CITIES if c.startswith("corpus-")]
     assert len(corpus) >= 18 and {"train", "test", "tiny", "etoile", "florence"} <= set(CITIES)
 

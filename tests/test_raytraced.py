@@ -13,6 +13,7 @@ import shapely
 from tests.test_simulate import needs_sionna
 from uavplace.rl.predictor import Scene, load_constants, load_predictor
 from uavplace.rl.predictor.raytraced import (
+    TRACES,
     VARIANTS,
     RayTracedModel,
     RayTracedPredictor,
@@ -88,6 +89,8 @@ def test_the_version_keys_settings_and_calibration_not_scores():
     base = RayTracedPredictor(_model()).version()
     assert RayTracedPredictor(_model(samples=200_000)).version() != base
     assert RayTracedPredictor(_model(error_db=7.0)).version() != base
+    learned = RayTracedPredictor(_model(fallback="learned"))
+    assert learned.fallback.tier == "learned" and learned.version() != base  # the fallback's weights in the key
     assert RayTracedPredictor(_model(scores={"x": {"median_error_db": 1.0}}, made_by=["uavrl x"])).version() == base
     assert RayTracedPredictor(_model(device="cpu")).version() == RayTracedPredictor(_model(device="auto")).version() or (
         variant("auto") == VARIANTS["cuda"]
@@ -143,6 +146,7 @@ def test_a_searcher_on_the_traced_tier_reads_no_users_map_and_caches_its_maps(ti
     assert all(same), f"moves changed when cells the searcher never visited changed ({same})"
     assert traced and len(list((tmp_path / "cache").glob("*.npz"))) == 1
     traced.clear()
+    TRACES.clear()  # this process's traces too: only the cache on disk may serve the second searcher
     again = MapSearchPolicy(predictor, SearchConfig(), PredictionCache(tmp_path / "cache"))
     again.canvas_maps(again_public := _public(maps), 0)
     assert not traced, "the second searcher traced again instead of reading the cache"

@@ -664,3 +664,14 @@ def test_exact_paths_complete_the_missed_cells_as_ray_tasks_and_resume_per_user(
     assert redo["complete_missed"]["users_from_cache"] == 2 and redo["complete_missed"]["seconds"] == 0
     for f in sorted((tmp_path / "raw" / "tiny").glob("*.p2m.gz")) + [tmp_path / "raw" / "tiny" / "tiny.provenance.csv.gz"]:
         assert gzip.decompress((again / "raw" / "tiny" / f.name).read_bytes()) == gzip.decompress(f.read_bytes()), f.name
+
+
+def test_the_free_space_cap_is_friis_with_the_antenna_and_paths_in_phase():
+    """A radio map's cell above free space with the user antenna's gain and +6 dB is a grazing ray's artifact: the cap
+    is Friis' gain at the 3D distance, 2.15 dBi for the half-wave dipole, 6 dB more."""
+    from uavplace.simulate.raytrace import free_space_cap
+
+    d = np.array([8.5, 100.0])
+    friis_db = 20 * np.log10(299_792_458.0 / 8e8 / (4 * np.pi * d))
+    np.testing.assert_allclose(10 * np.log10(free_space_cap(d**2, 8e8, "hw_dipole")), friis_db + 10 * np.log10(1.64) + 6)
+    np.testing.assert_allclose(10 * np.log10(free_space_cap(d**2, 8e8, "iso")), friis_db + 6)

@@ -127,7 +127,8 @@ def test_pack_cli_and_train_predictor_on_packs(tiny, tmp_path):
 def test_shipped_training_maps_are_valid_small_and_of_training_cities_only():
     """data/trainmaps (experiments/training_maps.sh): every pack reads and checks, the folder is within its 40 MB
     budget, and no pack is of a validation or test city (nor of any city with a declared role): each is of the
-    training-map corpora, tm-* (the mixed styles) or tt-* (tiered)."""
+    training-map corpora, tm-* (the mixed styles) or tt-* (tiered), or the real-layout training crops of data/geometry/
+    (delfshaven-0*, denhaag-0*; docs/raytraced.md)."""
     from tests.conftest import REPO
     from uavplace.dataset.catalog import ROLES_FILE, read_roles
     from uavplace.dataset.trainmaps import list_packs
@@ -140,5 +141,6 @@ def test_shipped_training_maps_are_valid_small_and_of_training_cities_only():
     declared = {*roles.train, *roles.val, *roles.test, *roles.crop}
     for path in packs:
         maps = read_pack(path)
-        assert path.stem == maps.city and maps.city not in declared and maps.city.startswith(("tm-", "tt-"))  # the corpora
+        corpora = ("tm-", "tt-", "delfshaven-0", "denhaag-0")
+        assert path.stem == maps.city and maps.city not in declared and maps.city.startswith(corpora)
         assert maps.provenance.size and maps.users.shape[0] >= 1

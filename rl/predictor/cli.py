@@ -35,6 +35,19 @@ packs_option = click.option(
 )
 
 
+def calibration_maps_option(purpose: str):  # noqa: ANN201 - a click decorator
+    """The required ``--maps`` of a command that calibrates a tier on training-maps packs; ``purpose`` ends its help."""
+    return click.option(
+        "--maps",
+        "map_folders",
+        multiple=True,
+        required=True,
+        type=click.Path(file_okay=False, path_type=Path),
+        help="A folder of training-maps packs (repeatable; `uavdata pack` writes them, data/trainmaps holds the shipped "
+        f"ones) {purpose}",
+    )
+
+
 def _no_pack_matched(folders: tuple[Path, ...], patterns: tuple[str, ...]) -> click.BadParameter:
     return click.BadParameter(
         f"no pack of {', '.join(map(str, folders))} is of a city named {' or '.join(patterns)}", param_hint="--packs"
@@ -46,7 +59,7 @@ learned_validation_option = click.option(
     "--val-dataset",
     "val_datasets",
     multiple=True,
-    help="Validation city whose users' maps score the learned and the physics tier (repeatable): median and p90 "
+    help="Validation city whose users' maps score the tier the command writes and the physics tier (repeatable): median and p90 "
     "|error| [dB], dead/live agreement, calibration error, ms per map; in model.json and the card.",
 )
 
@@ -237,15 +250,7 @@ def train_predictor(
     default=Path("data/agents/searcher/unet"),
     help="The learned predictor's folder (`uavrl train-predictor` writes it): its weights are kept, its calibration refitted.",
 )
-@click.option(
-    "--maps",
-    "map_folders",
-    multiple=True,
-    required=True,
-    type=click.Path(file_okay=False, path_type=Path),
-    help="A folder of training-maps packs (repeatable; `uavdata pack` writes them, data/trainmaps holds the shipped "
-    "ones) of cities the network was not trained on: the calibration is fitted on every user of each.",
-)
+@calibration_maps_option("of cities the network was not trained on: the calibration is fitted on every user of each.")
 @packs_option
 @learned_validation_option
 @path_option(
@@ -355,14 +360,9 @@ def _print_scores(scores: dict[str, dict[str, float]], tiers: list[str]) -> None
 
 
 @click.command("trace-predictor")
-@click.option(
-    "--maps",
-    "map_folders",
-    multiple=True,
-    required=True,
-    type=click.Path(file_okay=False, path_type=Path),
-    help="A folder of training-maps packs (repeatable; data/trainmaps holds the shipped ones): the ray-traced tier's "
-    "spread and dead probability are calibrated on the first --users users of each selected pack.",
+@calibration_maps_option(
+    "of training cities: the ray-traced tier's spread and dead probabilities are calibrated on the first --users "
+    "users of each selected pack."
 )
 @packs_option
 @click.option(
@@ -379,10 +379,19 @@ def _print_scores(scores: dict[str, dict[str, float]], tiers: list[str]) -> None
     "device",
     "seed",
     "walk_reach_m",
+    "fallback",
+    "spread_cells",
     names={"walk_reach_m": "--walk-reach"},
     samples={"type": click.FloatRange(1e3, 1e8), "default": 1e5, "show_default": True},
 )
 @learned_validation_option
+@click.option(
+    "--workers",
+    type=click.IntRange(1, 64),
+    default=1,
+    show_default=True,
+    help="Ray tasks the users are traced in, on a local Ray of that many CPUs (the maps are the same whatever the number).",
+)
 @path_option(
     "--constants",
     folder=False,
@@ -404,7 +413,10 @@ def trace_predictor(
     device: str,
     seed: int,
     walk_reach_m: float,
+    fallback: str,
+    spread_cells: str,
     val_datasets: tuple[str, ...],
+    workers: int,
     constants: Path,
     out: Path,
     root: Path,
@@ -435,8 +447,18 @@ def trace_predictor(
     if overlap:
         raise click.BadParameter(f"{', '.join(overlap)}: a validation city is also a calibration city", param_hint="--maps")
     model = RayTracedModel(
-        constants=load_constants(constants), samples=int(samples), device=device, seed=seed, walk_reach_m=walk_reach_m
+        constants=load_constants(constants),
+        samples=int(samples),
+        device=device,
+        seed=seed,
+        walk_reach_m=walk_reach_m,
+        fallback=fallback,
+        spread_cells=spread_cells,
     )
+    if workers > 1:
+        from uavplace.infra.cluster import start_ray
+
+        start_ray(None, 1.0, "--workers", num_cpus=workers)
     t0 = time.perf_counter()
     rows: dict[str, list] = {"traced": [], "physics": [], "measured": [], "low": [], "dead": []}
     log = LogLines(False)
@@ -444,9 +466,9 @@ def trace_predictor(
         scene = Scene.from_settings(m.settings, m.height_rel_m)
         cells = np.argwhere(~m.blocked)
         users = m.users[:users_per_pack]
-        predictor = RayTracedPredictor(model)
+        predictor = RayTracedPredictor(model, workers)
         traced = predictor.traced_sinr(scene, users)[:, cells[:, 0], cells[:, 1]]
-        rows["physics"].append(predictor.physics.predict(scene, users, cells)[0].ravel())
+        rows["physics"].append(predictor.fallback.predict(scene, users, cells)[0].ravel())
         sinr = m.sinr_db[: len(users), cells[:, 0], cells[:, 1]]
         dead = m.dead[: len(users), cells[:, 0], cells[:, 1]]
         rows["traced"].append(traced.ravel())
@@ -462,7 +484,7 @@ def trace_predictor(
             "made_by": [command_line()],
         }
     )
-    tiers = {"raytraced": RayTracedPredictor(model), "physics": PhysicsPredictor(model.constants)}
+    tiers = {"raytraced": RayTracedPredictor(model, workers), "physics": PhysicsPredictor(model.constants)}
     scores, _ = score_tiers([load_bundle(name, root=root) for name in val_datasets], tiers)
     model = model.model_copy(update={"scores": scores})
     with atomic_directory(out, marker=MODEL_JSON, what="ray-traced predictor") as tmp:

@@ -7,7 +7,8 @@ export or its scene. Each candidate user is a transmitter ``user_height_m`` abov
 Sionna's radio map gives the path gain at every cell of the UAV's plane with ``samples`` rays (``simulate.raytrace``,
 in a child process: Dr.Jit may crash at interpreter exit). The cells the rays missed are walked to from the hit ones
 (``simulate.raytrace.fill_geodesic``: the embedded cities' own completion, the straight path through the walls of the
-material and a walk from the hit cells), and what stays unreached takes the physics tier's prediction (``physics``).
+material and a walk from the hit cells), and what stays unreached takes the fallback tier's prediction (``fallback``:
+the physics tier, or the shipped learned tier).
 
 SINR = power + gain - noise. The spread of its errors and the dead-cell probability are calibrated on training
 cities' users (``calibrate``): a logistic in the traced SINR where the trace reached, the physics tier's own
@@ -61,12 +62,21 @@ class RayTracedModel(Contract):
     )
     seed: int = Field(default=0, ge=0, description="The rays' seed (each call adds its first candidate's index)")
     device: Literal["auto", "cpu", "cuda"] = Field(default="auto", description="auto: CUDA where a GPU is, else the CPU")
-    constants: PhysicsConstants = Field(description="The physics tier that predicts the cells no ray reached")
-    error_db: float = Field(default=6.0, gt=0, description="Std of (measured - traced) SINR on live traced cells [dB]")
+    constants: PhysicsConstants = Field(description="The physics tier (the fallback's, where it is physics)")
+    fallback: Literal["physics", "learned"] = Field(
+        default="physics",
+        description="The tier that predicts the cells no ray reached: physics (the constants above) or learned (the "
+        "shipped learned tier, data/agents/searcher/unet)",
+    )
+    error_db: float = Field(default=6.0, gt=0, description="Std of (measured - predicted) SINR on live cells [dB]")
+    spread_cells: Literal["all", "reached"] = Field(
+        default="all",
+        description="The live cells error_db is calibrated on: all (the fallback's too) or those a ray or the walk reached",
+    )
     dead_level_db: float = Field(default=-10.0, description="Traced SINR at which a reached cell is dead with p 1/2 [dB]")
     dead_scale_db: float = Field(default=3.0, gt=0, description="Width of the reached cells' dead logistic [dB]")
     unreached_level_db: float = Field(
-        default=-10.0, description="Physics-tier SINR at which a cell no ray reached is dead with p 1/2 [dB]"
+        default=-10.0, description="The fallback tier's SINR at which a cell no ray reached is dead with p 1/2 [dB]"
     )
     unreached_scale_db: float = Field(default=3.0, gt=0, description="Width of the unreached cells' dead logistic [dB]")
     calibrated_on: list[str] = Field(default_factory=list, description="city@version of the calibration bundles")
@@ -164,8 +174,9 @@ def traced_gain(
     centres = cell_centres_m(np.argwhere(np.ones((ny, nx), bool)), s).reshape(ny, nx, 2)
     d2 = (centres[None, :, :, 0] - xy[:, 0, None, None]) ** 2 + (centres[None, :, :, 1] - xy[:, 1, None, None]) ** 2
     d2 = d2 + (scene.altitude_m - model.user_height_m) ** 2
-    from uavplace.simulate.raytrace import fill_geodesic
+    from uavplace.simulate.raytrace import fill_geodesic, free_space_cap
 
+    fine = np.minimum(fine, free_space_cap(d2, scene.frequency_hz, "hw_dipole"))  # grazing rays' artifacts
     gain, _ = fill_geodesic(
         fine,
         direct,
@@ -217,6 +228,39 @@ def _trace_part(
     return fine, (traced["direct"] if model.straight_path else np.zeros_like(fine))
 
 
+#: This process's traces (``RayTracedPredictor.traced_sinr``), oldest first, at most ``TRACES_KEPT``.
+TRACES: dict[str, np.ndarray] = {}
+TRACES_KEPT = 64
+#: The model's fields a trace depends on (the rest is calibration, fallback and how it runs).
+TRACE_FIELDS = (
+    "samples",
+    "max_depth",
+    "diffraction",
+    "material",
+    "user_height_m",
+    "users_per_call",
+    "walk_reach_m",
+    "walk_decay_db_per_m",
+    "straight_path",
+    "seed",
+)
+
+
+def trace_key(scene: Scene, users: np.ndarray, model: RayTracedModel) -> str:
+    """The sha256 of what a trace depends on: the scene's arrays and settings, the users, the trace's settings, the
+    variant and the family's code."""
+    import hashlib
+    import json
+
+    digest = hashlib.sha256()
+    digest.update(np.ascontiguousarray(scene.ground_height_m).tobytes())
+    digest.update(np.ascontiguousarray(users).tobytes())
+    settings = {f: getattr(model, f) for f in TRACE_FIELDS}
+    others = [scene.spacing_m, scene.altitude_m, scene.frequency_hz, scene.tx_power_dbm, scene.noise_dbm]
+    digest.update(json.dumps([settings, others, variant(model.device), code_digest()], sort_keys=True).encode())
+    return digest.hexdigest()
+
+
 class RayTracedPredictor:
     """The ray-traced tier as a predictor of many users' maps (the ``Predictor`` protocol)."""
 
@@ -225,7 +269,7 @@ class RayTracedPredictor:
     def __init__(self, model: RayTracedModel, workers: int = 1) -> None:
         self.model = model
         self.error_db = model.error_db
-        self.physics = PhysicsPredictor(model.constants)
+        self.fallback = fallback_tier(model)
         #: Ray tasks a call's candidates are traced in (1: in this process; the maps are the same either way).
         self.workers = workers
         #: Told ``(users done, users)`` as a call's candidates are traced, or None.
@@ -242,6 +286,7 @@ class RayTracedPredictor:
             {
                 "tier": self.tier,
                 "model": doc,
+                "fallback": self.fallback.version(),
                 "variant": variant(self.model.device),
                 "code": code_digest(),
                 "packages": sionna_versions(),
@@ -249,26 +294,34 @@ class RayTracedPredictor:
         )
 
     def traced_sinr(self, scene: Scene, users: np.ndarray) -> np.ndarray:
-        """``[U, num_y, num_x]`` the traced SINR [dB] of each user (``-inf`` where nothing reached)."""
-        gain = traced_gain(scene, np.asarray(users, np.int64).reshape(-1, 2), self.model, self.on_batch, self.workers)
-        with np.errstate(divide="ignore"):
-            return (scene.tx_power_dbm + 10 * np.log10(gain) - scene.noise_dbm).astype(np.float32)
+        """``[U, num_y, num_x]`` the traced SINR [dB] of each user (``-inf`` where nothing reached). The traces of this
+        process are kept in memory (``TRACES``), keyed by the scene, the users and the trace's settings (not the
+        calibration): tiers that differ only in their calibration or fallback trace once."""
+        users = np.asarray(users, np.int64).reshape(-1, 2)
+        key = trace_key(scene, users, self.model)
+        if key not in TRACES:
+            gain = traced_gain(scene, users, self.model, self.on_batch, self.workers)
+            with np.errstate(divide="ignore"):
+                TRACES[key] = (scene.tx_power_dbm + 10 * np.log10(gain) - scene.noise_dbm).astype(np.float32)
+            while len(TRACES) > TRACES_KEPT:
+                TRACES.pop(next(iter(TRACES)))
+        return TRACES[key]
 
     def predict(self, scene: Scene, users: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(``mu``, ``p_dead``), each ``[U, M]`` float32: the traced SINR at ``cells`` [M, 2] where a ray or the walk
-        reached, the physics tier's elsewhere, and the calibrated probability that the cell is dead or at the
+        reached, the fallback tier's elsewhere, and the calibrated probability that the cell is dead or at the
         floor."""
         users = np.asarray(users, np.int64).reshape(-1, 2)
         cells = np.asarray(cells, np.int64).reshape(-1, 2)
         traced = self.traced_sinr(scene, users)[:, cells[:, 0], cells[:, 1]]  # [U, M]
-        return self.combine(traced, self.physics.predict(scene, users, cells)[0])
+        return self.combine(traced, self.fallback.predict(scene, users, cells)[0])
 
-    def combine(self, traced: np.ndarray, physics_mu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(``mu``, ``p_dead``) from the traced SINR [U, M] (``-inf``: unreached) and the physics tier's [U, M]: a
-        reached cell's traced value and its logistic, an unreached cell's physics value and the unreached logistic."""
+    def combine(self, traced: np.ndarray, fallback_mu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(``mu``, ``p_dead``) from the traced SINR [U, M] (``-inf``: unreached) and the fallback tier's [U, M]: a
+        reached cell's traced value and its logistic, an unreached cell's fallback value and the unreached logistic."""
         m = self.model
         reached = np.isfinite(traced)
-        mu = np.where(reached, traced, physics_mu).astype(np.float32)
+        mu = np.where(reached, traced, fallback_mu).astype(np.float32)
         level = np.where(reached, m.dead_level_db, m.unreached_level_db)
         scale = np.where(reached, m.dead_scale_db, m.unreached_scale_db)
         z = np.clip((mu - level) / scale, -60, 60)
@@ -276,14 +329,15 @@ class RayTracedPredictor:
 
 
 def calibrate(
-    model: RayTracedModel, traced: np.ndarray, physics_mu: np.ndarray, measured: np.ndarray, low: np.ndarray, dead: np.ndarray
+    model: RayTracedModel, traced: np.ndarray, fallback_mu: np.ndarray, measured: np.ndarray, low: np.ndarray, dead: np.ndarray
 ) -> RayTracedModel:
     """``model`` with its spread and its two dead logistics fitted on training users' cells: ``traced`` [R] the traced
-    SINR (``-inf`` unreached), ``physics_mu`` [R] the physics tier's, ``measured`` [R] the embedded SINR, ``low`` [R]
-    dead or at the floor, ``dead`` [R] dead. The logistics by maximum likelihood (``logistic``), in the traced SINR
-    on the reached cells and in the physics tier's on the unreached ones (where the trace missed, a cell is dead far
-    more often than the physics tier alone says); the spread is the std of (measured - predicted) on the live cells
-    above the floor, the prediction the tier's own (traced, else physics)."""
+    SINR (``-inf`` unreached), ``fallback_mu`` [R] the fallback tier's, ``measured`` [R] the embedded SINR, ``low``
+    [R] dead or at the floor, ``dead`` [R] dead. The logistics by maximum likelihood (``logistic``), in the traced
+    SINR on the reached cells and in the fallback's on the unreached ones (where the trace missed, a cell is dead far
+    more often than the fallback alone says); the spread is the std of (measured - predicted) on the live cells
+    (``RayTracedModel.spread_cells``: all of them, or the reached ones), the prediction the tier's own (traced, else
+    the fallback's)."""
     reached = np.isfinite(traced)
     live = ~low
     for name, cells in (("reached", reached), ("unreached", ~reached)):
@@ -291,10 +345,11 @@ def calibrate(
             raise ValueError(
                 f"too few {name} cells to calibrate on: {int((cells & live).sum())} live, {int((cells & low).sum())} low"
             )
-    mu = np.where(reached, traced, physics_mu)
-    error = float(np.std(measured[live] - mu[live]))
+    mu = np.where(reached, traced, fallback_mu)
+    spread = live & reached if model.spread_cells == "reached" else live
+    error = float(np.std(measured[spread] - mu[spread]))
     level, scale = logistic(traced[reached], low[reached])
-    u_level, u_scale = logistic(physics_mu[~reached], low[~reached])
+    u_level, u_scale = logistic(fallback_mu[~reached], low[~reached])
     update = {"error_db": max(error, 0.1), "dead_level_db": level, "dead_scale_db": scale}
     return model.model_copy(update=update | {"unreached_level_db": u_level, "unreached_scale_db": u_scale})
 
@@ -309,6 +364,17 @@ def logistic(x_db: np.ndarray, event: np.ndarray) -> tuple[float, float]:
     if a <= 0:
         return float(np.median(x_db)), 1000.0
     return float(10.0 * b / a), float(max(10.0 / a, 1e-3))
+
+
+def fallback_tier(model: RayTracedModel):  # noqa: ANN201 - a Predictor
+    """The tier that predicts the cells no ray reached (``RayTracedModel.fallback``): the physics tier of the model's
+    constants, or the shipped learned tier (never a folder a model card names: a card is data)."""
+    if model.fallback == "physics":
+        return PhysicsPredictor(model.constants)
+    from uavplace.rl.config import DEFAULT_PREDICTOR
+    from uavplace.rl.predictor.learned import load_learned
+
+    return load_learned(DEFAULT_PREDICTOR)
 
 
 def load_raytraced(folder: str | Path) -> RayTracedPredictor:
