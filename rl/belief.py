@@ -1,5 +1,5 @@
-"""The map searcher's belief, apart from any policy: the predicted maps of every candidate user cell, their cache,
-the predictor's loader and the belief arithmetic (docs/searcher.md).
+"""The map searcher's belief, apart from any policy: the predicted maps of every candidate user cell, their cache and
+the belief arithmetic (docs/searcher.md; the predictor's tiers and their loader are ``rl.predictor``).
 
 For each canvas (a city under a symmetry) the predictor (a tier of ``rl.predictor``) gives the SINR map of a
 user at every *candidate* cell (open ground on a lattice of ``stride`` cells; with ``buildings=False`` every lattice

@@ -76,6 +76,10 @@ def test_calibration_fits_the_spread_and_the_dead_logistics():
     low[:5000] = measured[:5000] < 0
     model = calibrate(_model(), traced, physics, measured, low, low)
     assert 2.7 < model.error_db < 3.3
+    heavy = measured.copy()
+    heavy[-2000:] += rng.choice([-40, 40], 2000)  # a tail: the std grows, the robust spread stays the core's
+    assert calibrate(_model(), traced, physics, heavy, low, low).error_db > 8
+    assert 2.7 < calibrate(_model(spread_estimator="robust"), traced, physics, heavy, low, low).error_db < 3.6
     assert -12 < model.dead_level_db < -8 and model.dead_scale_db < 3
     assert -2 < model.unreached_level_db < 2 and model.unreached_scale_db < 3
     mu, p_dead = RayTracedPredictor(model).combine(np.array([[-30.0, 20.0, -np.inf, -np.inf]]), np.array([[1.0, 2.0, -9.0, 9.0]]))

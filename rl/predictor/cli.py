@@ -381,6 +381,7 @@ def _print_scores(scores: dict[str, dict[str, float]], tiers: list[str]) -> None
     "walk_reach_m",
     "fallback",
     "spread_cells",
+    "spread_estimator",
     names={"walk_reach_m": "--walk-reach"},
     samples={"type": click.FloatRange(1e3, 1e8), "default": 1e5, "show_default": True},
 )
@@ -415,6 +416,7 @@ def trace_predictor(
     walk_reach_m: float,
     fallback: str,
     spread_cells: str,
+    spread_estimator: str,
     val_datasets: tuple[str, ...],
     workers: int,
     constants: Path,
@@ -454,6 +456,7 @@ def trace_predictor(
         walk_reach_m=walk_reach_m,
         fallback=fallback,
         spread_cells=spread_cells,
+        spread_estimator=spread_estimator,
     )
     if workers > 1:
         from uavplace.infra.cluster import start_ray

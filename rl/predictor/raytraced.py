@@ -69,6 +69,11 @@ class RayTracedModel(Contract):
         "shipped learned tier, data/agents/searcher/unet)",
     )
     error_db: float = Field(default=6.0, gt=0, description="Std of (measured - predicted) SINR on live cells [dB]")
+    spread_estimator: Literal["std", "robust"] = Field(
+        default="std",
+        description="How error_db is estimated: std, or robust (1.4826 x the median absolute deviation: the core of "
+        "heavy-tailed errors, the likelihood's outlier share holding the tail)",
+    )
     spread_cells: Literal["all", "reached"] = Field(
         default="all",
         description="The live cells error_db is calibrated on: all (the fallback's too) or those a ray or the walk reached",
@@ -347,7 +352,11 @@ def calibrate(
             )
     mu = np.where(reached, traced, fallback_mu)
     spread = live & reached if model.spread_cells == "reached" else live
-    error = float(np.std(measured[spread] - mu[spread]))
+    residual = measured[spread] - mu[spread]
+    if model.spread_estimator == "robust":
+        error = float(1.4826 * np.median(np.abs(residual - np.median(residual))))
+    else:
+        error = float(np.std(residual))
     level, scale = logistic(traced[reached], low[reached])
     u_level, u_scale = logistic(fallback_mu[~reached], low[~reached])
     update = {"error_db": max(error, 0.1), "dead_level_db": level, "dead_scale_db": scale}
