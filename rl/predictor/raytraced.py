@@ -11,9 +11,10 @@ material and a walk from the hit cells), and what stays unreached takes the fall
 the physics tier, or the shipped learned tier).
 
 SINR = power + gain - noise. The spread of its errors and the dead-cell probability are calibrated on training
-cities' users (``calibrate``): a logistic in the traced SINR where the trace reached, the physics tier's own
-probability where it did not. Mitsuba's CUDA variant traces where a GPU is present (``variant``), the LLVM one on a
-CPU. The settings and the calibration are the tier's model card (``RayTracedModel``, ``model.json`` in its folder).
+cities' users (``calibrate``): a logistic in the traced SINR where the trace reached, another in the fallback's SINR
+where it did not. Mitsuba's CUDA variant traces where a GPU is present (``variant``), the LLVM one on a CPU; each
+solver call on one Dr.Jit thread (the same rays, the same map to the bit), the cores used by Ray tasks
+(``traced_gain``). The settings and the calibration are the tier's model card (``RayTracedModel``, ``model.json`` in its folder).
 
 Arrays are ``[num_y, num_x]`` like the bundle's; cells ``(iy, ix)``; the scene's frame puts cell ``(iy, ix)``'s centre
 at ``((ix + 0.5) s, (iy + 0.5) s)`` for a cell of ``s`` metres.
