@@ -388,9 +388,9 @@ def fill(
     return gain, code.astype(np.uint8)
 
 
-#: The largest gain of each user antenna the radio map takes (linear, over isotropic): a vertical half-wave dipole's
-#: 2.15 dBi, a short dipole's 1.76 dBi, an isotropic one's 0.
-ANTENNA_GAIN = {"hw_dipole": 1.64, "dipole": 1.5, "iso": 1.0}
+#: The largest gain of each of Sionna's antenna patterns (linear, over isotropic): a vertical half-wave dipole's
+#: 2.15 dBi, a short dipole's 1.76 dBi, an isotropic one's 0, 3GPP TR 38.901's element 8 dBi.
+ANTENNA_GAIN = {"hw_dipole": 1.64, "dipole": 1.5, "iso": 1.0, "tr38901": 6.31}
 #: Paths adding in phase raise a sum above free space by at most this [dB] (two equal paths: +6 dB).
 IN_PHASE_DB = 6.0
 

@@ -74,11 +74,11 @@ def test_calibration_fits_the_spread_and_the_dead_logistics():
     traced[:5000] = -np.inf  # unreached: the truth is the physics tier's plus noise, dead below 0 dB
     measured[:5000] = physics[:5000] + rng.normal(0, 3, 5000)
     low[:5000] = measured[:5000] < 0
-    model = calibrate(_model(), traced, physics, measured, low, low)
+    model = calibrate(_model(spread_estimator="std"), traced, physics, measured, low, low)
     assert 2.7 < model.error_db < 3.3
     heavy = measured.copy()
     heavy[-2000:] += rng.choice([-40, 40], 2000)  # a tail: the std grows, the robust spread stays the core's
-    assert calibrate(_model(), traced, physics, heavy, low, low).error_db > 8
+    assert calibrate(_model(spread_estimator="std"), traced, physics, heavy, low, low).error_db > 8
     assert 2.7 < calibrate(_model(spread_estimator="robust"), traced, physics, heavy, low, low).error_db < 3.6
     assert -12 < model.dead_level_db < -8 and model.dead_scale_db < 3
     assert -2 < model.unreached_level_db < 2 and model.unreached_scale_db < 3
@@ -93,8 +93,9 @@ def test_the_version_keys_settings_and_calibration_not_scores():
     base = RayTracedPredictor(_model()).version()
     assert RayTracedPredictor(_model(samples=200_000)).version() != base
     assert RayTracedPredictor(_model(error_db=7.0)).version() != base
-    learned = RayTracedPredictor(_model(fallback="learned"))
-    assert learned.fallback.tier == "learned" and learned.version() != base  # the fallback's weights in the key
+    physics = RayTracedPredictor(_model(fallback="physics"))
+    assert RayTracedPredictor(_model()).fallback.tier == "learned" and physics.fallback.tier == "physics"
+    assert physics.version() != base  # the fallback's weights or constants in the key
     assert RayTracedPredictor(_model(scores={"x": {"median_error_db": 1.0}}, made_by=["uavrl x"])).version() == base
     assert RayTracedPredictor(_model(device="cpu")).version() == RayTracedPredictor(_model(device="auto")).version() or (
         variant("auto") == VARIANTS["cuda"]

@@ -44,8 +44,8 @@ UNREACHED_GAIN = 1e-30
 
 
 class RayTracedModel(Contract):
-    """``model.json`` of a ray-traced tier: its settings (chosen on validation cities) and its calibration (fitted on
-    training cities)."""
+    """``model.json`` of a ray-traced tier: its settings and its calibration (fitted on training cities). The defaults
+    of the fallback and the spread are those the validation cities chose (docs/raytraced.md); the rays are a cost."""
 
     tier: Literal["raytraced"] = "raytraced"
     samples: int = Field(default=100_000, ge=1_000, le=100_000_000, description="Rays per candidate user")
@@ -65,13 +65,13 @@ class RayTracedModel(Contract):
     device: Literal["auto", "cpu", "cuda"] = Field(default="auto", description="auto: CUDA where a GPU is, else the CPU")
     constants: PhysicsConstants = Field(description="The physics tier (the fallback's, where it is physics)")
     fallback: Literal["physics", "learned"] = Field(
-        default="physics",
+        default="learned",
         description="The tier that predicts the cells no ray reached: physics (the constants above) or learned (the "
         "shipped learned tier, data/agents/searcher/unet)",
     )
     error_db: float = Field(default=6.0, gt=0, description="Std of (measured - predicted) SINR on live cells [dB]")
     spread_estimator: Literal["std", "robust"] = Field(
-        default="std",
+        default="robust",
         description="How error_db is estimated: std, or robust (1.4826 x the median absolute deviation: the core of "
         "heavy-tailed errors, the likelihood's outlier share holding the tail)",
     )
