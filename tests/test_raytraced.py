@@ -201,3 +201,31 @@ def test_candidates_traced_as_ray_tasks_are_the_maps_of_one_run(tiny):
             ray.shutdown()
     assert (one > 0).any()
     np.testing.assert_array_equal(one, two)
+
+
+@needs_sionna
+def test_trace_predictor_calibrates_on_a_pack_and_writes_its_card(tiny, tmp_path):
+    """`uavrl trace-predictor` on a shipped training pack (one user, few rays): a model card of the ray-traced tier
+    that the loader reads, calibrated on that pack; a line a pack as it goes. A pack without a dead cell (the tiny
+    city) is refused in one line naming --maps."""
+    from click.testing import CliRunner
+
+    from tests.conftest import REPO
+    from uavplace.cli import uavrl
+    from uavplace.dataset.bundle import load_bundle
+    from uavplace.dataset.trainmaps import TrainingMaps, write_pack
+
+    common = ["--users", "1", "--samples", "5000", "--device", "cpu", "--fallback", "physics", "--root", str(tiny)]
+    args = ["trace-predictor", "--maps", str(REPO / "data" / "trainmaps"), "--packs", "tt-000", *common]
+    result = CliRunner().invoke(uavrl, [*args, "--out", str(tmp_path / "rt")])
+    assert result.exit_code == 0, result.output
+    assert "tt-000 traced (1/1" in result.output and "wrote" in result.output
+    loaded = load_predictor(tmp_path / "rt")
+    assert isinstance(loaded, RayTracedPredictor) and loaded.model.calibrated_on[0].startswith("tt-000@")
+    assert loaded.model.samples == 5000 and loaded.model.calibration_users == 1 and loaded.model.made_by
+    (tmp_path / "maps").mkdir()
+    write_pack(tmp_path / "maps" / "tiny.npz", TrainingMaps.of_bundle(load_bundle("tiny", root=tiny)))
+    refused = ["trace-predictor", "--maps", str(tmp_path / "maps"), *common, "--out", str(tmp_path / "rt2")]
+    result = CliRunner().invoke(uavrl, refused)
+    assert result.exit_code == 2 and "--maps" in result.output and "too few" in result.output, result.output
+    assert not (tmp_path / "rt2").exists()

@@ -464,7 +464,6 @@ def trace_predictor(
         start_ray(None, 1.0, "--workers", num_cpus=workers)
     t0 = time.perf_counter()
     rows: dict[str, list] = {"traced": [], "physics": [], "measured": [], "low": [], "dead": []}
-    log = LogLines(False)
     for i, m in enumerate(maps):
         scene = Scene.from_settings(m.settings, m.height_rel_m)
         cells = np.argwhere(~m.blocked)
@@ -478,8 +477,12 @@ def trace_predictor(
         rows["measured"].append(sinr.ravel())
         rows["dead"].append(dead.ravel())
         rows["low"].append((dead | (sinr <= scene.floor_db + 1e-3)).ravel())
-        log(f"trace-predictor: {m.city} traced ({i + 1}/{len(maps)}, {time.perf_counter() - t0:.0f} s)", last=True)
-    model = calibrate(model, *(np.concatenate(rows[k]) for k in ("traced", "physics", "measured", "low", "dead")))
+        done = f"trace-predictor: {m.city} traced ({i + 1}/{len(maps)}, {time.perf_counter() - t0:.0f} s)"
+        stdout().print(done, highlight=False, markup=False, soft_wrap=True)  # a line a pack, terminal or log
+    try:
+        model = calibrate(model, *(np.concatenate(rows[k]) for k in ("traced", "physics", "measured", "low", "dead")))
+    except ValueError as err:
+        raise click.BadParameter(f"{err}: give packs of cities with dead cells, or more --users", param_hint="--maps") from None
     model = model.model_copy(
         update={
             "calibrated_on": [f"{m.city}@{m.version}" for m in maps],
