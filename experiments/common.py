@@ -18,3 +18,15 @@ def validation_parser(doc: str, episodes: int) -> argparse.ArgumentParser:
     ap.add_argument("--episodes", type=int, default=episodes, help="Episodes a city, the same for every method")
     ap.add_argument("--seed", type=int, default=0, help="Seed of the episodes and of every random move")
     return ap
+
+
+def trace_with_workers(tiers: list, workers: int) -> None:
+    """Each ray-traced tier of ``tiers`` traces its candidates in ``workers`` Ray tasks, on a local Ray of that many
+    CPUs started here when more than one (the maps are the same whatever the number)."""
+    for tier in tiers:
+        if hasattr(tier, "workers"):
+            tier.workers = workers
+    if workers > 1:
+        from uavplace.infra.cluster import start_ray
+
+        start_ray(None, 1.0, "--workers", num_cpus=workers)

@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 import click
-from common import VALIDATION, validation_parser
+from common import VALIDATION, trace_with_workers, validation_parser
 
 from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.evaluate import ReportConfig, evaluate, load_agent
@@ -79,13 +79,7 @@ def main() -> None:
     search = _settings(ap, SearchConfig(), args.set, "--set")
     predictor, cache = load_predictor(args.predictor), PredictionCache(args.root / PREDICTIONS)
     versus = [(other, load_predictor(other)) for other in args.versus]
-    for tier in [predictor] + [t for _, t in versus]:
-        if hasattr(tier, "workers"):  # the ray-traced tier: its candidates as Ray tasks
-            tier.workers = args.workers
-    if args.workers > 1:
-        from uavplace.infra.cluster import start_ray
-
-        start_ray(None, 1.0, "--workers", num_cpus=args.workers)
+    trace_with_workers([predictor] + [t for _, t in versus], args.workers)
     folders = args.agent or [Path("data/agents/best")]
     agents = [] if args.quick else [load_agent(f, epsilon=0.096, seed=args.seed) for f in folders]
     if len({a.name for a in agents}) != len(agents):  # two runs of one preset: named by their folders

@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from common import VALIDATION
+from common import VALIDATION, trace_with_workers
 
 from uavplace.dataset.bundle import load_bundle
 from uavplace.infra.console import markdown_table
@@ -32,12 +32,7 @@ def main() -> None:
     for text in args.tier:
         name, _, path = text.partition("=")
         tiers[name] = load_predictor(Path(path))
-        if hasattr(tiers[name], "workers"):
-            tiers[name].workers = args.workers
-    if args.workers > 1:
-        from uavplace.infra.cluster import start_ray
-
-        start_ray(None, 1.0, "--workers", num_cpus=args.workers)
+    trace_with_workers(list(tiers.values()), args.workers)
     bundles = []
     for city in args.city or VALIDATION:
         b = load_bundle(city, root=args.root)

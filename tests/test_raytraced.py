@@ -74,19 +74,19 @@ def test_calibration_fits_the_spread_and_the_dead_logistics():
     traced[:5000] = -np.inf  # unreached: the truth is the physics tier's plus noise, dead below 0 dB
     measured[:5000] = physics[:5000] + rng.normal(0, 3, 5000)
     low[:5000] = measured[:5000] < 0
-    model = calibrate(_model(spread_estimator="std"), traced, physics, measured, low, low)
+    model = calibrate(_model(spread_estimator="std"), traced, physics, measured, low)
     assert 2.7 < model.error_db < 3.3
     heavy = measured.copy()
     heavy[-2000:] += rng.choice([-40, 40], 2000)  # a tail: the std grows, the robust spread stays the core's
-    assert calibrate(_model(spread_estimator="std"), traced, physics, heavy, low, low).error_db > 8
-    assert 2.7 < calibrate(_model(spread_estimator="robust"), traced, physics, heavy, low, low).error_db < 3.6
+    assert calibrate(_model(spread_estimator="std"), traced, physics, heavy, low).error_db > 8
+    assert 2.7 < calibrate(_model(spread_estimator="robust"), traced, physics, heavy, low).error_db < 3.6
     assert -12 < model.dead_level_db < -8 and model.dead_scale_db < 3
     assert -2 < model.unreached_level_db < 2 and model.unreached_scale_db < 3
     mu, p_dead = RayTracedPredictor(model).combine(np.array([[-30.0, 20.0, -np.inf, -np.inf]]), np.array([[1.0, 2.0, -9.0, 9.0]]))
     np.testing.assert_allclose(mu, [[-30.0, 20.0, -9.0, 9.0]])
     assert p_dead[0, 0] > 0.99 and p_dead[0, 1] < 0.01 and p_dead[0, 2] > 0.9 and p_dead[0, 3] < 0.1
     with pytest.raises(ValueError, match="too few"):
-        calibrate(_model(), traced[:5], physics[:5], measured[:5], low[:5], low[:5])
+        calibrate(_model(), traced[:5], physics[:5], measured[:5], low[:5])
 
 
 def test_the_version_keys_settings_and_calibration_not_scores():

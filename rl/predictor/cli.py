@@ -463,24 +463,23 @@ def trace_predictor(
 
         start_ray(None, 1.0, "--workers", num_cpus=workers)
     t0 = time.perf_counter()
-    rows: dict[str, list] = {"traced": [], "physics": [], "measured": [], "low": [], "dead": []}
+    rows: dict[str, list] = {"traced": [], "fallback": [], "measured": [], "low": []}
     for i, m in enumerate(maps):
         scene = Scene.from_settings(m.settings, m.height_rel_m)
         cells = np.argwhere(~m.blocked)
         users = m.users[:users_per_pack]
         predictor = RayTracedPredictor(model, workers)
         traced = predictor.traced_sinr(scene, users)[:, cells[:, 0], cells[:, 1]]
-        rows["physics"].append(predictor.fallback.predict(scene, users, cells)[0].ravel())
+        rows["fallback"].append(predictor.fallback.predict(scene, users, cells)[0].ravel())
         sinr = m.sinr_db[: len(users), cells[:, 0], cells[:, 1]]
         dead = m.dead[: len(users), cells[:, 0], cells[:, 1]]
         rows["traced"].append(traced.ravel())
         rows["measured"].append(sinr.ravel())
-        rows["dead"].append(dead.ravel())
         rows["low"].append((dead | (sinr <= scene.floor_db + 1e-3)).ravel())
         done = f"trace-predictor: {m.city} traced ({i + 1}/{len(maps)}, {time.perf_counter() - t0:.0f} s)"
         stdout().print(done, highlight=False, markup=False, soft_wrap=True)  # a line a pack, terminal or log
     try:
-        model = calibrate(model, *(np.concatenate(rows[k]) for k in ("traced", "physics", "measured", "low", "dead")))
+        model = calibrate(model, *(np.concatenate(rows[k]) for k in ("traced", "fallback", "measured", "low")))
     except ValueError as err:
         raise click.BadParameter(f"{err}: give packs of cities with dead cells, or more --users", param_hint="--maps") from None
     model = model.model_copy(

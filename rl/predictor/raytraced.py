@@ -180,9 +180,9 @@ def traced_gain(
     centres = cell_centres_m(np.argwhere(np.ones((ny, nx), bool)), s).reshape(ny, nx, 2)
     d2 = (centres[None, :, :, 0] - xy[:, 0, None, None]) ** 2 + (centres[None, :, :, 1] - xy[:, 1, None, None]) ** 2
     d2 = d2 + (scene.altitude_m - model.user_height_m) ** 2
-    from uavplace.simulate.raytrace import fill_geodesic, free_space_cap
+    from uavplace.simulate.raytrace import RayTraceConfig, fill_geodesic, free_space_cap
 
-    fine = np.minimum(fine, free_space_cap(d2, scene.frequency_hz, "hw_dipole"))  # grazing rays' artifacts
+    fine = np.minimum(fine, free_space_cap(d2, scene.frequency_hz, RayTraceConfig.antenna))  # grazing rays' artifacts
     gain, _ = fill_geodesic(
         fine,
         direct,
@@ -335,11 +335,11 @@ class RayTracedPredictor:
 
 
 def calibrate(
-    model: RayTracedModel, traced: np.ndarray, fallback_mu: np.ndarray, measured: np.ndarray, low: np.ndarray, dead: np.ndarray
+    model: RayTracedModel, traced: np.ndarray, fallback_mu: np.ndarray, measured: np.ndarray, low: np.ndarray
 ) -> RayTracedModel:
     """``model`` with its spread and its two dead logistics fitted on training users' cells: ``traced`` [R] the traced
     SINR (``-inf`` unreached), ``fallback_mu`` [R] the fallback tier's, ``measured`` [R] the embedded SINR, ``low``
-    [R] dead or at the floor, ``dead`` [R] dead. The logistics by maximum likelihood (``logistic``), in the traced
+    [R] dead or at the floor. The logistics by maximum likelihood (``logistic``), in the traced
     SINR on the reached cells and in the fallback's on the unreached ones (where the trace missed, a cell is dead far
     more often than the fallback alone says); the spread is the std of (measured - predicted) on the live cells
     (``RayTracedModel.spread_cells``: all of them, or the reached ones), the prediction the tier's own (traced, else
