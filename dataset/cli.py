@@ -285,7 +285,7 @@ def show(city: str, version: str | None, user: int, out_path: Path | None, root:
     """Render a bundle's height map and one user's SINR map to a PNG.
 
     The SINR map's estimated cells, whose value was not traced at the cell itself (straight path, walked, coarse map,
-    not recorded, nearest receiver: schemas/provenance.py, docs/data.md "Provenance"), are hatched, a hatch per kind
+    not recorded, nearest receiver: schemas/provenance.py, docs/simulate.md "Provenance"), are hatched, a hatch per kind
     with its share of the open cells in the legend."""
     from uavplace.dataset.bundle import load_bundle
     from uavplace.dataset.preview import render_bundle

@@ -220,7 +220,7 @@ def provenance_rows(provenances: list[dict]) -> list[list[str]]:
 
 def cell_sources_text(counts: dict[str, int]) -> str:
     """Where the values of a bundle's maps came from (``Bundle.cell_sources``), in words: the share of the users' cells
-    outside buildings of each provenance (docs/data.md, "Provenance")."""
+    outside buildings of each provenance (docs/simulate.md, "Provenance")."""
     total = max(sum(counts.values()), 1)
     shares = ", ".join(f"{100 * n / total:.1f} % {name}" for name, n in sorted(counts.items(), key=lambda kv: -kv[1]))
     return f"{total:,} user-cells outside buildings: {shares}"

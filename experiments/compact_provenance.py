@@ -4,7 +4,7 @@ For each ``<city>.provenance.csv.gz`` under ``--raw`` whose header is ``schemas.
 are read, written again by ``simulate.insite.write_provenance`` (with the export sha256 it records, checked against
 the .p2m files beside it first; none where it records none), read back and compared, code for code. Ingest reads
 both forms and gives the same receivers table, so the bundles keep their versions; the new form takes about a
-quarter of the bytes (the embedded side files: 1.07 MB -> 0.25 MB; docs/data.md, "Provenance").
+quarter of the bytes (the embedded side files: 1.07 MB -> 0.25 MB; docs/simulate.md, "Provenance").
 
     python experiments/compact_provenance.py [--raw data/raw] [--dry-run]
 """

@@ -103,7 +103,7 @@ def train(name: str, options: str, seed: int, out: Path, root: Path) -> Path:
 
 def calibrate(folder: Path, packs: Path, root: Path) -> Path:
     """``folder``'s network calibrated on the packs in ``packs`` (cities it was not trained on) into ``folder``-cal, as
-    the shipped tier was (docs/searcher.md, "Calibration of the dead-cell probability")."""
+    the shipped tier was (docs/predictor.md, "Calibration of the dead-cell probability")."""
     out = folder.with_name(folder.name + "-cal")
     return made(out, ["uavrl", "calibrate-predictor", "--predictor", str(folder), "--maps", str(packs), "--root", str(root),
                       *SCORED, "--out", str(out)], root)  # fmt: skip

@@ -1,6 +1,6 @@
 """The predictor's tiers scored side by side on validation cities' users, with the project's scores
 (rl/predictor/scores.py: median and p90 |error| [dB] on the live cells, dead/live agreement, calibration error of the
-dead probability, ms a map on this machine), as docs/searcher.md's tables give them.
+dead probability, ms a map on this machine), as docs/predictor.md's tables give them.
 
     python experiments/tier_scores.py --tier learned=data/agents/searcher/unet \
         --tier raytraced-1e5=runs/predictor/raytraced-1e5 [--city etoile-val ...] [--users 16] [--workers 2]

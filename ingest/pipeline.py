@@ -24,12 +24,10 @@ import shapely
 
 from uavplace.infra.files import atomic_directory, check_name, sha256_file, write_model_json
 from uavplace.ingest.buildings import BuildingRecord, buildings_tables
-from uavplace.ingest.geojson import read_geojson
-from uavplace.ingest.mesh import MESH_SUFFIXES, read_mesh
+from uavplace.ingest.formats import EXPORT_SUFFIXES, FORMATS, Format, folder_format, format_of
 from uavplace.ingest.provenance import default_code, export_digest, read_provenance, recorded_export
-from uavplace.ingest.radiomapseer import ingest_radiomapseer, is_radiomapseer
 from uavplace.ingest.routes import read_routes
-from uavplace.ingest.wireless_insite.city import read_city, read_terrain
+from uavplace.ingest.wireless_insite.city import read_terrain
 from uavplace.ingest.wireless_insite.p2m import COHERENT_MARGIN_DB, POSITION_COLUMNS, P2MStream, antenna_gain_dbi, parse_filename
 from uavplace.ingest.wireless_insite.setup import read_setup
 from uavplace.ingest.wireless_insite.txrx import read_txrx
@@ -52,7 +50,7 @@ from uavplace.schemas import (
     TerrainInfo,
     TxRxSet,
 )
-from uavplace.schemas.provenance import RAY_TRACED, RECEIVER_CODES, SIDE_FILE_SUFFIX, UNREACHED, code_name
+from uavplace.schemas.provenance import RAY_TRACED, RECEIVER_CODES, UNREACHED, code_name
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -74,22 +72,8 @@ class Classified:
     rel: str
     kind: str
     skip_reason: str | None = None
-
-
-#: Names of the files ingest reads (a folder so named is reported, not silently passed over).
-EXPORT_SUFFIXES = (
-    ".p2m",
-    ".p2m.gz",
-    ".txrx",
-    ".setup",
-    ".city",
-    ".ter",
-    ".geojson",
-    ".routes.csv",
-    ".provenance.csv",
-    SIDE_FILE_SUFFIX,
-    *MESH_SUFFIXES,
-)
+    #: Its entry of the reader table (None: not a format ingest reads).
+    fmt: Format | None = None
 
 
 def classify(folder: Path) -> list[Classified]:
@@ -108,7 +92,7 @@ def classify(folder: Path) -> list[Classified]:
         if any(part.startswith(".") for part in Path(rel).parts):
             continue
         low = path.name.lower()
-        kind, reason = "other", None
+        kind, reason, fmt = "other", None, None
         try:
             target = path.resolve()
         except (OSError, RuntimeError):  # a link loop
@@ -121,34 +105,9 @@ def classify(folder: Path) -> list[Classified]:
             kind, reason = "special", "a folder named like an export: not read"
         elif target is None or not path.is_file():
             kind, reason = "special", "not a regular file (a FIFO, device, socket, or a broken or looping link): not read"
-        elif low.endswith((".p2m", ".p2m.gz")):
-            ident = parse_filename(path.name)
-            if ident is None:
-                reason = "a .p2m whose name is not <project>.<output>.tTTT_SS.rRRR.p2m"
-            elif not ident.is_receiver_output:
-                reason = ident.skip_reason
-            kind = "p2m"
-        elif low.endswith((SIDE_FILE_SUFFIX, SIDE_FILE_SUFFIX.removesuffix(".gz"))):
-            kind = "cells"
-        elif low.endswith(".routes.csv"):
-            kind = "routes"
-        elif low.endswith(".txrx"):
-            kind = "txrx"
-        elif low.endswith(".setup"):
-            kind = "setup"
-        elif low.endswith(".city"):
-            kind = "city"
-        elif low.endswith(".ter"):
-            kind = "terrain"
-        elif low.endswith(".geojson"):
-            kind = "geojson"
-        elif low.endswith(MESH_SUFFIXES):
-            kind = "mesh"
-        elif low.endswith((".object", ".veg", ".flp")):
-            kind, reason = "geometry", "InSite object/foliage/floor-plan feature (not used as buildings)"
-        elif low == "simulation.json":
-            kind, reason = "provenance", "simulation provenance (copied into the manifest's sources)"
-        out.append(Classified(path, rel, kind, reason))
+        elif (fmt := format_of(path)) is not None:
+            kind, reason = fmt.kind, fmt.skip_reason(path.name)
+        out.append(Classified(path, rel, kind, reason, fmt))
     return out
 
 
@@ -476,9 +435,9 @@ def ingest_city(
         if name is not None
         else check_name(folder.resolve().name, "city name (the folder's; or pass --name)")
     )
-    if is_radiomapseer(folder):  # a RadioMapSeer-style folder (ingest/radiomapseer.py), not an InSite export
+    if (whole := folder_format(folder)) is not None:  # a folder format (a RadioMapSeer-style folder), not files
         out_dir = Path(out_root) / city / INGESTED
-        return (out_dir, *ingest_radiomapseer(folder, out_dir, city, (MANIFEST, REPORT), command))
+        return (out_dir, *whole.ingest(folder, out_dir, city, (MANIFEST, REPORT), command))
     files = classify(folder)
     if not files:
         raise InputError(folder, "empty folder: nothing to ingest")
@@ -577,25 +536,18 @@ def ingest_city(
     origin = None
     if setup and setup.longitude is not None and setup.latitude is not None and (setup.longitude, setup.latitude) != (0.0, 0.0):
         origin = Origin(longitude=setup.longitude, latitude=setup.latitude, source=setup.source)
-    for f in by_kind["city"]:
+    rank = {kind: i for i, kind in reversed(list(enumerate(f.kind for f in FORMATS)))}  # the table's order of kinds
+    for f in sorted(files, key=lambda f: rank.get(f.kind, len(rank))):
+        if f.fmt is None or f.fmt.read is None or f.skip_reason is not None:
+            continue
         tick(f.rel)
-        recs = read_city(f.path, f.rel)
-        records += recs
-        if not recs:
-            warnings.append(f"{f.rel}: a .city without any structure: no building from it")
-        done(f, rows=len(recs), message=f"{len(recs)} structure(s)")
-    for f in by_kind["geojson"]:
-        tick(f.rel)
-        recs, rej = read_geojson(f.path, f.rel)
-        records += recs
-        rejections += rej
-        done(f, rows=len(recs) + len(rej), rejected=len(rej), message=f"{len(recs)} footprint(s)")
-    for f in by_kind["mesh"]:
-        tick(f.rel)
-        recs, rej = read_mesh(f.path, f.rel)
-        records += recs
-        rejections += rej
-        done(f, rows=len(recs) + len(rej), rejected=len(rej), message=f"{len(recs)} building bod(ies)")
+        got = f.fmt.read(f.path, f.rel, None)
+        records += got.records
+        rejections += got.rejected
+        if not got.records:
+            warnings.append(f"{f.rel}: no building in this {f.fmt.title} file")
+        message = f"{len(got.records)} {f.fmt.unit}" + (f"; heights: {got.heights}" if got.heights else "")
+        done(f, rows=len(got.records) + len(got.rejected), rejected=len(got.rejected), message=message)
     terrain_arrays = None
     terrain_info = None
     if by_kind["terrain"]:

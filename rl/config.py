@@ -19,7 +19,7 @@ from uavplace.schemas.constants import P_T_DB, reaches_target
 
 #: Where the shipped physics tier's constants live (in the project, wherever a command runs).
 DEFAULT_CONSTANTS = shipped("data/agents/searcher/predictor.json")
-#: The shipped predictor the searcher uses: the learned tier (chosen on the validation cities, docs/searcher.md).
+#: The shipped predictor the searcher uses: the learned tier (chosen on the validation cities, docs/predictor.md).
 DEFAULT_PREDICTOR = shipped("data/agents/searcher/unet")
 
 

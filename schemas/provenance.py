@@ -1,4 +1,4 @@
-"""Where each cell's value came from: the code table every stage shares (docs/data.md, "Provenance").
+"""Where each cell's value came from: the code table every stage shares (docs/simulate.md, "Provenance").
 
 A map's value at a cell is measured (a ray tracer's paths reached it) or estimated (a fill made it up from its
 neighbours), and a user must be able to tell which. ``uavdata simulate`` records the code of every receiver and

@@ -248,7 +248,7 @@ def write_provenance(
     lines = [
         f"# {line}"
         for line in (
-            "uavplace cell provenance (docs/data.md): the code of every receiver, a digit each, from first_rx on",
+            "uavplace cell provenance (docs/simulate.md): the code of every receiver, a digit each, from first_rx on",
             *code_table().splitlines(),
         )
     ]

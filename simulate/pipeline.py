@@ -37,6 +37,7 @@ import shapely
 from uavplace.infra.files import atomic_directory, check_name, check_replaceable
 from uavplace.infra.limits import check_limit, limits, shown
 from uavplace.infra.options import field_bounds
+from uavplace.ingest.formats import GEOMETRY_TITLES, geometry_format
 from uavplace.schemas import InputError
 from uavplace.schemas.base import uavplace_version
 from uavplace.schemas.provenance import CODES, ESTIMATED, EXACT_PATHS, UNREACHED, code_name
@@ -214,37 +215,14 @@ def load_geometry(
     if not path.is_file():
         raise InputError(
             path,
-            "no such file: expected procedural[:preset], sionna:<scene>, a .city, .geojson, CityJSON .json or Mitsuba .xml",
+            f"no such file: expected procedural[:preset], sionna:<scene> or a file of {GEOMETRY_TITLES}",
             field="source",
         )
-    suffix = path.suffix.lower()
-    cropped = left_out = 0
-    rejected = []
-    heights = ""  # how a format's building heights were taken, where it says
-    if suffix == ".city":
-        from uavplace.ingest.wireless_insite.city import read_city
-
-        records = read_city(path)
-    elif suffix in (".geojson", ".json"):
-        from uavplace.ingest.cityjson import is_cityjson, load_json, read_cityjson
-        from uavplace.ingest.geojson import read_geojson
-
-        doc = load_json(path, str(path))
-        if is_cityjson(doc):
-            records, rejected, heights = read_cityjson(path, doc=doc)
-        else:
-            records, rejected = read_geojson(path)
-        left_out = sum(r.count for r in rejected)
-    elif suffix == ".xml":
-        from uavplace.ingest.mitsuba import read_mitsuba
-
-        scene = read_mitsuba(path, crop=crop)
-        records, cropped = scene.buildings, scene.num_cropped
-    else:
-        raise InputError(
-            path, f"unknown geometry format '{path.suffix}' (expected .city, .geojson, CityJSON .json or .xml)", field="source"
-        )
-    if crop is not None and suffix != ".xml":
+    fmt = geometry_format(path)
+    got = fmt.read(path, str(path), crop)
+    records, rejected, cropped, heights = got.records, got.rejected, got.cropped, got.heights
+    left_out = sum(r.count for r in rejected)
+    if crop is not None and not fmt.crops:
         from uavplace.ingest.buildings import crop_records
 
         records, cropped = crop_records(records, crop)

@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from tests.conftest import REPO
+from tests.conftest import REPO, write_grid_city
 from uavplace.ingest.cityjson import read_cityjson
 from uavplace.schemas import InputError
 
@@ -131,3 +131,33 @@ def test_simulate_reads_cityjson_and_says_how_heights_were_taken(tmp_path):
     blocks, bounds, described = load_geometry(str(_write(tmp_path, _v2())), 0)
     assert len(blocks) == 2 and bounds == pytest.approx((1000.0, 2000.0, 1016.0, 2020.0))
     assert "heights: CityJSON" in described and "mean height of its vertices" in described
+
+
+def test_ingest_and_simulate_read_through_one_reader_table(tmp_path):
+    """The reader table (ingest/formats.py): a CityJSON file dropped in a city folder is ingested as buildings, a JSON
+    file that is neither CityJSON nor GeoJSON is listed and passed over, and `uavdata simulate` picks the same entry
+    for each geometry file that ingest does."""
+    from uavplace.ingest.formats import FORMATS, format_of, geometry_format
+    from uavplace.ingest.pipeline import ingest_city
+
+    city = write_grid_city(tmp_path / "c")
+    for f in city.glob("*.city"):
+        f.unlink()
+    _write(city, _v2())  # city.json
+    (city / "notes.json").write_text(json.dumps({"author": "me", "CityObjects": "not a model"}))
+    _, manifest, report = ingest_city(city, tmp_path / "out")
+    kinds = {f.path: (f.kind, f.status) for f in report.files}
+    assert kinds["city.json"][0] == "cityjson" and kinds["notes.json"][0] == "other"
+    assert manifest.counts["buildings"] == 2
+    message = next(f.message for f in report.files if f.path == "city.json")
+    assert message.startswith("2 building(s); heights: CityJSON")
+    geo = city / "b.geojson"
+    geo.write_text(json.dumps({"type": "FeatureCollection", "features": []}))
+    also_geo = city / "b2.json"
+    also_geo.write_text(json.dumps({"type": "FeatureCollection", "features": []}))
+    for path in (city / "city.json", geo, also_geo):
+        assert format_of(path) is geometry_format(path)
+    assert geometry_format(also_geo).kind == "geojson"
+    with pytest.raises(InputError, match="not a geometry format uavplace reads"):
+        geometry_format(city / "notes.json")
+    assert {f.kind for f in FORMATS if f.read} == {"city", "geojson", "cityjson", "mesh", "mitsuba"}

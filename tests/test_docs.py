@@ -117,12 +117,18 @@ def test_the_pages_hold_commands() -> None:
 
 
 def test_the_docs_and_the_readme_are_undated():
-    """docs/ and the README say what is true now: no page dates a measurement (the history lives in experiments/log/
-    and the CHANGELOG)."""
+    """docs/ and the README say what is true now: no page dates a measurement or names a commit (the history lives in
+    experiments/log/ and the CHANGELOG), and no page of docs/ runs over 400 lines (a guide, not a log)."""
     dated = re.compile(r"\b20\d\d-[01]\d-[0-3]\d\b")
+    commit = re.compile(r"\bcommits? [0-9a-f]{7,40}\b|^\| [0-9a-f]{7,40} \|")
     for page in [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]:
-        lines = [n for n, line in enumerate(page.read_text(encoding="utf-8").splitlines(), 1) if dated.search(line)]
+        text = page.read_text(encoding="utf-8").splitlines()
+        lines = [n for n, line in enumerate(text, 1) if dated.search(line)]
         assert not lines, f"{page.relative_to(REPO)}:{lines[0]} is dated"
+        lines = [n for n, line in enumerate(text, 1) if commit.search(line)]
+        assert not lines, f"{page.relative_to(REPO)}:{lines[0]} names a commit"
+        if page.parent.name == "docs":
+            assert len(text) <= 400, f"{page.relative_to(REPO)} holds {len(text)} lines, more than 400"
 
 
 def test_the_readmes_numbers_about_the_code_are_the_codes():

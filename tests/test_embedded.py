@@ -26,7 +26,7 @@ def test_embedded_data_is_small_and_complete():
     size = sum(p.stat().st_size for p in RAW.rglob("*") if p.is_file())
     # 100 MB for the placement cities and the tracking task's test routes, 10 MB more for its training corpus and
     # validation city (trk-000 ... trk-003, trk-val: 12.5 MB; docs/tracking.md), and 5 MB for the real-layout
-    # validation cities traced from data/geometry/ (delfshaven-val, denhaag-val: about 4 MB; docs/searcher.md)
+    # validation cities traced from data/geometry/ (delfshaven-val, denhaag-val: about 4 MB; docs/raytraced.md)
     assert size <= 115e6, f"data/raw holds {size / 1e6:.1f} MB, more than the 115 MB budget"
     corpus = [c for c in CITIES if c.startswith("corpus-")]
     assert len(corpus) >= 18 and {"train", "test", "tiny", "etoile", "florence"} <= set(CITIES)
@@ -64,7 +64,7 @@ def test_embedded_city_ingests_builds_and_is_faithful(tmp_path, city):
     b = load_bundle(build_city(city, config, tmp_path).path)
     assert b.num_users == len(record["users_m"]) and b.shape == (record["grid"]["num_y"], record["grid"]["num_x"])
     assert b.manifest.counts["buildings"] == record.get("num_buildings")
-    # Every shipped map says where its values came from (docs/data.md, "Provenance"): a side file whose codes leave at
+    # Every shipped map says where its values came from (docs/simulate.md, "Provenance"): a side file whose codes leave at
     # most half the live receivers "not recorded" (experiments/embedded_provenance.py's rule), as the cells show.
     assert (RAW / city / f"{city}{SIDE_FILE_SUFFIX}").is_file()
     live_open = ~b.dead & ~b.blocked[None]

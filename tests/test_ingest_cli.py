@@ -293,7 +293,7 @@ def test_underground_roofs_are_rejected_and_an_empty_city_warns(tmp_path):
     _, manifest, report = ingest_city(city, tmp_path / "out")
     assert manifest.counts["buildings"] == 0 and manifest.counts["rows_rejected"] == 1
     assert any("roof at -20 m is below the ground (0 m without terrain)" in r.reason for r in report.rejections)
-    assert any("e.city: a .city without any structure" in w for w in report.warnings)
+    assert any("e.city: no building in this Wireless InSite .city file" in w for w in report.warnings)
 
 
 def test_every_help_names_its_ranges_without_none():

@@ -248,10 +248,10 @@ def test_a_bundle_whose_provenance_disagrees_with_its_maps_is_refused():
 
 
 def test_the_docs_code_table_is_the_contract():
-    """docs/data.md's table of codes lists exactly ``schemas.provenance.CODES``' names, in order."""
+    """docs/simulate.md's table of codes lists exactly ``schemas.provenance.CODES``' names, in order."""
     from tests.conftest import REPO
     from uavplace.schemas.provenance import CODES
 
-    rows = [line.split("|")[1:3] for line in (REPO / "docs" / "data.md").read_text().splitlines() if line[:4] in
+    rows = [line.split("|")[1:3] for line in (REPO / "docs" / "simulate.md").read_text().splitlines() if line[:4] in
             {f"| {c} " for c in range(10)}]  # fmt: skip
     assert [(int(c), n.strip()) for c, n in rows] == [(c, name) for c, (name, _) in CODES.items()]

@@ -30,7 +30,7 @@ packs_option = click.option(
     "--packs",
     multiple=True,
     help="Only the packs of --maps whose city's name matches this shell-style pattern, whole (repeatable; 'tt-*': the "
-    "tiered cities, the real crops' kind of geometry, docs/searcher.md; 'tt-00[0-4]': five of them, for good). Default: "
+    "tiered cities, the real crops' kind of geometry, docs/predictor.md; 'tt-00[0-4]': five of them, for good). Default: "
     "every pack.",
 )
 
