@@ -25,7 +25,7 @@ from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.evaluate import ReportConfig, agent_env, load_agent, report_env
 from uavplace.rl.tasks.placement import rollout
 from uavplace.rl.tasks.placement.env import BatchedEnv
-from uavplace.rl.tasks.placement.maps import MapSet
+from uavplace.rl.world.maps import MapSet
 
 
 class WholeCanvases(BatchedEnv):

@@ -32,12 +32,12 @@ from uavplace.dataset.build import build_city
 from uavplace.dataset.bundle import load_bundle
 from uavplace.dataset.catalog import expand_datasets
 from uavplace.ingest.pipeline import ingest_city
-from uavplace.rl.env import UavPlacementEnv
 from uavplace.rl.tasks.placement.config import EnvConfig
 from uavplace.rl.tasks.placement.env import BatchedEnv
-from uavplace.rl.tasks.placement.maps import MapSet
+from uavplace.rl.tasks.placement.gym import UavPlacementEnv
 from uavplace.rl.tasks.placement.policies import random_legal
 from uavplace.rl.tasks.tracking import RouteSet, TrackingConfig, TrackingEnv
+from uavplace.rl.world.maps import MapSet
 from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM, BuildConfig
 
 REPO = Path(__file__).resolve().parents[1]

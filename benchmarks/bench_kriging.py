@@ -21,9 +21,9 @@ from uavplace.rl.belief import PredictionCache
 from uavplace.rl.config import SearchConfig
 from uavplace.rl.predictor import load_predictor
 from uavplace.rl.tasks.placement.config import EnvConfig
-from uavplace.rl.tasks.placement.maps import MapSet
 from uavplace.rl.tasks.placement.rollout import run_episodes
 from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
+from uavplace.rl.world.maps import MapSet
 
 
 def main() -> None:

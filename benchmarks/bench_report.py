@@ -27,9 +27,9 @@ from uavplace.eval.evaluate import ReportConfig, baseline_policies, default_agen
 from uavplace.infra.tensors import load_tensors
 from uavplace.rl.agent.dqn import DQNPolicy, make_network, masked_argmax, to_tensor
 from uavplace.rl.tasks.placement.config import EnvConfig
-from uavplace.rl.tasks.placement.maps import MapSet
 from uavplace.rl.tasks.placement.policies import random_legal
 from uavplace.rl.tasks.placement.rollout import run_episodes
+from uavplace.rl.world.maps import MapSet
 
 
 class LegacyPolicy(DQNPolicy):

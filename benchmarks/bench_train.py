@@ -220,7 +220,8 @@ def time_to_target(args: argparse.Namespace) -> None:
     the preset's test epsilon and revisit penalty): the wall time to the first evaluation at or above
     ``--to-target``, evaluations (and our checkpoints) included."""
     from uavplace.rl.agent.dqn import DQNPolicy
-    from uavplace.rl.tasks.placement.rollout import run_episodes, summarise
+    from uavplace.rl.tasks.placement.rollout import run_episodes
+    from uavplace.rl.world.stats import summarise
 
     config = preset_config(
         args.preset, total_steps=args.budget, eval_every=args.eval_every, seed=args.seed, buffer_size=args.buffer

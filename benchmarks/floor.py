@@ -39,9 +39,9 @@ from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.evaluate import NO_BUILDINGS, ReportConfig, default_agents, default_baselines, load_agent, report_env
 from uavplace.rl.belief import PredictionCache
 from uavplace.rl.predictor import load_predictor
-from uavplace.rl.tasks.placement.maps import MapSet
 from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
-from uavplace.rl.view import PublicMaps
+from uavplace.rl.world.maps import MapSet
+from uavplace.rl.world.view import PublicMaps
 
 #: The rows of a batch the rates are measured at: the report's ``num_envs``.
 BATCH = 256

@@ -19,9 +19,9 @@ from uavplace.rl.belief import PredictionCache
 from uavplace.rl.config import DEFAULT_PREDICTOR, SearchConfig
 from uavplace.rl.predictor import load_predictor
 from uavplace.rl.tasks.placement.config import EnvConfig
-from uavplace.rl.tasks.placement.maps import MapSet
 from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
-from uavplace.rl.view import PublicMaps
+from uavplace.rl.world.maps import MapSet
+from uavplace.rl.world.view import PublicMaps
 
 
 def main() -> None:

@@ -40,8 +40,8 @@ def play(city: str, method: str, episodes: int, out: Path) -> None:
     from uavplace.dataset.bundle import load_bundle
     from uavplace.eval.evaluate import NO_BUILDINGS, ReportConfig, baseline_policies, load_agent, report_env
     from uavplace.rl.tasks.placement import rollout
-    from uavplace.rl.tasks.placement.maps import MapSet
     from uavplace.rl.tasks.placement.searcher import SEARCHER
+    from uavplace.rl.world.maps import MapSet
 
     bundle = load_bundle(city, root=str(REPO / "data" / "processed"))
     config = ReportConfig(dataset=city, episodes=episodes)

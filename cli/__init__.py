@@ -148,9 +148,9 @@ uavdata.help = uavdata.help.format(noise=EMBEDDED_NOISE_DBM)
         "calibrate-predictor": "uavplace.rl.predictor.cli:calibrate_predictor",
         "trace-predictor": "uavplace.rl.predictor.cli:trace_predictor",
         "report": "uavplace.eval.cli:report",
-        "sweep": "uavplace.eval.cli:sweep",
-        "levers": "uavplace.eval.cli:levers",
-        "peer": "uavplace.eval.cli:peer",
+        "sweep": "uavplace.eval.compare_cli:sweep",
+        "levers": "uavplace.eval.compare_cli:levers",
+        "peer": "uavplace.eval.compare_cli:peer",
     },
 )
 @click.version_option(package_name="uavplace", prog_name="uavrl")

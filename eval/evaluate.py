@@ -24,12 +24,12 @@ from uavplace.rl.agent.runs import RUN_JSON, RunRecord, policy_from_checkpoint, 
 from uavplace.rl.belief import PREDICTIONS, PredictionCache
 from uavplace.rl.predictor import load_predictor
 from uavplace.rl.tasks.placement.config import EnvConfig
-from uavplace.rl.tasks.placement.maps import MapSet
 from uavplace.rl.tasks.placement.policies import GeniePolicy, GreedyPolicy, Policy, RandomWalkPolicy
 from uavplace.rl.tasks.placement.rollout import run_episodes
 from uavplace.rl.tasks.placement.searcher import SEARCHER, MapSearchPolicy
 from uavplace.rl.tasks.registry import TASKS
-from uavplace.rl.view import PublicMaps
+from uavplace.rl.world.maps import MapSet
+from uavplace.rl.world.view import PublicMaps
 from uavplace.schemas import InputError
 from uavplace.schemas.bundle import BundleManifest
 

@@ -12,7 +12,7 @@ import pandas as pd
 from uavplace.dataset.bundle import Bundle
 from uavplace.eval.evaluate import BASELINES, NO_BUILDINGS, Agent
 from uavplace.eval.metrics import PROFILE_TAUS, ecdf
-from uavplace.rl.tasks.placement.rollout import summarise
+from uavplace.rl.world.stats import summarise
 from uavplace.schemas.constants import reaches_target
 
 #: Episodes in the training curves' running mean (the paper's 100).

@@ -13,8 +13,8 @@ import numpy as np
 import pandas as pd
 
 from uavplace.eval.evaluate import NO_BUILDINGS, WITH_BUILDINGS
-from uavplace.rl.tasks.placement.rollout import STATS, format_stat
 from uavplace.rl.tasks.placement.searcher import SEARCHER
+from uavplace.rl.world.stats import STATS, format_stat
 
 #: The statistics of a report's headline table (its first): the others are in the detail table.
 HEADLINE_STATS = ("success", "medians_ratio", "spl", "iqm_over_genie", "iqm_spl")

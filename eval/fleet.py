@@ -47,7 +47,7 @@ from uavplace.rl.tasks.fleet import (
     FleetSearcher,
     run_fleet,
 )
-from uavplace.rl.tasks.placement.rollout import STATS, format_stat
+from uavplace.rl.world.stats import STATS, format_stat
 from uavplace.schemas.base import InputError, uavplace_version
 
 FLEET_JSON = "fleet.json"

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from uavplace.rl.tasks.placement.rollout import IQM_CUT, STATS, WITHIN, format_stat, spl_terms
+from uavplace.rl.world.stats import IQM_CUT, STATS, WITHIN, format_stat, spl_terms
 
 __all__ = [
     "STATS",
@@ -78,7 +78,7 @@ def _weighted_quantile(values: np.ndarray, weights: np.ndarray, q: float) -> np.
 
 
 def weighted_stats(steps: np.ndarray, success: np.ndarray, genie_steps: np.ndarray, weights: np.ndarray) -> dict:
-    """``rl.tasks.placement.rollout.episode_stats`` under episode weights [B, n] (bootstrap counts): each statistic [B]."""
+    """``rl.world.stats.episode_stats`` under episode weights [B, n] (bootstrap counts): each statistic [B]."""
     ok = np.asarray(success, bool)
     w = np.asarray(weights, np.float64)
     to_target = np.where(ok, steps, np.inf)
@@ -104,7 +104,7 @@ def weighted_stats(steps: np.ndarray, success: np.ndarray, genie_steps: np.ndarr
 
 
 def weighted_iqm(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """``rl.tasks.placement.rollout.interquartile_mean`` of the sample in which value ``i`` occurs ``weights[b, i]``
+    """``rl.world.stats.interquartile_mean`` of the sample in which value ``i`` occurs ``weights[b, i]``
     times (bootstrap counts: whole numbers), for each row ``b``: [B]. The same values as expanding the sample and
     trimming it."""
     order = np.argsort(values, kind="stable")

@@ -23,9 +23,9 @@ from collections.abc import Callable
 import numpy as np
 import pandas as pd
 
-from uavplace.rl.tasks.placement.maps import MapSet
 from uavplace.rl.tasks.placement.policies import Policy
 from uavplace.rl.tasks.placement.rollout import run_episodes
+from uavplace.rl.world.maps import MapSet
 
 #: Seconds between two progress messages of one task.
 PROGRESS_EVERY_S = 1.0

@@ -32,10 +32,11 @@ from uavplace.infra.files import atomic_write_bytes, atomic_write_text
 from uavplace.rl.agent.cities import plan_cities
 from uavplace.rl.randomness import stream_key
 from uavplace.rl.tasks.placement.config import EnvConfig
-from uavplace.rl.tasks.placement.env import BatchedEnv, decode_obs
-from uavplace.rl.tasks.placement.maps import MapSet
+from uavplace.rl.tasks.placement.env import BatchedEnv
 from uavplace.rl.tasks.placement.policies import GeniePolicy, episode_draws, pick_legal
-from uavplace.rl.tasks.placement.rollout import format_stat
+from uavplace.rl.world.maps import MapSet
+from uavplace.rl.world.rows import decode_obs
+from uavplace.rl.world.stats import format_stat
 from uavplace.schemas import InputError
 
 #: What the env's observations are divided by for SB3 (uavplace's own networks divide by the same).
@@ -85,7 +86,7 @@ def make_model(algo: Literal["dqn", "ppo"], maps: MapSet, n_envs: int, seed: int
     sb3 = _sb3()
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    from uavplace.rl.env import UavPlacementEnv
+    from uavplace.rl.tasks.placement.gym import UavPlacementEnv
 
     venv = DummyVecEnv([lambda: UavPlacementEnv(maps, obs_scale=OBS_SCALE) for _ in range(n_envs)])
     venv.seed(seed)

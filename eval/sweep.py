@@ -38,7 +38,7 @@ from uavplace.infra.files import atomic_write_text, check_name, read_model_toml
 from uavplace.infra.limits import check_limit
 from uavplace.rl.agent.config import DQNConfig, parse_settings, preset_config
 from uavplace.rl.tasks.placement.policies import GeniePolicy
-from uavplace.rl.tasks.placement.rollout import format_stat
+from uavplace.rl.world.stats import format_stat
 from uavplace.schemas import InputError
 from uavplace.schemas.base import MAX_SEED, Contract, repeated
 

@@ -22,7 +22,7 @@ from uavplace.eval.evaluate import Agent, ReportConfig, evaluate, load_agent
 from uavplace.rl.agent.dqn import DQNPolicy
 from uavplace.rl.agent.network import MeanQ
 from uavplace.rl.tasks.placement.policies import GeniePolicy
-from uavplace.rl.tasks.placement.rollout import summarise
+from uavplace.rl.world.stats import summarise
 
 
 def main() -> None:

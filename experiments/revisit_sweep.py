@@ -25,7 +25,7 @@ from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.cities import development_cities
 from uavplace.eval.evaluate import ReportConfig, evaluate, load_agent
 from uavplace.rl.tasks.placement.policies import GeniePolicy
-from uavplace.rl.tasks.placement.rollout import summarise
+from uavplace.rl.world.stats import summarise
 
 BETAS = (0.0, 1.0, 3.0, 10.0, 30.0)
 

@@ -55,7 +55,7 @@ from uavplace.rl.config import DEFAULT_PREDICTOR
 from uavplace.rl.predictor import load_predictor
 from uavplace.rl.tasks.placement.policies import GeniePolicy
 from uavplace.rl.tasks.placement.searcher import SEARCHER, MapSearchPolicy
-from uavplace.rl.view import AgentView, PublicMaps, public_maps
+from uavplace.rl.world.view import AgentView, PublicMaps, public_maps
 from uavplace.schemas.constants import P_T_DB
 
 TOLD = "searcher told where (within R cells)"

@@ -31,10 +31,10 @@ from uavplace.infra.console import markdown_table
 from uavplace.rl.belief import PREDICTIONS, PredictionCache
 from uavplace.rl.config import DEFAULT_PREDICTOR
 from uavplace.rl.predictor import Scene, load_predictor
-from uavplace.rl.tasks.placement.maps import transform
 from uavplace.rl.tasks.placement.policies import GeniePolicy
 from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
-from uavplace.rl.view import AgentView, public_maps
+from uavplace.rl.world.maps import transform
+from uavplace.rl.world.view import AgentView, public_maps
 
 KNOWN = "searcher told where the user is"
 

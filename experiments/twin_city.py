@@ -35,9 +35,9 @@ from uavplace.eval.evaluate import ReportConfig, default_agents, evaluate, load_
 from uavplace.eval.metrics import bootstrap_table, difference_table
 from uavplace.infra.console import markdown_table
 from uavplace.rl.tasks.placement.config import EnvConfig
-from uavplace.rl.tasks.placement.maps import MapSet
 from uavplace.rl.tasks.placement.policies import GeniePolicy
-from uavplace.rl.tasks.placement.rollout import format_stat
+from uavplace.rl.world.maps import MapSet
+from uavplace.rl.world.stats import format_stat
 
 #: The two cities' labels in the table.
 PATHS, RADIO = "exact paths", "radio map"

@@ -10,8 +10,8 @@ from gymnasium.envs.registration import register, registry
 
 for _id, _kwargs in (("uavplace/UavPlacement-v0", {}), ("uavplace/BlindUavPlacement-v0", {"blind": True})):
     if _id not in registry:
-        register(id=_id, entry_point="uavplace.rl.env:UavPlacementEnv", kwargs=_kwargs)
+        register(id=_id, entry_point="uavplace.rl.tasks.placement.gym:UavPlacementEnv", kwargs=_kwargs)
 if "uavplace/UavTracking-v0" not in registry:
-    register(id="uavplace/UavTracking-v0", entry_point="uavplace.rl.env:UavTrackingEnv")
+    register(id="uavplace/UavTracking-v0", entry_point="uavplace.rl.tasks.tracking.gym:UavTrackingEnv")
 if "uavplace/UavFleet-v0" not in registry:
-    register(id="uavplace/UavFleet-v0", entry_point="uavplace.rl.env:UavFleetEnv")
+    register(id="uavplace/UavFleet-v0", entry_point="uavplace.rl.tasks.fleet.gym:UavFleetEnv")

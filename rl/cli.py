@@ -12,8 +12,8 @@ from uavplace.infra.console import LogLines, fail, plain_table, root_option, std
 from uavplace.infra.options import model_options
 from uavplace.rl.agent.config import PRESETS, DQNConfig
 from uavplace.rl.config import EpisodeSettings
-from uavplace.rl.tasks.placement.rollout import STATS, format_stat, summarise
 from uavplace.rl.tasks.registry import TASKS
+from uavplace.rl.world.stats import STATS, format_stat, summarise
 
 
 @click.command()
@@ -65,9 +65,9 @@ def baselines(
 
     from uavplace.infra.limits import check_limit
     from uavplace.rl.tasks.placement.config import EnvConfig
-    from uavplace.rl.tasks.placement.maps import MapSet
     from uavplace.rl.tasks.placement.policies import GeniePolicy, GreedyPolicy, RandomWalkPolicy
     from uavplace.rl.tasks.placement.rollout import run_episodes
+    from uavplace.rl.world.maps import MapSet
 
     check_limit("episode_steps", episodes * t_max, None, "--episodes x --t-max", field="episodes")
     config = EnvConfig(t_max=t_max, p_t_db=p_t_db, split=split, rotate=False)

@@ -131,7 +131,7 @@ def predcache_probes(base: Base) -> list[Probe]:
             fn(a)
             a["mu"], a["p_dead"] = a["mu"].astype(np.float16), a["p_dead"].astype(np.float16)
             if meta == "made":
-                from uavplace.rl.belief import _entry_meta
+                from uavplace.rl.belief.cache import _entry_meta
 
                 key = bytes(a["meta"]).decode().split(":")[0]
                 a["meta"] = np.frombuffer(_entry_meta(key, a["mu"], a["p_dead"]), np.uint8)
@@ -342,7 +342,7 @@ import sys
 import numpy as np
 from uavplace.schemas import InputError
 try:
-    from uavplace.rl.env import UavPlacementEnv
+    from uavplace.rl.tasks.placement.gym import UavPlacementEnv
     from uavplace.rl.tasks.fleet.zoo import parallel_env
     make = parallel_env if sys.argv[3] == "fleet" else UavPlacementEnv
     env = make("tiny", root=sys.argv[1], **eval(sys.argv[2]))

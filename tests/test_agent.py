@@ -26,7 +26,7 @@ from uavplace.rl.agent.runs import load_policy, read_run_json
 from uavplace.rl.agent.train import Trainer
 from uavplace.rl.tasks.placement.config import EnvConfig
 from uavplace.rl.tasks.placement.env import BatchedEnv
-from uavplace.rl.tasks.placement.maps import MapSet
+from uavplace.rl.world.maps import MapSet
 from uavplace.schemas import InputError
 from uavplace.schemas.bundle import BuildConfig
 
@@ -482,7 +482,8 @@ def test_short_training_run_learns(tmp_path, learner):
     from pathlib import Path
 
     from uavplace.rl.tasks.placement.policies import RandomWalkPolicy
-    from uavplace.rl.tasks.placement.rollout import run_episodes, summarise
+    from uavplace.rl.tasks.placement.rollout import run_episodes
+    from uavplace.rl.world.stats import summarise
 
     raw = Path(__file__).resolve().parents[1] / "data" / "raw" / "tiny"
     ingest_city(raw, tmp_path / "p", name="tiny")
@@ -624,7 +625,7 @@ class BackToVisitedNet(torch.nn.Module):
         self.unused = torch.nn.Parameter(torch.zeros(1))  # DQNPolicy reads the device from the parameters
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        from uavplace.rl.tasks.placement.maps import MOVES
+        from uavplace.rl.world.maps import MOVES
 
         c = obs.shape[-1] // 2
         return torch.stack([1.0 + obs[:, -2, c + dy, c + dx] for dy, dx in MOVES.tolist()], dim=1)
@@ -634,8 +635,9 @@ def test_revisit_penalty_breaks_a_loop(city_root):
     """With the penalty, the greedy move leaves cells it has been in: the looping network's episodes cover more
     cells and succeed more often than its plain argmax, which never leaves its first two cells."""
     from uavplace.rl.tasks.placement.config import EnvConfig
-    from uavplace.rl.tasks.placement.maps import MapSet
-    from uavplace.rl.tasks.placement.rollout import run_episodes, summarise
+    from uavplace.rl.tasks.placement.rollout import run_episodes
+    from uavplace.rl.world.maps import MapSet
+    from uavplace.rl.world.stats import summarise
 
     maps = MapSet.load(["tiny"], EnvConfig(t_max=60, window=21, visited_channel=True, rotate=False), root=str(city_root))
     episodes = maps.sample_episodes(64, np.random.default_rng(3))

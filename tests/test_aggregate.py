@@ -16,7 +16,7 @@ from uavplace.eval.metrics import (
     weighted_iqm,
     weighted_stats,
 )
-from uavplace.rl.tasks.placement.rollout import episode_stats, interquartile_mean
+from uavplace.rl.world.stats import episode_stats, interquartile_mean
 
 
 def test_the_iqm_is_rliables():

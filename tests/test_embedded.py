@@ -50,9 +50,9 @@ def test_embedded_city_ingests_builds_and_is_faithful(tmp_path, city):
     """As documented: the users and grid of its simulation.json, no mosaic above the SINR floor, a genie that
     always succeeds, a valid Gymnasium environment."""
     from uavplace.rl.tasks.placement.config import EnvConfig
-    from uavplace.rl.tasks.placement.maps import MapSet
     from uavplace.rl.tasks.placement.policies import GeniePolicy
     from uavplace.rl.tasks.placement.rollout import run_episodes
+    from uavplace.rl.world.maps import MapSet
     from uavplace.simulate.fidelity import lattice_boundary_shares, lattice_step_ratios
     from uavplace.simulate.raytrace import constant_patch_share
 

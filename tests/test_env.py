@@ -17,12 +17,13 @@ from tests.conftest import write_grid_city
 from uavplace.dataset.build import build_city
 from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target
 from uavplace.ingest.pipeline import ingest_city
-from uavplace.rl.env import UavPlacementEnv
 from uavplace.rl.tasks.placement.config import EnvConfig
-from uavplace.rl.tasks.placement.env import BatchedEnv, decode_obs, encode_obs
-from uavplace.rl.tasks.placement.maps import MOVES, MapSet
+from uavplace.rl.tasks.placement.env import BatchedEnv
+from uavplace.rl.tasks.placement.gym import UavPlacementEnv
 from uavplace.rl.tasks.placement.policies import GeniePolicy, GreedyPolicy, RandomWalkPolicy
 from uavplace.rl.tasks.placement.rollout import run_episodes
+from uavplace.rl.world.maps import MOVES, MapSet
+from uavplace.rl.world.rows import decode_obs, encode_obs
 from uavplace.schemas.bundle import BuildConfig
 
 
@@ -509,7 +510,7 @@ def test_an_episode_plays_the_same_whatever_else_is_played(maps):
 def test_placement_env_overrides_are_validated_as_the_command_line_settings(tiny):
     """``UavPlacementEnv(..., **overrides)``: an unknown setting or a value out of its range is one ValueError naming
     the field (``model_copy(update=...)`` had taken ``colour=1`` without a word and a window of 2)."""
-    from uavplace.rl.env import UavPlacementEnv
+    from uavplace.rl.tasks.placement.gym import UavPlacementEnv
 
     for bad, field in (({"colour": 1}, "colour"), ({"window": 2}, "window"), ({"p_t_db": float("nan")}, "p_t_db")):
         with pytest.raises(ValueError, match=rf"^EnvConfig\.{field}: "):

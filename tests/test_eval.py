@@ -18,7 +18,7 @@ from uavplace.eval.metrics import bootstrap_table, difference_table, ecdf, forma
 from uavplace.ingest.pipeline import ingest_city
 from uavplace.rl.agent.config import preset_config
 from uavplace.rl.agent.train import Trainer
-from uavplace.rl.tasks.placement.rollout import summarise
+from uavplace.rl.world.stats import summarise
 from uavplace.schemas.bundle import BuildConfig
 
 
@@ -329,8 +329,8 @@ def test_twin_cities_play_the_same_episodes_where_both_can_start(two_cities):
     from uavplace.dataset.bundle import load_bundle
     from uavplace.eval.evaluate import ReportConfig, evaluate
     from uavplace.rl.tasks.placement.config import EnvConfig
-    from uavplace.rl.tasks.placement.maps import MapSet
     from uavplace.rl.tasks.placement.policies import GeniePolicy
+    from uavplace.rl.world.maps import MapSet
 
     root, _ = two_cities
     b, c = load_bundle("cityb", root=root), load_bundle("cityc", root=root)
@@ -458,8 +458,8 @@ def test_evaluations_over_the_step_limit_are_refused_before_any_work(tiny):
 
 
 def test_a_terminal_gets_the_columns_that_fit():
-    from uavplace.eval.cli import TERMINAL_COLUMNS, terminal_columns
-    from uavplace.rl.tasks.placement.rollout import STATS
+    from uavplace.eval.reports.placement import TERMINAL_COLUMNS, terminal_columns
+    from uavplace.rl.world.stats import STATS
 
     header = ["method", *STATS.values(), "paper: success", "paper: median steps"]
     rows = terminal_columns([header, [f"m{i}" for i in range(len(header))]])
@@ -541,7 +541,7 @@ def test_report_search_sets_the_searchers_settings(tiny, tmp_path):
     """``--search NAME=VALUE`` sets the searcher's settings on top of each task's default (the record says them); a
     mistyped name, a refused value or a setting the task's searcher does not read ends the command before anything is
     played or written."""
-    from uavplace.eval.cli import TASK_REPORTS
+    from uavplace.eval.reports import task_report
     from uavplace.rl.config import SearchConfig
     from uavplace.rl.tasks.tracking.config import tracking_search
 
@@ -556,12 +556,12 @@ def test_report_search_sets_the_searchers_settings(tiny, tmp_path):
         res = CliRunner().invoke(uavrl, [*args[:-4], "--out", str(tmp_path / "no"), "--search", bad])
         assert res.exit_code == 2 and "--search" in res.output and says in res.output, res.output
         assert not (tmp_path / "no").exists()
-    assert TASK_REPORTS["tracking"].search(()) == tracking_search()  # each task's own default, changed name by name
-    assert TASK_REPORTS["tracking"].search(("stride=4",)) == tracking_search().model_copy(update={"stride": 4})
-    assert TASK_REPORTS["fleet"].search(("fleet_plan=makespan",)).fleet_plan == "makespan"
+    assert task_report("tracking").search(()) == tracking_search()  # each task's own default, changed name by name
+    assert task_report("tracking").search(("stride=4",)) == tracking_search().model_copy(update={"stride": 4})
+    assert task_report("fleet").search(("fleet_plan=makespan",)).fleet_plan == "makespan"
     refused = (("tracking", "planner=info", "does not read planner"), ("fleet", "error_share=0.5", "error_share"),
                ("fleet", "planner=lookahead", "it plans with cover or info"), ("placement", "fleet_plan=product",
                "fleet_plan"), ("placement", "buildings=false", "with the buildings and without"))  # fmt: skip
     for task, pair, says in refused:  # a setting its searcher does not read would be recorded and not played
         with pytest.raises(click.BadParameter, match=says):
-            TASK_REPORTS[task].search((pair,))
+            task_report(task).search((pair,))

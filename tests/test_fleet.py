@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from uavplace.rl.tasks.fleet import FLEET_MOVES, BatchedFleet, FleetCity, FleetConfig, FleetMaps, FleetView, oracle_steps
-from uavplace.rl.tasks.placement.maps import MOVES
+from uavplace.rl.world.maps import MOVES
 
 
 def _city(seed: int, side: int = 7, users: int = 4, walls: int = 6) -> FleetCity:

@@ -16,9 +16,9 @@ import pytest
 
 from tests.conftest import REPO
 from uavplace.eval.evaluate import default_agents, load_agent
-from uavplace.rl.tasks.placement.maps import MapSet
 from uavplace.rl.tasks.placement.policies import GeniePolicy
 from uavplace.rl.tasks.placement.rollout import run_episodes
+from uavplace.rl.world.maps import MapSet
 
 EPISODES = 12
 T_MAX = 60
@@ -84,11 +84,11 @@ def test_agents_read_only_what_they_measured(tiny):
 
 def test_report_methods_read_only_what_they_measured(tiny):
     """Every method the report plays beside the agents, but the genie (privileged), receives only the UAV's view
-    (``rl.view.AgentView``) and moves the same when the user's map is scrambled off its route: the random walk, greedy
+    (``rl.world.view.AgentView``) and moves the same when the user's map is scrambled off its route: the random walk, greedy
     hill-climbing, the map searcher and its ablation."""
     from uavplace.eval.evaluate import ReportConfig, baseline_policies
     from uavplace.rl.tasks.placement.config import EnvConfig
-    from uavplace.rl.view import AgentView, view_for
+    from uavplace.rl.world.view import AgentView, view_for
 
     env = EnvConfig(t_max=T_MAX, rotate=False)
     maps = MapSet.load("tiny", env, root=str(tiny))

@@ -104,8 +104,8 @@ def test_learned_files_round_trip_and_refuse_foreign_weights(tiny, tmp_path):
 
 def test_searcher_with_the_learned_tier_finds_the_tiny_users(tiny, tmp_path):
     from uavplace.rl.tasks.placement.config import EnvConfig
-    from uavplace.rl.tasks.placement.maps import MapSet
     from uavplace.rl.tasks.placement.rollout import run_episodes
+    from uavplace.rl.world.maps import MapSet
 
     bundle = load_bundle("tiny", root=tiny)
     _, folder = _trained_and_saved(bundle, tmp_path / "unet")

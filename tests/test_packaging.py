@@ -141,28 +141,62 @@ def test_the_env_and_the_belief_import_no_policy():
     and arithmetic) and the settings import no policy: the env's belief channel reads ``rl.belief``, never the
     searcher; the policies sit above them."""
     graph = _imports()
-    below = ["uavplace.rl." + m for m in ("env", "view", "belief", "config", "randomness", "predictor")]
-    below += ["uavplace.rl.tasks.placement." + m for m in ("config", "maps", "env")]
+    below = ["uavplace.rl." + m for m in ("belief", "config", "randomness", "predictor")]
+    below += ["uavplace.rl.world." + m for m in ("settings", "maps", "rows", "stats", "view")]
+    below += ["uavplace.rl.tasks.placement." + m for m in ("config", "env", "gym")]
     policies = {f"uavplace.rl.tasks.{t}.{m}" for t in ("placement", "tracking", "fleet") for m in ("searcher", "policies")}
     found = {m: sorted(i for i in graph[m] if i in policies or i.startswith("uavplace.rl.agent")) for m in below}
     assert not any(found.values()), found
 
 
 #: A task folder's files, lowest first: a file imports the task's lower files only (``rl/tasks/__init__.py``).
-TASK_FILES = ("config", "maps", "env", "policies", "searcher", "learner", "rollout", "zoo")
+TASK_FILES = ("config", "maps", "env", "policies", "searcher", "learner", "rollout", "gym", "zoo")
 
 
 def test_the_task_folders_have_the_same_files_layered():
-    """Every folder of ``rl/tasks/`` holds the task files (``TASK_FILES``; ``learner`` and ``zoo`` where the task has them) and nothing else, and a
+    """Every folder of ``rl/tasks/`` holds the task files (``TASK_FILES``; ``maps``, ``learner`` and ``zoo`` where the task has them) and nothing else, and a
     file imports only the files of its task below it (the package's ``__init__`` re-exports them all)."""
     graph = _imports()
     tasks = [p for p in sorted((REPO / "rl" / "tasks").iterdir()) if p.is_dir() and p.name != "__pycache__"]
     assert tasks
     for folder in tasks:
         files = {p.stem for p in folder.glob("*.py")} - {"__init__"}
-        assert set(TASK_FILES) - {"learner", "zoo"} <= files <= set(TASK_FILES), folder
+        # placement's map set is the engine's (rl/world/maps.py); tracking and fleet lay theirs on it
+        assert set(TASK_FILES) - {"learner", "zoo", "maps"} <= files <= set(TASK_FILES), folder
         prefix = f"uavplace.rl.tasks.{folder.name}."
         for name in files:
             mine = {i.removeprefix(prefix) for i in graph[prefix + name] if i.startswith(prefix)}
             above = {i for i in mine if TASK_FILES.index(i) >= TASK_FILES.index(name)}
             assert not above, f"{folder.name}/{name}.py imports {sorted(above)}"
+
+
+#: The layers inside ``rl/``, lowest first: a module imports its own layer's and lower ones' only. ``rl.config``,
+#: ``rl.randomness`` and ``rl.predictor`` stand on nothing of ``rl/`` but each other.
+RL_LAYERS = (
+    ("config", "randomness", "predictor"),
+    ("world",),
+    ("belief",),
+    ("tasks",),
+    ("agent", "cli"),
+)
+
+
+def _rl_layer(module: str) -> int:
+    top = module.split(".")[2] if module.count(".") >= 2 else ""
+    return next(n for n, names in enumerate(RL_LAYERS) if top in names)
+
+
+def test_the_layers_of_rl_the_world_below_the_tasks_below_the_learner():
+    """Inside ``rl/``: the engine (``rl/world``: map set, episode rows, statistics, view, observation settings) imports
+    no task, belief, learner or command; the belief stands on the world; a task imports no learner, no Gymnasium face
+    and no command (the trainer calls the tasks, never the other way); and the engine's modules are there."""
+    graph = _imports()
+    rl = {m: found for m, found in graph.items() if m.startswith("uavplace.rl.") and m.count(".") >= 2}
+    assert {"uavplace.rl.world." + m for m in ("settings", "maps", "rows", "stats", "view")} <= set(rl)
+    up = sorted(
+        (m, i)
+        for m, found in rl.items()
+        for i in found
+        if i.startswith("uavplace.rl.") and i.count(".") >= 2 and _rl_layer(i) > _rl_layer(m)
+    )
+    assert not up, up

@@ -58,8 +58,8 @@ def test_sb3_trains_and_plays_in_the_report_evaluation(tmp_path, root, algo):
     from uavplace.eval.evaluate import ReportConfig, evaluate
     from uavplace.eval.peer import load_peer, train_sb3
     from uavplace.rl.tasks.placement.config import EnvConfig
-    from uavplace.rl.tasks.placement.maps import MapSet
     from uavplace.rl.tasks.placement.policies import GeniePolicy
+    from uavplace.rl.world.maps import MapSet
 
     bundle = load_bundle("tiny", root=root)
     maps = MapSet([bundle], EnvConfig(t_max=30))

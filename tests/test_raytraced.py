@@ -138,8 +138,8 @@ def test_a_searcher_on_the_traced_tier_reads_no_users_map_and_caches_its_maps(ti
     from uavplace.rl.belief import PredictionCache
     from uavplace.rl.config import SearchConfig
     from uavplace.rl.tasks.placement.config import EnvConfig
-    from uavplace.rl.tasks.placement.maps import MapSet
     from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
+    from uavplace.rl.world.maps import MapSet
 
     maps = MapSet.load("tiny", EnvConfig(t_max=T_MAX, rotate=False), root=str(tiny))
     traced: list[int] = []
@@ -159,7 +159,7 @@ def test_a_searcher_on_the_traced_tier_reads_no_users_map_and_caches_its_maps(ti
 
 
 def _public(maps):  # noqa: ANN001, ANN202
-    from uavplace.rl.view import PublicMaps
+    from uavplace.rl.world.view import PublicMaps
 
     return PublicMaps.of(maps)
 

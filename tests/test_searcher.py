@@ -14,11 +14,12 @@ from tests.conftest import REPO
 from uavplace.rl.config import SearchConfig
 from uavplace.rl.predictor import PhysicsConstants, Scene, fresnel_nu, knife_edge_db, load_constants, path_features
 from uavplace.rl.tasks.placement.config import EnvConfig
-from uavplace.rl.tasks.placement.maps import MapSet
 from uavplace.rl.tasks.placement.policies import RandomWalkPolicy
-from uavplace.rl.tasks.placement.rollout import episode_stats, run_episodes
+from uavplace.rl.tasks.placement.rollout import run_episodes
 from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
-from uavplace.rl.view import PublicMaps
+from uavplace.rl.world.maps import MapSet
+from uavplace.rl.world.stats import episode_stats
+from uavplace.rl.world.view import PublicMaps
 from uavplace.schemas import InputError
 
 
@@ -278,7 +279,7 @@ def test_belief_channel_is_the_searchers_belief_turned_with_the_map(tiny):
     canvas turned by a quarter turn, measured at the turned cells, shows the same cover canvas turned."""
     from uavplace.rl.belief import BeliefTracker, PredictionCache
     from uavplace.rl.predictor import PhysicsPredictor
-    from uavplace.rl.tasks.placement.maps import transform
+    from uavplace.rl.world.maps import transform
 
     maps = MapSet.load("tiny", EnvConfig(t_max=50, rotate=True, symmetries=4), root=str(tiny))
     policy = MapSearchPolicy(_constants())
@@ -387,7 +388,7 @@ def test_prediction_cache_uses_only_whole_entries_of_its_own_key(tmp_path):
     import time
 
     from tests.conftest import sparse_file
-    from uavplace.rl.belief import _entry_meta
+    from uavplace.rl.belief.cache import _entry_meta
 
     cache, key, mu, p_dead = _cache_entry(tmp_path)
     hit = cache.load(key, mu.shape)

@@ -540,7 +540,7 @@ def test_rotated_routes_are_their_citys_quarter_turns(root):
     """Training's rotate: each route also under the quarter turns of its city; the identity comes first and is the
     unrotated RouteSet (same maps, same keys: evaluation episodes do not move); each turn's maps are the turned maps
     on the turned canvas, and the oracle bounds the re-planning genie there too."""
-    from uavplace.rl.tasks.placement.maps import transform
+    from uavplace.rl.world.maps import transform
 
     b = load_bundle("walk", root=root)
     config = TrackingConfig(horizon=20, window=9)

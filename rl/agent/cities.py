@@ -10,8 +10,9 @@ import numpy as np
 from uavplace.dataset.bundle import Bundle
 from uavplace.rl.agent.config import DQNConfig
 from uavplace.rl.agent.dqn import DQNPolicy
-from uavplace.rl.tasks.placement.maps import MapSet
-from uavplace.rl.tasks.placement.rollout import run_episodes, summarise
+from uavplace.rl.tasks.placement.rollout import run_episodes
+from uavplace.rl.world.maps import MapSet
+from uavplace.rl.world.stats import summarise
 from uavplace.schemas import InputError
 
 

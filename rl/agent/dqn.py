@@ -25,8 +25,9 @@ from uavplace.rl.agent.config import DQNConfig
 from uavplace.rl.agent.network import FoveaQNetwork, MeanQ, QNetwork
 from uavplace.rl.agent.replay import Batch
 from uavplace.rl.randomness import stream_key
-from uavplace.rl.tasks.placement.env import OBS_OFFSET, BatchedEnv
+from uavplace.rl.tasks.placement.env import BatchedEnv
 from uavplace.rl.tasks.placement.policies import episode_draws, pick_legal, random_legal
+from uavplace.rl.world.rows import OBS_OFFSET
 
 
 def revisit_penalty(visits: np.ndarray, weight: float, device: torch.device) -> torch.Tensor:

@@ -46,7 +46,7 @@ from uavplace.rl.agent.replay import ReplayBuffer
 from uavplace.rl.agent.resume import Interrupted, RunState, interrupts, read_state, start_from
 from uavplace.rl.agent.runs import LAST, RUN_JSON, RunRecord, read_run_json
 from uavplace.rl.tasks.placement.env import BatchedEnv
-from uavplace.rl.tasks.placement.maps import MapSet
+from uavplace.rl.world.maps import MapSet
 from uavplace.schemas import InputError
 from uavplace.schemas.base import uavplace_version
 from uavplace.schemas.bundle import BundleSettings

@@ -5,17 +5,6 @@ has them ``learner`` (the task as the learner's environment, when its env is not
 
 from __future__ import annotations
 
-import importlib
-from collections.abc import Callable
+from uavplace.rl.world import exported
 
-
-def exported(package: str, exports: dict[str, str]) -> Callable[[str], object]:
-    """A task package's ``__getattr__``: each name of ``exports`` imported from the file that holds it on first use,
-    so that reading one file (the task's settings, for a command line) does not load the others."""
-
-    def getattr_(name: str) -> object:
-        if name not in exports:
-            raise AttributeError(f"module {package!r} has no attribute {name!r}")
-        return getattr(importlib.import_module(f"{package}.{exports[name]}"), name)
-
-    return getattr_
+__all__ = ["exported"]

@@ -41,6 +41,7 @@ FILES = {
     "searcher": ("FleetSearcher",),
     "learner": ("FleetTrainEnv",),
     "rollout": ("run_fleet",),
+    "gym": ("UavFleetEnv",),
 }
 EXPORTS = {name: file for file, names in FILES.items() for name in names}
 

@@ -5,25 +5,20 @@ from __future__ import annotations
 import numpy as np
 from pydantic import Field, field_validator
 
-from uavplace.rl.config import TaskSettings
-from uavplace.rl.tasks.placement.maps import MOVES
+from uavplace.rl.world.maps import MOVES
+from uavplace.rl.world.settings import ObservationSettings
 
 #: The fleet's 5 actions per UAV in map coordinates (dy, dx): the 4 placement moves, then 4 = stay.
 FLEET_MOVES = np.vstack([MOVES, [[0, 0]]])
 STAY = 4
 
 
-class FleetConfig(TaskSettings):
+class FleetConfig(ObservationSettings):
     """Everything that defines the fleet task (saved with every run and report that uses it)."""
 
     uavs: int = Field(default=2, ge=1, le=4, description="Fleet: UAVs K in the fleet")
     users: int = Field(default=3, ge=1, le=6, description="Fleet: users N served at once, drawn from a city's traced users")
     t_max: int = Field(default=500, ge=1, description="Step budget: truncated after t_max steps")
-    window: int = Field(default=61, ge=3, le=1001, description="Observation side in cells (odd), centred on each UAV")
-    p_h_db: float = Field(default=50.0, description="P_H: the memory value of unvisited cells [dB]")
-    p_l_db: float = Field(default=-150.0, description="P_L: the memory value of blocked cells and beyond the edge [dB]")
-    edge_height_m: float = Field(default=100.0, description="Height channel value beyond the map edge [m above the UAV]")
-    height_clip_m: float = Field(default=100.0, gt=0, description="Height channel clipped to +/- this [m]")
     c_e: float = Field(default=1.2, description="Reward per UAV entering a cell the fleet never visited")
     success_bonus: float = Field(default=100.0, description="Reward when every user is served")
 

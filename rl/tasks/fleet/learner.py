@@ -10,7 +10,7 @@ from uavplace.rl.tasks.fleet.env import BatchedFleet, FleetView
 from uavplace.rl.tasks.fleet.maps import FleetMaps
 from uavplace.rl.tasks.fleet.policies import FleetPlacement
 from uavplace.rl.tasks.placement.config import EnvConfig
-from uavplace.rl.tasks.placement.maps import MOVES
+from uavplace.rl.world.maps import MOVES
 from uavplace.schemas.base import InputError
 
 
@@ -27,7 +27,7 @@ class FleetTrainEnv:
     with it (every user served, or ``t_max``); a finished episode starts another, drawn with ``rng`` from the
     training cities (``FleetMaps.draw``). The genie's moves of a row (the auxiliary head's labels): those that start a
     shortest path to a cell serving every user dealt to its UAV (``FleetMaps.group_reach``; none where no cell
-    does). The trainer's interface is ``rl.tasks.placement.env.EpisodeRows``'s, checkpoints included (``state_arrays``: the
+    does). The trainer's interface is ``rl.world.rows.EpisodeRows``'s, checkpoints included (``state_arrays``: the
     fleet's episode state; the dealt rows are read afresh from it)."""
 
     state_arrays = ("city", "users", "pos", "t", "memory", "visits", "best", "served_at", "done", "episode_id", "keys")

@@ -163,7 +163,7 @@ class FleetPlacement:
     def bind(self, maps: FleetMaps) -> FleetPlacement:
         """Play on ``maps``' cities: a placement env (``BatchedEnv``) row per UAV and episode row keeps its agent's
         channels; that env's maps hold no user's map (SINR, dead cells and the genie's distances blanked)."""
-        from uavplace.rl.tasks.placement.maps import MapSet
+        from uavplace.rl.world.maps import MapSet
 
         if maps.bundles is None:
             raise ValueError("independent placement agents read the bundles: FleetMaps.of(bundles, config)")

@@ -62,13 +62,13 @@ class FleetSearcher:
 
     def bind(self, maps: FleetMaps) -> FleetSearcher:
         """Read ``maps``' public maps (its bundles' heights, grid and settings; never a user's map)."""
-        from uavplace.rl.tasks.placement.config import EnvConfig
-        from uavplace.rl.tasks.placement.maps import MapSet
-        from uavplace.rl.view import PublicMaps
+        from uavplace.rl.world.maps import MapSet
+        from uavplace.rl.world.settings import CanvasSettings
+        from uavplace.rl.world.view import PublicMaps
 
         if maps.bundles is None:
             raise ValueError("the fleet searcher predicts from bundles: FleetMaps.of(bundles, config)")
-        env = EnvConfig(window=maps.config.window, p_t_db=maps.config.p_t_db, rotate=False)
+        env = CanvasSettings(window=maps.config.window, p_t_db=maps.config.p_t_db, rotate=False)
         self.public, self.symmetries = PublicMaps.of(MapSet(maps.bundles, env)), env.symmetries
         return self
 

@@ -1,6 +1,6 @@
 """The fleet task (``rl.tasks.fleet``) as a PettingZoo parallel environment: one agent per UAV.
 
-``parallel_env(dataset, ...)`` (PettingZoo's convention) wraps ``uavplace/UavFleet-v0`` (``rl.env.UavFleetEnv``):
+``parallel_env(dataset, ...)`` (PettingZoo's convention) wraps ``uavplace/UavFleet-v0`` (``rl.tasks.fleet.gym.UavFleetEnv``):
 agents ``uav_0`` ... ``uav_{K-1}``, each observing its own window ``[2 + N, window, window]`` (the building
 heights, the other UAVs, every user's shared SINR memory) and choosing one of 5 actions (the 4 moves, 4 = stay).
 The fleet shares one reward (every agent gets it) and ends together: every agent is terminated when every user is
@@ -15,8 +15,8 @@ from __future__ import annotations
 import numpy as np
 from pettingzoo import ParallelEnv
 
-from uavplace.rl.env import UavFleetEnv
 from uavplace.rl.tasks.fleet import STAY
+from uavplace.rl.tasks.fleet.gym import UavFleetEnv
 
 
 class UavFleetParallelEnv(ParallelEnv):

@@ -3,7 +3,7 @@
 Every policy, learned or not, has the same interface (the evaluator scores any of them
 the same way): ``reset(rows)`` when episodes (re)start in those rows, and
 ``act(obs, mask, env) -> [N] actions``. Only a privileged policy (``privileged = True``: the genie)
-receives the environment itself; every other policy receives an ``rl.view.AgentView`` (``rl.tasks.placement.rollout``
+receives the environment itself; every other policy receives an ``rl.world.view.AgentView`` (``rl.tasks.placement.rollout``
 hands it over): the observation, the legal-move mask, the UAV's own measurements and the building
 map, never a user's map. Their random choices are drawn per episode and step from a stream of
 their own name and seed (``episode_draws``), never from a generator shared across episodes.
@@ -16,8 +16,9 @@ from typing import Protocol
 import numpy as np
 
 from uavplace.rl.randomness import stream_key, uniforms
-from uavplace.rl.tasks.placement.env import BatchedEnv, decode_obs
-from uavplace.rl.tasks.placement.maps import MOVES
+from uavplace.rl.tasks.placement.env import BatchedEnv
+from uavplace.rl.world.maps import MOVES
+from uavplace.rl.world.rows import decode_obs
 
 
 class Policy(Protocol):

@@ -9,7 +9,7 @@ and moves one cell along a shortest path to the best; it plans again at every st
 the next measurement. With ``SearchConfig.error_share`` > 0 the cover planner krigs the predictor's errors: each
 candidate's chance near the cells measured moved by what they say of its map there (``BeliefModel.kriged_cover``).
 
-It reads only what the UAV knows (an ``rl.view.AgentView``): its position, its own measurements and the public
+It reads only what the UAV knows (an ``rl.world.view.AgentView``): its position, its own measurements and the public
 maps. ``rl.tasks.fleet`` runs the searcher for a fleet of UAVs, ``rl.tasks.tracking.searcher`` for a user who walks.
 """
 
@@ -25,8 +25,8 @@ from scipy.sparse.csgraph import shortest_path
 from uavplace.rl.belief import BeliefModel, CandidateMaps, PredictionCache, posterior_cover, rows_of
 from uavplace.rl.config import SearchConfig
 from uavplace.rl.predictor import PhysicsConstants, Predictor
-from uavplace.rl.tasks.placement.maps import MOVES
-from uavplace.rl.view import AgentView, PublicMaps
+from uavplace.rl.world.maps import MOVES
+from uavplace.rl.world.view import AgentView, PublicMaps
 from uavplace.schemas.constants import reaches_target
 
 #: The searcher's name in tables (its ablation's: SEARCHER + ", no buildings").

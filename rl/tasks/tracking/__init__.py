@@ -36,6 +36,7 @@ FILES = {
     "policies": ("Holding", "MovesOnly", "OraclePolicy", "PlacementInTracking", "ReplanningGenie", "TrackingAgent"),
     "searcher": ("TRACKING_SEARCHER", "TrackingSearchPolicy", "fit_motion", "transition"),
     "rollout": ("TrackingEpisodes", "run_tracking"),
+    "gym": ("UavTrackingEnv",),
 }
 EXPORTS = {name: file for file, names in FILES.items() for name in names}
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 from pydantic import Field, model_validator
 
-from uavplace.rl.config import SearchConfig, TaskSettings
-from uavplace.rl.tasks.placement.config import EnvConfig
-from uavplace.rl.tasks.placement.maps import MOVES
+from uavplace.rl.config import SearchConfig
+from uavplace.rl.world.maps import MOVES
+from uavplace.rl.world.settings import CanvasSettings, ObservationSettings
 from uavplace.schemas.base import Contract
 
 #: The 5 tracking actions in canvas coordinates (dy, dx): the 4 placement moves, then 4 = stay.
@@ -24,22 +24,17 @@ STEPS = {"limit": "t_max"}
 OBSERVATION_FIELDS = ("window", "blind", "p_h_db", "p_l_db", "age_clip_s", "edge_height_m", "height_clip_m")
 
 
-class TrackingConfig(TaskSettings):
+class TrackingConfig(ObservationSettings):
     """Everything that defines the tracking task (saved with every run and report that uses it)."""
 
     horizon: int = Field(300, ge=1, le=100_000, description="Tracking: steps per episode (0.4 s each)", json_schema_extra=STEPS)
     uav_speed_mps: float = Field(default=10.0, gt=0, le=100, description="UAV speed: one cell per cell side / speed seconds")
-    window: int = Field(default=61, ge=3, description="Observation side in cells (odd), centred on the UAV")
     blind: bool = Field(default=False, description="No height channel; blocked cells shown as P_H in the SINR memory")
-    p_h_db: float = Field(default=50.0, description="SINR memory of unvisited cells [dB]")
-    p_l_db: float = Field(default=-150.0, description="SINR memory of blocked cells and beyond the edge [dB]")
     age_clip_s: float = Field(
         default=100.0, gt=0, description="Measurement ages are clipped at this [s]; unvisited cells show it"
     )
     cover_reward: float = Field(default=1.0, description="Reward of a covered step")
     gain_weight: float = Field(default=0.05, description="Reward per dB of SINR change")
-    edge_height_m: float = Field(default=100.0, description="Height channel beyond the map edge [m]")
-    height_clip_m: float = Field(default=100.0, gt=0, description="Height channel clipped to +/- this [m]")
     rotate: bool = Field(
         default=False,
         description="Training: every route also under the quarter turns of its city (each city seen four ways, as "
@@ -55,10 +50,10 @@ class TrackingConfig(TaskSettings):
         agent trained with ``agent`` sees when it plays this task."""
         return self.model_copy(update={k: getattr(agent, k) for k in OBSERVATION_FIELDS})
 
-    def placement_env(self) -> EnvConfig:
-        """The placement ``EnvConfig`` whose canvases (height, blocked, padding) this task shares."""
+    def canvas(self) -> CanvasSettings:
+        """The canvas settings of the map set (``rl.world.maps.MapSet``) this task's routes are laid out on."""
         shared = {"p_t_db", *OBSERVATION_FIELDS} - {"age_clip_s"}
-        return EnvConfig(**self.model_dump(include=shared), rotate=False)
+        return CanvasSettings(**self.model_dump(include=shared), rotate=False)
 
 
 class MotionModel(Contract):

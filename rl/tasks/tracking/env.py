@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from uavplace.rl.randomness import combine
-from uavplace.rl.tasks.placement.env import EpisodeRows, encode_obs, refuse_bad_rows
 from uavplace.rl.tasks.tracking.config import TRACK_MOVES
 from uavplace.rl.tasks.tracking.maps import RouteSet
+from uavplace.rl.world.rows import EpisodeRows, encode_obs, refuse_bad_rows
 
 
 class TrackingEnv(EpisodeRows):
@@ -15,9 +15,9 @@ class TrackingEnv(EpisodeRows):
     ``RouteSet.sample_episodes``) or drawn with the generator of ``reset(seed)``; a finished episode restarts at once
     (``info["final_index"]``, with the ended rows' last observation, mask, cell and route point) unless the queue has
     run out (``exhausted``), or unless ``autoreset`` is False (the single Gymnasium env). ``compact``: uint8
-    observations (``rl.tasks.placement.env.encode_obs``, 1 dB / 1 m / 1 s a step), as the trainer stores them.
+    observations (``rl.world.rows.encode_obs``, 1 dB / 1 m / 1 s a step), as the trainer stores them.
 
-    The trainer's interface is placement's (``rl.tasks.placement.env.EpisodeRows``, which it shares with ``BatchedEnv``), with
+    The trainer's interface is placement's (``rl.world.rows.EpisodeRows``, which it shares with ``BatchedEnv``), with
     ``info["sinr"]``, ``info["steps"]`` and ``info["covered_share"]`` (each row's episode so far; at its end, the
     ended episode's)."""
 

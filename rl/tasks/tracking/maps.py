@@ -6,8 +6,8 @@ import numpy as np
 
 from uavplace.dataset.bundle import Bundle
 from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target
-from uavplace.rl.tasks.placement.maps import MOVES, MapSet, transform
 from uavplace.rl.tasks.tracking.config import STAY, TRACK_MOVES, TrackingConfig
+from uavplace.rl.world.maps import MOVES, MapSet, transform
 
 
 def user_point(times_s: np.ndarray, start_s: np.ndarray, t: np.ndarray, step_s: np.ndarray) -> np.ndarray:
@@ -40,7 +40,7 @@ class RouteSet:
         if not with_routes:
             raise ValueError(f"no bundle with routes among {[b.city for b in bundles]}: simulate them with --routes")
         self.bundles, self.config = with_routes, config
-        self.maps = MapSet(with_routes, config.placement_env())
+        self.maps = MapSet(with_routes, config.canvas())
         p, L, S = self.maps.pad, self.maps.side, self.maps.symmetries
         self.turns = S if rotate else 1  # the symmetries each route is laid under (the identity first)
         total = self.turns * sum(len(b.routes) for b in with_routes)

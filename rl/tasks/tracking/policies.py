@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 
 from uavplace.rl.tasks.placement.config import EnvConfig
-from uavplace.rl.tasks.placement.maps import MapSet
 from uavplace.rl.tasks.tracking.config import ACTION_OF, STAY, TrackingConfig
 from uavplace.rl.tasks.tracking.env import TrackingEnv
 from uavplace.rl.tasks.tracking.maps import oracle_path
+from uavplace.rl.world.maps import MapSet
 
 
 class MovesOnly:

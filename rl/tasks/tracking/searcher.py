@@ -32,7 +32,7 @@ from uavplace.rl.belief import CandidateMaps, posterior_cover
 from uavplace.rl.config import PLACEMENT_PLAN_SETTINGS
 from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
 from uavplace.rl.tasks.tracking.config import STAY, MotionModel
-from uavplace.rl.view import public_maps
+from uavplace.rl.world.view import public_maps
 
 #: The tracking searcher's name in tables.
 TRACKING_SEARCHER = "tracking searcher"

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from uavplace.dataset.bundle import public_settings
-from uavplace.rl.tasks.placement.config import EnvConfig
-from uavplace.rl.tasks.placement.maps import MOVES, MapSet, transform
+from uavplace.rl.world.maps import MOVES, MapSet, transform
+from uavplace.rl.world.settings import CanvasSettings
 
 
 @dataclass(frozen=True)
@@ -34,7 +34,7 @@ class PublicMaps:
     shapes: np.ndarray
     pad: int
     symmetries: int
-    config: EnvConfig
+    config: CanvasSettings
     settings: tuple[dict, ...]
     bundle_heights: tuple[np.ndarray, ...]
 
@@ -81,7 +81,7 @@ class AgentView:
 
     def __init__(self, env: object, public: PublicMaps) -> None:
         self.public = public
-        self.config: EnvConfig = public.config
+        self.config: CanvasSettings = public.config
         self.pos, self.t = _frozen(env.pos), _frozen(env.t)
         self.memory, self.visits = _frozen(env.memory), _frozen(env.visits)
         self.exhausted = _frozen(env.exhausted)

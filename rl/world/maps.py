@@ -21,7 +21,7 @@ from uavplace.dataset.bundle import Bundle, load_bundle
 from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target, valid_starts
 from uavplace.infra.files import in_corpus
 from uavplace.rl.randomness import canvas_key, stream_key, uniforms
-from uavplace.rl.tasks.placement.config import EnvConfig
+from uavplace.rl.world.settings import CanvasSettings
 from uavplace.schemas import InputError
 
 #: Moves of the 4 actions in canvas coordinates (dy, dx): 0 north (+y), 1 east (+x), 2 south (-y), 3 west (-x).
@@ -35,7 +35,7 @@ def transform(a: np.ndarray, k: int) -> np.ndarray:
 
 
 def city_weight(weights: dict[str, float], city: str) -> float:
-    """``city``'s weight in ``EnvConfig.city_weights``: its own name's, else its corpus's, else 1."""
+    """``city``'s weight in ``CanvasSettings.city_weights``: its own name's, else its corpus's, else 1."""
     if city in weights:
         return weights[city]
     return next((w for name, w in weights.items() if in_corpus(city, name)), 1.0)
@@ -49,7 +49,7 @@ class Scenario:
 
 
 class MapSet:
-    """The maps of one or more bundles, for one ``EnvConfig``. Arrays are indexed by view (or view-of-map).
+    """The maps of one or more bundles, for one ``CanvasSettings``. Arrays are indexed by view (or view-of-map).
 
     ``height`` [num_bundles * S, L, L] float32, ``blocked`` [num_bundles * S, L, L] bool,
     ``sinr`` / ``steps`` [num_views, L, L] float32 / int32 (``steps``: genie's BFS moves to a target),
@@ -59,7 +59,7 @@ class MapSet:
     episode: P_H for a block with a cell ``memory0`` shows as P_H, else P_L).
     """
 
-    def __init__(self, bundles: list[Bundle], config: EnvConfig, users: list[np.ndarray] | None = None) -> None:
+    def __init__(self, bundles: list[Bundle], config: CanvasSettings, users: list[np.ndarray] | None = None) -> None:
         """``users``: the user indices to play in each bundle (default: ``config.split``'s, or all)."""
         if not bundles:
             raise ValueError("a MapSet needs at least one bundle")
@@ -190,7 +190,7 @@ class MapSet:
         return y // z + p, x // z + p
 
     @classmethod
-    def load(cls, datasets: list[str] | str, config: EnvConfig, root: str = "data/processed") -> MapSet:
+    def load(cls, datasets: list[str] | str, config: CanvasSettings, root: str = "data/processed") -> MapSet:
         names = [datasets] if isinstance(datasets, str) else list(datasets)
         return cls([load_bundle(n, root=root) for n in names], config)
 

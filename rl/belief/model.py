@@ -1,57 +1,27 @@
-"""The map searcher's belief, apart from any policy: the predicted maps of every candidate user cell, their cache and
-the belief arithmetic (docs/searcher.md; the predictor's tiers and their loader are ``rl.predictor``).
-
-For each canvas (a city under a symmetry) the predictor (a tier of ``rl.predictor``) gives the SINR map of a
-user at every *candidate* cell (open ground on a lattice of ``stride`` cells; with ``buildings=False`` every lattice
-cell, the predictor shown open ground: the map ablation): ``CandidateMaps``. A belief is the log-probability of each
-candidate, uniform at the start. After every measurement ``m`` at cell ``x``:
-
-- ``m`` above the SINR floor: ``log b += temper * log[(1 - p_dead) N(m; mu_c(x), sigma)]``;
-- ``m`` at the floor (dead, or live and below it): censored, ``log b += temper * log[p_dead + (1 - p_dead)
-  Phi((floor - mu_c(x)) / sigma)]``,
-
-with ``mu_c(x)`` the predicted SINR, ``p_dead`` the predictor's dead-cell probability and ``sigma`` its measured
-error, a share ``outlier`` of the likelihood flat. ``temper`` < 1 makes up for the errors of one candidate's map
-being alike from cell to cell. The posterior probability that a cell ``x'`` reaches P_T is ``sum_c b_c (1 - p_dead)
-Phi((mu_c(x') - P_T) / sigma)`` (``posterior_cover``).
-
-The predicted maps of a canvas are computed once and kept on disk (``PredictionCache``), keyed by the bundle version,
-the symmetry, the candidate lattice, the blanked map and the predictor's version (its weights, constants and code),
-and checked whenever they are read. ``BeliefModel`` holds the arithmetic, ``BeliefTracker`` the belief of every row
-of a ``BatchedEnv`` as an observation channel (the hybrid learner, ``EnvConfig.belief_channel``). The planners
-(``rl.tasks.placement.searcher``, ``rl.tasks.tracking.searcher``, ``rl.tasks.fleet``) use it; this module imports none of them.
-"""
+"""The belief arithmetic (``BeliefModel``): a canvas's candidates and their predicted maps (``CandidateMaps``), the
+likelihood of a measurement, the posterior probability that a cell reaches P_T (``posterior_cover``); the package's
+docstring says the model."""
 
 from __future__ import annotations
 
-import hashlib
-import io
 import math
-import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import torch
 from scipy.special import ndtr, ndtri
 
-from uavplace.infra.files import atomic_write_bytes, read_small_file
-from uavplace.infra.limits import check_limit, limits
+from uavplace.infra.limits import check_limit
+from uavplace.rl.belief.cache import PredictionCache
 from uavplace.rl.config import SearchConfig
 from uavplace.rl.predictor import PhysicsConstants, PhysicsPredictor, Predictor, Scene
-from uavplace.rl.tasks.placement.maps import MapSet, transform
-from uavplace.rl.view import PublicMaps
-from uavplace.schemas import InputError
+from uavplace.rl.world.view import PublicMaps
 
 #: Candidates predicted at once between two progress reports (a multiple of the learned tier's batch of 16).
 PREDICT_CHUNK = 128
 #: The span of SINR [dB] over which the likelihood's flat share is spread.
 OUTLIER_SPAN_DB = 100.0
-#: The folder of cached predicted maps beside the bundles (safe to delete: they are made again on demand).
-PREDICTIONS = ".predictions"
-#: Bytes a predicted-maps cache entry may hold beside its two float16 arrays: the archive's headers and its meta.
-ENTRY_BYTES = 1 << 16
 
 
 @dataclass(frozen=True)
@@ -103,77 +73,6 @@ def posterior_cover(log_b: np.ndarray, cover: np.ndarray) -> np.ndarray:
     b = np.exp(log_b - log_b.max(axis=1, keepdims=True))
     b /= b.sum(axis=1, keepdims=True)
     return b @ cover
-
-
-class PredictionCache:
-    """Predicted maps on disk, one ``.npz`` per canvas, named by the hash of everything they depend on (the bundle, the
-    symmetry, the lattice, the blanked map, the predictor's weights, constants and code: ``Predictor.version``).
-
-    An entry is data, never trusted as it is (docs/security.md): it is read only when it is a regular file inside the
-    cache folder (no link, no FIFO) of at most its two float16 arrays and ``ENTRY_BYTES`` (a larger one is not read),
-    and used only when it names its own key, its arrays hash to the sha256 it records, they have the expected shape,
-    and every value is finite with the dead probability in [0, 1] and the SINR within +-``MAX_ABS_DB``. Anything else is predicted again and replaced."""
-
-    #: The largest |SINR| [dB] a cached prediction may hold.
-    MAX_ABS_DB = 400.0
-
-    def __init__(self, folder: str | Path | None) -> None:
-        # absolute: a copy in a Ray task (another working folder) reads the same cache
-        self.folder = None if folder is None else Path(folder).absolute()
-
-    def path(self, key: str) -> Path | None:
-        return None if self.folder is None else self.folder / f"{key}.npz"
-
-    def load(self, key: str, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray] | None:
-        """(mu, p_dead) as float32 if the entry passes every check of the class's docstring; else None (made again)."""
-        path = self.path(key)
-        if path is None or path.is_symlink():
-            return None
-        try:
-            # at most what two float16 arrays of this shape and the entry's meta take: a larger file is not ours, and
-            # is never read (a sparse file of gigabytes within prediction_bytes had been read whole)
-            bound = min(ENTRY_BYTES + 4 * shape[0] * shape[1], limits().prediction_bytes)
-            data = read_small_file(path, "a predicted-maps cache entry", max_bytes=bound)
-        except InputError:  # missing, a link, a FIFO, a folder, too large
-            return None
-        try:
-            with np.load(io.BytesIO(data), allow_pickle=False) as z:
-                if int(sum(z.zip.getinfo(n).file_size for n in z.zip.namelist())) > 2 * 4 * (shape[0] * shape[1] + 64):
-                    return None  # inflates beyond two float16 arrays of this shape: not ours
-                mu, p_dead, meta = z["mu"], z["p_dead"], bytes(z["meta"])
-        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
-            return None  # a damaged or older cache file is made again
-        if mu.shape != shape or p_dead.shape != shape or mu.dtype != np.float16 or p_dead.dtype != np.float16:
-            return None
-        if meta != _entry_meta(key, mu, p_dead):
-            return None
-        mu, p_dead = mu.astype(np.float32), p_dead.astype(np.float32)
-        if not (np.isfinite(mu).all() and np.isfinite(p_dead).all()):
-            return None
-        if (np.abs(mu) > self.MAX_ABS_DB).any() or (p_dead < 0).any() or (p_dead > 1).any():
-            return None
-        return mu, p_dead
-
-    def save(self, key: str, mu: np.ndarray, p_dead: np.ndarray) -> None:
-        """Keep ``mu`` and ``p_dead`` [C, M] as float16 with their key and sha256 (atomically; a cache that can't be
-        written, or whose entry's path is not a regular file, is skipped)."""
-        path = self.path(key)
-        if path is None:
-            return
-        mu16, p16 = mu.astype(np.float16), p_dead.astype(np.float16)
-        buf = io.BytesIO()
-        np.savez(buf, mu=mu16, p_dead=p16, meta=np.frombuffer(_entry_meta(key, mu16, p16), np.uint8))
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            atomic_write_bytes(path, buf.getvalue())
-        except (InputError, OSError):
-            pass
-
-
-def _entry_meta(key: str, mu: np.ndarray, p_dead: np.ndarray) -> bytes:
-    """What a cache entry records of itself: its key and the sha256 of its two float16 arrays."""
-    digest = hashlib.sha256(np.ascontiguousarray(mu).tobytes() + np.ascontiguousarray(p_dead).tobytes()).hexdigest()
-    return f"{key}:{digest}".encode()
 
 
 class BeliefModel:
@@ -429,139 +328,3 @@ class BeliefModel:
             like[~floor] = live + eps / OUTLIER_SPAN_DB
         out = log_b + self.config.temper * np.log(like + 1e-30)
         return out - out.max(axis=1, keepdims=True)
-
-
-class BeliefTracker:
-    """The searcher's belief for every row of a ``BatchedEnv``, as an observation channel (``EnvConfig.belief_channel``):
-    the hybrid of docs/searcher.md, a learner that reads where the belief says P_T is likely.
-
-    Per row, ``log_b`` [N, C_max] the log-belief over the candidate cells of its city (the searcher's ``update`` after
-    every measurement, the start's included; -inf past the city's candidates) and ``cover`` [N, L, L] the posterior
-    probability [%] that each legal canvas cell reaches P_T (0 on blocked cells and beyond the map; with ``window``,
-    current only in the window centred on the row's last measurement, what its observation reads). A canvas under
-    symmetry ``k`` reads its city's predictions at ``k = 0`` through the turned column map (``candidates``): the
-    predicted maps of the unturned city, turned, never predicted again. It is told only what the UAV measures
-    (``start``, ``measure``): the users' maps stay in the env. With ``MapSet.buildings_shown`` False (after
-    ``show_buildings(None)``) the predictor is shown open ground, as in the searcher's ablation.
-    """
-
-    def __init__(
-        self,
-        maps: MapSet,
-        num_envs: int,
-        predictor: Predictor,
-        config: SearchConfig,
-        cache: PredictionCache,
-        window: int | None = None,
-    ) -> None:
-        self.maps = maps
-        self.window = window
-        self.public = PublicMaps.of(maps)
-        self.models = {b: BeliefModel(predictor, config.model_copy(update={"buildings": b}), cache) for b in (True, False)}
-        self._columns: dict[tuple[int, bool], np.ndarray] = {}
-        self._around: dict[tuple[int, bool], np.ndarray] = {}  # [.., w, w] windows of each canvas's column map
-        if window is not None and window // 2 > self.public.pad:
-            raise ValueError(f"a window of {window} cells reaches past the canvas's pad of {self.public.pad}")
-        S = self.public.symmetries
-        width = max(len(self.candidates(S * i)[0].cells) for i in range(len(maps.bundles)))
-        self.log_b = np.full((num_envs, width), -np.inf, np.float32)
-        self.canvas = np.zeros(num_envs, np.int64)
-        self.cover = np.zeros((num_envs, maps.side, maps.side), np.float32)
-        if window is not None:  # window (y0, x0) of row r is [r, y0, x0], written through
-            self._cover_windows = np.lib.stride_tricks.sliding_window_view(
-                self.cover, (window, window), axis=(1, 2), writeable=True
-            )
-
-    def candidates(self, canvas: int) -> tuple[CandidateMaps, np.ndarray]:
-        """The predictions of ``canvas``'s city (at symmetry 0, with or without its buildings as the maps show them)
-        and ``[num_y, num_x]`` the column of each cell of the canvas's (turned) map in them (-1 where the UAV may not
-        go)."""
-        public, shown = self.public, self.maps.buildings_shown
-        if not isinstance(shown, bool):
-            raise ValueError(f"the belief channel predicts with the city's buildings or none, not with {shown}'s")
-        k = public.symmetry_of(canvas)
-        cm = self.models[shown].canvas_maps(public, canvas - k)
-        if (canvas, shown) not in self._columns:
-            self._columns[canvas, shown] = np.ascontiguousarray(transform(cm.index, k))
-        return cm, self._columns[canvas, shown]
-
-    def start(
-        self,
-        rows: np.ndarray,
-        canvases: np.ndarray,
-        y: np.ndarray,
-        x: np.ndarray,
-        first: np.ndarray,
-        unread: np.ndarray | None = None,
-    ) -> None:
-        """Rows ``rows`` begin over ``canvases``, measuring ``first`` at map cells ``(y, x)``: a uniform belief
-        updated by that measurement (``unread``: as ``measure``'s)."""
-        self.canvas[rows] = canvases
-        self.log_b[rows] = -np.inf
-        for r, c in zip(rows, canvases, strict=True):
-            self.log_b[r, : len(self.candidates(int(c))[0].cells)] = 0.0
-        self.measure(rows, y, x, first, unread)
-
-    def measure(
-        self, rows: np.ndarray, y: np.ndarray, x: np.ndarray, values: np.ndarray, unread: np.ndarray | None = None
-    ) -> None:
-        """Rows ``rows`` measured ``values`` [dB] at map cells ``(y, x)``: their beliefs, then their cover canvases
-        (with ``window``, only the window centred on ``(y, x)``: all an observation reads before the next measurement).
-        ``unread`` [len(rows)]: rows whose canvas no one reads (a played-out queue's placeholders), left as they are."""
-        public, model = self.public, self.models[self.maps.buildings_shown]
-        read = np.ones(len(rows), bool) if unread is None else ~np.asarray(unread, bool)
-        for c, members in self._groups(rows, read).items():  # a canvas's rows updated at once
-            cm, columns = self.candidates(c)
-            floor_db = float(public.settings[public.bundle_of(c)]["floor_db"])
-            r, n, at = rows[members], len(cm.cells), columns[y[members], x[members]]
-            self.log_b[r, :n] = model.update_rows(cm, self.log_b[r, :n], at, values[members], floor_db)
-        self.paint(rows, read, (np.asarray(y), np.asarray(x)))
-
-    def paint(self, rows: np.ndarray, read: np.ndarray | None = None, at: tuple[np.ndarray, np.ndarray] | None = None) -> None:
-        """The cover canvases of rows ``rows`` (those of ``read`` only) from their beliefs, a canvas's rows in one
-        matrix product; with ``window`` and ``at``, only the window centred on each row's map cell ``(y, x)``, else
-        the whole canvas.
-
-        The product takes every row of ``rows`` on the canvas, read or not, and the unread ones are dropped after it:
-        a row's sums then never depend on which of its neighbours someone reads (a BLAS orders a product's sums by
-        its shape, so a row computed among fewer rows may differ in the last bit)."""
-        read = np.ones(len(rows), bool) if read is None else read
-        p = self.public.pad
-        for c, members in self._groups(rows).items():
-            kept = [i for i in members if read[i]]
-            if not kept:
-                continue
-            cm, columns = self.candidates(c)
-            log_b = self.log_b[rows[members], : len(cm.cells)]
-            scores = np.zeros((len(kept), cm.cover.shape[1] + 1), np.float32)  # the last column: -1's zero
-            scores[:, :-1] = posterior_cover(log_b, cm.cover)[[members.index(i) for i in kept]]
-            scores *= np.float32(100.0)
-            targets = rows[kept]
-            if at is None or self.window is None:
-                ny, nx = columns.shape
-                self.cover[targets] = 0.0  # a turned map of another shape may have painted beyond this one
-                self.cover[targets, p : p + ny, p : p + nx] = scores[:, columns]
-            else:
-                self._paint_windows(c, targets, scores, at[0][kept], at[1][kept])
-
-    def _groups(self, rows: np.ndarray, read: np.ndarray | None = None) -> dict[int, list[int]]:
-        """``{canvas: [i, ...]}``: the positions in ``rows`` (of ``read`` only) of each canvas's rows, in order."""
-        groups: dict[int, list[int]] = {}
-        for i, r in enumerate(rows):
-            if read is None or read[i]:
-                groups.setdefault(int(self.canvas[r]), []).append(i)
-        return groups
-
-    def _paint_windows(self, canvas: int, targets: np.ndarray, scores: np.ndarray, y: np.ndarray, x: np.ndarray) -> None:
-        """Write ``scores`` [R, M + 1] into the ``window`` of rows ``targets`` (over ``canvas``) centred on map cells
-        ``(y, x)``: the canvas there as ``paint`` would make it whole (0 off the map and where the UAV may not go)."""
-        w, h, p = self.window, self.window // 2, self.public.pad
-        key = (canvas, self.maps.buildings_shown)
-        if key not in self._around:  # a column per cell a window centred on the map covers, -1 off the map
-            columns = self.candidates(canvas)[1]
-            ny, nx = columns.shape
-            around = np.full((ny + 2 * h, nx + 2 * h), -1, np.int64)
-            around[h : h + ny, h : h + nx] = columns
-            self._around[key] = np.lib.stride_tricks.sliding_window_view(around, (w, w))
-        cells = self._around[key][y, x]  # [R, w, w]
-        self._cover_windows[targets, y + p - h, x + p - h] = scores[np.arange(len(targets))[:, None, None], cells]

@@ -1,0 +1,57 @@
+"""``uavrl report --task tracking``: every method on the same episodes of each city's routes, one page
+(``eval.tracking.make_tracking_report``)."""
+
+from __future__ import annotations
+
+import contextlib
+from pathlib import Path
+
+from uavplace.eval.config import TrackingReportConfig
+from uavplace.eval.reports.base import (
+    ReportRequest,
+    TaskReport,
+    check_runs_once,
+    check_training_settings,
+    print_table,
+    reporting,
+    say_written,
+)
+from uavplace.infra.console import command_line
+
+
+def play(request: ReportRequest, after: contextlib.ExitStack) -> None:
+    """The tracking report: its settings built once from the request, the page, then each city's table."""
+    from uavplace.eval.evaluate import default_agents
+    from uavplace.eval.tracking import SUMMARY_TITLE, make_tracking_report, summary_rows, table_rows
+    from uavplace.rl.tasks.tracking import TrackingConfig
+
+    runs = list(request.runs) or default_agents(request.agents_dir, ("placement", "tracking"))
+    check_runs_once(runs, "--run")
+    check_training_settings(runs, request)
+    horizon = request.horizon
+    config = TrackingReportConfig(
+        datasets=list(request.datasets),
+        hold=request.hold,
+        task=TrackingConfig(horizon=horizon, p_t_db=request.p_t_db),
+        trajectories=request.trajectories,
+        **request.shared_settings(runs),
+    )
+    with reporting("tracking report", request.quiet) as on_progress:
+        out = request.out or Path("reports") / "tracking"
+        table, page = make_tracking_report(config, out, root=request.root, command=command_line(), on_progress=on_progress)
+    for city, rows in table.groupby("city", sort=False):
+        title = f"{request.episodes} tracking episodes in {city} (horizon {horizon}, P_T {request.p_t_db:g} dB)"
+        print_table(table_rows(rows, horizon), title)
+    if table["city"].nunique() > 1:
+        print_table(summary_rows(table), SUMMARY_TITLE)
+    say_written(request.markdown, page, page.parent / "tracking.md")
+
+
+REPORT = TaskReport(
+    play=play,
+    routes=True,
+    budget=("horizon", "--horizon"),
+    selects_users=False,
+    config=TrackingReportConfig,
+    searcher="uavplace.rl.tasks.tracking.searcher:TrackingSearchPolicy",
+)
