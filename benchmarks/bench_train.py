@@ -38,11 +38,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from uavplace.dataset.bundle import load_bundle
 from uavplace.dataset.catalog import expand_datasets
 from uavplace.rl.agent.config import DQNConfig, preset_config
 from uavplace.rl.agent.dqn import DQN, make_network
 from uavplace.rl.agent.train import Trainer, linear
 from uavplace.rl.tasks.placement.config import EnvConfig
+from uavplace.rl.tasks.placement.learner import validation_set
+from uavplace.rl.world.cities import plan_cities
 
 
 def bench_ours(config: DQNConfig, dataset: str | list[str], root: str, steps: int, warmup: int, fast: bool = True) -> dict:
@@ -82,7 +85,7 @@ def bench_paper_speed(args: argparse.Namespace) -> None:
         trainer.run(stop_at=args.warmup)
         rng = np.random.default_rng(0)
         batches = [trainer.replay.sample(config.batch_size, rng) for _ in range(20)]
-        c, w = trainer.maps.config.num_channels, trainer.maps.config.window
+        c, w = trainer.env.maps.config.num_channels, trainer.env.maps.config.window
         agents = {}
         for fast in (False, True):
             torch.manual_seed(0)
@@ -245,7 +248,9 @@ def time_to_target(args: argparse.Namespace) -> None:
             trainer.run(on_progress=on_progress)
         except _Reached:
             pass
-        eval_maps, episodes = trainer.eval_maps, trainer.eval_episodes
+        # the run's own validation episodes (``validation_set`` draws them from the config's seed)
+        cities = plan_cities([load_bundle(args.dataset, root=args.root)], [], config.eval_split)
+        eval_maps, episodes = validation_set(config, cities)
     algo, policy, collector, net = tianshou_dqn(config, args.dataset, args.root)
     span = config.eps_fraction * config.total_steps
     next_eval, t0 = config.eval_every, time.perf_counter()

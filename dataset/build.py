@@ -18,11 +18,8 @@ The recipe, per city:
 from __future__ import annotations
 
 import datetime as dt
-import hashlib
-import io
-import zipfile
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -30,13 +27,15 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from uavplace.dataset.bundle import bundle_version, load_bundle, read_latest, write_latest
-from uavplace.dataset.catalog import DEFAULT_ROOT, INGESTED_MANIFEST, read_city_manifest
+from uavplace.dataset.bundle import load_bundle, read_latest, write_latest
+from uavplace.dataset.catalog import DEFAULT_ROOT
+from uavplace.dataset.checks import bundle_version
 from uavplace.dataset.difficulty import difficulty
-from uavplace.dataset.raster import cell_centres, cell_index, grid_over, ground_z, height_map
-from uavplace.infra.files import atomic_directory, folder_lock, sha256_file, write_model_json
-from uavplace.infra.limits import check_limit
-from uavplace.schemas import SCHEMA_VERSION, CityManifest, InputError
+from uavplace.dataset.ingested import Ingested, read_ingested, split_routes
+from uavplace.dataset.raster import cell_centres, cell_index, height_map
+from uavplace.dataset.receivers import check_coverage, columns_of, export_lattice, grid_of, receivers_at_altitude
+from uavplace.infra.files import atomic_directory, sha256_file, write_model_json
+from uavplace.schemas import InputError
 from uavplace.schemas.base import uavplace_version
 from uavplace.schemas.bundle import (
     BUNDLE_MANIFEST,
@@ -51,12 +50,10 @@ from uavplace.schemas.bundle import (
     SinrSource,
 )
 from uavplace.schemas.provenance import CODES, NEAREST_RECEIVER, NO_RECEIVER, TRUST, UNREACHED, code_name
-from uavplace.schemas.tables import BUILDING_PARTS, BUILDINGS, RECEIVERS, ROUTES, TRANSMITTERS
+from uavplace.schemas.tables import BUILDINGS, RECEIVERS, ROUTES, TRANSMITTERS
 
 #: Each receiver code's place in ``TRUST`` (-1: not a live code): a cell takes its least trusted reached receiver's.
 TRUST_RANK = np.array([TRUST.index(c) if c in TRUST else -1 for c in range(max(CODES) + 1)])
-#: How many distinct receiver heights an altitude error lists.
-_HEIGHTS_SHOWN = 8
 #: Order in which export quantities are used to make SINR.
 _SINR_SOURCES: tuple[tuple[SinrSource, str], ...] = (
     ("export_sinr", "sinr_db"),
@@ -73,232 +70,6 @@ class BuildResult:
     manifest: BundleManifest
     built: bool  # False: an identical bundle existed (nothing was written)
     previous_latest: str | None = None  # the version ``latest`` named before, when this build moved it
-
-
-@dataclass(frozen=True)
-class Ingested:
-    """An ingested city as the build reads it."""
-
-    folder: Path
-    manifest: CityManifest
-    receivers: pd.DataFrame
-    transmitters: pd.DataFrame
-    buildings: pd.DataFrame
-    parts: pd.DataFrame
-    terrain: dict[str, np.ndarray] | None
-    hashes: dict[str, str]
-    routes: pd.DataFrame | None = None  # the tracking task's route points (ingest.routes), when the city has routes
-
-
-def read_ingested(city: str, root: str | Path = DEFAULT_ROOT) -> Ingested:
-    """Read an ingested city, refusing tables whose sha256 differs from the ingest manifest.
-
-    The folder is read under its lock (the one ``uavdata ingest`` holds while it replaces the folder), and every file
-    is read once: its bytes are hashed and parsed, so the hashes recorded in a bundle are those of what it was built
-    from, even when an ingest of the same city runs at the same time.
-    """
-    folder = Path(root) / city / INGESTED_MANIFEST.parent
-    if not folder.parent.is_dir():  # checked before the lock, which would make the city's folder
-        read_city_manifest(folder / INGESTED_MANIFEST.name)  # the error: run `uavdata ingest` first
-    with folder_lock(folder):
-        manifest = read_city_manifest(folder / INGESTED_MANIFEST.name)
-        if manifest.schema_version != SCHEMA_VERSION:
-            raise InputError(
-                folder / INGESTED_MANIFEST.name,
-                f"ingested with schema version {manifest.schema_version!r}, "
-                f"this uavplace reads {SCHEMA_VERSION!r}: run `uavdata ingest` again",
-                field="schema_version",
-            )
-        files = {spec.name: spec.filename for spec in (RECEIVERS, TRANSMITTERS, BUILDINGS, BUILDING_PARTS, ROUTES)}
-        files["terrain"] = "terrain.npz"
-        hashes: dict[str, str] = {}
-        data: dict[str, bytes] = {}
-        for name, expected in manifest.tables.items():
-            path = folder / files.get(name, name)
-            if not path.is_file():
-                raise InputError(path, "missing ingested table: run `uavdata ingest` again")
-            data[name] = path.read_bytes()
-            actual = hashlib.sha256(data[name]).hexdigest()
-            if actual != expected:
-                raise InputError(
-                    path, "sha256 differs from the ingest manifest: the table was changed after ingest", field="sha256"
-                )
-            hashes[files.get(name, name)] = actual
-
-    def table(spec) -> pd.DataFrame:
-        if spec.name not in data:
-            raise InputError(folder / INGESTED_MANIFEST.name, f"lists no table {spec.name}: run `uavdata ingest` again")
-        try:
-            return pq.read_table(pa.BufferReader(data[spec.name])).to_pandas()
-        except (OSError, ValueError) as exc:
-            raise InputError(folder / spec.filename, f"unreadable ingested table ({str(exc)[:160]})") from None
-
-    terrain = None
-    if "terrain" in data:
-        try:
-            with np.load(io.BytesIO(data["terrain"]), allow_pickle=False) as npz:
-                terrain = {k: npz[k] for k in npz.files}
-        except (OSError, ValueError, EOFError, NotImplementedError, RuntimeError, zipfile.BadZipFile) as exc:
-            raise InputError(folder / "terrain.npz", f"unreadable terrain ({type(exc).__name__}: {str(exc)[:160]})") from None
-    return Ingested(
-        folder=folder,
-        manifest=manifest,
-        receivers=table(RECEIVERS),
-        transmitters=table(TRANSMITTERS),
-        buildings=table(BUILDINGS),
-        parts=table(BUILDING_PARTS),
-        terrain=terrain,
-        hashes=hashes,
-        routes=table(ROUTES) if ROUTES.name in data else None,
-    )
-
-
-def split_routes(ing: Ingested) -> tuple[Ingested, Ingested | None]:
-    """(the users' part of ``ing``, the route points' part or None): the receivers and transmitters of the route
-    points (``ing.routes``) apart from the users', so that each is rasterised on its own and no route point is a user."""
-    if ing.routes is None:
-        return ing, None
-    keys = pd.MultiIndex.from_frame(ing.routes[["tx_set_id", "tx_point"]].astype("int64"))
-
-    def of_routes(df: pd.DataFrame) -> np.ndarray:
-        return pd.MultiIndex.from_arrays([df["tx_set_id"].astype("int64"), df["tx_point"].astype("int64")]).isin(keys)
-
-    rx, tx = of_routes(ing.receivers), of_routes(ing.transmitters)
-    users = replace(ing, receivers=ing.receivers[~rx], transmitters=ing.transmitters[~tx], routes=None)
-    return users, replace(ing, receivers=ing.receivers[rx], transmitters=ing.transmitters[tx])
-
-
-def rasterise_routes(ing: Ingested, config: BuildConfig, grid: GridSpec) -> tuple[dict[str, np.ndarray], pd.DataFrame]:
-    """The route points' maps (``schemas.bundle.ROUTE_ARRAYS``) on the users' ``grid``, made as the users' are, and
-    the ``ROUTE_POINTS`` table; ``InputError`` when a route point has no receivers or they span another grid."""
-    rgrid, arrays, points, *_ = rasterise(ing, config.model_copy(update={"role": None, "val_users": 0}))
-    source = ing.folder / ROUTES.filename
-    if rgrid != grid:
-        raise InputError(
-            source,
-            f"the route points' receivers span another grid ({rgrid.num_x} x {rgrid.num_y} cells) than "
-            f"the users' ({grid.num_x} x {grid.num_y})",
-            field="tx_point",
-        )
-    index = pd.Series(np.arange(len(points)), index=pd.MultiIndex.from_frame(points[["tx_set_id", "tx_point"]].astype("int64")))
-    routes = ing.routes.sort_values(["route", "order"], kind="stable").reset_index(drop=True)
-    keys = pd.MultiIndex.from_frame(routes[["tx_set_id", "tx_point"]].astype("int64"))
-    missing = ~keys.isin(index.index)
-    if missing.any():
-        k = int(np.argmax(missing))
-        raise InputError(
-            source,
-            f"route {routes['route'][k]} point {routes['order'][k]} (t{routes['tx_point'][k]:03d}_"
-            f"{routes['tx_set_id'][k]:02d}) has no receivers at the altitude",
-            field="tx_point",
-        )
-    order = index.loc[keys].to_numpy()  # the rasterised map of each route point, in route order
-    ix, iy, inside = cell_index(grid, routes["x_m"].to_numpy(), routes["y_m"].to_numpy())
-    where = {"ix": np.where(inside, ix, -1), "iy": np.where(inside, iy, -1)}
-    copied = _columns(routes, "route", "order", "time_s", "tx_set_id", "tx_point", "x_m", "y_m")
-    table = pd.DataFrame({"point": np.arange(len(routes)), **copied, **where, **_columns(routes, "kind", "speed_mps")})
-    return {k: arrays[k][order] for k in ROUTE_ARRAYS}, table
-
-
-def _receivers_at_altitude(ing: Ingested, config: BuildConfig) -> pd.DataFrame:
-    rx = ing.receivers
-    src = ing.folder / RECEIVERS.filename
-    if len(rx) == 0:
-        raise InputError(src, "the city has no receiver outputs: nothing to build a SINR map from (empty city)")
-    above = rx["z_m"].to_numpy() - ground_z(ing.terrain, rx["x_m"].to_numpy(), rx["y_m"].to_numpy())
-    keep = np.abs(above - config.altitude_m) <= config.altitude_tol_m
-    if not keep.any():
-        heights, counts = np.unique(np.round(above, 2), return_counts=True)
-        top = np.argsort(-counts)[:_HEIGHTS_SHOWN]
-        listed = ", ".join(f"{heights[i]:g} m ({counts[i]} rx)" for i in sorted(top))
-        raise InputError(
-            src,
-            f"no receiver at {config.altitude_m:g} +/- {config.altitude_tol_m:g} m above ground; heights present: {listed}"
-            + (" ..." if len(heights) > _HEIGHTS_SHOWN else "")
-            + " (choose one with --alt, or widen --alt-tol)",
-            field="z_m",
-        )
-    return rx.loc[keep].reset_index(drop=True)
-
-
-def _columns(frame: pd.DataFrame, *names: str) -> dict[str, pd.Series]:
-    """``frame``'s columns ``names``, in that order, as a table's columns are given to ``pd.DataFrame``."""
-    return {n: frame[n] for n in names}
-
-
-def _export_spacing(ing: Ingested, rx: pd.DataFrame) -> float | None:
-    """The receiver spacing if the receivers used lie on one square lattice, else None.
-
-    From the .txrx when every receiver set used is a grid of one spacing;
-    otherwise (a .p2m published without its .txrx, or point sets) from the
-    positions themselves: one spacing when every x and every y step between
-    neighbouring receiver columns and rows is the same multiple-free value.
-    """
-    sets = {s.project_id: s for s in ing.manifest.txrx_sets}
-    used = [sets.get(int(i)) for i in np.unique(rx["rx_set_id"])]
-    spacings = {s.spacing_m for s in used if s is not None and s.kind == "grid"}
-    if len(spacings) == 1 and all(s is not None and s.kind == "grid" for s in used):
-        return float(spacings.pop())
-    return lattice_spacing(rx["x_m"].to_numpy(), rx["y_m"].to_numpy())
-
-
-def lattice_spacing(x: np.ndarray, y: np.ndarray, tol_m: float = 1e-3) -> float | None:
-    """The spacing d [m] if the points' x and y values are each an arithmetic sequence of step d, else None."""
-
-    def step(v: np.ndarray) -> float | None:
-        u = np.unique(np.round(v / tol_m)) * tol_m
-        if len(u) < 2:
-            return None
-        d = np.diff(u)
-        return float(np.median(d)) if np.abs(d - np.median(d)).max() <= tol_m + 1e-6 * abs(np.median(d)) else None
-
-    dx, dy = step(x), step(y)
-    if dx is None or dy is None or abs(dx - dy) > tol_m:
-        return None
-    return round((dx + dy) / 2, 6)
-
-
-def _grid(ing: Ingested, rx: pd.DataFrame, config: BuildConfig, export_spacing: float | None, num_users: int) -> GridSpec:
-    """The bundle's grid; ``InputError`` naming ``--grid`` when it passes the limits ``grid_cells`` or ``map_bytes`` (the
-    users' maps held in memory), checked before anything is allocated."""
-    half = (export_spacing or 0.0) / 2
-    rx_box = (rx["x_m"].min() - half, rx["y_m"].min() - half, rx["x_m"].max() + half, rx["y_m"].max() + half)
-    mode = config.bounds
-    if mode == "auto":
-        mode = "receivers" if export_spacing is not None else "buildings"
-    if isinstance(mode, tuple):
-        box = mode
-    elif mode == "receivers" or len(ing.buildings) == 0:
-        box = rx_box
-    else:
-        import shapely
-
-        bx = shapely.total_bounds(shapely.from_wkb(ing.buildings["footprint_wkb"].to_numpy()))
-        box = (min(rx_box[0], bx[0]), min(rx_box[1], bx[1]), max(rx_box[2], bx[2]), max(rx_box[3], bx[3]))
-    w, h = float(box[2] - box[0]), float(box[3] - box[1])
-    cells = max(1.0, w / config.grid_m) * max(1.0, h / config.grid_m)
-    what = f"{w:g} x {h:g} m at {config.grid_m:g} m"
-    check_limit("grid_cells", cells, "--grid", f"cells of {what}", field="grid_m")
-    check_limit("map_bytes", cells * num_users * 8, "--grid", f"maps of {num_users} users over {what} [bytes]", field="grid_m")
-    return grid_over(*box, config.grid_m)
-
-
-def _check_coverage(ing: Ingested, rx: pd.DataFrame, tol_m: float) -> None:
-    """Every user's receivers must span the same area (users are compared on one map)."""
-    ext = rx.groupby(["tx_set_id", "tx_point"])[["x_m", "y_m"]].agg(["min", "max"])
-    ref = ext.median()
-    off = (ext - ref).abs().max(axis=1)
-    bad = off[off > tol_m]
-    if len(bad):
-        (s, p) = bad.index[0]
-        e = ext.loc[(s, p)]
-        raise InputError(
-            ing.folder / RECEIVERS.filename,
-            f"users' receivers do not cover the same area: user t{p:03d}_{s:02d} spans x {e[('x_m', 'min')]:g}..{e[('x_m', 'max')]:g},"
-            f" y {e[('y_m', 'min')]:g}..{e[('y_m', 'max')]:g}; most span x {ref[('x_m', 'min')]:g}..{ref[('x_m', 'max')]:g},"
-            f" y {ref[('y_m', 'min')]:g}..{ref[('y_m', 'max')]:g} ({len(bad)} of {len(ext)} users differ)",
-            field="x_m",
-        )
 
 
 def _sinr_source(ing: Ingested, rx: pd.DataFrame) -> tuple[SinrSource, str]:
@@ -345,7 +116,7 @@ def rasterise(
 ) -> tuple[GridSpec, dict[str, np.ndarray], pd.DataFrame, SinrInfo, dict[str, int], list[str]]:
     """The arrays of a bundle (see ``schemas.bundle.MAP_ARRAYS``), its users table, SINR info, counts, warnings."""
     warnings: list[str] = []
-    rx = _receivers_at_altitude(ing, config)
+    rx = receivers_at_altitude(ing, config)
     tx = ing.transmitters.set_index(["tx_set_id", "tx_point"])
     keys = sorted(set(zip(rx["tx_set_id"].astype(int), rx["tx_point"].astype(int), strict=True)))
     users = pd.DataFrame(keys, columns=["tx_set_id", "tx_point"])
@@ -353,9 +124,9 @@ def rasterise(
     without = len(tx) - len(set(keys) & set(tx.index))
     if without:
         warnings.append(f"{without} transmitter(s) have no receivers at the altitude and are not users of the bundle")
-    export_spacing = _export_spacing(ing, rx)
-    grid = _grid(ing, rx, config, export_spacing, len(users))
-    _check_coverage(ing, rx, tol_m=max(export_spacing or 0.0, config.grid_m) / 2 + 1e-6)
+    export_spacing = export_lattice(ing, rx)
+    grid = grid_of(ing, rx, config, export_spacing, len(users))
+    check_coverage(ing, rx, tol_m=max(export_spacing or 0.0, config.grid_m) / 2 + 1e-6)
 
     source, column = _sinr_source(ing, rx)
     tx_used, shift = _tx_power(ing, users, config, source)
@@ -457,7 +228,7 @@ def rasterise(
         "frequency_hz": users["frequency_hz"],
         "split": _split(len(users), config),
     }
-    copied = _columns(users, "tx_set_id", "tx_point", "x_m", "y_m", "z_m")
+    copied = columns_of(users, "tx_set_id", "tx_point", "x_m", "y_m", "z_m")
     users_table = pd.DataFrame({"user": np.arange(len(users)), **copied, **placed, **tallies})
     arrays = {
         "x_m": x_m,
@@ -500,6 +271,38 @@ def rasterise(
         "users_without_position": int((~uin).sum()),
     }
     return grid, arrays, users_table, info, counts, warnings
+
+
+def rasterise_routes(ing: Ingested, config: BuildConfig, grid: GridSpec) -> tuple[dict[str, np.ndarray], pd.DataFrame]:
+    """The route points' maps (``schemas.bundle.ROUTE_ARRAYS``) on the users' ``grid``, made as the users' are, and
+    the ``ROUTE_POINTS`` table; ``InputError`` when a route point has no receivers or they span another grid."""
+    rgrid, arrays, points, *_ = rasterise(ing, config.model_copy(update={"role": None, "val_users": 0}))
+    source = ing.folder / ROUTES.filename
+    if rgrid != grid:
+        raise InputError(
+            source,
+            f"the route points' receivers span another grid ({rgrid.num_x} x {rgrid.num_y} cells) than "
+            f"the users' ({grid.num_x} x {grid.num_y})",
+            field="tx_point",
+        )
+    index = pd.Series(np.arange(len(points)), index=pd.MultiIndex.from_frame(points[["tx_set_id", "tx_point"]].astype("int64")))
+    routes = ing.routes.sort_values(["route", "order"], kind="stable").reset_index(drop=True)
+    keys = pd.MultiIndex.from_frame(routes[["tx_set_id", "tx_point"]].astype("int64"))
+    missing = ~keys.isin(index.index)
+    if missing.any():
+        k = int(np.argmax(missing))
+        raise InputError(
+            source,
+            f"route {routes['route'][k]} point {routes['order'][k]} (t{routes['tx_point'][k]:03d}_"
+            f"{routes['tx_set_id'][k]:02d}) has no receivers at the altitude",
+            field="tx_point",
+        )
+    order = index.loc[keys].to_numpy()  # the rasterised map of each route point, in route order
+    ix, iy, inside = cell_index(grid, routes["x_m"].to_numpy(), routes["y_m"].to_numpy())
+    where = {"ix": np.where(inside, ix, -1), "iy": np.where(inside, iy, -1)}
+    copied = columns_of(routes, "route", "order", "time_s", "tx_set_id", "tx_point", "x_m", "y_m")
+    table = pd.DataFrame({"point": np.arange(len(routes)), **copied, **where, **columns_of(routes, "kind", "speed_mps")})
+    return {k: arrays[k][order] for k in ROUTE_ARRAYS}, table
 
 
 def _split(num_users: int, config: BuildConfig) -> list[str | None]:

@@ -4,22 +4,29 @@ its values once into a ``ReportRequest`` and hands it to the task's report (``ev
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import click
 
-from uavplace.eval.config import ReportConfig, TrackingReportConfig
+from uavplace.eval.config import ReportConfig, ReportSettings
 from uavplace.eval.reports import task_report
 from uavplace.eval.reports.base import ReportRequest
 from uavplace.infra.console import path_option, ray_address_option, root_option
 from uavplace.infra.files import exclusive_folder, shipped
 from uavplace.infra.options import model_options
-from uavplace.rl.cli import episode_options
-from uavplace.rl.tasks.fleet.config import FleetConfig
+from uavplace.rl.cli import episode_options, task_option
 from uavplace.rl.tasks.registry import TASKS
-from uavplace.rl.tasks.tracking.config import TrackingConfig
 from uavplace.schemas.base import repeated
+
+
+def task_options(command: Callable) -> Callable:
+    """Each task report's own options (``TaskReport.options``), in the order of the tasks."""
+    for name in reversed(TASKS):
+        for model, fields in reversed(task_report(name).options):
+            command = model_options(model, *fields)(command)
+    return command
 
 
 @click.command()
@@ -69,30 +76,9 @@ from uavplace.schemas.base import repeated
     help="Also write every table (each city's results and paired differences, then the summary) as Markdown to this "
     "file, for a README that cannot drift from what the command printed.",
 )
-@click.option(
-    "--task",
-    type=click.Choice(list(TASKS)),
-    default="placement",
-    show_default=True,
-    help="placement: the paper's task (a user who stays); tracking: a user who moves along the routes of the cities "
-    "(bundles simulated with --routes; rl/tasks/tracking/): the oracle, the agents (placement agents run unchanged), the "
-    "re-planning genie and the baselines (eval/tracking.py; OUT defaults to reports/tracking); fleet: --uavs UAVs "
-    "serve --users users at once (rl/tasks/fleet/): the oracle, the map searcher run for the fleet, the agents (--run; "
-    "default: the shipped best and the fleet-trained agents under --agents-dir) run on every UAV on the users dealt "
-    "to it, greedy hill-climbing and the random walk (eval/fleet.py; OUT defaults to reports/fleet).",
-)
-@model_options(FleetConfig, "uavs", "users")
-@model_options(TrackingConfig, "horizon")
-@model_options(TrackingReportConfig, "hold")
-@click.option(
-    "--predictor",
-    default=str(shipped("data/agents/searcher/unet")),
-    show_default=True,
-    help="The map searcher's radio-map predictor (rl/tasks/placement/searcher.py): a learned tier's folder "
-    "(`uavrl train-predictor`), the physics tier's constants (data/agents/searcher/predictor.json, `uavrl fit-predictor`), or 'none' "
-    "to leave the searcher and its ablation out (with --task tracking, the tracking searcher, rl/tasks/tracking/searcher.py). Its "
-    "predicted maps are cached under ROOT/.predictions/.",
-)
+@task_option("; ".join(f"{name}: {task_report(name).summary}" for name in TASKS) + ".")
+@task_options
+@model_options(ReportSettings, "predictor")
 @click.option(
     "--search",
     multiple=True,
@@ -134,12 +120,8 @@ def report(**values: Any) -> None:
     with several cities, one report folder each, then a summary of success and median steps per method and city, and
     one page with every city (OUT/report.html, OUT/summary.csv; OUT defaults to reports/).
 
-    With --task tracking, the user moves: the oracle (the upper bound), the agents (placement agents run unchanged),
-    the re-planning genie, the tracking searcher (--predictor), the random walk and greedy hill-climbing on the same
-    episodes of each city's routes, those
-    without a stay action also holding their cell while covered (--hold); one
-    page OUT/tracking.html with a table per city, the coverage over time and three episodes on the maps
-    (eval/tracking.py).
+    With --task NAME, that task's methods on the same episodes of each city (--task's list): its report module
+    under eval/reports/ (docs/layout.md).
     """
     request = _request(values)
     from uavplace.dataset.bundle import resolve
@@ -169,7 +151,7 @@ def report(**values: Any) -> None:
         raise click.UsageError(f"--task {request.task} plays every user and route of the cities: it takes no --group or --split")
     # One report into a folder at a time: a second one of the same folder, even of other agents, is refused at once
     # (both would publish, the last one winning, and both would say they wrote it).
-    target = request.out or Path("reports") / TASKS[request.task].tag  # placement's: reports/ itself
+    target = request.out or Path("reports") / TASKS[request.task].settings.tag  # placement's: reports/ itself
     with exclusive_folder(target, "report", kind="job"), contextlib.ExitStack() as after:
         task.play(request, after)
 

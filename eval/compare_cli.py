@@ -19,6 +19,7 @@ from uavplace.infra.console import (
     root_option,
     stdout,
 )
+from uavplace.infra.files import shipped
 from uavplace.infra.options import model_options
 from uavplace.rl.config import EpisodeSettings
 
@@ -182,9 +183,8 @@ def peer() -> None:
     "--dataset",
     "datasets",
     multiple=True,
-    default=("corpus", "oldtown", "train"),
-    show_default=True,
-    help="Training city or corpus (repeatable): their training users, as a `best` run's.",
+    help="Training city or corpus (repeatable): their training users, as a `best` run's. Default: the shipped best "
+    "agent's training cities (data/agents/best/run.json).",
 )
 @model_options(PeerConfig, "n_envs", "seed")
 @root_option
@@ -203,6 +203,7 @@ def peer_train(
     (OMP_NUM_THREADS=N for more); the weights are saved weights-only (never SB3's pickled zip)."""
     from uavplace.dataset.catalog import expand_datasets
     from uavplace.eval.peer import run_wall_seconds, train_sb3, training_maps
+    from uavplace.rl.agent.runs import read_run_json
     from uavplace.schemas import InputError
 
     if (match is None) == (cpu_seconds is None):
@@ -214,6 +215,8 @@ def peer_train(
     torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", "1")))  # one thread unless told otherwise
     try:
         budget = cpu_seconds if cpu_seconds is not None else run_wall_seconds(match)
+        if not datasets:  # the shipped best's cities, as its record names them
+            datasets = tuple(read_run_json(shipped("data/agents/best")).datasets)
         maps = training_maps(expand_datasets(list(datasets), root), root)
         record = train_sb3(
             algo,

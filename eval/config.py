@@ -1,4 +1,5 @@
-"""The settings of the reports (``uavrl report``): a model per task (placement, tracking, fleet), saved beside the
+"""The settings of the reports (``uavrl report``): the base every task's report settings extend (``ReportSettings``;
+each task's own model is in its report module, ``eval/reports/<task>.py``) and placement's, each saved beside the
 report it made, from which the command's options derive (``infra.options``). Light to import: the command line reads
 them before any heavy work."""
 
@@ -7,8 +8,6 @@ from __future__ import annotations
 from pydantic import ConfigDict, Field
 
 from uavplace.rl.config import DEFAULT_PREDICTOR, EpisodeSettings, SearchConfig
-from uavplace.rl.tasks.fleet.config import FleetConfig
-from uavplace.rl.tasks.tracking.config import MotionModel, TrackingConfig, tracking_search
 from uavplace.schemas.base import MAX_SEED, Contract
 
 #: The evaluation protocol's fields every report shares with ``EpisodeSettings`` (declared there once).
@@ -35,8 +34,10 @@ class ReportSettings(Contract):
     )
     predictor: str | None = Field(
         default=str(DEFAULT_PREDICTOR),
-        description="The searcher's radio-map predictor: the physics tier's constants (a JSON file) or a tier's folder, "
-        "learned or ray-traced (its model.json says which; rl.predictor.load_predictor); None: no searcher is played",
+        description="The map searcher's radio-map predictor (docs/predictor.md): a tier's folder, learned (`uavrl "
+        "train-predictor`) or ray-traced (`uavrl trace-predictor`; its model.json says which), or the physics tier's "
+        "constants (data/agents/searcher/predictor.json, `uavrl fit-predictor`); 'none' (None in a record): the task's "
+        "searcher and its ablation are left out. Its predicted maps are cached under ROOT/.predictions/.",
     )
     search: SearchConfig = Field(default_factory=SearchConfig, description="The searcher's settings")
 
@@ -70,35 +71,6 @@ class ReportConfig(ReportSettings, EpisodeSettings):
     prediction_cache: str | None = Field(
         default=None, description="Folder of the searcher's predicted maps (None: .predictions beside the bundles)"
     )
-
-
-class TrackingReportConfig(ReportSettings):
-    """Every parameter of one tracking report (saved in ``tracking.json``): the shared report settings, the cities
-    with routes, the tracking task, the hold rule and the tracking searcher's motion model and settings."""
-
-    datasets: list[str] = Field(min_length=1, description="Cities with routes (built bundles, optionally city@version)")
-    task: TrackingConfig = Field(default_factory=TrackingConfig, description="The tracking task (horizon, P_T, speeds)")
-    trajectories: int = TRAJECTORIES
-    hold: bool = Field(
-        default=True,
-        description="Tracking: also play each method that has no stay action (placement agents, the random walk, greedy "
-        "hill-climbing) holding its cell while its own measurement is at or above P_T (rl/tasks/tracking/policies.py, "
-        "Holding), as a row '... + hold' after the method as it is",
-    )
-    motion: MotionModel = Field(default_factory=MotionModel, description="The tracking searcher's motion model")
-    search: SearchConfig = Field(
-        default_factory=tracking_search,
-        description="The tracking searcher's settings (rl/tasks/tracking/config.py, tracking_search: the map searcher's "
-        "with a flatter discount)",
-    )
-
-
-class FleetReportConfig(ReportSettings):
-    """How a fleet report was made (saved in ``fleet.json``): the shared report settings (the agents each run on
-    every UAV; the fleet searcher's plan is its ``search.fleet_plan``), the cities and the fleet task."""
-
-    datasets: list[str] = Field(min_length=1, description="Cities (built datasets)")
-    task: FleetConfig = Field(default_factory=FleetConfig, description="The fleet task (rl/tasks/fleet/)")
 
 
 class PeerConfig(Contract):

@@ -18,7 +18,6 @@ from uavplace.eval.metrics import bootstrap_table, difference_table
 from uavplace.infra.files import shipped
 from uavplace.infra.tensors import load_tensors
 from uavplace.rl.agent.checkpoint import best_checkpoint
-from uavplace.rl.agent.cities import training_users
 from uavplace.rl.agent.config import DQNConfig
 from uavplace.rl.agent.runs import RUN_JSON, RunRecord, policy_from_checkpoint, read_run_json, settings_unlike
 from uavplace.rl.belief import PREDICTIONS, PredictionCache
@@ -28,6 +27,7 @@ from uavplace.rl.tasks.placement.policies import GeniePolicy, GreedyPolicy, Poli
 from uavplace.rl.tasks.placement.rollout import run_episodes
 from uavplace.rl.tasks.placement.searcher import SEARCHER, MapSearchPolicy
 from uavplace.rl.tasks.registry import TASKS
+from uavplace.rl.world.cities import training_users
 from uavplace.rl.world.maps import MapSet
 from uavplace.rl.world.view import PublicMaps
 from uavplace.schemas import InputError
@@ -76,7 +76,7 @@ def agent_name(config: DQNConfig) -> str:
     learner = "PQN" if config.learner == "pqn" else "DQN"
     core = " + GRU" if config.recurrent else ""
     members = f" x {config.ensemble}" if config.ensemble > 1 else ""
-    tag = TASKS[config.task.kind].tag
+    tag = config.task.tag
     task = (f", {tag}" if tag else "") + (", sees the fleet" if config.env.fleet_channel else "")
     return f"{'' if config.agent == 'dqn' else 'blind '}{learner}{core}{members} ({config.preset}{task})"
 
@@ -106,7 +106,7 @@ def load_agent(folder: str | Path, epsilon: float, seed: int, task: str | None =
         )
     if task is not None and config.task.kind != task:
         raise InputError(
-            folder, f"a {config.task.kind} agent, not a {task} one: {TASKS[config.task.kind].report} plays it", field="task"
+            folder, f"a {config.task.kind} agent, not a {task} one: {TASKS[config.task.kind].played_by} plays it", field="task"
         )
     policy.name = agent_name(config)
     metrics = None
@@ -334,7 +334,7 @@ def shown_method(agents: list[Agent], methods: Iterable[str]) -> str:
 def upper_bound_db(bundles: list[Bundle], p_t_db: float) -> float:
     """The paper's training bound on the mean SINR gain: mean over users, then start cells, of P_T - start SINR.
 
-    Users and starts as training draws them (``rl.agent.cities.training_users``) with at least one
+    Users and starts as training draws them (``rl.world.cities.training_users``) with at least one
     valid start (``dataset.difficulty.valid_starts``).
     """
     per_user = []

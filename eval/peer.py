@@ -29,11 +29,11 @@ from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.evaluate import ReportConfig, evaluate, load_agent
 from uavplace.eval.metrics import bootstrap_table
 from uavplace.infra.files import atomic_write_bytes, atomic_write_text
-from uavplace.rl.agent.cities import plan_cities
 from uavplace.rl.randomness import stream_key
 from uavplace.rl.tasks.placement.config import EnvConfig
 from uavplace.rl.tasks.placement.env import BatchedEnv
 from uavplace.rl.tasks.placement.policies import GeniePolicy, episode_draws, pick_legal
+from uavplace.rl.world.cities import plan_cities
 from uavplace.rl.world.maps import MapSet
 from uavplace.rl.world.rows import decode_obs
 from uavplace.rl.world.stats import format_stat

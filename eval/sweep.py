@@ -2,7 +2,7 @@
 
 A sweep is a TOML file that ``SweepSpec`` validates: the training cities, families of trials (a preset,
 settings that override it, seeds) and ensembles of finished trials. Each trial is a normal run folder
-``OUT/<family>-s<seed>/`` made by the same code as ``uavrl train`` (``rl.agent.tasks.start_run``):
+``OUT/<family>-s<seed>/`` made by the same code as ``uavrl train`` (``rl.agent.train.start_run``):
 ``uavrl report --run`` plays it, ``uavrl train --resume`` continues it. Ray Tune schedules the trials
 (a local Ray by default, a cluster with ``--ray-address``; ``--cpus-per-trial`` CPUs each, the torch
 threads of the trial); resuming is the run folders' own: running the sweep again continues every
@@ -200,7 +200,7 @@ def _trial(tune_config: dict) -> None:
 
     from uavplace.infra.files import exclusive_folder
     from uavplace.rl.agent.runs import run_finished
-    from uavplace.rl.agent.tasks import start_run
+    from uavplace.rl.agent.train import start_run
 
     params = tune_config["trial"]
     config = DQNConfig.model_validate_json(params["config"])

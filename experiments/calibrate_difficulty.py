@@ -14,8 +14,9 @@ import argparse
 
 import pandas as pd
 
-from uavplace.dataset.build import rasterise, read_ingested
+from uavplace.dataset.build import rasterise
 from uavplace.dataset.difficulty import difficulty
+from uavplace.dataset.ingested import read_ingested
 from uavplace.schemas.bundle import BuildConfig
 
 

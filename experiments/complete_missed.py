@@ -30,7 +30,8 @@ from uavplace.infra.console import markdown_table
 from uavplace.ingest.pipeline import ingest_city
 from uavplace.schemas.provenance import RAY_TRACED
 from uavplace.simulate.config import SimulationSpec
-from uavplace.simulate.pipeline import load_geometry, open_cells, receiver_grid
+from uavplace.simulate.pipeline import open_cells, receiver_grid
+from uavplace.simulate.sources import load_geometry
 
 
 def receivers(folder: Path, tmp: Path) -> pd.DataFrame:

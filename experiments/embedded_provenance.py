@@ -29,20 +29,20 @@ import numpy as np
 from uavplace.ingest.wireless_insite.p2m import read_p2m
 from uavplace.schemas.provenance import EXACT_PATHS, NOT_RECORDED, SIDE_FILE_SUFFIX, UNREACHED, code_name
 from uavplace.simulate.config import SimulationSpec
+from uavplace.simulate.fill import fill
 from uavplace.simulate.insite import write_provenance
 from uavplace.simulate.pipeline import (
     GRID_SET,
     PROVENANCE,
     as_written,
-    load_geometry,
     open_cells,
-    read_cache_entry,
     receiver_grid,
     squared_distances,
-    trace_key,
     transmitter_of,
 )
-from uavplace.simulate.raytrace import config_of_record, fill
+from uavplace.simulate.raytrace import config_of_record
+from uavplace.simulate.sources import load_geometry
+from uavplace.simulate.trace_cache import read_cache_entry, trace_key
 
 
 def receiver_power(path: Path) -> np.ndarray:

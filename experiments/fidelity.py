@@ -37,24 +37,17 @@ import numpy as np
 
 from uavplace.simulate.config import SimulationSpec
 from uavplace.simulate.fidelity import fill_scores
-from uavplace.simulate.pipeline import (
-    direct_maps,
-    load_geometry,
-    map_quality,
-    open_cells,
-    place_users,
-    receiver_grid,
-    squared_distances,
-)
+from uavplace.simulate.fill import fill
+from uavplace.simulate.pipeline import direct_maps, map_quality, open_cells, place_users, receiver_grid, squared_distances
 from uavplace.simulate.raytrace import (
     PATHS_PER_POINT,
     RadioMapJob,
     RayTraceConfig,
-    fill,
     path_gain_maps_isolated,
     point_path_gains_isolated,
 )
 from uavplace.simulate.scene import write_scene
+from uavplace.simulate.sources import load_geometry
 
 #: The coarse maps of the earlier fills (smooth, parent), traced for comparison.
 COARSE = (4, 16)

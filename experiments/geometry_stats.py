@@ -21,8 +21,8 @@ import numpy as np
 import shapely
 from scipy import ndimage
 
-from uavplace.simulate.pipeline import load_geometry
 from uavplace.simulate.scene import Block
+from uavplace.simulate.sources import load_geometry
 from uavplace.simulate.styles import STYLES
 
 GRID_M = 4.0

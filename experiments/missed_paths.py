@@ -20,9 +20,10 @@ from pathlib import Path
 import numpy as np
 
 from uavplace.simulate.config import SimulationSpec
-from uavplace.simulate.pipeline import load_geometry, open_cells, place_users, receiver_grid
+from uavplace.simulate.pipeline import open_cells, place_users, receiver_grid
 from uavplace.simulate.raytrace import PATHS_PER_POINT, RayTraceConfig, _scene, _set_users
 from uavplace.simulate.scene import write_scene
+from uavplace.simulate.sources import load_geometry
 
 #: Sionna RT's interaction types (``sionna.rt.constants.InteractionType``) by letter.
 LETTERS = {1: "R", 2: "S", 4: "T", 8: "D"}

@@ -49,6 +49,7 @@ from searcher_steps import user_cells
 
 from uavplace.dataset.bundle import Bundle, load_bundle
 from uavplace.eval.evaluate import ReportConfig, evaluate
+from uavplace.eval.metrics import resample_counts
 from uavplace.infra.console import markdown_table
 from uavplace.rl.belief import PREDICTIONS, CandidateMaps, PredictionCache
 from uavplace.rl.config import DEFAULT_PREDICTOR
@@ -115,6 +116,15 @@ class TrueMapsSearch(MapSearchPolicy):
         return self._canvases[key]
 
 
+def mean_with_interval(diff: pd.Series, users: np.ndarray, n_boot: int = 2000, seed: int = 0) -> str:
+    """The mean of a paired per-episode difference and its 95 % interval, resampling users then their episodes (as
+    the report's intervals, ``eval.metrics.resample_counts``): ``"12.3 [8.1, 16.0]"``."""
+    counts = resample_counts(users, len(diff), n_boot, seed)
+    means = counts @ diff.to_numpy(np.float64) / counts.sum(axis=1)
+    lo, hi = np.quantile(means, [0.025, 0.975])
+    return f"{diff.mean():.1f} [{lo:.1f}, {hi:.1f}]"
+
+
 def main() -> None:
     ap = validation_parser(__doc__, episodes=300)
     ap.add_argument("--radius", type=int, default=2, help="Cells (Chebyshev) of the told-where oracle's first belief")
@@ -126,7 +136,7 @@ def main() -> None:
     cache = PredictionCache(args.root / PREDICTIONS)
     head = ["city", "genie", "map searcher", TOLD]
     head += [TRUE_MAPS] if args.true_maps else []
-    head += ["mean excess", "localisation: searcher - told where"]
+    head += ["mean excess [95 % interval, users resampled]", "localisation: searcher - told where"]
     head += ["maps: searcher - true maps", "interaction"] if args.true_maps else []
     rows = [head + ["success (searcher / told / true)"]]
     for city in args.city or VALIDATION:
@@ -143,13 +153,13 @@ def main() -> None:
         steps = pd.DataFrame({m.name: res[m.name]["steps"] for m in methods})
         ok = {m.name: 100 * res[m.name]["success"].mean() for m in methods}
         genie, search, told = steps["genie"], steps[SEARCHER], steps[TOLD]
+        users = res[SEARCHER]["user"].to_numpy()  # every method plays the same episodes: one user each
         row = [city, f"{genie.median():g}", f"{search.median():g}", f"{told.median():g}"]
-        loc = (search - told).mean()
         row += [f"{steps[TRUE_MAPS].median():g}"] if args.true_maps else []
-        row += [f"{(search - genie).mean():.1f}", f"{loc:.1f}"]
+        row += [mean_with_interval(search - genie, users), mean_with_interval(search - told, users)]
         if args.true_maps:
-            maps_share = (search - steps[TRUE_MAPS]).mean()
-            row += [f"{maps_share:.1f}", f"{(search - genie).mean() - loc - maps_share:.1f}"]
+            row += [mean_with_interval(search - steps[TRUE_MAPS], users)]
+            row += [mean_with_interval(steps[TRUE_MAPS] + told - genie - search, users)]
         success = [f"{ok[SEARCHER]:.1f}", f"{ok[TOLD]:.1f}"] + ([f"{ok[TRUE_MAPS]:.1f}"] if args.true_maps else [])
         rows.append(row + [" / ".join(success)])
         print(f"{city}: {time.perf_counter() - t0:.0f} s", flush=True)

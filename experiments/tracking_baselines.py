@@ -1,6 +1,6 @@
 """The tracking task's methods on the same episodes of one or more cities with routes (validation cities).
 
-The report's methods (``eval.tracking.tracking_methods``): the oracle (the most covered steps possible), any
+The report's methods (``eval.reports.tracking.page.tracking_methods``): the oracle (the most covered steps possible), any
 ``--agent``, the re-planning genie, the steered random walk and greedy hill-climbing, those without a stay action
 also holding their cell while covered (``rl.tasks.tracking.Holding``; ``--no-hold`` leaves them out). They play the same
 episodes (routes, start times and start cells drawn with ``--seed``); one Markdown table of the per-episode
@@ -20,7 +20,7 @@ import numpy as np
 from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.cities import development_cities
 from uavplace.eval.evaluate import check_unseen, load_agent
-from uavplace.eval.tracking import tracking_methods
+from uavplace.eval.reports.tracking.page import tracking_methods
 from uavplace.rl.belief import PREDICTIONS, PredictionCache
 from uavplace.rl.config import DEFAULT_PREDICTOR
 from uavplace.rl.predictor import load_predictor

@@ -2,10 +2,10 @@
 
 ``uavrl report --task tracking`` writes each city's episodes (``<city>-episodes.parquet``: every method's
 per-episode metrics) and its config (``tracking.json``). This script recomputes the tables from them with the
-report's own functions (``eval.tracking.tracking_table`` and ``tables_markdown``, the same bootstrap resamples: the
+report's own functions (``eval.reports.tracking.page.tracking_table`` and ``tables_markdown``, the same bootstrap resamples: the
 report's ``n_boot`` and seed) and the columns of this version, such as the paired difference against the re-planning genie, so that
 a report made before a column existed need not be played again. Prints Markdown: each city's table, then the
-share of the horizon covered in every city side by side (``eval.tracking.summary_rows``).
+share of the horizon covered in every city side by side (``eval.reports.tracking.page.summary_rows``).
 
     python experiments/tracking_summary.py reports/tracking
 """
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from uavplace.eval.tracking import TRACKING_JSON, tables_markdown, tracking_table
+from uavplace.eval.reports.tracking.page import TRACKING_JSON, tables_markdown, tracking_table
 from uavplace.rl.tasks.tracking import TrackingEpisodes
 
 

@@ -34,16 +34,11 @@ import numpy as np
 from uavplace.ingest.wireless_insite.p2m import read_p2m
 from uavplace.simulate.config import SimulationSpec
 from uavplace.simulate.fidelity import error_quantiles, fill_scores
-from uavplace.simulate.pipeline import load_geometry, open_cells, receiver_grid, squared_distances
-from uavplace.simulate.raytrace import (
-    RadioMapJob,
-    RayTraceConfig,
-    _walk_fronts,
-    fill,
-    log_relative_gain,
-    point_path_gains_isolated,
-)
+from uavplace.simulate.fill import _walk_fronts, fill, log_relative_gain
+from uavplace.simulate.pipeline import open_cells, receiver_grid, squared_distances
+from uavplace.simulate.raytrace import RadioMapJob, RayTraceConfig, point_path_gains_isolated
 from uavplace.simulate.scene import write_scene
+from uavplace.simulate.sources import load_geometry
 
 #: Settings both twins must share to be twins (simulation.json's spec; the name and the solver differ).
 SHARED = ("source", "num_users", "grid_m", "altitude_m", "tx_dbm", "seed", "extent_m", "crop_m")

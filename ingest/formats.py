@@ -18,7 +18,7 @@ from pathlib import Path
 from uavplace.infra.files import regular_file_bytes
 from uavplace.ingest.buildings import BuildingRecord
 from uavplace.ingest.mesh import MESH_SUFFIXES
-from uavplace.ingest.wireless_insite.p2m import parse_filename
+from uavplace.ingest.wireless_insite.p2m_header import parse_filename
 from uavplace.schemas import InputError, Rejection
 from uavplace.schemas.provenance import SIDE_FILE_SUFFIX
 
@@ -227,3 +227,48 @@ __all__ = [
     "format_of",
     "geometry_format",
 ]
+
+
+@dataclass(frozen=True)
+class Classified:
+    path: Path
+    rel: str
+    kind: str
+    skip_reason: str | None = None
+    #: Its entry of the reader table (None: not a format ingest reads).
+    fmt: Format | None = None
+
+
+def classify(folder: Path) -> list[Classified]:
+    """Every non-hidden file below ``folder``, sorted, with its format family.
+
+    A symbolic link that leads out of ``folder`` is listed as skipped (kind
+    ``link``) and never opened: a city folder cannot make ingest read files
+    elsewhere on the machine. Whatever is not a regular file (a FIFO, a device, a
+    socket, a broken or looping link, a folder named like an export) is listed as
+    skipped too (kind ``special``), never opened: it would block or say nothing.
+    """
+    out = []
+    inside = folder.resolve()
+    for path in sorted(folder.rglob("*")):
+        rel = path.relative_to(folder).as_posix()
+        if any(part.startswith(".") for part in Path(rel).parts):
+            continue
+        low = path.name.lower()
+        kind, reason, fmt = "other", None, None
+        try:
+            target = path.resolve()
+        except (OSError, RuntimeError):  # a link loop
+            target = None
+        if target is not None and not target.is_relative_to(inside):
+            kind, reason = "link", f"symbolic link to {target}, outside the city folder: not read"
+        elif path.is_dir() and target is not None:
+            if not low.endswith(EXPORT_SUFFIXES):
+                continue  # a folder of the city: its files are listed themselves
+            kind, reason = "special", "a folder named like an export: not read"
+        elif target is None or not path.is_file():
+            kind, reason = "special", "not a regular file (a FIFO, device, socket, or a broken or looping link): not read"
+        elif (fmt := format_of(path)) is not None:
+            kind, reason = fmt.kind, fmt.skip_reason(path.name)
+        out.append(Classified(path, rel, kind, reason, fmt))
+    return out

@@ -16,6 +16,11 @@ from uavplace.rl.tasks.registry import TASKS
 from uavplace.rl.world.stats import STATS, format_stat, summarise
 
 
+def task_option(help_text: str):  # noqa: ANN201 - a click decorator
+    """``--task``: one of the registered tasks (``rl.tasks.registry.TASKS``), placement by default."""
+    return click.option("--task", type=click.Choice(list(TASKS)), default="placement", show_default=True, help=help_text)
+
+
 @click.command()
 @root_option
 def datasets(root: Path) -> None:
@@ -117,13 +122,7 @@ _TRAIN_OPTIONS = {"total_steps": "--steps"}
     "best-dqn (that one learnt by replay DQN), paper (docs/method.md, about 7 M steps: days on a CPU), fast (40 k "
     "steps, for checks). Their settings: rl/agent/config.py, PRESETS; what each costs: the README, Training and reporting.",
 )
-@click.option(
-    "--task",
-    type=click.Choice(list(TASKS)),
-    default="placement",
-    show_default=True,
-    help=DQNConfig.model_fields["task"].description,
-)
+@task_option(DQNConfig.model_fields["task"].description)
 @model_options(DQNConfig, "total_steps", names=_TRAIN_OPTIONS, unset={"total_steps": "the preset's"})
 @click.option(
     "--set",
@@ -248,7 +247,7 @@ def _train_in(run_dir: Path, resume, config, datasets, val_datasets, root: Path,
 
     from uavplace.infra.console import command_line
     from uavplace.rl.agent.resume import Interrupted
-    from uavplace.rl.agent.tasks import start_run
+    from uavplace.rl.agent.train import start_run
 
     try:
         trainer = start_run(run_dir, config, datasets, val_datasets, root, resume=resume is not None, command=command_line())

@@ -92,7 +92,7 @@ def simulate(
     """
     from uavplace.schemas import InputError
     from uavplace.simulate.corpus import city_config, corpus_specs, is_done
-    from uavplace.simulate.pipeline import check_simulation
+    from uavplace.simulate.sources import check_simulation
 
     call = settings(Simulation, values, OPTION_NAMES)
     base, rt = call.city(sources[0]), call.raytrace()

@@ -5,7 +5,7 @@ fields (``infra.options``) and the records of ``simulation.json`` from the model
 A field without an upper bound is bounded by the resource limit its ``limit`` names (``infra.limits.Limits``, raised
 with ``--limit NAME=VALUE``): what the machine can afford, not what physics allows. The checks that need several
 settings at once and the limits of what they make (grid cells, user-cells, route points) are
-``simulate.pipeline.check_simulation``'s, run before any geometry is loaded.
+``simulate.sources.check_simulation``'s, run before any geometry is loaded.
 """
 
 from __future__ import annotations

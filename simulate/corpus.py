@@ -17,8 +17,9 @@ from pathlib import Path
 from uavplace.infra.cluster import start_ray
 from uavplace.schemas import InputError
 from uavplace.simulate.config import SimulationSpec
-from uavplace.simulate.pipeline import PROVENANCE, simulate_city, spec_record
+from uavplace.simulate.pipeline import PROVENANCE, simulate_city
 from uavplace.simulate.raytrace import RayTraceConfig, raytrace_record
+from uavplace.simulate.trace_cache import spec_record
 
 
 def corpus_specs(sources: list[str], name: str, count: int, base: SimulationSpec, first: int = 0) -> list[SimulationSpec]:

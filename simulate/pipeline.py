@@ -19,31 +19,25 @@ The recipe:
 from __future__ import annotations
 
 import datetime as dt
-import hashlib
 import json
-import math
-import os
 import tempfile
 import time
-import zipfile
-import zlib
 from collections.abc import Callable
-from dataclasses import asdict, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import shapely
 
 from uavplace.infra.files import atomic_directory, check_name, check_replaceable
-from uavplace.infra.limits import check_limit, limits, shown
-from uavplace.infra.options import field_bounds
-from uavplace.ingest.formats import GEOMETRY_TITLES, geometry_format
+from uavplace.infra.limits import check_limit
 from uavplace.schemas import InputError
 from uavplace.schemas.base import uavplace_version
 from uavplace.schemas.provenance import CODES, ESTIMATED, EXACT_PATHS, UNREACHED, code_name
 from uavplace.simulate.complete import complete_users, missed_cells
-from uavplace.simulate.config import Simulation, SimulationSpec
+from uavplace.simulate.config import SimulationSpec
 from uavplace.simulate.fidelity import lattice_boundary_shares, lattice_step_ratios
+from uavplace.simulate.fill import check_fill, fill
 from uavplace.simulate.insite import (
     UNREACHED_POWER_DBM,
     ReceiverGrid,
@@ -53,16 +47,13 @@ from uavplace.simulate.insite import (
     write_setup,
     write_txrx,
 )
-from uavplace.simulate.procedural import PRESETS, USER_HEIGHT_M, generate_city, sample_users
+from uavplace.simulate.procedural import USER_HEIGHT_M, sample_users
 from uavplace.simulate.raytrace import (
-    SOLVERS,
     RadioMapJob,
     RayTraceConfig,
-    check_fill,
     constant_patch_share,
     direct_gains_isolated,
     exact_path_maps,
-    fill,
     free_space_cap,
     path_gain_maps_isolated,
     raytrace_record,
@@ -70,7 +61,8 @@ from uavplace.simulate.raytrace import (
 )
 from uavplace.simulate.routes import KINDS, MAX_STEP_M, ROUTE_SET, Route, draw_routes, write_routes_csv
 from uavplace.simulate.scene import CONCRETE, GROUND_MARGIN_M, Block, write_scene
-from uavplace.simulate.styles import STYLE_SIZE_M, STYLES, styled_city
+from uavplace.simulate.sources import check_bounded, check_simulation, load_geometry, surrounded
+from uavplace.simulate.trace_cache import cached_traces, read_cache_entry, spec_record, trace_key, write_cache_entry
 
 USER_SET = (1, "User")
 GRID_SET = (2, "Drone_grid")
@@ -78,187 +70,6 @@ GRID_SET = (2, "Drone_grid")
 PROVENANCE = "simulation.json"
 
 
-#: Scenes shipped with Sionna RT that ``sionna:<name>`` names (any scene of ``sionna.rt.scene`` works).
-SIONNA_SCENES = ("etoile", "florence", "munich", "san_francisco", "simple_street_canyon")
-
-
-def _sionna_scene(name: str) -> Path:
-    try:
-        from sionna.rt import scene as scenes
-    except ImportError:
-        raise InputError(f"sionna:{name}", "Sionna RT is not installed: pip install -e '.[raytrace]'", field="source") from None
-    path = getattr(scenes, name, None)
-    if not isinstance(path, str) or not path.endswith(".xml"):
-        raise InputError(f"sionna:{name}", f"Sionna RT ships no scene '{name}' (e.g. {', '.join(SIONNA_SCENES)})", field="source")
-    return Path(path)
-
-
-def _size(text: str, source: str) -> tuple[float, float]:
-    try:
-        w, h = (float(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise InputError(source, f"size '{text}': expected WIDTHxHEIGHT in metres, e.g. 400x500", field="source") from None
-    if not (48 <= w <= 5000 and 48 <= h <= 5000):
-        raise InputError(source, f"size {w:g} x {h:g} m: each side must be 48 to 5000 m", field="source")
-    return (w, h)
-
-
-def _bounded(value: float, option: str, field: str | None = None, limit: str | None = None) -> None:
-    """``InputError`` naming ``option`` unless ``value`` is finite, within the bounds of ``Simulation``'s ``field`` and
-    within the resource ``limit`` (by default the one the field names; without a field, from 0 up to the limit)."""
-    info = Simulation.model_fields[field] if field is not None else None
-    bounds = field_bounds(info) if info is not None else {}
-    extra = (info.json_schema_extra or {}) if info is not None else {}
-    limit = limit or extra.get("limit")
-    lo, hi = bounds.get("min", 0), bounds.get("max")
-    value = float(value)  # an integer option may be of any size (1e300 rays as an int)
-    if not (math.isfinite(value) and lo <= value <= (math.inf if hi is None else hi)):
-        upto = f"to {hi:g}" if hi is not None else f"up (and at most the limit {limit} = {shown(getattr(limits(), limit))})"
-        raise InputError(option, f"{value!r} is out of range: {lo:g} {upto}", field=field or limit)
-    if limit is not None:
-        check_limit(limit, value, option, "value", field=field or limit)
-
-
-def check_simulation(spec: SimulationSpec, config: RayTraceConfig, count: int = 1) -> None:
-    """``InputError`` naming the option unless every setting of the call is finite, within the bounds of
-    ``Simulation``'s fields and the resource limits (also the box of ``--extent``/``--crop`` and the ``--user`` positions), before any geometry is loaded or any
-    memory allocated."""
-    _bounded(count, "--count", "count")
-    _bounded(len(spec.users_m) or spec.num_users, "--users", "num_users")
-    _bounded(spec.grid_m, "--grid", "grid_m")
-    _bounded(spec.altitude_m, "--alt", "altitude_m")
-    _bounded(spec.tx_dbm, "--tx-dbm", "tx_dbm")
-    _bounded(config.frequency_hz, "--freq", "frequency_hz")
-    _bounded(config.samples_per_tx, "--samples", "samples")
-    _bounded(config.max_depth, "--depth", "depth")
-    if config.solver not in SOLVERS:
-        raise InputError("--solver", f"{config.solver!r}: expected one of {', '.join(SOLVERS)}", field="solver")
-    if config.complete_missed_samples:
-        _bounded(config.complete_missed_samples, "--complete-samples", "complete_samples")
-        if config.solver == "paths":
-            raise InputError(
-                "--complete-missed",
-                "--solver paths traces exact paths at every cell already: nothing is missed",
-                field="complete_missed",
-            )
-    if spec.surround_m and spec.crop_m is None:
-        raise InputError("--surround", "traces the buildings around a --crop: give --crop too", field="surround")
-    for option, box in (("--extent", spec.extent_m), ("--crop", spec.crop_m)):
-        if box is None:
-            continue
-        if not all(np.isfinite(box)) or box[2] <= box[0] or box[3] <= box[1]:
-            raise InputError(option, f"{box}: expected finite XMIN,YMIN,XMAX,YMAX with XMIN < XMAX and YMIN < YMAX", field="box")
-        _bounded(max(box[2] - box[0], box[3] - box[1]), option, limit="extent_m")
-        cells = ((box[2] - box[0]) // spec.grid_m) * ((box[3] - box[1]) // spec.grid_m)
-        check_limit("grid_cells", cells, option, "cells of the receiver grid (the extent over the grid squared)", field="grid_m")
-        _bounded(cells * (len(spec.users_m) or spec.num_users), f"{option} with --grid and --users", limit="user_cells")
-    if spec.surround_m and spec.crop_m is not None and all(np.isfinite(spec.crop_m)):
-        x0, y0, x1, y1 = surrounded(spec.crop_m, spec.surround_m)
-        _bounded(max(x1 - x0, y1 - y0), "--crop with --surround (the traced box)", limit="extent_m")
-    for k, (x, y) in enumerate(spec.users_m):
-        if not (np.isfinite(x) and np.isfinite(y)):
-            raise InputError("--user", f"user {k + 1} at ({x}, {y}): coordinates must be finite", field="user")
-    _bounded(spec.routes, "--routes", "routes")
-    if spec.routes:
-        _bounded(spec.route_length_m, "--route-length", "route_length_m")
-        _bounded(route_point_count(spec), "--routes with --route-length (their points)", limit="simulated_route_points")
-        unknown = [k for k in spec.route_kinds if k not in KINDS]
-        if unknown or not spec.route_kinds:
-            raise InputError(
-                "--route-kinds", f"{unknown or 'none'}: expected kinds among {', '.join(KINDS)}", field="route_kinds"
-            )
-
-
-def surrounded(box: tuple[float, float, float, float], margin_m: float) -> tuple[float, float, float, float]:
-    """``box`` (XMIN, YMIN, XMAX, YMAX) grown by ``margin_m`` on every side: the buildings ``--surround`` traces."""
-    return (box[0] - margin_m, box[1] - margin_m, box[2] + margin_m, box[3] + margin_m)
-
-
-def route_point_count(spec: SimulationSpec) -> int:
-    """The route points ``spec`` asks for (each route resampled at steps of at most ``MAX_STEP_M``)."""
-    return spec.routes * (math.ceil(spec.route_length_m / MAX_STEP_M) + 1)
-
-
-def load_geometry(
-    source: str, seed: int, crop: tuple[float, float, float, float] | None = None
-) -> tuple[list[Block], tuple[float, float, float, float], str]:
-    """(building parts, city bounds, description) of a source; ``crop`` keeps the buildings in that box (clipped).
-
-    Sources: ``procedural:<preset>`` (train, test, tiny, open: the original generator),
-    ``procedural:<style>[:WxH]`` (generator v2, ``simulate.styles``: grid, rotated,
-    perimeter, towers, organic, plazas, oldtown, or mixed: the first six styles in turn by seed); an InSite ``.city``; a GeoJSON file; a Mitsuba
-    ``.xml`` scene with its PLY/OBJ meshes, or ``sionna:<scene>`` for one that Sionna
-    RT ships (``sionna:etoile``, ``sionna:florence``): buildings per connected body, the
-    ground left out, roofs split into height tiers (``ingest.mitsuba``).
-    """
-    if source.startswith("procedural"):
-        if crop is not None:
-            raise InputError(source, "--crop applies to real geometry; a procedural city takes --extent", field="crop")
-        preset, _, size_text = (source.partition(":")[2] or "train").partition(":")
-        if preset in STYLES or preset == "mixed":
-            size = _size(size_text, source) if size_text else STYLE_SIZE_M
-            used, parts = styled_city(preset, size, seed)
-            blocks = [Block(f, 0.0, h, k) for f, h, k in parts]
-            return blocks, (0.0, 0.0, *size), f"procedural style {used} ({size[0]:g} x {size[1]:g} m), seed {seed}"
-        if preset not in PRESETS:
-            known = ", ".join([*PRESETS, *sorted(STYLES), "mixed"])
-            raise InputError(source, f"unknown procedural preset or style '{preset}' (known: {known})", field="source")
-        size = PRESETS[preset]
-        city = generate_city(size, 0, seed)
-        blocks = (
-            []
-            if preset == "open"
-            else [Block(f, 0.0, h, k) for k, (f, h) in enumerate(zip(city.footprints, city.heights_m, strict=True))]
-        )
-        return blocks, (0.0, 0.0, *size), f"procedural preset {preset} ({size[0]:g} x {size[1]:g} m), seed {seed}"
-    path = _sionna_scene(source.partition(":")[2]) if source.startswith("sionna:") else Path(source)
-    if not path.is_file():
-        raise InputError(
-            path,
-            f"no such file: expected procedural[:preset], sionna:<scene> or a file of {GEOMETRY_TITLES}",
-            field="source",
-        )
-    fmt = geometry_format(path)
-    got = fmt.read(path, str(path), crop)
-    records, rejected, cropped, heights = got.records, got.rejected, got.cropped, got.heights
-    left_out = sum(r.count for r in rejected)
-    if crop is not None and not fmt.crops:
-        from uavplace.ingest.buildings import crop_records
-
-        records, cropped = crop_records(records, crop)
-    blocks = []
-    for k, rec in enumerate(records):
-        base = min(p.base_z_m for p in rec.parts) if rec.parts else 0.0
-        for p in rec.parts:
-            if not p.footprint.is_valid or p.footprint.area <= 0:
-                raise InputError(
-                    rec.source, f"footprint is not a valid polygon: {shapely.is_valid_reason(p.footprint)}", field="footprint"
-                )
-            for poly in shapely.get_parts(p.footprint):
-                blocks.append(Block(poly, p.base_z_m - base, p.roof_z_m - base, k))
-    if not blocks:
-        raise InputError(path, "no building in the geometry" + (" inside --crop" if crop else ""), field="geometry")
-    b = crop if crop is not None else tuple(shapely.total_bounds([blk.footprint for blk in blocks]))
-    if max(b[2] - b[0], b[3] - b[1]) > limits().extent_m:
-        raise InputError(
-            path,
-            f"the geometry spans {b[2] - b[0]:.0f} x {b[3] - b[1]:.0f} m, more than "
-            f"the limit extent_m = {limits().extent_m:g} m a side: give --crop, or raise it with "
-            "`--limit extent_m=VALUE`",
-            field="geometry",
-        )
-    tiers = len(blocks)
-    described = f"{source if source.startswith('sionna:') else path.name}: {len(records)} buildings in {tiers} roof tiers"
-    if left_out:
-        described += f", {left_out} feature(s) left out ({rejected[0].field}: {rejected[0].reason}, ...)"
-    if heights:
-        described += f"; heights: {heights}"
-    if crop is not None:
-        described += f", cropped to x {crop[0]:g}..{crop[2]:g}, y {crop[1]:g}..{crop[3]:g} m ({cropped} buildings outside)"
-    return blocks, (float(b[0]), float(b[1]), float(b[2]), float(b[3])), described
-
-
-#: What simulation.json says of the solver that traced a city.
 SOLVER_TEXT = {"radio-map": "Sionna's radio map", "paths": "Sionna's PathSolver, a receiver at every open cell's centre"}
 PATHS_TEXT = (
     "none: every open cell from exact paths (PathSolver, every path of up to max_depth interactions, as InSite "
@@ -328,7 +139,7 @@ def receiver_grid(bounds: tuple[float, float, float, float], spec: SimulationSpe
     # The work of the radio maps grows with the cells as well as with the rays: a grid no build could take is refused
     # before the ray tracer starts (a 5 km extent at 1 m held 25 M cells and ran for hours).
     check_limit("grid_cells", nx * ny, "--grid", "cells of the receiver grid (the extent over the grid squared)", field="grid_m")
-    _bounded(nx * ny * (len(spec.users_m) or spec.num_users), "--grid with --users (the city's size)", limit="user_cells")
+    check_bounded(nx * ny * (len(spec.users_m) or spec.num_users), "--grid with --users (the city's size)", limit="user_cells")
     if nx < 2 or ny < 2:
         raise InputError(
             spec.source, f"a {x1 - x0:g} x {y1 - y0:g} m extent holds fewer than 2 x 2 cells of {spec.grid_m:g} m", field="extent"
@@ -427,96 +238,6 @@ def map_quality(gain: np.ndarray, open_cells: np.ndarray) -> dict[str, float]:
         "constant_4x4_patch_share": constant_patch_share(gain, live & open_cells),
     }
     return {k: (None if np.isnan(v) else v) for k, v in out.items()}  # None (JSON null) where undefined: no boundary
-
-
-#: Settings that only change how the traced maps are filled or completed: a trace cache entry serves any of their values.
-FILL_ONLY = ("gap_fill_reach_m", "gap_fill_decay_db_per_m", "gap_fill_walk", "complete_missed_samples")
-
-
-def trace_key(spec: SimulationSpec, config: RayTraceConfig) -> str:
-    """What a city's traced maps depend on: its spec and the ray-trace settings, less ``FILL_ONLY``."""
-    settings = {k: v for k, v in raytrace_record(config).items() if k not in FILL_ONLY}
-    return json.dumps({"spec": spec_record(spec), "raytrace": settings, "uavplace": uavplace_version()}, sort_keys=True)
-
-
-def spec_record(spec: SimulationSpec) -> dict:
-    """``spec`` as simulation.json records it: without the route settings when it has no routes (as before routes)."""
-    doc = asdict(spec)
-    if not spec.surround_m:  # as before --surround: a crop's buildings only
-        del doc["surround_m"]
-    return doc if spec.routes else {k: v for k, v in doc.items() if not k.startswith("route")}
-
-
-def _entry_digest(key: str, arrays: dict[str, np.ndarray]) -> str:
-    """The sha256 a trace cache entry carries: of its key (what made it) and of every array's name, type, shape and
-    bytes."""
-    h = hashlib.sha256(key.encode("utf-8"))
-    for name in sorted(arrays):
-        a = np.ascontiguousarray(arrays[name])
-        h.update(f"{name}|{a.dtype.str}|{a.shape}|".encode())
-        h.update(a.tobytes())
-    return h.hexdigest()
-
-
-def read_cache_entry(path: Path, key: str, max_bytes: float | None = None) -> tuple[dict[str, np.ndarray] | None, str]:
-    """A trace cache entry's arrays, or None and why it is not used: not a regular file, not a readable archive, an
-    array over the limits or of objects, arrays that together hold more than ``max_bytes`` (what the simulation can
-    make: read from the headers before anything is decompressed), another key (other settings), or arrays that do
-    not match the sha256 the entry carries (damaged or altered). Never raises on a damaged entry."""
-    bound = limits().array_bytes
-    total = 0
-    try:
-        with zipfile.ZipFile(path) as archive:
-            for info in archive.infolist():
-                with archive.open(info) as member:
-                    version = np.lib.format.read_magic(member)
-                    read_header = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
-                    if version not in read_header:
-                        return None, f"{info.filename}: .npy format {version}"
-                    shape, _, dtype = read_header[version](member)  # the header only, before anything is decompressed
-                size = int(np.prod(shape, dtype=np.float64)) * dtype.itemsize
-                if dtype.hasobject or size > bound:
-                    return None, f"{info.filename}: {dtype} {shape} is over the limit array_bytes or not numbers"
-                total += size
-                if max_bytes is not None and total > max_bytes:
-                    return None, f"its arrays hold over {max_bytes:,.0f} bytes, more than this simulation makes"
-        with np.load(path, allow_pickle=False) as z:
-            if "key" not in z.files or str(z["key"]) != key:
-                return None, "made with other settings"
-            arrays = {k: z[k] for k in z.files if k not in ("key", "sha256")}
-            carried = str(z["sha256"]) if "sha256" in z.files else ""
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError, zlib.error) as exc:
-        return None, f"unreadable ({type(exc).__name__}: {str(exc)[:120]})"
-    if carried != _entry_digest(key, arrays):
-        return None, "its arrays do not match the sha256 it carries (damaged or altered)"
-    return arrays, "used"
-
-
-def _cached_traces(cache: Path | None, name: str, key: str, trace, max_bytes: float | None = None) -> tuple[dict, str]:  # noqa: ANN001
-    """``trace()``'s maps, or those kept in ``cache/<name>.npz`` under the same key (``trace_key``; arrays only, no
-    pickle, checked by ``read_cache_entry``, at most ``max_bytes`` in all); (maps, what became of the entry: ``used``,
-    ``none``, or why it was traced again). A new trace is kept there with its sha256, written atomically."""
-    path = None if cache is None else Path(cache) / f"{name}.npz"
-    status = "none"
-    if path is not None and (path.is_symlink() or (path.exists() and not path.is_file())):  # before minutes of tracing
-        raise InputError(path, "exists and is not a regular file: not a trace cache entry; move it away", field="trace_cache")
-    if path is not None and path.exists():
-        arrays, status = read_cache_entry(path, key, max_bytes)
-        if arrays is not None:
-            return {(int(k[1:]) if k[0] == "f" and k[1:].isdigit() else k): v for k, v in arrays.items()}, status
-        status = f"traced again: the entry was {status}" if status.startswith("made") else f"traced again: {status}"
-    maps = trace()
-    if path is not None:
-        write_cache_entry(path, key, {(f"f{k}" if isinstance(k, int) else k): v for k, v in maps.items()})
-    return maps, status
-
-
-def write_cache_entry(path: Path, key: str, arrays: dict[str, np.ndarray]) -> None:
-    """A trace cache entry: ``arrays`` with the ``key`` that made them and their sha256, written atomically."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez_compressed(tmp, key=np.array(key), sha256=np.array(_entry_digest(key, arrays)), **arrays)
-    os.replace(tmp, path)
 
 
 def complete_missed(
@@ -643,7 +364,7 @@ def simulate_city(
         # What a trace of this city holds at most: a fine, a direct and each coarse map of float64 per source and cell,
         # with room for the arrays beside them: an entry that inflates beyond it is not read.
         most = 8.0 * len(sources) * grid.num_x * grid.num_y * (4 + 2 * len(rt_config.gap_fill_factors)) + 2**20
-        maps, cached = _cached_traces(
+        maps, cached = cached_traces(
             Path(trace_cache) if trace_cache else None, spec.name, trace_key(spec, rt_config), trace, most
         )
         d2 = squared_distances(sources, grid)

@@ -118,7 +118,8 @@ def _city(folder: Path) -> Path:
 
 
 def _p2m(path: Path) -> object:
-    from uavplace.ingest.wireless_insite.p2m import COHERENT_MARGIN_DB, read_p2m
+    from uavplace.ingest.wireless_insite.p2m import read_p2m
+    from uavplace.ingest.wireless_insite.p2m_header import COHERENT_MARGIN_DB
 
     return read_p2m(path, max_gain_db=4.3 + COHERENT_MARGIN_DB, tx_power_dbm=20.0)
 

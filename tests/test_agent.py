@@ -16,7 +16,6 @@ from tests.conftest import REPO, write_grid_city
 from uavplace.dataset.build import build_city
 from uavplace.dataset.bundle import load_bundle
 from uavplace.ingest.pipeline import ingest_city
-from uavplace.rl.agent.cities import plan_cities
 from uavplace.rl.agent.config import DQNConfig, preset_config
 from uavplace.rl.agent.dqn import DQN, DQNPolicy, genie_move_loss, masked_argmax, to_tensor
 from uavplace.rl.agent.network import FoveaQNetwork, QNetwork
@@ -26,6 +25,7 @@ from uavplace.rl.agent.runs import load_policy, read_run_json
 from uavplace.rl.agent.train import Trainer
 from uavplace.rl.tasks.placement.config import EnvConfig
 from uavplace.rl.tasks.placement.env import BatchedEnv
+from uavplace.rl.world.cities import plan_cities
 from uavplace.rl.world.maps import MapSet
 from uavplace.schemas import InputError
 from uavplace.schemas.bundle import BuildConfig
@@ -481,6 +481,7 @@ def test_short_training_run_learns(tmp_path, learner):
     recurrent network)."""
     from pathlib import Path
 
+    from uavplace.rl.tasks.placement.learner import validation_set
     from uavplace.rl.tasks.placement.policies import RandomWalkPolicy
     from uavplace.rl.tasks.placement.rollout import run_episodes
     from uavplace.rl.world.stats import summarise
@@ -501,7 +502,8 @@ def test_short_training_run_learns(tmp_path, learner):
     trainer = Trainer(config, ["tiny"], tmp_path / "p", tmp_path / "run")
     trainer.run()
     policy, cfg = load_policy(tmp_path / "run" / "checkpoints" / "best.pt", epsilon=0.0)
-    maps = trainer.eval_maps  # all 4 users (the tiny city has no split), rotation off, t_max 40
+    # the run's validation maps: all 4 users (the tiny city has no split), rotation off, t_max 40
+    maps, _ = validation_set(config, plan_cities([load_bundle("tiny", root=tmp_path / "p")], [], config.eval_split))
     held_out = maps.sample_episodes(400, np.random.default_rng(12345))
     learned = summarise(run_episodes(maps, policy, held_out))["success"]
     walk = summarise(run_episodes(maps, RandomWalkPolicy(seed=1), held_out))["success"]

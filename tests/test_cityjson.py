@@ -126,7 +126,7 @@ def test_bad_cityjson_is_refused_naming_the_file_and_field(tmp_path):
 
 
 def test_simulate_reads_cityjson_and_says_how_heights_were_taken(tmp_path):
-    from uavplace.simulate.pipeline import load_geometry
+    from uavplace.simulate.sources import load_geometry
 
     blocks, bounds, described = load_geometry(str(_write(tmp_path, _v2())), 0)
     assert len(blocks) == 2 and bounds == pytest.approx((1000.0, 2000.0, 1016.0, 2020.0))

@@ -464,7 +464,7 @@ def test_fleet_report_writes_its_tables_and_never_replaces_a_stranger(tiny, tmp_
     import json
 
     assert json.loads((out / "fleet.json").read_text())["config"]["search"]["fleet_plan"] == "union"  # what played
-    from uavplace.eval.fleet import summary_rows
+    from uavplace.eval.reports.fleet.page import summary_rows
 
     rows = summary_rows(table, pd.read_csv(out / "differences.csv"), 60)
     assert rows[0] == ["method", "tiny: success / median steps (x oracle)", f"tiny: minus {best}"]
@@ -506,7 +506,7 @@ def test_fleet_env_for_the_learner_rewards_each_uav_for_its_own_users(tiny):
 
     config = _fleet_run_config()
     env_config = config.env_config()
-    maps = FleetMaps.of([load_bundle("tiny", root=str(tiny))], config.fleet_config())
+    maps = FleetMaps.of([load_bundle("tiny", root=str(tiny))], config.task.fleet())
     env = FleetTrainEnv(maps, env_config, 8)
     obs, info = env.reset(seed=3)
     assert obs.shape[0] == 8 and info["action_mask"].shape == (8, 4)
@@ -614,31 +614,29 @@ def test_fleet_agent_trains_resumes_exactly_and_reports(tiny, tmp_path):
 
     from uavplace.cli import uavrl
     from uavplace.rl.agent.runs import read_run_json
-    from uavplace.rl.agent.tasks import FleetTrainer
+    from uavplace.rl.agent.train import Trainer
     from uavplace.schemas import InputError
 
-    straight = FleetTrainer(_fleet_run_config(), ["tiny"], tiny, tmp_path / "a")
+    straight = Trainer(_fleet_run_config(), ["tiny"], tiny, tmp_path / "a")
     straight.run()
     evals = pd.read_parquet(tmp_path / "a" / "eval.parquet")
     assert evals["step"].tolist() == [128, 256] and evals["success"].between(0, 1).all()
     assert read_run_json(tmp_path / "a").config.task.kind == "fleet"
-    half = FleetTrainer(_fleet_run_config(), ["tiny"], tiny, tmp_path / "b")
+    half = Trainer(_fleet_run_config(), ["tiny"], tiny, tmp_path / "b")
     half.run(stop_at=96)
-    resumed = FleetTrainer(_fleet_run_config(), ["tiny"], tiny, tmp_path / "b")
+    resumed = Trainer(_fleet_run_config(), ["tiny"], tiny, tmp_path / "b")
     resumed.load()
     resumed.run(resume=True)
     for a, b in zip(straight.agent.online.state_dict().values(), resumed.agent.online.state_dict().values(), strict=True):
         assert torch.equal(a, b)
 
-    started = FleetTrainer(_fleet_run_config(init=str(tmp_path / "a")), ["tiny"], tiny, tmp_path / "c")
+    started = Trainer(_fleet_run_config(init=str(tmp_path / "a")), ["tiny"], tiny, tmp_path / "c")
     best = torch.load(tmp_path / "a" / "checkpoints" / "best.pt", weights_only=True)["online"]
     for name, value in started.agent.online.state_dict().items():
         assert torch.equal(value, best[name])
     with pytest.raises(InputError, match="do not fit"):
-        FleetTrainer(_fleet_run_config(init=str(tmp_path / "a"), hidden=8), ["tiny"], tiny, tmp_path / "d")
-    seeing = FleetTrainer(
-        _fleet_run_config(init=str(tmp_path / "a"), env={"fleet_channel": True}), ["tiny"], tiny, tmp_path / "e"
-    )
+        Trainer(_fleet_run_config(init=str(tmp_path / "a"), hidden=8), ["tiny"], tiny, tmp_path / "d")
+    seeing = Trainer(_fleet_run_config(init=str(tmp_path / "a"), env={"fleet_channel": True}), ["tiny"], tiny, tmp_path / "e")
     index = seeing.config.env.fleet_index  # the fleet channel added at zero weight to what it started from
     first = seeing.agent.online.state_dict()["fc.1.weight"].reshape(16, 2, -1, 25)
     assert not first[:, :, index].any()
@@ -649,7 +647,7 @@ def test_fleet_agent_trains_resumes_exactly_and_reports(tiny, tmp_path):
     from uavplace.rl.tasks.fleet import FleetPlacement
 
     agent = load_agent(tmp_path / "e", 0.096, 0, task="fleet")
-    maps = FleetMaps.of([load_bundle("tiny", root=str(tiny))], seeing.config.fleet_config())
+    maps = FleetMaps.of([load_bundle("tiny", root=str(tiny))], seeing.config.task.fleet())
     policy = FleetPlacement(agent.policy, agent.config.env_config(evaluation=True), agent.name, prefix="").bind(maps)
     episodes = maps.episode_list(4, 0)
     _moves_alike_scrambled(maps, policy, episodes, _paths(maps, policy, episodes), np.random.default_rng(3))

@@ -88,6 +88,7 @@ def _commands() -> list[tuple[str, str, str, tuple[str, ...]]]:
         ("uavrl", "levers", "EpisodeSettings", ("episodes", "seed")),
         ("uavrl", "train-predictor", "UNetConfig", ("widths", "steps", "batch", "seed", "threads")),
         ("uavrl", "report", "FleetConfig", ("uavs", "users")),
+        ("uavrl", "report", "ReportSettings", ("predictor",)),
         ("uavrl", "report", "TrackingConfig", ("horizon",)),
         ("uavrl", "report", "TrackingReportConfig", ("hold",)),
     ]
@@ -98,7 +99,8 @@ def test_a_commands_settings_are_its_models_fields(group, name, model, fields):
     """Each converted command's settings come from its model's fields (``FieldOption``): one default, one bound, one
     help each, written in the model only; the report's config inherits the evaluation protocol's fields."""
     from uavplace.cli import uavdata, uavrl
-    from uavplace.eval.config import ReportConfig, TrackingReportConfig
+    from uavplace.eval.config import ReportConfig, ReportSettings
+    from uavplace.eval.reports.tracking import TrackingReportConfig
     from uavplace.rl.agent.config import DQNConfig
     from uavplace.rl.config import EpisodeSettings, UNetConfig
     from uavplace.rl.tasks.fleet.config import FleetConfig
@@ -109,6 +111,7 @@ def test_a_commands_settings_are_its_models_fields(group, name, model, fields):
     cls = {
         "EpisodeSettings": EpisodeSettings,
         "ReportConfig": ReportConfig,
+        "ReportSettings": ReportSettings,
         "BuildConfig": BuildConfig,
         "CityRoles": CityRoles,
         "Simulation": Simulation,
@@ -147,67 +150,71 @@ def test_an_option_refuses_what_its_field_refuses():
     assert res.exit_code == 2 and "--seed" in res.output
 
 
-#: The options that are no setting of a model, by what they do: which inputs a command reads, where it writes, how it
-#: runs, which preset, task or role table it picks. Every other option of every command is a model's field
-#: (``FieldOption``): a new option that restates a field by hand fails the test below.
+#: The options of each command that are no setting of a model: which inputs it reads, where it writes, how it runs,
+#: which preset, task or role table it picks (a task's choices and a run's task are ``rl.tasks.registry``'s; a nested
+#: model's fields as NAME=VALUE are checked by that model, ``infra.options.with_pairs``). Every other option of every
+#: command is a model's field (``FieldOption``): a new option that restates a field by hand fails the test below, and
+#: so does a switch declared for a command that has none of that name.
 CLI_SWITCHES = {
-    "what it reads": {
-        "root",
-        "sources",
-        "folders",
-        "datasets",
-        "val_datasets",
-        "cities",
-        "city",
-        "runs",
-        "map_folders",
-        "spec_file",
-        "constants",
+    "uavdata build": {"cities", "crop_cities", "force", "quiet", "roles_file", "root", "splits"},
+    "uavdata export": {"cities", "formats", "out", "root"},
+    "uavdata ingest": {"folders", "name", "out_root", "quiet", "verbose"},
+    "uavdata list": {"raw", "root", "table"},
+    "uavdata pack": {"cities", "out", "raw", "root"},
+    "uavdata schema": {"model", "out_dir"},
+    "uavdata show": {"city", "out_path", "root", "user", "version"},
+    "uavdata simulate": {"cpus_per_city", "out_root", "quiet", "ray_address", "sources", "trace_cache"},
+    "uavrl baselines": {"datasets", "root"},
+    "uavrl calibrate-predictor": {"map_folders", "out", "packs", "predictor", "root", "val_datasets"},
+    "uavrl datasets": {"root"},
+    "uavrl ensemble": {"out", "quiet", "root", "runs"},
+    "uavrl fit-predictor": {"datasets", "out", "root", "val_datasets"},
+    "uavrl levers": {"against", "cities", "release", "root", "runs"},
+    "uavrl peer table": {"best", "cities", "markdown_path", "peers", "root"},
+    "uavrl peer train": {"algo", "datasets", "match", "out", "root"},
+    "uavrl report": {
         "agents_dir",
-        "predictor",
-        "resume",
-        "version",
-        "user",
-        "raw",
-        "model",
-        "roles_file",
+        "datasets",
         "groups",
-        "against",
-        "best",
-        "peers",
-        "match",
-        "packs",
-        "users_per_pack",
-    },
-    "where it writes": {"out", "out_root", "out_dir", "out_path", "markdown", "markdown_path", "name"},
-    "how it runs": {
-        "ray_address",
-        "cpus_per_city",
-        "cpus_per_trial",
-        "workers",
-        "quiet",
-        "verbose",
-        "force",
+        "markdown",
+        "out",
         "overwrite",
+        "quiet",
+        "ray_address",
+        "root",
+        "runs",
+        "search",
         "strict",
-        "until",
-        "table_only",
-        "table",
-        "release",
-        "trace_cache",
+        "task",
+        "workers",
     },
-    "which preset, task, format, algorithm or roles": {"preset", "task", "settings", "formats", "splits", "crop_cities", "algo"},
-    "a nested model's fields as NAME=VALUE, each checked by that model (infra.options.with_pairs)": {"search"},
+    "uavrl sweep": {"cpus_per_trial", "out", "quiet", "ray_address", "root", "spec_file", "table_only"},
+    "uavrl trace-predictor": {"constants", "map_folders", "out", "packs", "root", "users_per_pack", "val_datasets", "workers"},
+    "uavrl train": {
+        "datasets",
+        "name",
+        "preset",
+        "quiet",
+        "resume",
+        "root",
+        "runs",
+        "settings",
+        "strict",
+        "task",
+        "until",
+        "val_datasets",
+    },
+    "uavrl train-predictor": {"constants", "datasets", "map_folders", "out", "packs", "quiet", "root", "val_datasets"},
 }
 
 
 def test_every_option_is_a_field_or_a_declared_switch():
     """Every option of every command derives from a model's field (its name, type, bounds, default and help written
-    once, in the model), or is one of the declared switches that are no setting: 0 options restate a field by hand."""
+    once, in the model), or is one of that command's declared switches, which are no setting: 0 options restate a
+    field by hand, and no command declares a switch it has not."""
     from uavplace.cli import uavdata, uavrl
 
-    switches = set().union(*CLI_SWITCHES.values())
-    hand = []
+    hand, found = [], {}
 
     def walk(group: click.Group, prefix: str) -> None:
         for name in group.list_commands(None):
@@ -215,13 +222,15 @@ def test_every_option_is_a_field_or_a_declared_switch():
             if isinstance(command, click.Group):
                 walk(command, f"{prefix} {name}")
                 continue
-            for param in command.params:
-                if param.name != "help" and not isinstance(param, FieldOption) and param.name not in switches:
-                    hand.append(f"{prefix} {name} --{param.name}")
+            path = f"{prefix} {name}"
+            found[path] = {p.name for p in command.params if p.name != "help" and not isinstance(p, FieldOption)}
+            hand.extend(f"{path} --{n}" for n in sorted(found[path] - CLI_SWITCHES.get(path, set())))
 
     walk(uavdata, "uavdata")
     walk(uavrl, "uavrl")
     assert not hand, f"options written by hand, not derived from a model field: {hand}"
+    assert {path: CLI_SWITCHES[path] - names for path, names in found.items() if CLI_SWITCHES.get(path, set()) - names} == {}
+    assert set(CLI_SWITCHES) <= set(found)
 
 
 def test_pairs_set_a_models_fields_checked_by_it():

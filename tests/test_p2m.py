@@ -9,7 +9,8 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from uavplace.ingest.wireless_insite.p2m import parse_filename, read_p2m
+from uavplace.ingest.wireless_insite.p2m import read_p2m
+from uavplace.ingest.wireless_insite.p2m_header import parse_filename
 from uavplace.schemas import InputError
 
 
@@ -212,7 +213,7 @@ def test_header_titles_parse_in_linear_time():
     this process's CPU time, which a busy machine does not inflate as it does the wall time)."""
     import time
 
-    from uavplace.ingest.wireless_insite.p2m import column_titles
+    from uavplace.ingest.wireless_insite.p2m_header import column_titles
 
     line = "# X(m) Y(m) Z(m) Distance(m) Power(dBm) Phase(deg)"
     assert column_titles(line) == [("X", "m"), ("Y", "m"), ("Z", "m"), ("Distance", "m"), ("Power", "dBm"), ("Phase", "deg")]

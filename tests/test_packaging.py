@@ -150,11 +150,11 @@ def test_the_env_and_the_belief_import_no_policy():
 
 
 #: A task folder's files, lowest first: a file imports the task's lower files only (``rl/tasks/__init__.py``).
-TASK_FILES = ("config", "maps", "env", "policies", "searcher", "learner", "rollout", "gym", "zoo")
+TASK_FILES = ("config", "maps", "env", "policies", "searcher", "rollout", "learner", "gym", "zoo")
 
 
 def test_the_task_folders_have_the_same_files_layered():
-    """Every folder of ``rl/tasks/`` holds the task files (``TASK_FILES``; ``maps``, ``learner`` and ``zoo`` where the task has them) and nothing else, and a
+    """Every folder of ``rl/tasks/`` holds the task files (``TASK_FILES``; ``maps`` and ``zoo`` where the task has them) and nothing else, and a
     file imports only the files of its task below it (the package's ``__init__`` re-exports them all)."""
     graph = _imports()
     tasks = [p for p in sorted((REPO / "rl" / "tasks").iterdir()) if p.is_dir() and p.name != "__pycache__"]
@@ -162,7 +162,7 @@ def test_the_task_folders_have_the_same_files_layered():
     for folder in tasks:
         files = {p.stem for p in folder.glob("*.py")} - {"__init__"}
         # placement's map set is the engine's (rl/world/maps.py); tracking and fleet lay theirs on it
-        assert set(TASK_FILES) - {"learner", "zoo", "maps"} <= files <= set(TASK_FILES), folder
+        assert set(TASK_FILES) - {"zoo", "maps"} <= files <= set(TASK_FILES), folder
         prefix = f"uavplace.rl.tasks.{folder.name}."
         for name in files:
             mine = {i.removeprefix(prefix) for i in graph[prefix + name] if i.startswith(prefix)}
@@ -200,3 +200,18 @@ def test_the_layers_of_rl_the_world_below_the_tasks_below_the_learner():
         if i.startswith("uavplace.rl.") and i.count(".") >= 2 and _rl_layer(i) > _rl_layer(m)
     )
     assert not up, up
+
+
+def test_a_task_is_named_by_its_folder_the_registry_and_its_report_alone():
+    """Beyond placement (the task the others build on), no module of the package imports a task but its own folder
+    and its report's folder (``eval/reports/<task>/``); the registry lists the folders, and
+    each folder's ``__init__`` declares the task's entry (``rl.tasks.entry.Task``)."""
+    from uavplace.rl.tasks.entry import Task
+    from uavplace.rl.tasks.registry import FOLDERS, TASKS
+
+    graph = _imports()
+    assert list(TASKS) == list(FOLDERS) and all(isinstance(t, Task) for t in TASKS.values())
+    for task in FOLDERS[1:]:
+        folder = f"uavplace.rl.tasks.{task}"
+        users = sorted(m for m, found in graph.items() if not m.startswith(folder) and any(i.startswith(folder) for i in found))
+        assert all(m.startswith(f"uavplace.eval.reports.{task}") for m in users), (task, users)

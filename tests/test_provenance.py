@@ -11,7 +11,8 @@ import pytest
 
 from tests.conftest import write_grid_city
 from uavplace.dataset.build import build_city
-from uavplace.dataset.bundle import check_provenance, load_bundle
+from uavplace.dataset.bundle import load_bundle
+from uavplace.dataset.checks import check_provenance
 from uavplace.ingest.pipeline import ingest_city
 from uavplace.ingest.provenance import read_provenance
 from uavplace.schemas import InputError
@@ -31,8 +32,9 @@ from uavplace.schemas.provenance import (
     UNREACHED,
     WALKED,
 )
+from uavplace.simulate.fill import fill, fill_geodesic
 from uavplace.simulate.insite import write_provenance
-from uavplace.simulate.raytrace import RayTraceConfig, fill, fill_geodesic
+from uavplace.simulate.raytrace import RayTraceConfig
 
 
 def _lit(walk: str, open_cells: np.ndarray, hit_at: tuple[int, int], reach_m: float = 24.0) -> np.ndarray:

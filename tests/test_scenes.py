@@ -13,8 +13,8 @@ from uavplace.ingest.mitsuba import read_mitsuba
 from uavplace.ingest.pipeline import ingest_city
 from uavplace.schemas import InputError
 from uavplace.simulate.insite import write_city
-from uavplace.simulate.pipeline import load_geometry
 from uavplace.simulate.scene import extrude
+from uavplace.simulate.sources import load_geometry
 
 SCENE = """<scene version="2.1.0">
   <bsdf type="itu-radio-material" id="concrete"><string name="type" value="concrete"/></bsdf>

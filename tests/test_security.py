@@ -467,8 +467,8 @@ def test_work_is_bounded_before_it_starts(tmp_path, tiny):
 
     from uavplace.ingest.geojson import read_geojson
     from uavplace.simulate.config import SimulationSpec
-    from uavplace.simulate.pipeline import check_simulation
     from uavplace.simulate.raytrace import RayTraceConfig
+    from uavplace.simulate.sources import check_simulation
 
     spec = SimulationSpec(source="procedural:mixed", name="x", num_users=1, grid_m=1.0, extent_m=(0.0, 0.0, 5000.0, 5000.0))
     err = _within(10, check_simulation, spec, RayTraceConfig())

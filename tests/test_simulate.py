@@ -23,10 +23,12 @@ from uavplace.ingest.wireless_insite.city import read_city
 from uavplace.schemas import InputError
 from uavplace.schemas.bundle import EMBEDDED_NOISE_DBM, BuildConfig
 from uavplace.simulate.config import SimulationSpec
-from uavplace.simulate.pipeline import load_geometry, place_users, receiver_grid
+from uavplace.simulate.fill import fill_gaps
+from uavplace.simulate.pipeline import place_users, receiver_grid
 from uavplace.simulate.procedural import PRESETS, generate_city
-from uavplace.simulate.raytrace import LLVM_19, fill_gaps
+from uavplace.simulate.raytrace import LLVM_19
 from uavplace.simulate.scene import GROUND, extrude
+from uavplace.simulate.sources import load_geometry
 
 HAS_SIONNA = importlib.util.find_spec("sionna") is not None and importlib.util.find_spec("mitsuba") is not None
 HAS_LLVM = bool(os.environ.get("DRJIT_LIBLLVM_PATH")) or os.path.exists(LLVM_19)
@@ -72,7 +74,8 @@ def test_fill_gaps_takes_the_parent_cell():
 
 
 def test_smooth_fill_varies_from_cell_to_cell_and_never_crosses_a_building():
-    from uavplace.simulate.raytrace import constant_patch_share, fill_smooth
+    from uavplace.simulate.fill import fill_smooth
+    from uavplace.simulate.raytrace import constant_patch_share
 
     fine = np.zeros((1, 8, 8))
     fine[0, 0, 0], fine[0, 0, 7] = 1e-3, 1e-6  # a strong hit left of a wall, a weak one right of it
@@ -95,7 +98,7 @@ def test_smooth_fill_varies_from_cell_to_cell_and_never_crosses_a_building():
 
 def test_smooth_fill_takes_each_parents_level():
     """The gaps of each parent cell average to the coarse map's value there (more rays, less noise)."""
-    from uavplace.simulate.raytrace import fill_smooth
+    from uavplace.simulate.fill import fill_smooth
 
     rng = np.random.default_rng(0)
     fine = np.where(rng.random((1, 8, 8)) < 0.5, rng.uniform(1, 2, (1, 8, 8)), 0.0)
@@ -253,7 +256,7 @@ def test_fill_scores_split_hit_and_missed_pairs():
 
 def test_walk_fronts_record_the_cells_walked_around_a_wall():
     """``_walk_fronts``' front record is the walk through open cells from the known ones: around a wall, not across."""
-    from uavplace.simulate.raytrace import _walk_fronts
+    from uavplace.simulate.fill import _walk_fronts
 
     spread = np.ones((5, 7), bool)
     spread[0:4, 3] = False  # a wall down column 3, open at the bottom row
@@ -432,9 +435,10 @@ def test_surround_traces_the_buildings_around_a_crop_and_writes_the_crops_only(t
 @needs_sionna
 def test_simulate_ingest_build_round_trip(tmp_path):
     """The tiny city through the real commands; the bundle's SINR equals the radio map's, computed here again."""
+    from uavplace.simulate.fill import fill
     from uavplace.simulate.insite import ReceiverGrid
     from uavplace.simulate.pipeline import direct_maps, open_cells, squared_distances
-    from uavplace.simulate.raytrace import RadioMapJob, RayTraceConfig, fill, path_gain_maps_isolated
+    from uavplace.simulate.raytrace import RadioMapJob, RayTraceConfig, path_gain_maps_isolated
     from uavplace.simulate.scene import write_scene
 
     res = _simulate(tmp_path, "procedural:tiny", "--name", "tiny", "--users", "3", "--samples", "2e5", "--seed", "4", quiet=False)
@@ -531,7 +535,7 @@ def test_trace_cache_entries_are_checked_and_damage_is_traced_again(tmp_path):
     import os
     import zipfile
 
-    from uavplace.simulate.pipeline import _cached_traces
+    from uavplace.simulate.trace_cache import cached_traces
 
     calls = []
 
@@ -540,9 +544,9 @@ def test_trace_cache_entries_are_checked_and_damage_is_traced_again(tmp_path):
         return {0: np.arange(12.0).reshape(3, 4), "direct": np.ones((2, 3, 4), np.float32)}
 
     cache = tmp_path / "cache"
-    maps, status = _cached_traces(cache, "c", "settings A", trace)
+    maps, status = cached_traces(cache, "c", "settings A", trace)
     assert status == "none" and len(calls) == 1
-    again, status = _cached_traces(cache, "c", "settings A", trace)
+    again, status = cached_traces(cache, "c", "settings A", trace)
     assert (
         status == "used"
         and len(calls) == 1
@@ -575,19 +579,19 @@ def test_trace_cache_entries_are_checked_and_damage_is_traced_again(tmp_path):
     for what, (data, message) in damages.items():
         entry.write_bytes(data)
         before = len(calls)
-        maps, status = _cached_traces(cache, "c", "settings A", trace)
+        maps, status = cached_traces(cache, "c", "settings A", trace)
         assert len(calls) == before + 1 and status.startswith("traced again") and message in status, (what, status)
-        assert _cached_traces(cache, "c", "settings A", trace)[1] == "used"  # the new trace was kept, whole
+        assert cached_traces(cache, "c", "settings A", trace)[1] == "used"  # the new trace was kept, whole
     # An entry whose arrays, each within the limits, hold more than this simulation makes (a 2 GB archive of a
     # small city's key) is traced again from its headers, before anything is decompressed.
     entry.write_bytes(rewrite(f0=np.zeros((1000, 3, 4))))
-    maps, status = _cached_traces(cache, "c", "settings A", trace, max_bytes=1000)
+    maps, status = cached_traces(cache, "c", "settings A", trace, max_bytes=1000)
     assert status.startswith("traced again") and "more than this simulation makes" in status, status
-    assert _cached_traces(cache, "c", "settings A", trace, max_bytes=1000)[1] == "used"
+    assert cached_traces(cache, "c", "settings A", trace, max_bytes=1000)[1] == "used"
     entry.unlink()
     os.mkfifo(entry)
     with pytest.raises(InputError, match="not a regular file"):
-        _cached_traces(cache, "c", "settings A", trace)
+        cached_traces(cache, "c", "settings A", trace)
     assert entry.is_fifo()
 
 

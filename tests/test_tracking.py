@@ -282,7 +282,7 @@ def test_tracking_table_intervals_resample_routes():
     ratio of the means; routes that differ widen the interval of the route-level bootstrap."""
     import pandas as pd
 
-    from uavplace.eval.tracking import tracking_table
+    from uavplace.eval.reports.tracking.page import tracking_table
     from uavplace.rl.tasks.tracking import TrackingEpisodes
 
     rng = np.random.default_rng(0)
@@ -308,7 +308,7 @@ def test_tracking_table_intervals_resample_routes():
     assert m["covered_share_lo"] < half.mean() < m["covered_share_hi"]
     assert m["covered_share_hi"] - m["covered_share_lo"] > 0.3  # routes of 0.9 and 0.1: the route level dominates
 
-    from uavplace.eval.tracking import summary_rows
+    from uavplace.eval.reports.tracking.page import summary_rows
 
     other = t.assign(city="d", covered_share=t["covered_share"] / 2)[t["method"] == "half"]  # "oracle" not in d
     rows = summary_rows(pd.concat([t, other], ignore_index=True))
@@ -406,7 +406,7 @@ def test_tracking_agent_trains_selects_on_validation_routes_and_reports(val_root
 
     from uavplace.cli import uavrl
     from uavplace.rl.agent.runs import load_policy, read_run_json
-    from uavplace.rl.agent.tasks import TrackingTrainer
+    from uavplace.rl.agent.train import Trainer
 
     args = ["train", "--task", "tracking", "--dataset", "walk", "--dataset", "walk-val", "--root", str(val_root),
             "--out", str(tmp_path), "--steps", "512", "--eval-every", "256", "--quiet"]  # fmt: skip
@@ -428,11 +428,11 @@ def test_tracking_agent_trains_selects_on_validation_routes_and_reports(val_root
 
     # Stopped at 200 and resumed: the same network as the straight run.
     half = tmp_path / "half"
-    trainer = TrackingTrainer(_tracking_config(), ["walk", "walk-val"], val_root, half)
+    trainer = Trainer(_tracking_config(), ["walk", "walk-val"], val_root, half)
     trainer.run(stop_at=200)
-    resumed = TrackingTrainer(_tracking_config(), ["walk", "walk-val"], val_root, half)
+    resumed = Trainer(_tracking_config(), ["walk", "walk-val"], val_root, half)
     resumed.run(resume=True)
-    straight = TrackingTrainer(_tracking_config(), ["walk", "walk-val"], val_root, tmp_path / "again")
+    straight = Trainer(_tracking_config(), ["walk", "walk-val"], val_root, tmp_path / "again")
     straight.run()
     for a, b in zip(resumed.agent.online.state_dict().values(), straight.agent.online.state_dict().values(), strict=True):
         assert torch.equal(a, b)
@@ -466,15 +466,15 @@ def test_tracking_agent_trains_selects_on_validation_routes_and_reports(val_root
 
 def test_tracking_runs_need_routes_and_validation_routes(val_root, tmp_path):
     """A tracking run refuses a city without routes and a run without a validation city with routes, naming them."""
-    from uavplace.rl.agent.tasks import TrackingTrainer
+    from uavplace.rl.agent.train import Trainer
 
     with pytest.raises(InputError, match="selects best.pt on validation cities with routes"):
-        TrackingTrainer(_tracking_config(), ["walk"], val_root, tmp_path / "a")
+        Trainer(_tracking_config(), ["walk"], val_root, tmp_path / "a")
     (tmp_path / "raw").mkdir()
     ingest_city(write_grid_city(tmp_path / "raw" / "plain", seed=1), val_root, name="plain")
     build_city("plain", BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=-45.0), val_root)
     with pytest.raises(InputError, match="plain has no routes"):
-        TrackingTrainer(_tracking_config(), ["walk", "plain", "walk-val"], val_root, tmp_path / "b")
+        Trainer(_tracking_config(), ["walk", "plain", "walk-val"], val_root, tmp_path / "b")
 
 
 def test_an_agent_plays_the_same_episodes_on_its_own_observation(root):
@@ -504,10 +504,10 @@ def test_tracking_agents_read_only_what_they_measured(root):
 
     fresh = _tracking_config()
     torch_net = make_network(fresh, *fresh.observation())
-    agents = [TrackingAgent(DQNPolicy.from_config(torch_net, fresh), fresh.tracking_config(), "fresh")]
+    agents = [TrackingAgent(DQNPolicy.from_config(torch_net, fresh), fresh.task.playing(fresh), "fresh")]
     for folder in default_agents(REPO / "data" / "agents", "tracking"):
         a = load_agent(folder, 0.096, 0, task="tracking")
-        agents.append(TrackingAgent(a.policy, a.config.tracking_config(), a.name))
+        agents.append(TrackingAgent(a.policy, a.config.task.playing(a.config), a.name))
     bundle = load_bundle("walk", root=root)
 
     def replay(policy, task: TrackingConfig) -> tuple[list[bool], list[bool]]:  # noqa: ANN001

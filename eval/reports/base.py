@@ -21,9 +21,11 @@ from uavplace.rl.config import SearchConfig
 class ReportRequest(BaseModel):
     """What ``uavrl report`` was asked, by the names of its options, read once from the command line and handed to
     the task's report (``TaskReport.play``); the report builds its own settings model from it
-    (``eval.config.ReportConfig``, ``TrackingReportConfig``, ``FleetReportConfig``)."""
+    (placement's ``eval.config.ReportConfig``, each other task's in its report module)."""
 
-    model_config = ConfigDict(frozen=True, arbitrary_types_allowed=True)
+    #: Beside these, every task report's own options (``TaskReport.options``: ``--horizon``, ``--uavs``, ...) as
+    #: fields of their names, validated by their options' types.
+    model_config = ConfigDict(frozen=True, arbitrary_types_allowed=True, extra="allow")
 
     task: str
     runs: tuple[Path, ...] = ()
@@ -40,10 +42,6 @@ class ReportRequest(BaseModel):
     groups: tuple[str, ...] = ()
     agents_dir: Path
     markdown: Path | None = None
-    uavs: int
-    users: int
-    horizon: int
-    hold: bool
     predictor: str
     search: SearchConfig
     overwrite: bool = False
@@ -67,7 +65,7 @@ class ReportRequest(BaseModel):
 
 @dataclass(frozen=True)
 class TaskReport:
-    """How ``uavrl report --task NAME`` plays one task (``eval.reports.REPORTS`` names each task's)."""
+    """How ``uavrl report --task NAME`` plays one task (its entry, ``rl.tasks.registry.TASKS``, names it)."""
 
     #: The report: the request and the stack its cleanups go on.
     play: Callable[[ReportRequest, contextlib.ExitStack], None]
@@ -84,6 +82,11 @@ class TaskReport:
     searcher: str
     #: The ``SearchConfig`` fields the report sets itself (placement plays the searcher with the buildings and without).
     sets: frozenset[str] = frozenset()
+    #: What ``uavrl report --task NAME`` plays, for ``--task``'s help.
+    summary: str = ""
+    #: Its own options of ``uavrl report``: a settings model and the fields each is derived from
+    #: (``infra.options.model_options``), read from the request by the fields' names.
+    options: tuple[tuple[type[BaseModel], tuple[str, ...]], ...] = ()
 
     def search(self, pairs: tuple[str, ...]) -> SearchConfig:
         """The task's searcher settings (its report config's default) with ``--search``'s ``NAME=VALUE`` set; a
@@ -134,6 +137,19 @@ def check_training_settings(runs: list[Path], request: ReportRequest) -> None:
     from uavplace.eval.evaluate import unlike_training
 
     warn_or_refuse(unlike_training(runs, list(request.datasets), request.root, request.p_t_db), request.strict)
+
+
+def checked_runs(runs: list[Path], request: ReportRequest) -> list[Path]:
+    """``runs``, each given once (``check_runs_once``) and each named where it would play outside its training settings
+    (``check_training_settings``)."""
+    check_runs_once(runs, "--run")
+    check_training_settings(runs, request)
+    return runs
+
+
+def report_folder(request: ReportRequest, tag: str) -> Path:
+    """Where a task's report is written: ``--out``, else ``reports/<tag>``."""
+    return request.out or Path("reports") / tag
 
 
 @contextlib.contextmanager

@@ -177,6 +177,8 @@ def one_report(config: ReportConfig, out: Path, request: ReportRequest, city: tu
 
 REPORT = TaskReport(
     play=play,
+    summary="the paper's task (a user who stays): every agent, the genie, the steered random walk, greedy hill-climbing and "
+    "the map searcher with its ablation shown no building, a report folder per city (OUT defaults to reports/)",
     routes=False,
     budget=("t_max", "--t-max"),
     selects_users=True,

@@ -20,9 +20,7 @@ fails does a line-by-line pass run, to name the line and field at fault.
 
 from __future__ import annotations
 
-import re
 from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -30,244 +28,31 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 
 from uavplace.infra.limits import check_limit, limits
-from uavplace.schemas import InputError, ReceiverSet
-from uavplace.schemas.receivers import QUANTITIES, RECEIVER_OUTPUTS, SKIPPED_OUTPUTS
-from uavplace.schemas.tables import RECEIVERS, Column
-
-#: ``model.pl.t001_01.r002.p2m`` -> project "model", output "pl", tx point 1, tx set 1, rx set 2.
-FILENAME_RE = re.compile(
-    r"^(?P<project>.+)\.(?P<output>[A-Za-z0-9]+)\.t(?P<tx_point>\d{3,4})_(?P<tx_set>\d{2,4})"
-    r"\.r(?P<rx_set>\d{3,4})\.p2m(?:\.gz)?$"
+from uavplace.ingest.wireless_insite.p2m_header import (
+    COHERENT_MARGIN_DB,
+    DEFAULT_POWER_THRESHOLD_DBM,
+    HEADER_PROBE,
+    MAX_LINE_BYTES,
+    NON_SPACE,
+    NUL,
+    POSITION_COLUMNS,
+    converted,
+    diagnose,
+    line_of_row,
+    parse_filename,
+    split_header,
+    text_conversion,
+    value_columns,
 )
-#: Transmitter-only outputs, e.g. ``model.inputpower.t01.p2m``.
-TX_ONLY_RE = re.compile(r"^(?P<project>.+)\.(?P<output>[A-Za-z0-9]+)\.t(?P<tx_set>\d{2,4})\.p2m(?:\.gz)?$")
-#: ``# <Transmitter Set: Tx: 1 BS1 - Point 1>``
-TX_HEADER_RE = re.compile(r"<Transmitter Set:\s*Tx:\s*(?P<id>\d+)\s+(?P<name>.*?)\s*-\s*Point\s+(?P<point>\d+)\s*>")
-#: ``# <Receiver Set: Rx: 4 UE_grid>``
-RX_HEADER_RE = re.compile(r"<Receiver Set:\s*Rx:\s*(?P<id>\d+)\s*(?P<name>.*?)\s*>")
-#: The ``(unit)`` of a column title; ``column_titles`` takes the name before it.
-_UNIT_RE = re.compile(r"\(([^)]*)\)")
-#: A column title's name: letters and spaces, starting with a letter, right before its ``(unit)``.
-_NAME_RE = re.compile(r"[A-Za-z][A-Za-z ]*$")
-
-
-def column_titles(line: str) -> list[tuple[str, str]]:
-    """The ``Name(unit)`` column titles of a header line, as (name, unit), in linear time (a title regex that searched
-    for the name lazily took seconds on a 30 kB line and never ended on 50 MB)."""
-    end = line.rfind(")")
-    out = []
-    start = 0
-    for m in _UNIT_RE.finditer(line, 0, end + 1):  # every "(" searched has a ")" after it: no failed scans
-        before = line[start : m.start()].rstrip()
-        name = _NAME_RE.search(before[-256:])  # a title is short; the bound keeps the search linear
-        if name is not None:
-            out.append((name.group(0), m.group(1)))
-        start = m.end()
-    return out
-
-
-#: The position columns every receiver row starts with (after the receiver number).
-POSITION_COLUMNS = ("x_m", "y_m", "z_m", "distance_m")
-_NON_SPACE = re.compile(rb"\S")
-#: Bytes read to find the header of an uncompressed file.
-_HEADER_PROBE = 1 << 16
-#: The longest line of a receiver row read [bytes] (a row is a few dozen: 8 numbers).
-MAX_LINE_BYTES = 1 << 16
-#: InSite's power threshold when the .setup gives none [dBm].
-DEFAULT_POWER_THRESHOLD_DBM = -250.0
-#: Peak gain [dBi] of the InSite antenna types whose gain the type fixes (keys lower case, without spaces).
-ANTENNA_GAINS_DBI = {"isotropic": 0.0, "halfwavedipole": 2.15, "shortdipole": 1.76, "linearwiredipole": 2.15}
-#: Gain [dBi] assumed for a declared antenna of another type (a horn, an array, a dish): a large dish's.
-UNKNOWN_ANTENNA_GAIN_DBI = 30.0
-#: Gain [dBi] of an antenna the export does not declare: a half-wave dipole, InSite's default.
-UNDECLARED_ANTENNA_GAIN_DBI = 2.15
-#: A received power may exceed the transmitted power plus both antennas' gains by at most this [dB]. In the far field
-#: every path loses power (a path gain above 0 dB is not physical); only paths adding in phase can raise the sum,
-#: and two equal paths in phase double the amplitude: +6 dB.
-COHERENT_MARGIN_DB = 6.0
-
-
-def antenna_gain_dbi(antenna_type: str | None) -> float:
-    """Peak gain [dBi] bounding an antenna of this InSite ``type`` (None: not declared): ``ANTENNA_GAINS_DBI``,
-    else ``UNKNOWN_ANTENNA_GAIN_DBI``, or ``UNDECLARED_ANTENNA_GAIN_DBI`` without a declaration."""
-    if antenna_type is None:
-        return UNDECLARED_ANTENNA_GAIN_DBI
-    return ANTENNA_GAINS_DBI.get(antenna_type.replace(" ", "").replace("_", "").lower(), UNKNOWN_ANTENNA_GAIN_DBI)
-
+from uavplace.schemas import InputError, ReceiverSet
+from uavplace.schemas.receivers import QUANTITIES
+from uavplace.schemas.tables import RECEIVERS, Column
 
 #: Text read per batch by the streaming reader (a row is about 45 bytes: some 45 k rows a batch). Measured on a
 #: 5 M-row ingest: 16 MiB peaked 150 MB higher, 1 MiB and below ran 10-20 % slower.
 BATCH_BYTES = 2 << 20
 #: Rows checked at a time after the line-by-line fallback.
 _FALLBACK_ROWS = 250_000
-#: A number as every reader parses it (no ``_`` separators), or nan/inf (refused later as not finite).
-_NUMBER = re.compile(rb"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|[-+]?(?:nan|inf|infinity)", re.IGNORECASE)
-_INTEGER = re.compile(rb"\+?\d+")
-#: Longest number word accepted [characters] (a float has at most 17 significant digits).
-_MAX_WORD = 40
-_NUL = b"\0"
-_UTF8_BOM = b"\xef\xbb\xbf"
-_UTF16_BOMS = (b"\xff\xfe", b"\xfe\xff")
-
-
-@dataclass(frozen=True)
-class P2MName:
-    project: str
-    output: str
-    tx_point: int | None
-    tx_set: int
-    rx_set: int | None
-
-    @property
-    def is_receiver_output(self) -> bool:
-        return self.output in RECEIVER_OUTPUTS and self.rx_set is not None
-
-    @property
-    def skip_reason(self) -> str | None:
-        if self.is_receiver_output:
-            return None
-        return SKIPPED_OUTPUTS.get(self.output, f"unknown InSite output type '{self.output}'")
-
-
-def parse_filename(name: str) -> P2MName | None:
-    """Identify a .p2m by its name; None if the name is not an InSite output name."""
-    m = FILENAME_RE.match(name)
-    if m:
-        return P2MName(m["project"], m["output"].lower(), int(m["tx_point"]), int(m["tx_set"]), int(m["rx_set"]))
-    m = TX_ONLY_RE.match(name)
-    if m:
-        return P2MName(m["project"], m["output"].lower(), None, int(m["tx_set"]), None)
-    return None
-
-
-@dataclass(frozen=True)
-class _Header:
-    lines: list[str]
-    body_offset: int
-    style: str
-    tx: re.Match[str] | None
-    rx: re.Match[str] | None
-    titles: list[tuple[str, str]] | None
-    titles_line: int | None
-
-
-def _split_header(raw: bytes) -> _Header:
-    lines: list[str] = []
-    offset = 0
-    while offset < len(raw) and raw[offset : offset + 1] == b"#":
-        end = raw.find(b"\n", offset)
-        end = len(raw) if end < 0 else end + 1
-        lines.append(raw[offset:end].decode("utf-8", "replace").strip())
-        offset = end
-    tx = rx = None
-    titles = titles_line = None
-    for i, line in enumerate(lines):
-        tx = tx or TX_HEADER_RE.search(line)
-        rx = rx or RX_HEADER_RE.search(line)
-        found = column_titles(line.replace("<", " ").replace(">", " ").replace(",", " "))
-        if len(found) >= 4:
-            titles, titles_line = [(n.strip(), u.strip()) for n, u in found], i + 1
-    if tx or rx:
-        style = "insite4"
-    elif lines and lines[0].lstrip("#").strip().lower().startswith("rx"):
-        style = "insite3"
-    else:
-        style = "none"
-    return _Header(lines, offset, style, tx, rx, titles, titles_line)
-
-
-def _value_columns(path: str, output: str, header: _Header) -> tuple[str, ...]:
-    """The value columns after the positions, checked against the header titles when present."""
-    expected = RECEIVER_OUTPUTS[output]
-    if header.titles is None:
-        return expected
-    titles = header.titles
-    if len(titles) != len(POSITION_COLUMNS) + len(expected):
-        raise InputError(
-            path,
-            f"header names {len(titles)} columns, a '{output}' output has {len(POSITION_COLUMNS) + len(expected)} "
-            f"(x y z distance {' '.join(expected)})",
-            line=header.titles_line,
-            field="header",
-        )
-    for (name, unit), column in zip(titles[len(POSITION_COLUMNS) :], expected, strict=True):
-        q = QUANTITIES[column]
-        key = name.lower().replace(" ", "")
-        if key not in q.header_names:
-            raise InputError(
-                path,
-                f"column '{name}' where a '{output}' output has {column}",
-                line=header.titles_line,
-                field=name,
-            )
-        if unit.lower() not in q.header_units:
-            raise InputError(path, f"unit '{unit}' for {name}, expected {q.unit}", line=header.titles_line, field=name)
-    return expected
-
-
-def _line_of_row(raw: bytes, body_offset: int, n_header: int, row: int) -> int:
-    """1-based file line of the ``row``-th (0-based) non-empty body line."""
-    seen = -1
-    for i, line in enumerate(raw[body_offset:].splitlines()):
-        if line.strip():
-            seen += 1
-            if seen == row:
-                return n_header + i + 1
-    return n_header + row + 1
-
-
-def _diagnose(path: str, raw: bytes, header: _Header, names: list[str]) -> bytes:
-    """Line-by-line check of the body: raise on the first bad line, else return the rows single-space separated.
-
-    Numbers must look like numbers to any reader (``-7_0.5`` does to Python, not to Arrow), and be short.
-    """
-    rows: list[bytes] = []
-    n_header = len(header.lines)
-    for i, line in enumerate(raw[header.body_offset :].splitlines()):
-        words = line.split()
-        if not words:
-            continue
-        lineno = n_header + i + 1
-        if len(words) != len(names):
-            missing = names[len(words)] if len(words) < len(names) else None
-            raise InputError(
-                path,
-                f"expected {len(names)} columns (rx {' '.join(names[1:])}), found {len(words)}"
-                + (" (truncated row?)" if missing else ""),
-                line=lineno,
-                field=missing or "row",
-            )
-        for word, name in zip(words, names, strict=True):
-            pattern = _INTEGER if name == "rx_index" else _NUMBER
-            if len(word) > _MAX_WORD or pattern.fullmatch(word) is None:
-                shown = word[:_MAX_WORD].decode("utf-8", "replace") + ("..." if len(word) > _MAX_WORD else "")
-                what = "a receiver number" if name == "rx_index" else "a number"
-                raise InputError(path, f"'{shown}' is not {what}", line=lineno, field=name)
-        rows.append(b" ".join(words))
-    return b"\n".join(rows) + b"\n"
-
-
-def _text_conversion(probe: bytes) -> str | None:
-    """What a body must be converted from before Arrow reads it: None (ASCII/UTF-8, LF or CRLF), or
-    ``utf-8-sig`` (a byte-order mark), ``utf-16`` (with its byte-order mark) or ``cr`` (old Mac line ends)."""
-    if probe.startswith(_UTF8_BOM):
-        return "utf-8-sig"
-    if probe[:2] in _UTF16_BOMS:
-        return "utf-16"
-    if b"\r" in probe and b"\n" not in probe:
-        return "cr"
-    return None
-
-
-def _converted(path: str, raw: bytes, conversion: str) -> bytes:
-    if conversion == "utf-16":
-        try:
-            raw = raw.decode("utf-16").encode("utf-8")
-        except UnicodeDecodeError as exc:
-            raise InputError(path, f"starts with a UTF-16 byte-order mark but is not UTF-16 text ({exc.reason})") from None
-    elif conversion == "utf-8-sig":
-        raw = raw[len(_UTF8_BOM) :]
-    return raw.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
 
 
 class P2MStream:
@@ -313,24 +98,24 @@ class P2MStream:
         self.threshold = DEFAULT_POWER_THRESHOLD_DBM if power_threshold_dbm is None else power_threshold_dbm
         self.max_gain_db, self.tx_power_dbm = max_gain_db, tx_power_dbm
         self._raw: bytes | None = None  # the whole (converted) file, when it had to be read whole
-        probe = self._read(_HEADER_PROBE)
-        conversion = _text_conversion(probe)
-        if _NUL in probe and conversion != "utf-16":
+        probe = self._read(HEADER_PROBE)
+        conversion = text_conversion(probe)
+        if NUL in probe and conversion != "utf-16":
             raise InputError(
                 self.name,
-                f"holds NUL bytes (first at byte {probe.index(_NUL)}): binary data, or UTF-16 text without a "
+                f"holds NUL bytes (first at byte {probe.index(NUL)}): binary data, or UTF-16 text without a "
                 "byte-order mark; a .p2m is ASCII text",
             )
         if conversion is not None:
-            self._raw = _converted(self.name, self._read(None), conversion)
+            self._raw = converted(self.name, self._read(None), conversion)
             probe = self._raw
-        elif len(probe) == _HEADER_PROBE and probe.count(b"\n#") + 1 >= probe.count(b"\n"):
+        elif len(probe) == HEADER_PROBE and probe.count(b"\n#") + 1 >= probe.count(b"\n"):
             self._raw = self._read(None)  # an unusually long header
             probe = self._raw
         self.conversion = conversion
-        header = _split_header(probe)
+        header = split_header(probe)
         self.header = header
-        values = _value_columns(self.name, ident.output, header)
+        values = value_columns(self.name, ident.output, header)
         if header.tx and (int(header.tx["id"]) != ident.tx_set or int(header.tx["point"]) != ident.tx_point):
             raise InputError(
                 self.name,
@@ -345,8 +130,8 @@ class P2MStream:
             )
         self.values = values
         self.names = ["rx_index", *POSITION_COLUMNS, *values]
-        whole = self._raw is not None or len(probe) < _HEADER_PROBE
-        if whole and _NON_SPACE.search(probe, header.body_offset) is None:
+        whole = self._raw is not None or len(probe) < HEADER_PROBE
+        if whole and NON_SPACE.search(probe, header.body_offset) is None:
             raise InputError(self.name, "no receiver rows after the header (empty or truncated file)", line=len(header.lines) + 1)
         self._rows = 0
         self._reached = 0
@@ -397,7 +182,7 @@ class P2MStream:
         return read, parse, convert
 
     def _fail(self, row: int, field: str, message: str) -> InputError:
-        line = _line_of_row(self._whole(), self.header.body_offset, len(self.header.lines), row)
+        line = line_of_row(self._whole(), self.header.body_offset, len(self.header.lines), row)
         return InputError(self.name, message, line=line, field=field)
 
     def _blocks(self) -> Iterator[bytes]:
@@ -434,7 +219,7 @@ class P2MStream:
                 done += table.num_rows
         except pa.ArrowInvalid:
             # Irregular spacing (tabs, padding) or a real error: find out line by line, then go on from row `done`.
-            normalised = _diagnose(self.name, self._whole(), self.header, self.names)
+            normalised = diagnose(self.name, self._whole(), self.header, self.names)
             try:
                 table = pacsv.read_csv(pa.BufferReader(normalised), *self._options()).slice(done)
             except pa.ArrowInvalid as exc:
@@ -531,7 +316,7 @@ class P2MStream:
         dup = np.flatnonzero(np.diff(rx[order]) == 0)
         if dup.size:
             first, second = sorted((int(order[dup[0]]), int(order[dup[0] + 1])))
-            line1 = _line_of_row(self._whole(), self.header.body_offset, len(self.header.lines), row0 + first)
+            line1 = line_of_row(self._whole(), self.header.body_offset, len(self.header.lines), row0 + first)
             raise self._fail(row0 + second, "rx_index", f"duplicate receiver number {rx[second]} (first at line {line1})")
 
     @property

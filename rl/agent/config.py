@@ -9,10 +9,8 @@ from typing import Literal
 from pydantic import ConfigDict, Field, ValidationError, model_validator
 
 from uavplace.infra.limits import limits, over_limit
-from uavplace.rl.tasks.fleet import FleetConfig
-from uavplace.rl.tasks.placement.config import EnvConfig
-from uavplace.rl.tasks.registry import TASKS, FleetTask, LearnerTask, PlacementTask, TrackingTask
-from uavplace.rl.tasks.tracking import TrackingConfig
+from uavplace.rl.tasks.placement.config import EnvConfig, PlacementTask
+from uavplace.rl.tasks.registry import TASKS, LearnerTask
 from uavplace.schemas import InputError
 from uavplace.schemas.base import MAX_SEED, Contract, validation_message
 
@@ -160,7 +158,7 @@ class DQNConfig(Contract):
         if isinstance(data, dict) and isinstance(data.get("task", "placement"), str):
             data = dict(data)
             kind = data.pop("task", "placement")
-            own = {t.settings: data.pop(t.settings, None) for t in TASKS.values() if t.settings is not None}
+            own = {t.settings.prefix: data.pop(t.settings.prefix, None) for t in TASKS.values() if t.settings.prefix}
             data["task"] = {"kind": kind, **(own.get(kind) or {})}
         return data
 
@@ -175,14 +173,14 @@ class DQNConfig(Contract):
             raise ValueError("recurrent needs learner=pqn (the replay learner samples single transitions, not sequences)")
         if self.test_aux_weight > 0 and self.aux_genie <= 0:
             raise ValueError("test_aux_weight needs a network with a genie-move head (trained with aux_genie > 0)")
-        task = TASKS[self.task.kind]
+        task = self.task
         if not task.channels and (self.env.belief_channel or self.env.context_zoom):
-            raise ValueError(f"a {task.name} run deals each UAV a changing set of users: no belief or context channel")
-        if self.env.fleet_channel and self.task.kind != "fleet":
-            raise ValueError(f"env.fleet_channel marks the fleet's other UAVs: a fleet run's, not a {task.name} run's")
+            raise ValueError(f"a {task.kind} run deals each UAV a changing set of users: no belief or context channel")
+        if self.env.fleet_channel and task.kind != "fleet":
+            raise ValueError(f"env.fleet_channel marks the fleet's other UAVs: a fleet run's, not a {task.kind} run's")
         if not task.revisits and (self.train_revisit_penalty or self.test_revisit_penalty):
             # A user who moves brings the UAV back to cells it has stood in: placement's loop breaker is wrong here.
-            raise ValueError(f"train_revisit_penalty and test_revisit_penalty are placement's: 0 in a {task.name} run")
+            raise ValueError(f"train_revisit_penalty and test_revisit_penalty are placement's: 0 in a {task.kind} run")
         return self
 
     @model_validator(mode="after")
@@ -208,23 +206,11 @@ class DQNConfig(Contract):
     @property
     def n_actions(self) -> int:
         """The network's outputs: the 4 moves, and in the tracking task stay as well."""
-        return TASKS[self.task.kind].actions
-
-    def tracking_config(self) -> TrackingConfig:
-        """The tracking task as this run plays it (blind as the agent is)."""
-        if not isinstance(self.task, TrackingTask):
-            raise ValueError("not a tracking run")
-        return TrackingConfig(**self.task.model_dump(exclude={"kind"}) | {"blind": self.agent == "blind"})
-
-    def fleet_config(self) -> FleetConfig:
-        """The fleet task as this run plays it."""
-        if not isinstance(self.task, FleetTask):
-            raise ValueError("not a fleet run")
-        return FleetConfig(**self.task.model_dump(exclude={"kind"}))
+        return self.task.actions
 
     def observation(self) -> tuple[int, int]:
         """``(channels, window)`` of the observations the network reads, in its task."""
-        task = getattr(self, TASKS[self.task.kind].observation)()
+        task = self.task.playing(self)
         return task.num_channels, task.window
 
     def env_config(self, *, evaluation: bool = False) -> EnvConfig:
@@ -315,12 +301,14 @@ PRESETS["best"] = PRESETS["best-pqn"] | {
 PRESETS["hybrid"] = PRESETS["best"] | {"env": PRESETS["best"]["env"] | {"belief_channel": True}}
 
 
-#: What a preset changes when it learns a task without placement's revisit penalty (``Task.revisits``, tracking): a
+#: What a preset changes when it learns a task without placement's revisit penalty (``RunTask.revisits``, tracking): a
 #: user who moves brings the UAV back to cells it has stood in.
 NO_REVISITS = {"train_revisit_penalty": 0.0, "test_revisit_penalty": 0.0}
 #: The nested configs ``--set PART.FIELD=VALUE`` reaches.
 NESTED = {"env": EnvConfig.model_fields} | {
-    t.settings: {k: f for k, f in t.model.model_fields.items() if k != "kind"} for t in TASKS.values() if t.settings
+    t.settings.prefix: {k: f for k, f in t.settings.model_fields.items() if k != "kind"}
+    for t in TASKS.values()
+    if t.settings.prefix
 }
 
 
@@ -335,7 +323,7 @@ def parse_settings(settings: list[str] | tuple[str, ...]) -> dict:
         if not sep or len(parts) > 2 or parts[-1] not in known:
             raise InputError(
                 None,
-                f"{item!r}: expected FIELD=VALUE, env.FIELD=VALUE, tracking.FIELD=VALUE or fleet.FIELD=VALUE with a known field",
+                f"{item!r}: expected FIELD=VALUE or PART.FIELD=VALUE (PART one of {', '.join(NESTED)}) with a known field",
                 field="set",
             )
         try:
@@ -353,20 +341,20 @@ def preset_config(name: str, **overrides: object) -> DQNConfig:
         raise ValueError(f"unknown preset {name!r} (known: {', '.join(PRESETS)})")
     default_env = DQNConfig.model_fields["env"].default_factory().model_dump()  # type: ignore[misc]
     env = default_env | dict(PRESETS[name].get("env", {})) | dict(overrides.pop("env", None) or {})  # type: ignore[arg-type]
-    given = {t.settings: overrides.pop(t.settings, None) for t in TASKS.values() if t.settings is not None}
+    given = {t.settings.prefix: overrides.pop(t.settings.prefix, None) for t in TASKS.values() if t.settings.prefix}
     values = dict(PRESETS[name]) | {"preset": name} | overrides | {"env": env}
     task = TASKS.get(str(values.pop("task", "placement")))
     if task is None:
         raise InputError(None, f"unknown task (known: {', '.join(TASKS)})", field="task")
     for field, value in given.items():
-        if value and task.settings != field:
+        if value and task.settings.prefix != field:
             raise InputError(None, f"{field} settings are for --task {field}", field=field)
-    if not task.revisits:  # the preset's learner without placement's loop breaker
+    if not task.settings.revisits:  # the preset's learner without placement's loop breaker
         values = values | NO_REVISITS | {k: overrides[k] for k in NO_REVISITS if k in overrides}
     try:
         # the preset's training rotation (env.rotate) for the task too, unless its own rotate says otherwise
-        rotate = {"rotate": env["rotate"]} if "rotate" in task.model.model_fields else {}
-        values["task"] = task.model(**(rotate | (given.get(task.settings) or {})))
+        rotate = {"rotate": env["rotate"]} if "rotate" in task.settings.model_fields else {}
+        values["task"] = task.settings(**(rotate | (given.get(task.settings.prefix) or {})))
         return DQNConfig(**(values | {"env": EnvConfig(**env)}))
     except ValidationError as exc:
         field, message = validation_message(exc)

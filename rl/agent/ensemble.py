@@ -28,12 +28,12 @@ from uavplace.dataset.bundle import load_bundle
 from uavplace.infra.files import atomic_directory, write_model_json
 from uavplace.infra.tensors import load_tensors, save_tensors
 from uavplace.rl.agent.checkpoint import best_checkpoint
-from uavplace.rl.agent.cities import plan_cities, play_validation, validation_set
 from uavplace.rl.agent.config import DQNConfig
 from uavplace.rl.agent.dqn import DQNPolicy
 from uavplace.rl.agent.network import MeanQ
 from uavplace.rl.agent.runs import RUN_JSON, RunRecord, network_from_checkpoint, read_run_json
-from uavplace.rl.tasks.registry import TASKS
+from uavplace.rl.tasks.placement.learner import play_validation, validation_set
+from uavplace.rl.world.cities import plan_cities
 from uavplace.schemas import InputError
 from uavplace.schemas.base import uavplace_version
 
@@ -57,7 +57,7 @@ def read_member(folder: str | Path) -> Member:
     net, config = network_from_checkpoint(load_tensors(ckpt), ckpt)
     if config.ensemble != 1:
         raise InputError(ckpt, "already an ensemble: give the runs it was built from", field="ensemble")
-    if not TASKS[config.task.kind].ensembles:
+    if not config.task.ensembles:
         raise InputError(ckpt, f"a {config.task.kind} run: an ensemble is validated as a placement agent", field="task")
     if config != run.config:
         raise InputError(ckpt, f"its config is not the one {folder / RUN_JSON} records", field="config")

@@ -17,7 +17,6 @@ from uavplace.infra.tensors import load_tensors
 from uavplace.rl.agent.checkpoint import require
 from uavplace.rl.agent.config import DQNConfig
 from uavplace.rl.agent.dqn import DQNPolicy, make_network
-from uavplace.rl.tasks.registry import TASKS
 from uavplace.schemas import InputError
 from uavplace.schemas.base import Contract, validation_message
 from uavplace.schemas.bundle import BundleManifest, BundleSettings
@@ -71,7 +70,7 @@ def settings_unlike(record: RunRecord, manifest: BundleManifest, p_t_db: float |
     trained = list(record.bundle_settings.values())
     mine = BundleSettings.of(manifest)
     unlike = [] if not trained or mine in trained else mine.unlike(max(trained, key=trained.count))
-    if p_t_db is not None and TASKS[record.config.task.kind].env_p_t and p_t_db != record.config.env.p_t_db:
+    if p_t_db is not None and record.config.task.env_p_t and p_t_db != record.config.env.p_t_db:
         unlike.append(f"P_T {p_t_db:g} dB (trained at {record.config.env.p_t_db:g} dB)")
     return unlike
 
@@ -101,7 +100,7 @@ def run_finished(run_dir: Path) -> bool:
 
 def new_run_dir(runs: str | Path, config: DQNConfig) -> Path:
     stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
-    tag = TASKS[config.task.kind].tag
+    tag = config.task.tag
     task = f"-{tag}" if tag else ""
     return Path(runs) / f"{stamp}-{config.preset}{task}-{config.agent}-s{config.seed}"
 

@@ -7,8 +7,8 @@ run's starts and resumes; the time since the last checkpoint of a killed part is
 step counters, every random state, the environments' state, the replay or PQN's rollout so far,
 the metrics up to its step; one folder renamed into place, see ``rl.agent.checkpoint``), and
 ``checkpoints/best.pt`` (the network of the best evaluation). No checkpoint is a pickle of Python
-objects: they load with ``weights_only=True``. A tracking run (``DQNConfig.task``, ``uavrl train --task
-tracking``) is the same loop, learner and folder on the tracking task (``TrackingTrainer``).
+objects: they load with ``weights_only=True``. A run of any task (``DQNConfig.task``, ``uavrl train --task``) is
+the same loop, learner and folder; the task gives its env and validation (its learner hook, ``rl.tasks.entry``).
 """
 
 from __future__ import annotations
@@ -32,21 +32,19 @@ from uavplace.infra.files import (
     atomic_directory,
     atomic_write_bytes,
     atomic_write_text,
-    in_corpus,
     recover_directory,
     write_model_json,
 )
 from uavplace.infra.tensors import load_tensors, save_tensors
 from uavplace.rl.agent.checkpoint import CHECKPOINT_JSON, require
-from uavplace.rl.agent.cities import Cities, plan_cities, play_validation, validation_set
 from uavplace.rl.agent.config import DQNConfig
 from uavplace.rl.agent.dqn import DQN, DQNPolicy
 from uavplace.rl.agent.pqn import Rollout, pqn_round
 from uavplace.rl.agent.replay import ReplayBuffer
 from uavplace.rl.agent.resume import Interrupted, RunState, interrupts, read_state, start_from
 from uavplace.rl.agent.runs import LAST, RUN_JSON, RunRecord, read_run_json
-from uavplace.rl.tasks.placement.env import BatchedEnv
-from uavplace.rl.world.maps import MapSet
+from uavplace.rl.tasks.registry import task_of
+from uavplace.rl.world.cities import plan_cities
 from uavplace.schemas import InputError
 from uavplace.schemas.base import uavplace_version
 from uavplace.schemas.bundle import BundleSettings
@@ -99,7 +97,8 @@ class Trainer:
         bundles = [load_bundle(name, root=self.root) for name in self.datasets]
         cities = plan_cities(bundles, [load_bundle(n, root=self.root) for n in val_datasets or []], config.eval_split)
         self.train_split, self.eval_split = cities.train_split, cities.val_split
-        self.setup_task(cities)
+        self.learning = task_of(config.task).learn(config, cities)
+        self.env, self.train_bundles, self.val_bundles = self.learning.env, self.learning.train_bundles, self.learning.val_bundles
         c, w = config.observation()
         a = config.n_actions
         self.agent = DQN(config, c, w, fast=fast)
@@ -123,37 +122,20 @@ class Trainer:
         self.loaded = False  # True once ``load()`` restored a checkpoint
         self._began = time.perf_counter()  # when this start began (``run``)
 
-    # -- the task: placement here, tracking in TrackingTrainer ----------------------------------------
-    def setup_task(self, cities: Cities) -> None:
-        """The training env (``env``, compact observations) and what the periodic evaluation plays, from ``cities``."""
-        config = self.config
-        unmatched = [n for n in config.env.city_weights if not any(in_corpus(b.city, n) for b in cities.train)]
-        if unmatched:
-            raise InputError(
-                None,
-                f"{', '.join(unmatched)}: no training city or corpus of that name (training cities: "
-                f"{', '.join(b.city for b in cities.train)})",
-                field="env.city_weights",
-            )
-        self.maps = MapSet(cities.train, config.env_config().model_copy(update={"split": cities.train_split}), cities.train_users)
-        self.eval_maps, self.eval_episodes = validation_set(config, cities)
-        self.env = BatchedEnv(self.maps, config.num_envs, compact=True)
-        self.train_bundles, self.val_bundles = self.maps.bundles, self.eval_maps.bundles
-
+    # -- the task: its learner hook's (rl/tasks/<task>/learner.py) --------------------------------------
     @property
     def t_max(self) -> int:
         """The training episodes' step budget."""
-        return self.config.env.t_max
+        return self.learning.t_max
 
     def validate(self, policy: DQNPolicy) -> tuple[dict, tuple[float, float]]:
-        """``policy`` on the fixed validation episodes: the evaluation row's values, and its score (higher is better:
-        ``best.pt`` keeps the best)."""
-        row = play_validation(policy, self.eval_maps, self.eval_episodes)
-        return row, (row["success"], -row["median_steps"])
+        """``policy`` on the task's fixed validation episodes: the evaluation row's values, and its score (higher is
+        better: ``best.pt`` keeps the best)."""
+        return self.learning.validate(policy)
 
     def episode_values(self, info: dict, row: int, terminated: bool) -> dict:
         """A finished training episode's task values for ``metrics.parquet``."""
-        return {"success": terminated}
+        return self.learning.episode_values(info, row, terminated)
 
     # -- run folder ---------------------------------------------------------------------------------
     @property
@@ -446,3 +428,34 @@ def with_running_means(df: pd.DataFrame) -> pd.DataFrame:
 def _plain(row: dict) -> dict:
     """A row of numbers as plain Python values (what a weights-only checkpoint may hold)."""
     return {k: (v.item() if isinstance(v, np.generic) else v) for k, v in row.items()}
+
+
+def start_run(
+    run_dir: Path,
+    config: DQNConfig,
+    datasets: list[str],
+    val_datasets: list[str],
+    root: str | Path,
+    *,
+    resume: bool,
+    command: str = "",
+) -> Trainer:
+    """The trainer of the run in ``run_dir``, ready to ``run(resume=resume)``; call it with the folder's lock held
+    (``exclusive_folder``). A new run claims its folder first (``FileExistsError`` when it exists) and gives the name
+    back if its trainer cannot be made; a resumed one is loaded (every check of the checkpoint before the first
+    step). ``uavrl train`` and every trial of ``uavrl sweep`` start here."""
+    claimed = False
+    if not resume:
+        if run_dir.exists():
+            raise FileExistsError(f"{run_dir} exists: choose another --name, or continue it with --resume {run_dir}")
+        run_dir.mkdir(parents=True)
+        claimed = True
+    try:
+        trainer = Trainer(config, list(datasets), root, run_dir, command=command, val_datasets=list(val_datasets))
+    except BaseException:
+        if claimed and not any(run_dir.iterdir()):
+            run_dir.rmdir()  # nothing was written: give the name back
+        raise
+    if resume and trainer.resumable():
+        trainer.load()
+    return trainer

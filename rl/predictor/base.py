@@ -26,11 +26,16 @@ class Predictor(Protocol):
     def predict(self, scene: Scene, users: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
 
 
+#: The modules of the folder that only run commands (their options, what they print): no map depends on them.
+COMMANDS = ("cli.py", "options.py")
+
+
 def code_digest() -> str:
-    """The sha256 of the predictor family's code (every ``.py`` of this folder, by name and content): part of every
-    tier's version, so that a change to the code is never served the maps of the code before it."""
+    """The sha256 of the predictor family's code (every ``.py`` of this folder but its commands', ``COMMANDS``, by name
+    and content): part of every tier's version, so that a change to the code is never served the maps of the code
+    before it."""
     digest = hashlib.sha256()
-    for path in sorted(FAMILY.glob("*.py")):
+    for path in sorted(p for p in FAMILY.glob("*.py") if p.name not in COMMANDS):
         digest.update(path.name.encode() + b"\0" + path.read_bytes())
     return digest.hexdigest()
 

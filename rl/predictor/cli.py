@@ -10,66 +10,20 @@ import click
 import numpy as np
 
 from uavplace.infra.console import LogLines, path_option, plain_table, root_option, stdout
-from uavplace.infra.files import shipped
 from uavplace.infra.options import model_options, settings
-from uavplace.rl.config import UNetConfig
+from uavplace.rl.config import DEFAULT_PREDICTOR, UNetConfig
+from uavplace.rl.predictor.options import (
+    calibration_maps_option,
+    card_commands,
+    constants_option,
+    learned_validation_option,
+    no_pack_matched,
+    packs_option,
+    print_scores,
+    training_cities_option,
+    training_users,
+)
 from uavplace.rl.predictor.raytraced import RayTracedModel
-
-#: The predictors' training cities (``uavrl fit-predictor``, ``uavrl train-predictor``).
-training_cities_option = click.option(
-    "--dataset",
-    "datasets",
-    multiple=True,
-    required=True,
-    help="Training city (repeatable); a city with a declared role gives its train users only.",
-)
-
-
-#: Which packs of the --maps folders a learned tier reads (``uavrl train-predictor``, ``uavrl calibrate-predictor``).
-packs_option = click.option(
-    "--packs",
-    multiple=True,
-    help="Only the packs of --maps whose city's name matches this shell-style pattern, whole (repeatable; 'tt-*': the "
-    "tiered cities, the real crops' kind of geometry, docs/predictor.md; 'tt-00[0-4]': five of them, for good). Default: "
-    "every pack.",
-)
-
-
-def calibration_maps_option(purpose: str):  # noqa: ANN201 - a click decorator
-    """The required ``--maps`` of a command that calibrates a tier on training-maps packs; ``purpose`` ends its help."""
-    return click.option(
-        "--maps",
-        "map_folders",
-        multiple=True,
-        required=True,
-        type=click.Path(file_okay=False, path_type=Path),
-        help="A folder of training-maps packs (repeatable; `uavdata pack` writes them, data/trainmaps holds the shipped "
-        f"ones) {purpose}",
-    )
-
-
-def _no_pack_matched(folders: tuple[Path, ...], patterns: tuple[str, ...]) -> click.BadParameter:
-    return click.BadParameter(
-        f"no pack of {', '.join(map(str, folders))} is of a city named {' or '.join(patterns)}", param_hint="--packs"
-    )
-
-
-#: The learned tier's validation cities (``uavrl train-predictor``, ``uavrl calibrate-predictor``).
-learned_validation_option = click.option(
-    "--val-dataset",
-    "val_datasets",
-    multiple=True,
-    help="Validation city whose users' maps score the tier the command writes and the physics tier (repeatable): median and p90 "
-    "|error| [dB], dead/live agreement, calibration error, ms per map; in model.json and the card.",
-)
-
-
-def _training_users(datasets: tuple[str, ...], root: Path) -> tuple[list, list]:
-    """(bundles, their training users): a city with a declared role gives its train users only, any other all."""
-    from uavplace.dataset.bundle import load_bundle
-
-    bundles = [load_bundle(name, root=root) for name in datasets]
-    return bundles, [b.user_indices("train") if b.manifest.config.role else b.user_indices() for b in bundles]
 
 
 @click.command("fit-predictor")
@@ -96,7 +50,7 @@ def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out:
     from uavplace.rl.predictor import PhysicsPredictor, fit_constants, prediction_scores
 
     check_replaceable_file(out)
-    bundles, users = _training_users(datasets, root)
+    bundles, users = training_users(datasets, root)
     t0 = time.perf_counter()
     constants = fit_constants(bundles, users)
     table = plain_table("city", "users", "median |error| [dB]", "p90 |error| [dB]", "dead/live agreement")
@@ -139,13 +93,7 @@ def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out:
 @packs_option
 @model_options(UNetConfig, "widths")
 @learned_validation_option
-@path_option(
-    "--constants",
-    folder=False,
-    default=shipped("data/agents/searcher/predictor.json"),
-    help="The physics tier the network corrects (`uavrl fit-predictor` writes it; default: the shipped one, found in "
-    "the project wherever the command runs).",
-)
+@constants_option("the network corrects")
 @path_option(
     "--out",
     folder=True,
@@ -199,8 +147,8 @@ def train_predictor(
     if packs and not map_folders:
         raise click.UsageError("--packs selects among the packs of --maps: give --maps FOLDER")
     if packs and not select_packs(map_folders, packs):  # before any map is read
-        raise _no_pack_matched(map_folders, packs)
-    maps = training_maps(*_training_users(datasets, root), map_folders, packs)
+        raise no_pack_matched(map_folders, packs)
+    maps = training_maps(*training_users(datasets, root), map_folders, packs)
     overlap = sorted({m.city for m in maps} & set(val_datasets))
     if overlap:
         raise click.BadParameter(
@@ -232,7 +180,7 @@ def train_predictor(
         model = model.model_copy(update={"scores": scores, "reliability": diagrams})
         (tmp / MODEL_JSON).write_text(model.model_dump_json(indent=2) + "\n")
         (tmp / MODEL_CARD).write_text(model_card(model, command_line()))
-    _print_scores(scores, list(tiers))
+    print_scores(scores, list(tiers))
     scale, bias = facts["calibration"]
     stdout().print(
         f"wrote {out}: trained on {facts['users']} users of {len(maps)} cities in "
@@ -247,7 +195,7 @@ def train_predictor(
 @path_option(
     "--predictor",
     folder=True,
-    default=Path("data/agents/searcher/unet"),
+    default=DEFAULT_PREDICTOR,
     help="The learned predictor's folder (`uavrl train-predictor` writes it): its weights are kept, its calibration refitted.",
 )
 @calibration_maps_option("of cities the network was not trained on: the calibration is fitted on every user of each.")
@@ -294,7 +242,7 @@ def calibrate_predictor(
     model = learned.model
     paths = select_packs(map_folders, packs)
     if not paths:
-        raise _no_pack_matched(map_folders, packs)
+        raise no_pack_matched(map_folders, packs)
     maps = [read_pack(p) for p in paths]
     trained = {entry.rsplit("@", 1)[0] for entry in model.fitted_on}
     overlap = sorted({m.city for m in maps} & (trained | set(val_datasets)))
@@ -306,7 +254,7 @@ def calibrate_predictor(
         )
     t0 = time.perf_counter()
     scale, bias = pack_calibration(learned, maps)
-    made_by = model.made_by or _card_commands(predictor / MODEL_CARD)
+    made_by = model.made_by or card_commands(predictor / MODEL_CARD)
     model = model.model_copy(
         update={
             "calibration": (scale, bias),
@@ -324,7 +272,7 @@ def calibrate_predictor(
         (tmp / MODEL_JSON).write_text(model.model_dump_json(indent=2) + "\n")
         (tmp / MODEL_CARD).write_text(model_card(model, command_line()))
     load_learned(out)  # the weights still the ones model.json names
-    _print_scores(scores, list(tiers))
+    print_scores(scores, list(tiers))
     users = sum(len(m.users) for m in maps)
     stdout().print(
         f"wrote {out}: dead logit calibrated x {scale:.3f} {bias:+.3f} on {users} users of {len(maps)} packs in "
@@ -332,31 +280,6 @@ def calibrate_predictor(
         highlight=False,
         soft_wrap=True,
     )
-
-
-def _card_commands(card: Path) -> list[str]:
-    """The commands of a model card's "Made by" block (a card written before ``made_by`` was recorded), or none."""
-    try:
-        text = card.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError):
-        return []
-    _, found, rest = text.partition("## Made by")
-    if not found or "```bash" not in rest:
-        return []
-    block = rest.split("```bash", 1)[1].split("```", 1)[0]
-    return [line for line in block.strip().splitlines() if line.strip()]
-
-
-def _print_scores(scores: dict[str, dict[str, float]], tiers: list[str]) -> None:
-    """Every tier's scores on every validation city (``rl.predictor.scores.score_tiers``), one row each; nothing without any."""
-    from uavplace.rl.predictor.scores import SCORE_COLUMNS, score_cells
-
-    table = plain_table("city", "tier", *SCORE_COLUMNS)
-    for name, row in scores.items():
-        for tier in tiers:
-            table.add_row(name, tier, *score_cells(row, f"{tier}_"))
-    if scores:
-        stdout().print(table)
 
 
 @click.command("trace-predictor")
@@ -393,12 +316,7 @@ def _print_scores(scores: dict[str, dict[str, float]], tiers: list[str]) -> None
     show_default=True,
     help="Ray tasks the users are traced in, on a local Ray of that many CPUs (the maps are the same whatever the number).",
 )
-@path_option(
-    "--constants",
-    folder=False,
-    default=shipped("data/agents/searcher/predictor.json"),
-    help="The physics tier that predicts the cells no ray reached (default: the shipped one).",
-)
+@constants_option("that predicts the cells no ray reached")
 @path_option(
     "--out",
     folder=True,
@@ -443,7 +361,7 @@ def trace_predictor(
         raise click.UsageError(str(err)) from None
     paths = select_packs(map_folders, packs)
     if not paths:
-        raise _no_pack_matched(map_folders, packs)
+        raise no_pack_matched(map_folders, packs)
     maps = [read_pack(p) for p in paths]
     overlap = sorted({m.city for m in maps} & set(val_datasets))
     if overlap:
@@ -494,7 +412,7 @@ def trace_predictor(
     model = model.model_copy(update={"scores": scores})
     with atomic_directory(out, marker=MODEL_JSON, what="ray-traced predictor") as tmp:
         (tmp / MODEL_JSON).write_text(model.model_dump_json(indent=2) + "\n")
-    _print_scores(scores, list(tiers))
+    print_scores(scores, list(tiers))
     stdout().print(
         f"wrote {out}: calibrated on {model.calibration_users} users of {len(maps)} packs in "
         f"{time.perf_counter() - t0:.0f} s at {model.samples:g} rays; spread {model.error_db:.1f} dB, dead at "

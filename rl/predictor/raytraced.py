@@ -6,7 +6,7 @@ prism, every wall and roof of one declared generic material, a ground plane), ne
 export or its scene. Each candidate user is a transmitter ``user_height_m`` above the ground at its cell's centre;
 Sionna's radio map gives the path gain at every cell of the UAV's plane with ``samples`` rays (``simulate.raytrace``,
 in a child process: Dr.Jit may crash at interpreter exit). The cells the rays missed are walked to from the hit ones
-(``simulate.raytrace.fill_geodesic``: the embedded cities' own completion, the straight path through the walls of the
+(``simulate.fill.fill_geodesic``: the embedded cities' own completion, the straight path through the walls of the
 material and a walk from the hit cells), and what stays unreached takes the fallback tier's prediction (``fallback``:
 the physics tier, or the shipped learned tier).
 
@@ -180,7 +180,8 @@ def traced_gain(
     centres = cell_centres_m(np.argwhere(np.ones((ny, nx), bool)), s).reshape(ny, nx, 2)
     d2 = (centres[None, :, :, 0] - xy[:, 0, None, None]) ** 2 + (centres[None, :, :, 1] - xy[:, 1, None, None]) ** 2
     d2 = d2 + (scene.altitude_m - model.user_height_m) ** 2
-    from uavplace.simulate.raytrace import RayTraceConfig, fill_geodesic, free_space_cap
+    from uavplace.simulate.fill import fill_geodesic
+    from uavplace.simulate.raytrace import RayTraceConfig, free_space_cap
 
     fine = np.minimum(fine, free_space_cap(d2, scene.frequency_hz, RayTraceConfig.antenna))  # grazing rays' artifacts
     gain, _ = fill_geodesic(

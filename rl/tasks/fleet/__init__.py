@@ -31,6 +31,16 @@ fleet's joint positions).
 from __future__ import annotations
 
 from uavplace.rl.tasks import exported
+from uavplace.rl.tasks.entry import Task
+
+#: The task's entry (``rl.tasks.registry``): its run settings, its learner hook and its report.
+TASK = Task(
+    name="fleet",
+    model="uavplace.rl.tasks.fleet.config:FleetTask",
+    learning="uavplace.rl.tasks.fleet.learner:learning",
+    report="uavplace.eval.reports.fleet:REPORT",
+    gym=(("uavplace/UavFleet-v0", "uavplace.rl.tasks.fleet.gym:UavFleetEnv", {}),),
+)
 
 #: What the package offers, by the file that holds it, imported on first use (``rl.tasks.exported``).
 FILES = {
@@ -39,7 +49,7 @@ FILES = {
     "env": ("BatchedFleet", "FleetView"),
     "policies": ("FleetGreedy", "FleetPlacement", "FleetRandomWalk"),
     "searcher": ("FleetSearcher",),
-    "learner": ("FleetTrainEnv",),
+    "learner": ("FleetTrainEnv", "learning"),
     "rollout": ("run_fleet",),
     "gym": ("UavFleetEnv",),
 }

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from typing import ClassVar, Literal
+
 import numpy as np
 from pydantic import Field, field_validator
 
+from uavplace.rl.tasks.entry import RunTask
 from uavplace.rl.world.maps import MOVES
 from uavplace.rl.world.settings import ObservationSettings
 
@@ -32,3 +35,21 @@ class FleetConfig(ObservationSettings):
     @property
     def num_channels(self) -> int:
         return 2 + self.users
+
+
+class FleetTask(FleetConfig, RunTask):
+    """A run's task when it is the fleet's: the fleet task's settings (``FleetConfig``); a UAV's users change as they
+    are dealt, so the env's belief and context channels stay off."""
+
+    kind: Literal["fleet"] = "fleet"
+
+    prefix: ClassVar[str | None] = "fleet"
+    tag: ClassVar[str] = "fleet"
+    channels: ClassVar[bool] = False
+    env_p_t: ClassVar[bool] = False
+    ensembles: ClassVar[bool] = False
+
+    def fleet(self) -> FleetConfig:
+        """The fleet task these settings describe (its network reads placement's observation of each UAV's users,
+        ``RunTask.playing``: the run's ``env``)."""
+        return FleetConfig(**self.model_dump(exclude={"kind"}))

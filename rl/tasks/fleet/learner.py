@@ -1,21 +1,27 @@
-"""The fleet task as the learner's environment (``FleetTrainEnv``)."""
+"""The fleet task as the learner's (``learning``, the hook of its entry): placement's network, learner, loop,
+checkpoints and run folder on ``FleetTrainEnv``, fleet episodes of the training cities' training users (a row per
+UAV); ``best.pt`` is the network that, run on every UAV of fixed fleet episodes of the validation cities
+(``FleetPlacement``), served every user in the most of them (ties: the fewer median steps)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from uavplace.dataset.difficulty import UNREACHABLE
+from uavplace.rl.tasks.entry import Learning, RunSettings
 from uavplace.rl.tasks.fleet.config import STAY
 from uavplace.rl.tasks.fleet.env import BatchedFleet, FleetView
 from uavplace.rl.tasks.fleet.maps import FleetMaps
 from uavplace.rl.tasks.fleet.policies import FleetPlacement
+from uavplace.rl.tasks.fleet.rollout import run_fleet
 from uavplace.rl.tasks.placement.config import EnvConfig
+from uavplace.rl.world.cities import Cities
 from uavplace.rl.world.maps import MOVES
 from uavplace.schemas.base import InputError
 
 
 class FleetTrainEnv:
-    """The fleet task as the learner's environment (``rl.agent.tasks.FleetTrainer``): a row per UAV of ``num_envs /
+    """The fleet task as the learner's environment (``learning``): a row per UAV of ``num_envs /
     K`` fleet episodes (row ``e * K + k``), each observing what ``FleetPlacement`` shows a UAV's agent (the placement
     observation of its dealt users' weakest SINR, from the fleet's shared measurements) and acting with the placement
     network's 4 moves: one network shared by every UAV, each acting from the shared memory and its own position.
@@ -149,3 +155,23 @@ class FleetTrainEnv:
         obs, moves = self._dealt()  # a second deal in one step (after a cut) changes nothing but the begun rows
         info["action_mask"] = moves
         return obs, reward.ravel().astype(np.float32), term, trunc, info
+
+
+def learning(run: RunSettings, cities: Cities) -> Learning:
+    """The fleet's training env over the training cities' training users, and the validation on fixed fleet
+    episodes of the validation cities."""
+    task, env = run.task.fleet(), run.env_config()
+    maps, eval_maps = FleetMaps.of(cities.train, task, cities.train_users), FleetMaps.of(cities.val, task, cities.val_users)
+    episodes = eval_maps.episode_list(run.eval_episodes, run.seed)
+
+    def validate(policy) -> tuple[dict, tuple[float, float]]:
+        fleet = FleetPlacement(policy, run.env_config(evaluation=True), prefix="").bind(eval_maps)
+        table = run_fleet(eval_maps, fleet, episodes)
+        row = {
+            "success": float(table["success"].mean()),
+            "median_steps": float(np.median(table["steps"])),
+            "spl": float(table["spl"].mean()),
+        }
+        return row, (row["success"], -row["median_steps"])
+
+    return Learning(FleetTrainEnv(maps, env, run.num_envs), task.t_max, cities.train, cities.val, validate)

@@ -12,6 +12,19 @@ task are each task's ``gym.py``; the learner is ``rl.agent``.
 from __future__ import annotations
 
 from uavplace.rl.tasks import exported
+from uavplace.rl.tasks.entry import Task
+
+#: The task's entry (``rl.tasks.registry``): its run settings, its learner hook and its report.
+TASK = Task(
+    name="placement",
+    model="uavplace.rl.tasks.placement.config:PlacementTask",
+    learning="uavplace.rl.tasks.placement.learner:learning",
+    report="uavplace.eval.reports.placement:REPORT",
+    gym=(
+        ("uavplace/UavPlacement-v0", "uavplace.rl.tasks.placement.gym:UavPlacementEnv", {}),
+        ("uavplace/BlindUavPlacement-v0", "uavplace.rl.tasks.placement.gym:UavPlacementEnv", {"blind": True}),
+    ),
+)
 
 #: What the package offers, by the file that holds it, imported on first use (``rl.tasks.exported``).
 FILES = {
@@ -19,6 +32,7 @@ FILES = {
     "env": ("BatchedEnv",),
     "policies": ("GeniePolicy", "GreedyPolicy", "Policy", "RandomWalkPolicy", "episode_draws", "pick_legal", "random_legal"),
     "searcher": ("MapSearchPolicy", "SEARCHER"),
+    "learner": ("learning", "play_validation", "validation_set"),
     "rollout": ("run_episodes",),
     "gym": ("UavPlacementEnv",),
 }

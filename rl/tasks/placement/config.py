@@ -3,8 +3,11 @@ the tracking and fleet tasks build on. Light to import: pydantic only."""
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import Field
 
+from uavplace.rl.tasks.entry import RunTask
 from uavplace.rl.world.settings import CanvasSettings
 
 
@@ -57,7 +60,7 @@ class EnvConfig(CanvasSettings):
         default=False,
         description="Add a channel, after the homing channel and before the SINR memory, of the map searcher's "
         "posterior probability that each cell reaches P_T [%] (0 where the UAV may not go), from its belief over the "
-        "user's position given the episode's measurements and the predicted maps of belief_predictor (rl/belief.py, "
+        "user's position given the episode's measurements and the predicted maps of belief_predictor (rl/belief/, "
         "BeliefTracker): the hybrid learner of docs/searcher.md",
     )
     belief_predictor: str | None = Field(
@@ -79,3 +82,9 @@ class EnvConfig(CanvasSettings):
         if not self.fleet_channel:
             raise ValueError("no fleet channel: EnvConfig.fleet_channel is off")
         return self.num_channels - 2 - int(self.visited_channel) - int(self.homing_channel) - int(self.belief_channel)
+
+
+class PlacementTask(RunTask):
+    """A run's task when it is placement: no settings beyond the run's environment (``DQNConfig.env``)."""
+
+    kind: Literal["placement"] = "placement"

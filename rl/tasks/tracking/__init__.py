@@ -21,12 +21,22 @@ most covered steps possible, the upper bound), the placement genie re-planned ev
 current P_T region (``ReplanningGenie``), and the placement baselines, which act through the same
 interface (``rl.tasks.placement.policies``), as they are or holding the cell while it covers the user (``Holding``). Agents:
 a placement agent run unchanged (``PlacementInTracking``; also with ``Holding``), or one trained on this task
-(``uavrl train --task tracking``, ``rl.agent.tasks.TrackingTrainer``) on its own observation (``TrackingAgent``).
+(``uavrl train --task tracking``, its learner hook, ``learner.py``) on its own observation (``TrackingAgent``).
 """
 
 from __future__ import annotations
 
 from uavplace.rl.tasks import exported
+from uavplace.rl.tasks.entry import Task
+
+#: The task's entry (``rl.tasks.registry``): its run settings, its learner hook and its report.
+TASK = Task(
+    name="tracking",
+    model="uavplace.rl.tasks.tracking.config:TrackingTask",
+    learning="uavplace.rl.tasks.tracking.learner:learning",
+    report="uavplace.eval.reports.tracking:REPORT",
+    gym=(("uavplace/UavTracking-v0", "uavplace.rl.tasks.tracking.gym:UavTrackingEnv", {}),),
+)
 
 #: What the package offers, by the file that holds it, imported on first use (``rl.tasks.exported``).
 FILES = {
@@ -35,6 +45,7 @@ FILES = {
     "env": ("TrackingEnv",),
     "policies": ("Holding", "MovesOnly", "OraclePolicy", "PlacementInTracking", "ReplanningGenie", "TrackingAgent"),
     "searcher": ("TRACKING_SEARCHER", "TrackingSearchPolicy", "fit_motion", "transition"),
+    "learner": ("learning", "tracking_summary"),
     "rollout": ("TrackingEpisodes", "run_tracking"),
     "gym": ("UavTrackingEnv",),
 }

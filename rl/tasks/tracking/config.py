@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from typing import ClassVar, Literal
+
 import numpy as np
 from pydantic import Field, model_validator
 
 from uavplace.rl.config import SearchConfig
+from uavplace.rl.tasks.entry import RunSettings, RunTask
 from uavplace.rl.world.maps import MOVES
 from uavplace.rl.world.settings import CanvasSettings, ObservationSettings
 from uavplace.schemas.base import Contract
@@ -78,3 +81,21 @@ def tracking_search() -> SearchConfig:
     cell near the UAV stays unlikely. Chosen on the validation cities etoile-val-routes and trk-val
     (experiments/log/tracking.md)."""
     return SearchConfig(reach_cells=192.0)
+
+
+class TrackingTask(TrackingConfig, RunTask):
+    """A run's task when it is tracking: the tracking task's settings (``TrackingConfig``); the network has stay as a
+    fifth action, and placement's revisit penalties are off (a moving user brings the UAV back to cells it stood in)."""
+
+    kind: Literal["tracking"] = "tracking"
+
+    actions: ClassVar[int] = len(TRACK_MOVES)
+    prefix: ClassVar[str | None] = "tracking"
+    tag: ClassVar[str] = "tracking"
+    revisits: ClassVar[bool] = False
+    env_p_t: ClassVar[bool] = False
+    ensembles: ClassVar[bool] = False
+
+    def playing(self, run: RunSettings) -> TrackingConfig:
+        """The tracking task as the run plays it (blind as the agent is)."""
+        return TrackingConfig(**self.model_dump(exclude={"kind"}) | {"blind": run.agent == "blind"})

@@ -1,33 +1,30 @@
 """``uavrl report --task tracking``: every method on the same episodes of each city's routes, one page
-(``eval.tracking.make_tracking_report``)."""
+(``eval.reports.tracking.page.make_tracking_report``)."""
 
 from __future__ import annotations
 
 import contextlib
-from pathlib import Path
 
-from uavplace.eval.config import TrackingReportConfig
 from uavplace.eval.reports.base import (
     ReportRequest,
     TaskReport,
-    check_runs_once,
-    check_training_settings,
+    checked_runs,
     print_table,
+    report_folder,
     reporting,
     say_written,
 )
+from uavplace.eval.reports.tracking.config import TrackingReportConfig
 from uavplace.infra.console import command_line
+from uavplace.rl.tasks.tracking.config import TrackingConfig
 
 
 def play(request: ReportRequest, after: contextlib.ExitStack) -> None:
     """The tracking report: its settings built once from the request, the page, then each city's table."""
     from uavplace.eval.evaluate import default_agents
-    from uavplace.eval.tracking import SUMMARY_TITLE, make_tracking_report, summary_rows, table_rows
-    from uavplace.rl.tasks.tracking import TrackingConfig
+    from uavplace.eval.reports.tracking.page import SUMMARY_TITLE, make_tracking_report, summary_rows, table_rows
 
-    runs = list(request.runs) or default_agents(request.agents_dir, ("placement", "tracking"))
-    check_runs_once(runs, "--run")
-    check_training_settings(runs, request)
+    runs = checked_runs(list(request.runs) or default_agents(request.agents_dir, ("placement", "tracking")), request)
     horizon = request.horizon
     config = TrackingReportConfig(
         datasets=list(request.datasets),
@@ -37,7 +34,7 @@ def play(request: ReportRequest, after: contextlib.ExitStack) -> None:
         **request.shared_settings(runs),
     )
     with reporting("tracking report", request.quiet) as on_progress:
-        out = request.out or Path("reports") / "tracking"
+        out = report_folder(request, "tracking")
         table, page = make_tracking_report(config, out, root=request.root, command=command_line(), on_progress=on_progress)
     for city, rows in table.groupby("city", sort=False):
         title = f"{request.episodes} tracking episodes in {city} (horizon {horizon}, P_T {request.p_t_db:g} dB)"
@@ -49,9 +46,13 @@ def play(request: ReportRequest, after: contextlib.ExitStack) -> None:
 
 REPORT = TaskReport(
     play=play,
+    summary="a user who moves along the routes of the cities (bundles simulated with --routes; rl/tasks/tracking/): the "
+    "oracle, the agents (placement agents run unchanged), the re-planning genie, the tracking searcher and the "
+    "baselines, one page (eval/reports/tracking/page.py; OUT defaults to reports/tracking)",
     routes=True,
     budget=("horizon", "--horizon"),
     selects_users=False,
     config=TrackingReportConfig,
     searcher="uavplace.rl.tasks.tracking.searcher:TrackingSearchPolicy",
+    options=((TrackingConfig, ("horizon",)), (TrackingReportConfig, ("hold",))),
 )

@@ -1,18 +1,13 @@
-"""The cities of a training run: which users it trains on, and the validation set its checkpoints are selected on."""
+"""The cities of a training run, whatever its task: which it trains on and which it selects its checkpoints on, and
+the users of each (``plan_cities``; each task's ``learner.learning`` builds its environments from them)."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from uavplace.dataset.bundle import Bundle
-from uavplace.rl.agent.config import DQNConfig
-from uavplace.rl.agent.dqn import DQNPolicy
-from uavplace.rl.tasks.placement.rollout import run_episodes
-from uavplace.rl.world.maps import MapSet
-from uavplace.rl.world.stats import summarise
 from uavplace.schemas import InputError
 
 
@@ -65,23 +60,3 @@ def plan_cities(bundles: list[Bundle], val_bundles: list[Bundle], eval_split: st
     has_split = eval_split is not None and any(len(b.user_indices(eval_split)) for b in train)
     split = eval_split if has_split else None
     return Cities(train, train_users, train_split, train, [b.user_indices(split) for b in train], split)
-
-
-def validation_set(config: DQNConfig, cities: Cities) -> tuple[MapSet, np.ndarray]:
-    """The maps and the fixed episodes (``config.eval_episodes``, seeded by ``config.seed``) of a run's periodic
-    evaluation, the one that chooses ``best.pt``."""
-    maps = MapSet(cities.val, config.env_config(evaluation=True).model_copy(update={"split": cities.val_split}), cities.val_users)
-    return maps, maps.sample_episodes(config.eval_episodes, np.random.default_rng([config.seed, 2]))
-
-
-def play_validation(
-    policy: DQNPolicy, maps: MapSet, episodes: np.ndarray, on_step: Callable[[int, int], None] | None = None
-) -> dict:
-    """``policy`` on the validation episodes: success rate, median steps and mean return (``on_step``: progress)."""
-    df = run_episodes(maps, policy, episodes, num_envs=min(256, len(episodes)), on_step=on_step)
-    summary = summarise(df)
-    return {
-        "success": float(summary["success"]),
-        "median_steps": float(summary["median_steps"]),
-        "mean_return": float(df.return_.mean()),
-    }

@@ -26,11 +26,11 @@ import numpy as np
 import pandas as pd
 
 from uavplace.dataset.bundle import load_bundle
-from uavplace.eval.config import TrackingReportConfig
 from uavplace.eval.evaluate import Agent, check_unseen, load_agent
 from uavplace.eval.figures import Figure, _pyplot, draw_blocked
 from uavplace.eval.metrics import _weighted_quantile, resample_counts
 from uavplace.eval.render import _CSS, _figure, _templates
+from uavplace.eval.reports.tracking.config import TrackingReportConfig
 from uavplace.infra.console import markdown_table
 from uavplace.infra.files import atomic_directory, check_replaceable
 from uavplace.rl.belief import PREDICTIONS, PredictionCache
@@ -86,7 +86,7 @@ def tracking_methods(
     played = []
     for a in agents:
         if isinstance(a.config.task, TrackingConfig):  # trained on the task: its own observation, it stays already
-            played.append(TrackingAgent(a.policy, a.config.tracking_config(), a.name))
+            played.append(TrackingAgent(a.policy, a.config.task.playing(a.config), a.name))
         else:
             played += _and_holding(PlacementInTracking(a.policy, a.config.env_config(evaluation=True), a.name), hold)
     baselines = [MovesOnly(RandomWalkPolicy(seed=seed)), MovesOnly(GreedyPolicy(task.p_h_db, seed=seed))]

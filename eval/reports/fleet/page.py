@@ -28,12 +28,12 @@ import numpy as np
 import pandas as pd
 
 from uavplace.dataset.bundle import Bundle, load_bundle
-from uavplace.eval.config import FleetReportConfig
 from uavplace.eval.evaluate import load_agent
 from uavplace.eval.figures import Figure
 from uavplace.eval.findings import city_findings, difference_cell
 from uavplace.eval.metrics import bootstrap_table, difference_table
 from uavplace.eval.render import _CSS, _figure, _templates, difference_rows
+from uavplace.eval.reports.fleet.config import FleetReportConfig
 from uavplace.infra.console import markdown_list, markdown_table
 from uavplace.infra.files import atomic_directory, check_replaceable
 from uavplace.rl.belief import PREDICTIONS, PredictionCache
