@@ -13,11 +13,11 @@ made (near a target: the last approach; far: a search in the wrong part of the m
 
 from __future__ import annotations
 
-import argparse
 from itertools import pairwise
 
 import numpy as np
 import pandas as pd
+from common import agent_parser
 
 from uavplace.dataset.bundle import Bundle, load_bundle
 from uavplace.dataset.difficulty import steps_to_target
@@ -39,12 +39,7 @@ def banded(df: pd.DataFrame, column: str, edges: list[float]) -> pd.DataFrame:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--run", default="data/agents/best", help="Agent folder (default: the shipped best)")
-    ap.add_argument("--city", action="append", default=None, help="City to play (repeatable; default: every validation city)")
-    ap.add_argument("--release", action="store_true", help="Allow test cities (release numbers only, never to choose)")
-    ap.add_argument("--episodes", type=int, default=1000)
-    ap.add_argument("--root", default="data/processed")
+    ap = agent_parser(__doc__)
     args = ap.parse_args()
     for city in development_cities(args.city, args.root, release=args.release):
         config = ReportConfig(dataset=city, episodes=args.episodes, trajectories=3)  # trajectories: record every path

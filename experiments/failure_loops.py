@@ -13,10 +13,9 @@ it first left it so, and the best SINR itself (how near P_T the search came befo
 
 from __future__ import annotations
 
-import argparse
-
 import numpy as np
 import pandas as pd
+from common import agent_parser
 
 from uavplace.dataset.bundle import load_bundle
 from uavplace.eval.cities import development_cities
@@ -24,13 +23,8 @@ from uavplace.eval.evaluate import ReportConfig, evaluate, load_agent
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--run", default="data/agents/best", help="Agent folder (default: the shipped best)")
-    ap.add_argument("--city", action="append", default=None, help="City to play (repeatable; default: every validation city)")
-    ap.add_argument("--release", action="store_true", help="Allow test cities (release numbers only, never to choose)")
-    ap.add_argument("--episodes", type=int, default=1000)
+    ap = agent_parser(__doc__)
     ap.add_argument("--loop", type=int, default=50, help="A failure visiting fewer distinct cells than this is a loop")
-    ap.add_argument("--root", default="data/processed")
     args = ap.parse_args()
     print(f"| city | failures | distinct cells visited: p10 / median / p90 | loops (< {args.loop} cells) | loops / episodes |")
     print("|---|---|---|---|---|")

@@ -25,15 +25,11 @@ from uavplace.eval.evaluate import load_agent
 from uavplace.rl.belief import PREDICTIONS, PredictionCache
 from uavplace.rl.config import DEFAULT_PREDICTOR, SearchConfig
 from uavplace.rl.predictor import load_predictor
-from uavplace.rl.tasks.fleet import (
-    FleetConfig,
-    FleetGreedy,
-    FleetMaps,
-    FleetPlacement,
-    FleetRandomWalk,
-    FleetSearcher,
-    run_fleet,
-)
+from uavplace.rl.tasks.fleet.config import FleetConfig
+from uavplace.rl.tasks.fleet.maps import FleetMaps
+from uavplace.rl.tasks.fleet.policies import FleetGreedy, FleetPlacement, FleetRandomWalk
+from uavplace.rl.tasks.fleet.rollout import run_fleet
+from uavplace.rl.tasks.fleet.searcher import FleetSearcher
 
 VALIDATION = ("corpus-016", "corpus-017", "oldtown-005", "etoile-val", "florence-val")
 

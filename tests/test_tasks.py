@@ -79,8 +79,7 @@ TOY = {
 
 
         REPORT = TaskReport(
-            play=play, summary="the toy task", routes=False, budget=("steps", "--steps"), selects_users=False,
-            config=ReportConfig, searcher="uavplace.rl.tasks.placement.searcher:MapSearchPolicy",
+            play=play, summary="the toy task", budget=("steps", "--steps"), config=ReportConfig, searcher="uavplace.rl.tasks.placement.searcher:MapSearchPolicy",
             options=((ToyTask, ("steps",)),),
         )
     """,

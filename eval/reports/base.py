@@ -69,21 +69,21 @@ class TaskReport:
 
     #: The report: the request and the stack its cleanups go on.
     play: Callable[[ReportRequest, contextlib.ExitStack], None]
-    #: Whether its cities need routes (the default cities: the test cities with routes).
-    routes: bool
-    #: The request's field that bounds an episode's steps, and its option.
-    budget: tuple[str, str]
-    #: Whether it takes --group and --split (the others play every user and route of the cities).
-    selects_users: bool
+    #: What ``uavrl report --task NAME`` plays, for ``--task``'s help.
+    summary: str
     #: Its report's settings, whose ``search`` field ``--search`` changes.
     config: type[BaseModel]
     #: Its searcher's class, ``module:Class`` (imported when asked): the ``SearchConfig`` fields it does not read
     #: (``unread_settings``), and the planners it has where not every one (``planners``).
     searcher: str
+    #: Whether its cities need routes (the default cities: the test cities with routes).
+    routes: bool = False
+    #: The request's field that bounds an episode's steps, and its option.
+    budget: tuple[str, str] = ("t_max", "--t-max")
+    #: Whether it takes --group and --split (the others play every user and route of the cities).
+    selects_users: bool = False
     #: The ``SearchConfig`` fields the report sets itself (placement plays the searcher with the buildings and without).
     sets: frozenset[str] = frozenset()
-    #: What ``uavrl report --task NAME`` plays, for ``--task``'s help.
-    summary: str = ""
     #: Its own options of ``uavrl report``: a settings model and the fields each is derived from
     #: (``infra.options.model_options``), read from the request by the fields' names.
     options: tuple[tuple[type[BaseModel], tuple[str, ...]], ...] = ()

@@ -179,8 +179,6 @@ REPORT = TaskReport(
     play=play,
     summary="the paper's task (a user who stays): every agent, the genie, the steered random walk, greedy hill-climbing and "
     "the map searcher with its ablation shown no building, a report folder per city (OUT defaults to reports/)",
-    routes=False,
-    budget=("t_max", "--t-max"),
     selects_users=True,
     config=ReportConfig,
     searcher="uavplace.rl.tasks.placement.searcher:MapSearchPolicy",

@@ -51,7 +51,6 @@ REPORT = TaskReport(
     "baselines, one page (eval/reports/tracking/page.py; OUT defaults to reports/tracking)",
     routes=True,
     budget=("horizon", "--horizon"),
-    selects_users=False,
     config=TrackingReportConfig,
     searcher="uavplace.rl.tasks.tracking.searcher:TrackingSearchPolicy",
     options=((TrackingConfig, ("horizon",)), (TrackingReportConfig, ("hold",))),
