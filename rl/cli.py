@@ -130,9 +130,13 @@ _TRAIN_OPTIONS = {"total_steps": "--steps"}
     multiple=True,
     metavar="FIELD=VALUE",
     help="Override one field of the preset's DQNConfig (rl/agent/config.py), env fields as env.FIELD "
-    "(rl/config.py), the tracking task's as tracking.FIELD (rl/tasks/tracking/config.py, TrackingConfig), the fleet task's as "
-    "fleet.FIELD (rl/tasks/fleet/config.py, FleetConfig), e.g. --set env.shaping=1 --set eval_episodes=1000 --set "
-    "tracking.horizon=200; repeatable.",
+    "(rl/tasks/placement/config.py, EnvConfig), "
+    + ", ".join(
+        f"the {t.name} task's as {t.settings.prefix}.FIELD ({t.settings.__module__}.{t.settings.__name__})"
+        for t in TASKS.values()
+        if t.settings.prefix
+    )
+    + ", e.g. --set env.shaping=1 --set eval_episodes=1000; repeatable.",
 )
 @model_options(DQNConfig, "seed", "eval_every", unset={"eval_every": "the preset's"})
 @click.option(
@@ -181,7 +185,7 @@ def train(
     quiet: bool,
     **options: object,
 ) -> None:
-    """Train the DQN agent (or its blind twin) on built cities, for placement or tracking; write config, metrics and
+    """Train the DQN agent (or its blind twin) on built cities, for any task (--task); write config, metrics and
     checkpoints to a run folder.
 
     \b
@@ -280,12 +284,7 @@ def _train_in(run_dir: Path, resume, config, datasets, val_datasets, root: Path,
             stdout().print(str(stop), highlight=False, soft_wrap=True)
             raise SystemExit(130) from None  # the shell's status for Ctrl-C
     last = trainer.state.evals[-1] if trainer.state.evals else None
-    summary = f"; last evaluation: {100 * last['success']:.1f} % success, median {last['median_steps']:g} steps" if last else ""
-    if last and "covered_share" in last:  # a tracking run's evaluation
-        summary = (
-            f"; last evaluation: {100 * last['covered_share']:.1f} % of the horizon covered, P_T reached in "
-            f"{100 * last['success']:.1f} % of the episodes"
-        )
+    summary = f"; last evaluation: {trainer.learning.describe(last)}" if last else ""
     stdout().print(f"trained {run_dir}{summary}", highlight=False, soft_wrap=True)
 
 

@@ -17,6 +17,12 @@ UAVDATA = [sys.executable, "-m", "uavplace.cli", "uavdata"]
 FIXTURES = Path(os.environ.get("UAVPLACE_FIXTURES", REPO.parent / "shared" / "fixtures" / "wireless-insite"))
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    """A first Ctrl-C ends the suite at once, during a training test too, and in the commands the tests start: the
+    trainer's 'checkpoint, then stop' (``rl.agent.resume.interrupts``) is for users' runs; the tests of it unset it."""
+    os.environ["UAVPLACE_CTRL_C"] = "end"
+
+
 def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption(
         "--probes",

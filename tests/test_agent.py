@@ -817,9 +817,10 @@ def test_ensemble_acts_on_the_mean_q_and_plays_like_a_run(tmp_path, corpus_root)
         Trainer(_tiny_config().model_copy(update={"ensemble": 2}), ["c-000"], corpus_root, tmp_path / "t")
 
 
-def test_ctrl_c_checkpoints_and_only_resumes_that_ran_are_recorded(tmp_path, city_root):
+def test_ctrl_c_checkpoints_and_only_resumes_that_ran_are_recorded(tmp_path, city_root, monkeypatch):
     """Ctrl-C (SIGINT) mid-training: a checkpoint at that step and ``Interrupted`` naming the resume command. A resume
     that dies before its first checkpoint leaves run.json as it was; one that runs is recorded once."""
+    monkeypatch.delenv("UAVPLACE_CTRL_C")  # a user's run, not the suite's
     import os
     import signal
 
@@ -884,3 +885,38 @@ def test_a_runs_task_is_its_settings_and_an_earlier_record_reads_alike():
         DQNConfig.model_validate(placement.model_dump(mode="json") | {"task": {"kind": "placement", "horizon": 3}})
     with pytest.raises(InputError, match="unknown task"):
         preset_config("best", task="swarm")
+
+
+def test_a_first_ctrl_c_ends_the_suite_during_a_training_test(tmp_path):
+    """In the suite (``UAVPLACE_CTRL_C=end``, tests/conftest.py) a first Ctrl-C ends ``pytest`` at once, in the middle
+    of a training test: the trainer leaves SIGINT as it is, so the next test never starts (with the trainer's handler
+    the first test would fail at its next step and the second one would run on, a minute or more). The bound leaves
+    room for a loaded machine; alone on 2 cores it ends in a few seconds."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from uavplace.rl.agent.resume import interrupts
+
+    before = signal.getsignal(signal.SIGINT)
+    with interrupts() as pressed:
+        assert signal.getsignal(signal.SIGINT) is before and not pressed()
+    victims = [f"tests/test_agent.py::test_short_training_run_learns[{v}]" for v in ("replay", "pqn")]
+    inner = tmp_path / "inner"
+    command = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--basetemp", str(inner), *victims]
+    run = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.perf_counter() + 300
+        while not any(inner.glob("*/run/run.json")) and time.perf_counter() < deadline and run.poll() is None:
+            time.sleep(0.5)  # until the first test's training has started
+        assert any(inner.glob("*/run/run.json")), "the first test never started training"
+        time.sleep(2)
+        pressed_at = time.perf_counter()
+        run.send_signal(signal.SIGINT)
+        output, _ = run.communicate(timeout=120)
+        took = time.perf_counter() - pressed_at
+    finally:
+        run.kill()
+    assert took < 20, (took, output[-2000:])
+    assert run.returncode == 2 and "KeyboardInterrupt" in output and "passed" not in output, output[-2000:]

@@ -4,6 +4,7 @@ weights of ``--set init`` (``start_from``), and Ctrl-C turned into a checkpoint 
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
 import threading
 from collections.abc import Callable, Iterator
@@ -45,11 +46,17 @@ class Interrupted(Exception):
         self.run_dir, self.step = run_dir, step
 
 
+#: The environment variable that, set to ``end``, leaves Ctrl-C as it is for any program: it ends a training at
+#: once, without a checkpoint (the test suite sets it, so that a first Ctrl-C ends ``pytest``; tests/conftest.py).
+CTRL_C = "UAVPLACE_CTRL_C"
+
+
 @contextlib.contextmanager
 def interrupts() -> Iterator[Callable[[], bool]]:
     """While the block runs, Ctrl-C (SIGINT) only sets a flag the training loop reads between steps, so that it can
-    checkpoint a consistent state; a second Ctrl-C interrupts at once. Outside the main thread nothing changes."""
-    if threading.current_thread() is not threading.main_thread():
+    checkpoint a consistent state; a second Ctrl-C interrupts at once. Outside the main thread, or with ``CTRL_C`` set
+    to ``end``, nothing changes."""
+    if threading.current_thread() is not threading.main_thread() or os.environ.get(CTRL_C) == "end":
         yield lambda: False
         return
     pressed = []

@@ -104,6 +104,11 @@ def terminated_is_success(info: dict, row: int, terminated: bool) -> dict:
     return {"success": terminated}
 
 
+def reached_in_share(row: dict) -> str:
+    """An evaluation row's words where it is success and median steps (placement's)."""
+    return f"{100 * row['success']:.1f} % success, median {row['median_steps']:g} steps"
+
+
 @dataclass
 class Learning:
     """What a task's learner hook gives the trainer: the batched training env (``rl.world.rows.EpisodeRows``'s
@@ -119,3 +124,5 @@ class Learning:
     validate: Callable[[Any], tuple[dict, tuple[float, float]]]
     #: A finished training episode's task values (``info``, its row, whether it ended early).
     episode_values: Callable[[dict, int, bool], dict] = terminated_is_success
+    #: An evaluation row (``validate``'s) in words, for the command's last line.
+    describe: Callable[[dict], str] = reached_in_share

@@ -48,8 +48,11 @@ def learning(run: RunSettings, cities: Cities) -> Learning:
         share = float(info["covered_share"][row])
         return {"success": share > 0, "covered_share": share}
 
+    def describe(row: dict) -> str:
+        return f"{100 * row['covered_share']:.1f} % of the horizon covered, P_T reached in {100 * row['success']:.1f} % of the episodes"
+
     env = TrackingEnv(routes, run.num_envs, compact=True)
-    return Learning(env, task.horizon, routes.bundles, eval_routes.bundles, validate, episode_values)
+    return Learning(env, task.horizon, routes.bundles, eval_routes.bundles, validate, episode_values, describe)
 
 
 def tracking_summary(table: pd.DataFrame) -> dict:
