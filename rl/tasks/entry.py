@@ -2,11 +2,11 @@
 settings a run's task carries (``RunTask``, the base of each task's), and what its learner hook gives the trainer
 (``Learning``).
 
-A task's entry names three things as ``module:attribute`` entry points (and its Gymnasium environments), imported when first asked for: the model of
+A task's entry names three things as ``module:attribute`` entry points, imported when first asked for: the model of
 a run's task settings (a ``RunTask``), its learner hook (``learning(run, cities) -> Learning``: the training
 environment and the validation that selects ``best.pt``; ``rl.agent.train.Trainer`` calls it and knows no task), and
-its report (an ``eval.reports.base.TaskReport``; only a string here, so ``rl/`` imports nothing of ``eval/``).
-``rl.tasks.registry`` lists the entries."""
+its report (an ``eval.reports.base.TaskReport``; only a string here, so ``rl/`` imports nothing of ``eval/``); and its
+Gymnasium environments. ``rl.tasks.registry`` lists the entries."""
 
 from __future__ import annotations
 
