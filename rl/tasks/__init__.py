@@ -1,7 +1,8 @@
-"""The tasks beyond placement, one folder each with the same files: ``config`` (the task's settings), ``maps`` (its
-cities, episodes and oracle), ``env`` (the task stepped in numpy and what a policy may read of it), ``policies``,
-``searcher`` (the map searcher run for it), ``rollout`` (playing a list of episodes with a policy), and where the task
-has them ``learner`` (the task as the learner's environment, when its env is not one) and ``zoo`` (PettingZoo)."""
+"""The tasks, one folder each with the same files: ``config`` (the task's settings and its run settings' model),
+``maps`` (its cities, episodes and oracle, where not the world's), ``env`` (the task stepped in numpy), ``policies``,
+``searcher`` (the map searcher run for it), ``rollout`` (playing a list of episodes with a policy), ``learner`` (its
+learner hook), ``gym`` (its Gymnasium face) and where the task has it ``zoo`` (PettingZoo); each folder's ``__init__``
+declares the task's entry (``entry.Task``), and ``registry`` lists the folders."""
 
 from __future__ import annotations
 
