@@ -12,7 +12,7 @@ import click
 
 from uavplace.eval.config import ReportConfig, ReportSettings
 from uavplace.eval.reports import task_report
-from uavplace.eval.reports.base import ReportRequest
+from uavplace.eval.reports.base import ReportRequest, report_folder
 from uavplace.infra.console import path_option, ray_address_option, root_option
 from uavplace.infra.files import exclusive_folder, shipped
 from uavplace.infra.options import model_options
@@ -151,7 +151,7 @@ def report(**values: Any) -> None:
         raise click.UsageError(f"--task {request.task} plays every user and route of the cities: it takes no --group or --split")
     # One report into a folder at a time: a second one of the same folder, even of other agents, is refused at once
     # (both would publish, the last one winning, and both would say they wrote it).
-    target = request.out or Path("reports") / TASKS[request.task].settings.tag  # placement's: reports/ itself
+    target = report_folder(request, TASKS[request.task].settings.tag)  # placement's: reports/ itself
     with exclusive_folder(target, "report", kind="job"), contextlib.ExitStack() as after:
         task.play(request, after)
 

@@ -148,7 +148,8 @@ def checked_runs(runs: list[Path], request: ReportRequest) -> list[Path]:
 
 
 def report_folder(request: ReportRequest, tag: str) -> Path:
-    """Where a task's report is written: ``--out``, else ``reports/<tag>``."""
+    """Where a task's report is written: ``--out``, else ``reports/<tag>`` (the task's ``RunTask.tag``; placement's
+    is reports/ itself). The command locks it; the report writes into it."""
     return request.out or Path("reports") / tag
 
 
