@@ -29,7 +29,7 @@ import pyarrow.parquet as pq
 
 from uavplace.dataset.bundle import load_bundle, read_latest, write_latest
 from uavplace.dataset.catalog import DEFAULT_ROOT
-from uavplace.dataset.checks import bundle_version
+from uavplace.dataset.checks import bundle_version, refuse_first
 from uavplace.dataset.difficulty import difficulty
 from uavplace.dataset.ingested import Ingested, read_ingested, split_routes
 from uavplace.dataset.raster import cell_centres, cell_index, height_map
@@ -288,15 +288,15 @@ def rasterise_routes(ing: Ingested, config: BuildConfig, grid: GridSpec) -> tupl
     index = pd.Series(np.arange(len(points)), index=pd.MultiIndex.from_frame(points[["tx_set_id", "tx_point"]].astype("int64")))
     routes = ing.routes.sort_values(["route", "order"], kind="stable").reset_index(drop=True)
     keys = pd.MultiIndex.from_frame(routes[["tx_set_id", "tx_point"]].astype("int64"))
-    missing = ~keys.isin(index.index)
-    if missing.any():
-        k = int(np.argmax(missing))
-        raise InputError(
-            source,
+    refuse_first(
+        ~keys.isin(index.index),
+        source,
+        "tx_point",
+        lambda k: (
             f"route {routes['route'][k]} point {routes['order'][k]} (t{routes['tx_point'][k]:03d}_"
-            f"{routes['tx_set_id'][k]:02d}) has no receivers at the altitude",
-            field="tx_point",
-        )
+            f"{routes['tx_set_id'][k]:02d}) has no receivers at the altitude"
+        ),
+    )
     order = index.loc[keys].to_numpy()  # the rasterised map of each route point, in route order
     ix, iy, inside = cell_index(grid, routes["x_m"].to_numpy(), routes["y_m"].to_numpy())
     where = {"ix": np.where(inside, ix, -1), "iy": np.where(inside, iy, -1)}

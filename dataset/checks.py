@@ -7,6 +7,7 @@ from __future__ import annotations
 import hashlib
 import json
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -47,9 +48,7 @@ def check_cells(path: Path, arrays: dict[str, np.ndarray]) -> None:
         raise InputError(path, f"{table.num_rows} rows, maps.npz holds {users} users x {ny} x {nx} cells", field="rows")
     user, iy, ix = (table.column(c).to_numpy().astype(np.int64) for c in ("user", "iy", "ix"))
     outside = (user < 0) | (user >= users) | (iy < 0) | (iy >= ny) | (ix < 0) | (ix >= nx)
-    if outside.any():
-        k = int(np.argmax(outside))
-        raise InputError(path, f"row {k}: user {user[k]}, cell ({iy[k]}, {ix[k]}) is not in maps.npz", field="user")
+    refuse_first(outside, path, "user", lambda k: f"row {k}: user {user[k]}, cell ({iy[k]}, {ix[k]}) is not in maps.npz")
     expected = {
         "sinr_db": arrays["sinr_db"][user, iy, ix],
         "dead": arrays["dead"][user, iy, ix],
@@ -59,15 +58,21 @@ def check_cells(path: Path, arrays: dict[str, np.ndarray]) -> None:
     }
     for name, want in expected.items():
         got = table.column(name).to_numpy(zero_copy_only=False)
-        bad = got != want
-        if bad.any():
-            k = int(np.argmax(bad))
-            raise InputError(
-                path,
-                f"row {k} (user {user[k]}, cell ({iy[k]}, {ix[k]})): {got[k]}, but maps.npz holds "
-                f"{want[k]}: the bundle's two copies disagree; rebuild it (`uavdata build --force`)",
-                field=name,
-            )
+        refuse_first(
+            got != want,
+            path,
+            name,
+            lambda k, got=got, want=want: (
+                f"row {k} (user {user[k]}, cell ({iy[k]}, {ix[k]})): {got[k]}, but maps.npz "
+                f"holds {want[k]}: the bundle's two copies disagree; rebuild it (`uavdata build --force`)"
+            ),
+        )
+
+
+def refuse_first(bad: np.ndarray, path: Path | None, field: str, message: Callable[[int], str]) -> None:
+    """Refuse at the first true row of ``bad`` (``message(row)`` says what is wrong there); nothing when none is."""
+    if bad.any():
+        raise InputError(path, message(int(np.argmax(bad))), field=field)
 
 
 def check_identity(folder: Path, manifest: BundleManifest) -> None:
@@ -138,9 +143,7 @@ def check_values(path: Path, manifest: BundleManifest, arrays: dict[str, np.ndar
     for name, lo, n in (("x_m", grid.x_min_m, grid.num_x), ("y_m", grid.y_min_m, grid.num_y)):
         centres = lo + (np.arange(n) + 0.5) * grid.spacing_m
         off = ~np.isclose(arrays[name], centres, rtol=0, atol=1e-6 * grid.spacing_m + 1e-9)
-        if off.any():
-            bad = int(np.argmax(off))
-            raise InputError(path, f"cell centre {arrays[name][bad]} at {bad} is off the manifest's grid", field=name)
+        refuse_first(off, path, name, lambda k, name=name: f"cell centre {arrays[name][k]} at {k} is off the manifest's grid")
     floor = manifest.sinr.floor_db
     for name in ("height_rel_m", "sinr_db"):
         column = CELLS.column(name)
@@ -203,21 +206,20 @@ def check_users(path: Path, manifest: BundleManifest, users: pd.DataFrame) -> No
     ny, nx = manifest.grid.shape
     for name, n in (("ix", nx), ("iy", ny)):
         v = users[name].to_numpy()
-        if ((v < -1) | (v >= n)).any():
-            row = int(np.argmax((v < -1) | (v >= n)))
-            raise InputError(path, f"row {row}: cell {v[row]} is off the grid's {n} cells", field=name)
+        refuse_first((v < -1) | (v >= n), path, name, lambda k, v=v, n=n: f"row {k}: cell {v[k]} is off the grid's {n} cells")
     # a position is in its cell (-1 outside the grid); an unknown (null) position has no cell
     x, y = (users[c].to_numpy(dtype=np.float64, na_value=np.nan) for c in ("x_m", "y_m"))
     expect_x, expect_y, _ = cell_index(manifest.grid, x, y)  # as the build placed them (NaN: outside, -1)
     wrong = (users["ix"].to_numpy() != expect_x) | (users["iy"].to_numpy() != expect_y)
-    if wrong.any():
-        row = int(np.argmax(wrong))
-        raise InputError(
-            path,
-            f"row {row}: position ({x[row]:g}, {y[row]:g}) m is not in its cell ({users['ix'].iloc[row]}, "
-            f"{users['iy'].iloc[row]}) of the grid",
-            field="x_m",
-        )
+    refuse_first(
+        wrong,
+        path,
+        "x_m",
+        lambda k: (
+            f"row {k}: position ({x[k]:g}, {y[k]:g}) m is not in its cell ({users['ix'].iloc[k]}, "
+            f"{users['iy'].iloc[k]}) of the grid"
+        ),
+    )
     splits = set(users["split"].dropna())
     if not splits <= {"train", "val", "test"}:
         raise InputError(path, f"unknown splits {sorted(splits - {'train', 'val', 'test'})}", field="split")

@@ -21,6 +21,7 @@ from uavplace.infra.console import (
     path_option,
     plain_table,
     root_option,
+    say,
     stdout,
 )
 from uavplace.infra.files import check_name
@@ -295,7 +296,7 @@ def show(city: str, version: str | None, user: int, out_path: Path | None, root:
         raise click.BadParameter(f"the bundle has {bundle.num_users} users (0..{bundle.num_users - 1})", param_hint="--user")
     out_path = out_path or Path("reports") / "show" / f"{bundle.city}-{bundle.version}-user{user}.png"
     path = render_bundle(bundle, user, out_path)
-    stdout().print(f"wrote {path}", highlight=False, soft_wrap=True)
+    say(f"wrote {path}")
 
 
 @click.command()
@@ -366,4 +367,4 @@ def export(cities: tuple[str, ...], formats: tuple[str, ...], root: Path, out: P
         bundle = load_bundle(city, root=root)
         for fmt in dict.fromkeys(formats):
             path = write_radiomapseer(bundle, out) if fmt == "radiomapseer" else write_deepmimo(bundle, out)
-            stdout().print(f"{city}: {fmt} -> {path}", highlight=False, soft_wrap=True)
+            say(f"{city}: {fmt} -> {path}")

@@ -30,6 +30,11 @@ def stdout() -> Console:
     return Console(width=None if sys.stdout.isatty() else 160)
 
 
+def say(line: str) -> None:
+    """Print one result line as it is (no colouring of numbers, long lines wrapped by the terminal, not cut)."""
+    stdout().print(line, highlight=False, soft_wrap=True)
+
+
 #: Seconds between the plain progress lines long work prints when its output is not a terminal (a log).
 LINE_SECONDS = 30.0
 

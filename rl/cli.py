@@ -8,7 +8,7 @@ import click
 
 from uavplace.dataset.bundle import list_versions, read_latest
 from uavplace.dataset.catalog import list_cities
-from uavplace.infra.console import LogLines, fail, plain_table, root_option, stdout, warn_or_refuse
+from uavplace.infra.console import LogLines, fail, plain_table, root_option, say, stdout, warn_or_refuse
 from uavplace.infra.options import model_options
 from uavplace.rl.agent.config import PRESETS, DQNConfig
 from uavplace.rl.config import EpisodeSettings
@@ -281,11 +281,11 @@ def _train_in(run_dir: Path, resume, config, datasets, val_datasets, root: Path,
             trainer.run(resume=resume is not None, on_progress=on_progress, stop_at=until)
         except Interrupted as stop:
             bar.stop()
-            stdout().print(str(stop), highlight=False, soft_wrap=True)
+            say(str(stop))
             raise SystemExit(130) from None  # the shell's status for Ctrl-C
     last = trainer.state.evals[-1] if trainer.state.evals else None
     summary = f"; last evaluation: {trainer.learning.describe(last)}" if last else ""
-    stdout().print(f"trained {run_dir}{summary}", highlight=False, soft_wrap=True)
+    say(f"trained {run_dir}{summary}")
 
 
 @click.command()
@@ -324,8 +324,6 @@ def ensemble(runs: tuple[Path, ...], out: Path, root: Path, quiet: bool) -> None
             command=command_line(),
             on_progress=lambda done, total: bar.update(task, completed=done, total=total),
         )
-    stdout().print(
+    say(
         f"wrote {out}: {len(runs)} runs; validation {100 * row['success']:.1f} % success, median {row['median_steps']:g} steps",
-        highlight=False,
-        soft_wrap=True,
     )

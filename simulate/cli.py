@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from uavplace.infra.console import Bounds, Finite, command_line, console, fail, path_option, ray_address_option, stdout
+from uavplace.infra.console import Bounds, Finite, command_line, console, fail, path_option, ray_address_option, say, stdout
 from uavplace.infra.options import model_options, settings
 from uavplace.simulate.config import OPTION_NAMES, Simulation
 
@@ -147,7 +147,7 @@ def _simulate_one(
     except RuntimeError as err:  # Sionna RT missing or its child process failed
         fail(err)
     g = record["grid"]
-    stdout().print(
+    say(
         f"simulated {name}: {record['geometry']}, {len(record['users_m'])} users, "
         f"grid {g['num_x']} x {g['num_y']} at {g['spacing_m']:g} m and {g['altitude_m']:g} m, "
         + (
@@ -159,8 +159,6 @@ def _simulate_one(
         + f"{100 * record['unreached_cell_share']:.1f} % of user-cells unreached "
         f"({100 * record['gap_filled_cell_share']:.1f} % filled: no ray hit them), ray tracing {record['raytrace_seconds']:.1f} s "
         f"(wall {record['wall_seconds']:.1f} s) -> {folder}",
-        highlight=False,
-        soft_wrap=True,
     )
 
 

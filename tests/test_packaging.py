@@ -215,3 +215,19 @@ def test_a_task_is_named_by_its_folder_the_registry_and_its_report_alone():
         folder = f"uavplace.rl.tasks.{task}"
         users = sorted(m for m, found in graph.items() if not m.startswith(folder) and any(i.startswith(folder) for i in found))
         assert all(m.startswith(f"uavplace.eval.reports.{task}") for m in users), (task, users)
+
+
+def test_the_wheel_lists_every_package_folder():
+    """Every folder of a stage that holds an ``__init__.py`` is a package of pyproject.toml's list (an editable install
+    finds a missing one anyway; a wheel would leave it out), and the list names no folder that is not there."""
+    import tomllib
+
+    setuptools = tomllib.loads((REPO / "pyproject.toml").read_text(encoding="utf-8"))["tool"]["setuptools"]
+    folders = {
+        "uavplace." + ".".join(p.parent.relative_to(REPO).parts)
+        for stage in STAGES
+        for p in (REPO / stage).rglob("__init__.py")
+        if "__pycache__" not in p.parts
+    }
+    assert set(setuptools["packages"]) == folders
+    assert set(setuptools["package-dir"]) == {f"uavplace.{stage}" for stage in STAGES}

@@ -13,7 +13,7 @@ from pathlib import Path
 import click
 from pydantic import BaseModel, ConfigDict
 
-from uavplace.infra.console import LogLines, console, plain_table, stdout, warn_or_refuse
+from uavplace.infra.console import LogLines, console, plain_table, say, stdout, warn_or_refuse
 from uavplace.infra.options import with_pairs
 from uavplace.rl.config import SearchConfig
 
@@ -179,5 +179,5 @@ def say_written(markdown: Path | None, page: Path, tables: Path) -> None:
         from uavplace.infra.files import atomic_write_text
 
         atomic_write_text(markdown, tables.read_text(encoding="utf-8"))
-        stdout().print(f"tables (Markdown): {markdown}", highlight=False, soft_wrap=True)
-    stdout().print(f"report: {page}", highlight=False, soft_wrap=True)
+        say(f"tables (Markdown): {markdown}")
+    say(f"report: {page}")

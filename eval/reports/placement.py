@@ -11,7 +11,7 @@ import click
 from uavplace.eval.config import ReportConfig
 from uavplace.eval.reports.base import ReportRequest, TaskReport, check_runs_once, check_training_settings, print_table
 from uavplace.infra.cluster import start_ray
-from uavplace.infra.console import LogLines, command_line, plain_table, stdout
+from uavplace.infra.console import LogLines, command_line, plain_table, say, stdout
 
 #: The columns of a report's table that a terminal shows (they fit 120 columns).
 TERMINAL_COLUMNS = ("method", "success", "median steps", "median of per-episode steps / genie")
@@ -60,13 +60,13 @@ def play(request: ReportRequest, after: contextlib.ExitStack) -> None:
     if len(datasets) > 1:
         print_table(summary_rows(reports, t_max), "success / median steps per method and city")
         page, top = write_summary_page(reports, out or Path("reports"), t_max)
-        stdout().print(f"report (every city): {page}", highlight=False, soft_wrap=True)
+        say(f"report (every city): {page}")
     if request.markdown is not None:
         from uavplace.eval.render import markdown_tables
         from uavplace.infra.files import atomic_write_text
 
         atomic_write_text(request.markdown, markdown_tables(reports, t_max, top))
-        stdout().print(f"tables (Markdown): {request.markdown}", highlight=False, soft_wrap=True)
+        say(f"tables (Markdown): {request.markdown}")
 
 
 def groups(texts: tuple[str, ...], chosen: list[Path]) -> dict[str, list[str]]:
@@ -138,7 +138,7 @@ def print_city(result, title: str, dataset: str) -> None:  # noqa: ANN001 - a Re
     for table, caption in titles:
         if table is not None and len(table) > 1:
             stdout().print(plain_table(*table[0], rows=table[1:], title=caption))
-    stdout().print(f"report: {result.out / 'report.html'}", highlight=False, soft_wrap=True)
+    say(f"report: {result.out / 'report.html'}")
 
 
 def one_report(config: ReportConfig, out: Path, request: ReportRequest, city: tuple[int, int], parallel: bool):  # noqa: ANN201

@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from uavplace.infra.console import LogLines, path_option, plain_table, root_option, stdout
+from uavplace.infra.console import LogLines, path_option, plain_table, root_option, say, stdout
 from uavplace.infra.options import model_options, settings
 from uavplace.rl.config import DEFAULT_PREDICTOR, UNetConfig
 from uavplace.rl.predictor.options import (
@@ -67,11 +67,9 @@ def fit_predictor(datasets: tuple[str, ...], val_datasets: tuple[str, ...], out:
     atomic_write_text(out, constants.model_dump_json(indent=2) + "\n")
     if val_datasets:
         stdout().print(table)
-    stdout().print(
+    say(
         f"wrote {out}: fitted on {sum(map(len, users))} users of {len(bundles)} cities in "
         f"{time.perf_counter() - t0:.0f} s; error std {constants.error_db:.1f} dB",
-        highlight=False,
-        soft_wrap=True,
     )
 
 
@@ -182,12 +180,10 @@ def train_predictor(
         (tmp / MODEL_CARD).write_text(model_card(model, command_line()))
     print_scores(scores, list(tiers))
     scale, bias = facts["calibration"]
-    stdout().print(
+    say(
         f"wrote {out}: trained on {facts['users']} users of {len(maps)} cities in "
         f"{facts['train_seconds']:.0f} s; residual std {facts['error_db']:.1f} dB; dead logit calibrated "
         f"x {scale:.3f} {bias:+.3f} on {facts['calibration_users']} held-out users",
-        highlight=False,
-        soft_wrap=True,
     )
 
 
@@ -274,11 +270,9 @@ def calibrate_predictor(
     load_learned(out)  # the weights still the ones model.json names
     print_scores(scores, list(tiers))
     users = sum(len(m.users) for m in maps)
-    stdout().print(
+    say(
         f"wrote {out}: dead logit calibrated x {scale:.3f} {bias:+.3f} on {users} users of {len(maps)} packs in "
         f"{time.perf_counter() - t0:.0f} s",
-        highlight=False,
-        soft_wrap=True,
     )
 
 
@@ -413,10 +407,8 @@ def trace_predictor(
     with atomic_directory(out, marker=MODEL_JSON, what="ray-traced predictor") as tmp:
         (tmp / MODEL_JSON).write_text(model.model_dump_json(indent=2) + "\n")
     print_scores(scores, list(tiers))
-    stdout().print(
+    say(
         f"wrote {out}: calibrated on {model.calibration_users} users of {len(maps)} packs in "
         f"{time.perf_counter() - t0:.0f} s at {model.samples:g} rays; spread {model.error_db:.1f} dB, dead at "
         f"{model.dead_level_db:.1f} dB (width {model.dead_scale_db:.1f} dB)",
-        highlight=False,
-        soft_wrap=True,
     )
