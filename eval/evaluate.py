@@ -133,22 +133,25 @@ def default_agents(root: str | Path = SHIPPED_AGENTS, task: str | tuple[str, ...
 
 
 def unlike_training(runs: list[Path], datasets: list[str], root: str | Path, p_t_db: float) -> list[str]:
-    """One line per (run, city) where the run's agent would play a bundle built with settings none of its training
-    cities had (grid, altitude, noise: ``run.json``'s ``bundle_settings``), or at another P_T than it was trained
-    at. A run that records no settings (older than the record, or a bare checkpoint) is not judged."""
+    """One line per city and difference where runs' agents would play a bundle built with settings none of their
+    training cities had (grid, altitude, noise: ``run.json``'s ``bundle_settings``), or at another P_T than they were
+    trained at, naming the runs. A run that records no settings (older than the record, or a bare checkpoint) is not
+    judged."""
     manifests = [read_manifest(resolve(d, root=root)) for d in datasets]
-    lines = []
-    for run in runs:
-        record = read_run_json(run) if has_record(Path(run)) else None
-        if record is None or not record.bundle_settings:
-            continue
-        for manifest in manifests:
-            unlike = settings_unlike(record, manifest, p_t_db)
+    found: dict[tuple[str, str], list[str]] = {}  # (city@version, what differs): the runs, in order
+    for manifest in manifests:
+        for run in runs:
+            record = read_run_json(run) if has_record(Path(run)) else None
+            unlike = settings_unlike(record, manifest, p_t_db) if record is not None and record.bundle_settings else []
             if unlike:
-                lines.append(
-                    f"{Path(run).name} on {manifest.city}@{manifest.version}: {'; '.join(unlike)}: the agent "
-                    "plays outside what it was trained on"
-                )
+                found.setdefault((f"{manifest.city}@{manifest.version}", "; ".join(unlike)), []).append(Path(run).name)
+    lines = []
+    for (city, unlike), names in found.items():
+        if len(names) == 1:
+            lines.append(f"{names[0]} on {city}: {unlike}: the agent plays outside what it was trained on")
+        else:
+            who = ", ".join(names[:-1]) + f" and {names[-1]}"
+            lines.append(f"{who} on {city}: {unlike}: the agents play outside what they were trained on")
     return lines
 
 

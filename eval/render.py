@@ -190,7 +190,7 @@ def provenance_rows(provenances: list[dict]) -> list[list[str]]:
             [
                 f"test city {p['test_city']}",
                 f"bundle {p['test_bundle']}: grid {c.get('grid_m')} m, altitude "
-                f"{c.get('altitude_m')} m, noise + interference {c.get('noise_dbm')} dBm, role {c.get('role')}",
+                f"{c.get('altitude_m')} m, noise + interference {c.get('noise_dbm')} dBm, role {c.get('role') or 'not declared'}",
             ]
         )
         if p.get("test_bundle_cells"):  # reports from before provenance lack it
@@ -237,15 +237,20 @@ class Top:
     figure: Figure | None = None
 
 
-def city_top(table: pd.DataFrame, differences: pd.DataFrame, config: ReportConfig, city: str) -> Top:
-    """The top of one city's page: ``city_findings`` and the headline methods' ``HEADLINE_STATS``."""
+def cautioned(findings: list[str], cautions: list[str]) -> list[str]:
+    """``findings`` followed by what the command warned of (``evaluate.unlike_training``'s lines), each as a caution."""
+    return findings + [f"Caution: {line}." for line in cautions]
+
+
+def city_top(table: pd.DataFrame, differences: pd.DataFrame, config: ReportConfig, city: str, cautions: list[str]) -> Top:
+    """The top of one city's page: ``city_findings``, then ``cautions``, and the headline methods' ``HEADLINE_STATS``."""
     methods = headline_methods(list(table["method"]))
     caption = (
         f"The headline methods in {city} ({config.episodes} episodes; brackets: 95 % paired bootstrap intervals over "
         "users, then episodes; every method and statistic below)."
     )
     rows = stat_rows(table, config.t_max, HEADLINE_STATS, methods)
-    return Top(city_findings(table, differences, config.t_max), caption, rows)
+    return Top(cautioned(city_findings(table, differences, config.t_max), cautions), caption, rows)
 
 
 def across_top(reports: list[Report], profile_png: Path | None = None) -> Top:
@@ -265,7 +270,8 @@ def across_top(reports: list[Report], profile_png: Path | None = None) -> Top:
         bands = profiles(pooled(by_city), n_boot=config.n_boot, seed=config.seed, stratified=True)
         figure = plot_profiles(bands, f"the {len(reports)} cities pooled ({', '.join(cities)})", profile_png)
     rows = stat_rows(aggregate, config.t_max, HEADLINE_STATS, headline_methods(list(aggregate["method"])))
-    return Top(across_findings(cities, aggregate, config.t_max), caption, rows, figure)
+    cautions = [line for r in reports for line in r.provenance.get("cautions", [])]  # reports before 0.5 lack them
+    return Top(cautioned(across_findings(cities, aggregate, config.t_max), cautions), caption, rows, figure)
 
 
 def render_page(

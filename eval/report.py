@@ -40,6 +40,7 @@ from uavplace.eval.evaluate import (
     shown_method,
     stages,
     training_bounds,
+    unlike_training,
 )
 from uavplace.eval.figures import Figure, pick_trajectories, plot_cdf, plot_profiles, plot_training, plot_trajectories
 from uavplace.eval.metrics import difference_table, group_tables, profiles
@@ -67,6 +68,7 @@ def make_report(
     command: str = "",
     on_progress: Callable[[str, int, int], None] | None = None,
     on_plan: Callable[[list[str]], None] | None = None,
+    on_status: Callable[[str], None] | None = None,
     parallel: bool = False,
 ) -> Report:
     """Evaluate every method on ``config.dataset`` and write the report folder ``out`` (atomically).
@@ -76,20 +78,26 @@ def make_report(
     every agent (weights only), and that no agent was trained in the test city.
     A training city whose bundle is not built here only loses its upper bound.
     ``on_plan`` is told every stage (``evaluate.stages``) before the first; ``on_progress`` each stage's
-    ``(stage, done, total)`` as it goes. ``parallel``: the methods as Ray tasks (``eval.parallel``), the same
+    ``(stage, done, total)`` as it goes; ``on_status`` what is being loaded before the first stage. ``parallel``: the methods as Ray tasks (``eval.parallel``), the same
     numbers.
     """
     out = Path(out)
     check_replaceable(out, REPORT_JSON, "report")
+    status = on_status or (lambda _: None)
+    status(f"loading the bundle of {config.dataset}")
     bundle = load_bundle(config.dataset, root=root)
+    status(f"loading {len(config.runs)} agents")
     agents = [load_agent(r, config.test_epsilon, config.seed) for r in config.runs]
     check_unseen(agents, bundle)
     twice = set(repeated([a.name for a in agents]))
     for a in agents:  # same agent and preset twice: tell them apart by folder
         if a.name in twice:
             a.name = a.policy.name = f"{a.name} [{a.folder.name}]"
+    # what the command warned of, said on the page too: agents played outside their training settings
+    cautions = unlike_training([Path(r) for r in config.runs], [config.dataset], root, config.p_t_db)
+    status("reading the agents' training cities (their upper bounds)")
     bounds, bound_notes = training_bounds(agents, root, config.p_t_db)
-
+    status("setting up the baselines and the map searcher")
     baselines = default_baselines(config, bundle)
     blanked = blanked_agents(config, agents) if config.ablate else []
     if on_plan is not None:
@@ -138,6 +146,7 @@ def make_report(
             "test_bundle_cells": bundle.cell_sources(),
             "upper_bounds_db": bounds,
             "upper_bounds_notes": bound_notes,
+            "cautions": cautions,
             "trajectories": {"agent": shown, "episodes": [e for e, _ in picked], "rules": [r for _, r in picked]},
             "figures": {k: v.caption for k, v in figures.items() if v is not None},
             "agents": {
@@ -157,7 +166,7 @@ def make_report(
         grows = None if grouped is None else group_rows(*grouped, groups)
         provenance["groups"] = named or None
         section = render_section(config, rows, figures, provenance, diff_rows=diff_rows, group_rows=grows)
-        top = city_top(table, differences, config, bundle.city)
+        top = city_top(table, differences, config, bundle.city, cautions)
         (tmp / "report.html").write_text(render_page([section], [provenance], top), encoding="utf-8")
         (tmp / REPORT_JSON).write_text(json.dumps(provenance, indent=2) + "\n", encoding="utf-8")
     figures = {k: None if v is None else Figure(out / v.path.name, v.caption) for k, v in figures.items()}

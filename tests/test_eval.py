@@ -406,7 +406,8 @@ def test_training_curves_order_episodes_by_their_start():
 
 def test_a_default_build_is_what_the_shipped_agents_expect_and_another_is_named(tiny, tmp_path):
     """Every shipped agent records the settings of its training bundles, which a default build has; a report names
-    a bundle of another noise level, or another P_T, in one line per agent and city, and refuses it with --strict."""
+    a bundle of another noise level, or another P_T, in one line per city naming the agents (the page's findings
+    too), and refuses it with --strict."""
     import shutil
 
     from click.testing import CliRunner
@@ -437,6 +438,14 @@ def test_a_default_build_is_what_the_shipped_agents_expect_and_another_is_named(
     res = CliRunner().invoke(uavrl, ["report", "--dataset", f"tiny@{other}", "--root", str(root), "--run", str(best),
                                      "--out", str(tmp_path / "r"), "--strict", "--quiet"])  # fmt: skip
     assert res.exit_code == 2 and "noise -104 dBm (trained at -75 dBm)" in res.output and not (tmp_path / "r").exists()
+    # several agents alike: one line naming them all; without --strict the page's findings say it too
+    (line,) = unlike_training([best, REPO / "data" / "agents" / "blind"], [f"tiny@{other}"], root, 5.0)
+    assert line.startswith(f"best and blind on tiny@{other}: noise -104 dBm") and "the agents play" in line
+    res = CliRunner().invoke(uavrl, ["report", "--dataset", f"tiny@{other}", "--root", str(root), "--run", str(best),
+                                     "--out", str(tmp_path / "r"), "--episodes", "2", "--bootstrap", "100", "--quiet"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    page = (tmp_path / "r" / "report.html").read_text(encoding="utf-8")
+    assert f"Caution: best on tiny@{other}: noise -104 dBm (trained at -75 dBm)" in page
 
 
 def test_evaluations_over_the_step_limit_are_refused_before_any_work(tiny):
@@ -517,7 +526,7 @@ def test_a_missing_training_bundle_is_said_in_words_in_the_caption(tmp_path):
 def test_report_progress_names_the_city_the_method_and_the_predicted_maps(tiny, tmp_path):
     """To a log, the report's progress names the city's place among the report's, each stage's (a method's episodes,
     a searcher's predicted maps) place among the city's, "stage j of m", and the predicted maps as they are made (a
-    cold cache: no silent wait before the first episode)."""
+    cold cache: no silent wait before the first episode); before the first stage, what it is loading."""
     import re
     import shutil
 
@@ -535,6 +544,10 @@ def test_report_progress_names_the_city_the_method_and_the_predicted_maps(tiny, 
     counts = {tuple(map(int, pattern.match(line).groups())) for line in lines}
     total = {m for _, m in counts}
     assert len(total) == 1 and {j for j, _ in counts} == set(range(1, total.pop() + 1)), counts  # every stage, counted
+    # before the first stage, what is being loaded (no blank wait): the bundle first
+    first = next(i for i, line in enumerate(res.output.splitlines()) if line.startswith("report city 1 of 1: tiny"))
+    assert res.output.splitlines()[first] == "report city 1 of 1: tiny: loading the bundle of tiny", res.output
+    assert "report city 1 of 1: tiny: reading the agents' training cities (their upper bounds)" in res.output
 
 
 def test_report_search_sets_the_searchers_settings(tiny, tmp_path):

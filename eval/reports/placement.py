@@ -11,7 +11,7 @@ import click
 from uavplace.eval.config import ReportConfig
 from uavplace.eval.reports.base import ReportRequest, TaskReport, check_runs_once, check_training_settings, print_table
 from uavplace.infra.cluster import start_ray
-from uavplace.infra.console import LogLines, command_line, plain_table, say, stdout
+from uavplace.infra.console import LogLines, command_line, console, plain_table, say, stdout
 
 #: The columns of a report's table that a terminal shows (they fit 120 columns).
 TERMINAL_COLUMNS = ("method", "success", "median steps", "median of per-episode steps / genie")
@@ -27,8 +27,10 @@ def play(request: ReportRequest, after: contextlib.ExitStack) -> None:
     check_runs_once(chosen, "--run")
     grouped = groups(request.groups, chosen)
     check_runs_once(chosen, "--run and --group")
-    check_unseen_runs(chosen, list(datasets), request.root)  # every city before the first city's report
-    check_training_settings(chosen, request)
+    checking = f"checking {len(chosen)} agents against {len(datasets)} cities"
+    with contextlib.nullcontext() if request.quiet else console.status(checking):
+        check_unseen_runs(chosen, list(datasets), request.root)  # every city before the first city's report
+        check_training_settings(chosen, request)
     if len(datasets) > 1:
         check_summary_page(out or Path("reports"))
     folders = {d: out if out and len(datasets) == 1 else (out or Path("reports")) / d.split("@")[0] for d in datasets}
@@ -154,10 +156,17 @@ def one_report(config: ReportConfig, out: Path, request: ReportRequest, city: tu
     columns = (TextColumn("[bold]report[/] {task.description:<20}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     log = LogLines(request.quiet)  # a log: a plain line every LINE_SECONDS (and at each method's start and end), not a bar
     with Progress(*columns, console=stdout(), disable=request.quiet or log.enabled) as bar:
+        loading = bar.add_task(f"city {city[0]} of {city[1]}: {config.dataset}: loading", total=None)
+
+        def on_status(text: str) -> None:  # what is loaded before the first stage, from the first second
+            bar.update(loading, description=f"city {city[0]} of {city[1]}: {config.dataset}: {text}")
+            log(f"report city {city[0]} of {city[1]}: {config.dataset}: {text}", last=True)
 
         def on_progress(stage: str, done: int, total: int) -> None:
             new = stage not in tasks
             name = f"city {city[0]} of {city[1]}: {config.dataset}, stage {plan.index(stage) + 1} of {len(plan)}: {stage}"
+            if loading in bar.task_ids:
+                bar.remove_task(loading)
             if new:
                 tasks[stage] = bar.add_task(name, total=total)
             bar.update(tasks[stage], completed=done)
@@ -171,6 +180,7 @@ def one_report(config: ReportConfig, out: Path, request: ReportRequest, city: tu
             command=command_line(),
             on_progress=on_progress,
             on_plan=plan.extend,
+            on_status=on_status,
             parallel=parallel,
         )
 
