@@ -207,7 +207,7 @@ def rasterise(
                 msg + " (wrong frame? use --bounds buildings to widen the grid, or --crop to drop them)",
                 field="footprint_wkb",
             )
-        warnings.append(msg + ": dropped (--crop)")
+        warnings.append(msg + ": dropped (the city is cropped: --crop, or `crop` in data/raw/cities.toml)")
     if len(hm.unresolved):
         warnings.append(f"{len(hm.unresolved)} building(s) cover no cell centre (smaller than a {grid.spacing_m:g} m cell)")
     height_rel = (hm.height_m - config.altitude_m).astype(np.float32)
@@ -344,6 +344,29 @@ def cells_frame(grid: GridSpec, arrays: dict[str, np.ndarray]) -> pd.DataFrame:
     )
 
 
+#: The share of dead legal user-cells over which the build warns that a city's maps are mostly cells no ray reached.
+DEAD_WARNING = 0.9
+
+
+def unplayable(d: dict[str, float | None]) -> list[str]:
+    """The build's warnings when the city's maps leave little or nothing to play (``difficulty``'s figures ``d``): no
+    start cell for any user (no legal cell reaches P_T, or none can be reached), or nearly every legal cell dead."""
+    shares = f"{100 * d['target_share']:.1f} % of legal user-cells reach P_T {d['p_t_db']:g} dB, {100 * d['dead_share']:.1f} % are dead"
+    if not d["num_starts"]:
+        why = (
+            "do the receivers cover the streets? is the noise level the export's?"
+            if not d["target_share"]
+            else "every live cell already reaches it, or none reaches a target: is P_T or the noise level too low?"
+        )
+        return [
+            f"nothing can be played here: {shares}; no user has a cell below P_T that a target can be reached from, "
+            f"so `uavrl train` and `uavrl report` will refuse the city ({why})"
+        ]
+    if d["dead_share"] >= DEAD_WARNING:
+        return [f"{shares}: most of the maps are cells no ray reached (do the receivers cover the streets?)"]
+    return []
+
+
 def build_city(
     city: str,
     config: BuildConfig,
@@ -395,6 +418,8 @@ def build_city(
             _write_parquet(ROUTE_POINTS, routes[1], tmp / ROUTE_POINTS.filename)
             files += ["routes.npz", ROUTE_POINTS.filename]
         split = users["split"].value_counts().to_dict()
+        hardness = difficulty(arrays["blocked"], arrays["dead"], arrays["sinr_db"], config.p_t_db)
+        warnings += unplayable(hardness)
         manifest = BundleManifest(
             city=city,
             version=version,
@@ -408,7 +433,7 @@ def build_city(
             num_route_points=0 if routes is None else len(routes[1]),
             split={k: int(split.get(k, 0)) for k in ("train", "val", "test")},
             counts={"users": len(users), **counts},
-            difficulty=difficulty(arrays["blocked"], arrays["dead"], arrays["sinr_db"], config.p_t_db),
+            difficulty=hardness,
             files={name: sha256_file(tmp / name) for name in files},
             inputs=ing.hashes,
             warnings=tuple(warnings),

@@ -491,7 +491,7 @@ def test_build_warnings_are_one_line_per_kind():
     from uavplace.dataset.cli import warning_lines
 
     small = "{} building(s) cover no cell centre (smaller than a 4 m cell)"
-    crop = "{} building(s) lie wholly outside the grid x 72..328, y 72..328: ids [{}] (building_{}): dropped (--crop)"
+    crop = "{} building(s) lie wholly outside the grid x 72..328, y 72..328: ids [{}] (building_{}): dropped (the city is cropped: --crop, or `crop` in data/raw/cities.toml)"
     warned = [("a", small.format(2)), ("b", crop.format(31, "0, 1", "0, building_1")), ("c", small.format(5)),
               ("d", crop.format(11, "7", "7")), ("e", small.format(1)), ("f", "the export carries SINR")]  # fmt: skip
     assert warning_lines(warned) == [
@@ -548,3 +548,21 @@ def test_the_grid_is_the_exports_unless_given(tmp_path):
     manifest.write_text(json.dumps(doc))
     with pytest.raises(InputError, match="no receiver grid in its .txrx: give the grid spacing"):
         export_spacing("city", root)
+
+
+def test_a_city_nothing_can_be_played_in_warns_at_build(tmp_path, tiny):
+    """A city whose maps leave no user a start cell (here no cell reaches P_T) builds, and the build says at once that
+    training and reports will refuse it; the embedded tiny city, which plays, is not warned of."""
+    from click.testing import CliRunner
+
+    from uavplace.cli import uavdata
+
+    root = tmp_path / "p"
+    ingest(write_grid_city(tmp_path / "weak", outputs=("power",), tx_power_dbm=-60.0), root, "weak")
+    res = CliRunner().invoke(uavdata, ["build", "--root", str(root), "--grid", "4m", "--alt", "10"])
+    assert res.exit_code == 0, res.output
+    assert load_bundle("weak", root=root).manifest.difficulty["num_starts"] == 0
+    (warned,) = [line for line in res.output.splitlines() if "nothing can be played here" in line]
+    assert warned.startswith("warning: weak: nothing can be played here: 0.0 % of legal user-cells reach P_T 5 dB")
+    assert "will refuse the city (do the receivers cover the streets?" in warned
+    assert not any("played" in w or "no ray reached" in w for w in load_bundle("tiny", root=tiny).manifest.warnings)
