@@ -148,7 +148,7 @@ FORMATS: tuple[Format, ...] = (
         "geometry",
         "Wireless InSite object, foliage or floor plan",
         (".object", ".veg", ".flp"),
-        skip="InSite object/foliage/floor-plan feature (not used as buildings)",
+        skip="a Wireless InSite object, foliage or floor plan: not read (buildings come from the geometry formats)",
     ),
     Format(
         "provenance",

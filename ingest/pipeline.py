@@ -21,7 +21,7 @@ import shapely
 
 from uavplace.infra.files import atomic_directory, check_name, sha256_file, write_model_json
 from uavplace.ingest.buildings import BuildingRecord, buildings_tables
-from uavplace.ingest.formats import FORMATS, Classified, classify, folder_format
+from uavplace.ingest.formats import FORMATS, GEOMETRY_TITLES, Classified, classify, folder_format
 from uavplace.ingest.provenance import default_code, export_digest, read_provenance, recorded_export
 from uavplace.ingest.receivers import ReceiverReader, export_receivers, transmitters_table
 from uavplace.ingest.routes import read_routes
@@ -47,6 +47,7 @@ from uavplace.schemas import (
     TxRxSet,
 )
 from uavplace.schemas.provenance import code_name
+from uavplace.schemas.receivers import RECEIVER_OUTPUTS
 
 if TYPE_CHECKING:
     pass
@@ -63,6 +64,21 @@ def _single(files: list[Classified], kind: str) -> Classified | None:
             files[1].rel, f"several .{kind} files ({', '.join(f.rel for f in files)}): keep one per city folder", field="file"
         )
     return files[0] if files else None
+
+
+def nothing_usable(files: list[Classified]) -> str:
+    """Why a folder of ``files`` holds nothing ingest reads: each reason a file was passed over, with how many files
+    and the first, and what ingest reads."""
+    reasons: dict[str, list[str]] = {}
+    for f in files:
+        reasons.setdefault(f.skip_reason or "not a format uavplace reads", []).append(f.rel)
+    why = "; ".join(f"{len(rels)} x {reason} (e.g. {rels[0]})" for reason, rels in reasons.items())
+    return (
+        f"no receiver output, .txrx, .setup or geometry file among {len(files)} file(s): {why}. Ingest reads Wireless "
+        "InSite receiver outputs by their own names, <project>.<output>.tTTT_SS.rRRR.p2m (outputs "
+        f"{', '.join(RECEIVER_OUTPUTS)}; per-path outputs such as cir are not read), the .txrx and .setup, and "
+        f"buildings as {GEOMETRY_TITLES}"
+    )
 
 
 def ingest_city(
@@ -98,10 +114,7 @@ def ingest_city(
         by_kind[f.kind].append(f)
     usable = [f for f in files if f.kind not in ("other",) and f.skip_reason is None]
     if not usable:
-        raise InputError(
-            folder,
-            f"no receiver output, .txrx, .setup or geometry file among {len(files)} file(s): {', '.join(f.rel for f in files[:5])}",
-        )
+        raise InputError(folder, nothing_usable(files))
 
     warnings: list[str] = []
     reports: dict[str, FileReport] = {}

@@ -177,6 +177,22 @@ def test_empty_and_unknown_only_folders(tmp_path):
     assert not (tmp_path / "proc").exists() or not any((tmp_path / "proc").rglob("*.parquet"))
 
 
+def test_renamed_outputs_and_a_floor_plan_are_refused_saying_what_is_read(tmp_path):
+    """Receiver outputs a user renamed, a CIR (per path) and a floor plan: the refusal says why each was passed over,
+    that a .p2m is recognised by its <project>.<output>.tTTT_SS.rRRR name, and which outputs are read."""
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    for name in ("power_north.p2m", "power_south.p2m", "city.cir.t001_01.r002.p2m", "floor.flp"):
+        (folder / name).write_text("# nothing\n")
+    res = run("ingest", str(folder), "--out", str(tmp_path / "proc"))
+    assert res.exit_code == 2, res.output
+    text = " ".join(res.output.split())  # the error line as one, whatever the terminal's width
+    assert "2 x a .p2m whose name is not <project>.<output>.tTTT_SS.rRRR.p2m (e.g. power_north.p2m)" in text
+    assert "1 x complex impulse response, per path (not used by uavplace) (e.g. city.cir.t001_01.r002.p2m)" in text
+    assert "1 x a Wireless InSite object, foliage or floor plan: not read" in text and "(e.g. floor.flp)" in text
+    assert "outputs power, pl, pg, txloss, spread, noise" in text
+
+
 def test_two_folders_of_one_city_name_are_refused_before_any_work(tmp_path):
     """`uavdata ingest tiny other/tiny`: the second would silently replace the first's tables."""
     one, two = write_grid_city(tmp_path / "tiny"), write_grid_city(tmp_path / "other" / "tiny")
