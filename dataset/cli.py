@@ -18,6 +18,7 @@ from uavplace.infra.console import (
     console,
     fail,
     folder_option,
+    keep_whole,
     path_option,
     plain_table,
     root_option,
@@ -228,6 +229,17 @@ def format_difficulty(d: dict[str, float | None]) -> str:
     )
 
 
+def list_tables(cities: list, root: Path) -> tuple:  # noqa: ANN001 - CityEntry rows and two rich Tables
+    """``uavdata list``'s two tables, ingested cities and bundles, their names and versions never cut (a version is
+    what ``--dataset city@version`` needs): the other columns give way in a narrow terminal."""
+    from uavplace.dataset.roles import BUNDLE_COLUMNS, INGESTED_COLUMNS, bundle_rows, ingested_row
+
+    ingested = plain_table(*INGESTED_COLUMNS, rows=[ingested_row(c) for c in cities], title="ingested")
+    rows = [row for c in cities for row in bundle_rows(c, root)]
+    bundles = plain_table(*BUNDLE_COLUMNS, rows=rows, title="bundles (* latest)")
+    return keep_whole(ingested, "city"), keep_whole(bundles, "city", "version")
+
+
 @click.command(name="list")
 @root_option
 @click.option(
@@ -256,14 +268,7 @@ def list_(root: Path, table: bool, raw: Path) -> None:
     if not cities:
         out.print(f"no ingested city under {root} (run `uavdata ingest data/raw/<city>/`)")
         return
-    from uavplace.dataset.roles import BUNDLE_COLUMNS, INGESTED_COLUMNS, bundle_rows, ingested_row
-
-    ingested = plain_table(*INGESTED_COLUMNS, title="ingested")
-    bundles = plain_table(*BUNDLE_COLUMNS, title="bundles (* latest)")
-    for c in cities:
-        ingested.add_row(*ingested_row(c))
-        for row in bundle_rows(c, root):
-            bundles.add_row(*row)
+    ingested, bundles = list_tables(cities, root)
     out.print(ingested)
     if bundles.row_count:
         out.print(bundles)

@@ -134,6 +134,16 @@ def plain_table(*headers: str, rows: list[list[str]] = (), **kwargs) -> Table:  
     return table
 
 
+def keep_whole(table: Table, *headers: str) -> Table:
+    """``table`` with the columns ``headers`` never cut or wrapped (names and versions a user copies into a command):
+    each as wide as its longest cell; the other columns give way."""
+    for column in table.columns:
+        if str(column.header) in headers:
+            cells = [len(str(c)) for c in column.cells]
+            column.no_wrap, column.min_width = True, max([len(str(column.header)), *cells])
+    return table
+
+
 #: The type of every ``--seed``: numpy's and torch's generators take a non-negative integer.
 SEED = click.IntRange(0, MAX_SEED)
 

@@ -411,6 +411,18 @@ def test_cli_build_list_show(tmp_path):
     assert "up to date (nothing to do) city@" in res.output
     res = run(uavdata, ["list", "--root", str(root)])
     assert "bundles (* latest)" in res.output and "train" in res.output
+    import io
+
+    from rich.console import Console
+
+    from uavplace.dataset.catalog import list_cities
+    from uavplace.dataset.cli import list_tables
+
+    for width in (100, 120):  # a narrow terminal: the city and its version whole, as --dataset city@version needs them
+        text = io.StringIO()
+        for table in list_tables(list_cities(root), root):
+            Console(file=text, width=width).print(table)
+        assert f"│ city │ {read_latest('city', root)} * │" in text.getvalue(), text.getvalue()
     png = tmp_path / "show.png"
     res = run(uavdata, ["show", "city", "--root", str(root), "--user", "1", "--out", str(png)])
     assert res.exit_code == 0, res.output
