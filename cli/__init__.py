@@ -8,6 +8,7 @@ line, and ``uavdata ingest`` never loads the ray tracer. Every failure is one ``
 
 from __future__ import annotations
 
+import difflib
 import importlib
 import json
 import os
@@ -58,6 +59,16 @@ class UavGroup(click.Group):
             module, _, attribute = self.lazy[cmd_name].partition(":")
             self.add_command(getattr(importlib.import_module(module), attribute), cmd_name)
         return super().get_command(ctx, cmd_name)
+
+    def resolve_command(self, ctx: click.Context, args: list[str]) -> tuple:
+        """As click's, but a mistyped command is answered with the nearest commands, lazy ones included (click offers
+        only those already loaded)."""
+        name = args[0]
+        if not name.startswith("-") and not ctx.resilient_parsing and self.get_command(ctx, name) is None:
+            near = difflib.get_close_matches(name, self.list_commands(ctx), n=3)
+            hint = f" Did you mean {' or '.join(repr(n) for n in near)}?" if near else ""
+            raise click.UsageError(f"No such command {name!r}.{hint}", ctx)
+        return super().resolve_command(ctx, args)
 
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):  # noqa: ANN001, ANN201
         try:
@@ -160,7 +171,7 @@ def uavrl() -> None:
 
     \b
     Typical use, after `uavdata ingest` and `uavdata build`:
-      uavrl report                              the shipped agents and the baselines in the test cities
+      uavrl report                              the shipped agents, the map searcher and the baselines in the test cities
       uavrl report --dataset cityA              ... in a city of yours (reports/)
       uavrl train --dataset corpus --dataset oldtown --name mine
       uavrl report --dataset cityA --run runs/mine

@@ -98,7 +98,7 @@ def task_options(command: Callable) -> Callable:
     is_flag=True,
     help="Refuse to play an agent on a bundle built with other settings (grid, altitude, noise) than its training "
     "cities' (run.json's bundle_settings), or at another P_T than it was trained at. Without it: one warning line "
-    "for each such agent and city.",
+    "for each such city, naming the agents (the report's findings say it too).",
 )
 @click.option(
     "--workers",
@@ -113,7 +113,7 @@ def task_options(command: Callable) -> Callable:
 @root_option
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def report(**values: Any) -> None:
-    """Evaluate agents and baselines on the same episodes of a test city; write an HTML report, PNGs, CSV and Parquet.
+    """Evaluate the agents, the map searcher and the baselines on the same episodes of test cities; write HTML, PNG, CSV.
 
     Methods: every agent, the genie (shortest path, full knowledge), the steered random walk, greedy
     hill-climbing, and the map searcher with its ablation shown no building (--predictor). Prints the results table (95 % bootstrap intervals in brackets) and the report's path;

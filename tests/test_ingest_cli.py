@@ -366,3 +366,16 @@ def test_a_mistyped_city_is_named_with_the_nearest_before_anything_heavy_loads(t
     assert out[0] == "2 2 False", out
     assert "did you mean florence?" in out[1] and "city 'florence' is ingested but not built" not in out[1]
     assert "no ingested city of that name: did you mean florence?" in out[2]
+
+
+def test_a_mistyped_command_is_answered_with_the_nearest_commands():
+    """`uavrl trian`, `uavdata biuld`: one error line that names the nearest command, lazy commands included (click
+    alone offers only the commands already loaded); a word like none gets no guess."""
+    from uavplace.cli import uavdata, uavrl
+
+    for group, typed, near in ((uavrl, "trian", "'train'"), (uavdata, "biuld", "'build'"), (uavrl, "reprot", "'report'")):
+        res = CliRunner().invoke(group, [typed])
+        assert res.exit_code == 2 and f"No such command '{typed}'. Did you mean {near}?" in res.output, res.output
+    res = CliRunner().invoke(uavdata, ["zzz"])
+    assert res.exit_code == 2 and "No such command 'zzz'." in res.output and "Did you mean" not in res.output
+    assert CliRunner().invoke(uavrl, ["--help"]).exit_code == 0
