@@ -37,7 +37,7 @@ import numpy as np
 
 from uavplace.dataset.bundle import Bundle, public_settings
 from uavplace.dataset.trainmaps import STEP_DB, TrainingMaps, dequantise, quantise
-from uavplace.infra.files import atomic_directory, atomic_write_bytes
+from uavplace.infra.files import atomic_directory, atomic_write_bytes, check_own_npz
 from uavplace.ingest.radiomapseer import RADIOMAPSEER, USER_HEIGHT_M, read_folder
 
 
@@ -149,5 +149,6 @@ def write_deepmimo(bundle: Bundle, out: str | Path) -> Path:
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)
     path = Path(out) / f"{bundle.city}.deepmimo.npz"
+    check_own_npz(path, "uavplace-deepmimo/", "DeepMIMO-style export")
     atomic_write_bytes(path, buf.getvalue())
     return path

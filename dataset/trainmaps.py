@@ -36,7 +36,7 @@ import numpy as np
 from pydantic import Field, ValidationError
 
 from uavplace.dataset.bundle import Bundle, public_settings
-from uavplace.infra.files import atomic_write_bytes, read_small_file
+from uavplace.infra.files import atomic_write_bytes, check_own_npz, read_small_file
 from uavplace.infra.limits import limits
 from uavplace.ingest.radiomapseer import decode_sinr as dequantise  # the codes of packs and RadioMapSeer folders
 from uavplace.schemas import InputError
@@ -153,6 +153,7 @@ def pack_bytes(maps: TrainingMaps, simulation: dict | None = None, step_db: floa
 
 def write_pack(path: str | Path, maps: TrainingMaps, simulation: dict | None = None) -> PackMeta:
     """Pack ``maps`` into ``path`` (written to a temporary file, then renamed; a regular file or absent)."""
+    check_own_npz(path, "uavplace-training-maps/", "training-maps pack")
     data, meta = pack_bytes(maps, simulation)
     atomic_write_bytes(path, data)
     return meta

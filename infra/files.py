@@ -21,7 +21,7 @@ import re
 import shutil
 import stat
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
 
@@ -249,6 +249,37 @@ def check_replaceable_file(final: str | Path) -> None:
         raise InputError(final, "exists and is not a regular file: refusing to replace it")
 
 
+def npz_format(path: Path, limit: int = 1 << 16) -> str | None:
+    """The ``format`` that the JSON ``meta`` member of the ``.npz`` at ``path`` names (uavplace's array files record one),
+    read without unpacking anything else (a member over ``limit`` bytes is not read); None for anything else."""
+    import zipfile
+
+    import numpy as np
+
+    try:
+        with zipfile.ZipFile(path) as z:
+            info = z.getinfo("meta.npy")
+            if info.file_size > limit or info.flag_bits & 0x1:  # too large, or encrypted
+                return None
+            with z.open(info) as f:
+                meta = json.loads(np.lib.format.read_array(f, allow_pickle=False).tobytes().decode("utf-8"))
+    except (OSError, KeyError, ValueError, NotImplementedError, RuntimeError, zipfile.BadZipFile, UnicodeDecodeError):
+        return None
+    fmt = meta.get("format") if isinstance(meta, dict) else None
+    return fmt if isinstance(fmt, str) else None
+
+
+def check_own_npz(final: str | Path, fmt: str, what: str) -> None:
+    """Refuse (``InputError``) to replace ``final`` unless it is absent or an ``.npz`` uavplace wrote in format ``fmt``
+    (its ``meta``'s ``format`` begins with it): a user's own file of that name is never replaced."""
+    final = Path(final)
+    check_replaceable_file(final)
+    if final.exists() and not (npz_format(final) or "").startswith(fmt):
+        raise InputError(
+            final, f"exists and is not a {what} uavplace wrote: refusing to replace it; move it or choose another --out"
+        )
+
+
 def check_replaceable(final: str | Path, marker: str, what: str) -> None:
     """Refuse (``InputError``) if ``final`` exists and is not an empty folder or a ``what`` uavplace made.
 
@@ -266,6 +297,59 @@ def check_replaceable(final: str | Path, marker: str, what: str) -> None:
         )
 
 
+#: The list of what uavplace wrote into an output folder, written beside what it lists: a later output replaces the
+#: folder only if it holds nothing else (a user's file put there is never lost).
+CONTENTS = ".uavplace-contents.json"
+#: The largest contents list read (a larger one is not uavplace's).
+_CONTENTS_BYTES = 1 << 20
+
+
+def _entries(folder: Path) -> set[str]:
+    return {p.name for p in folder.iterdir()} - {CONTENTS}
+
+
+def foreign_entries(folder: Path) -> set[str] | None:
+    """The entries of output ``folder`` that uavplace did not write there (not in its ``CONTENTS`` list); None when the
+    folder has no readable list (made before the lists, or not by uavplace)."""
+    listed = folder / CONTENTS
+    try:
+        if listed.is_symlink() or not listed.is_file() or listed.stat().st_size > _CONTENTS_BYTES:
+            return None
+        names = json.loads(listed.read_text(encoding="utf-8")).get("entries")
+    except (OSError, ValueError, AttributeError):
+        return None
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        return None
+    return _entries(folder) - set(names)
+
+
+def _refuse_foreign(final: Path, foreign: set[str], what: str, why: str) -> None:
+    if foreign:
+        shown = ", ".join(sorted(foreign)[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
+        raise InputError(
+            final,
+            f"holds {len(foreign)} entr{'y' if len(foreign) == 1 else 'ies'} {why} ({shown}): refusing to replace the "
+            f"{what} folder, which would lose them; move them away or choose another output",
+        )
+
+
+def check_output_folder(final: str | Path, marker: str, what: str, writes: Collection[str] = ()) -> set[str] | None:
+    """Refuse (``InputError``) an output folder ``atomic_directory`` would not replace, before any work: not a
+    ``what`` (``check_replaceable``), or holding entries that its contents list does not name, or, without a list,
+    entries outside ``writes`` (the names such an output always has, where the caller knows them). Returns the
+    folder's foreign entries by its list (empty), or None when it has no list (then checked again once the output is
+    made)."""
+    final = Path(final)
+    check_replaceable(final, marker, what)
+    if not final.is_dir():
+        return set()
+    listed = foreign_entries(final)
+    _refuse_foreign(final, listed or set(), what, "that uavplace did not write there")
+    if listed is None and writes:
+        _refuse_foreign(final, _entries(final) - set(writes), what, f"that a {what} does not hold")
+    return listed
+
+
 @contextlib.contextmanager
 def atomic_directory(
     final: str | Path, *, marker: str | None = None, what: str = "output", new: bool = False, lock: str | Path | None = None
@@ -274,7 +358,9 @@ def atomic_directory(
 
     ``marker``: the file every folder of this kind holds; an existing ``final``
     without it (and not empty) is refused before anything is written
-    (``check_replaceable``). ``new``: a folder written once: an existing
+    (``check_replaceable``), and so is one holding entries its ``CONTENTS`` list
+    (written into every output) does not name; one without a list (made before
+    the lists) is replaced only if the new output has every entry it has. ``new``: a folder written once: an existing
     ``final`` is refused (``InputError``), also one another process wrote
     while this one worked. The whole block runs under ``folder_lock(final)``, or
     ``folder_lock(lock)``: one lock for many folders of one kind (every bundle
@@ -291,14 +377,16 @@ def atomic_directory(
         recover_directory(final)
         if new and (final.exists() or final.is_symlink()):
             raise InputError(final, f"exists: choose another output (the {what} folder is written once)")
-        if marker is not None:
-            check_replaceable(final, marker, what)
+        listed = check_output_folder(final, marker, what) if marker is not None else None
         tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.tmp-", dir=final.parent))
         tmp.chmod(umask_mode(0o777))  # mkdtemp makes it private; outputs are not
         try:
             yield tmp
             if marker is not None and not (tmp / marker).is_file():
                 raise RuntimeError(f"{final}: the output has no {marker}: not published")
+            (tmp / CONTENTS).write_text(json.dumps({"what": what, "entries": sorted(_entries(tmp))}) + "\n", encoding="utf-8")
+            if marker is not None and listed is None and final.is_dir():  # no list: whatever the new output lacks
+                _refuse_foreign(final, _entries(final) - _entries(tmp), what, "that this output does not write")
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise

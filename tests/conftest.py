@@ -19,8 +19,15 @@ FIXTURES = Path(os.environ.get("UAVPLACE_FIXTURES", REPO.parent / "shared" / "fi
 
 def pytest_configure(config: pytest.Config) -> None:
     """A first Ctrl-C ends the suite at once, during a training test too, and in the commands the tests start: the
-    trainer's 'checkpoint, then stop' (``rl.agent.resume.interrupts``) is for users' runs; the tests of it unset it."""
+    trainer's 'checkpoint, then stop' (``rl.agent.resume.interrupts``) is for users' runs; the tests of it unset it.
+
+    One torch thread in the tests and the commands they start, unless OMP_NUM_THREADS says otherwise: on a machine
+    shared with other jobs, two threads that cannot both have a core spin and burn CPU waiting for each other
+    (``python benchmarks/shared_machine.py`` measures it; docs/testing.md)."""
     os.environ["UAVPLACE_CTRL_C"] = "end"
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    if "torch" in sys.modules:  # imported before this hook (a plugin): set what it read too late
+        sys.modules["torch"].set_num_threads(int(os.environ["OMP_NUM_THREADS"]))
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:

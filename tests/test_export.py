@@ -119,3 +119,37 @@ def test_export_command_and_training_on_an_exported_folder(tiny, tmp_path):
                                      "--threads", "1", "--quiet", "--root", str(tiny)])  # fmt: skip
     assert res.exit_code == 0, res.output
     assert "trained on" in res.output
+    mine = tmp_path / "mine"  # a folder of the user's that holds a model.json: refused before any training
+    mine.mkdir()
+    (mine / "model.json").write_text("{}")
+    (mine / "thesis.tex").write_text("years of work")
+    res = CliRunner().invoke(uavrl, ["train-predictor", "--maps", str(out / "tiny"), "--constants", str(constants),
+                                     "--out", str(mine), "--steps", "2", "--batch", "2", "--widths", "4,8",
+                                     "--threads", "1", "--quiet", "--root", str(tiny)])  # fmt: skip
+    assert res.exit_code == 2 and "thesis.tex" in res.output and "trained on" not in res.output, res.output
+    assert (mine / "thesis.tex").read_text() == "years of work"
+
+
+def test_export_and_pack_never_replace_a_users_own_files(tiny, tmp_path):
+    """`uavdata export` and `uavdata pack` replace what they wrote before, never a user's: a RadioMapSeer-style
+    folder with the user's notes in it, a file of the user's named like the DeepMIMO export or a pack. Each is
+    refused with one error line, the user's file as it was."""
+    out = tmp_path / "exports"
+    run = CliRunner().invoke
+    assert run(uavdata, ["export", "tiny", "--root", str(tiny), "--out", str(out)]).exit_code == 0
+    assert run(uavdata, ["export", "tiny", "--root", str(tiny), "--out", str(out)]).exit_code == 0  # its own: replaced
+    (out / "tiny" / "notes.txt").write_text("mine")
+    res = run(uavdata, ["export", "tiny", "--root", str(tiny), "--out", str(out), "--format", "radiomapseer"])
+    assert res.exit_code == 2 and "notes.txt" in res.output and (out / "tiny" / "notes.txt").read_text() == "mine"
+    (out / "tiny.deepmimo.npz").write_bytes(b"my own arrays")
+    res = run(uavdata, ["export", "tiny", "--root", str(tiny), "--out", str(out), "--format", "deepmimo"])
+    assert res.exit_code == 2 and "is not a DeepMIMO-style export uavplace wrote" in res.output, res.output
+    assert (out / "tiny.deepmimo.npz").read_bytes() == b"my own arrays"
+    packs = tmp_path / "packs"
+    packs.mkdir()
+    (packs / "tiny.npz").write_bytes(b"PK my own zip")
+    res = run(uavdata, ["pack", "tiny", "--root", str(tiny), "--out", str(packs)])
+    assert res.exit_code == 2 and "is not a training-maps pack uavplace wrote" in res.output, res.output
+    assert (packs / "tiny.npz").read_bytes() == b"PK my own zip"
+    (packs / "tiny.npz").unlink()
+    assert run(uavdata, ["pack", "tiny", "--root", str(tiny), "--out", str(packs)]).exit_code == 0

@@ -13,6 +13,7 @@ from click.testing import CliRunner
 from uavplace.cli import uavrl
 from uavplace.dataset.bundle import load_bundle
 from uavplace.dataset.trainmaps import TrainingMaps
+from uavplace.infra.files import CONTENTS
 from uavplace.rl.belief import PredictionCache
 from uavplace.rl.config import SearchConfig
 from uavplace.rl.predictor import PhysicsConstants, PhysicsPredictor, Scene, load_predictor
@@ -139,7 +140,7 @@ def test_train_predictor_cli_writes_weights_model_and_card(tiny, tmp_path):
             str(out), "--steps", "2", "--batch", "2", "--threads", "1", "--quiet", "--root", str(root)]  # fmt: skip
     result = CliRunner().invoke(uavrl, args)
     assert result.exit_code == 0, result.output
-    assert {p.name for p in out.iterdir()} == {MODEL_JSON, WEIGHTS, MODEL_CARD}
+    assert {p.name for p in out.iterdir()} == {MODEL_JSON, WEIGHTS, MODEL_CARD, CONTENTS}  # and what uavplace wrote there
     model = load_learned(out).model
     assert set(model.scores) == {"tiny-val"} and model.scores["tiny-val"]["learned_ms_per_map"] > 0
     assert "uavrl train-predictor" in (out / MODEL_CARD).read_text()

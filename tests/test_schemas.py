@@ -122,6 +122,44 @@ def test_atomic_outputs_take_the_umask_not_a_private_mode(tmp_path):
         os.umask(old)
 
 
+def test_an_output_folder_is_replaced_only_when_nothing_of_a_user_would_be_lost(tmp_path):
+    """A folder with the marker but a user's file in it is refused, before the work when uavplace listed what it
+    wrote there, after it when the folder has no list (made before the lists): the user's file stays either way, and
+    the old output too. An output uavplace wrote, whatever it held, is replaced."""
+    from pathlib import Path
+
+    from uavplace.infra.files import CONTENTS, atomic_directory
+
+    def write(folder: Path, *names: str) -> None:
+        with atomic_directory(folder, marker="model.json", what="learned predictor") as d:
+            for name in ("model.json", *names):
+                (d / name).write_text(name)
+
+    out = tmp_path / "out"
+    write(out, "weights.pt", "extra.png")
+    write(out, "weights.pt")  # uavplace's own folder: replaced, extra.png with it
+    assert sorted(p.name for p in out.iterdir()) == sorted([CONTENTS, "model.json", "weights.pt"])
+    (out / "thesis.tex").write_text("years of work")
+    worked = []
+    with pytest.raises(InputError, match=r"holds 1 entry that uavplace did not write there \(thesis.tex\)"):
+        with atomic_directory(out, marker="model.json", what="learned predictor"):
+            worked.append(True)
+    assert not worked and (out / "thesis.tex").read_text() == "years of work"
+    mine = tmp_path / "mine"  # a user's folder that only looks like an output: no list
+    mine.mkdir()
+    (mine / "model.json").write_text("{}")
+    (mine / "thesis.tex").write_text("years of work")
+    with pytest.raises(InputError, match=r"holds 1 entry that this output does not write \(thesis.tex\)"):
+        write(mine, "weights.pt")
+    assert sorted(p.name for p in mine.iterdir()) == ["model.json", "thesis.tex"]
+    assert not list(tmp_path.glob(".mine.tmp-*"))
+    legacy = tmp_path / "legacy"  # made before the lists, holding only what the new output writes: replaced
+    legacy.mkdir()
+    (legacy / "model.json").write_text("old")
+    write(legacy, "weights.pt")
+    assert (legacy / "model.json").read_text() == "model.json"
+
+
 @pytest.mark.parametrize(
     ("command", "model"),
     [

@@ -125,11 +125,12 @@ def train_predictor(
     from uavplace.dataset.bundle import load_bundle
     from uavplace.dataset.trainmaps import select_packs
     from uavplace.infra.console import command_line
-    from uavplace.infra.files import atomic_directory
+    from uavplace.infra.files import atomic_directory, check_output_folder
     from uavplace.rl.predictor import PhysicsPredictor, load_constants
     from uavplace.rl.predictor.learned import (
         MODEL_CARD,
         MODEL_JSON,
+        WEIGHTS,
         LearnedPredictor,
         model_card,
         save_learned,
@@ -140,6 +141,7 @@ def train_predictor(
 
     if not datasets and not map_folders:
         raise click.UsageError("give training maps: --dataset CITY or --maps FOLDER (or both)")
+    check_output_folder(out, MODEL_JSON, "learned predictor", (MODEL_JSON, WEIGHTS, MODEL_CARD))  # before the training
     config = settings(UNetConfig, {"widths": widths, "steps": steps, "batch": batch, "seed": seed, "threads": threads})
     physics = load_constants(constants)
     if packs and not map_folders:
@@ -221,7 +223,7 @@ def calibrate_predictor(
     from uavplace.dataset.bundle import load_bundle
     from uavplace.dataset.trainmaps import read_pack, select_packs
     from uavplace.infra.console import command_line
-    from uavplace.infra.files import atomic_directory
+    from uavplace.infra.files import atomic_directory, check_output_folder
     from uavplace.rl.predictor import PhysicsPredictor
     from uavplace.rl.predictor.learned import (
         MODEL_CARD,
@@ -234,6 +236,7 @@ def calibrate_predictor(
     )
     from uavplace.rl.predictor.scores import score_tiers
 
+    check_output_folder(out, MODEL_JSON, "learned predictor", (MODEL_JSON, WEIGHTS, MODEL_CARD))
     learned = load_learned(predictor)
     model = learned.model
     paths = select_packs(map_folders, packs)
@@ -342,7 +345,7 @@ def trace_predictor(
     from uavplace.dataset.bundle import load_bundle
     from uavplace.dataset.trainmaps import read_pack, select_packs
     from uavplace.infra.console import command_line
-    from uavplace.infra.files import atomic_directory
+    from uavplace.infra.files import atomic_directory, check_output_folder
     from uavplace.rl.predictor import MODEL_JSON, PhysicsPredictor, Scene, load_constants
     from uavplace.rl.predictor.raytraced import RayTracedPredictor, calibrate, variant
     from uavplace.rl.predictor.scores import score_tiers
@@ -353,6 +356,7 @@ def trace_predictor(
         variant(device)
     except (RuntimeError, ValueError) as err:
         raise click.UsageError(str(err)) from None
+    check_output_folder(out, MODEL_JSON, "ray-traced predictor", (MODEL_JSON,))
     paths = select_packs(map_folders, packs)
     if not paths:
         raise no_pack_matched(map_folders, packs)
