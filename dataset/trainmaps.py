@@ -36,7 +36,7 @@ import numpy as np
 from pydantic import Field, ValidationError
 
 from uavplace.dataset.bundle import Bundle, public_settings
-from uavplace.infra.files import atomic_write_bytes, check_own_npz, read_small_file
+from uavplace.infra.files import atomic_write_bytes, check_inside, check_own_npz, read_small_file
 from uavplace.infra.limits import limits
 from uavplace.ingest.radiomapseer import decode_sinr as dequantise  # the codes of packs and RadioMapSeer folders
 from uavplace.schemas import InputError
@@ -218,11 +218,12 @@ def read_pack(path: str | Path) -> TrainingMaps:
 
 
 def list_packs(folder: str | Path) -> list[Path]:
-    """The packs (``*.npz``) of ``folder``, by name; ``InputError`` when it is not a folder or holds none."""
+    """The packs (``*.npz``) of ``folder``, by name; ``InputError`` when it is not a folder, holds none, or holds a
+    link (a pack is read from the folder itself, never through a link out of it)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError(folder, "not a folder of training-maps packs (`uavdata pack` writes them)")
-    packs = sorted(p for p in folder.glob("*.npz") if p.is_file())
+    packs = sorted(check_inside(folder, p, "a pack") for p in folder.glob("*.npz") if p.is_file() or p.is_symlink())
     if not packs:
         raise InputError(folder, "holds no training-maps pack (*.npz)")
     return packs
@@ -233,14 +234,19 @@ def select_packs(folders: Iterable[str | Path], patterns: Iterable[str] = ()) ->
     (``tt-*``, ``tt-00[0-4]``, a city's name), or every pack without a pattern. A pattern names its packs for good: a
     pack added later is selected by ``tt-*`` and not by ``tt-00[0-4]``."""
     patterns = tuple(patterns)
-    return [p for f in folders for p in list_packs(f) if not patterns or any(fnmatchcase(p.stem, q) for q in patterns)]
+    found = [p for f in folders for p in list_packs(f) if not patterns or any(fnmatchcase(p.stem, q) for q in patterns)]
+    once: dict[Path, Path] = {}  # a folder given twice: each pack once, where it first came
+    for p in found:
+        once.setdefault(p.resolve(), p)
+    return list(once.values())
 
 
 def simulation_record(raw_folder: str | Path) -> dict:
     """The spec and ray-trace settings of ``raw_folder/simulation.json`` (empty when there is none)."""
     path = Path(raw_folder) / "simulation.json"
-    if not path.is_file():
+    if not path.is_file() and not path.is_symlink():
         return {}
+    check_inside(raw_folder, path, "a simulation record")  # a link out of the city folder is not copied into a pack
     try:
         record = json.loads(read_small_file(path, "a simulation record"))
     except ValueError:

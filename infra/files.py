@@ -99,6 +99,19 @@ def write_model_json(model: BaseModel, path: str | Path) -> None:
     Path(path).write_text(model.model_dump_json(indent=2) + "\n", encoding="utf-8")
 
 
+def check_inside(folder: str | Path, path: str | Path, what: str) -> Path:
+    """``path`` if it lies inside ``folder`` and is no symbolic link (nor under a linked folder), else ``InputError``:
+    a file that an input names (a raster, a table, a pack) is read only from the input itself."""
+    path = Path(path)
+    try:
+        inside = path.resolve().is_relative_to(Path(folder).resolve())
+    except (OSError, RuntimeError):  # a link loop
+        inside = False
+    if path.is_symlink() or not inside:
+        raise InputError(path, f"a link or a path that leads out of {folder}: not read ({what} is read from the input only)")
+    return path
+
+
 def read_small_file(
     path: str | Path, what: str, missing: str | None = None, max_bytes: int | None = None, limit: str = "record_bytes"
 ) -> bytes:

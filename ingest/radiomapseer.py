@@ -22,7 +22,8 @@ import numpy as np
 import pyarrow as pa
 import shapely
 
-from uavplace.infra.files import atomic_directory, read_small_file, sha256_file, write_model_json
+from uavplace.infra.files import atomic_directory, check_inside, check_name, read_small_file, sha256_file, write_model_json
+from uavplace.infra.limits import check_limit
 from uavplace.ingest.buildings import BuildingRecord, Part, buildings_tables
 from uavplace.ingest.written import made_by, write_tables
 from uavplace.schemas import BUILDING_PARTS, BUILDINGS, RECEIVERS, TRANSMITTERS, CityManifest, InputError
@@ -72,21 +73,63 @@ def is_radiomapseer(folder: str | Path) -> bool:
         return False
 
 
-def _image(path: Path, shape: tuple[int, int], dtype: type) -> np.ndarray:
-    """A gray PNG of ``shape`` and ``dtype`` (8 or 16 bits), read as data; ``InputError`` naming it otherwise."""
+#: The PNG modes each raster is read in (PIL's names): a gain or building map 8-bit gray, the heights 16-bit gray.
+GRAY_8, GRAY_16 = ("L",), ("I;16", "I;16B", "I")
+
+
+def _image(folder: Path, path: Path, shape: tuple[int, int], dtype: type, modes: tuple[str, ...]) -> np.ndarray:
+    """A gray PNG of ``shape`` in one of ``modes`` (a palette or colour image is refused, never read as its indices
+    or cut to a byte), inside ``folder``, read as data; ``InputError`` naming it otherwise."""
     from PIL import Image, UnidentifiedImageError
 
-    data = read_small_file(path, "a PNG of a RadioMapSeer-style folder")
+    data = read_small_file(check_inside(folder, path, "a raster"), "a PNG of a RadioMapSeer-style folder")
     try:
         with Image.open(io.BytesIO(data)) as im:
-            if im.size[0] * im.size[1] > 64 * shape[0] * shape[1] + 1:
-                raise InputError(path, f"{im.size[0]} x {im.size[1]} pixels, the grid is {shape[1]} x {shape[0]}")
+            if im.size != (shape[1], shape[0]):  # before any pixel is decoded
+                raise InputError(path, f"{im.size[0]} x {im.size[1]} pixels, the grid is {shape[1]} x {shape[0]}", field="shape")
+            if im.mode not in modes:
+                raise InputError(path, f"PNG mode {im.mode}, expected {' or '.join(modes)} (gray, one channel)", field="mode")
             a = np.asarray(im)
-    except (UnidentifiedImageError, OSError, ValueError) as err:
+    except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError) as err:
         raise InputError(path, f"not a readable PNG ({str(err)[:120]})") from None
     if a.shape != shape:
         raise InputError(path, f"{a.shape[1]} x {a.shape[0]} pixels, the grid is {shape[1]} x {shape[0]}", field="shape")
     return a.astype(dtype)
+
+
+#: The bounds of a scale.json's numbers: (field, low, high), each finite.
+SCALE_BOUNDS = (
+    ("spacing_m", 0.01, 1000.0),
+    ("x_min_m", -1e7, 1e7),
+    ("y_min_m", -1e7, 1e7),
+    ("floor_db", -400.0, 400.0),
+    ("step_db", 1e-3, 10.0),
+    ("altitude_m", 0.1, 10_000.0),
+)
+
+
+def check_scale(path: Path, city: str, grid: dict, shape: tuple[int, int], floor: float, step: float, altitude: float) -> None:
+    """Refuse (``InputError`` naming ``path`` and the field) a scale.json whose city is not a plain name (it names
+    the PNGs: never a path), whose numbers are not finite or out of ``SCALE_BOUNDS``, or whose grid is empty or
+    over the ``grid_cells`` limit (checked before any raster is decoded)."""
+    try:
+        check_name(city, "city")
+    except InputError as err:
+        raise InputError(path, err.message, field="city") from None
+    values = {
+        "spacing_m": float(grid["spacing_m"]),
+        "x_min_m": float(grid["x_min_m"]),
+        "y_min_m": float(grid["y_min_m"]),
+        "floor_db": floor,
+        "step_db": step,
+        "altitude_m": altitude,
+    }
+    for name, low, high in SCALE_BOUNDS:
+        if not low <= values[name] <= high:  # NaN fails too
+            raise InputError(path, f"{values[name]!r} is not a finite number in [{low:g}, {high:g}]", field=name)
+    if min(shape) <= 0:
+        raise InputError(path, f"the grid has {shape[1]} x {shape[0]} cells: it needs some", field="grid")
+    check_limit("grid_cells", shape[0] * shape[1], path, "the grid's cells", field="grid")
 
 
 def read_folder(folder: str | Path) -> RadioMapFolder:
@@ -104,14 +147,11 @@ def read_folder(folder: str | Path) -> RadioMapFolder:
         ) from None
     if scale.get("format") != RADIOMAPSEER:
         raise InputError(folder / "scale.json", f"format {scale.get('format')!r}, expected {RADIOMAPSEER}", field="format")
-    if not (min(shape) > 0 and float(grid["spacing_m"]) > 0 and step > 0):
-        raise InputError(
-            folder / "scale.json", "the grid needs cells and a positive spacing, the SINR a positive step", field="grid"
-        )
+    check_scale(folder / "scale.json", city, grid, shape, floor, step, float(settings["altitude_m"]))
     files = [folder / "scale.json", folder / "png/buildings_complete" / f"{city}.png", folder / "png/heights" / f"{city}.png"]
-    blocked = np.flipud(_image(files[1], shape, np.uint8)) > 127
-    ground = np.flipud(_image(files[2], shape, np.int64)) / 100.0
-    users_csv = folder / "users.csv"
+    blocked = np.flipud(_image(folder, files[1], shape, np.uint8, GRAY_8)) > 127
+    ground = np.flipud(_image(folder, files[2], shape, np.int64, GRAY_16)) / 100.0
+    users_csv = check_inside(folder, folder / "users.csv", "the users' table")
     files.append(users_csv)
     rows = list(csv.DictReader(io.StringIO(read_small_file(users_csv, "the users' table").decode("utf-8-sig"))))
     ids, cells, positions, codes = [], [], [], []
@@ -121,12 +161,20 @@ def read_folder(folder: str | Path) -> RadioMapFolder:
             x, y = float(row["x_m"]), float(row["y_m"])
         except (KeyError, TypeError, ValueError):
             raise InputError(users_csv, "user, row and col must be integers, x_m and y_m numbers", line=k, field="user") from None
+        for name, v, low, n in (("x_m", x, float(grid["x_min_m"]), shape[1]), ("y_m", y, float(grid["y_min_m"]), shape[0])):
+            if not low <= v <= low + n * float(grid["spacing_m"]):  # NaN too
+                raise InputError(
+                    users_csv,
+                    f"{v!r} is not on the grid ({low:g} .. {low + n * float(grid['spacing_m']):g} m)",
+                    line=k,
+                    field=name,
+                )
         if not (0 <= r < shape[0] and 0 <= c < shape[1]):
             raise InputError(users_csv, f"pixel ({r}, {c}) is off the {shape[1]} x {shape[0]} grid", line=k, field="row")
         if u in ids:
             raise InputError(users_csv, f"user {u} is listed twice", line=k, field="user")
         files.append(folder / "gain" / f"{city}_{u}.png")
-        codes.append(np.flipud(_image(files[-1], shape, np.uint8)))
+        codes.append(np.flipud(_image(folder, files[-1], shape, np.uint8, GRAY_8)))
         ids.append(u)
         cells.append((shape[0] - 1 - r, c))
         positions.append((x, y))

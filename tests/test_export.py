@@ -86,6 +86,50 @@ def test_a_damaged_radiomapseer_folder_is_refused_naming_the_file(tiny, tmp_path
         write_radiomapseer(load_bundle("tiny", root=tiny), tmp_path / "mine")
 
 
+def test_a_radiomapseer_folder_is_read_inside_itself_and_its_numbers_checked(tiny, tmp_path):
+    """What a RadioMapSeer-style folder names is data: a city that is a path, a raster that is a link out, a palette or
+    16-bit gain map (which would be read as indices or cut to a byte), numbers that are not finite or far out of
+    range, a user off the grid: each refused naming the file and field, nothing outside the folder read."""
+    from PIL import Image
+
+    outside = tmp_path / "outside"
+    outside.mkdir()
+
+    def fresh() -> tuple:
+        folder = write_radiomapseer(load_bundle("tiny", root=tiny), tmp_path / "f")
+        return folder, json.loads((folder / "scale.json").read_text())
+
+    def refused(folder, match: str) -> None:  # noqa: ANN001
+        with pytest.raises(InputError, match=match):
+            read_radiomapseer(folder)
+
+    folder, scale = fresh()
+    (folder / "scale.json").write_text(json.dumps(scale | {"city": "../../outside/x"}))
+    refused(folder, r"scale.json: city: .* is not a safe name")
+    folder, _ = fresh()
+    gain = folder / "gain" / "tiny_0.png"
+    Image.open(gain).save(outside / "g.png")
+    gain.unlink()
+    gain.symlink_to(outside / "g.png")
+    refused(folder, "tiny_0.png: a link or a path that leads out of")
+    for image, mode in ((Image.open(outside / "g.png").convert("P"), "P"), (Image.new("I;16", (24, 20)), "I;16")):
+        folder, _ = fresh()
+        image.save(folder / "gain" / "tiny_1.png")
+        refused(folder, f"tiny_1.png: mode: PNG mode {mode}, expected L")
+    for field, value in (("floor_db", float("nan")), ("spacing_m", 1e-300), ("spacing_m", float("inf")), ("altitude_m", -50.0)):
+        folder, scale = fresh()
+        where = "sinr" if field == "floor_db" else "grid" if field == "spacing_m" else "settings"
+        scale[where][field] = value
+        (folder / "scale.json").write_text(json.dumps(scale))
+        refused(folder, f"scale.json: {field}: .* is not a finite number")
+    folder, _ = fresh()
+    users = (folder / "users.csv").read_text().splitlines()
+    head, first = users[0].split(","), users[1].split(",")
+    first[head.index("x_m")] = "1e9"
+    (folder / "users.csv").write_text("\n".join([users[0], ",".join(first), *users[2:]]) + "\n")
+    refused(folder, "users.csv:2: x_m: 1000000000.0 is not on the grid")
+
+
 def test_deepmimo_file_holds_the_bundles_maps_in_its_units(tiny, tmp_path):
     bundle = load_bundle("tiny", root=tiny)
     with np.load(write_deepmimo(bundle, tmp_path)) as z:

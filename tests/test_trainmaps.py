@@ -144,3 +144,30 @@ def test_shipped_training_maps_are_valid_small_and_of_training_cities_only():
         corpora = ("tm-", "tt-", "delfshaven-0", "denhaag-0")
         assert path.stem == maps.city and maps.city not in declared and maps.city.startswith(corpora)
         assert maps.provenance.size and maps.users.shape[0] >= 1
+
+
+def test_packs_and_records_are_read_from_their_folders_only(tiny, tmp_path):
+    """A pack in --maps that is a link out of its folder is refused, not trained on; a city's simulation.json that
+    is a link out of the city folder is refused, not copied into the pack; a folder given twice counts its packs once."""
+    from uavplace.dataset.trainmaps import select_packs, simulation_record
+
+    packs = tmp_path / "packs"
+    packs.mkdir()
+    write_pack(packs / "tiny.npz", TrainingMaps.of_bundle(load_bundle("tiny", root=tiny)))
+    assert select_packs([packs, packs]) == [packs / "tiny.npz"]
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (packs / "tiny.npz").rename(elsewhere / "tiny.npz")
+    (packs / "tiny.npz").symlink_to(elsewhere / "tiny.npz")
+    with pytest.raises(InputError, match="tiny.npz: a link or a path that leads out of"):
+        select_packs([packs])
+    raw = tmp_path / "raw" / "tiny"
+    raw.mkdir(parents=True)
+    (elsewhere / "simulation.json").write_text('{"spec": {"secret": 1}}')
+    (raw / "simulation.json").symlink_to(elsewhere / "simulation.json")
+    with pytest.raises(InputError, match="simulation.json: a link or a path that leads out of"):
+        simulation_record(raw)
+    res = CliRunner().invoke(
+        uavdata, ["pack", "tiny", "--root", str(tiny), "--raw", str(tmp_path / "raw"), "--out", str(tmp_path / "o")]
+    )
+    assert res.exit_code == 2 and "leads out of" in res.output and not (tmp_path / "o" / "tiny.npz").exists()
