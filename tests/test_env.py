@@ -577,3 +577,36 @@ def test_a_policys_random_stream_names_no_user(tiny):
     rebuilt = dataclasses.replace(bundle, manifest=manifest)
     assert rebuilt.version != bundle.version
     np.testing.assert_array_equal(keys_of(MapSet([rebuilt], config)), keys)
+
+
+class _Vandal(_Keys):
+    """A random walk that, at every step, tries to write the public maps it is handed: blocks every cell, raises every
+    building; it makes a sealed copy writable again first, as a determined policy could."""
+
+    name = "vandal"
+
+    def act(self, obs: np.ndarray, mask: np.ndarray, env) -> np.ndarray:  # noqa: ANN001 - an AgentView
+        if env.public.blocked.flags.writeable is False:  # as handed over: read-only
+            with pytest.raises(ValueError, match="read-only"):
+                env.public.blocked[...] = True
+            self.refused = True
+        for a in (env.public.blocked, env.public.height, *env.public.bundle_heights):
+            a.flags.writeable = True  # a copy the view owns: allowed, and harmless
+            a[...] = 1
+        return super().act(obs, mask, env)
+
+
+def test_a_policy_that_writes_the_public_maps_changes_nothing_the_env_reads(tiny):
+    """The view's public arrays are read-only copies: a policy that writes them (even after making them writable)
+    plays the same episodes, legal moves and outcomes as one that does not, and the env's maps are untouched."""
+    from uavplace.dataset.bundle import load_bundle
+
+    maps = MapSet([load_bundle("tiny", root=tiny)], EnvConfig(rotate=False))
+    before = maps.blocked.copy(), maps.height.copy()
+    episodes = maps.sample_episodes(12, np.random.default_rng(0))
+    plain = run_episodes(maps, _Keys(), episodes, num_envs=6)
+    vandal = _Vandal()
+    played = run_episodes(maps, vandal, episodes, num_envs=6)
+    assert vandal.refused and plain.equals(played)
+    np.testing.assert_array_equal(maps.blocked, before[0])
+    np.testing.assert_array_equal(maps.height, before[1])

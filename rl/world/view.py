@@ -40,15 +40,17 @@ class PublicMaps:
 
     @classmethod
     def of(cls, maps: MapSet) -> PublicMaps:
+        """The public maps of ``maps``: read-only copies, never the env's own arrays (a policy that writes to them,
+        or makes them writable again, changes nothing the env reads: not the legal moves, not the maps)."""
         return cls(
-            height=maps.height,
-            blocked=maps.blocked,
-            shapes=maps.shapes,
+            height=_sealed(maps.height),
+            blocked=_sealed(maps.blocked),
+            shapes=_sealed(maps.shapes),
             pad=maps.pad,
             symmetries=maps.symmetries,
             config=maps.config,
             settings=tuple(public_settings(b) for b in maps.bundles),
-            bundle_heights=tuple(b.height_rel_m for b in maps.bundles),
+            bundle_heights=tuple(_sealed(b.height_rel_m) for b in maps.bundles),
         )
 
     def bundle_of(self, canvas: int) -> int:
@@ -109,6 +111,13 @@ class AgentView:
         """``[N, 4]``: how often this episode has stood in the cell each move leads to."""
         ny, nx = self.neighbours()
         return self.visits[np.arange(self.num_envs)[:, None], ny, nx]
+
+
+def _sealed(a: np.ndarray) -> np.ndarray:
+    """A read-only copy of ``a``."""
+    c = np.array(a, copy=True)
+    c.flags.writeable = False
+    return c
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:
