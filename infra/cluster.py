@@ -24,6 +24,39 @@ def head_endpoint(address: str) -> tuple[str, int] | None:
     return host.strip("[]"), int(port)
 
 
+#: An HTTP/2 client's first bytes, then an empty SETTINGS frame: a gRPC server (a Ray head, a Ray Client server)
+#: answers with its own SETTINGS frame; anything else (a web server, a listener that never answers) does not.
+_HTTP2_HELLO = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])
+
+
+def check_ray_head(address: str, endpoint: tuple[str, int]) -> None:
+    """Refuse (``InputError`` on ``--ray-address``) an address where nothing answers within ``CONNECT_TIMEOUT_S``,
+    or where what answers does not speak gRPC as a Ray head does (Ray would retry it for ever)."""
+    try:
+        conn = socket.create_connection(endpoint, timeout=CONNECT_TIMEOUT_S)
+    except OSError as err:
+        reason = "no answer" if isinstance(err, TimeoutError) else (err.strerror or type(err).__name__)
+        raise InputError(
+            None, f"{address}: nothing answers there ({reason} within {CONNECT_TIMEOUT_S:g} s)", field="--ray-address"
+        ) from None
+    head = b""
+    with conn:
+        try:
+            conn.sendall(_HTTP2_HELLO)
+            while len(head) < 9 and (chunk := conn.recv(9 - len(head))):
+                head += chunk
+        except OSError:  # a timeout, a reset: what answers is not a Ray head
+            pass
+    if len(head) < 9 or head[3] != 4:  # no SETTINGS frame back
+        said = "no answer" if not head else f"an answer that is not gRPC ({head[:9]!r})"
+        raise InputError(
+            None,
+            f"{address}: not a Ray head ({said} within {CONNECT_TIMEOUT_S:g} s): give the head's GCS address, "
+            "HOST:6379 by default, or ray://HOST:10001 for Ray Client",
+            field="--ray-address",
+        )
+
+
 def start_ray(address: str | None, cpus_per_task: float, cpus_option: str, num_cpus: int | None = None) -> bool:
     """Start a local Ray (``address`` None) or join the cluster at ``address``, for tasks of ``cpus_per_task`` CPUs;
     True when this call started it (the caller shuts it down). Refused in one line (``InputError``): an address that
@@ -36,6 +69,8 @@ def start_ray(address: str | None, cpus_per_task: float, cpus_option: str, num_c
         return False
     if address is None:
         have = os.cpu_count() or 1
+        if num_cpus is not None and num_cpus > have:  # a worker a CPU: more would only share the cores, in memory
+            raise InputError(None, f"{num_cpus}: this machine has {have} CPUs: give at most {have}", field=cpus_option)
         if cpus_per_task > have:
             raise InputError(
                 None, f"{cpus_per_task:g}: this machine has {have} CPUs: a task would wait for them forever", field=cpus_option
@@ -43,13 +78,7 @@ def start_ray(address: str | None, cpus_per_task: float, cpus_option: str, num_c
     else:
         endpoint = head_endpoint(address)
         if endpoint is not None:
-            try:
-                socket.create_connection(endpoint, timeout=CONNECT_TIMEOUT_S).close()
-            except OSError as err:
-                reason = "no answer" if isinstance(err, TimeoutError) else (err.strerror or type(err).__name__)
-                raise InputError(
-                    None, f"{address}: nothing answers there ({reason} within {CONNECT_TIMEOUT_S:g} s)", field="--ray-address"
-                ) from None
+            check_ray_head(address, endpoint)
     try:
         local = {"num_cpus": num_cpus} if address is None and num_cpus else {}
         ray.init(address=address, include_dashboard=False, log_to_driver=False, configure_logging=False, **local)

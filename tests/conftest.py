@@ -38,6 +38,25 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     )
 
 
+#: The modules of ``pytest -m quick``: the parsers, schemas, ingest, build, the env and the searcher's units, about two
+#: minutes on 2 cores (docs/testing.md); their tests marked ``slow`` stay out.
+QUICK_MODULES = frozenset(
+    {"test_schemas", "test_p2m", "test_geometry", "test_cityjson", "test_options", "test_information", "test_aggregate",
+     "test_export", "test_trainmaps", "test_ingest_cli", "test_bad_inputs", "test_build", "test_env", "test_searcher"}
+)  # fmt: skip
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Mark the tests of ``QUICK_MODULES`` ``quick`` (but those marked ``slow``)."""
+    for item in items:
+        if (
+            item.module is not None
+            and item.module.__name__.rpartition(".")[2] in QUICK_MODULES
+            and not item.get_closest_marker("slow")
+        ):
+            item.add_marker(pytest.mark.quick)
+
+
 def fixture_dir(name: str) -> Path:
     """A real fixture folder; the calling test skips, saying why, if it is absent."""
     path = FIXTURES / name

@@ -4,6 +4,7 @@ validation cities from the report's evaluation."""
 from __future__ import annotations
 
 import json
+import re
 
 import pandas as pd
 import pytest
@@ -212,3 +213,54 @@ def test_a_sweep_validated_on_its_own_training_city_is_refused(tmp_path, root):
     res = CliRunner().invoke(uavrl, ["sweep", str(spec_file), "--out", str(tmp_path / "O"), "--root", str(root)])
     assert res.exit_code == 2 and "cities: tiny: a training city of the sweep is also a validation city" in res.output
     assert not (tmp_path / "O").exists()
+
+
+def test_a_ray_address_that_answers_but_is_not_ray_is_refused_at_once(monkeypatch):
+    """A port that accepts and never answers, and a web server, are refused in one line within the timeout (ray.init
+    would retry them for ever); a server that answers as gRPC does (a Ray head, whose answer the project checked
+    against `ray start --head`) passes."""
+    import socket
+    import threading
+
+    from uavplace.infra import cluster
+    from uavplace.schemas import InputError
+
+    monkeypatch.setattr(cluster, "CONNECT_TIMEOUT_S", 0.5)
+
+    def server(reply: bytes | None) -> tuple[str, int]:
+        listener = socket.create_server(("127.0.0.1", 0))
+
+        def serve() -> None:
+            conn, _ = listener.accept()
+            with conn:
+                conn.recv(64)
+                if reply is not None:
+                    conn.sendall(reply)
+                threading.Event().wait(2.0)  # hold the connection open, silent
+
+        threading.Thread(target=serve, daemon=True).start()
+        return listener.getsockname()[:2]
+
+    silent, web = server(None), server(b"HTTP/1.1 400 Bad Request\r\n\r\n")
+    grpc = server(bytes([0, 0, 0, 4, 0, 0, 0, 0, 0]))  # an empty HTTP/2 SETTINGS frame: what a gRPC server sends first
+    for endpoint, said in ((silent, "no answer"), (web, "an answer that is not gRPC (b'HTTP/1.1 ')")):
+        address = f"{endpoint[0]}:{endpoint[1]}"
+        with pytest.raises(InputError, match=rf"{address}: not a Ray head \({re.escape(said)}"):
+            cluster.check_ray_head(address, endpoint)
+    cluster.check_ray_head("grpc", grpc)
+
+
+def test_more_local_workers_than_cpus_are_refused_before_ray_starts():
+    """`report --workers 64` on 2 cores would start 64 Ray workers (3.9 GB) to share two cores: refused in one line
+    before Ray starts."""
+    import os
+
+    import ray
+
+    from uavplace.infra.cluster import start_ray
+    from uavplace.schemas import InputError
+
+    have = os.cpu_count() or 1
+    with pytest.raises(InputError, match=rf"--workers: {have + 1}: this machine has {have} CPUs: give at most {have}"):
+        start_ray(None, 1.0, "--workers", have + 1)
+    assert not ray.is_initialized()
