@@ -33,7 +33,7 @@ from fnmatch import fnmatchcase
 from pathlib import Path
 
 import numpy as np
-from pydantic import Field, ValidationError
+from pydantic import Field, ValidationError, field_validator
 
 from uavplace.dataset.bundle import Bundle, public_settings
 from uavplace.infra.files import atomic_write_bytes, check_inside, check_own_npz, read_small_file
@@ -51,6 +51,17 @@ STEP_DB = 0.5
 ARRAYS = {"height_dm": np.int16, "blocked": np.uint8, "users": np.int16, "sinr": np.uint8, "provenance": np.uint8}
 
 
+#: The public settings a pack's meta must hold: key -> (low, high, required); each a finite number within its range.
+PACK_SETTINGS: dict[str, tuple[float, float, bool]] = {
+    "spacing_m": (0.01, 1000.0, True),
+    "altitude_m": (0.1, 10_000.0, True),
+    "floor_db": (-400.0, 400.0, True),
+    "noise_dbm": (-300.0, 100.0, False),
+    "tx_power_dbm": (-100.0, 100.0, False),
+    "frequency_hz": (1e6, 1e12, False),
+}
+
+
 class PackMeta(Contract):
     """A pack's ``meta``: what it holds and where it came from."""
 
@@ -64,6 +75,24 @@ class PackMeta(Contract):
     clipped_cells: int = Field(ge=0, description="Live cells whose SINR was above the largest packed value")
     simulation: dict = Field(default_factory=dict, description="The spec and ray-trace settings of its simulation.json")
     sha256: dict[str, str] = Field(description="Array name -> sha256 of its C-ordered bytes")
+
+    @field_validator("step_db")
+    @classmethod
+    def _the_formats_step(cls, v: float) -> float:
+        if v != STEP_DB:
+            raise ValueError(f"{v:g} dB: this format's step is {STEP_DB:g} dB")
+        return v
+
+    @field_validator("settings")
+    @classmethod
+    def _settings_in_range(cls, v: dict) -> dict:
+        for key, (low, high, required) in PACK_SETTINGS.items():
+            x = v.get(key)
+            if x is None and not required:
+                continue
+            if isinstance(x, bool) or not isinstance(x, int | float) or not low <= x <= high:  # NaN and inf fail too
+                raise ValueError(f"{key} {x!r}: expected a number in [{low:g}, {high:g}]")
+        return v
 
 
 @dataclass(frozen=True)
@@ -177,7 +206,8 @@ def read_pack(path: str | Path) -> TrainingMaps:
         raise
     except KeyError as err:
         raise InputError(path, f"no array {err}: not {what}", field=str(err).strip("'")) from None
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as err:
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError, NotImplementedError, RuntimeError) as err:
+        # NotImplementedError: a compression method zipfile lacks; RuntimeError: an encrypted member
         raise InputError(path, f"unreadable ({str(err)[:160]}): not {what}") from None
     try:
         meta = PackMeta.model_validate_json(arrays.pop("meta").tobytes())

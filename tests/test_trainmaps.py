@@ -82,9 +82,38 @@ def test_damaged_or_foreign_packs_are_refused_naming_the_field(tiny, tmp_path, m
         with pytest.raises(InputError) as err:
             read_pack(path)
         assert err.value.field == field and str(path) in str(err.value)
+    import json
+
+    with zipfile.ZipFile(io.BytesIO(data)) as z:
+        meta = json.loads(np.load(io.BytesIO(z.read("meta.npy"))).tobytes())
+    settings = meta["settings"]
+    for change, said in (
+        ({"settings": settings | {"floor_db": float("nan")}}, "floor_db nan: expected a number"),
+        ({"settings": settings | {"frequency_hz": -1.0}}, "frequency_hz -1.0: expected a number"),
+        ({"settings": {k: v for k, v in settings.items() if k != "spacing_m"}}, "spacing_m None: expected a number"),
+        ({"step_db": 10.0}, "10 dB: this format's step is 0.5 dB"),
+    ):  # settings a pack's maps are read by: refused, never read as good
+        path = tmp_path / "settings.npz"
+        path.write_bytes(_rewritten(data, "meta", np.frombuffer(json.dumps(meta | change).encode(), np.uint8)))
+        with pytest.raises(InputError, match=said) as err:
+            read_pack(path)
+        assert err.value.field == "meta"
     (tmp_path / "cut.npz").write_bytes(data[: len(data) // 2])
     with pytest.raises(InputError, match="unreadable"):
         read_pack(tmp_path / "cut.npz")
+    for name, (local, central, value) in {"encrypted": (6, 8, 1), "method": (8, 10, 99)}.items():
+        flipped = bytearray(data)  # the encrypted flag set, or a compression method zipfile lacks, on every member
+        at = 0
+        while (at := flipped.find(b"PK\x03\x04", at)) >= 0:
+            flipped[at + local] |= value
+            at += 4
+        at = 0
+        while (at := flipped.find(b"PK\x01\x02", at)) >= 0:
+            flipped[at + central] |= value
+            at += 4
+        (tmp_path / f"{name}.npz").write_bytes(bytes(flipped))
+        with pytest.raises(InputError, match="unreadable"):
+            read_pack(tmp_path / f"{name}.npz")
     (tmp_path / "whole.npz").write_bytes(data)
     monkeypatch.setattr(lim, "_current", None)
     monkeypatch.setenv(lim.ENV, "map_bytes=1000")  # a pack that inflates past the limit is refused before it is read
