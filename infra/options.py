@@ -155,6 +155,11 @@ def _pair_value(text: str) -> object:
         return text
 
 
+def _kind(field: object) -> str:
+    annotation = getattr(field, "annotation", None)
+    return {int: "whole number", float: "number", str: "word"}.get(annotation, "value of this setting")
+
+
 def with_pairs(config: M, pairs: tuple[str, ...] | list[str], option: str) -> M:
     """``config`` with the fields ``pairs`` name (``NAME=VALUE`` texts, a later one of a name winning) set, checked by
     its model as a whole (a cross-field validator too); a text without ``=``, a name the model lacks or a value it
@@ -168,6 +173,11 @@ def with_pairs(config: M, pairs: tuple[str, ...] | list[str], option: str) -> M:
             fields = ", ".join(model.model_fields)
             raise click.BadParameter(f"{text!r}: expected NAME=VALUE, NAME one of {fields}", param_hint=f"'{option}'")
         changed[name] = _pair_value(value.strip())
+        annotation = model.model_fields[name].annotation
+        if isinstance(changed[name], bool) and annotation is not bool and bool not in typing.get_args(annotation):  # true: 1
+            raise click.BadParameter(
+                f"{name}: {value.strip()} is not a {_kind(model.model_fields[name])}", param_hint=f"'{option}'"
+            )
     try:
         return model(**(config.model_dump() | changed))
     except ValidationError as exc:

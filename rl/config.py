@@ -45,6 +45,8 @@ class TaskSettings(Contract):
 class SearchConfig(Contract):
     """The searcher's settings (chosen on validation cities)."""
 
+    model_config = ConfigDict(allow_inf_nan=False)  # reach_cells=Infinity would play, and be recorded as null
+
     stride: int = Field(default=2, ge=1, le=16, description="Candidate user cells on a lattice of this many cells")
     temper: float = Field(default=0.5, gt=0, le=1, description="Exponent of each measurement's likelihood")
     reach_cells: float = Field(default=12.0, gt=0, description="Distance scale of a cell's discount [cells]")

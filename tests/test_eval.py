@@ -565,7 +565,9 @@ def test_report_search_sets_the_searchers_settings(tiny, tmp_path):
     assert res.exit_code == 0, res.output
     search = json.loads((out / "report.json").read_text())["report_config"]["search"]
     assert search == SearchConfig(planner="info", info_weight=0.3).model_dump(mode="json")
-    for bad, says in (("plan=info", "NAME one of stride"), ("stride=0", "stride"), ("planner=best", "planner")):
+    for bad, says in (("plan=info", "NAME one of stride"), ("stride=0", "stride"), ("planner=best", "planner"),
+                      ("reach_cells=Infinity", "reach_cells"), ("min_sigma_db=1e999", "min_sigma_db"),
+                      ("stride=true", "stride: true is not a whole number")):  # fmt: skip
         res = CliRunner().invoke(uavrl, [*args[:-4], "--out", str(tmp_path / "no"), "--search", bad])
         assert res.exit_code == 2 and "--search" in res.output and says in res.output, res.output
         assert not (tmp_path / "no").exists()
