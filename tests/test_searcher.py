@@ -437,31 +437,44 @@ def test_prediction_cache_uses_only_whole_entries_of_its_own_key(tmp_path):
     assert time.process_time() - cpu < 1.0
 
 
-def test_predictor_versions_name_their_code():
-    """The prediction cache's key holds the predictor family's code: a module added to (or changed in) rl/predictor/
-    changes every tier's version, so its maps are predicted again. The test writes real code into the folder."""
-    from uavplace.rl import predictor
-    from uavplace.rl.predictor.base import FAMILY
-    from uavplace.rl.predictor.learned import LearnedModel, LearnedPredictor, MapUNet, UNetConfig
+def test_predictor_versions_name_the_code_they_loaded(tmp_path):
+    """The prediction cache's key holds the code a prediction depends on, as this process loaded it: an edit to the
+    engine that hands the predictor its heights (rl/world/view.py, outside the predictor's folder) changes the digest
+    in the next process; a file edited after the process imported the family does not change its digest (its maps
+    are the old code's); an edit to a command's module changes nothing. The test edits real code, in a copy of the
+    package run as ``uavplace``."""
+    import os
+    import shutil
+    import subprocess
+    import sys
 
-    physics = predictor.PhysicsPredictor(_constants())
-    config = UNetConfig(widths=[4, 8])
-    model = LearnedModel(config=config, constants=_constants(), error_db=9.0, users=1, train_seconds=0.0, final_loss=0.0,
-                         weights_sha256="0" * 64)  # fmt: skip
-    net = LearnedPredictor(model, MapUNet(config.widths))
-    before = (physics.version(), net.version())
-    assert len(predictor.code_digest()) == 64
-    extra = FAMILY / "_test_version_probe.py"
-    try:
-        extra.write_text("OFFSET_DB = 1.0\n")
-        after = (physics.version(), net.version())
-        extra.write_text("OFFSET_DB = 2.0\n")
-        edited = (physics.version(), net.version())
-    finally:
-        extra.unlink(missing_ok=True)
-    assert before[0] != after[0] and before[1] != after[1]
-    assert after[0] != edited[0] and after[1] != edited[1]
-    assert (physics.version(), net.version()) == before
+    from tests.test_packaging import STAGES
+    from uavplace.rl import predictor
+
+    copy = tmp_path / "uavplace"
+    for stage in STAGES:
+        shutil.copytree(REPO / stage, copy / stage, ignore=shutil.ignore_patterns("__pycache__"))
+    env = {**os.environ, "PYTHONPATH": str(tmp_path)}
+    probe = (
+        "import uavplace.rl.predictor.base as b, sys\n"
+        "assert b.__file__.startswith(sys.argv[1]), b.__file__\n"
+        "print(b.code_digest())\n"
+        "open(sys.argv[1] + '/rl/world/view.py', 'a').write(sys.argv[2])\n"
+        "print(b.code_digest(), b._digest_of(b._PACKAGE))\n"
+    )
+
+    def run(edit: str = "") -> list[str]:
+        out = subprocess.run([sys.executable, "-c", probe, str(copy), edit], env=env, capture_output=True, text=True)
+        assert out.returncode == 0, out.stderr
+        return out.stdout.split()
+
+    first, loaded, _ = run()
+    assert first == loaded == predictor.code_digest() and len(first) == 64  # the copy is the code this process runs
+    before, kept, on_disk = run("\n\ndef _edited_while_running() -> int:\n    return 1\n")
+    assert before == first and kept == before and on_disk != before  # edited after import: the loaded code's key
+    assert run()[0] == on_disk  # the next process loads the edit: a new key
+    (copy / "rl" / "predictor" / "cli.py").write_text((copy / "rl" / "predictor" / "cli.py").read_text() + "\n# a note\n")
+    assert run()[0] == on_disk
 
 
 def _hand_maps(p_dead: list[list[float]], mu: list[list[float]]):  # noqa: ANN202

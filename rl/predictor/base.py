@@ -26,18 +26,35 @@ class Predictor(Protocol):
     def predict(self, scene: Scene, users: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
 
 
-#: The modules of the folder that only run commands (their options, what they print): no map depends on them.
+#: The modules that only run commands (their options, what they print): no map depends on them.
 COMMANDS = ("cli.py", "options.py")
+#: The code a prediction depends on, below the package's root: the predictor family, the engine that hands it the
+#: public maps (heights, blocked cells), the belief that caches its maps, the settings, the bundles the maps come from
+#: and the ray tracer of the ray-traced tier.
+DEPENDS = ("rl/predictor", "rl/world", "rl/belief", "rl/config.py", "rl/randomness.py", "dataset", "simulate", "schemas")
+_PACKAGE = FAMILY.parent.parent
+
+
+def _digest_of(root: Path) -> str:
+    digest = hashlib.sha256()
+    for part in DEPENDS:
+        top = root / part
+        for path in sorted([top] if top.suffix == ".py" else top.rglob("*.py")):
+            if path.name not in COMMANDS and "__pycache__" not in path.parts:
+                digest.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
+    return digest.hexdigest()
+
+
+#: Read once, when the family is first imported, so that it is the code this process loaded (not a file edited
+#: while it runs, whose maps would be written under the new code's key).
+_LOADED = _digest_of(_PACKAGE)
 
 
 def code_digest() -> str:
-    """The sha256 of the predictor family's code (every ``.py`` of this folder but its commands', ``COMMANDS``, by name
-    and content): part of every tier's version, so that a change to the code is never served the maps of the code
-    before it."""
-    digest = hashlib.sha256()
-    for path in sorted(p for p in FAMILY.glob("*.py") if p.name not in COMMANDS):
-        digest.update(path.name.encode() + b"\0" + path.read_bytes())
-    return digest.hexdigest()
+    """The sha256 of the code a prediction depends on (every ``.py`` of ``DEPENDS`` but the commands', by path and
+    content, as it was when this process first imported the family): part of every tier's version, so that a change
+    to any of it is never served the maps of the code before it."""
+    return _LOADED
 
 
 def version_of(doc: dict) -> str:
