@@ -365,10 +365,12 @@ def pack(cities: tuple[str, ...], root: Path, raw: Path, out: Path) -> None:
 def export(cities: tuple[str, ...], formats: tuple[str, ...], root: Path, out: Path) -> None:
     """Write built cities in the formats of the radio-map community: RadioMapSeer-style folders (PNG maps) and
     DeepMIMO-style array files."""
-    from uavplace.dataset.bundle import load_bundle
+    from uavplace.dataset.bundle import load_bundle, resolve
     from uavplace.dataset.export import write_deepmimo, write_radiomapseer
 
-    for city in cities:
+    for city in cities:  # every city named is built here before the first is written
+        resolve(city, root=root)
+    for city in dict.fromkeys(cities):
         bundle = load_bundle(city, root=root)
         for fmt in dict.fromkeys(formats):
             path = write_radiomapseer(bundle, out) if fmt == "radiomapseer" else write_deepmimo(bundle, out)

@@ -104,6 +104,13 @@ def ingest_city(
         else check_name(folder.resolve().name, "city name (the folder's; or pass --name)")
     )
     if (whole := folder_format(folder)) is not None:  # a folder format (a RadioMapSeer-style folder), not files
+        others = [f.rel for f in classify(folder) if f.kind not in ("other", "provenance")]
+        if others:  # an export beside it would be neither read nor named
+            raise InputError(
+                folder,
+                f"is a {whole.title} and also holds {len(others)} file(s) of other formats ({', '.join(others[:3])}): "
+                "one format a city folder; move one of them to a folder of its own",
+            )
         out_dir = Path(out_root) / city / INGESTED
         return (out_dir, *whole.ingest(folder, out_dir, city, (MANIFEST, REPORT), command))
     files = classify(folder)

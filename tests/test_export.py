@@ -130,6 +130,19 @@ def test_a_radiomapseer_folder_is_read_inside_itself_and_its_numbers_checked(tin
     refused(folder, "users.csv:2: x_m: 1000000000.0 is not on the grid")
 
 
+def test_a_radiomapseer_folder_with_an_export_beside_it_is_refused(tiny, tmp_path):
+    """An InSite export dropped beside a scale.json would be neither read nor named: one error line, nothing written."""
+    import shutil
+
+    from tests.conftest import REPO
+
+    folder = write_radiomapseer(load_bundle("tiny", root=tiny), tmp_path / "f")
+    shutil.copy(next((REPO / "data" / "raw" / "tiny").glob("*.txrx")), folder)
+    res = CliRunner().invoke(uavdata, ["ingest", str(folder), "--out", str(tmp_path / "p")])
+    assert res.exit_code == 2 and "is a RadioMapSeer-style folder and also holds 1 file(s) of other formats" in res.output
+    assert not (tmp_path / "p" / "tiny").exists()
+
+
 def test_deepmimo_file_holds_the_bundles_maps_in_its_units(tiny, tmp_path):
     bundle = load_bundle("tiny", root=tiny)
     with np.load(write_deepmimo(bundle, tmp_path)) as z:
@@ -182,6 +195,8 @@ def test_export_and_pack_never_replace_a_users_own_files(tiny, tmp_path):
     run = CliRunner().invoke
     assert run(uavdata, ["export", "tiny", "--root", str(tiny), "--out", str(out)]).exit_code == 0
     assert run(uavdata, ["export", "tiny", "--root", str(tiny), "--out", str(out)]).exit_code == 0  # its own: replaced
+    res = run(uavdata, ["export", "tiny", "nosuch", "--root", str(tiny), "--out", str(tmp_path / "o2")])
+    assert res.exit_code == 2 and "nosuch" in res.output and not (tmp_path / "o2").exists()  # refused before tiny
     (out / "tiny" / "notes.txt").write_text("mine")
     res = run(uavdata, ["export", "tiny", "--root", str(tiny), "--out", str(out), "--format", "radiomapseer"])
     assert res.exit_code == 2 and "notes.txt" in res.output and (out / "tiny" / "notes.txt").read_text() == "mine"
