@@ -11,11 +11,11 @@ mean SINR step between live neighbours across them over the step elsewhere (abou
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from uavplace.dataset.bundle import load_bundle, read_latest
 from uavplace.dataset.catalog import list_cities
+from uavplace.dataset.trainmaps import simulation_record
 from uavplace.simulate.fidelity import lattice_boundary_shares, lattice_step_ratios
 from uavplace.simulate.raytrace import constant_patch_share
 
@@ -48,8 +48,7 @@ def corpus_rows(root: str | Path, raw: str | Path) -> list[list[str]]:
         if read_latest(c.name, root) is None:
             continue
         b = load_bundle(c.name, root=root)
-        sim = Path(raw) / c.name / "simulation.json"
-        record = json.loads(sim.read_text(encoding="utf-8")) if sim.is_file() else {}
+        record = simulation_record(Path(raw) / c.name)  # a damaged record: one error line naming it
         source = str(record.get("geometry", "-")).split(",")[0].split(" (")[0]
         d, g = b.manifest.difficulty, b.manifest.grid
         live = ~b.dead & ~b.blocked[None] & (b.sinr_db > b.sinr_floor_db)

@@ -281,4 +281,6 @@ def simulation_record(raw_folder: str | Path) -> dict:
         record = json.loads(read_small_file(path, "a simulation record"))
     except ValueError:
         raise InputError(path, "not JSON: a simulation record") from None
+    if not isinstance(record, dict):
+        raise InputError(path, "not a JSON object: a simulation record")
     return {k: record[k] for k in ("spec", "raytrace", "geometry", "packages") if k in record}

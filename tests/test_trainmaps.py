@@ -200,3 +200,8 @@ def test_packs_and_records_are_read_from_their_folders_only(tiny, tmp_path):
         uavdata, ["pack", "tiny", "--root", str(tiny), "--raw", str(tmp_path / "raw"), "--out", str(tmp_path / "o")]
     )
     assert res.exit_code == 2 and "leads out of" in res.output and not (tmp_path / "o" / "tiny.npz").exists()
+    for text, said in (("{not json", "not JSON"), ("[1, 2]", "not a JSON object")):  # `list --table` reads it too
+        (raw / "simulation.json").unlink()
+        (raw / "simulation.json").write_text(text)
+        res = CliRunner().invoke(uavdata, ["list", "--table", "--root", str(tiny), "--raw", str(tmp_path / "raw")])
+        assert res.exit_code == 2 and f"simulation.json: {said}: a simulation record" in res.output, res.output
