@@ -7,7 +7,7 @@ heavy work."""
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import ConfigDict, Field, field_validator
@@ -151,11 +151,11 @@ class UNetConfig(Contract):
     """The learned radio-map predictor's network and training settings (``rl.predictor.learned``; `uavrl train-predictor`'s
     options derive from them)."""
 
-    widths: list[int] = Field(
+    widths: list[Annotated[int, Field(ge=1, le=1024)]] = Field(
         default=[16, 32, 64, 64],
         min_length=1,
         max_length=5,
-        description="Channels per U-Net level, comma-separated (1 to 5 levels).",
+        description="Channels per U-Net level, comma-separated (1 to 5 levels of 1 to 1024 channels).",
         json_schema_extra={"type": "list"},
     )
     crop: int = Field(default=64, ge=16, le=512, description="Training crops [cells] (a multiple of 2^(levels-1))")

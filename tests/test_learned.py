@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 from click.testing import CliRunner
+from pydantic import ValidationError
 
 from uavplace.cli import uavrl
 from uavplace.dataset.bundle import load_bundle
@@ -270,10 +271,14 @@ def test_calibrate_predictor_fits_platt_scaling_on_packs_it_was_not_trained_on(t
 
 def test_a_training_step_too_large_for_memory_is_refused_before_any_map_is_read(tiny):
     """`--batch 1024` (inside UNetConfig's range) would hold about 4 GB of activations a step: refused by the limit
-    predictor_step_bytes before any training map is read, naming --batch."""
+    predictor_step_bytes before any training map is read, naming --batch, --crop and --widths (any of them may be
+    what is too large); a level over 1024 channels is refused by the settings."""
     from uavplace.rl.predictor.learned import step_bytes
 
     assert step_bytes(UNetConfig(batch=1024)) > 2 * 2**30 > step_bytes(UNetConfig())
     maps = [TrainingMaps.of_bundle(load_bundle("tiny", root=tiny))]
-    with pytest.raises(InputError, match="predictor_step_bytes"):
-        train_learned(maps, _constants(), UNetConfig(batch=1024))
+    for config in (UNetConfig(batch=1024), UNetConfig(widths=[1000, 1000])):
+        with pytest.raises(InputError, match=r"--batch x --crop x --widths \[bytes\]: .* predictor_step_bytes"):
+            train_learned(maps, _constants(), config)
+    with pytest.raises(ValidationError, match="less than or equal to 1024"):
+        UNetConfig(widths=[16, 4096])

@@ -296,9 +296,8 @@ def train_learned(
     ``config.calibration_share`` of them held out (a seeded draw) to fit the dead probability's calibration. Returns
     (network, facts: ``error_db`` the residual std on the training users' live cells, ``train_seconds``,
     ``final_loss``, ``users``, ``calibration``, ``calibration_users``)."""
-    check_limit(
-        "predictor_step_bytes", step_bytes(config), "--batch", "activations of one training step [bytes]", field="batch"
-    )  # before any map is read
+    what = "activations of one training step, --batch x --crop x --widths [bytes]"
+    check_limit("predictor_step_bytes", step_bytes(config), None, what, field="widths")  # before any map is read
     torch.manual_seed(config.seed)
     torch.set_num_threads(config.threads)
     rng = np.random.default_rng(config.seed)
