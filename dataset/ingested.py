@@ -83,7 +83,7 @@ def read_ingested(city: str, root: str | Path = DEFAULT_ROOT) -> Ingested:
         try:
             with np.load(io.BytesIO(data["terrain"]), allow_pickle=False) as npz:
                 terrain = {k: npz[k] for k in npz.files}
-        except (OSError, ValueError, EOFError, NotImplementedError, RuntimeError, zipfile.BadZipFile) as exc:
+        except (OSError, ValueError, EOFError, NotImplementedError, RuntimeError, zipfile.BadZipFile, MemoryError) as exc:
             raise InputError(folder / "terrain.npz", f"unreadable terrain ({type(exc).__name__}: {str(exc)[:160]})") from None
     return Ingested(
         folder=folder,

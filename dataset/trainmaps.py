@@ -206,7 +206,7 @@ def read_pack(path: str | Path) -> TrainingMaps:
         raise
     except KeyError as err:
         raise InputError(path, f"no array {err}: not {what}", field=str(err).strip("'")) from None
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError, NotImplementedError, RuntimeError) as err:
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError, NotImplementedError, RuntimeError, MemoryError) as err:
         # NotImplementedError: a compression method zipfile lacks; RuntimeError: an encrypted member
         raise InputError(path, f"unreadable ({str(err)[:160]}): not {what}") from None
     try:

@@ -29,7 +29,8 @@ def snapshot(folder):
 
 
 def test_checkpoint_payloads_never_run(tmp_path, shared):  # noqa: F811
-    """A best.pt or a resumable checkpoint carrying a pickle payload is refused and its code never runs."""
+    """A best.pt or a resumable checkpoint carrying a pickle payload is refused and its code never runs; a checkpoint
+    holding a FIFO is refused before anything of it is opened (np.load would block on it)."""
     w = Workspace(tmp_path, shared)
     agent = w.agent()
     w.payload(agent / "checkpoints" / "best.pt")
@@ -38,6 +39,10 @@ def test_checkpoint_payloads_never_run(tmp_path, shared):  # noqa: F811
     for run in (w.run_folder(payload=True),):
         res = invoke(uavrl, "train", "--resume", str(run), "--root", str(w.root()))
         assert res.exit_code == 2 and "refused" in res.output
+    fifo = Workspace(tmp_path / "fifo", shared).run_folder()  # a FIFO where the replay would be: refused, never opened
+    os.mkfifo(fifo / "checkpoints" / "last" / "replay.npz")
+    res = invoke(uavrl, "train", "--resume", str(fifo), "--root", str(w.root()))
+    assert res.exit_code == 2 and "replay.npz: not a regular file" in res.output, res.output
     old = Workspace(tmp_path / "old", shared).run_folder(old_last=True)  # the pre-0.2 format: a pickled last.pt
     res = invoke(uavrl, "train", "--resume", str(old), "--root", str(w.root()))
     assert res.exit_code == 2 and "old pickled last.pt is not loaded" in res.output

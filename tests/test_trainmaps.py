@@ -101,6 +101,15 @@ def test_damaged_or_foreign_packs_are_refused_naming_the_field(tiny, tmp_path, m
     (tmp_path / "cut.npz").write_bytes(data[: len(data) // 2])
     with pytest.raises(InputError, match="unreadable"):
         read_pack(tmp_path / "cut.npz")
+    header = io.BytesIO()  # an array header that claims a terabyte, over a few bytes of data
+    np.lib.format.write_array_header_1_0(header, {"descr": "|u1", "fortran_order": False, "shape": (10**12,)})
+    out = io.BytesIO()
+    with zipfile.ZipFile(io.BytesIO(data)) as src, zipfile.ZipFile(out, "w") as dst:
+        for info in src.infolist():
+            dst.writestr(info.filename, header.getvalue() + b"\0" * 8 if info.filename == "sinr.npy" else src.read(info))
+    (tmp_path / "huge.npz").write_bytes(out.getvalue())
+    with pytest.raises(InputError, match="unreadable"):
+        read_pack(tmp_path / "huge.npz")
     for name, (local, central, value) in {"encrypted": (6, 8, 1), "method": (8, 10, 99)}.items():
         flipped = bytearray(data)  # the encrypted flag set, or a compression method zipfile lacks, on every member
         at = 0

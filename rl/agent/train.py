@@ -17,6 +17,7 @@ import datetime as dt
 import io
 import json
 import os
+import stat
 import time
 import zipfile
 from collections.abc import Callable
@@ -224,6 +225,9 @@ class Trainer:
         if not (last / CHECKPOINT_JSON).is_file():
             old = " (an old pickled last.pt is not loaded: start a new run)" if (self.checkpoints / "last.pt").exists() else ""
             raise InputError(last, f"no complete checkpoint to resume from{old}", field=CHECKPOINT_JSON)
+        for entry in last.iterdir():  # a FIFO would block np.load for ever, a link lead elsewhere: refused unopened
+            if not stat.S_ISREG(entry.lstat().st_mode):
+                raise InputError(entry, "not a regular file (a link, a FIFO, a folder): the checkpoint is not resumed")
         try:
             doc = read_state(last / CHECKPOINT_JSON, self.config.total_steps + self.config.num_envs)
             ck = load_tensors(last / "networks.pt", map_location=self.agent.device)
@@ -274,7 +278,8 @@ class Trainer:
             EOFError,
             NotImplementedError,
             zipfile.BadZipFile,
-        ) as exc:  # a damaged or foreign checkpoint (zipfile raises the last three)
+            MemoryError,
+        ) as exc:  # a damaged or foreign checkpoint (zipfile raises three; an array header claiming terabytes the last)
             raise InputError(last, f"cannot resume from this checkpoint ({type(exc).__name__}: {str(exc)[:200]})") from None
         self.state.episodes = metrics.drop(columns=["sinr_gain_mean100_db", "success_mean100"], errors="ignore").to_dict(
             "records"

@@ -56,7 +56,7 @@ class PredictionCache:
                 if int(sum(z.zip.getinfo(n).file_size for n in z.zip.namelist())) > 2 * 4 * (shape[0] * shape[1] + 64):
                     return None  # inflates beyond two float16 arrays of this shape: not ours
                 mu, p_dead, meta = z["mu"], z["p_dead"], bytes(z["meta"])
-        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, MemoryError, NotImplementedError, RuntimeError):
             return None  # a damaged or older cache file is made again
         if mu.shape != shape or p_dead.shape != shape or mu.dtype != np.float16 or p_dead.dtype != np.float16:
             return None
