@@ -136,6 +136,11 @@ def test_pack_cli_and_train_predictor_on_packs(tiny, tmp_path):
     result = CliRunner().invoke(uavdata, ["pack", "tiny", "--root", str(tiny), "--out", str(out)])
     assert result.exit_code == 0, result.output
     assert (out / "tiny.npz").is_file() and "kB a user" in result.output
+    bundle, packed = load_bundle("tiny", root=tiny), read_pack(out / "tiny.npz")  # what it wrote, not only its name
+    source = TrainingMaps.of_bundle(bundle)
+    assert packed.version == bundle.version and np.array_equal(packed.users, source.users)
+    np.testing.assert_array_equal(packed.dead, source.dead)
+    assert np.abs(packed.sinr_db - source.sinr_db)[~source.dead].max() <= STEP_DB / 2 + 1e-6
     again = CliRunner().invoke(uavdata, ["pack", "tiny", "--root", str(tiny), "--out", str(out)])
     assert again.exit_code == 0 and "packed already" in again.output
     constants = tmp_path / "predictor.json"
