@@ -293,6 +293,11 @@ def check_own_npz(final: str | Path, fmt: str, what: str) -> None:
         )
 
 
+def _folder(what: str) -> str:
+    """``what`` as a folder's name: "report folder", but "RadioMapSeer-style folder" as it is."""
+    return what if what.endswith("folder") else f"{what} folder"
+
+
 def check_replaceable(final: str | Path, marker: str, what: str) -> None:
     """Refuse (``InputError``) if ``final`` exists and is not an empty folder or a ``what`` uavplace made.
 
@@ -301,7 +306,7 @@ def check_replaceable(final: str | Path, marker: str, what: str) -> None:
     """
     final = Path(final)
     if final.is_symlink() or (final.exists() and not final.is_dir()):
-        raise InputError(final, f"exists and is not a {what} folder: refusing to replace it")
+        raise InputError(final, f"exists and is not a {_folder(what)}: refusing to replace it")
     if final.is_dir() and not (final / marker).is_file() and any(final.iterdir()):
         raise InputError(
             final,
@@ -342,7 +347,7 @@ def _refuse_foreign(final: Path, foreign: set[str], what: str, why: str) -> None
         raise InputError(
             final,
             f"holds {len(foreign)} entr{'y' if len(foreign) == 1 else 'ies'} {why} ({shown}): refusing to replace the "
-            f"{what} folder, which would lose them; move them away or choose another output",
+            f"{_folder(what)}, which would lose them; move them away or choose another output",
         )
 
 
@@ -389,7 +394,7 @@ def atomic_directory(
     with folder_lock(final if lock is None else lock):
         recover_directory(final)
         if new and (final.exists() or final.is_symlink()):
-            raise InputError(final, f"exists: choose another output (the {what} folder is written once)")
+            raise InputError(final, f"exists: choose another output (the {_folder(what)} is written once)")
         listed = check_output_folder(final, marker, what) if marker is not None else None
         tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.tmp-", dir=final.parent))
         tmp.chmod(umask_mode(0o777))  # mkdtemp makes it private; outputs are not

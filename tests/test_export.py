@@ -200,6 +200,10 @@ def test_export_and_pack_never_replace_a_users_own_files(tiny, tmp_path):
     (out / "tiny" / "notes.txt").write_text("mine")
     res = run(uavdata, ["export", "tiny", "--root", str(tiny), "--out", str(out), "--format", "radiomapseer"])
     assert res.exit_code == 2 and "notes.txt" in res.output and (out / "tiny" / "notes.txt").read_text() == "mine"
+    (tmp_path / "o3").mkdir()
+    (tmp_path / "o3" / "tiny").write_text("a file where the folder would go")
+    res = run(uavdata, ["export", "tiny", "--root", str(tiny), "--out", str(tmp_path / "o3"), "--format", "radiomapseer"])
+    assert res.exit_code == 2 and "exists and is not a RadioMapSeer-style folder: refusing" in res.output, res.output
     (out / "tiny.deepmimo.npz").write_bytes(b"my own arrays")
     res = run(uavdata, ["export", "tiny", "--root", str(tiny), "--out", str(out), "--format", "deepmimo"])
     assert res.exit_code == 2 and "is not a DeepMIMO-style export uavplace wrote" in res.output, res.output
