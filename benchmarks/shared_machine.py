@@ -1,7 +1,7 @@
 """The test suite on a machine shared with another job: tests alone and beside a 2-thread CPU job, at torch's thread
 settings, each test's wall and CPU seconds (its process and the commands it ran) and the ratios loaded / alone.
 
-    python benchmarks/shared_machine.py                      # the training tests (about 10 minutes on 2 cores)
+    python benchmarks/shared_machine.py                      # the training tests (about 20 minutes on 2 cores)
     python benchmarks/shared_machine.py tests/test_env.py    # any pytest selection
 
 The settings compared: ``threads 1`` is the suite as it runs (tests/conftest.py sets OMP_NUM_THREADS=1 unless it is
@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -29,6 +30,8 @@ DEFAULT_TESTS = (
     "tests/test_agent.py::test_uavrl_train_cli",
 )
 BURNER = "import torch\ntorch.set_num_threads(2)\na = torch.randn(600, 600)\nwhile True:\n    a = torch.tanh(a @ a)\n"
+#: A loaded run is stopped past this many times its wall time alone (plus a minute): it has failed the target anyway.
+LIMIT_X = 5
 #: A pytest plugin (written beside the run) that records each test's wall and CPU seconds, its children's included.
 PLUGIN = """
 import json, os, resource, time
@@ -55,8 +58,11 @@ def pytest_sessionfinish(session):
 """
 
 
-def run(tests: list[str], threads: int, loaded: bool, folder: Path) -> dict[str, tuple[float, float]]:
-    """Each test's (wall, CPU) seconds of one pytest run at ``threads`` torch threads, beside the burner if ``loaded``."""
+def run(
+    tests: list[str], threads: int, loaded: bool, folder: Path, limit: float | None = None
+) -> dict[str, tuple[float, float]] | None:
+    """Each test's (wall, CPU) seconds of one pytest run at ``threads`` torch threads, beside the burner if ``loaded``;
+    None when it ran past ``limit`` seconds (stopped there)."""
     times = folder / f"times-{threads}-{int(loaded)}.json"
     env = os.environ | {
         "OMP_NUM_THREADS": str(threads),
@@ -68,7 +74,10 @@ def run(tests: list[str], threads: int, loaded: bool, folder: Path) -> dict[str,
         if burner is not None:
             time.sleep(2.0)  # the job beside is at full speed before the tests start
         cmd = [sys.executable, "-m", "pytest", "-q", "-p", "shared_machine_plugin", "-p", "no:cacheprovider", *tests]
-        subprocess.run(cmd, cwd=REPO, env=env, check=True, stdout=subprocess.DEVNULL)
+        try:
+            subprocess.run(cmd, cwd=REPO, env=env, check=True, stdout=subprocess.DEVNULL, timeout=limit)
+        except subprocess.TimeoutExpired:
+            return None
     finally:
         if burner is not None:
             burner.kill()
@@ -77,20 +86,25 @@ def run(tests: list[str], threads: int, loaded: bool, folder: Path) -> dict[str,
 
 
 def main() -> None:
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # a kill stops the job beside too (run's finally)
     tests = sys.argv[1:] or list(DEFAULT_TESTS)
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         (folder / "shared_machine_plugin.py").write_text(PLUGIN)
         for threads in (1, 2):
-            alone, loaded = run(tests, threads, False, folder), run(tests, threads, True, folder)
-            wall = sum(w for w, _ in loaded.values()) / sum(w for w, _ in alone.values())
-            print(f"threads {threads}: alone {sum(w for w, _ in alone.values()):.1f} s wall "
-                  f"{sum(c for _, c in alone.values()):.1f} s CPU; beside a 2-thread job "
-                  f"{sum(w for w, _ in loaded.values()):.1f} s wall {sum(c for _, c in loaded.values()):.1f} s CPU: "
-                  f"wall x {wall:.2f}")  # fmt: skip
+            alone = run(tests, threads, False, folder)
+            alone_wall, alone_cpu = (sum(v[i] for v in alone.values()) for i in (0, 1))
+            print(f"threads {threads}: alone {alone_wall:.1f} s wall {alone_cpu:.1f} s CPU", flush=True)
+            limit = LIMIT_X * alone_wall + 60
+            loaded = run(tests, threads, True, folder, limit)
+            if loaded is None:
+                print(f"  beside a 2-thread job: stopped after {limit:.0f} s wall, over {LIMIT_X} x alone", flush=True)
+                continue
+            wall, cpu = (sum(v[i] for v in loaded.values()) for i in (0, 1))
+            print(f"  beside a 2-thread job: {wall:.1f} s wall {cpu:.1f} s CPU: wall x {wall / alone_wall:.2f}", flush=True)
             worst = max(alone, key=lambda k: loaded[k][1] / max(alone[k][1], 1e-3))
             print(f"  the test whose CPU grew most: x {loaded[worst][1] / max(alone[worst][1], 1e-3):.2f} {worst} "
-                  f"({alone[worst][1]:.1f} s alone, {loaded[worst][1]:.1f} s beside)")  # fmt: skip
+                  f"({alone[worst][1]:.1f} s alone, {loaded[worst][1]:.1f} s beside)", flush=True)  # fmt: skip
 
 
 if __name__ == "__main__":
