@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import hashlib
 import io
-import zipfile
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -15,7 +14,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from uavplace.dataset.catalog import DEFAULT_ROOT, INGESTED_MANIFEST, read_city_manifest
-from uavplace.infra.files import folder_lock
+from uavplace.infra.files import ARCHIVE_ERRORS, folder_lock
 from uavplace.schemas import SCHEMA_VERSION, CityManifest, InputError
 from uavplace.schemas.tables import BUILDING_PARTS, BUILDINGS, RECEIVERS, ROUTES, TRANSMITTERS
 
@@ -83,7 +82,7 @@ def read_ingested(city: str, root: str | Path = DEFAULT_ROOT) -> Ingested:
         try:
             with np.load(io.BytesIO(data["terrain"]), allow_pickle=False) as npz:
                 terrain = {k: npz[k] for k in npz.files}
-        except (OSError, ValueError, EOFError, NotImplementedError, RuntimeError, zipfile.BadZipFile, MemoryError) as exc:
+        except ARCHIVE_ERRORS as exc:
             raise InputError(folder / "terrain.npz", f"unreadable terrain ({type(exc).__name__}: {str(exc)[:160]})") from None
     return Ingested(
         folder=folder,

@@ -86,11 +86,16 @@ INGESTED_COLUMNS = ("city", "users", "receiver rows", "reached", "buildings", "f
 BUNDLE_COLUMNS = ("city", "version", "grid [m]", "alt [m]", "cells", "users", "split", "SINR from", "size", "built (UTC)")
 
 
+def _minute(utc: str) -> str:
+    """An ISO time to the minute (the date, a space, hours:minutes): short enough for a narrow terminal's table."""
+    return utc[:16].replace("T", " ")
+
+
 def ingested_row(c: CityEntry) -> list[str]:
     """An ingested city as a row of ``INGESTED_COLUMNS``."""
     k, f = c.manifest.counts, c.manifest.frequency_hz
     counts = [str(k[n]) for n in ("transmitters", "receiver_rows", "receiver_rows_reached", "buildings")]
-    return [c.name, *counts, f"{f / 1e6:g}" if f else "-", c.manifest.created_utc[:16].replace("T", " ")]
+    return [c.name, *counts, f"{f / 1e6:g}" if f else "-", _minute(c.manifest.created_utc)]
 
 
 def bundle_rows(c: CityEntry, root: str | Path) -> list[list[str]]:
@@ -103,6 +108,6 @@ def bundle_rows(c: CityEntry, root: str | Path) -> list[list[str]]:
         rows.append(
             [c.name, m.version + (" *" if m.version == latest else ""), f"{m.grid.spacing_m:g}", f"{m.config.altitude_m:g}"]
             + [f"{m.grid.num_x} x {m.grid.num_y}", str(m.num_users), f"{m.config.role} ({split})" if m.config.role else "-"]
-            + [m.sinr.source, f"{size / 1e6:.1f} MB", m.created_utc[:16].replace("T", " ")]
+            + [m.sinr.source, f"{size / 1e6:.1f} MB", _minute(m.created_utc)]
         )
     return rows

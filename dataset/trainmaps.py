@@ -36,7 +36,7 @@ import numpy as np
 from pydantic import Field, ValidationError, field_validator
 
 from uavplace.dataset.bundle import Bundle, public_settings
-from uavplace.infra.files import atomic_write_bytes, check_inside, check_own_npz, read_small_file
+from uavplace.infra.files import ARCHIVE_ERRORS, atomic_write_bytes, check_inside, check_own_npz, read_small_file
 from uavplace.infra.limits import limits
 from uavplace.ingest.radiomapseer import decode_sinr as dequantise  # the codes of packs and RadioMapSeer folders
 from uavplace.schemas import InputError
@@ -206,8 +206,7 @@ def read_pack(path: str | Path) -> TrainingMaps:
         raise
     except KeyError as err:
         raise InputError(path, f"no array {err}: not {what}", field=str(err).strip("'")) from None
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError, NotImplementedError, RuntimeError, MemoryError) as err:
-        # NotImplementedError: a compression method zipfile lacks; RuntimeError: an encrypted member
+    except ARCHIVE_ERRORS as err:
         raise InputError(path, f"unreadable ({str(err)[:160]}): not {what}") from None
     try:
         meta = PackMeta.model_validate_json(arrays.pop("meta").tobytes())

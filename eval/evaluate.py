@@ -138,13 +138,14 @@ def unlike_training(runs: list[Path], datasets: list[str], root: str | Path, p_t
     trained at, naming the runs. A run that records no settings (older than the record, or a bare checkpoint) is not
     judged."""
     manifests = [read_manifest(resolve(d, root=root)) for d in datasets]
+    records = [(Path(run).name, read_run_json(run)) for run in runs if has_record(Path(run))]
+    records = [(name, record) for name, record in records if record.bundle_settings]
     found: dict[tuple[str, str], list[str]] = {}  # (city@version, what differs): the runs, in order
     for manifest in manifests:
-        for run in runs:
-            record = read_run_json(run) if has_record(Path(run)) else None
-            unlike = settings_unlike(record, manifest, p_t_db) if record is not None and record.bundle_settings else []
+        for name, record in records:
+            unlike = settings_unlike(record, manifest, p_t_db)
             if unlike:
-                found.setdefault((f"{manifest.city}@{manifest.version}", "; ".join(unlike)), []).append(Path(run).name)
+                found.setdefault((f"{manifest.city}@{manifest.version}", "; ".join(unlike)), []).append(name)
     lines = []
     for (city, unlike), names in found.items():
         if len(names) == 1:

@@ -78,8 +78,8 @@ def make_report(
     every agent (weights only), and that no agent was trained in the test city.
     A training city whose bundle is not built here only loses its upper bound.
     ``on_plan`` is told every stage (``evaluate.stages``) before the first; ``on_progress`` each stage's
-    ``(stage, done, total)`` as it goes; ``on_status`` what is being loaded before the first stage. ``parallel``: the methods as Ray tasks (``eval.parallel``), the same
-    numbers.
+    ``(stage, done, total)`` as it goes; ``on_status`` what is being loaded before the first stage. ``parallel``:
+    the methods as Ray tasks (``eval.parallel``), the same numbers.
     """
     out = Path(out)
     check_replaceable(out, REPORT_JSON, "report")

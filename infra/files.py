@@ -21,6 +21,7 @@ import re
 import shutil
 import stat
 import tempfile
+import zipfile
 from collections.abc import Collection, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
@@ -262,11 +263,15 @@ def check_replaceable_file(final: str | Path) -> None:
         raise InputError(final, "exists and is not a regular file: refusing to replace it")
 
 
+#: What reading a damaged or foreign archive (an ``.npz``, a zip) raises: a cut or altered file (``BadZipFile``,
+#: ``OSError``, ``ValueError``, ``EOFError``), a compression method zipfile lacks (``NotImplementedError``), an
+#: encrypted member (``RuntimeError``), an array header that claims more memory than there is (``MemoryError``).
+ARCHIVE_ERRORS = (zipfile.BadZipFile, OSError, ValueError, EOFError, NotImplementedError, RuntimeError, MemoryError)
+
+
 def npz_format(path: Path, limit: int = 1 << 16) -> str | None:
     """The ``format`` that the JSON ``meta`` member of the ``.npz`` at ``path`` names (uavplace's array files record one),
     read without unpacking anything else (a member over ``limit`` bytes is not read); None for anything else."""
-    import zipfile
-
     import numpy as np
 
     try:
@@ -276,7 +281,7 @@ def npz_format(path: Path, limit: int = 1 << 16) -> str | None:
                 return None
             with z.open(info) as f:
                 meta = json.loads(np.lib.format.read_array(f, allow_pickle=False).tobytes().decode("utf-8"))
-    except (OSError, KeyError, ValueError, NotImplementedError, RuntimeError, zipfile.BadZipFile, UnicodeDecodeError):
+    except (*ARCHIVE_ERRORS, KeyError):  # UnicodeDecodeError is a ValueError
         return None
     fmt = meta.get("format") if isinstance(meta, dict) else None
     return fmt if isinstance(fmt, str) else None

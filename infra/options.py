@@ -155,8 +155,7 @@ def _pair_value(text: str) -> object:
         return text
 
 
-def _kind(field: object) -> str:
-    annotation = getattr(field, "annotation", None)
+def _kind(annotation: object) -> str:
     return {int: "whole number", float: "number", str: "word"}.get(annotation, "value of this setting")
 
 
@@ -175,9 +174,7 @@ def with_pairs(config: M, pairs: tuple[str, ...] | list[str], option: str) -> M:
         changed[name] = _pair_value(value.strip())
         annotation = model.model_fields[name].annotation
         if isinstance(changed[name], bool) and annotation is not bool and bool not in typing.get_args(annotation):  # true: 1
-            raise click.BadParameter(
-                f"{name}: {value.strip()} is not a {_kind(model.model_fields[name])}", param_hint=f"'{option}'"
-            )
+            raise click.BadParameter(f"{name}: {value.strip()} is not a {_kind(annotation)}", param_hint=f"'{option}'")
     try:
         return model(**(config.model_dump() | changed))
     except ValidationError as exc:

@@ -155,20 +155,20 @@ def read_folder(folder: str | Path) -> RadioMapFolder:
     files.append(users_csv)
     rows = list(csv.DictReader(io.StringIO(read_small_file(users_csv, "the users' table").decode("utf-8-sig"))))
     ids, cells, positions, codes = [], [], [], []
+    extent = {  # the grid's x and y ranges [m], which each user's position must lie in
+        "x_m": (float(grid["x_min_m"]), float(grid["x_min_m"]) + shape[1] * float(grid["spacing_m"])),
+        "y_m": (float(grid["y_min_m"]), float(grid["y_min_m"]) + shape[0] * float(grid["spacing_m"])),
+    }
     for k, row in enumerate(rows, start=2):
         try:
             u, r, c = int(row["user"]), int(row["row"]), int(row["col"])
             x, y = float(row["x_m"]), float(row["y_m"])
         except (KeyError, TypeError, ValueError):
             raise InputError(users_csv, "user, row and col must be integers, x_m and y_m numbers", line=k, field="user") from None
-        for name, v, low, n in (("x_m", x, float(grid["x_min_m"]), shape[1]), ("y_m", y, float(grid["y_min_m"]), shape[0])):
-            if not low <= v <= low + n * float(grid["spacing_m"]):  # NaN too
-                raise InputError(
-                    users_csv,
-                    f"{v!r} is not on the grid ({low:g} .. {low + n * float(grid['spacing_m']):g} m)",
-                    line=k,
-                    field=name,
-                )
+        for name, v in (("x_m", x), ("y_m", y)):
+            low, high = extent[name]
+            if not low <= v <= high:  # NaN too
+                raise InputError(users_csv, f"{v!r} is not on the grid ({low:g} .. {high:g} m)", line=k, field=name)
         if not (0 <= r < shape[0] and 0 <= c < shape[1]):
             raise InputError(users_csv, f"pixel ({r}, {c}) is off the {shape[1]} x {shape[0]} grid", line=k, field="row")
         if u in ids:

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from uavplace.infra.files import ARCHIVE_ERRORS
 from uavplace.infra.limits import limits
 from uavplace.schemas import InputError
 from uavplace.schemas.base import uavplace_version
@@ -79,17 +80,7 @@ def read_cache_entry(path: Path, key: str, max_bytes: float | None = None) -> tu
                 return None, "made with other settings"
             arrays = {k: z[k] for k in z.files if k not in ("key", "sha256")}
             carried = str(z["sha256"]) if "sha256" in z.files else ""
-    except (
-        zipfile.BadZipFile,
-        ValueError,
-        OSError,
-        EOFError,
-        KeyError,
-        zlib.error,
-        MemoryError,
-        NotImplementedError,
-        RuntimeError,
-    ) as exc:
+    except (*ARCHIVE_ERRORS, KeyError, zlib.error) as exc:
         return None, f"unreadable ({type(exc).__name__}: {str(exc)[:120]})"
     if carried != _entry_digest(key, arrays):
         return None, "its arrays do not match the sha256 it carries (damaged or altered)"

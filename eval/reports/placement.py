@@ -156,17 +156,20 @@ def one_report(config: ReportConfig, out: Path, request: ReportRequest, city: tu
     columns = (TextColumn("[bold]report[/] {task.description:<20}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     log = LogLines(request.quiet)  # a log: a plain line every LINE_SECONDS (and at each method's start and end), not a bar
     with Progress(*columns, console=stdout(), disable=request.quiet or log.enabled) as bar:
-        loading = bar.add_task(f"city {city[0]} of {city[1]}: {config.dataset}: loading", total=None)
+        where = f"city {city[0]} of {city[1]}: {config.dataset}"
+        loading = bar.add_task(f"{where}: loading", total=None)
 
         def on_status(text: str) -> None:  # what is loaded before the first stage, from the first second
-            bar.update(loading, description=f"city {city[0]} of {city[1]}: {config.dataset}: {text}")
-            log(f"report city {city[0]} of {city[1]}: {config.dataset}: {text}", last=True)
+            bar.update(loading, description=f"{where}: {text}")
+            log(f"report {where}: {text}", last=True)
+
+        def on_plan(stages: list[str]) -> None:  # everything is loaded: the stages begin
+            plan.extend(stages)
+            bar.remove_task(loading)
 
         def on_progress(stage: str, done: int, total: int) -> None:
             new = stage not in tasks
-            name = f"city {city[0]} of {city[1]}: {config.dataset}, stage {plan.index(stage) + 1} of {len(plan)}: {stage}"
-            if loading in bar.task_ids:
-                bar.remove_task(loading)
+            name = f"{where}, stage {plan.index(stage) + 1} of {len(plan)}: {stage}"
             if new:
                 tasks[stage] = bar.add_task(name, total=total)
             bar.update(tasks[stage], completed=done)
@@ -179,7 +182,7 @@ def one_report(config: ReportConfig, out: Path, request: ReportRequest, city: tu
             root=request.root,
             command=command_line(),
             on_progress=on_progress,
-            on_plan=plan.extend,
+            on_plan=on_plan,
             on_status=on_status,
             parallel=parallel,
         )

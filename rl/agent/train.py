@@ -19,7 +19,6 @@ import json
 import os
 import stat
 import time
-import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,6 +29,7 @@ import torch
 
 from uavplace.dataset.bundle import load_bundle
 from uavplace.infra.files import (
+    ARCHIVE_ERRORS,
     atomic_directory,
     atomic_write_bytes,
     atomic_write_text,
@@ -269,17 +269,7 @@ class Trainer:
             evals = pd.read_parquet(last / "eval.parquet")
         except InputError:
             raise
-        except (
-            OSError,
-            ValueError,
-            KeyError,
-            TypeError,
-            RuntimeError,
-            EOFError,
-            NotImplementedError,
-            zipfile.BadZipFile,
-            MemoryError,
-        ) as exc:  # a damaged or foreign checkpoint (zipfile raises three; an array header claiming terabytes the last)
+        except (*ARCHIVE_ERRORS, KeyError, TypeError) as exc:  # a damaged or foreign checkpoint
             raise InputError(last, f"cannot resume from this checkpoint ({type(exc).__name__}: {str(exc)[:200]})") from None
         self.state.episodes = metrics.drop(columns=["sinr_gain_mean100_db", "success_mean100"], errors="ignore").to_dict(
             "records"

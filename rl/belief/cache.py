@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import hashlib
 import io
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
-from uavplace.infra.files import atomic_write_bytes, read_small_file
+from uavplace.infra.files import ARCHIVE_ERRORS, atomic_write_bytes, read_small_file
 from uavplace.infra.limits import limits
 from uavplace.schemas import InputError
 
@@ -56,7 +55,7 @@ class PredictionCache:
                 if int(sum(z.zip.getinfo(n).file_size for n in z.zip.namelist())) > 2 * 4 * (shape[0] * shape[1] + 64):
                     return None  # inflates beyond two float16 arrays of this shape: not ours
                 mu, p_dead, meta = z["mu"], z["p_dead"], bytes(z["meta"])
-        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, MemoryError, NotImplementedError, RuntimeError):
+        except (*ARCHIVE_ERRORS, KeyError):
             return None  # a damaged or older cache file is made again
         if mu.shape != shape or p_dead.shape != shape or mu.dtype != np.float16 or p_dead.dtype != np.float16:
             return None
