@@ -318,9 +318,10 @@ def show(city: str, version: str | None, user: int, out_path: Path | None, root:
 def pack(cities: tuple[str, ...], root: Path, raw: Path, out: Path) -> None:
     """Pack built cities' maps into the compact training-maps form the predictor trains on (dataset/trainmaps.py):
     building heights, the users' cells, each user's SINR to 0.5 dB (dead cells apart) and its provenance, about
-    3-8 kB a user (6 kB the median of data/trainmaps/). A CITY already packed from the same bundle version is left as it is."""
+    3-8 kB a user (6 kB the median of data/trainmaps/). A CITY whose pack holds what packing its bundle now gives, byte for byte (meta included), is left as it is."""
     from uavplace.dataset.bundle import load_bundle
-    from uavplace.dataset.trainmaps import TrainingMaps, read_pack, simulation_record, write_pack
+    from uavplace.dataset.trainmaps import TrainingMaps, pack_bytes, simulation_record, write_pack
+    from uavplace.infra.limits import limits
 
     out_ = stdout()
     total_users = total_bytes = 0
@@ -328,14 +329,14 @@ def pack(cities: tuple[str, ...], root: Path, raw: Path, out: Path) -> None:
         check_name(city, "city name")
         bundle = load_bundle(city, root=root)
         path = out / f"{city}.npz"
-        if path.is_file() and not path.is_symlink():
-            try:
-                if read_pack(path).version == bundle.version:
-                    out_.print(f"{city}: packed already from bundle {bundle.version}", highlight=False)
-                    continue
-            except InputError:
-                pass  # a damaged or older pack is packed again
-        meta = write_pack(path, TrainingMaps.of_bundle(bundle), simulation_record(raw / city))
+        maps, simulation = TrainingMaps.of_bundle(bundle), simulation_record(raw / city)
+        if path.is_file() and not path.is_symlink() and path.stat().st_size < limits().map_bytes:
+            # packed already only when its bytes are the pack this bundle makes (meta included): an edited, damaged
+            # or older pack is packed again
+            if path.read_bytes() == pack_bytes(maps, simulation)[0]:
+                out_.print(f"{city}: packed already from bundle {bundle.version}", highlight=False)
+                continue
+        meta = write_pack(path, maps, simulation)
         size = path.stat().st_size
         total_users, total_bytes = total_users + meta.num_users, total_bytes + size
         out_.print(

@@ -39,6 +39,7 @@ from uavplace.dataset.bundle import Bundle, public_settings
 from uavplace.infra.files import ARCHIVE_ERRORS, atomic_write_bytes, check_inside, check_own_npz, read_small_file
 from uavplace.infra.limits import limits
 from uavplace.ingest.radiomapseer import decode_sinr as dequantise  # the codes of packs and RadioMapSeer folders
+from uavplace.ingest.radiomapseer import settings_problem
 from uavplace.schemas import InputError
 from uavplace.schemas.base import Contract, validation_message
 from uavplace.schemas.provenance import CODES
@@ -49,17 +50,6 @@ FORMAT = "uavplace-training-maps/1"
 STEP_DB = 0.5
 #: The arrays of a pack, in order, with their dtypes.
 ARRAYS = {"height_dm": np.int16, "blocked": np.uint8, "users": np.int16, "sinr": np.uint8, "provenance": np.uint8}
-
-
-#: The public settings a pack's meta must hold: key -> (low, high, required); each a finite number within its range.
-PACK_SETTINGS: dict[str, tuple[float, float, bool]] = {
-    "spacing_m": (0.01, 1000.0, True),
-    "altitude_m": (0.1, 10_000.0, True),
-    "floor_db": (-400.0, 400.0, True),
-    "noise_dbm": (-300.0, 100.0, False),
-    "tx_power_dbm": (-100.0, 100.0, False),
-    "frequency_hz": (1e6, 1e12, False),
-}
 
 
 class PackMeta(Contract):
@@ -86,12 +76,9 @@ class PackMeta(Contract):
     @field_validator("settings")
     @classmethod
     def _settings_in_range(cls, v: dict) -> dict:
-        for key, (low, high, required) in PACK_SETTINGS.items():
-            x = v.get(key)
-            if x is None and not required:
-                continue
-            if isinstance(x, bool) or not isinstance(x, int | float) or not low <= x <= high:  # NaN and inf fail too
-                raise ValueError(f"{key} {x!r}: expected a number in [{low:g}, {high:g}]")
+        problem = settings_problem(v)  # ingest.radiomapseer.PUBLIC_SETTINGS
+        if problem is not None:
+            raise ValueError(problem)
         return v
 
 

@@ -88,6 +88,15 @@ def task_options(command: Callable) -> Callable:
     "(docs/searcher.md); one the task's searcher does not read is refused. Saved in the report's record.",
 )
 @click.option(
+    "--measure",
+    multiple=True,
+    metavar="NAME=VALUE",
+    help="What every method's UAV reads at a cell (a field of MeasurementSettings, rl/config.py; repeatable), e.g. "
+    "--measure sigma_db=4 for an i.i.d. Gaussian error of 4 dB, --measure shadow_sigma_db=6 for correlated shadowing: "
+    "the exact SINR by default; success is judged on the true SINR. The fleet task reads exactly only. Saved in the "
+    "report's record.",
+)
+@click.option(
     "--overwrite",
     is_flag=True,
     help="Replace a report folder that holds a report of other agents (refused by default: `--run X` would otherwise "
@@ -158,5 +167,18 @@ def report(**values: Any) -> None:
 
 def _request(values: dict[str, Any]) -> ReportRequest:
     """The command's values as a ``ReportRequest``, ``--search``'s pairs read as the task's searcher settings (a
-    setting its searcher does not read refused before any city is loaded: its searcher imports torch)."""
-    return ReportRequest(**(values | {"search": task_report(values["task"]).search(values["search"])}))
+    setting its searcher does not read, or any with ``--predictor none``, refused before any city is loaded: its
+    searcher imports torch)."""
+    if values["search"] and str(values["predictor"]).lower() == "none":
+        raise click.BadParameter(
+            "--predictor none leaves every searcher out: its settings would be recorded, not played", param_hint="'--search'"
+        )
+    from uavplace.infra.options import with_pairs
+    from uavplace.rl.config import MeasurementSettings
+
+    measurement = with_pairs(MeasurementSettings(), values.pop("measure"), "--measure")
+    if values["task"] == "fleet" and not measurement.exact:
+        raise click.BadParameter("the fleet task reads every user's SINR exactly", param_hint="'--measure'")
+    return ReportRequest(
+        **(values | {"search": task_report(values["task"]).search(values["search"]), "measurement": measurement})
+    )

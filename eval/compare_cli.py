@@ -141,9 +141,11 @@ def levers(
     (success and median steps with 95 % intervals over users then episodes, the ratio to the genie's median, the run's
     wall time): the table `uavrl sweep` ends with, for any runs (eval/sweep.py, validation_table)."""
     from uavplace.eval.render import difference_rows
+    from uavplace.eval.reports.base import check_runs_once
     from uavplace.eval.sweep import markdown, paired_differences, validation_table
     from uavplace.schemas import InputError
 
+    check_runs_once(list(runs), "RUNS")  # each a method of the table: a run twice would be two methods of one name
     if against is not None and against.name not in {r.name for r in runs}:
         raise click.UsageError(f"--against {against}: not one of RUNS")
     played: dict = {}

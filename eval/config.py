@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from pydantic import ConfigDict, Field
 
-from uavplace.rl.config import DEFAULT_PREDICTOR, EpisodeSettings, SearchConfig
+from uavplace.rl.config import DEFAULT_PREDICTOR, EpisodeSettings, MeasurementSettings, SearchConfig
 from uavplace.schemas.base import MAX_SEED, Contract
 
 #: The evaluation protocol's fields every report shares with ``EpisodeSettings`` (declared there once).
@@ -40,6 +40,11 @@ class ReportSettings(Contract):
         "searcher and its ablation are left out. Its predicted maps are cached under ROOT/.predictions/.",
     )
     search: SearchConfig = Field(default_factory=SearchConfig, description="The searcher's settings")
+    measurement: MeasurementSettings = Field(
+        default_factory=MeasurementSettings,
+        description="What every method's UAV reads at a cell (rl/config.py, MeasurementSettings): the exact SINR by "
+        "default; success is judged on the true SINR",
+    )
 
 
 #: Episodes drawn on the maps (``trajectories``), the placement and tracking reports' figure.

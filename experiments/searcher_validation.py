@@ -8,7 +8,7 @@ against the searcher. Settings of the searcher as ``--set name=value`` (``Search
 
     python experiments/searcher_validation.py [--city oldtown-005] [--episodes 300] [--set temper=0.3] [--quick]
         [--predictor data/agents/searcher/unet] [--agent data/agents/best --agent runs/hybrid/h-s0]
-        [--variant planner=info,info_weight=0.2] [--versus runs/predictor/v2]
+        [--variant planner=info,info_weight=0.2] [--versus runs/predictor/v2] [--measure sigma_db=4]
 """
 
 from __future__ import annotations
@@ -25,13 +25,13 @@ from uavplace.eval.metrics import bootstrap_table, difference_table
 from uavplace.infra.console import markdown_table
 from uavplace.infra.options import with_pairs
 from uavplace.rl.belief import PREDICTIONS, PredictionCache
-from uavplace.rl.config import DEFAULT_PREDICTOR, SearchConfig
+from uavplace.rl.config import DEFAULT_PREDICTOR, MeasurementSettings, SearchConfig
 from uavplace.rl.predictor import load_predictor
 from uavplace.rl.tasks.placement.policies import GeniePolicy
 from uavplace.rl.tasks.placement.searcher import SEARCHER, MapSearchPolicy
 
 
-def _settings(ap, base: SearchConfig, pairs: list[str], option: str) -> SearchConfig:  # noqa: ANN001 - its parser
+def _settings(ap, base, pairs: list[str], option: str):  # noqa: ANN001, ANN202 - its parser, a model and the same model
     """``base`` with ``pairs`` (``name=value``, JSON values) set, as ``uavrl report --search`` sets them; a bad one ends
     the script with the parser's usage error."""
     try:
@@ -67,6 +67,12 @@ def main() -> None:
         help="Another predictor (a tier's folder or constants' JSON) whose searcher plays beside it on the same "
         "episodes, named 'map searcher [FOLDER]' (repeatable; paired against the searcher)",
     )
+    ap.add_argument(
+        "--measure",
+        action="append",
+        default=[],
+        help="What the UAVs read (a MeasurementSettings field, name=value, as uavrl report --measure; repeatable)",
+    )
     ap.add_argument("--quick", action="store_true", help="The genie and the searcher only (no best, no ablation)")
     ap.add_argument(
         "--workers",
@@ -77,6 +83,7 @@ def main() -> None:
     )
     args = ap.parse_args()
     search = _settings(ap, SearchConfig(), args.set, "--set")
+    measurement = _settings(ap, MeasurementSettings(), args.measure, "--measure")
     predictor, cache = load_predictor(args.predictor), PredictionCache(args.root / PREDICTIONS)
     versus = [(other, load_predictor(other)) for other in args.versus]
     trace_with_workers([predictor] + [t for _, t in versus], args.workers)
@@ -85,12 +92,12 @@ def main() -> None:
     if len({a.name for a in agents}) != len(agents):  # two runs of one preset: named by their folders
         for a, f in zip(agents, folders, strict=True):
             a.name = a.policy.name = f"{a.name} [{f.name}]"
-    print(f"searcher settings: {search.model_dump()}")
+    print(f"searcher settings: {search.model_dump()}; measurement: {measurement.model_dump()}")
     for city in args.city or VALIDATION:
         bundle = load_bundle(city, root=args.root)
         if bundle.manifest.config.role == "test":
             ap.error(f"{city} is a test city: release numbers come from `uavrl report`, never a choice")
-        config = ReportConfig(dataset=city, episodes=args.episodes, seed=args.seed, predictor=None)
+        config = ReportConfig(dataset=city, episodes=args.episodes, seed=args.seed, predictor=None, measurement=measurement)
         policies = [GeniePolicy()] + [
             MapSearchPolicy(predictor, search.model_copy(update={"buildings": b}), cache)
             for b in ((True,) if args.quick else (True, False))

@@ -69,6 +69,12 @@ class Limits(Contract):
     samples: float = Field(default=1e10, ge=1e3, description="Rays per user of uavdata simulate (--samples)")
     extent_m: float = Field(default=5000.0, gt=0, description="Side of a simulated city or of its --extent/--crop box [m]")
     user_cells: float = Field(default=5e7, ge=1, description="Users x grid cells of one simulated city: its maps in memory")
+    receiver_rows: int = Field(
+        default=5_000_000,
+        ge=1,
+        description="Receiver rows one ingest of a RadioMapSeer-style folder makes (its users x grid cells), in memory: "
+        "about 280 bytes each at the peak",
+    )
     routes: int = Field(default=200, ge=0, description="Routes of one simulated city (--routes)")
     route_length_m: float = Field(default=2000.0, ge=4, description="Length of one simulated route (--route-length) [m]")
     simulated_route_points: int = Field(

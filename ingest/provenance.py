@@ -153,6 +153,10 @@ def read_provenance(path: Path, source: str, receivers: int | None = None) -> di
         total += count
         field = "codes" if codes is not None else "count"
         check_limit("export_bytes", total, source, "receivers the rows describe", line=line, field=field)
+        if receivers is not None and count > receivers:  # refused before a code of it is made
+            raise InputError(
+                source, f"a row of {count:,} receivers, more than the export holds ({receivers:,})", line=line, field=field
+            )
         # a run's codes are made only within the limit: a count of 10**12 is refused above, never allocated
         parts.setdefault(key, []).append(codes if codes is not None else np.full(count, values["code"], np.uint8))
         ends[key] = values["first_rx"] + count - 1

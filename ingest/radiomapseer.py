@@ -29,6 +29,7 @@ from uavplace.ingest.written import made_by, write_tables
 from uavplace.schemas import BUILDING_PARTS, BUILDINGS, RECEIVERS, TRANSMITTERS, CityManifest, InputError
 from uavplace.schemas.city import FileReport, IngestReport, SourceFile
 from uavplace.schemas.provenance import NOT_RECORDED, RECEIVER_CODES, UNREACHED, code_name
+from uavplace.schemas.tables import RATIO_RANGE_DB
 
 #: The folder's format name (``scale.json``'s ``format``).
 RADIOMAPSEER = "uavplace-radiomapseer/1"
@@ -108,6 +109,32 @@ SCALE_BOUNDS = (
 )
 
 
+#: The public settings of a map folder or pack (``dataset.bundle.public_settings``): key -> (low, high, required);
+#: each a finite number within its range (dataset/trainmaps.py's packs hold them too).
+PUBLIC_SETTINGS: dict[str, tuple[float, float, bool]] = {
+    "spacing_m": (0.01, 1000.0, True),
+    "altitude_m": (0.1, 10_000.0, True),
+    "floor_db": (-400.0, 400.0, True),
+    "noise_dbm": (-300.0, 100.0, False),
+    "tx_power_dbm": (-100.0, 100.0, False),
+    "frequency_hz": (1e6, 1e12, False),
+}
+#: The largest SINR a map may hold [dB] (``schemas.tables.RATIO_RANGE_DB``'s, as a bundle's check).
+SINR_MAX_DB = RATIO_RANGE_DB[1]
+
+
+def settings_problem(settings: dict, required: tuple[str, ...] | None = None) -> str | None:
+    """What is wrong with ``settings`` against ``PUBLIC_SETTINGS`` (``required``: the keys that must be there, default
+    the table's), or None."""
+    for key, (low, high, needed) in PUBLIC_SETTINGS.items():
+        x = settings.get(key)
+        if x is None and not (needed if required is None else key in required):
+            continue
+        if isinstance(x, bool) or not isinstance(x, int | float) or not low <= x <= high:  # NaN and inf fail too
+            return f"{key} {x!r}: expected a number in [{low:g}, {high:g}]"
+    return None
+
+
 def check_scale(path: Path, city: str, grid: dict, shape: tuple[int, int], floor: float, step: float, altitude: float) -> None:
     """Refuse (``InputError`` naming ``path`` and the field) a scale.json whose city is not a plain name (it names
     the PNGs: never a path), whose numbers are not finite or out of ``SCALE_BOUNDS``, or whose grid is empty or
@@ -148,12 +175,17 @@ def read_folder(folder: str | Path) -> RadioMapFolder:
     if scale.get("format") != RADIOMAPSEER:
         raise InputError(folder / "scale.json", f"format {scale.get('format')!r}, expected {RADIOMAPSEER}", field="format")
     check_scale(folder / "scale.json", city, grid, shape, floor, step, float(settings["altitude_m"]))
+    problem = settings_problem(settings, required=("altitude_m",))
+    if problem is not None:
+        raise InputError(folder / "scale.json", problem, field="settings")
     files = [folder / "scale.json", folder / "png/buildings_complete" / f"{city}.png", folder / "png/heights" / f"{city}.png"]
     blocked = np.flipud(_image(folder, files[1], shape, np.uint8, GRAY_8)) > 127
     ground = np.flipud(_image(folder, files[2], shape, np.int64, GRAY_16)) / 100.0
     users_csv = check_inside(folder, folder / "users.csv", "the users' table")
     files.append(users_csv)
     rows = list(csv.DictReader(io.StringIO(read_small_file(users_csv, "the users' table").decode("utf-8-sig"))))
+    # each user a receiver row per cell: bounded before a raster of theirs is decoded
+    check_limit("receiver_rows", len(rows) * shape[0] * shape[1], users_csv, "users x grid cells", field="user")
     ids, cells, positions, codes = [], [], [], []
     extent = {  # the grid's x and y ranges [m], which each user's position must lie in
         "x_m": (float(grid["x_min_m"]), float(grid["x_min_m"]) + shape[1] * float(grid["spacing_m"])),
@@ -175,6 +207,11 @@ def read_folder(folder: str | Path) -> RadioMapFolder:
             raise InputError(users_csv, f"user {u} is listed twice", line=k, field="user")
         files.append(folder / "gain" / f"{city}_{u}.png")
         codes.append(np.flipud(_image(folder, files[-1], shape, np.uint8, GRAY_8)))
+        top = floor + (int(codes[-1].max(initial=0)) - 1) * step
+        if top > SINR_MAX_DB:
+            raise InputError(
+                files[-1], f"SINR up to {top:g} dB (floor_db + (pixel - 1) x step_db), over {SINR_MAX_DB:g} dB", field="sinr"
+            )
         ids.append(u)
         cells.append((shape[0] - 1 - r, c))
         positions.append((x, y))

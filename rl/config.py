@@ -23,9 +23,30 @@ DEFAULT_CONSTANTS = shipped("data/agents/searcher/predictor.json")
 DEFAULT_PREDICTOR = shipped("data/agents/searcher/unet")
 
 
+class MeasurementSettings(Contract):
+    """What the UAV reads at a cell (``rl.world.measurement``): the true SINR plus an error, i.i.d. Gaussian in dB
+    of spread ``sigma_db``, and a shadowing field correlated in space (spread ``shadow_sigma_db``, correlation
+    ``exp(-d / shadow_distance_m)``), one field per episode and user. All 0: the paper's exact measurement. Success is
+    judged on the true SINR; only what policies read changes."""
+
+    model_config = ConfigDict(allow_inf_nan=False)
+
+    sigma_db: float = Field(default=0.0, ge=0, le=30, description="Spread of the i.i.d. Gaussian measurement error [dB]")
+    shadow_sigma_db: float = Field(default=0.0, ge=0, le=30, description="Spread of the correlated shadowing [dB]")
+    shadow_distance_m: float = Field(
+        default=20.0, gt=0, le=10_000, description="Distance at which the shadowing's correlation falls to 1/e [m]"
+    )
+
+    @property
+    def exact(self) -> bool:
+        """The paper's measurement: no error at all."""
+        return self.sigma_db == 0 and self.shadow_sigma_db == 0
+
+
 class TaskSettings(Contract):
     """What the settings of every task hold (placement's ``EnvConfig``, ``TrackingConfig``, ``FleetConfig``): the SINR
-    target P_T and the rule that says which cells reach it (``schemas.constants.reaches_target``, its one home). Each
+    target P_T and the rule that says which cells reach it (``schemas.constants.reaches_target``, its one home), and
+    what the UAV reads (``measurement``). Each
     task adds its step budget (placement's and the fleet's ``t_max``; tracking's ``horizon``, a fixed length: its
     episodes do not end at P_T) and its observation."""
 
@@ -35,6 +56,10 @@ class TaskSettings(Contract):
         default=P_T_DB,
         description="SINR target P_T [dB]: placement's episode ends when it is reached, a tracking step is covered and "
         "a fleet's user served at or above it",
+    )
+
+    measurement: MeasurementSettings = Field(
+        default_factory=MeasurementSettings, description="What the UAV reads at a cell: the true SINR plus an error"
     )
 
     def reaches(self, sinr_db: np.ndarray | float, dead: np.ndarray | None = None, legal: np.ndarray | None = None) -> np.ndarray:
@@ -57,6 +82,13 @@ class SearchConfig(Contract):
     )
     buildings: bool = Field(default=True, description="Predict with the city's buildings (False: open ground, the ablation)")
     min_sigma_db: float = Field(default=3.0, gt=0, description="Least spread of the likelihood [dB]")
+    measurement_sigma_db: float = Field(
+        default=0.0,
+        ge=0,
+        le=30,
+        description="The spread of the UAV's measurement error it assumes [dB] (declared, never read from the world): "
+        "added in quadrature to the predictor's in the likelihood of a measurement",
+    )
     outlier: float = Field(
         default=0.1,
         ge=0,

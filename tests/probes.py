@@ -39,6 +39,7 @@ Writes ``OUT/probes.csv`` (one row a probe: family, id, outcome, exit status, se
 from __future__ import annotations
 
 import argparse
+import contextlib
 import gzip
 import hashlib
 import json
@@ -104,12 +105,27 @@ def _cap() -> None:
     resource.setrlimit(resource.RLIMIT_AS, (ADDRESS_CAP, ADDRESS_CAP))
 
 
+#: The probes' commands running now, each the leader of its own session: what a stopped pass kills (``_stop``).
+RUNNING: set[int] = set()
+
+
 def start(args: list[str], cwd: Path) -> subprocess.Popen:
     env = os.environ | {"UAVPLACE_QUIET": "1", "PYTHONWARNINGS": "ignore", "RAY_AUTH_MODE": "disabled"}
     env.pop("UAVPLACE_DEBUG", None)
     command = [sys.executable, *args[1:]] if args[0] == "python" else [*CLI, *args]  # a script, or a command line
-    return subprocess.Popen(command, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
+    proc = subprocess.Popen(command, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
                             preexec_fn=_cap, text=True, errors="replace")  # fmt: skip
+    RUNNING.add(proc.pid)
+    return proc
+
+
+def _stop(signum: int, frame: object) -> None:
+    """A pass stopped (SIGTERM, Ctrl-C) kills the probes' commands it started: in their own sessions, they would
+    otherwise run on (a million training steps writing where the probe pointed them)."""
+    for pid in list(RUNNING):
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(pid, signal.SIGKILL)
+    raise SystemExit(128 + signum)
 
 
 def finish(proc: subprocess.Popen, t0: float, timeout: float) -> Result:
@@ -132,6 +148,7 @@ def finish(proc: subprocess.Popen, t0: float, timeout: float) -> Result:
             peak = usage.ru_maxrss / 1024
             break
         time.sleep(0.05)
+    RUNNING.discard(proc.pid)
     proc.returncode = rc if rc is not None else -9
     for r in readers:
         r.join(timeout=5)
@@ -1238,11 +1255,13 @@ FAMILIES = {"opt": option_probes, "set": set_probes, "raw": raw_probes, "bundle"
 
 
 def all_families() -> dict[str, Callable[[Base], list[Probe]]]:
-    """These families and the fourth round's, a surface each (tests/probes_round4.py, which imports this module's
-    helpers: imported here, when the pass starts, not beside them)."""
+    """These families and the fourth and fifth rounds', a surface each (tests/probes_round4.py and
+    tests/probes_round5.py, which import this module's helpers: imported here, when the pass starts, not beside
+    them)."""
     from tests.probes_round4 import FAMILIES as round4
+    from tests.probes_round5 import FAMILIES as round5
 
-    return FAMILIES | round4
+    return FAMILIES | round4 | round5
 
 
 # -- the pass -----------------------------------------------------------------------------------------------------------
@@ -1269,6 +1288,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{p.family}\t{p.id}")
         print(f"{len(probes)} probes")
         return 0
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(signum, _stop)
     base.make(600)
     suffix = "" if not args.only else "-" + args.only.replace(",", "-").replace(":", "-").replace(" ", "_")
     partial = args.out / f"probes{suffix}.partial.csv"

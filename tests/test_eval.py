@@ -571,6 +571,8 @@ def test_report_search_sets_the_searchers_settings(tiny, tmp_path):
         res = CliRunner().invoke(uavrl, [*args[:-4], "--out", str(tmp_path / "no"), "--search", bad])
         assert res.exit_code == 2 and "--search" in res.output and says in res.output, res.output
         assert not (tmp_path / "no").exists()
+    res = CliRunner().invoke(uavrl, [*args, "--predictor", "none"])  # no searcher plays: nothing to set
+    assert res.exit_code == 2 and "--predictor none leaves every searcher out" in res.output, res.output
     assert task_report("tracking").search(()) == tracking_search()  # each task's own default, changed name by name
     assert task_report("tracking").search(("stride=4",)) == tracking_search().model_copy(update={"stride": 4})
     assert task_report("fleet").search(("fleet_plan=makespan",)).fleet_plan == "makespan"
@@ -580,3 +582,39 @@ def test_report_search_sets_the_searchers_settings(tiny, tmp_path):
     for task, pair, says in refused:  # a setting its searcher does not read would be recorded and not played
         with pytest.raises(click.BadParameter, match=says):
             task_report(task).search((pair,))
+
+
+def test_levers_refuses_a_run_given_twice(tmp_path):
+    """`uavrl levers RUN RUN` (or two runs of one folder name) is refused in one line before anything is played: the
+    table would hold two methods of one name."""
+    for name in ("a", "b"):
+        (tmp_path / name / "r").mkdir(parents=True)
+    res = CliRunner().invoke(uavrl, ["levers", str(tmp_path / "a" / "r"), str(tmp_path / "a" / "r")])
+    assert res.exit_code == 2 and "is given twice" in res.output, res.output
+    res = CliRunner().invoke(uavrl, ["levers", str(tmp_path / "a" / "r"), str(tmp_path / "b" / "r")])
+    assert res.exit_code == 2 and "both named r" in res.output, res.output
+
+
+def test_report_measure_sets_what_every_method_reads(tiny, tmp_path):
+    """``--measure NAME=VALUE`` sets the measurement of every method's env (recorded with the report); a value out of
+    range, a name that is none, or an error in the fleet task (which reads exactly) ends the command before any
+    episode is played."""
+    from uavplace.eval.evaluate import ReportConfig, report_env
+    from uavplace.rl.config import MeasurementSettings
+
+    out = tmp_path / "rep"
+    args = ["report", "--dataset", "tiny", "--root", str(tiny), "--episodes", "4", "--bootstrap", "100", "--out", str(out),
+            "--quiet", "--predictor", "none", "--measure", "sigma_db=4", "--measure", "shadow_sigma_db=2"]  # fmt: skip
+    res = CliRunner().invoke(uavrl, args)
+    assert res.exit_code == 0, res.output
+    config = json.loads((out / "report.json").read_text())["report_config"]
+    want = MeasurementSettings(sigma_db=4, shadow_sigma_db=2)
+    assert config["measurement"] == want.model_dump(mode="json")
+    assert report_env(ReportConfig.model_validate(config)).measurement == want
+    for bad, says in (("sigma_db=-1", "sigma_db"), ("sigma=4", "NAME one of"), ("sigma_db=nan", "sigma_db")):
+        res = CliRunner().invoke(uavrl, [*args[:-4], "--out", str(tmp_path / "no"), "--measure", bad])
+        assert res.exit_code == 2 and "--measure" in res.output and says in res.output, res.output
+        assert not (tmp_path / "no").exists()
+    res = CliRunner().invoke(uavrl, ["report", "--task", "fleet", "--dataset", "tiny", "--root", str(tiny), "--measure",
+                                     "sigma_db=2", "--out", str(tmp_path / "no")])  # fmt: skip
+    assert res.exit_code == 2 and "reads every user's SINR exactly" in res.output, res.output

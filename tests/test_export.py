@@ -89,7 +89,8 @@ def test_a_damaged_radiomapseer_folder_is_refused_naming_the_file(tiny, tmp_path
 def test_a_radiomapseer_folder_is_read_inside_itself_and_its_numbers_checked(tiny, tmp_path):
     """What a RadioMapSeer-style folder names is data: a city that is a path, a raster that is a link out, a palette or
     16-bit gain map (which would be read as indices or cut to a byte), numbers that are not finite or far out of
-    range, a user off the grid: each refused naming the file and field, nothing outside the folder read."""
+    range, settings out of range, a step that would decode SINR past 400 dB, a user off the grid: each refused naming
+    the file and field, nothing outside the folder read."""
     from PIL import Image
 
     outside = tmp_path / "outside"
@@ -122,6 +123,12 @@ def test_a_radiomapseer_folder_is_read_inside_itself_and_its_numbers_checked(tin
         scale[where][field] = value
         (folder / "scale.json").write_text(json.dumps(scale))
         refused(folder, f"scale.json: {field}: .* is not a finite number")
+    for where, field, value, says in (("settings", "frequency_hz", -1.0, r"settings: frequency_hz -1.0: expected a number"),
+                                      ("sinr", "step_db", 10.0, r"tiny_0.png: sinr: SINR up to .* dB .* over 400 dB")):  # fmt: skip
+        folder, scale = fresh()
+        scale[where][field] = value
+        (folder / "scale.json").write_text(json.dumps(scale))
+        refused(folder, says)
     folder, _ = fresh()
     users = (folder / "users.csv").read_text().splitlines()
     head, first = users[0].split(","), users[1].split(",")

@@ -8,6 +8,7 @@ from collections import deque
 import numpy as np
 import pytest
 
+from tests import scramble
 from uavplace.rl.tasks.fleet import FLEET_MOVES, BatchedFleet, FleetCity, FleetConfig, FleetMaps, FleetView, oracle_steps
 from uavplace.rl.world.maps import MOVES
 
@@ -207,44 +208,16 @@ def test_pettingzoo_env_refuses_what_is_not_in_its_spaces(tiny):
             fleet.step(np.array(action))
 
 
-def _scrambled(maps: FleetMaps, city: int, users: np.ndarray, keep: np.ndarray, rng: np.random.Generator) -> FleetMaps:
-    """A copy of ``maps`` whose ``users`` of ``city`` hold random SINR and targets outside ``keep`` [L, L]."""
-    import copy
-
-    out = copy.copy(maps)
-    out.sinr, out.target = maps.sinr.copy(), maps.target.copy()
-    for u in users:
-        out.sinr[city, u][~keep] = rng.uniform(-40, 40, (~keep).sum()).astype(np.float32)
-        out.target[city, u][~keep] = rng.random((~keep).sum()) < 0.3
-    return out
-
-
-def _paths(maps: FleetMaps, policy, episodes: np.ndarray) -> list[np.ndarray]:  # noqa: ANN001
-    """Each episode played alone: the fleet's positions after every step."""
-    from uavplace.rl.tasks.fleet import FleetView
-
-    out = []
-    for e in range(len(episodes)):
-        env = BatchedFleet(maps, 1)
-        env.begin(np.array([0]), episodes[e : e + 1], np.array([e]))
-        policy.reset(np.array([0]), 1, maps.config.uavs)
-        path = [env.pos[0].copy()]
-        while not env.done[0]:
-            env.step(policy.act(env.action_mask(), FleetView.of(env)))
-            path.append(env.pos[0].copy())
-        out.append(np.array(path))
-    return out
-
-
 def _moves_alike_scrambled(maps: FleetMaps, policy, episodes: np.ndarray, paths, rng: np.random.Generator) -> None:  # noqa: ANN001
-    """Each episode's ``paths[e]`` (``_paths``) played again, alone, with its users' maps scrambled off the cells the
-    fleet visited (``_scrambled``): the same path."""
+    """Each episode's ``paths[e]`` (``tests.scramble.fleet_paths``) played again, alone, with its users' maps scrambled
+    off the cells the fleet visited and its users moved (``tests.scramble.fleet``): the same path."""
     for e, path in enumerate(paths):
-        keep = np.zeros(maps.sinr.shape[2:], bool)
-        keep[path[..., 0].ravel(), path[..., 1].ravel()] = True
+        keep = scramble.visited(maps.sinr.shape[2:], path)
         city, users, _ = maps.split(episodes[e : e + 1])
-        other = _scrambled(maps, int(city[0]), users[0], keep, rng)
-        np.testing.assert_array_equal(_paths(other, policy, episodes[e : e + 1])[0], path, err_msg=policy.name)
+        other = scramble.fleet(maps, int(city[0]), users[0], keep, rng)
+        np.testing.assert_array_equal(scramble.fleet_paths(other, policy, episodes[e : e + 1])[0], path, err_msg=policy.name)
+    if hasattr(policy, "bind"):
+        policy.bind(maps)  # the real maps again
 
 
 def test_baselines_read_only_what_the_fleet_measured():
@@ -257,7 +230,7 @@ def test_baselines_read_only_what_the_fleet_measured():
     episodes = maps.episode_list(6, 1)
     rng = np.random.default_rng(0)
     for policy in (FleetRandomWalk(seed=2), FleetGreedy(seed=2)):
-        first = _paths(maps, policy, episodes)
+        first = scramble.fleet_paths(maps, policy, episodes)
         _moves_alike_scrambled(maps, policy, episodes, first, rng)
         table = run_fleet(maps, policy, episodes, num_envs=4)
         alone = [len(p) - 1 for p in first]
@@ -288,7 +261,7 @@ def test_fleet_searcher_serves_the_tiny_city_from_what_it_measured(tiny, plan, p
     assert table["success"].mean() >= 0.8
     alone = [run_fleet(maps, policy, episodes[e : e + 1], num_envs=1)["steps"][0] for e in range(len(episodes))]
     np.testing.assert_array_equal(table["steps"], alone)  # a batch whose rows end one by one plays each as alone
-    _moves_alike_scrambled(maps, policy, episodes, _paths(maps, policy, episodes[:3]), np.random.default_rng(1))
+    _moves_alike_scrambled(maps, policy, episodes, scramble.fleet_paths(maps, policy, episodes[:3]), np.random.default_rng(1))
     with pytest.raises(ValueError, match="bundles"):
         FleetSearcher(predictor).bind(FleetMaps([_city(0)], FleetConfig(window=3)))
 
@@ -429,7 +402,7 @@ def test_independent_agents_deal_users_and_read_only_what_the_fleet_measured(tin
         env.step(np.where(env.action_mask(), rng.random((len(episodes), 2, 5)), -1).argmax(axis=2))
 
     table = run_fleet(maps, policy, episodes, num_envs=3)
-    alone = _paths(maps, policy, episodes)
+    alone = scramble.fleet_paths(maps, policy, episodes)
     won = table["success"].to_numpy()
     assert won.any()
     np.testing.assert_array_equal(table["steps"].to_numpy()[won], np.array([len(p) - 1 for p in alone])[won])
@@ -650,7 +623,7 @@ def test_fleet_agent_trains_resumes_exactly_and_reports(tiny, tmp_path):
     maps = FleetMaps.of([load_bundle("tiny", root=str(tiny))], seeing.config.task.fleet())
     policy = FleetPlacement(agent.policy, agent.config.env_config(evaluation=True), agent.name, prefix="").bind(maps)
     episodes = maps.episode_list(4, 0)
-    _moves_alike_scrambled(maps, policy, episodes, _paths(maps, policy, episodes), np.random.default_rng(3))
+    _moves_alike_scrambled(maps, policy, episodes, scramble.fleet_paths(maps, policy, episodes), np.random.default_rng(3))
 
     # A city it never saw: a synthetic grid city.
     from tests.conftest import write_grid_city
@@ -685,7 +658,36 @@ def test_fleet_searcher_moves_the_same_whatever_the_settings_it_does_not_read(ti
     changed = {"error_share": 0.8, "kriging": "both", "error_range_cells": 3.0, "error_reach": 4, "error_memory": 8,
                "lookahead_targets": 4}  # fmt: skip
     assert set(changed) == set(FleetSearcher.unread_settings)
-    paths = [_paths(maps, FleetSearcher(predictor, c).bind(maps), episodes)
+    paths = [scramble.fleet_paths(maps, FleetSearcher(predictor, c).bind(maps), episodes)
              for c in (SearchConfig(), SearchConfig(**changed), SearchConfig(reach_cells=2.0))]  # fmt: skip
     assert all(np.array_equal(a, b) for a, b in zip(paths[0], paths[1], strict=True))
     assert not all(np.array_equal(a, b) for a, b in zip(paths[0], paths[2], strict=True))
+
+
+def test_planted_cheaters_fail_the_fleet_scramble_test(tiny):
+    """The fleet's scramble test (its users' maps off the fleet's cells, every user of the city moved:
+    tests/scramble.py) catches a policy bound to the maps that reads where the users are or their maps
+    (tests/cheaters.py), as the fleet searcher and the independent agents are bound."""
+    from tests.cheaters import FleetMapPeeker, FleetUserSeeker
+    from uavplace.dataset.bundle import load_bundle
+
+    config = FleetConfig(uavs=2, users=2, window=9, t_max=40)
+    maps = FleetMaps.of([load_bundle("tiny", root=str(tiny))], config)
+    episodes = maps.episode_list(6, 0)
+    rng = np.random.default_rng(4)
+    for cheater in (FleetUserSeeker(), FleetMapPeeker()):
+        paths = scramble.fleet_paths(maps, cheater, episodes)
+        changed = []
+        for e, path in enumerate(paths):
+            city, users, _ = maps.split(episodes[e : e + 1])
+            other = scramble.fleet(maps, int(city[0]), users[0], scramble.visited(maps.sinr.shape[2:], path), rng)
+            again = scramble.fleet_paths(other, cheater, episodes[e : e + 1])[0]
+            changed.append(again.shape != path.shape or not np.array_equal(again, path))
+        assert any(changed), f"{cheater.name} passed the scramble test"
+    env = BatchedFleet(maps, 1)  # a policy that writes its view's public maps writes a copy: the env's are as they were
+    env.begin(np.array([0]), episodes[:1], np.array([0]))
+    blocked, mask, view = maps.blocked.copy(), env.action_mask(), FleetView.of(env)
+    for a in (view.blocked, view.height):
+        a.flags.writeable = True
+        a[...] = 0
+    assert np.array_equal(maps.blocked, blocked) and np.array_equal(mask, env.action_mask())

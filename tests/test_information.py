@@ -2,65 +2,25 @@
 
 Each shipped agent plays episodes of the embedded tiny city; then, episode by episode, the user's
 SINR, dead-cell mask and the genie's distances are scrambled on every cell the agent never
-visited, and the episode is replayed with the same draws. An agent that reads only its own
+visited, the user is moved elsewhere in the users table (tests/scramble.py), and the episode is
+replayed with the same draws. An agent that reads only its own
 measurements moves exactly as before; the genie, which reads the whole map, must change somewhere
 (so that the test can fail).
 """
 
 from __future__ import annotations
 
-import copy
-
 import numpy as np
 import pytest
 
+from tests import scramble
 from tests.conftest import REPO
 from uavplace.eval.evaluate import default_agents, load_agent
 from uavplace.rl.tasks.placement.policies import GeniePolicy
-from uavplace.rl.tasks.placement.rollout import run_episodes
 from uavplace.rl.world.maps import MapSet
 
 EPISODES = 12
 T_MAX = 60
-
-
-def _scrambled(maps: MapSet, view: int, keep: np.ndarray, rng: np.random.Generator) -> MapSet:
-    """A copy of ``maps`` whose ``view`` holds random SINR, dead cells and genie distances outside ``keep`` [L, L]."""
-    out = copy.copy(maps)
-    out.sinr, out.dead, out.steps = maps.sinr.copy(), maps.dead.copy(), maps.steps.copy()
-    hidden = ~keep
-    out.sinr[view][hidden] = rng.uniform(-40, 40, hidden.sum()).astype(out.sinr.dtype)
-    out.dead[view][hidden] = rng.random(hidden.sum()) < 0.3
-    out.steps[view][hidden] = rng.integers(0, 50, hidden.sum())
-    return out
-
-
-def _replay(maps: MapSet, policy, episodes: np.ndarray, rng: np.random.Generator):  # noqa: ANN001, ANN202
-    """(moves played, moves on the scrambled maps) per episode: each episode replayed alone, same number, same draws."""
-    first = run_episodes(maps, policy, episodes, num_envs=4, record=np.arange(len(episodes)))
-    same, changed = [], []
-    for k in range(len(episodes)):
-        path = first.attrs["paths"][k]
-        view = int(episodes[k, 0])
-        keep = np.zeros(maps.sinr.shape[1:], bool)
-        canvas_y, canvas_x = _to_canvas(maps, view, path)
-        keep[canvas_y, canvas_x] = True
-        other = _scrambled(maps, view, keep, rng)
-        # Episode k again, as number k of the same list (the draws are keyed by the episode's number).
-        again = run_episodes(other, policy, episodes, num_envs=4, record=np.array([k]))
-        same.append(np.array_equal(again.attrs["paths"][k], path))
-        changed.append(int(again.steps[k]) != int(first.steps[k]) or not same[-1])
-    return same, changed
-
-
-def _to_canvas(maps: MapSet, view: int, path: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Bundle cells ``path`` [T, 2] as cells of the view's padded canvas (the inverse of ``MapSet.unrotate``)."""
-    views = np.full(maps.sinr.shape[1] * maps.sinr.shape[2], view)
-    yy, xx = np.mgrid[: maps.sinr.shape[1], : maps.sinr.shape[2]]
-    by, bx = maps.unrotate(views, yy.ravel(), xx.ravel())
-    lookup = {(int(a), int(b)): (int(y), int(x)) for a, b, y, x in zip(by, bx, yy.ravel(), xx.ravel(), strict=True)}
-    cells = np.array([lookup[(int(a), int(b))] for a, b in path])
-    return cells[:, 0], cells[:, 1]
 
 
 def test_agents_read_only_what_they_measured(tiny):
@@ -72,13 +32,13 @@ def test_agents_read_only_what_they_measured(tiny):
         env = agent.config.env_config(evaluation=True).model_copy(update={"t_max": T_MAX, "rotate": False, "split": None})
         maps = MapSet.load("tiny", env, root=str(tiny))
         episodes = maps.sample_episodes(EPISODES, np.random.default_rng(1))
-        same, _ = _replay(maps, agent.policy, episodes, rng)
+        same, _ = scramble.replay_placement(maps, agent.policy, episodes, rng)
         assert all(same), f"{folder.name}: moves changed when cells it never visited changed ({same})"
     # The genie on its own draws (not what the agents' replays left of ``rng``) and more episodes: in the tiny city
     # most of its searches are a move or two, and a scramble changes one or two episodes of twelve.
     maps = MapSet.load("tiny", env, root=str(tiny))
     episodes = maps.sample_episodes(4 * EPISODES, np.random.default_rng(1))
-    _, changed = _replay(maps, GeniePolicy(), episodes, np.random.default_rng(2))
+    _, changed = scramble.replay_placement(maps, GeniePolicy(), episodes, np.random.default_rng(2))
     assert any(changed), "the genie reads the whole map: scrambling it must change some episode"
 
 
@@ -104,7 +64,7 @@ def test_report_methods_read_only_what_they_measured(tiny):
     policies.append(MapSearchPolicy(load_predictor(), kriged, name="map searcher, kriging"))
     episodes = maps.episode_list(EPISODES, 1)
     for policy in policies:
-        same, _ = _replay(maps, policy, episodes, np.random.default_rng(3))
+        same, _ = scramble.replay_placement(maps, policy, episodes, np.random.default_rng(3))
         assert all(same), f"{policy.name}: moves changed when cells it never visited changed ({same})"
     from uavplace.rl.tasks.placement.env import BatchedEnv
 
@@ -123,6 +83,7 @@ def test_searcher_reads_only_what_it_measured_on_a_validation_city(tmp_path):
     from uavplace.rl.belief import PredictionCache
     from uavplace.rl.predictor import load_predictor
     from uavplace.rl.tasks.placement.config import EnvConfig
+    from uavplace.rl.tasks.placement.rollout import run_episodes
     from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
     from uavplace.schemas.bundle import BuildConfig
 
@@ -139,8 +100,8 @@ def test_searcher_reads_only_what_it_measured_on_a_validation_city(tmp_path):
         for k in range(len(episodes)):
             path = first.attrs["paths"][k]
             keep = np.zeros(maps.sinr.shape[1:], bool)
-            keep[_to_canvas(maps, int(episodes[k, 0]), path)] = True
-            other = _scrambled(maps, int(episodes[k, 0]), keep, rng)
+            keep[scramble.to_canvas(maps, int(episodes[k, 0]), path)] = True
+            other = scramble.placement(maps, int(episodes[k, 0]), keep, rng)
             again = run_episodes(other, policy, episodes[k : k + 1], num_envs=1, record=np.array([0]))
             out.append(not np.array_equal(again.attrs["paths"][0], path))
         return out
@@ -148,3 +109,28 @@ def test_searcher_reads_only_what_it_measured_on_a_validation_city(tmp_path):
     changed = moved(policy, episodes)
     assert not any(changed), f"moves changed in {sum(changed)} of {len(changed)} episodes"
     assert any(moved(GeniePolicy(), episodes[:40])), "the genie reads the whole map: a scramble must move it somewhere"
+
+
+def test_planted_cheaters_fail_the_scramble_test(tiny):
+    """The scramble test catches a policy that reads where the user is or the user's map where it did not measure
+    (tests/cheaters.py, handed the env as the genie is); unprivileged, the same policies cannot run on the view they
+    receive; and a policy that writes to its view's public maps changes nothing the env reads: the UAV never enters a
+    building, the env's maps are as they were."""
+    from tests.cheaters import PlacementMapPeeker, PlacementUserSeeker, PublicWriter
+    from uavplace.rl.tasks.placement.config import EnvConfig
+    from uavplace.rl.tasks.placement.rollout import run_episodes
+
+    maps = MapSet.load("tiny", EnvConfig(t_max=T_MAX, rotate=False), root=str(tiny))
+    episodes = maps.episode_list(EPISODES, 1)
+    for cheater in (PlacementUserSeeker(), PlacementMapPeeker()):
+        _, changed = scramble.replay_placement(maps, cheater, episodes, np.random.default_rng(5))
+        assert any(changed), f"{cheater.name} passed the scramble test"
+        cheater.privileged = False
+        with pytest.raises(AttributeError):
+            run_episodes(maps, cheater, episodes[:2])
+    blocked, height = maps.blocked.copy(), maps.height.copy()
+    played = run_episodes(maps, PublicWriter(), episodes, record=np.arange(len(episodes)))
+    for k in range(len(episodes)):
+        y, x = scramble.to_canvas(maps, int(episodes[k, 0]), played.attrs["paths"][k])
+        assert not maps.blocked[maps.view_map[int(episodes[k, 0])], y, x].any(), f"episode {k} entered a building"
+    assert np.array_equal(maps.blocked, blocked) and np.array_equal(maps.height, height)

@@ -177,6 +177,7 @@ CLI_SWITCHES = {
         "datasets",
         "groups",
         "markdown",
+        "measure",
         "out",
         "overwrite",
         "quiet",

@@ -142,6 +142,10 @@ def test_the_side_file_round_trips_and_refuses_what_is_not_a_row_of_codes(tmp_pa
             _side_file(f, text.split("\n"), columns)
             with pytest.raises(InputError, match=pattern):
                 read_provenance(f, f.name)
+    f = tmp_path / "runs.provenance.csv.gz"  # an earlier version's run of 9e8 receivers where the export holds 16
+    _side_file(f, ["1,1,2,1,900000000,1"], RUN_COLUMNS)
+    with pytest.raises(InputError, match=r":3: count: a row of 900,000,000 receivers, more than the export holds \(16\)"):
+        read_provenance(f, f.name, receivers=16)
     f = tmp_path / "empty.provenance.csv.gz"
     f.write_bytes(gzip.compress(b"# nothing\n"))
     with pytest.raises(InputError, match="header: no header line"):

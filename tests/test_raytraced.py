@@ -134,7 +134,8 @@ def test_a_searcher_on_the_traced_tier_reads_no_users_map_and_caches_its_maps(ti
     """The map searcher on the ray-traced tier (few rays, the tiny city) moves the same when the user's map is
     scrambled off its route (the tier traced the public map only), and a second searcher with the same settings is
     served the maps from the cache (no ray traced)."""
-    from tests.test_information import EPISODES, T_MAX, _replay
+    from tests import scramble
+    from tests.test_information import EPISODES, T_MAX
     from uavplace.rl.belief import PredictionCache
     from uavplace.rl.config import SearchConfig
     from uavplace.rl.tasks.placement.config import EnvConfig
@@ -147,7 +148,7 @@ def test_a_searcher_on_the_traced_tier_reads_no_users_map_and_caches_its_maps(ti
     predictor.on_batch = lambda done, total: traced.append(done)
     cache = PredictionCache(tmp_path / "cache")
     policy = MapSearchPolicy(predictor, SearchConfig(), cache)
-    same, _ = _replay(maps, policy, maps.episode_list(EPISODES, 1), np.random.default_rng(3))
+    same, _ = scramble.replay_placement(maps, policy, maps.episode_list(EPISODES, 1), np.random.default_rng(3))
     assert all(same), f"moves changed when cells the searcher never visited changed ({same})"
     assert traced and len(list((tmp_path / "cache").glob("*.npz"))) == 1
     traced.clear()

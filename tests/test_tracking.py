@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import shapely
 
+from tests import scramble
 from tests.conftest import REPO, write_grid_city
 from uavplace.dataset.build import build_city
 from uavplace.dataset.bundle import load_bundle
@@ -494,10 +495,9 @@ def test_an_agent_plays_the_same_episodes_on_its_own_observation(root):
 
 def test_tracking_agents_read_only_what_they_measured(root):
     """A tracking agent (a fresh network, and every shipped one) moves exactly as before when the user's maps are
-    scrambled on every cell it never visited, at every route point, replayed with the same draws; the re-planning
+    scrambled on every cell it never visited, at every route point, and the routes moved and renumbered
+    (``tests.scramble.tracking``), replayed with the same draws; the re-planning
     genie, which reads those maps, changes somewhere (so that the test can fail)."""
-    import copy
-
     from uavplace.eval.evaluate import default_agents, load_agent
     from uavplace.rl.agent.dqn import DQNPolicy, make_network
     from uavplace.rl.tasks.tracking import TrackingAgent
@@ -514,20 +514,7 @@ def test_tracking_agents_read_only_what_they_measured(root):
         rng = np.random.default_rng(0)  # the same scrambles whichever agents are shipped
         routes = RouteSet([bundle], task)
         episodes = routes.sample_episodes(10, np.random.default_rng(1))
-        first = run_tracking(routes, policy, episodes, num_envs=5, record=True)
-        same, changed = [], []
-        for k in range(len(episodes)):
-            hidden = np.ones(routes.sinr.shape[1:], bool)
-            hidden[first.path[k, :, 0], first.path[k, :, 1]] = False
-            other = copy.copy(routes)
-            other.sinr, other.dead, other.steps = routes.sinr.copy(), routes.dead.copy(), routes.steps.copy()
-            other.sinr[:, hidden] = rng.uniform(-150, 50, (len(routes.sinr), hidden.sum()))  # the memory's range
-            other.dead[:, hidden] = rng.random((len(routes.sinr), hidden.sum())) < 0.3
-            other.steps[:, hidden] = rng.integers(0, 2, (len(routes.sinr), hidden.sum()))  # 0: a target next door
-            again = run_tracking(other, policy, episodes, num_envs=5, record=True)
-            same.append(np.array_equal(again.path[k], first.path[k]))
-            changed.append(not same[-1] or not np.array_equal(again.covered[k], first.covered[k]))
-        return same, changed
+        return scramble.replay_tracking(routes, policy, episodes, rng)
 
     for agent in agents:
         same, _ = replay(agent, TrackingConfig(horizon=24).observed_as(agent.observation))
@@ -607,9 +594,8 @@ def _walk_constants():  # noqa: ANN202 - a PhysicsConstants
 
 def test_tracking_searcher_reads_only_what_it_measures(root):
     """The tracking searcher (predicted maps, a belief carried through time) moves exactly as before when the user's
-    maps are scrambled off its path at every route point, and covers the user in some steps."""
-    import copy
-
+    maps are scrambled off its path at every route point and the routes moved (``tests.scramble.tracking``), and
+    covers the user in some steps."""
     from uavplace.rl.config import SearchConfig
     from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
     from uavplace.rl.tasks.tracking import TrackingSearchPolicy, fit_motion
@@ -624,14 +610,8 @@ def test_tracking_searcher_reads_only_what_it_measures(root):
     assert first.covered.any()
     rng = np.random.default_rng(0)
     for k in range(len(episodes)):
-        hidden = np.ones(routes.sinr.shape[1:], bool)
-        hidden[first.path[k, :, 0], first.path[k, :, 1]] = False
-        other = copy.copy(routes)
-        other.sinr, other.dead, other.steps = routes.sinr.copy(), routes.dead.copy(), routes.steps.copy()
-        other.sinr[:, hidden] = rng.uniform(-150, 50, (len(routes.sinr), hidden.sum()))
-        other.dead[:, hidden] = rng.random((len(routes.sinr), hidden.sum())) < 0.3
-        other.steps[:, hidden] = rng.integers(0, 2, (len(routes.sinr), hidden.sum()))
-        again = run_tracking(other, policy, episodes[k : k + 1], num_envs=1, record=True)
+        keep = scramble.visited(routes.sinr.shape[1:], first.path[k])
+        again = run_tracking(scramble.tracking(routes, keep, rng), policy, episodes[k : k + 1], num_envs=1, record=True)
         assert np.array_equal(again.path[0], first.path[k]), f"episode {k}: moves changed off its path"
 
 
@@ -691,3 +671,71 @@ def test_tracking_searcher_moves_the_same_whatever_the_settings_it_does_not_read
         paths.append(run_tracking(routes, policy, episodes, num_envs=3, record=True).path)
     np.testing.assert_array_equal(paths[0], paths[1])
     assert not np.array_equal(paths[0], paths[2])  # a setting it reads moves it
+
+
+def test_planted_cheaters_fail_the_tracking_scramble_test(root):
+    """The tracking scramble test (maps off the path, routes moved and renumbered: tests/scramble.py) catches a policy
+    that reads where the user's route goes, where the user is or the user's map now (tests/cheaters.py, handed the
+    env); unprivileged, they cannot run on the ``TrackingView`` they receive, which leads to neither the env nor its
+    routes; a policy that writes its view's public maps never enters a building and leaves the env's maps alone."""
+    from tests.cheaters import PublicWriter, TrackingMapPeeker, TrackingRouteReader, TrackingUserSeeker
+    from uavplace.rl.tasks.tracking import TrackingEnv
+
+    routes = RouteSet([load_bundle("walk", root=root)], TrackingConfig(horizon=24, window=9))
+    episodes = routes.sample_episodes(10, np.random.default_rng(1))
+    for cheater in (TrackingRouteReader(), TrackingUserSeeker(), TrackingMapPeeker()):
+        _, changed = scramble.replay_tracking(routes, cheater, episodes, np.random.default_rng(0))
+        assert any(changed), f"{cheater.name} passed the scramble test"
+        cheater.privileged = False
+        with pytest.raises(AttributeError):
+            run_tracking(routes, cheater, episodes[:2])
+    blocked, height = routes.maps.blocked.copy(), routes.maps.height.copy()
+    played = run_tracking(routes, PublicWriter(), episodes, record=True)
+    canvas = routes.canvas[episodes[:, 0].astype(int)]
+    assert not routes.maps.blocked[canvas[:, None], played.path[:, :, 0], played.path[:, :, 1]].any()
+    assert np.array_equal(routes.maps.blocked, blocked) and np.array_equal(routes.maps.height, height)
+    env = TrackingEnv(routes, 2)
+    env.reset(0)
+    view = env.agent_view()
+    seen, todo = set(), [view]  # everything the view holds, followed through attributes, containers and array bases
+    while todo:
+        obj = todo.pop()
+        if id(obj) in seen or isinstance(obj, (str, bytes, int, float, type)):
+            continue
+        seen.add(id(obj))
+        assert all(obj is not held for held in (env, routes, routes.maps, *routes.bundles)), f"a view reaches {obj!r}"
+        assert not (isinstance(obj, np.ndarray) and np.shares_memory(obj, routes.sinr)), "a view reaches a user's map"
+        if isinstance(obj, np.ndarray):
+            todo += [obj.base] if obj.base is not None else []
+        elif isinstance(obj, dict):
+            todo += list(obj.values())
+        elif isinstance(obj, (list, tuple)):
+            todo += list(obj)
+        elif hasattr(obj, "__dict__"):
+            todo += list(vars(obj).values())
+    assert len(seen) > 10  # the walk went through the view's arrays and public maps
+
+
+def test_a_tracking_uav_reads_with_the_error_and_is_judged_on_the_truth(root):
+    """With a measurement error (``TrackingConfig.measurement``), the UAV's memory holds the reading (true plus an
+    error of about the declared spread at live cells) while coverage is judged on the true SINR: the re-planning
+    genie, which reads the maps, covers the same steps with the error on as without."""
+    from uavplace.rl.config import MeasurementSettings
+    from uavplace.rl.tasks.tracking import TrackingEnv
+
+    noisy = TrackingConfig(horizon=24, window=9, measurement=MeasurementSettings(sigma_db=4.0))
+    exact = RouteSet([load_bundle("walk", root=root)], TrackingConfig(horizon=24, window=9))
+    routes = RouteSet([load_bundle("walk", root=root)], noisy)
+    episodes = routes.sample_episodes(10, np.random.default_rng(1))
+    a, b = (run_tracking(r, ReplanningGenie(), episodes, record=True) for r in (exact, routes))
+    np.testing.assert_array_equal(a.covered, b.covered)
+    env = TrackingEnv(routes, 64)
+    env.reset(0)
+    errors = []
+    for _ in range(20):
+        y, x, point = env.pos[:, 0], env.pos[:, 1], env.point()
+        live = ~routes.dead[point, y, x]
+        errors.append((env.memory[np.arange(64), y, x] - routes.sinr[point, y, x])[live])
+        env.step(np.full(64, 4))
+    error = np.concatenate(errors)
+    assert len(error) > 300 and 3.5 < error.std() < 4.5

@@ -5,6 +5,7 @@ and refuses a validation city it trains on."""
 from __future__ import annotations
 
 import io
+import json
 import zipfile
 
 import numpy as np
@@ -143,6 +144,16 @@ def test_pack_cli_and_train_predictor_on_packs(tiny, tmp_path):
     assert np.abs(packed.sinr_db - source.sinr_db)[~source.dead].max() <= STEP_DB / 2 + 1e-6
     again = CliRunner().invoke(uavdata, ["pack", "tiny", "--root", str(tiny), "--out", str(out)])
     assert again.exit_code == 0 and "packed already" in again.output
+    whole = (out / "tiny.npz").read_bytes()
+    with np.load(out / "tiny.npz", allow_pickle=False) as z:  # its meta edited, its arrays and their sha256 kept
+        members = {k: z[k] for k in z.files}
+    meta = json.loads(members["meta"].tobytes())
+    meta["simulation"] = {"edited": True}
+    members["meta"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
+    np.savez(out / "tiny.npz", **members)
+    read_pack(out / "tiny.npz")  # still a readable pack: only packing it again can tell
+    third = CliRunner().invoke(uavdata, ["pack", "tiny", "--root", str(tiny), "--out", str(out)])
+    assert third.exit_code == 0 and "packed already" not in third.output and (out / "tiny.npz").read_bytes() == whole
     constants = tmp_path / "predictor.json"
     from tests.test_learned import _constants
 
@@ -198,6 +209,9 @@ def test_packs_and_records_are_read_from_their_folders_only(tiny, tmp_path):
     packs.mkdir()
     write_pack(packs / "tiny.npz", TrainingMaps.of_bundle(load_bundle("tiny", root=tiny)))
     assert select_packs([packs, packs]) == [packs / "tiny.npz"]
+    from uavplace.rl.predictor.learned import training_maps
+
+    assert len(training_maps([], [], (packs, packs, tmp_path / "." / "packs"))) == 1  # what train-predictor reads
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     (packs / "tiny.npz").rename(elsewhere / "tiny.npz")

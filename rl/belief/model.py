@@ -154,8 +154,15 @@ class BeliefModel:
 
     @property
     def sigma(self) -> float:
-        """The likelihood's spread [dB]: the predictor's measured error, at least ``min_sigma_db``."""
+        """The predicted map's spread [dB]: the predictor's measured error, at least ``min_sigma_db``."""
         return max(self.predictor.error_db, self.config.min_sigma_db)
+
+    @property
+    def read_sigma(self) -> float:
+        """The spread of a measurement about the predicted map [dB]: ``sigma`` and the declared measurement error
+        (``SearchConfig.measurement_sigma_db``) in quadrature; ``sigma`` itself when that is 0."""
+        noise = self.config.measurement_sigma_db
+        return self.sigma if noise == 0 else math.hypot(self.sigma, noise)
 
     def cover(self, mu: np.ndarray, p_dead: np.ndarray, p_t_db: float) -> np.ndarray:
         """The probability that a predicted map ``mu`` [dB] with dead-cell probability ``p_dead`` reaches ``p_t_db``."""
@@ -176,7 +183,7 @@ class BeliefModel:
         mu = maps.mu[:, columns].astype(np.float64)[:, :, None]
         p_dead = maps.p_dead[:, columns].astype(np.float64)[:, :, None]
         edges = self.bin_edges(floor_db, p_t_db)
-        cdf = ndtr((np.concatenate([[floor_db], edges]) - mu) / self.sigma)  # [C, K, J]
+        cdf = ndtr((np.concatenate([[floor_db], edges]) - mu) / self.read_sigma)  # [C, K, J]
         live = np.diff(np.concatenate([cdf, np.ones_like(cdf[..., :1])], axis=-1), axis=-1)
         probs = np.concatenate([p_dead + (1 - p_dead) * cdf[..., :1], (1 - p_dead) * live], axis=-1)
         return (1 - cfg.outlier) * probs + cfg.outlier / probs.shape[-1]
@@ -213,7 +220,7 @@ class BeliefModel:
         """``Phi^-1(p_dead + (1 - p_dead) Phi((level - mu) / sigma))``: the standard normal value at the predicted
         probability of a value at or below ``level`` [dB], dead the lowest (clipped to 1e-6 from 0 and 1)."""
         mu, p_dead = mu.astype(np.float64), p_dead.astype(np.float64)
-        return ndtri(np.clip(p_dead + (1 - p_dead) * ndtr((level - mu) / self.sigma), 1e-6, 1 - 1e-6))
+        return ndtri(np.clip(p_dead + (1 - p_dead) * ndtr((level - mu) / self.read_sigma), 1e-6, 1 - 1e-6))
 
     def kriging(self, legal: np.ndarray, columns: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The simple-kriging weights ``[V, K]`` of the error latents at legal cells ``columns`` [V] (distinct) for the
@@ -290,7 +297,7 @@ class BeliefModel:
         floor ``Phi((Phi^-1(F(floor)) - mean) / spread)``; a share ``outlier`` flat, the power ``temper``, as
         ``update_rows``. ``latents`` [C, V]: the ``error_latent`` of the last ``error_memory`` of ``before``, where the
         caller holds them."""
-        cfg, sigma, eps = self.config, self.sigma, self.config.outlier
+        cfg, sigma, eps = self.config, self.read_sigma, self.config.outlier
         columns = np.fromiter(before, np.int64)[-cfg.error_memory :]
         values = np.fromiter(before.values(), np.float64)[-cfg.error_memory :]
         weights, spread = self.kriging(maps.legal, columns, np.array([column]))
@@ -314,7 +321,7 @@ class BeliefModel:
     ) -> np.ndarray:
         """``log_b`` [R, C] after row ``i`` measured ``measured[i]`` [dB] at legal cell ``columns[i]``: ``update`` of
         each row, the same numbers, the rows at once."""
-        sigma = self.sigma
+        sigma = self.read_sigma
         eps = self.config.outlier
         mu, p_dead = maps.mu[:, columns].T, maps.p_dead[:, columns].T  # [R, C]
         like = np.empty(mu.shape, np.float32)

@@ -232,12 +232,12 @@ def training_maps(
 ) -> list[TrainingMaps]:
     """The maps a predictor trains on: ``users`` of each of ``bundles``, then the packs of each folder of packs whose
     city matches one of ``patterns`` (``select_packs``; every pack without one), or one RadioMapSeer-style city folder
-    (`uavdata export`: it has a ``scale.json``)."""
+    (`uavdata export`: it has a ``scale.json``); a folder or pack given twice is read once."""
     maps = [TrainingMaps.of_bundle(b, u) for b, u in zip(bundles, users, strict=True)]
-    for folder in folders:
-        is_radiomapseer = (folder / "scale.json").is_file()
-        maps += [read_radiomapseer(folder)] if is_radiomapseer else [read_pack(p) for p in select_packs([folder], patterns)]
-    return maps
+    folders = tuple({Path(f).resolve(): Path(f) for f in folders}.values())  # a folder given twice is read once
+    exported = [f for f in folders if (f / "scale.json").is_file()]
+    maps += [read_radiomapseer(f) for f in exported]
+    return maps + [read_pack(p) for p in select_packs([f for f in folders if f not in exported], patterns)]
 
 
 def training_examples(maps: list[TrainingMaps], constants: PhysicsConstants) -> list[tuple]:

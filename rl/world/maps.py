@@ -111,6 +111,10 @@ class MapSet:
                 self.dead[v, p : p + ny, p : p + nx] = transform(b.dead[sc.user], k)
                 self.steps[v, p : p + ny, p : p + nx] = transform(steps, k)
         self.view_map = np.repeat(S * np.array([sc.bundle for sc in scenarios]), S) + np.tile(np.arange(S), len(scenarios))
+        #: [num_views] each view's user (its number in its bundle) and its bundle's grid spacing [m]: what the world
+        #: draws a measurement's error by (``rl.world.measurement``), never a policy
+        self.view_user = np.repeat(np.array([sc.user for sc in scenarios], np.int64), S)
+        self.view_spacing_m = np.repeat(np.array([bundles[sc.bundle].spacing_m for sc in scenarios], np.float64), S)
         blocked_v = self.blocked[self.view_map]
         self.context_pad = config.window // 2
         self.memory0, context_height, context_memory0 = self._start_channels(self.blocked)
@@ -145,6 +149,13 @@ class MapSet:
         self.memory0[...] = memory0  # in place: an env made from these maps holds views of them
         if self.config.context_zoom:
             self.context_height[...], self.context_memory0[...] = context_height, context_memory0
+
+    def forget_users(self) -> MapSet:
+        """Blank every user's map (SINR at P_L, every cell dead, no target reachable), in place, and return the maps:
+        for an env that only keeps an agent's channels from another task's measurements (the tracking and fleet tasks
+        running a placement agent), whose maps must hold nothing of a user."""
+        self.sinr[...], self.dead[...], self.steps[...] = self.config.p_l_db, True, UNREACHABLE
+        return self
 
     def _paint_buildings(self, i: int, height: np.ndarray, blocked: np.ndarray, into_blocked: np.ndarray) -> None:
         """Bundle ``i``'s canvases under every symmetry: ``height`` (clipped) into ``self.height``, ``blocked`` into

@@ -43,14 +43,14 @@ class PublicMaps:
         """The public maps of ``maps``: read-only copies, never the env's own arrays (a policy that writes to them,
         or makes them writable again, changes nothing the env reads: not the legal moves, not the maps)."""
         return cls(
-            height=_sealed(maps.height),
-            blocked=_sealed(maps.blocked),
-            shapes=_sealed(maps.shapes),
+            height=sealed(maps.height),
+            blocked=sealed(maps.blocked),
+            shapes=sealed(maps.shapes),
             pad=maps.pad,
             symmetries=maps.symmetries,
             config=maps.config,
             settings=tuple(public_settings(b) for b in maps.bundles),
-            bundle_heights=tuple(_sealed(b.height_rel_m) for b in maps.bundles),
+            bundle_heights=tuple(sealed(b.height_rel_m) for b in maps.bundles),
         )
 
     def bundle_of(self, canvas: int) -> int:
@@ -72,7 +72,7 @@ class PublicMaps:
 
 class AgentView:
     """The rows of a ``BatchedEnv`` as their UAVs know them at one step (see the module's docstring): made anew for
-    every ``act``. Its arrays are read-only views, canvas cells ``(y, x)``:
+    every ``act``. Its arrays are read-only (copies, but the measurements: views of the env's), canvas cells ``(y, x)``:
 
     - ``pos`` [N, 2] the UAVs' cells; ``t`` [N] moves made in each episode;
     - ``memory`` [N, L, L] the SINR measured at visited cells (``P_H`` elsewhere, ``P_L`` at known blocked cells);
@@ -84,12 +84,13 @@ class AgentView:
     def __init__(self, env: object, public: PublicMaps) -> None:
         self.public = public
         self.config: CanvasSettings = public.config
-        self.pos, self.t = _frozen(env.pos), _frozen(env.t)
-        self.memory, self.visits = _frozen(env.memory), _frozen(env.visits)
-        self.exhausted = _frozen(env.exhausted)
+        # Where the UAVs are and when: copies (a policy that writes them moves no UAV); the measurements: read-only
+        # views (large; what a policy writes through them is only what it measured).
+        self.pos, self.t, self.exhausted = sealed(env.pos), sealed(env.t), sealed(env.exhausted)
+        self.memory, self.visits = frozen(env.memory), frozen(env.visits)
         # Values, not the env's methods: nothing here leads back to the env (a bound method would, by __self__).
-        self.canvas = _frozen(env.maps.view_map[env.view])
-        self._keys = _frozen(env.episode_keys())
+        self.canvas = sealed(env.maps.view_map[env.view])
+        self._keys = sealed(env.episode_keys())
 
     @property
     def num_envs(self) -> int:
@@ -105,7 +106,7 @@ class AgentView:
 
     def neighbours(self) -> tuple[np.ndarray, np.ndarray]:
         """Canvas ``(y, x)`` of the 4 cells the actions lead to, each ``[N, 4]``."""
-        return self.pos[:, None, 0] + MOVES[None, :, 0], self.pos[:, None, 1] + MOVES[None, :, 1]
+        return neighbour_cells(self.pos)
 
     def neighbour_visits(self) -> np.ndarray:
         """``[N, 4]``: how often this episode has stood in the cell each move leads to."""
@@ -113,14 +114,20 @@ class AgentView:
         return self.visits[np.arange(self.num_envs)[:, None], ny, nx]
 
 
-def _sealed(a: np.ndarray) -> np.ndarray:
+def neighbour_cells(pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Canvas ``(y, x)`` of the 4 cells the moves (``MOVES``) lead to from ``pos`` [N, 2], each ``[N, 4]``."""
+    return pos[:, None, 0] + MOVES[None, :, 0], pos[:, None, 1] + MOVES[None, :, 1]
+
+
+def sealed(a: np.ndarray) -> np.ndarray:
     """A read-only copy of ``a``."""
     c = np.array(a, copy=True)
     c.flags.writeable = False
     return c
 
 
-def _frozen(a: np.ndarray) -> np.ndarray:
+def frozen(a: np.ndarray) -> np.ndarray:
+    """A read-only view of ``a`` (the env's own array, seen as it changes; a policy cannot write through it)."""
     v = a.view()
     v.flags.writeable = False
     return v
@@ -128,10 +135,11 @@ def _frozen(a: np.ndarray) -> np.ndarray:
 
 def view_for(policy: object, env: object) -> object:
     """What ``policy`` receives as ``env`` in ``act``: the env itself for a privileged policy (the genie, the oracles:
-    ``privileged = True``), else an ``AgentView`` of it."""
+    ``privileged = True``), else the env's view of what its UAVs know (``env.agent_view()``: an ``AgentView`` of a
+    placement env, a ``TrackingView`` of a tracking env)."""
     if getattr(policy, "privileged", False):
         return env
-    return AgentView(env, public_maps(env))
+    return env.agent_view()
 
 
 def public_maps(env: object) -> PublicMaps:

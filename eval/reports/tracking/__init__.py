@@ -29,7 +29,7 @@ def play(request: ReportRequest, after: contextlib.ExitStack) -> None:
     config = TrackingReportConfig(
         datasets=list(request.datasets),
         hold=request.hold,
-        task=TrackingConfig(horizon=horizon, p_t_db=request.p_t_db),
+        task=TrackingConfig(horizon=horizon, p_t_db=request.p_t_db, measurement=request.measurement),
         trajectories=request.trajectories,
         **request.shared_settings(runs),
     )

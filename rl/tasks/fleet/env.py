@@ -8,6 +8,7 @@ import numpy as np
 
 from uavplace.rl.tasks.fleet.config import FLEET_MOVES, STAY, FleetConfig
 from uavplace.rl.tasks.fleet.maps import FleetMaps
+from uavplace.rl.world.view import frozen, sealed
 
 
 class BatchedFleet:
@@ -17,6 +18,11 @@ class BatchedFleet:
 
     def __init__(self, maps: FleetMaps, num_envs: int) -> None:
         cfg = maps.config
+        if not cfg.measurement.exact:
+            raise ValueError(
+                "the fleet task reads every user's SINR exactly (its maps keep no dead cells to leave unread): "
+                "measurement errors are played in the placement and tracking tasks"
+            )
         self.maps, self.config, self.num_envs = maps, cfg, num_envs
         n, L, K, N = num_envs, maps.side, cfg.uavs, cfg.users
         self.city = np.zeros(n, np.int64)
@@ -161,8 +167,11 @@ class FleetView:
 
     @classmethod
     def of(cls, env: BatchedFleet) -> FleetView:
-        arrays = (env.pos, env.t, env.memory, env.visits, env.keys, env.city, env.maps.height, env.maps.blocked, env.done)
-        *frozen, done = [a.view() for a in arrays]
-        for a in (*frozen, done):
-            a.flags.writeable = False
-        return cls(*frozen, config=env.config, done=done)
+        """The view of ``env`` now: read-only copies of where its UAVs are and when (a policy that writes them moves
+        no UAV), read-only views of the fleet's measurements, and the public maps as read-only copies made once per
+        ``FleetMaps`` (a policy that makes them writable again changes nothing the env reads)."""
+        kept = getattr(env, "_public", None)
+        if kept is None or kept[0] is not env.maps:
+            env._public = kept = (env.maps, sealed(env.maps.height), sealed(env.maps.blocked))
+        pos, t, keys, city, done = (sealed(a) for a in (env.pos, env.t, env.keys, env.city, env.done))
+        return cls(pos, t, frozen(env.memory), frozen(env.visits), keys, city, *kept[1:], config=env.config, done=done)

@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from uavplace.dataset.difficulty import UNREACHABLE
 from uavplace.rl.randomness import combine, stream_key, uniforms
 from uavplace.rl.tasks.fleet.config import FLEET_MOVES, STAY
 from uavplace.rl.tasks.fleet.env import FleetView
 from uavplace.rl.tasks.fleet.maps import FleetMaps
 from uavplace.rl.tasks.placement.config import EnvConfig
 from uavplace.rl.tasks.placement.env import BatchedEnv
+from uavplace.rl.world.view import view_for
 
 
 class FleetRandomWalk:
@@ -167,10 +167,9 @@ class FleetPlacement:
 
         if maps.bundles is None:
             raise ValueError("independent placement agents read the bundles: FleetMaps.of(bundles, config)")
-        self.maps, self.placement = maps, MapSet(maps.bundles, self.env_config)
         # no user's map: what the agents see comes from the fleet's measurements alone
-        self.placement.sinr[...], self.placement.dead[...] = self.env_config.p_l_db, True
-        self.placement.steps[...] = UNREACHABLE
+        self.maps, self.placement = maps, MapSet(maps.bundles, self.env_config).forget_users()
+        self.mirror = None  # made anew on these maps at the next reset
         # per city, the view of its identity symmetry; the placement canvas's cell of the fleet canvas's cell 0
         self.views = np.array(
             [np.flatnonzero(self.placement.view_map == self.placement.symmetries * b)[0] for b in range(len(maps.cities))]
@@ -232,7 +231,7 @@ class FleetPlacement:
     def act(self, mask: np.ndarray, view: FleetView) -> np.ndarray:
         obs, moves, idle = self.dealt(mask, view)
         e, k = mask.shape[:2]
-        actions = self.policy.act(obs, moves, self.mirror).reshape(e, k)
+        actions = self.policy.act(obs, moves, view_for(self.policy, self.mirror)).reshape(e, k)
         return np.where(idle, STAY, actions)
 
     def dealt(self, mask: np.ndarray, view: FleetView) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

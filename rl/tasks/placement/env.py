@@ -33,7 +33,9 @@ import numpy as np
 from uavplace.rl.randomness import combine
 from uavplace.rl.tasks.placement.config import EnvConfig
 from uavplace.rl.world.maps import MOVES, MapSet
+from uavplace.rl.world.measurement import read
 from uavplace.rl.world.rows import EpisodeRows, encode_obs, refuse_bad_rows
+from uavplace.rl.world.view import AgentView, public_maps
 
 
 class BatchedEnv(EpisodeRows):
@@ -138,7 +140,20 @@ class BatchedEnv(EpisodeRows):
     def _start(self, idx: np.ndarray) -> None:
         specs, ids = self._next_specs(len(idx))
         view, y, x = specs.T
-        self.begin(idx, view, y, x, self.maps.sinr[view, y, x], ids)
+        p = self.maps.pad
+        first = self._read(view, y - p, x - p, y, x, np.zeros(len(idx), np.int64))
+        self.begin(idx, view, y, x, first, ids)
+
+    def _read(self, view: np.ndarray, sy: np.ndarray, sx: np.ndarray, y: np.ndarray, x: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """What the UAVs of episodes (``view``, start map cell ``(sy, sx)``) read at canvas cells ``(y, x)`` at step
+        ``t``: the true SINR plus the measurement error (``rl.world.measurement``; the true SINR when exact)."""
+        true = self.maps.sinr[view, y, x]
+        cfg = self.config.measurement
+        if cfg.exact:
+            return true
+        p, spacing = self.maps.pad, self.maps.view_spacing_m[view]
+        keys = combine(self._keys_of(view, sy, sx), self.maps.view_user[view])  # the world's: its user too
+        return read(cfg, true, self.maps.dead[view, y, x], keys, t, (x - p) * spacing, (y - p) * spacing)
 
     def begin(self, idx: np.ndarray, view: np.ndarray, y: np.ndarray, x: np.ndarray, first: np.ndarray, ids: np.ndarray) -> None:
         """Start episodes ``ids`` in rows ``idx``: views ``view``, the UAV at canvas cells ``(y, x)``, which measure
@@ -202,13 +217,20 @@ class BatchedEnv(EpisodeRows):
         # Blocked and off-map cells hold UNREACHABLE, never below a reachable cell's distance: no legality mask needed.
         return self.maps.steps[self.view[:, None], ny, nx] < self.genie_steps()[:, None]
 
+    def agent_view(self) -> AgentView:
+        """What the rows' UAVs know now (``rl.world.view``): what a policy other than the genie receives."""
+        return AgentView(self, public_maps(self))
+
     def episode_keys(self) -> np.ndarray:
         """[N] uint64: each row's episode, as ``rl.randomness`` keys it: by what the UAV knows of it, the public map
         of its canvas (``MapSet.canvas_keys``: the city's grid and buildings under a symmetry) and its start cell,
         never by its user, the bundle's version or its place in a list. An episode plays the same in any list and at
         any batch size; episodes of one canvas and start draw alike whoever the user is (nothing names the user)."""
-        canvas = self.maps.canvas_keys[self.maps.view_map[self.view]]
-        return combine(canvas, self.start[:, 0] * self.maps.side + self.start[:, 1])
+        return self._keys_of(self.view, self.start[:, 0], self.start[:, 1])
+
+    def _keys_of(self, view: np.ndarray, sy: np.ndarray, sx: np.ndarray) -> np.ndarray:
+        """The keys of episodes of views ``view`` started at map cells ``(sy, sx)`` (``episode_keys``)."""
+        return combine(self.maps.canvas_keys[self.maps.view_map[view]], sy * self.maps.side + sx)
 
     def info(self) -> dict:
         return {"action_mask": self.action_mask(), "episode_id": self.episode_id.copy(), "view": self.view.copy()}
@@ -288,7 +310,8 @@ class BatchedEnv(EpisodeRows):
         self.pos = np.where(legal[:, None], target, self.pos)
         y, x = self.pos[:, 0], self.pos[:, 1]
         new = self.maps.sinr[view, y, x]
-        before = self.measure(rows, new)  # earlier visits of the cell it now stands in
+        reading = self._read(view, self.start[:, 0], self.start[:, 1], y, x, self.t + 1)  # what the UAV reads there
+        before = self.measure(rows, reading)  # earlier visits of the cell it now stands in
         fresh = before == 0
         self.t += 1
         terminated = cfg.reaches(new)

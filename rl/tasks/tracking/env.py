@@ -1,13 +1,15 @@
-"""The tracking task stepped in numpy (``TrackingEnv``)."""
+"""The tracking task stepped in numpy (``TrackingEnv``), and what its UAVs know of it (``TrackingView``)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from uavplace.rl.randomness import combine
-from uavplace.rl.tasks.tracking.config import TRACK_MOVES
+from uavplace.rl.tasks.tracking.config import TRACK_MOVES, TrackingConfig
 from uavplace.rl.tasks.tracking.maps import RouteSet
+from uavplace.rl.world.measurement import read
 from uavplace.rl.world.rows import EpisodeRows, encode_obs, refuse_bad_rows
+from uavplace.rl.world.view import PublicMaps, frozen, neighbour_cells, public_maps, sealed
 
 
 class TrackingEnv(EpisodeRows):
@@ -72,9 +74,19 @@ class TrackingEnv(EpisodeRows):
         self._measure(idx)
 
     def _measure(self, idx: np.ndarray) -> np.ndarray:
+        """Rows ``idx`` measure where they stand: their memory takes what the UAV reads (``rl.world.measurement``);
+        returns the true SINR, which covers the user or not."""
         y, x = self.pos[idx, 0], self.pos[idx, 1]
-        sinr = self.routes.sinr[self.routes.point(self.route[idx], self.start_s[idx], self.t[idx]), y, x]
-        self.memory[idx, y, x] = sinr
+        point = self.routes.point(self.route[idx], self.start_s[idx], self.t[idx])
+        sinr = self.routes.sinr[point, y, x]
+        reading = sinr
+        if not self.config.measurement.exact:
+            p, route = self.maps.pad, self.route[idx]
+            spacing = self.routes.step_s[route] * self.config.uav_speed_mps
+            keys = combine(combine(self.routes.route_keys[route], self.episode_id[idx]), route)  # the world's: its route too
+            dead = self.routes.dead[point, y, x]
+            reading = read(self.config.measurement, sinr, dead, keys, self.t[idx], (x - p) * spacing, (y - p) * spacing)
+        self.memory[idx, y, x] = reading
         self.seen_at[idx, y, x] = self.t[idx] * self.routes.step_s[self.route[idx]]
         return sinr
 
@@ -117,8 +129,13 @@ class TrackingEnv(EpisodeRows):
         return np.c_[~self.maps.blocked[self.canvas()[:, None], ny, nx], np.ones(self.num_envs, bool)]
 
     def episode_keys(self) -> np.ndarray:
-        """[N] uint64 keys of each row's episode for per-episode random draws (``rl.randomness``)."""
+        """[N] uint64 keys of each row's episode for per-episode random draws (``rl.randomness``): its canvas's public
+        map (``RouteSet.route_keys``, the same for every route of a canvas) and its number in the played list."""
         return combine(self.routes.route_keys[self.route], self.episode_id)
+
+    def agent_view(self) -> TrackingView:
+        """What the rows' UAVs know now: what a policy other than the re-planning genie and the oracle receives."""
+        return TrackingView(self)
 
     def observe(self) -> np.ndarray:
         cfg, rows = self.config, self._rows
@@ -159,3 +176,43 @@ class TrackingEnv(EpisodeRows):
             self._start(ended)
         info["action_mask"] = self.action_mask()
         return self.observe(), reward, np.zeros(self.num_envs, bool), truncated, info
+
+
+class TrackingView:
+    """The rows of a ``TrackingEnv`` as their UAVs know them at one step, made anew for every ``act``: what a tracking
+    policy other than the re-planning genie and the oracle reads. Its arrays are read-only (copies, but the
+    measurements: views of the env's), canvas cells ``(y, x)``:
+
+    - ``pos`` [N, 2] the UAVs' cells; ``t`` [N] steps made in each episode (0: an episode begins);
+    - ``memory`` [N, L, L] the SINR last measured at each cell (P_H unvisited, P_L at known blocked cells);
+      ``seen_at`` [N, L, L] when [s] (-inf never); ``exhausted`` [N] rows with no episode left to play;
+    - ``canvas`` [N] the canvas each row flies over (``public``, ``rl.world.view.PublicMaps``: a city under a
+      symmetry, not a route or a user), ``config`` the task's settings.
+
+    No route, no route point, no user's map: nothing in it leads back to the env (values, not its methods) or to
+    the ``RouteSet``."""
+
+    def __init__(self, env: TrackingEnv) -> None:
+        self.public: PublicMaps = public_maps(env)
+        self.config: TrackingConfig = env.config
+        # copies where the UAVs are and when (a policy that writes them moves no UAV); views of its measurements
+        self.pos, self.t, self.exhausted = sealed(env.pos), sealed(env.t), sealed(env.exhausted)
+        self.memory, self.seen_at = frozen(env.memory), frozen(env.seen_at)
+        self.canvas = sealed(env.canvas())
+        self._keys = sealed(env.episode_keys())
+
+    @property
+    def num_envs(self) -> int:
+        return len(self.pos)
+
+    def measured(self) -> np.ndarray:
+        """[N] the SINR each UAV measured where it stands now [dB]."""
+        return self.memory[np.arange(self.num_envs), self.pos[:, 0], self.pos[:, 1]]
+
+    def episode_keys(self) -> np.ndarray:
+        """[N] uint64: the keys of the rows' episodes for per-episode draws (``rl.randomness``)."""
+        return self._keys
+
+    def neighbours(self) -> tuple[np.ndarray, np.ndarray]:
+        """Canvas ``(y, x)`` of the 4 cells the moves lead to, each ``[N, 4]``."""
+        return neighbour_cells(self.pos)

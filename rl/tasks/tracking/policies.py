@@ -1,4 +1,7 @@
-"""The tracking task's policies: placement policies in it, holding, its agent, the re-planning genie and the oracle."""
+"""The tracking task's policies: placement policies in it, holding, its agent, the re-planning genie and the oracle.
+
+The re-planning genie and the oracle (``privileged``) receive the ``TrackingEnv`` itself; every other policy receives a
+``TrackingView`` (``rl.world.view.view_for``): its UAVs' positions, steps and measurements, and the public maps."""
 
 from __future__ import annotations
 
@@ -6,9 +9,10 @@ import numpy as np
 
 from uavplace.rl.tasks.placement.config import EnvConfig
 from uavplace.rl.tasks.tracking.config import ACTION_OF, STAY, TrackingConfig
-from uavplace.rl.tasks.tracking.env import TrackingEnv
-from uavplace.rl.tasks.tracking.maps import oracle_path
+from uavplace.rl.tasks.tracking.env import TrackingEnv, TrackingView
+from uavplace.rl.tasks.tracking.maps import RouteSet, oracle_path
 from uavplace.rl.world.maps import MapSet
+from uavplace.rl.world.view import view_for
 
 
 class MovesOnly:
@@ -21,7 +25,7 @@ class MovesOnly:
     def reset(self, rows: np.ndarray, num_envs: int) -> None:
         self.policy.reset(rows, num_envs)
 
-    def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingEnv) -> np.ndarray:
+    def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingView) -> np.ndarray:
         return self.policy.act(obs, mask[:, :4], env)
 
 
@@ -37,7 +41,7 @@ class Holding:
     def reset(self, rows: np.ndarray, num_envs: int) -> None:
         self.policy.reset(rows, num_envs)
 
-    def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingEnv) -> np.ndarray:
+    def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingView) -> np.ndarray:
         action = self.policy.act(obs, mask, env)
         centre = env.config.window // 2
         return np.where(env.config.reaches(obs[:, -1, centre, centre]), STAY, action)
@@ -45,51 +49,61 @@ class Holding:
 
 class PlacementInTracking:
     """A placement policy that reads placement observations (a trained placement agent, run unchanged) acting in the
-    tracking env. A placement env over the same cities (``BatchedEnv``, built for the agent's own ``EnvConfig``) keeps
-    the agent's channels (SINR memory, visited cells, homing cone, context) from the tracking env's positions and
-    measurements, as if the user's map were the placement episode's; the agent sees its observations, moves by its
-    own rule (never stays) and keeps acting after it first reaches P_T."""
+    tracking env. A placement env over the same cities (``BatchedEnv``, built for the agent's own ``EnvConfig``, its
+    users' maps blanked: ``MapSet.forget_users``) keeps the agent's channels (SINR memory, visited cells, homing cone,
+    context) from the UAVs' positions and measurements (``TrackingView``), as if the user's map were the placement
+    episode's; the agent sees its observations and that env's ``AgentView``, moves by its own rule (never stays) and
+    keeps acting after it first reaches P_T. ``bind`` (``run_tracking`` calls it) lays it on the routes' cities."""
 
     def __init__(self, policy, env: EnvConfig, name: str | None = None) -> None:  # noqa: ANN001 - a placement Policy
         self.policy, self.name = policy, name or policy.name
         self.env_config = env.model_copy(update={"rotate": False, "city_weights": {}, "split": None})
         self.mirror = None
-        self.key: tuple = ()
+        self.placement: MapSet | None = None
+        self.bound: tuple = ()
+
+    def bind(self, routes: RouteSet) -> PlacementInTracking:
+        """Play on ``routes``' cities (as they are: a placement agent is not rotated): a placement canvas per city,
+        with no user's map."""
+        if routes.turns != 1:
+            raise ValueError("a placement agent plays the routes as they are: a RouteSet without rotate")
+        if self.bound != (id(routes),):
+            self.placement, self.bound, self.mirror = MapSet(routes.bundles, self.env_config).forget_users(), (id(routes),), None
+            maps = self.placement
+            # per city, the view of its identity symmetry: its height and blocked canvases
+            self.views = np.array([np.flatnonzero(maps.view_map == maps.symmetries * b)[0] for b in range(len(routes.bundles))])
+            self.shift = maps.pad - routes.maps.pad
+        return self
 
     def reset(self, rows: np.ndarray, num_envs: int) -> None:
         self.policy.reset(rows, num_envs)
 
-    def _mirror(self, env: TrackingEnv):  # noqa: ANN202 - a BatchedEnv
+    def _mirror(self, num_envs: int):  # noqa: ANN202 - a BatchedEnv
         from uavplace.rl.tasks.placement.env import BatchedEnv
 
-        if env.routes.turns != 1:
-            raise ValueError("a placement agent plays the routes as they are: a RouteSet without rotate")
-        key = (id(env.routes), env.num_envs)
-        if self.key != key:
-            maps = MapSet(env.routes.bundles, self.env_config)
-            self.mirror, self.key = BatchedEnv(maps, env.num_envs, autoreset=False), key
-            # per bundle, a view of its identity symmetry: its height and blocked canvases
-            first = np.array([np.flatnonzero(maps.view_map == maps.symmetries * b)[0] for b in range(len(env.routes.bundles))])
-            self.views, self.shift = first, maps.pad - env.maps.pad
-            self.episode = np.full(env.num_envs, -2, np.int64)
+        if self.placement is None:
+            raise ValueError(f"{self.name}: bind(routes) first, as run_tracking does")
+        if self.mirror is None or self.mirror.num_envs != num_envs:
+            self.mirror = BatchedEnv(self.placement, num_envs, autoreset=False)
+            self.begun = np.zeros(num_envs, bool)
         return self.mirror
 
-    def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingEnv) -> np.ndarray:
-        mirror = self._mirror(env)
+    def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingView) -> np.ndarray:
+        mirror = self._mirror(env.num_envs)
         rows = np.arange(env.num_envs)
-        pos, sinr = env.pos + self.shift, env.sinr_here()
-        new = (env.t == 0) | (self.episode != env.episode_id)
+        pos, sinr = env.pos + self.shift, env.measured()
+        new = (env.t == 0) | ~self.begun
         if new.any():
             idx = rows[new]
-            mirror.begin(
-                idx, self.views[env.routes.bundle[env.route[idx]]], pos[idx, 0], pos[idx, 1], sinr[idx], env.episode_id[idx]
-            )
-            self.episode[idx] = env.episode_id[idx]
+            views = self.views[[env.public.bundle_of(int(c)) for c in env.canvas[idx]]]
+            ids = np.where(env.exhausted[idx], -1, 0)  # an episode, or a played-out queue's placeholder
+            mirror.begin(idx, views, pos[idx, 0], pos[idx, 1], sinr[idx], ids)
+            self.begun[idx] = True
         if (~new).any():
             idx = rows[~new]
             mirror.pos[idx], mirror.t[idx] = pos[idx], env.t[idx]
             mirror.measure(idx, sinr[idx])
-        return self.policy.act(mirror.observe(), mask[:, :4], mirror)
+        return self.policy.act(mirror.observe(), mask[:, :4], view_for(self.policy, mirror))
 
 
 class TrackingAgent:
@@ -99,10 +113,15 @@ class TrackingAgent:
     def __init__(self, policy, observation: TrackingConfig, name: str) -> None:  # noqa: ANN001 - a DQNPolicy
         self.policy, self.observation, self.name = policy, observation, name
 
+    @property
+    def privileged(self) -> bool:
+        """As privileged as the policy it plays (a genie laid on another observation still reads the env)."""
+        return getattr(self.policy, "privileged", False)
+
     def reset(self, rows: np.ndarray, num_envs: int) -> None:
         self.policy.reset(rows, num_envs)
 
-    def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingEnv) -> np.ndarray:
+    def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingView) -> np.ndarray:
         return self.policy.act(obs, mask, env)
 
 
@@ -111,6 +130,7 @@ class ReplanningGenie:
     else takes a shortest legal path toward the current P_T region."""
 
     name = "re-planning genie"
+    privileged = True  # reads the user's map now: receives the env itself
 
     def reset(self, rows: np.ndarray, num_envs: int) -> None:
         pass
@@ -129,6 +149,7 @@ class OraclePolicy:
     episode starts), the most covered steps possible."""
 
     name = "oracle"
+    privileged = True  # reads the whole route and every map: receives the env itself
 
     def __init__(self) -> None:
         self.plans = np.zeros((0, 0, 2), np.int64)  # [num_envs, horizon + 1, 2]: each row's planned canvas cells

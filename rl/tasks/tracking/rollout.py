@@ -9,6 +9,7 @@ import pandas as pd
 
 from uavplace.rl.tasks.tracking.env import TrackingEnv
 from uavplace.rl.tasks.tracking.maps import RouteSet, episode_metrics
+from uavplace.rl.world.view import view_for
 
 
 @dataclass
@@ -32,7 +33,8 @@ def run_tracking(
     record: bool = False,  # noqa: ANN001
 ) -> TrackingEpisodes:
     """Play ``episodes`` (``[K, 4]`` specs) to the horizon with ``policy`` (``rl.tasks.placement.policies`` interface: ``reset``,
-    ``act(obs, mask, env)``); one row per episode with the metrics of ``episode_metrics`` (and with ``record``, the
+    ``act(obs, mask, view)``, the view ``view_for`` gives: a ``TrackingView``, the env itself to a privileged policy;
+    a policy with ``bind`` is bound to ``routes`` first); one row per episode with the metrics of ``episode_metrics`` (and with ``record``, the
     UAV's path and the user's route points, for drawing). A ``TrackingAgent`` whose observation differs from
     ``routes.config``'s plays the same episodes on routes laid out for its own (cells and paths shifted between
     the two canvases' paddings)."""
@@ -45,6 +47,8 @@ def run_tracking(
             played.path -= shift
         return played
     k, h = len(episodes), routes.config.horizon
+    if hasattr(policy, "bind"):
+        policy.bind(routes)
     env = TrackingEnv(routes, min(num_envs, k), queue=np.asarray(episodes, float))
     obs, info = env.reset()
     policy.reset(np.arange(env.num_envs), env.num_envs)
@@ -57,7 +61,7 @@ def run_tracking(
         ids, t = env.episode_id.copy(), env.t.copy()
         if record:
             path[ids[live], t[live]], points[ids[live], t[live]] = env.pos[live], env.point()[live]
-        obs, _, _, truncated, info = env.step(policy.act(obs, info["action_mask"], env))
+        obs, _, _, truncated, info = env.step(policy.act(obs, info["action_mask"], view_for(policy, env)))
         covered[ids[live], t[live]] = info["covered"][live]
         finished = truncated & live
         if record and finished.any():  # the last step's cell and point, from before the env restarted these rows

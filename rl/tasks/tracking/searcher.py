@@ -32,7 +32,7 @@ from uavplace.rl.belief import CandidateMaps, posterior_cover
 from uavplace.rl.config import PLACEMENT_PLAN_SETTINGS
 from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
 from uavplace.rl.tasks.tracking.config import STAY, MotionModel
-from uavplace.rl.world.view import public_maps
+from uavplace.rl.tasks.tracking.env import TrackingView
 
 #: The tracking searcher's name in tables.
 TRACKING_SEARCHER = "tracking searcher"
@@ -73,8 +73,8 @@ def transition(cells: np.ndarray, stride: int, q: float) -> sparse.csr_matrix:
 
 
 class TrackingSearchPolicy:
-    """The tracking searcher of the module's docstring as a tracking method (``reset``, ``act(obs, mask, env)`` of a
-    ``rl.tasks.tracking.TrackingEnv``, 5 actions)."""
+    """The tracking searcher of the module's docstring as a tracking method (``reset``, ``act(obs, mask, view)`` of a
+    ``rl.tasks.tracking.TrackingView``, 5 actions)."""
 
     name = TRACKING_SEARCHER
     #: The ``SearchConfig`` fields it does not read (it plans as the cover planner, a step at a time).
@@ -110,15 +110,15 @@ class TrackingSearchPolicy:
         moved = np.stack([(m @ b[:, k].T).T for k, m in enumerate(moves)], axis=1)
         return np.log(np.maximum(moved, 1e-300))
 
-    def act(self, obs: np.ndarray, mask: np.ndarray, env: object) -> np.ndarray:
+    def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingView) -> np.ndarray:
         n = len(mask)
         if len(self.belief) != n:
             self.reset(np.arange(n), n)
-        public = public_maps(env)
+        public = env.public
         p, s = public.pad, self.searcher
         actions = np.full(n, STAY, np.int64)
         live = np.flatnonzero(~env.exhausted)
-        canvases = env.canvas(live)
+        canvases = env.canvas[live]
         for canvas in np.unique(canvases):  # a canvas's rows at once: each row's numbers as alone
             rows = live[canvases == canvas]
             maps = s.canvas_maps(public, int(canvas))
