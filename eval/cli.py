@@ -97,6 +97,16 @@ def task_options(command: Callable) -> Callable:
     "report's record.",
 )
 @click.option(
+    "--map-error",
+    "map_error",
+    multiple=True,
+    metavar="NAME=VALUE",
+    help="How every method's 3D map differs from the traced city (a field of MapErrorSettings, rl/config.py; "
+    "repeatable), e.g. --map-error height_sigma_m=2 --map-error missing_share=0.1 --map-error shift_m=1: the traced "
+    "city's map by default; the cells the UAV may enter, the users' maps and the genie never err. The fleet task "
+    "plays the traced map only. Saved in the report's record.",
+)
+@click.option(
     "--overwrite",
     is_flag=True,
     help="Replace a report folder that holds a report of other agents (refused by default: `--run X` would otherwise "
@@ -174,11 +184,13 @@ def _request(values: dict[str, Any]) -> ReportRequest:
             "--predictor none leaves every searcher out: its settings would be recorded, not played", param_hint="'--search'"
         )
     from uavplace.infra.options import with_pairs
-    from uavplace.rl.config import MeasurementSettings
+    from uavplace.rl.config import MapErrorSettings, MeasurementSettings
 
     measurement = with_pairs(MeasurementSettings(), values.pop("measure"), "--measure")
+    map_error = with_pairs(MapErrorSettings(), values.pop("map_error"), "--map-error")
     if values["task"] == "fleet" and not measurement.exact:
         raise click.BadParameter("the fleet task reads every user's SINR exactly", param_hint="'--measure'")
-    return ReportRequest(
-        **(values | {"search": task_report(values["task"]).search(values["search"]), "measurement": measurement})
-    )
+    if values["task"] == "fleet" and not map_error.exact:
+        raise click.BadParameter("the fleet task plays on the traced city's map", param_hint="'--map-error'")
+    search = task_report(values["task"]).search(values["search"])
+    return ReportRequest(**(values | {"search": search, "measurement": measurement, "map_error": map_error}))

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from pydantic import ConfigDict, Field
 
-from uavplace.rl.config import DEFAULT_PREDICTOR, EpisodeSettings, MeasurementSettings, SearchConfig
+from uavplace.rl.config import DEFAULT_PREDICTOR, EpisodeSettings, MapErrorSettings, MeasurementSettings, SearchConfig
 from uavplace.schemas.base import MAX_SEED, Contract
 
 #: The evaluation protocol's fields every report shares with ``EpisodeSettings`` (declared there once).
@@ -44,6 +44,11 @@ class ReportSettings(Contract):
         default_factory=MeasurementSettings,
         description="What every method's UAV reads at a cell (rl/config.py, MeasurementSettings): the exact SINR by "
         "default; success is judged on the true SINR",
+    )
+    map_error: MapErrorSettings = Field(
+        default_factory=MapErrorSettings,
+        description="How every method's 3D map differs from the traced city (rl/config.py, MapErrorSettings): the "
+        "traced city's by default; the genie and the users' maps never err",
     )
 
 

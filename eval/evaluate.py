@@ -239,16 +239,29 @@ def default_baselines(config: ReportConfig, bundle: Bundle) -> list[Policy]:
 
 
 def agent_env(config: ReportConfig, agent: Agent) -> EnvConfig:
-    """The env the report plays ``agent`` in: its own evaluation env at the report's horizon, P_T, split and
-    measurement."""
+    """The env the report plays ``agent`` in: its own evaluation env at the report's horizon, P_T, split,
+    measurement and map error."""
     return agent.config.env_config(evaluation=True).model_copy(
-        update={"t_max": config.t_max, "p_t_db": config.p_t_db, "split": config.split, "measurement": config.measurement}
+        update={
+            "t_max": config.t_max,
+            "p_t_db": config.p_t_db,
+            "split": config.split,
+            "measurement": config.measurement,
+            "map_error": config.map_error,
+        }
     )
 
 
 def report_env(config: ReportConfig) -> EnvConfig:
     """The environment every baseline plays in at the report's settings (agents keep their own window)."""
-    return EnvConfig(t_max=config.t_max, p_t_db=config.p_t_db, split=config.split, rotate=False, measurement=config.measurement)
+    return EnvConfig(
+        t_max=config.t_max,
+        p_t_db=config.p_t_db,
+        split=config.split,
+        rotate=False,
+        measurement=config.measurement,
+        map_error=config.map_error,
+    )
 
 
 def baseline_policies(config: ReportConfig, env: EnvConfig, cache: str | Path | None = None) -> list[Policy]:

@@ -43,10 +43,34 @@ class MeasurementSettings(Contract):
         return self.sigma_db == 0 and self.shadow_sigma_db == 0
 
 
+class MapErrorSettings(Contract):
+    """How the UAV's 3D map differs from the traced city (``rl.world.maperror``): each building's height off by a
+    Gaussian error, a share of the smallest buildings missing, the whole map shifted by a registration error in a
+    random direction; drawn from ``seed`` and the city's public map. What policies and their predictors read of the
+    buildings (the height channel, the searcher's predicted maps) comes from this map; the cells the UAV may fly in
+    (it senses obstacles), the users' maps, the genie and the oracles stay the traced city's. All 0: the paper's
+    exact map."""
+
+    model_config = ConfigDict(allow_inf_nan=False)
+
+    height_sigma_m: float = Field(default=0.0, ge=0, le=50, description="Spread of each building's height error [m]")
+    missing_share: float = Field(
+        default=0.0, ge=0, le=1, description="Share of the small buildings (under missing_area_m2) missing from the map"
+    )
+    missing_area_m2: float = Field(default=100.0, gt=0, le=1e6, description="A building under this footprint is small [m2]")
+    shift_m: float = Field(default=0.0, ge=0, le=100, description="Registration error: the whole map shifted this far [m]")
+    seed: int = Field(default=0, ge=0, le=MAX_SEED, description="Seed of the errors (with the city's public map)")
+
+    @property
+    def exact(self) -> bool:
+        """The paper's map: the traced city's buildings as they are."""
+        return self.height_sigma_m == 0 and self.missing_share == 0 and self.shift_m == 0
+
+
 class TaskSettings(Contract):
     """What the settings of every task hold (placement's ``EnvConfig``, ``TrackingConfig``, ``FleetConfig``): the SINR
-    target P_T and the rule that says which cells reach it (``schemas.constants.reaches_target``, its one home), and
-    what the UAV reads (``measurement``). Each
+    target P_T and the rule that says which cells reach it (``schemas.constants.reaches_target``, its one home), what
+    the UAV reads (``measurement``) and how its 3D map errs (``map_error``). Each
     task adds its step budget (placement's and the fleet's ``t_max``; tracking's ``horizon``, a fixed length: its
     episodes do not end at P_T) and its observation."""
 
@@ -60,6 +84,9 @@ class TaskSettings(Contract):
 
     measurement: MeasurementSettings = Field(
         default_factory=MeasurementSettings, description="What the UAV reads at a cell: the true SINR plus an error"
+    )
+    map_error: MapErrorSettings = Field(
+        default_factory=MapErrorSettings, description="How the UAV's 3D map differs from the traced city"
     )
 
     def reaches(self, sinr_db: np.ndarray | float, dead: np.ndarray | None = None, legal: np.ndarray | None = None) -> np.ndarray:

@@ -595,12 +595,12 @@ def test_levers_refuses_a_run_given_twice(tmp_path):
     assert res.exit_code == 2 and "both named r" in res.output, res.output
 
 
-def test_report_measure_sets_what_every_method_reads(tiny, tmp_path):
-    """``--measure NAME=VALUE`` sets the measurement of every method's env (recorded with the report); a value out of
-    range, a name that is none, or an error in the fleet task (which reads exactly) ends the command before any
-    episode is played."""
+def test_report_measure_and_map_error_set_what_every_method_reads(tiny, tmp_path):
+    """``--measure NAME=VALUE`` sets the measurement of every method's env, ``--map-error NAME=VALUE`` its map's error
+    (each recorded with the report); a value out of range, a name that is none, or either in the fleet task (which
+    reads exactly on the traced map) ends the command before any episode is played."""
     from uavplace.eval.evaluate import ReportConfig, report_env
-    from uavplace.rl.config import MeasurementSettings
+    from uavplace.rl.config import MapErrorSettings, MeasurementSettings
 
     out = tmp_path / "rep"
     args = ["report", "--dataset", "tiny", "--root", str(tiny), "--episodes", "4", "--bootstrap", "100", "--out", str(out),
@@ -618,3 +618,11 @@ def test_report_measure_sets_what_every_method_reads(tiny, tmp_path):
     res = CliRunner().invoke(uavrl, ["report", "--task", "fleet", "--dataset", "tiny", "--root", str(tiny), "--measure",
                                      "sigma_db=2", "--out", str(tmp_path / "no")])  # fmt: skip
     assert res.exit_code == 2 and "reads every user's SINR exactly" in res.output, res.output
+    erring = ["--map-error", "height_sigma_m=2", "--map-error", "shift_m=1", "--out", str(tmp_path / "m")]
+    res = CliRunner().invoke(uavrl, [*args[:-4], *erring])  # the map's error: recorded, every method's env given it
+    assert res.exit_code == 0, res.output
+    config = json.loads((tmp_path / "m" / "report.json").read_text())["report_config"]
+    assert report_env(ReportConfig.model_validate(config)).map_error == MapErrorSettings(height_sigma_m=2, shift_m=1)
+    res = CliRunner().invoke(uavrl, ["report", "--task", "fleet", "--dataset", "tiny", "--root", str(tiny), "--map-error",
+                                     "shift_m=1", "--out", str(tmp_path / "no")])  # fmt: skip
+    assert res.exit_code == 2 and "plays on the traced city's map" in res.output, res.output

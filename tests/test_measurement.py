@@ -120,5 +120,5 @@ def test_the_fleet_refuses_an_error_it_does_not_play():
     legal = np.ones((5, 5), bool)
     city = FleetCity("c", "v", legal, np.zeros((5, 5), np.float32), np.zeros((2, 5, 5), np.float32), np.zeros((2, 5, 5), bool))
     maps = FleetMaps([city], FleetConfig(uavs=1, users=2, window=3, measurement=MeasurementSettings(sigma_db=2)))
-    with pytest.raises(ValueError, match="measurement errors are played in the placement and tracking tasks"):
+    with pytest.raises(ValueError, match="measurement and map errors are played in the placement and tracking tasks"):
         BatchedFleet(maps, 1)

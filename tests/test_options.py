@@ -176,6 +176,7 @@ CLI_SWITCHES = {
         "agents_dir",
         "datasets",
         "groups",
+        "map_error",
         "markdown",
         "measure",
         "out",

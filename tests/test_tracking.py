@@ -739,3 +739,18 @@ def test_a_tracking_uav_reads_with_the_error_and_is_judged_on_the_truth(root):
         env.step(np.full(64, 4))
     error = np.concatenate(errors)
     assert len(error) > 300 and 3.5 < error.std() < 4.5
+
+
+def test_a_tracking_map_that_errs_reaches_the_canvas_and_never_the_genie(root):
+    """A map error of the tracking task is its canvas's (the height channel and the public maps: the walk city is open
+    ground, so its heights stay); the re-planning genie covers the same steps with it as without."""
+    from uavplace.rl.config import MapErrorSettings
+
+    error = MapErrorSettings(height_sigma_m=3.0, shift_m=2.0, seed=1)
+    erring = TrackingConfig(horizon=24, window=9, map_error=error)
+    exact = RouteSet([load_bundle("walk", root=root)], TrackingConfig(horizon=24, window=9))
+    routes = RouteSet([load_bundle("walk", root=root)], erring)
+    assert routes.maps.config.map_error == error and np.array_equal(exact.maps.blocked, routes.maps.blocked)
+    episodes = routes.sample_episodes(10, np.random.default_rng(1))
+    a, b = (run_tracking(r, ReplanningGenie(), episodes, record=True) for r in (exact, routes))
+    np.testing.assert_array_equal(a.covered, b.covered)

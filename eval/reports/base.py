@@ -15,7 +15,7 @@ from pydantic import BaseModel, ConfigDict
 
 from uavplace.infra.console import LogLines, console, plain_table, say, stdout, warn_or_refuse
 from uavplace.infra.options import with_pairs
-from uavplace.rl.config import MeasurementSettings, SearchConfig
+from uavplace.rl.config import MapErrorSettings, MeasurementSettings, SearchConfig
 
 
 class ReportRequest(BaseModel):
@@ -45,6 +45,7 @@ class ReportRequest(BaseModel):
     predictor: str
     search: SearchConfig
     measurement: MeasurementSettings = MeasurementSettings()
+    map_error: MapErrorSettings = MapErrorSettings()
     overwrite: bool = False
     strict: bool = False
     workers: int = 1
@@ -60,7 +61,7 @@ class ReportRequest(BaseModel):
     def shared_settings(self, runs: list[Path]) -> dict:
         """The fields of ``eval.config.ReportSettings`` every task's report settings take from the request as they are
         (the agents ``runs`` as the report chose them)."""
-        fields = ("episodes", "seed", "test_epsilon", "n_boot", "search", "measurement")
+        fields = ("episodes", "seed", "test_epsilon", "n_boot", "search", "measurement", "map_error")
         return {"runs": [str(r) for r in runs], "predictor": self.predictor_or_none} | {k: getattr(self, k) for k in fields}
 
 

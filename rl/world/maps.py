@@ -21,6 +21,7 @@ from uavplace.dataset.bundle import Bundle, load_bundle
 from uavplace.dataset.difficulty import UNREACHABLE, steps_to_target, valid_starts
 from uavplace.infra.files import in_corpus
 from uavplace.rl.randomness import canvas_key, stream_key, uniforms
+from uavplace.rl.world.maperror import seen_heights
 from uavplace.rl.world.settings import CanvasSettings
 from uavplace.schemas import InputError
 
@@ -94,8 +95,11 @@ class MapSet:
         self.steps = np.full((nv, L, L), UNREACHABLE, np.int32)
         self.shapes = np.zeros((S * nb, 2), np.int64)  # transformed (num_y, num_x) per bundle-symmetry
         self.on_map = np.zeros((S * nb, L, L), bool)  # False beyond the edge
+        #: per bundle, the building heights of the UAV's map (``rl.world.maperror``; the bundle's own when exact): what
+        #: the height channel and the public maps hold, never which cells may be entered
+        self.seen_heights = tuple(seen_heights(b, config.map_error) for b in bundles)
         for i, b in enumerate(bundles):
-            self._paint_buildings(i, b.height_rel_m, b.blocked, self.blocked)
+            self._paint_buildings(i, self.seen_heights[i], b.blocked, self.blocked)
             for k in range(S):
                 ny, nx = self.shapes[S * i + k] = transform(b.blocked, k).shape
                 self.on_map[S * i + k, p : p + ny, p : p + nx] = True

@@ -14,7 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavplace.dataset.bundle import public_settings
+from uavplace.dataset.bundle import Bundle, public_settings
+from uavplace.rl.config import MapErrorSettings
+from uavplace.rl.world.maperror import error_tag
 from uavplace.rl.world.maps import MOVES, MapSet, transform
 from uavplace.rl.world.settings import CanvasSettings
 
@@ -26,8 +28,8 @@ class PublicMaps:
     ``height`` [num_canvases, L, L] (building height minus altitude, clipped), ``blocked`` [num_canvases, L, L] (the
     UAV may not enter; beyond the edge too), ``shapes`` [num_canvases, 2] (the transformed map's ``(num_y, num_x)``),
     ``pad`` (the map's offset on the canvas), ``symmetries`` and per bundle its public settings (``bundle_heights``:
-    the untransformed ``height_rel_m``, ``settings``: grid spacing, altitude, noise, floor, transmit power, carrier,
-    version)."""
+    the untransformed heights of the UAV's map, ``MapSet.seen_heights``; ``settings``: grid spacing, altitude, noise,
+    floor, transmit power, carrier, version, which names the map's error too)."""
 
     height: np.ndarray
     blocked: np.ndarray
@@ -49,8 +51,8 @@ class PublicMaps:
             pad=maps.pad,
             symmetries=maps.symmetries,
             config=maps.config,
-            settings=tuple(public_settings(b) for b in maps.bundles),
-            bundle_heights=tuple(sealed(b.height_rel_m) for b in maps.bundles),
+            settings=tuple(public_settings(b) | _erring(b, maps.config.map_error) for b in maps.bundles),
+            bundle_heights=tuple(sealed(h) for h in maps.seen_heights),
         )
 
     def bundle_of(self, canvas: int) -> int:
@@ -112,6 +114,13 @@ class AgentView:
         """``[N, 4]``: how often this episode has stood in the cell each move leads to."""
         ny, nx = self.neighbours()
         return self.visits[np.arange(self.num_envs)[:, None], ny, nx]
+
+
+def _erring(bundle: Bundle, settings: MapErrorSettings) -> dict:
+    """The public settings an erring map changes: its version names the error too (the searcher keys its predicted
+    maps by it), nothing for the exact map."""
+    tag = error_tag(settings)
+    return {"version": bundle.version + tag} if tag else {}
 
 
 def neighbour_cells(pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

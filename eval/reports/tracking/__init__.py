@@ -29,7 +29,7 @@ def play(request: ReportRequest, after: contextlib.ExitStack) -> None:
     config = TrackingReportConfig(
         datasets=list(request.datasets),
         hold=request.hold,
-        task=TrackingConfig(horizon=horizon, p_t_db=request.p_t_db, measurement=request.measurement),
+        task=TrackingConfig(horizon=horizon, p_t_db=request.p_t_db, measurement=request.measurement, map_error=request.map_error),
         trajectories=request.trajectories,
         **request.shared_settings(runs),
     )

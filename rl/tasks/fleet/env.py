@@ -18,10 +18,10 @@ class BatchedFleet:
 
     def __init__(self, maps: FleetMaps, num_envs: int) -> None:
         cfg = maps.config
-        if not cfg.measurement.exact:
+        if not cfg.measurement.exact or not cfg.map_error.exact:
             raise ValueError(
-                "the fleet task reads every user's SINR exactly (its maps keep no dead cells to leave unread): "
-                "measurement errors are played in the placement and tracking tasks"
+                "the fleet task reads every user's SINR exactly on the traced city's map: measurement and map errors "
+                "are played in the placement and tracking tasks"
             )
         self.maps, self.config, self.num_envs = maps, cfg, num_envs
         n, L, K, N = num_envs, maps.side, cfg.uavs, cfg.users

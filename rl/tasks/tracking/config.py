@@ -55,7 +55,7 @@ class TrackingConfig(ObservationSettings):
 
     def canvas(self) -> CanvasSettings:
         """The canvas settings of the map set (``rl.world.maps.MapSet``) this task's routes are laid out on."""
-        shared = {"p_t_db", *OBSERVATION_FIELDS} - {"age_clip_s"}
+        shared = {"p_t_db", "map_error", *OBSERVATION_FIELDS} - {"age_clip_s"}
         return CanvasSettings(**self.model_dump(include=shared), rotate=False)
 
 

@@ -68,7 +68,8 @@ class PlacementInTracking:
         if routes.turns != 1:
             raise ValueError("a placement agent plays the routes as they are: a RouteSet without rotate")
         if self.bound != (id(routes),):
-            self.placement, self.bound, self.mirror = MapSet(routes.bundles, self.env_config).forget_users(), (id(routes),), None
+            seen = self.env_config.model_copy(update={"map_error": routes.config.map_error})  # the world's map, as it errs
+            self.placement, self.bound, self.mirror = MapSet(routes.bundles, seen).forget_users(), (id(routes),), None
             maps = self.placement
             # per city, the view of its identity symmetry: its height and blocked canvases
             self.views = np.array([np.flatnonzero(maps.view_map == maps.symmetries * b)[0] for b in range(len(routes.bundles))])
