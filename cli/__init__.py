@@ -161,6 +161,7 @@ uavdata.help = uavdata.help.format(noise=EMBEDDED_NOISE_DBM)
         "report": "uavplace.eval.cli:report",
         "sweep": "uavplace.eval.compare_cli:sweep",
         "levers": "uavplace.eval.compare_cli:levers",
+        "robustness": "uavplace.eval.robustness:robustness",
         "peer": "uavplace.eval.compare_cli:peer",
     },
 )

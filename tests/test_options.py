@@ -190,6 +190,7 @@ CLI_SWITCHES = {
         "task",
         "workers",
     },
+    "uavrl robustness": {"datasets", "out", "root", "runs"},
     "uavrl sweep": {"cpus_per_trial", "out", "quiet", "ray_address", "root", "spec_file", "table_only"},
     "uavrl trace-predictor": {"constants", "map_folders", "out", "packs", "root", "users_per_pack", "val_datasets", "workers"},
     "uavrl train": {
