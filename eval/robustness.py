@@ -105,9 +105,14 @@ def play(config: RobustnessConfig, root: Path, on_status: Callable[[str], None] 
                 on_status(f"condition {c + 1} of {len(CONDITIONS)} ({condition.name}), {city}: {episodes} episodes")
             bundle = load_bundle(city, root=root)
             report = ReportConfig(
-                dataset=city, episodes=episodes, seed=config.seed, predictor=None, search=search,
-                measurement=condition.measurement, map_error=condition.map_error,
-            )  # fmt: skip
+                dataset=city,
+                episodes=episodes,
+                seed=config.seed,
+                predictor=None,
+                search=search,
+                measurement=condition.measurement,
+                map_error=condition.map_error,
+            )
             cache = PredictionCache(root / PREDICTIONS)
             methods = [GeniePolicy(), MapSearchPolicy(predictor, search, cache)]
             table = bootstrap_table(evaluate(report, bundle, agents, baselines=methods), n_boot=config.n_boot, seed=config.seed)
@@ -134,11 +139,17 @@ def table_rows(table: pd.DataFrame) -> list[list[str]]:
     """The Markdown table: a row per condition, city and method."""
     rows = [["condition", "city", "method", "episodes", "success [95 %]", "median / genie's", "SPL [95 %]"]]
     for r in table.to_dict("records"):
-        rows.append([
-            r["condition"], r["city"], r["method"], str(r["episodes"]),
-            f"{100 * r['success']:.1f} % [{100 * r['success_lo']:.1f}, {100 * r['success_hi']:.1f}]",
-            f"{r['medians_ratio']:.2f}", f"{r['spl']:.3f} [{r['spl_lo']:.3f}, {r['spl_hi']:.3f}]",
-        ])  # fmt: skip
+        rows.append(
+            [
+                r["condition"],
+                r["city"],
+                r["method"],
+                str(r["episodes"]),
+                f"{100 * r['success']:.1f} % [{100 * r['success_lo']:.1f}, {100 * r['success_hi']:.1f}]",
+                f"{r['medians_ratio']:.2f}",
+                f"{r['spl']:.3f} [{r['spl_lo']:.3f}, {r['spl_hi']:.3f}]",
+            ]
+        )
     return rows
 
 
@@ -218,9 +229,15 @@ def page(table: pd.DataFrame, config: RobustnessConfig) -> str:
 @path_option("--out", folder=True, default=Path("reports/robustness"), help="Folder of the report (replaced whole).")
 @root_option
 def robustness(
-    datasets: tuple[str, ...], episodes: int, target_episodes: int, seed: int, n_boot: int, runs: tuple[Path, ...],
-    out: Path, root: Path,
-) -> None:  # fmt: skip
+    datasets: tuple[str, ...],
+    episodes: int,
+    target_episodes: int,
+    seed: int,
+    n_boot: int,
+    runs: tuple[Path, ...],
+    out: Path,
+    root: Path,
+) -> None:
     """The release's headline methods (the genie, the map searcher, best, the hybrid, the paper's two agents) on the
     test cities in a world the UAV does not know exactly: the conditions of eval/robustness.py (a measurement error
     of 2, 4 and 8 dB, a moderate and a severe map error, each alone, then 4 dB with the moderate map error), the
@@ -232,16 +249,19 @@ def robustness(
     chosen = list(datasets) or release_cities(root)
     agents = [str(r) for r in runs] or [str(p) for p in default_agents()]
     check_unseen_runs([Path(a) for a in agents], chosen, root)  # no agent trained or selected in a city it plays
-    config = RobustnessConfig(datasets=chosen, episodes=episodes, target_episodes=target_episodes, seed=seed,
-                              n_boot=n_boot, runs=agents)  # fmt: skip
+    config = RobustnessConfig(
+        datasets=chosen, episodes=episodes, target_episodes=target_episodes, seed=seed, n_boot=n_boot, runs=agents
+    )
     table = play(config, root, on_status=lambda line: say(line))
     with atomic_directory(out, marker="robustness.json", what="robustness report") as tmp:
         table.to_csv(tmp / "robustness.csv", index=False)
         (tmp / "robustness.md").write_text(markdown(table, config))
         plot(table, tmp / "robustness.png")
         (tmp / "index.html").write_text(page(table, config))
-        conditions = [{"name": c.name, "measurement": c.measurement.model_dump(), "map_error": c.map_error.model_dump(),
-                       "target": c.target} for c in CONDITIONS]  # fmt: skip
+        conditions = [
+            {"name": c.name, "measurement": c.measurement.model_dump(), "map_error": c.map_error.model_dump(), "target": c.target}
+            for c in CONDITIONS
+        ]
         (tmp / "robustness.json").write_text(json.dumps({"config": config.model_dump(), "conditions": conditions}, indent=2))
     stdout().print(markdown(table, config), highlight=False, soft_wrap=True)
     say(f"robustness report: {out / 'index.html'}")

@@ -137,6 +137,7 @@ def main() -> None:
     head = ["city", "genie", "map searcher", TOLD]
     head += [TRUE_MAPS] if args.true_maps else []
     head += ["mean excess [95 % interval, users resampled]", "localisation: searcher - told where"]
+    head += ["predicted maps: told where - genie"]
     head += ["maps: searcher - true maps", "interaction"] if args.true_maps else []
     rows = [head + ["success (searcher / told / true)"]]
     for city in args.city or VALIDATION:
@@ -157,6 +158,7 @@ def main() -> None:
         row = [city, f"{genie.median():g}", f"{search.median():g}", f"{told.median():g}"]
         row += [f"{steps[TRUE_MAPS].median():g}"] if args.true_maps else []
         row += [mean_with_interval(search - genie, users), mean_with_interval(search - told, users)]
+        row += [mean_with_interval(told - genie, users)]
         if args.true_maps:
             row += [mean_with_interval(search - steps[TRUE_MAPS], users)]
             row += [mean_with_interval(steps[TRUE_MAPS] + told - genie - search, users)]

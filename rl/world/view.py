@@ -72,27 +72,30 @@ class PublicMaps:
         return ~self.blocked[canvas, p : p + ny, p : p + nx]
 
 
-class AgentView:
-    """The rows of a ``BatchedEnv`` as their UAVs know them at one step (see the module's docstring): made anew for
-    every ``act``. Its arrays are read-only (copies, but the measurements: views of the env's), canvas cells ``(y, x)``:
+class UavView:
+    """What every task's view holds of its rows at one step (``AgentView``, ``rl.tasks.tracking.TrackingView``):
+    where the UAVs are and when (``pos`` [N, 2] canvas cells, ``t`` [N], ``exhausted`` [N]: copies, so a policy
+    that writes them moves no UAV), what they measured (``memory`` [N, L, L]: a read-only view of the env's), the
+    canvas each row flies over (``canvas`` [N]: a city under a symmetry, never a user), the keys of their episodes'
+    random draws, the task's settings (``config``) and the ``public`` maps. Values only: nothing in it leads back to
+    the env (a bound method would, by ``__self__``)."""
 
-    - ``pos`` [N, 2] the UAVs' cells; ``t`` [N] moves made in each episode;
-    - ``memory`` [N, L, L] the SINR measured at visited cells (``P_H`` elsewhere, ``P_L`` at known blocked cells);
-    - ``visits`` [N, L, L] times each episode stood in each cell; ``exhausted`` [N] rows of an evaluation with no
-      episode left to play;
-    - ``canvas`` [N] the canvas each row flies over (``PublicMaps``: a bundle under a symmetry, not a user).
-    """
-
-    def __init__(self, env: object, public: PublicMaps) -> None:
-        self.public = public
-        self.config: CanvasSettings = public.config
-        # Where the UAVs are and when: copies (a policy that writes them moves no UAV); the measurements: read-only
-        # views (large; what a policy writes through them is only what it measured).
-        self.pos, self.t, self.exhausted = sealed(env.pos), sealed(env.t), sealed(env.exhausted)
-        self.memory, self.visits = frozen(env.memory), frozen(env.visits)
-        # Values, not the env's methods: nothing here leads back to the env (a bound method would, by __self__).
-        self.canvas = sealed(env.maps.view_map[env.view])
-        self._keys = sealed(env.episode_keys())
+    def __init__(
+        self,
+        public: PublicMaps,
+        config: object,
+        pos: np.ndarray,
+        t: np.ndarray,
+        exhausted: np.ndarray,
+        memory: np.ndarray,
+        canvas: np.ndarray,
+        keys: np.ndarray,
+    ) -> None:
+        self.public, self.config = public, config
+        self.pos, self.t, self.exhausted = sealed(pos), sealed(t), sealed(exhausted)
+        self.memory = frozen(memory)
+        self.canvas = sealed(canvas)
+        self._keys = sealed(keys)
 
     @property
     def num_envs(self) -> int:
@@ -107,8 +110,20 @@ class AgentView:
         return self._keys
 
     def neighbours(self) -> tuple[np.ndarray, np.ndarray]:
-        """Canvas ``(y, x)`` of the 4 cells the actions lead to, each ``[N, 4]``."""
+        """Canvas ``(y, x)`` of the 4 cells the moves lead to, each ``[N, 4]``."""
         return neighbour_cells(self.pos)
+
+
+class AgentView(UavView):
+    """The rows of a ``BatchedEnv`` as their UAVs know them at one step (see the module's docstring and ``UavView``):
+    made anew for every ``act``; also ``visits`` [N, L, L] (times each episode stood in each cell, a read-only view).
+    ``memory`` holds the SINR measured at visited cells (``P_H`` elsewhere, ``P_L`` at known blocked cells)."""
+
+    def __init__(self, env: object, public: PublicMaps) -> None:
+        canvas = env.maps.view_map[env.view]
+        super().__init__(public, public.config, env.pos, env.t, env.exhausted, env.memory, canvas, env.episode_keys())
+        self.config: CanvasSettings = public.config
+        self.visits = frozen(env.visits)
 
     def neighbour_visits(self) -> np.ndarray:
         """``[N, 4]``: how often this episode has stood in the cell each move leads to."""

@@ -9,7 +9,7 @@ from uavplace.rl.tasks.tracking.config import TRACK_MOVES, TrackingConfig
 from uavplace.rl.tasks.tracking.maps import RouteSet
 from uavplace.rl.world.measurement import read
 from uavplace.rl.world.rows import EpisodeRows, encode_obs, refuse_bad_rows
-from uavplace.rl.world.view import PublicMaps, frozen, neighbour_cells, public_maps, sealed
+from uavplace.rl.world.view import UavView, frozen, public_maps
 
 
 class TrackingEnv(EpisodeRows):
@@ -178,41 +178,15 @@ class TrackingEnv(EpisodeRows):
         return self.observe(), reward, np.zeros(self.num_envs, bool), truncated, info
 
 
-class TrackingView:
+class TrackingView(UavView):
     """The rows of a ``TrackingEnv`` as their UAVs know them at one step, made anew for every ``act``: what a tracking
-    policy other than the re-planning genie and the oracle reads. Its arrays are read-only (copies, but the
-    measurements: views of the env's), canvas cells ``(y, x)``:
-
-    - ``pos`` [N, 2] the UAVs' cells; ``t`` [N] steps made in each episode (0: an episode begins);
-    - ``memory`` [N, L, L] the SINR last measured at each cell (P_H unvisited, P_L at known blocked cells);
-      ``seen_at`` [N, L, L] when [s] (-inf never); ``exhausted`` [N] rows with no episode left to play;
-    - ``canvas`` [N] the canvas each row flies over (``public``, ``rl.world.view.PublicMaps``: a city under a
-      symmetry, not a route or a user), ``config`` the task's settings.
-
-    No route, no route point, no user's map: nothing in it leads back to the env (values, not its methods) or to
-    the ``RouteSet``."""
+    policy other than the re-planning genie and the oracle reads (``rl.world.view.UavView``: positions, steps, the
+    SINR last measured at each cell, the canvas, the keys, the public maps), and ``seen_at`` [N, L, L] when each cell
+    was last measured [s] (-inf never; a read-only view). No route, no route point, no user's map: nothing in it leads
+    back to the env or to the ``RouteSet``."""
 
     def __init__(self, env: TrackingEnv) -> None:
-        self.public: PublicMaps = public_maps(env)
+        canvas, keys = env.canvas(), env.episode_keys()
+        super().__init__(public_maps(env), env.config, env.pos, env.t, env.exhausted, env.memory, canvas, keys)
         self.config: TrackingConfig = env.config
-        # copies where the UAVs are and when (a policy that writes them moves no UAV); views of its measurements
-        self.pos, self.t, self.exhausted = sealed(env.pos), sealed(env.t), sealed(env.exhausted)
-        self.memory, self.seen_at = frozen(env.memory), frozen(env.seen_at)
-        self.canvas = sealed(env.canvas())
-        self._keys = sealed(env.episode_keys())
-
-    @property
-    def num_envs(self) -> int:
-        return len(self.pos)
-
-    def measured(self) -> np.ndarray:
-        """[N] the SINR each UAV measured where it stands now [dB]."""
-        return self.memory[np.arange(self.num_envs), self.pos[:, 0], self.pos[:, 1]]
-
-    def episode_keys(self) -> np.ndarray:
-        """[N] uint64: the keys of the rows' episodes for per-episode draws (``rl.randomness``)."""
-        return self._keys
-
-    def neighbours(self) -> tuple[np.ndarray, np.ndarray]:
-        """Canvas ``(y, x)`` of the 4 cells the moves lead to, each ``[N, 4]``."""
-        return neighbour_cells(self.pos)
+        self.seen_at = frozen(env.seen_at)
