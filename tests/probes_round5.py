@@ -184,7 +184,7 @@ def export_probes(base: Base) -> list[Probe]:
             users_folder,
             _kept("out/tiny/scale.json", "out/tiny/notes.txt"),
             always_check=True,
-        ),  # fmt: skip
+        ),
         Probe("export", "over a user's .deepmimo.npz", users_file, _kept("out/tiny.deepmimo.npz"), always_check=True),
         Probe("export", "a city, then one that does not exist", lambda w: export("tiny", "nosuch"), nothing, always_check=True),
     ]
@@ -360,7 +360,7 @@ def predictor_probes(base: Base) -> list[Probe]:
             _kept("mine/model.json", "mine/thesis.tex"),
             always_check=True,
             timeout=120,
-        ),  # fmt: skip
+        ),
         Probe(
             "predictor",
             "calibrate-predictor --out a folder with model.json",
@@ -368,14 +368,14 @@ def predictor_probes(base: Base) -> list[Probe]:
             _kept("mine/model.json", "mine/thesis.tex"),
             always_check=True,
             timeout=240,
-        ),  # fmt: skip
+        ),
         Probe(
             "predictor",
             "--out a shipped predictor's copy with a user's file, a million steps",
             shipped_and_mine,
             lambda w, r: quick(w, r) or _kept("mine/thesis.tex")(w, r),
             always_check=True,
-        ),  # fmt: skip
+        ),
         Probe("predictor", "--widths 4096 x 5", lambda w: train(w / "u", "--widths", "4096,4096,4096,4096,4096")),
         Probe("predictor", "--widths 100000", lambda w: train(w / "u", "--widths", "100000")),
     ]
