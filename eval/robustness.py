@@ -96,6 +96,8 @@ def play(config: RobustnessConfig, root: Path, on_status: Callable[[str], None] 
 
     predictor = load_predictor(config.predictor)
     agents = [load_agent(Path(r), epsilon=0.096, seed=config.seed) for r in config.runs]
+    bundles = {city: load_bundle(city, root=root) for city in config.datasets}  # read once, played in every condition
+    cache = PredictionCache(root / PREDICTIONS)
     rows = []
     for c, condition in enumerate(CONDITIONS):
         episodes = config.target_episodes if condition.target else config.episodes
@@ -103,7 +105,6 @@ def play(config: RobustnessConfig, root: Path, on_status: Callable[[str], None] 
         for city in config.datasets:
             if on_status is not None:
                 on_status(f"condition {c + 1} of {len(CONDITIONS)} ({condition.name}), {city}: {episodes} episodes")
-            bundle = load_bundle(city, root=root)
             report = ReportConfig(
                 dataset=city,
                 episodes=episodes,
@@ -113,9 +114,9 @@ def play(config: RobustnessConfig, root: Path, on_status: Callable[[str], None] 
                 measurement=condition.measurement,
                 map_error=condition.map_error,
             )
-            cache = PredictionCache(root / PREDICTIONS)
             methods = [GeniePolicy(), MapSearchPolicy(predictor, search, cache)]
-            table = bootstrap_table(evaluate(report, bundle, agents, baselines=methods), n_boot=config.n_boot, seed=config.seed)
+            played = evaluate(report, bundles[city], agents, baselines=methods)
+            table = bootstrap_table(played, n_boot=config.n_boot, seed=config.seed)
             rows += [r | {"condition": condition.name, "city": city} for r in table.to_dict("records")]
     return pd.DataFrame(rows)
 
@@ -124,12 +125,12 @@ def falls(table: pd.DataFrame) -> dict[str, str]:
     """Per method, the first condition (``CONDITIONS``' order) where its success is under ``FALLS_BELOW`` in a city,
     with the city and the success; "none" where it never is."""
     out = {}
+    order = {c.name: k for k, c in enumerate(CONDITIONS)}
     for method, rows in table.groupby("method", sort=False):
         low = rows[rows["success"] < FALLS_BELOW]
         if low.empty:
             out[str(method)] = "none"
             continue
-        order = {c.name: k for k, c in enumerate(CONDITIONS)}
         first = low.sort_values("condition", key=lambda s: s.map(order)).iloc[0]
         out[str(method)] = f"{first['condition']} ({first['city']}: {100 * first['success']:.1f} %)"
     return out

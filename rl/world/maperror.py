@@ -15,6 +15,8 @@ city's (``MapSet.blocked``); the users' maps, the genie and the oracles never se
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 from scipy import ndimage
 
@@ -49,6 +51,4 @@ def error_tag(settings: MapErrorSettings) -> str:
     for the exact map."""
     if settings.exact:
         return ""
-    import hashlib
-
     return "~map-" + hashlib.sha256(settings.model_dump_json().encode()).hexdigest()[:12]

@@ -119,10 +119,11 @@ class AgentView(UavView):
     made anew for every ``act``; also ``visits`` [N, L, L] (times each episode stood in each cell, a read-only view).
     ``memory`` holds the SINR measured at visited cells (``P_H`` elsewhere, ``P_L`` at known blocked cells)."""
 
+    config: CanvasSettings
+
     def __init__(self, env: object, public: PublicMaps) -> None:
         canvas = env.maps.view_map[env.view]
         super().__init__(public, public.config, env.pos, env.t, env.exhausted, env.memory, canvas, env.episode_keys())
-        self.config: CanvasSettings = public.config
         self.visits = frozen(env.visits)
 
     def neighbour_visits(self) -> np.ndarray:

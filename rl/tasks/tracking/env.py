@@ -83,7 +83,7 @@ class TrackingEnv(EpisodeRows):
         if not self.config.measurement.exact:
             p, route = self.maps.pad, self.route[idx]
             spacing = self.routes.step_s[route] * self.config.uav_speed_mps
-            keys = combine(combine(self.routes.route_keys[route], self.episode_id[idx]), route)  # the world's: its route too
+            keys = combine(self.episode_keys(idx), route)  # the world's: its route too
             dead = self.routes.dead[point, y, x]
             reading = read(self.config.measurement, sinr, dead, keys, self.t[idx], (x - p) * spacing, (y - p) * spacing)
         self.memory[idx, y, x] = reading
@@ -128,10 +128,12 @@ class TrackingEnv(EpisodeRows):
         ny, nx = self.neighbours()
         return np.c_[~self.maps.blocked[self.canvas()[:, None], ny, nx], np.ones(self.num_envs, bool)]
 
-    def episode_keys(self) -> np.ndarray:
-        """[N] uint64 keys of each row's episode for per-episode random draws (``rl.randomness``): its canvas's public
-        map (``RouteSet.route_keys``, the same for every route of a canvas) and its number in the played list."""
-        return combine(self.routes.route_keys[self.route], self.episode_id)
+    def episode_keys(self, idx: np.ndarray | None = None) -> np.ndarray:
+        """[N] (or ``[len(idx)]``) uint64 keys of each row's episode for per-episode random draws (``rl.randomness``):
+        its canvas's public map (``RouteSet.route_keys``, the same for every route of a canvas) and its number in the
+        played list."""
+        idx = self._rows if idx is None else idx
+        return combine(self.routes.route_keys[self.route[idx]], self.episode_id[idx])
 
     def agent_view(self) -> TrackingView:
         """What the rows' UAVs know now: what a policy other than the re-planning genie and the oracle receives."""
@@ -185,8 +187,9 @@ class TrackingView(UavView):
     was last measured [s] (-inf never; a read-only view). No route, no route point, no user's map: nothing in it leads
     back to the env or to the ``RouteSet``."""
 
+    config: TrackingConfig
+
     def __init__(self, env: TrackingEnv) -> None:
         canvas, keys = env.canvas(), env.episode_keys()
         super().__init__(public_maps(env), env.config, env.pos, env.t, env.exhausted, env.memory, canvas, keys)
-        self.config: TrackingConfig = env.config
         self.seen_at = frozen(env.seen_at)

@@ -96,7 +96,7 @@ class PlacementInTracking:
         new = (env.t == 0) | ~self.begun
         if new.any():
             idx = rows[new]
-            views = self.views[[env.public.bundle_of(int(c)) for c in env.canvas[idx]]]
+            views = self.views[env.canvas[idx] // env.public.symmetries]  # each row's city (``PublicMaps.bundle_of``)
             ids = np.where(env.exhausted[idx], -1, 0)  # an episode, or a played-out queue's placeholder
             mirror.begin(idx, views, pos[idx, 0], pos[idx, 1], sinr[idx], ids)
             self.begun[idx] = True
