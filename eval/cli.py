@@ -78,7 +78,7 @@ def task_options(command: Callable) -> Callable:
 )
 @task_option("; ".join(f"{name}: {task_report(name).summary}" for name in TASKS) + ".")
 @task_options
-@model_options(ReportSettings, "predictor")
+@model_options(ReportSettings, "predictor", "device")
 @click.option(
     "--search",
     multiple=True,
@@ -193,4 +193,10 @@ def _request(values: dict[str, Any]) -> ReportRequest:
     if values["task"] == "fleet" and not map_error.exact:
         raise click.BadParameter("the fleet task plays on the traced city's map", param_hint="'--map-error'")
     search = task_report(values["task"]).search(values["search"])
+    from uavplace.infra.device import torch_device
+
+    try:  # --device cuda without a GPU: refused before any city is loaded
+        torch_device(values["device"])
+    except ValueError as err:
+        raise click.BadParameter(str(err), param_hint="'--device'") from None
     return ReportRequest(**(values | {"search": search, "measurement": measurement, "map_error": map_error}))

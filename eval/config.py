@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from pydantic import ConfigDict, Field
 
+from uavplace.infra.device import DEVICE_HELP, Device
 from uavplace.rl.config import DEFAULT_PREDICTOR, EpisodeSettings, MapErrorSettings, MeasurementSettings, SearchConfig
 from uavplace.schemas.base import MAX_SEED, Contract
 
@@ -49,6 +50,11 @@ class ReportSettings(Contract):
         default_factory=MapErrorSettings,
         description="How every method's 3D map differs from the traced city (rl/config.py, MapErrorSettings): the "
         "traced city's by default; the genie and the users' maps never err",
+    )
+    device: Device = Field(
+        default="auto",
+        description=f"Where the agents' networks and the searchers' belief products run: {DEVICE_HELP} "
+        "(docs/benchmarks.md says what moves to a GPU)",
     )
 
 

@@ -27,6 +27,7 @@ import pandas as pd
 from pydantic import Field
 
 from uavplace.infra.console import path_option, root_option, say, stdout
+from uavplace.infra.device import DEVICE_HELP, Device
 from uavplace.infra.files import atomic_directory
 from uavplace.infra.options import model_options
 from uavplace.rl.config import DEFAULT_PREDICTOR, MapErrorSettings, MeasurementSettings
@@ -73,6 +74,7 @@ class RobustnessConfig(Contract):
     n_boot: int = Field(default=2000, ge=100, le=1_000_000, description="Bootstrap resamples of the 95 % intervals")
     predictor: str = Field(default=str(DEFAULT_PREDICTOR), description="The map searcher's predictor (a tier's folder)")
     runs: list[str] = Field(default_factory=list, description="Agent folders (default: the shipped agents)")
+    device: Device = Field(default="auto", description=f"Where the networks and the belief products run: {DEVICE_HELP}")
 
 
 def searcher_spread(condition: Condition) -> float:
@@ -95,7 +97,7 @@ def play(config: RobustnessConfig, root: Path, on_status: Callable[[str], None] 
     from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
 
     predictor = load_predictor(config.predictor)
-    agents = [load_agent(Path(r), epsilon=0.096, seed=config.seed) for r in config.runs]
+    agents = [load_agent(Path(r), epsilon=0.096, seed=config.seed, device=config.device) for r in config.runs]
     bundles = {city: load_bundle(city, root=root) for city in config.datasets}  # read once, played in every condition
     cache = PredictionCache(root / PREDICTIONS)
     rows = []
@@ -113,8 +115,9 @@ def play(config: RobustnessConfig, root: Path, on_status: Callable[[str], None] 
                 search=search,
                 measurement=condition.measurement,
                 map_error=condition.map_error,
+                device=config.device,
             )
-            methods = [GeniePolicy(), MapSearchPolicy(predictor, search, cache)]
+            methods = [GeniePolicy(), MapSearchPolicy(predictor, search, cache, device=config.device)]
             played = evaluate(report, bundles[city], agents, baselines=methods)
             table = bootstrap_table(played, n_boot=config.n_boot, seed=config.seed)
             rows += [r | {"condition": condition.name, "city": city} for r in table.to_dict("records")]
@@ -219,7 +222,7 @@ def page(table: pd.DataFrame, config: RobustnessConfig) -> str:
 
 @click.command()
 @click.option("--dataset", "datasets", multiple=True, help="A test city (repeatable; default: every built test city).")
-@model_options(RobustnessConfig, "episodes", "target_episodes", "seed", "n_boot", names={"n_boot": "--bootstrap"})
+@model_options(RobustnessConfig, "episodes", "target_episodes", "seed", "n_boot", "device", names={"n_boot": "--bootstrap"})
 @click.option(
     "--run",
     "runs",
@@ -235,6 +238,7 @@ def robustness(
     target_episodes: int,
     seed: int,
     n_boot: int,
+    device: str,
     runs: tuple[Path, ...],
     out: Path,
     root: Path,
@@ -246,12 +250,23 @@ def robustness(
     (docs/report.md)."""
     from uavplace.eval.cities import release_cities
     from uavplace.eval.evaluate import check_unseen_runs, default_agents
+    from uavplace.infra.device import torch_device
 
+    try:  # --device cuda without a GPU: refused before any city is loaded
+        torch_device(device)
+    except ValueError as err:
+        raise click.BadParameter(str(err), param_hint="'--device'") from None
     chosen = list(datasets) or release_cities(root)
     agents = [str(r) for r in runs] or [str(p) for p in default_agents()]
     check_unseen_runs([Path(a) for a in agents], chosen, root)  # no agent trained or selected in a city it plays
     config = RobustnessConfig(
-        datasets=chosen, episodes=episodes, target_episodes=target_episodes, seed=seed, n_boot=n_boot, runs=agents
+        datasets=chosen,
+        episodes=episodes,
+        target_episodes=target_episodes,
+        seed=seed,
+        n_boot=n_boot,
+        runs=agents,
+        device=device,
     )
     table = play(config, root, on_status=lambda line: say(line))
     with atomic_directory(out, marker="robustness.json", what="robustness report") as tmp:

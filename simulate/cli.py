@@ -95,7 +95,10 @@ def simulate(
     from uavplace.simulate.sources import check_simulation
 
     call = settings(Simulation, values, OPTION_NAMES)
-    base, rt = call.city(sources[0]), call.raytrace()
+    try:
+        base, rt = call.city(sources[0]), call.raytrace()
+    except ValueError as err:  # --device cuda where Dr.Jit finds no GPU
+        fail(InputError("--device", str(err)))
     try:
         check_simulation(base, rt, call.count)  # every setting, before any list of cities is made or any work starts
         specs = corpus_specs(list(sources), call.name, call.count, base, call.first)

@@ -16,11 +16,13 @@ from typing import Literal
 
 from pydantic import Field, field_validator
 
+from uavplace.infra.device import DEVICE_HELP, Device
 from uavplace.infra.files import check_name
 from uavplace.schemas.base import MAX_SEED, Contract, InputError
 from uavplace.schemas.constants import ALTITUDE_M, CARRIER_HZ, GRID_M, TX_POWER_DBM
-from uavplace.simulate.raytrace import RayTraceConfig
+from uavplace.simulate.raytrace import RayTraceConfig, mitsuba_variant
 from uavplace.simulate.routes import KINDS
+from uavplace.simulate.scene import ALL_CONCRETE, MATERIALS, parse_mix
 
 _METRES = {"type": "metres"}
 _LIST = {"type": "list"}
@@ -181,7 +183,20 @@ class Simulation(Contract):
         description="--complete-missed: PathSolver's rays per user for each missed cell (2e6: the exact-path reference's).",
         json_schema_extra={"limit": "samples"},
     )
+    materials: tuple[str, ...] = Field(
+        default=("concrete",),
+        min_length=1,
+        description="The buildings' radio materials: one ITU-R P.2040 class for all, or a mix CLASS=SHARE,... whose "
+        "shares of the buildings sum to 1 (e.g. concrete=0.4,brick=0.3,glass=0.2,metal=0.1), dealt to the buildings by "
+        "--seed; classes: " + ", ".join(MATERIALS) + " (simulate/scene.py). The mapping goes to simulation.json.",
+        json_schema_extra=_LIST,
+    )
     seed: int = Field(default=0, ge=0, le=MAX_SEED, description="Seed of the city generator, the users and the ray sampler.")
+    device: Device = Field(
+        default="auto",
+        description=f"Where the rays are traced (Mitsuba's CUDA variant on a GPU, LLVM on the CPU): {DEVICE_HELP}. The "
+        "two may trace other rays: the variant is recorded when it is CUDA's, and a trace cache entry is its own.",
+    )
 
     @field_validator("name")
     @classmethod
@@ -191,7 +206,7 @@ class Simulation(Contract):
         except InputError as err:
             raise ValueError(str(err)) from None
 
-    @field_validator("route_kinds", "gap_fill", mode="before")
+    @field_validator("route_kinds", "gap_fill", "materials", mode="before")
     @classmethod
     def _split(cls, value: object) -> object:
         return _items(value)
@@ -210,6 +225,11 @@ class Simulation(Contract):
         if unknown:
             raise ValueError(f"{unknown}: expected kinds among {', '.join(KINDS)}")
         return value
+
+    @field_validator("materials")
+    @classmethod
+    def _mix(cls, value: tuple[str, ...]) -> tuple[str, ...]:
+        return tuple(f"{name}={share:g}" for name, share in parse_mix(value))
 
     @field_validator("gap_fill")
     @classmethod
@@ -242,6 +262,7 @@ class Simulation(Contract):
             routes=self.routes,
             route_length_m=self.route_length_m,
             route_kinds=self.route_kinds,
+            materials=parse_mix(self.materials),
         )
 
     def raytrace(self) -> RayTraceConfig:
@@ -259,6 +280,7 @@ class Simulation(Contract):
             gap_fill_walk=self.gap_fill_walk,
             complete_missed_samples=_count(self.complete_samples) if self.complete_missed else 0,
             solver=self.solver,
+            variant=mitsuba_variant(self.device),
         )
 
 
@@ -287,6 +309,7 @@ class SimulationSpec:
     routes: int = _default("routes")  # user routes drawn on open ground, every point traced as a user (simulate.routes)
     route_length_m: float = _default("route_length_m")
     route_kinds: tuple[str, ...] = _default("route_kinds")
+    materials: tuple[tuple[str, float], ...] = ALL_CONCRETE  # each building's class drawn in these shares (scene.py)
 
 
 def _count(value: float) -> int | float:

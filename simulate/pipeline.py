@@ -60,9 +60,10 @@ from uavplace.simulate.raytrace import (
     sionna_versions,
 )
 from uavplace.simulate.routes import KINDS, MAX_STEP_M, ROUTE_SET, Route, draw_routes, write_routes_csv
-from uavplace.simulate.scene import CONCRETE, GROUND_MARGIN_M, Block, write_scene
+from uavplace.simulate.scene import CONCRETE, GROUND_MARGIN_M, Block, assign_materials, walls_of, write_scene
 from uavplace.simulate.sources import check_bounded, check_simulation, load_geometry, surrounded
 from uavplace.simulate.trace_cache import cached_traces, read_cache_entry, spec_record, trace_key, write_cache_entry
+from uavplace.simulate.transmission import EVERY_SHAPE
 
 USER_SET = (1, "User")
 GRID_SET = (2, "Drone_grid")
@@ -217,10 +218,17 @@ def transmitter_of(source: int, num_users: int) -> tuple[tuple[int, str], int]:
     return (USER_SET, source + 1) if source < num_users else (ROUTE_SET, source - num_users + 1)
 
 
-def direct_maps(job: RadioMapJob, config: RayTraceConfig, on_batch: Callable[[int, int], None] | None = None) -> dict:
+def direct_maps(
+    job: RadioMapJob,
+    config: RayTraceConfig,
+    on_batch: Callable[[int, int], None] | None = None,
+    walls: dict[str, dict] | None = None,
+) -> dict:
     """What ``fill``'s ``geodesic`` method adds to the radio maps of ``job``: the exact straight paths through the
-    buildings' walls (``raytrace.direct_gains``, in a child process), ``{"direct": [U, ny, nx], "crossings": ...}``."""
-    return direct_gains_isolated(job, config, CONCRETE.at(config.frequency_hz), on_batch=on_batch)
+    buildings' walls (``raytrace.direct_gains``, in a child process), ``{"direct": [U, ny, nx], "crossings": ...}``;
+    ``walls``: each building shape's material (``scene.walls_of``; None: every wall concrete)."""
+    walls = {EVERY_SHAPE: CONCRETE.at(config.frequency_hz)} if walls is None else walls
+    return direct_gains_isolated(job, config, walls, on_batch=on_batch)
 
 
 def map_quality(gain: np.ndarray, open_cells: np.ndarray) -> dict[str, float]:
@@ -343,7 +351,8 @@ def simulate_city(
     opened = open_cells(blocks, grid)
     with tempfile.TemporaryDirectory(prefix="uavplace-scene-") as tmp:
         margin = GROUND_MARGIN_M + spec.surround_m  # the ground under every traced building
-        xml, materials = write_scene(tmp, traced, box, rt_config.frequency_hz, ground_margin_m=margin)
+        materials_of = assign_materials([b.building for b in traced], spec.materials, spec.seed)
+        xml, materials = write_scene(tmp, traced, box, rt_config.frequency_hz, ground_margin_m=margin, materials_of=materials_of)
         job = RadioMapJob(str(xml), tuple(map(tuple, sources.tolist())), center, size, spec.grid_m)
         seconds = {"raytrace": 0.0, "direct": 0.0}
 
@@ -357,7 +366,9 @@ def simulate_city(
             seconds["raytrace"] = time.perf_counter() - t
             if rt_config.gap_fill_method == "geodesic":
                 t = time.perf_counter()
-                maps |= direct_maps(job, rt_config, on_batch=lambda d, n: progress("direct paths", d, n))
+                maps |= direct_maps(
+                    job, rt_config, on_batch=lambda d, n: progress("direct paths", d, n), walls=walls_of(materials)
+                )
                 seconds["direct"] = time.perf_counter() - t
             return maps
 
@@ -464,6 +475,7 @@ def simulate_city(
             "phase_deg": "not computed (the radio map is an incoherent power sum); written as 0 in the power outputs",
             "unreached_power_dbm": UNREACHED_POWER_DBM,
             "materials": materials,
+            **({"building_materials": {str(b): m for b, m in sorted(materials_of.items())}} if len(spec.materials) > 1 else {}),
             "packages": sionna_versions(),
             "cells": {
                 "user_cells": int(gain.size),

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from uavplace.infra.device import pick
 from uavplace.schemas.constants import CARRIER_HZ
 
 LLVM_19 = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
@@ -29,6 +30,8 @@ LLVM_19 = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
 #: gaps filled by ``gap_fill_method``), or ``PathSolver`` at every open cell (``exact_path_maps``: every path found,
 #: as InSite computes them, nothing filled; about a second a cell and user on the 2 reference cores).
 SOLVERS = ("radio-map", "paths")
+#: Mitsuba's variants the ray tracer runs in, by device.
+VARIANTS = {"cuda": "cuda_ad_mono_polarized", "cpu": "llvm_ad_mono_polarized"}
 
 
 @dataclass(frozen=True)
@@ -68,16 +71,20 @@ class RayTraceConfig:
     #: ``SOLVERS``: "radio-map" (the default), or "paths": every open cell from exact paths, no radio map and no fill
     #: (``samples_per_tx`` then is PathSolver's ``samples_per_src``).
     solver: str = "radio-map"
+    #: Mitsuba's variant (``VARIANTS``, ``mitsuba_variant``): LLVM on the CPU, CUDA on a GPU, where the two may trace
+    #: other rays (a trace cache entry is the variant's).
+    variant: str = VARIANTS["cpu"]
 
 
 #: The settings a record leaves out when they hold these values: what every city simulated before the choice had.
-_EARLIER = {"solver": "radio-map", "gap_fill_walk": "4-neighbour", "complete_missed_samples": 0}
+_EARLIER = {"solver": "radio-map", "gap_fill_walk": "4-neighbour", "complete_missed_samples": 0, "variant": VARIANTS["cpu"]}
 
 
 def raytrace_record(config: RayTraceConfig) -> dict:
     """``config`` as ``simulation.json`` and the trace cache record it: without ``solver`` when it is the radio map's,
-    without ``gap_fill_walk`` when it is the 4-neighbour walk and without ``complete_missed_samples`` when it is off (as
-    before there was a choice, so that the cities simulated then stay up to date)."""
+    without ``gap_fill_walk`` when it is the 4-neighbour walk, without ``complete_missed_samples`` when it is off and
+    without ``variant`` when it is the CPU's (as before there was a choice, so that the cities simulated then stay up
+    to date)."""
     return {k: v for k, v in asdict(config).items() if _EARLIER.get(k, object()) != v}
 
 
@@ -180,6 +187,26 @@ def require_raytrace() -> None:
         )
 
 
+def mitsuba_variant(device: str = "auto", cuda_available: bool | None = None) -> str:
+    """The Mitsuba variant for ``device`` (``infra.device``'s rule: ``auto`` is CUDA where Dr.Jit finds a GPU, else
+    LLVM on the CPU); ``ValueError`` for ``cuda`` without a GPU. ``cuda_available`` overrides the look (None: ask
+    Dr.Jit)."""
+    return VARIANTS[pick(device, _cuda_available() if cuda_available is None else cuda_available, "Dr.Jit")]
+
+
+def _cuda_available() -> bool:
+    if "DRJIT_LIBLLVM_PATH" not in os.environ and Path(LLVM_19).exists():
+        os.environ["DRJIT_LIBLLVM_PATH"] = LLVM_19
+    try:
+        import drjit as dr
+    except ImportError:
+        return False
+    try:
+        return bool(dr.has_backend(dr.JitBackend.CUDA))
+    except Exception:  # noqa: BLE001 - Dr.Jit raises on a machine without the CUDA driver
+        return False
+
+
 def import_sionna(variant: str | None = None):
     """Import sionna.rt, in Mitsuba's ``variant`` when given (``llvm_ad_mono_polarized`` on a CPU,
     ``cuda_ad_mono_polarized`` on a GPU; None: Sionna's own choice); a clear error when the extra or LLVM is missing."""
@@ -201,8 +228,8 @@ def import_sionna(variant: str | None = None):
 def _scene(job: RadioMapJob, config: RayTraceConfig, variant: str | None = None):  # noqa: ANN202 - (mitsuba, sionna.rt, Scene)
     """The scene with the users' antenna (``config.antenna``) and an isotropic receiver, which is what Sionna's
     radio map assumes; exact paths take the same receiver, so that both estimate the same path gain. ``variant``:
-    Mitsuba's (``import_sionna``)."""
-    mi, rt = import_sionna(variant)
+    Mitsuba's (``import_sionna``; None: ``config.variant``)."""
+    mi, rt = import_sionna(variant or config.variant)
     scene = rt.load_scene(job.scene_xml)
     scene.frequency = config.frequency_hz
     scene.tx_array = rt.PlanarArray(num_rows=1, num_cols=1, pattern=config.antenna, polarization="V")
@@ -230,7 +257,7 @@ def path_gain_maps(
     Besides the grid (factor 1), each of ``config.gap_fill_factors`` traces a map of cells that many times
     larger over the same corner (``fill`` uses them). ``on_batch(done, total)`` reports progress in users.
     ``edge_diffraction``: free edges diffract too (a screen's top; a city's extruded buildings have none).
-    ``variant``: Mitsuba's (``import_sionna``; None: Sionna's choice).
+    ``variant``: Mitsuba's (``import_sionna``; None: ``config.variant``).
     """
     mi, rt, scene = _scene(job, config, variant)
     solver = rt.RadioMapSolver()
@@ -309,19 +336,23 @@ def point_path_gains(
 def direct_gains(
     job: RadioMapJob,
     config: RayTraceConfig,
-    material: dict,
+    walls: dict[str, dict],
     on_batch: Callable[[int, int], None] | None = None,
     variant: str | None = None,
 ) -> dict[str, np.ndarray]:
     """The exact straight path through the walls from each user to each cell of the job's grid
-    (``simulate.transmission``; ``material``: the buildings' radio material as ``Material.at`` gives it):
+    (``simulate.transmission``; ``walls``: each building shape's radio material as ``Material.at`` gives it, by shape
+    id, ``transmission.EVERY_SHAPE`` for every shape but the ground: ``scene.walls_of``):
     ``{"direct": gain [U, ny, nx], "crossings": walls crossed [U, ny, nx]}`` (``max_depth + 1`` where too many)."""
     from uavplace.simulate.transmission import complex_permittivity, direct_path_gains
 
     mi, _, scene = _scene(job, config, variant)
     ny, nx = job.shape
     cells = job.cell_centres()
-    eta = complex_permittivity(material["relative_permittivity"], material["conductivity_s_m"], config.frequency_hz)
+    slabs = {
+        shape: (complex_permittivity(m["relative_permittivity"], m["conductivity_s_m"], config.frequency_hz), m["thickness_m"])
+        for shape, m in walls.items()
+    }
     gains, crossings = [], []
     users = np.asarray(job.users_m, float)
     for u, user in enumerate(users):
@@ -330,8 +361,7 @@ def direct_gains(
             scene.mi_scene,
             user,
             cells,
-            eta,
-            material["thickness_m"],
+            slabs,
             3e8 / config.frequency_hz,
             pattern=config.antenna,
             max_crossings=config.max_depth,
@@ -383,17 +413,17 @@ def path_gain_maps_isolated(
     on_batch: Callable[[int, int], None] | None = None,
     edge_diffraction: bool = False,
     variant: str | None = None,
-    material: dict | None = None,
+    walls: dict[str, dict] | None = None,
     threads: int | None = None,
 ) -> dict[int | str, np.ndarray]:
-    """``path_gain_maps`` in a child Python process (see ``_isolated``); with ``material`` (``Material.at``) also the
-    straight paths through the walls of that material, ``direct_gains``'s ``"direct"`` and ``"crossings"``, in the
-    same process (one start of the ray tracer). ``threads``: Dr.Jit's CPU threads in the child (None: all; 1: the
+    """``path_gain_maps`` in a child Python process (see ``_isolated``); with ``walls`` (``direct_gains``') also the
+    straight paths through the walls, ``direct_gains``'s ``"direct"`` and ``"crossings"``, in the same process (one
+    start of the ray tracer). ``threads``: Dr.Jit's CPU threads in the child (None: all; 1: the
     radio map's sums in one order, so the same rays give the same map to the bit, which several threads' atomic
     additions do not)."""
     payload = {"job": asdict(job), "config": asdict(config), "edge_diffraction": edge_diffraction, "variant": variant}
     payload["threads"] = threads
-    arrays = _isolated("maps", payload | ({"material": material} if material is not None else {}), on_batch)
+    arrays = _isolated("maps", payload | ({"walls": walls} if walls is not None else {}), on_batch)
     return {(int(k.removeprefix("f")) if k.startswith("f") else k): v for k, v in arrays.items()}
 
 
@@ -431,10 +461,10 @@ def exact_path_maps(
 
 
 def direct_gains_isolated(
-    job: RadioMapJob, config: RayTraceConfig, material: dict, on_batch: Callable[[int, int], None] | None = None
+    job: RadioMapJob, config: RayTraceConfig, walls: dict[str, dict], on_batch: Callable[[int, int], None] | None = None
 ) -> dict[str, np.ndarray]:
     """``direct_gains`` in a child Python process (see ``_isolated``)."""
-    return _isolated("direct", {"job": asdict(job), "config": asdict(config), "material": material}, on_batch)
+    return _isolated("direct", {"job": asdict(job), "config": asdict(config), "walls": walls}, on_batch)
 
 
 def _child(job_path: str) -> None:
@@ -455,10 +485,10 @@ def _child(job_path: str) -> None:
             job, config, on_batch=report, edge_diffraction=doc.get("edge_diffraction", False), variant=doc.get("variant")
         )
         arrays = {f"f{k}": v for k, v in maps.items()}
-        if doc.get("material") is not None:
-            arrays |= direct_gains(job, config, doc["material"], variant=doc.get("variant"))
+        if doc.get("walls") is not None:
+            arrays |= direct_gains(job, config, doc["walls"], variant=doc.get("variant"))
     elif doc["kind"] == "direct":
-        arrays = direct_gains(job, config, doc["material"], on_batch=report)
+        arrays = direct_gains(job, config, doc["walls"], on_batch=report)
     else:
         arrays = {"gain": point_path_gains(job, np.asarray(doc["points_m"]), config, on_batch=report)}
     tmp = Path(doc["result"]).with_suffix(".tmp.npz")

@@ -5,11 +5,17 @@ table refuses them below that, so the scene carries explicit radio materials:
 P.2040's formulas (eps_r = a f^b, sigma = c f^d, f in GHz) evaluated at the
 carrier frequency, under ids that do not start with an ITU name. The mapping
 is recorded in ``simulation.json``.
+
+Every building is concrete unless a mix is declared (``uavdata simulate --materials``):
+then each building takes one of ``MATERIALS``' classes, in the declared shares of the
+buildings, by the seed (``assign_materials``), and the scene holds one mesh per class.
+P.2040's laws hold from 1 GHz for most classes (glass from 0.1, wood from 1 MHz);
+below that they are extrapolated, as for concrete.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -45,6 +51,72 @@ class Material:
 #: Building walls and roofs, and the ground (ITU-R P.2040 table 3).
 CONCRETE = Material("uav-concrete", "concrete", a=5.24, b=0.0, c=0.0462, d=0.7822, thickness_m=0.2)
 GROUND = Material("uav-medium-dry-ground", "medium_dry_ground", a=15.0, b=-0.1, c=0.035, d=1.63, thickness_m=1.0)
+#: The building classes of a material mix (ITU-R P.2040-4 table 3's laws; the thickness is a wall's, ours: a load-bearing
+#: wall for concrete and brick, a glazed facade's panes, a steel cladding sheet, a timber wall, boards).
+MATERIALS: dict[str, Material] = {
+    m.itu_name: m
+    for m in (
+        CONCRETE,
+        Material("uav-brick", "brick", a=3.91, b=0.0, c=0.0238, d=0.16, thickness_m=0.2),
+        Material("uav-plasterboard", "plasterboard", a=2.73, b=0.0, c=0.0085, d=0.9395, thickness_m=0.025),
+        Material("uav-wood", "wood", a=1.99, b=0.0, c=0.0047, d=1.0718, thickness_m=0.1),
+        Material("uav-glass", "glass", a=6.31, b=0.0, c=0.0036, d=1.3394, thickness_m=0.02),
+        Material("uav-ceiling-board", "ceiling_board", a=1.48, b=0.0, c=0.0011, d=1.075, thickness_m=0.02),
+        Material("uav-chipboard", "chipboard", a=2.58, b=0.0, c=0.0217, d=0.78, thickness_m=0.02),
+        Material("uav-metal", "metal", a=1.0, b=0.0, c=1e7, d=0.0, thickness_m=0.005),
+    )
+}
+#: The mix of every city before ``--materials``: all concrete.
+ALL_CONCRETE: tuple[tuple[str, float], ...] = (("concrete", 1.0),)
+#: The random stream of the buildings' materials (``assign_materials``), apart from the users' and the rays'.
+MATERIAL_STREAM = 2040
+#: The shape of every building when they are all of one material (one mesh is faster to trace).
+BUILDINGS = "buildings"
+
+
+def parse_mix(items: Sequence[str]) -> tuple[tuple[str, float], ...]:
+    """A material mix from its words: ``("concrete",)`` (every building) or ``("concrete=0.4", "brick=0.6", ...)``,
+    shares of the buildings in (0, 1] that sum to 1; a ``ValueError`` names the word at fault."""
+    if len(items) == 1 and "=" not in items[0]:
+        items = (f"{items[0]}=1",)
+    mix: dict[str, float] = {}
+    for item in items:
+        name, sep, share_text = item.partition("=")
+        name = name.strip()
+        if not sep:
+            raise ValueError(f"{item!r}: expected CLASS=SHARE (e.g. concrete=0.4,brick=0.6) or one CLASS")
+        if name not in MATERIALS:
+            raise ValueError(f"{name!r} is not a material class (known: {', '.join(MATERIALS)})")
+        if name in mix:
+            raise ValueError(f"{name!r} is given twice")
+        try:
+            share = float(share_text)
+        except ValueError:
+            raise ValueError(f"{item!r}: the share {share_text!r} is not a number") from None
+        if not 0.0 < share <= 1.0:
+            raise ValueError(f"{item!r}: a share is in (0, 1]")
+        mix[name] = share
+    if not mix:
+        raise ValueError("no material class given")
+    if abs(sum(mix.values()) - 1.0) > 1e-6:
+        raise ValueError(f"the shares sum to {sum(mix.values()):g}, not 1")
+    return tuple(mix.items())
+
+
+def assign_materials(buildings: Sequence[int], mix: Sequence[tuple[str, float]], seed: int) -> dict[int, str]:
+    """Each building's material class: the buildings shuffled by ``seed`` and dealt out in ``mix``'s shares of their
+    count (rounded by largest remainder, so that 40 / 30 / 20 / 10 % of 21 buildings are 9, 6, 4 and 2)."""
+    ids = sorted(set(buildings))
+    names = [name for name, _ in mix]
+    if len(names) == 1:
+        return dict.fromkeys(ids, names[0])
+    exact = np.array([share for _, share in mix]) * len(ids)
+    counts = np.floor(exact).astype(int)
+    short = len(ids) - counts.sum()
+    counts[np.argsort(-(exact - counts), kind="stable")[:short]] += 1
+    dealt = np.repeat(names, counts)
+    order = np.random.default_rng([seed, MATERIAL_STREAM]).permutation(len(ids))
+    return {ids[i]: str(dealt[k]) for k, i in enumerate(order)}
 
 
 @dataclass(frozen=True)
@@ -99,11 +171,15 @@ def write_scene(
     frequency_hz: float,
     *,
     ground_margin_m: float = GROUND_MARGIN_M,
-) -> tuple[Path, list[dict[str, float | str]]]:
-    """Write ``scene.xml`` and ``meshes/*.ply`` into ``folder``; returns (xml path, materials used).
+    materials_of: Mapping[int, str] | None = None,
+) -> tuple[Path, list[dict]]:
+    """Write ``scene.xml`` and ``meshes/*.ply`` into ``folder``; returns (xml path, materials used, each with the
+    ``shapes`` it covers).
 
-    All buildings go into one mesh (one shape is faster to trace than hundreds); the
-    ground is a rectangle ``ground_margin_m`` larger than ``bounds_m`` on each side.
+    The buildings of one material go into one mesh (one shape is faster to trace than hundreds): ``buildings`` when
+    they are all of one, ``buildings-<class>`` for each class of a mix. ``materials_of``: a building's class
+    (``assign_materials``; None: all concrete). The ground is a rectangle ``ground_margin_m`` larger than
+    ``bounds_m`` on each side.
     """
     folder = Path(folder)
     (folder / "meshes").mkdir(parents=True, exist_ok=True)
@@ -114,14 +190,17 @@ def write_scene(
         faces=[[0, 1, 2], [0, 2, 3]],
     )
     ground.export(folder / "meshes" / "ground.ply")
-    materials = [GROUND.at(frequency_hz)]
+    materials = [GROUND.at(frequency_hz) | {"shapes": ["ground"]}]
     shapes = [("ground", GROUND.id)]
-    if blocks:
-        trimesh.util.concatenate([extrude(b.footprint, b.base_z_m, b.roof_z_m) for b in blocks]).export(
-            folder / "meshes" / "buildings.ply"
-        )
-        materials.append(CONCRETE.at(frequency_hz))
-        shapes.append(("buildings", CONCRETE.id))
+    groups: dict[str, list[Block]] = {}
+    for b in blocks:
+        groups.setdefault("concrete" if materials_of is None else materials_of[b.building], []).append(b)
+    for name in sorted(groups, key=list(MATERIALS).index):
+        shape = BUILDINGS if len(groups) == 1 else f"{BUILDINGS}-{name}"
+        meshes = [extrude(b.footprint, b.base_z_m, b.roof_z_m) for b in groups[name]]
+        trimesh.util.concatenate(meshes).export(folder / "meshes" / f"{shape}.ply")
+        materials.append(MATERIALS[name].at(frequency_hz) | {"shapes": [shape]})
+        shapes.append((shape, MATERIALS[name].id))
     xml = ['<scene version="2.1.0">']
     for mat in materials:
         xml += [
@@ -143,3 +222,9 @@ def write_scene(
     path = folder / "scene.xml"
     path.write_text("\n".join(xml) + "\n", encoding="utf-8")
     return path, materials
+
+
+def walls_of(materials: Sequence[Mapping]) -> dict[str, dict]:
+    """The buildings' materials of ``write_scene``'s record by the shape they cover (what ``raytrace.direct_gains``
+    takes); the ground is left out (a straight path into it ends there)."""
+    return {shape: dict(m) for m in materials if m["id"] != GROUND.id for shape in m["shapes"]}

@@ -22,6 +22,8 @@ from __future__ import annotations
 import numpy as np
 
 EPS0 = 8.854187817e-12
+#: The key of ``direct_path_gains``' slabs for every shape not named.
+EVERY_SHAPE = "*"
 
 
 def complex_permittivity(eps_r: float, sigma_s_m: float, frequency_hz: float) -> complex:
@@ -58,16 +60,16 @@ def direct_path_gains(
     mi_scene,  # noqa: ANN001
     user: np.ndarray,
     cells: np.ndarray,
-    eta: complex,
-    thickness_m: float,
+    slabs: dict[str, tuple[complex, float]],
     wavelength_m: float,
     *,
     pattern: str = "hw_dipole",
     max_crossings: int = 5,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(gain [C], walls crossed [C]) of the straight path from ``user`` [3] to each of ``cells`` [C, 3] through the
-    scene's surfaces, all of one slab material (``eta``, ``thickness_m``). Paths crossing more than ``max_crossings``
-    surfaces get 0 (their count reads ``max_crossings + 1``)."""
+    scene's surfaces. ``slabs``: each shape's slab (complex permittivity, thickness [m]) by its id, ``EVERY_SHAPE`` for
+    the shapes not named. Paths crossing more than ``max_crossings`` surfaces get 0 (their count reads
+    ``max_crossings + 1``)."""
     user = np.asarray(user, float)
     cells = np.asarray(cells, float)
     ray_dir = cells - user
@@ -77,6 +79,7 @@ def direct_path_gains(
     # The vertical antenna's field is along theta-hat of the departure direction.
     sin_t = np.sqrt(np.maximum(1.0 - k[:, 2] ** 2, 1e-12))
     field = np.c_[k[:, 2] * k[:, 0] / sin_t, k[:, 2] * k[:, 1] / sin_t, -sin_t]
+    shapes = [(mi.ShapePtr(shape), slabs.get(shape.id(), slabs.get(EVERY_SHAPE))) for shape in mi_scene.shapes()]
     origin = np.broadcast_to(user, cells.shape).copy()
     left = length.copy()
     crossed = np.zeros(len(cells), np.int64)
@@ -99,8 +102,14 @@ def direct_path_gains(
         # At normal incidence there is no plane of incidence: TE and TM coincide, any split will do.
         te = np.where(norm[:, None] > 1e-9, te / np.maximum(norm, 1e-12)[:, None], field[todo])
         share_te = np.clip((field[todo] * te).sum(axis=1) ** 2, 0.0, 1.0)
-        t_te, t_tm = slab_transmission(np.abs((normal * kk).sum(axis=1)), eta, thickness_m, wavelength_m)
-        gain[todo] *= share_te * t_te + (1 - share_te) * t_tm
+        cos_theta = np.abs((normal * kk).sum(axis=1))
+        power = np.zeros(len(todo))
+        for pointer, slab in shapes:  # each crossing through its own shape's slab
+            on = np.asarray(si.shape == pointer, bool)[hit]
+            if on.any() and slab is not None:
+                t_te, t_tm = slab_transmission(cos_theta[on], slab[0], slab[1], wavelength_m)
+                power[on] = share_te[on] * t_te + (1 - share_te[on]) * t_tm
+        gain[todo] *= power
         step = t + 1e-3  # past the surface, then on to the next one
         origin[todo] += kk * step[:, None]
         left[todo] -= step

@@ -102,6 +102,22 @@ def test_policies_read_only_what_they_measured_with_the_error_on(tiny):
         assert all(same), f"{policy.name}: moves changed off its path with the error on ({same})"
 
 
+def test_the_scramble_test_holds_with_the_measurement_and_the_map_errors_both_on(tiny):
+    """Both errors at once (the robustness report's target condition, with shadowing): the users moved and their maps
+    scrambled, the random walk and the map searcher assuming 4 dB move the same on the erring map."""
+    from uavplace.eval.robustness import MODERATE
+    from uavplace.rl.predictor import load_predictor
+    from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
+
+    config = EnvConfig(t_max=60, rotate=False, measurement=NOISY, map_error=MODERATE)
+    maps = MapSet.load("tiny", config, root=str(tiny))
+    episodes = maps.episode_list(8, 3)
+    searcher = MapSearchPolicy(load_predictor(), SearchConfig(measurement_sigma_db=4.0), name="map searcher, 4 dB")
+    for policy in (RandomWalkPolicy(seed=4), searcher):
+        same, _ = scramble.replay_placement(maps, policy, episodes, np.random.default_rng(9))
+        assert all(same), f"{policy.name}: moves changed off its path with both errors on ({same})"
+
+
 def test_the_searcher_adds_its_declared_spread_to_the_likelihood():
     """``SearchConfig.measurement_sigma_db`` adds to the predictor's spread in quadrature in the likelihood of a
     reading, never in the chance that a cell reaches P_T; 0 leaves the spread as it was, to the bit."""

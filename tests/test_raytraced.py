@@ -14,16 +14,15 @@ from tests.test_simulate import needs_sionna
 from uavplace.rl.predictor import Scene, load_constants, load_predictor
 from uavplace.rl.predictor.raytraced import (
     TRACES,
-    VARIANTS,
     RayTracedModel,
     RayTracedPredictor,
     calibrate,
     cell_centres_m,
     map_blocks,
     save_raytraced,
-    variant,
 )
 from uavplace.schemas import InputError
+from uavplace.simulate.raytrace import VARIANTS, mitsuba_variant
 
 
 def _scene(heights: np.ndarray, spacing_m: float = 4.0) -> Scene:
@@ -35,15 +34,15 @@ def _model(**update) -> RayTracedModel:
 
 
 def test_the_variant_is_chosen_by_device():
-    assert variant("cpu", cuda_available=True) == VARIANTS["cpu"] == "llvm_ad_mono_polarized"
-    assert variant("auto", cuda_available=False) == VARIANTS["cpu"]
-    assert variant("auto", cuda_available=True) == VARIANTS["cuda"] == "cuda_ad_mono_polarized"
-    assert variant("cuda", cuda_available=True) == VARIANTS["cuda"]
+    assert mitsuba_variant("cpu", cuda_available=True) == VARIANTS["cpu"] == "llvm_ad_mono_polarized"
+    assert mitsuba_variant("auto", cuda_available=False) == VARIANTS["cpu"]
+    assert mitsuba_variant("auto", cuda_available=True) == VARIANTS["cuda"] == "cuda_ad_mono_polarized"
+    assert mitsuba_variant("cuda", cuda_available=True) == VARIANTS["cuda"]
     with pytest.raises(ValueError, match="no GPU"):
-        variant("cuda", cuda_available=False)
+        mitsuba_variant("cuda", cuda_available=False)
     with pytest.raises(ValueError, match="unknown device"):
-        variant("tpu", cuda_available=False)
-    assert variant("auto") in VARIANTS.values()  # what this machine has, asked of Dr.Jit
+        mitsuba_variant("tpu", cuda_available=False)
+    assert mitsuba_variant("auto") in VARIANTS.values()  # what this machine has, asked of Dr.Jit
 
 
 def test_the_map_becomes_prisms_of_its_cells_and_heights():
@@ -98,7 +97,7 @@ def test_the_version_keys_settings_and_calibration_not_scores():
     assert physics.version() != base  # the fallback's weights or constants in the key
     assert RayTracedPredictor(_model(scores={"x": {"median_error_db": 1.0}}, made_by=["uavrl x"])).version() == base
     assert RayTracedPredictor(_model(device="cpu")).version() == RayTracedPredictor(_model(device="auto")).version() or (
-        variant("auto") == VARIANTS["cuda"]
+        mitsuba_variant("auto") == VARIANTS["cuda"]
     )  # the key is the variant that traces, not the setting
 
 

@@ -26,9 +26,10 @@ from uavplace.simulate.config import SimulationSpec
 from uavplace.simulate.fill import fill_gaps
 from uavplace.simulate.pipeline import place_users, receiver_grid
 from uavplace.simulate.procedural import PRESETS, generate_city
-from uavplace.simulate.raytrace import LLVM_19
-from uavplace.simulate.scene import GROUND, extrude
+from uavplace.simulate.raytrace import LLVM_19, RayTraceConfig
+from uavplace.simulate.scene import ALL_CONCRETE, GROUND, MATERIALS, assign_materials, extrude, parse_mix
 from uavplace.simulate.sources import load_geometry
+from uavplace.simulate.trace_cache import spec_record, trace_key
 
 HAS_SIONNA = importlib.util.find_spec("sionna") is not None and importlib.util.find_spec("mitsuba") is not None
 HAS_LLVM = bool(os.environ.get("DRJIT_LIBLLVM_PATH")) or os.path.exists(LLVM_19)
@@ -63,6 +64,38 @@ def test_material_law_at_800_mhz():
     g = GROUND.at(800e6)
     assert g["relative_permittivity"] == pytest.approx(15 * 0.8**-0.1, abs=1e-3)
     assert g["conductivity_s_m"] == pytest.approx(0.035 * 0.8**1.63, abs=1e-4)
+
+
+def test_a_material_mix_is_read_checked_and_dealt_to_the_buildings_by_the_seed(tmp_path):
+    """``--materials``: one class or CLASS=SHARE words whose shares sum to 1; each building gets one class, the
+    shares of the buildings' count met to the building (largest remainder), the same by the same seed. The default
+    leaves the spec's record, and with it the trace cache's key, as before the option."""
+    assert parse_mix(("concrete",)) == ALL_CONCRETE
+    mix = parse_mix(("concrete=0.4", "brick=0.3", "glass=0.2", "metal=0.1"))
+    assert mix == (("concrete", 0.4), ("brick", 0.3), ("glass", 0.2), ("metal", 0.1))
+    for words, message in (
+        (("concrete=0.5",), "sum to 0.5"), (("adamantium",), "not a material class"), (("glass=x", "metal=1"), "not a number"),
+        (("glass=0.5", "glass=0.5"), "given twice"), (("glass=0", "metal=1"), "in \\(0, 1\\]"), (("glass", "metal"), "CLASS=SHARE"),
+    ):  # fmt: skip
+        with pytest.raises(ValueError, match=message):
+            parse_mix(words)
+    buildings = [7, 3, 3, 12, *range(20, 38)]  # 21 buildings, one of them in two parts
+    dealt = assign_materials(buildings, mix, seed=5)
+    assert sorted(dealt) == sorted(set(buildings))
+    assert {m: list(dealt.values()).count(m) for m, _ in mix} == {"concrete": 9, "brick": 6, "glass": 4, "metal": 2}
+    assert dealt == assign_materials(buildings[::-1], mix, seed=5) and dealt != assign_materials(buildings, mix, seed=6)
+    assert set(assign_materials(buildings, ALL_CONCRETE, seed=5).values()) == {"concrete"}
+    assert set(MATERIALS) >= {"concrete", "brick", "glass", "metal", "wood"}
+    plain = SimulationSpec(source="procedural:tiny", name="t")
+    mixed = SimulationSpec(source="procedural:tiny", name="t", materials=mix)
+    assert "materials" not in spec_record(plain) and spec_record(mixed)["materials"] == mix
+    assert "materials" not in json.loads(trace_key(plain, RayTraceConfig()))["spec"]
+    assert json.loads(trace_key(mixed, RayTraceConfig()))["spec"]["materials"] == [list(m) for m in mix]
+    res = CliRunner().invoke(
+        uavdata, ["simulate", "procedural:tiny", "--name", "t", "--out", str(tmp_path), "--materials", "glass=0.5"]
+    )
+    assert res.exit_code == 2 and "--materials" in res.output and "sum to 0.5" in res.output, res.output
+    assert not (tmp_path / "t").exists()
 
 
 def test_fill_gaps_takes_the_parent_cell():
@@ -346,22 +379,62 @@ def test_direct_paths_through_walls_equal_the_exact_paths(tmp_path):
     two boxes needs four crossings: none at depth 2, and the same path, 4 crossings, at depth 5."""
     from uavplace.simulate.raytrace import RadioMapJob, RayTraceConfig, direct_gains_isolated, point_path_gains_isolated
     from uavplace.simulate.scene import CONCRETE, Block, write_scene
+    from uavplace.simulate.transmission import EVERY_SHAPE
 
     blocks = [Block(shapely.box(-15, -15, 15, 15), 0.0, 20.0, 0), Block(shapely.box(45, -15, 75, 15), 0.0, 20.0, 1)]
     xml, _ = write_scene(tmp_path, blocks, (-100, -100, 100, 100), 800e6)
+    walls = {EVERY_SHAPE: CONCRETE.at(800e6)}
     job = RadioMapJob(str(xml), ((-40.0, 2.0, 1.5),), (0.0, 0.0, 10.0), (200.0, 200.0), 4.0)
     cells = [(25, 30), (27, 33), (23, 35), (26, 48)]  # (iy, ix): behind the first box; the last behind both
     pts = np.array([[-100 + (ix + 0.5) * 4, -100 + (iy + 0.5) * 4, 10.0] for iy, ix in cells])
     config = RayTraceConfig(max_depth=2, diffraction=False, samples_per_tx=200_000, seed=1)
     exact = point_path_gains_isolated(job, pts, config)[0]
-    out = direct_gains_isolated(job, config, CONCRETE.at(800e6))
+    out = direct_gains_isolated(job, config, walls)
     got = np.array([out["direct"][0, iy, ix] for iy, ix in cells])
     crossings = [out["crossings"][0, iy, ix] for iy, ix in cells]
     assert crossings == [2, 2, 2, 3]  # the last: 4 crossings, more than depth 2
     np.testing.assert_allclose(10 * np.log10(got[:3]), 10 * np.log10(exact[:3]), atol=0.2)
     assert got[3] == 0 and exact[3] == 0
-    deep = direct_gains_isolated(job, RayTraceConfig(max_depth=5), CONCRETE.at(800e6))
+    deep = direct_gains_isolated(job, RayTraceConfig(max_depth=5), walls)
     assert deep["crossings"][0, 26, 48] == 4 and 0 < deep["direct"][0, 26, 48] < got[0]
+
+
+@needs_sionna
+def test_direct_paths_cross_each_wall_through_its_own_material(tmp_path):
+    """A mix: the first box glass, the second brick, each its own mesh. The straight path through each box equals
+    Sionna's PathSolver's (which reads each shape's material) within 0.2 dB; glass lets more through than the
+    concrete it replaces at 3.5 GHz, and a path through both boxes loses the product of what each box alone takes from it."""
+    from uavplace.simulate.raytrace import RadioMapJob, RayTraceConfig, direct_gains_isolated, point_path_gains_isolated
+    from uavplace.simulate.scene import CONCRETE, Block, walls_of, write_scene
+    from uavplace.simulate.transmission import EVERY_SHAPE
+
+    blocks = [Block(shapely.box(-15, -15, 15, 15), 0.0, 20.0, 0), Block(shapely.box(45, -15, 75, 15), 0.0, 20.0, 1)]
+    xml, materials = write_scene(tmp_path, blocks, (-100, -100, 100, 100), 3.5e9, materials_of={0: "glass", 1: "brick"})
+    assert sorted(walls_of(materials)) == ["buildings-brick", "buildings-glass"]
+    assert sorted(p.name for p in (tmp_path / "meshes").iterdir()) == ["buildings-brick.ply", "buildings-glass.ply", "ground.ply"]
+    job = RadioMapJob(str(xml), ((-40.0, 2.0, 1.5), (100.0, 2.0, 1.5)), (0.0, 0.0, 10.0), (200.0, 200.0), 4.0)
+    glass_cell, brick_cell = (25, 30), (25, 39)  # behind the glass box from the first user; behind the brick one from the second
+    pts = np.array([[-100 + (ix + 0.5) * 4, -100 + (iy + 0.5) * 4, 10.0] for iy, ix in (glass_cell, brick_cell)])
+    config = RayTraceConfig(frequency_hz=3.5e9, max_depth=2, diffraction=False, samples_per_tx=200_000, seed=1)
+    exact = point_path_gains_isolated(job, pts, config)
+    out = direct_gains_isolated(job, config, walls_of(materials))
+    got = np.array([out["direct"][0][glass_cell], out["direct"][1][brick_cell]])
+    np.testing.assert_allclose(10 * np.log10(got), 10 * np.log10([exact[0, 0], exact[1, 1]]), atol=0.2)
+    concrete = direct_gains_isolated(job, config, {EVERY_SHAPE: CONCRETE.at(3.5e9)})
+    assert concrete["direct"][0][glass_cell] < got[0] / 10  # two concrete walls take over 10 dB more than glass
+    deep = RayTraceConfig(frequency_hz=3.5e9, max_depth=5)
+    glass, brick = (walls_of(materials)[f"buildings-{name}"] for name in ("glass", "brick"))
+    vacuum = {"relative_permittivity": 1.0, "conductivity_s_m": 0.0, "thickness_m": 0.2}  # a wall that is not there
+
+    def through(walls: dict) -> float:  # the path from the first user through both boxes, over free space
+        return direct_gains_isolated(job, deep, walls)["direct"][0, 25, 48]
+
+    free = through({EVERY_SHAPE: vacuum})
+    mixed = through(walls_of(materials)) / free
+    glass_only = through({"buildings-glass": glass, "buildings-brick": vacuum}) / free
+    brick_only = through({"buildings-glass": vacuum, "buildings-brick": brick}) / free
+    assert 0 < mixed < glass_only < 1 and mixed < brick_only < 1
+    np.testing.assert_allclose(mixed, glass_only * brick_only, rtol=1e-9)
 
 
 @needs_sionna
@@ -430,6 +503,32 @@ def test_surround_traces_the_buildings_around_a_crop_and_writes_the_crops_only(t
     assert np.nanmedian(np.abs(gained[:, :7])) < 0.2  # the crop's far half: about the same values
     res = CliRunner().invoke(uavdata, ["simulate", "procedural:tiny", "--name", "t", "--out", str(tmp_path), "--surround", "20"])
     assert res.exit_code == 2 and "--surround" in res.output and "give --crop too" in res.output, res.output
+
+
+@needs_sionna
+def test_simulate_with_a_material_mix_records_each_buildings_class_and_paths_go_through_it(tmp_path):
+    """``--materials glass=0.5,metal=0.5`` on the tiny city: simulation.json names each building's class (half each)
+    and the materials with their meshes; the trace differs from the all-concrete one (another key). With every
+    building metal, no straight path through a wall carries power; through concrete, they do."""
+    common = ["procedural:tiny", "--users", "2", "--samples", "3e3", "--seed", "4", "--depth", "2",
+              "--trace-cache", str(tmp_path / "cache")]  # fmt: skip
+    _simulate(tmp_path, *common, "--name", "mix", "--materials", "glass=0.5,metal=0.5")
+    record = json.loads((tmp_path / "raw" / "mix" / "simulation.json").read_text())
+    classes = list(record["building_materials"].values())
+    assert len(classes) == record["num_buildings"] and classes.count("glass") - classes.count("metal") in (-1, 0, 1)
+    assert {m["itu_name"]: m["shapes"] for m in record["materials"]} == {
+        "medium_dry_ground": ["ground"], "glass": ["buildings-glass"], "metal": ["buildings-metal"]
+    }  # fmt: skip
+    assert record["spec"]["materials"] == [["glass", 0.5], ["metal", 0.5]]
+    direct = {}
+    for name, words in (("plain", []), ("metal", ["--materials", "metal"])):
+        _simulate(tmp_path, *common, "--name", name, *words)
+        with np.load(tmp_path / "cache" / f"{name}.npz", allow_pickle=False) as z:
+            direct[name], crossings = z["direct"], z["crossings"]
+    through = (crossings >= 1) & (crossings <= 2)
+    assert through.sum() > 20 and (direct["plain"][through] > 0).all()
+    assert (direct["metal"][through] < 1e-30).all() and (direct["metal"][crossings == 0] == direct["plain"][crossings == 0]).all()
+    assert "materials" not in json.loads((tmp_path / "raw" / "plain" / "simulation.json").read_text())["spec"]
 
 
 @needs_sionna

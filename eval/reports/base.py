@@ -14,6 +14,7 @@ import click
 from pydantic import BaseModel, ConfigDict
 
 from uavplace.infra.console import LogLines, console, plain_table, say, stdout, warn_or_refuse
+from uavplace.infra.device import Device
 from uavplace.infra.options import with_pairs
 from uavplace.rl.config import MapErrorSettings, MeasurementSettings, SearchConfig
 
@@ -46,6 +47,7 @@ class ReportRequest(BaseModel):
     search: SearchConfig
     measurement: MeasurementSettings = MeasurementSettings()
     map_error: MapErrorSettings = MapErrorSettings()
+    device: Device = "auto"
     overwrite: bool = False
     strict: bool = False
     workers: int = 1
@@ -61,7 +63,7 @@ class ReportRequest(BaseModel):
     def shared_settings(self, runs: list[Path]) -> dict:
         """The fields of ``eval.config.ReportSettings`` every task's report settings take from the request as they are
         (the agents ``runs`` as the report chose them)."""
-        fields = ("episodes", "seed", "test_epsilon", "n_boot", "search", "measurement", "map_error")
+        fields = ("episodes", "seed", "test_epsilon", "n_boot", "search", "measurement", "map_error", "device")
         return {"runs": [str(r) for r in runs], "predictor": self.predictor_or_none} | {k: getattr(self, k) for k in fields}
 
 

@@ -20,6 +20,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from uavplace.infra.device import torch_device
 from uavplace.infra.limits import check_limit
 from uavplace.rl.agent.config import DQNConfig
 from uavplace.rl.agent.network import FoveaQNetwork, MeanQ, QNetwork
@@ -71,12 +72,6 @@ def _network(config: DQNConfig, in_channels: int, window: int) -> nn.Module:
     return QNetwork(in_channels, window, channels=config.conv_channels, **sizes)
 
 
-def resolve_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
-
-
 def to_tensor(obs: np.ndarray, device: torch.device | None = None) -> torch.Tensor:
     """uint8 (compact) or float observations -> float32 tensor in dB / m, on ``device``."""
     if obs.dtype == np.uint8:  # decode_obs, in torch (faster; on a GPU the uint8 bytes travel, not floats)
@@ -105,7 +100,7 @@ class DQN:
 
     def __init__(self, config: DQNConfig, in_channels: int, window: int, fast: bool = True) -> None:
         self.config = config
-        self.device = resolve_device(config.device)
+        self.device = torch_device(config.device)
         self.online = make_network(config, in_channels, window).to(self.device)
         # ``fast``: the same computation, arranged for speed (benchmarks/bench_train.py --paper-speed measures it
         # against fast=False): a convolutional network's weights and inputs in channels-last order, its eval-mode

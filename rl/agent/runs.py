@@ -10,6 +10,7 @@ import pandas as pd
 from pydantic import Field, ValidationError
 from torch import nn
 
+from uavplace.infra.device import torch_device
 from uavplace.infra.files import (
     read_small_file,
 )
@@ -105,10 +106,13 @@ def new_run_dir(runs: str | Path, config: DQNConfig) -> Path:
     return Path(runs) / f"{stamp}-{config.preset}{task}-{config.agent}-s{config.seed}"
 
 
-def policy_from_checkpoint(ck: dict, path: str | Path, epsilon: float = 0.096, seed: int = 0) -> tuple[DQNPolicy, DQNConfig]:
-    """The policy a loaded ``best.pt`` (``load_tensors``) holds, with its config; ``InputError`` naming ``path``."""
+def policy_from_checkpoint(
+    ck: dict, path: str | Path, epsilon: float = 0.096, seed: int = 0, device: str = "cpu"
+) -> tuple[DQNPolicy, DQNConfig]:
+    """The policy a loaded ``best.pt`` (``load_tensors``) holds, with its config, its network on ``device``
+    (``infra.device``'s setting); ``InputError`` naming ``path``."""
     net, config = network_from_checkpoint(ck, path)
-    return DQNPolicy.from_config(net, config, epsilon, seed), config
+    return DQNPolicy.from_config(net.to(torch_device(device)), config, epsilon, seed), config
 
 
 def network_from_checkpoint(ck: dict, path: str | Path) -> tuple[nn.Module, DQNConfig]:

@@ -5,6 +5,7 @@ docstring says the model."""
 from __future__ import annotations
 
 import math
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -12,6 +13,7 @@ import numpy as np
 import torch
 from scipy.special import ndtr, ndtri
 
+from uavplace.infra.device import torch_device
 from uavplace.infra.limits import check_limit
 from uavplace.rl.belief.cache import PredictionCache
 from uavplace.rl.config import SearchConfig
@@ -66,13 +68,41 @@ def probit_of(cover: np.ndarray) -> np.ndarray:
     return ndtri(np.clip(cover, 1e-6, 1 - 1e-6)).astype(np.float32)
 
 
-def posterior_cover(log_b: np.ndarray, cover: np.ndarray) -> np.ndarray:
+class DeviceCopies:
+    """Arrays copied once to a torch ``device`` (float64, as numpy computes with them): a copy is kept while the array
+    it copies lives (held by a weak reference, so an array made later at the same address is copied anew)."""
+
+    def __init__(self, device: torch.device) -> None:
+        self.device = device
+        self._held: dict[int, tuple[weakref.ref, torch.Tensor]] = {}
+
+    def __call__(self, array: np.ndarray) -> torch.Tensor:
+        held = self._held.get(id(array))
+        if held is not None and held[0]() is array:
+            return held[1]
+        self._held = {k: v for k, v in self._held.items() if v[0]() is not None}
+        copy = torch.from_numpy(np.ascontiguousarray(array)).to(self.device, torch.float64)
+        self._held[id(array)] = (weakref.ref(array), copy)
+        return copy
+
+
+def posterior_cover(log_b: np.ndarray, cover: np.ndarray, on_device: DeviceCopies | None = None) -> np.ndarray:
     """``[R, M]`` the posterior probability that each cell reaches P_T, ``b @ cover``, for log-beliefs ``log_b`` [R, C]
     (any offset) over the candidates of ``cover`` [C, M]: the rows in one matrix product, which reads ``cover`` once
-    for them all (the planner's main cost)."""
+    for them all (the planner's main cost). ``on_device``: the product in torch on its device (``cover`` copied there
+    once), float64 as here; None: numpy on the CPU."""
+    if on_device is not None:
+        b = torch.softmax(torch.from_numpy(np.asarray(log_b, np.float64)).to(on_device.device), dim=1)
+        return (b @ on_device(cover)).cpu().numpy()
     b = np.exp(log_b - log_b.max(axis=1, keepdims=True))
     b /= b.sum(axis=1, keepdims=True)
     return b @ cover
+
+
+def device_copies(device: str) -> DeviceCopies | None:
+    """Where the belief products of the setting ``device`` (``infra.device``) run: None on the CPU (numpy)."""
+    chosen = torch_device(device)
+    return None if chosen.type == "cpu" else DeviceCopies(chosen)
 
 
 class BeliefModel:
@@ -83,11 +113,18 @@ class BeliefModel:
     observation."""
 
     def __init__(
-        self, predictor: Predictor | PhysicsConstants, config: SearchConfig | None = None, cache: PredictionCache | None = None
+        self,
+        predictor: Predictor | PhysicsConstants,
+        config: SearchConfig | None = None,
+        cache: PredictionCache | None = None,
+        device: str = "cpu",
     ) -> None:
         self.predictor = PhysicsPredictor(predictor) if isinstance(predictor, PhysicsConstants) else predictor
         self.config = config or SearchConfig()
         self.cache = cache or PredictionCache(None)
+        #: Where the belief products run (``infra.device``'s setting), and their copies of the maps there (None: numpy).
+        self.device = device
+        self.on_device = device_copies(device)
         self._canvases: dict[tuple, CandidateMaps] = {}
         #: Told ``(candidates done, candidates)`` as a canvas's maps are predicted (a report's progress), or None.
         self.on_predict: Callable[[int, int], None] | None = None
@@ -96,8 +133,12 @@ class BeliefModel:
         """What a copy in another process (a Ray task) takes: the predictor, the settings and the cache's folder,
         not the maps held in memory (read again from the cache there) nor the progress callback."""
         state = self.__dict__.copy()
-        state.update(_canvases={}, on_predict=None)
+        state.update(_canvases={}, on_predict=None, on_device=None)
         return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self.on_device = device_copies(self.device)  # the device of the process it lands in
 
     # -- predictions -----------------------------------------------------------------------------
     def canvas_maps(self, public: PublicMaps, canvas: int) -> CandidateMaps:
@@ -258,9 +299,13 @@ class BeliefModel:
         latent = latents[keep].astype(np.float32)  # [C', V]
         q = (probit_of(maps.cover[:, targets]) if maps.probit is None else maps.probit[:, targets])[keep]  # [C', K]
         # torch's normal CDF: the step's main cost, a tenth of scipy's on these cores
-        z = torch.from_numpy(latent) @ torch.from_numpy(weights.astype(np.float32))
-        z = (z + torch.from_numpy(np.ascontiguousarray(q))) / torch.from_numpy(spread.astype(np.float32))
-        return (torch.from_numpy(b.astype(np.float32)) @ torch.special.ndtr(z)).numpy().astype(np.float64)
+        device = torch.device("cpu") if self.on_device is None else self.on_device.device
+
+        def put(a: np.ndarray) -> torch.Tensor:
+            return torch.from_numpy(np.ascontiguousarray(a, np.float32)).to(device)
+
+        z = (put(latent) @ put(weights) + put(q)) / put(spread)
+        return (put(b) @ torch.special.ndtr(z)).cpu().numpy().astype(np.float64)
 
     def update(
         self,

@@ -347,13 +347,13 @@ def trace_predictor(
     from uavplace.infra.console import command_line
     from uavplace.infra.files import atomic_directory, check_output_folder
     from uavplace.rl.predictor import MODEL_JSON, PhysicsPredictor, Scene, load_constants
-    from uavplace.rl.predictor.raytraced import RayTracedPredictor, calibrate, variant
+    from uavplace.rl.predictor.raytraced import RayTracedPredictor, calibrate
     from uavplace.rl.predictor.scores import score_tiers
-    from uavplace.simulate.raytrace import require_raytrace
+    from uavplace.simulate.raytrace import mitsuba_variant, require_raytrace
 
     try:
         require_raytrace()
-        variant(device)
+        mitsuba_variant(device)
     except (RuntimeError, ValueError) as err:
         raise click.UsageError(str(err)) from None
     check_output_folder(out, MODEL_JSON, "ray-traced predictor", (MODEL_JSON,))

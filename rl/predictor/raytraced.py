@@ -12,7 +12,7 @@ the physics tier, or the shipped learned tier).
 
 SINR = power + gain - noise. The spread of its errors and the dead-cell probability are calibrated on training
 cities' users (``calibrate``): a logistic in the traced SINR where the trace reached, another in the fallback's SINR
-where it did not. Mitsuba's CUDA variant traces where a GPU is present (``variant``), the LLVM one on a CPU; each
+where it did not. Mitsuba's CUDA variant traces where a GPU is present (``simulate.raytrace.mitsuba_variant``), the LLVM one on a CPU; each
 solver call on one Dr.Jit thread (the same rays, the same map to the bit), the cores used by Ray tasks
 (``traced_gain``). The settings and the calibration are the tier's model card (``RayTracedModel``, ``model.json`` in its folder).
 
@@ -31,14 +31,14 @@ import numpy as np
 import shapely
 from pydantic import Field
 
+from uavplace.infra.device import DEVICE_HELP, Device
 from uavplace.infra.files import read_model_json, write_model_json
 from uavplace.rl.predictor.base import code_digest, version_of
 from uavplace.rl.predictor.physics import PhysicsConstants, PhysicsPredictor
 from uavplace.rl.predictor.scene import Scene
 from uavplace.schemas.base import Contract
+from uavplace.simulate.raytrace import mitsuba_variant
 
-#: The variants of Mitsuba the tier traces with, by device.
-VARIANTS = {"cuda": "cuda_ad_mono_polarized", "cpu": "llvm_ad_mono_polarized"}
 #: The gain [linear] below which a cell counts as unreached (Sionna leaves a cell no ray hit at exactly 0).
 UNREACHED_GAIN = 1e-30
 
@@ -62,7 +62,7 @@ class RayTracedModel(Contract):
         default=True, description="A cell no ray hit takes the straight path through the walls of the material"
     )
     seed: int = Field(default=0, ge=0, description="The rays' seed (each call adds its first candidate's index)")
-    device: Literal["auto", "cpu", "cuda"] = Field(default="auto", description="auto: CUDA where a GPU is, else the CPU")
+    device: Device = Field(default="auto", description=f"Where the rays are traced: {DEVICE_HELP}")
     constants: PhysicsConstants = Field(description="The physics tier (the fallback's, where it is physics)")
     fallback: Literal["physics", "learned"] = Field(
         default="learned",
@@ -89,29 +89,6 @@ class RayTracedModel(Contract):
     calibration_users: int = Field(default=0, ge=0, description="Training users the calibration was fitted on")
     scores: dict[str, dict[str, float]] = Field(default_factory=dict, description="Per validation city: scores_of")
     made_by: list[str] = Field(default_factory=list, description="The commands that made it, in order")
-
-
-def variant(device: str = "auto", cuda_available: bool | None = None) -> str:
-    """The Mitsuba variant for ``device`` (``auto``: CUDA where Dr.Jit finds a GPU, else LLVM on the CPU);
-    ``ValueError`` for ``cuda`` without a GPU. ``cuda_available`` overrides the look (None: ask Dr.Jit)."""
-    if device not in ("auto", "cpu", "cuda"):
-        raise ValueError(f"unknown device {device!r}: auto, cpu or cuda")
-    if cuda_available is None:
-        cuda_available = _cuda_available()
-    if device == "cuda" and not cuda_available:
-        raise ValueError("device cuda: no GPU that Dr.Jit can use here (auto or cpu trace on the CPU)")
-    return VARIANTS["cuda" if device != "cpu" and cuda_available else "cpu"]
-
-
-def _cuda_available() -> bool:
-    try:
-        import drjit as dr
-    except ImportError:
-        return False
-    try:
-        return bool(dr.has_backend(dr.JitBackend.CUDA))
-    except Exception:  # noqa: BLE001 - Dr.Jit raises on a machine without the CUDA driver
-        return False
 
 
 def map_blocks(scene: Scene) -> list:
@@ -205,7 +182,7 @@ def _trace_part(
     temporary folder here, the ray tracer in a child process on one thread (the same rays give the same map to the
     bit; ``workers`` Ray tasks use the cores)."""
     from uavplace.simulate.raytrace import RadioMapJob, RayTraceConfig, path_gain_maps_isolated
-    from uavplace.simulate.scene import CONCRETE, write_scene
+    from uavplace.simulate.scene import walls_of, write_scene
 
     ny, nx = scene.ground_height_m.shape
     s = scene.spacing_m
@@ -219,7 +196,7 @@ def _trace_part(
         users_per_call=model.users_per_call,
     )
     with tempfile.TemporaryDirectory(prefix="uavplace-map-") as tmp:
-        xml, _ = write_scene(tmp, map_blocks(scene), (0.0, 0.0, nx * s, ny * s), scene.frequency_hz)
+        xml, materials = write_scene(tmp, map_blocks(scene), (0.0, 0.0, nx * s, ny * s), scene.frequency_hz)
         job = RadioMapJob(
             scene_xml=str(xml),
             users_m=tuple((float(x), float(y), float(model.user_height_m)) for x, y in xy),
@@ -227,9 +204,9 @@ def _trace_part(
             size_m=(nx * s, ny * s),
             cell_m=s,
         )
-        material = CONCRETE.at(scene.frequency_hz) if model.straight_path else None
+        walls = walls_of(materials) if model.straight_path else None
         traced = path_gain_maps_isolated(
-            job, config, on_batch=on_batch, variant=variant(model.device), material=material, threads=1
+            job, config, on_batch=on_batch, variant=mitsuba_variant(model.device), walls=walls, threads=1
         )
     fine = np.where(traced[1] > UNREACHED_GAIN, traced[1], 0.0)
     return fine, (traced["direct"] if model.straight_path else np.zeros_like(fine))
@@ -264,7 +241,7 @@ def trace_key(scene: Scene, users: np.ndarray, model: RayTracedModel) -> str:
     digest.update(np.ascontiguousarray(users).tobytes())
     settings = {f: getattr(model, f) for f in TRACE_FIELDS}
     others = [scene.spacing_m, scene.altitude_m, scene.frequency_hz, scene.tx_power_dbm, scene.noise_dbm]
-    digest.update(json.dumps([settings, others, variant(model.device), code_digest()], sort_keys=True).encode())
+    digest.update(json.dumps([settings, others, mitsuba_variant(model.device), code_digest()], sort_keys=True).encode())
     return digest.hexdigest()
 
 
@@ -294,7 +271,7 @@ class RayTracedPredictor:
                 "tier": self.tier,
                 "model": doc,
                 "fallback": self.fallback.version(),
-                "variant": variant(self.model.device),
+                "variant": mitsuba_variant(self.model.device),
                 "code": code_digest(),
                 "packages": sionna_versions(),
             }

@@ -72,9 +72,10 @@ def fleet_results(
     policies = []
     if config.predictor is not None:
         cache = PredictionCache(Path(root) / PREDICTIONS)
-        policies.append(FleetSearcher(load_predictor(config.predictor), config.search, cache).bind(maps))
+        searcher = FleetSearcher(load_predictor(config.predictor), config.search, cache, device=config.device)
+        policies.append(searcher.bind(maps))
     for run in config.runs:
-        agent = load_agent(run, config.test_epsilon, config.seed, task=None)
+        agent = load_agent(run, config.test_epsilon, config.seed, task=None, device=config.device)
         if agent.config.task.kind not in _FLEET_PREFIX:
             raise InputError(
                 run, f"a {agent.config.task.kind} agent: the fleet plays placement agents and fleet-trained ones", field="task"

@@ -335,7 +335,7 @@ def make_tracking_report(
     out = Path(out)
     check_replaceable(out, TRACKING_JSON, "tracking report")
     bundles = [load_bundle(name, root=root) for name in config.datasets]
-    agents = [load_agent(r, config.test_epsilon, config.seed, task=None) for r in config.runs]
+    agents = [load_agent(r, config.test_epsilon, config.seed, task=None, device=config.device) for r in config.runs]
     for b in bundles:
         if b.routes is None:
             raise InputError(
@@ -349,7 +349,8 @@ def make_tracking_report(
     searcher = None
     if config.predictor is not None:
         cache = PredictionCache(Path(root) / PREDICTIONS)
-        searcher = TrackingSearchPolicy(MapSearchPolicy(load_predictor(config.predictor), config.search, cache), config.motion)
+        placement = MapSearchPolicy(load_predictor(config.predictor), config.search, cache, device=config.device)
+        searcher = TrackingSearchPolicy(placement, config.motion)
     for number, b in enumerate(bundles, 1):
         routes = RouteSet([b], config.task)
         try:

@@ -53,10 +53,10 @@ class FleetSearcher:
     unread_settings = PLACEMENT_PLAN_SETTINGS
     planners = ("cover", "info")
 
-    def __init__(self, predictor, config=None, cache=None) -> None:  # noqa: ANN001 - rl.tasks.placement.searcher's types
+    def __init__(self, predictor, config=None, cache=None, device: str = "cpu") -> None:  # noqa: ANN001 - the searcher's types
         from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
 
-        self.searcher = MapSearchPolicy(predictor, config, cache)
+        self.searcher = MapSearchPolicy(predictor, config, cache, device=device)
         self.public = None
         self.log_b: list[list[np.ndarray]] = []
 
@@ -106,7 +106,7 @@ class FleetSearcher:
         for canvas, rows in by_canvas.items():  # the plans: a city's rows' users in one matrix product
             cm = self.searcher.canvas_maps(public, canvas)
             self.searcher.prefetch_paths(public, canvas, cm, np.concatenate(uav_cells[canvas]))
-            covers = posterior_cover(np.concatenate([np.stack(self.log_b[r]) for r in rows]), cm.cover)
+            covers = posterior_cover(np.concatenate([np.stack(self.log_b[r]) for r in rows]), cm.cover, self.searcher.on_device)
             for i, r in enumerate(rows):
                 out[r] = self._plan(cm, canvas, covers[i * cfg.users : (i + 1) * cfg.users], view, r, mask[r])
         return out

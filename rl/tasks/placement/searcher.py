@@ -47,8 +47,9 @@ class MapSearchPolicy(BeliefModel):
         config: SearchConfig | None = None,
         cache: PredictionCache | None = None,
         name: str | None = None,
+        device: str = "cpu",
     ) -> None:
-        super().__init__(predictor, config, cache)
+        super().__init__(predictor, config, cache, device)
         self.name = name or (SEARCHER if self.config.buildings else SEARCHER + ", no buildings")
         self._graphs: dict[tuple, sparse.csr_matrix] = {}
         self._paths: OrderedDict[tuple, tuple[np.ndarray, np.ndarray]] = OrderedDict()
@@ -191,7 +192,7 @@ class MapSearchPolicy(BeliefModel):
         for c, rows in by_canvas.items():  # the plans, a canvas's rows in one product
             maps = self.canvas_maps(public, c)
             self.prefetch_paths(public, c, maps, here[rows])
-            scores = posterior_cover(np.stack([self.belief[r] for r in rows]), maps.cover)
+            scores = posterior_cover(np.stack([self.belief[r] for r in rows]), maps.cover, self.on_device)
             floor_db = float(public.settings[public.bundle_of(c)]["floor_db"])
             p_t = public.config.p_t_db
             for i, r in enumerate(rows):

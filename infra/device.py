@@ -1,0 +1,40 @@
+"""Where the arithmetic runs: ``auto`` (CUDA where there is a GPU, else the CPU), ``cpu`` or ``cuda``, one rule for
+torch (the agents' networks, the belief products) and for Mitsuba (the ray tracer's variant, ``simulate.raytrace``).
+
+What moves to a GPU, and how far its numbers may differ from the CPU's, is in docs/benchmarks.md ("A GPU where
+there is one"). A choice of ``cuda`` on a machine without one is an error, never a silent fall back to the CPU.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Literal
+
+if TYPE_CHECKING:
+    import torch
+
+#: The settings of a ``--device`` option.
+Device = Literal["auto", "cpu", "cuda"]
+DEVICES: tuple[str, ...] = ("auto", "cpu", "cuda")
+#: The description every ``--device`` option shares.
+DEVICE_HELP = "auto: CUDA where there is a GPU, else the CPU; cpu; cuda (an error without a GPU)"
+
+
+def pick(device: str, cuda_available: bool, what: str) -> str:
+    """``cpu`` or ``cuda`` for the setting ``device`` when ``cuda_available`` says whether ``what`` finds a GPU;
+    ``ValueError`` for an unknown setting or ``cuda`` without one."""
+    if device not in DEVICES:
+        raise ValueError(f"unknown device {device!r}: {', '.join(DEVICES)}")
+    if device == "cuda" and not cuda_available:
+        raise ValueError(f"device cuda: no GPU that {what} can use here (auto or cpu run on the CPU)")
+    return "cuda" if device != "cpu" and cuda_available else "cpu"
+
+
+def torch_device(device: str, cuda_available: bool | None = None) -> torch.device:
+    """The torch device of the setting ``device``, or of ``cuda:N`` (one GPU of several); ``cuda_available``
+    overrides the look (None: ask torch)."""
+    import torch
+
+    if cuda_available is None:
+        cuda_available = torch.cuda.is_available()
+    one_gpu = device.startswith("cuda:") and device[5:].isdigit()
+    return torch.device(device if one_gpu and pick("cuda", cuda_available, "torch") else pick(device, cuda_available, "torch"))
