@@ -595,3 +595,18 @@ def test_kriging_searcher_finds_the_tiny_users(tiny):
         policy = MapSearchPolicy(_constants(), SearchConfig(error_share=0.85, kriging=kriging, error_memory=memory))
         df = run_episodes(maps, policy, maps.episode_list(20, 0), num_envs=8)
         assert df["success"].mean() >= 0.9
+
+
+def test_a_float64_belief_reads_the_cover_cast_once_and_gets_the_same_sums():
+    """``CandidateMaps.cover64`` is made once per canvas's maps, and a float64 belief's product with it is the product
+    with the float32 ``cover`` to the bit (numpy casts that one at every call), whatever the number of rows."""
+    from uavplace.rl.belief import CandidateMaps, posterior_cover
+
+    rng = np.random.default_rng(11)
+    cover = rng.random((333, 1201)).astype(np.float32)
+    maps = CandidateMaps(np.zeros((333, 2), np.int64), np.zeros((1201, 2), np.int64), np.zeros((1, 1), np.int64),
+                         cover, cover, cover)  # fmt: skip
+    assert maps.cover64 is maps.cover64 and maps.cover64.dtype == np.float64
+    for rows in (1, 2, 7, 64, 257):
+        log_b = rng.normal(0, 20, (rows, 333))
+        assert np.array_equal(posterior_cover(log_b, maps.cover64), posterior_cover(log_b, maps.cover)), rows

@@ -192,7 +192,7 @@ class MapSearchPolicy(BeliefModel):
         for c, rows in by_canvas.items():  # the plans, a canvas's rows in one product
             maps = self.canvas_maps(public, c)
             self.prefetch_paths(public, c, maps, here[rows])
-            scores = posterior_cover(np.stack([self.belief[r] for r in rows]), maps.cover, self.on_device)
+            scores = posterior_cover(np.stack([self.belief[r] for r in rows]), maps.cover64, self.on_device)
             floor_db = float(public.settings[public.bundle_of(c)]["floor_db"])
             p_t = public.config.p_t_db
             for i, r in enumerate(rows):
@@ -230,7 +230,7 @@ class MapSearchPolicy(BeliefModel):
         b = np.exp(log_b - log_b.max())
         keep = b > 1e-6
         b = (b[keep] / b[keep].sum()).astype(np.float64)
-        cover = maps.cover[keep].astype(np.float64)
+        cover = maps.cover64[keep]
         discount, _, _ = self.paths_from(public, canvas, maps, here)
         score = np.where(seen | (discount < 0), -1.0, (b @ cover) * discount)
         k = min(self.config.lookahead_targets, len(score))
