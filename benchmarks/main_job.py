@@ -22,10 +22,11 @@ INSTALL = ("python3 -m venv", ". .venv/bin/activate", "pip install")
 
 
 def main_job(readme: Path) -> list[str]:
-    """The main job's commands: the README's first command, split at ``&&``, without the install steps."""
+    """The main job's commands: the README's first command (the first line of its first code block that is not a
+    comment), split at ``&&``, without the install steps."""
     text = readme.read_text(encoding="utf-8")
     start = text.index("```bash\n") + len("```bash\n")
-    line = text[start:].splitlines()[0]
+    line = next(x for x in text[start:].splitlines() if x.strip() and not x.lstrip().startswith("#"))
     return [c.strip() for c in line.split("&&") if not c.strip().startswith(INSTALL)]
 
 

@@ -178,3 +178,15 @@ def test_the_readme_is_short_and_the_changelog_one_line_a_change():
             assert line in ("### Added", "### Changed", "### Fixed"), f"CHANGELOG.md:{n}: {line}"
         elif line.strip() and not line.startswith("## "):
             assert line.startswith("- ") and len(line) <= 160, f"CHANGELOG.md:{n} is not one line of a change"
+
+
+def test_the_main_job_benchmark_times_the_readmes_first_command():
+    """``benchmarks/main_job.py`` reads the README's first command past the comments that label it: ingest, build and
+    the report, the install left out."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("main_job", REPO / "benchmarks" / "main_job.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    commands = module.main_job(REPO / "README.md")
+    assert [c.split()[:2] for c in commands] == [["uavdata", "ingest"], ["uavdata", "build"], ["uavrl", "report"]]
