@@ -193,10 +193,7 @@ def _request(values: dict[str, Any]) -> ReportRequest:
     if values["task"] == "fleet" and not map_error.exact:
         raise click.BadParameter("the fleet task plays on the traced city's map", param_hint="'--map-error'")
     search = task_report(values["task"]).search(values["search"])
-    from uavplace.infra.device import torch_device
+    from uavplace.infra.device import require_torch_device
 
-    try:  # --device cuda without a GPU: refused before any city is loaded
-        torch_device(values["device"])
-    except ValueError as err:
-        raise click.BadParameter(str(err), param_hint="'--device'") from None
+    require_torch_device(values["device"])  # --device cuda without a GPU: refused before any city is loaded
     return ReportRequest(**(values | {"search": search, "measurement": measurement, "map_error": map_error}))

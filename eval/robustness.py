@@ -250,12 +250,9 @@ def robustness(
     (docs/report.md)."""
     from uavplace.eval.cities import release_cities
     from uavplace.eval.evaluate import check_unseen_runs, default_agents
-    from uavplace.infra.device import torch_device
+    from uavplace.infra.device import require_torch_device
 
-    try:  # --device cuda without a GPU: refused before any city is loaded
-        torch_device(device)
-    except ValueError as err:
-        raise click.BadParameter(str(err), param_hint="'--device'") from None
+    require_torch_device(device)  # --device cuda without a GPU: refused before any city is loaded
     chosen = list(datasets) or release_cities(root)
     agents = [str(r) for r in runs] or [str(p) for p in default_agents()]
     check_unseen_runs([Path(a) for a in agents], chosen, root)  # no agent trained or selected in a city it plays

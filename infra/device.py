@@ -38,3 +38,13 @@ def torch_device(device: str, cuda_available: bool | None = None) -> torch.devic
         cuda_available = torch.cuda.is_available()
     one_gpu = device.startswith("cuda:") and device[5:].isdigit()
     return torch.device(device if one_gpu and pick("cuda", cuda_available, "torch") else pick(device, cuda_available, "torch"))
+
+
+def require_torch_device(device: str) -> None:
+    """A command's check of its ``--device`` before any work: ``click.BadParameter`` where torch cannot run there."""
+    import click
+
+    try:
+        torch_device(device)
+    except ValueError as err:
+        raise click.BadParameter(str(err), param_hint="'--device'") from None
