@@ -13,7 +13,7 @@ from click.testing import CliRunner
 
 from uavplace.cli import uavdata, uavrl
 from uavplace.infra.device import pick, torch_device
-from uavplace.rl.belief.model import DeviceCopies, posterior_cover
+from uavplace.rl.belief.model import CandidateMaps, DeviceCopies, posterior_cover
 from uavplace.simulate.config import Simulation
 from uavplace.simulate.raytrace import VARIANTS, RayTraceConfig, mitsuba_variant, raytrace_record
 
@@ -41,16 +41,21 @@ def test_the_belief_product_in_torch_is_numpys():
     map is made once while the map lives and never served for another array."""
     rng = np.random.default_rng(3)
     cover = rng.random((300, 700)).astype(np.float32)
+    maps = CandidateMaps(np.zeros((300, 2), np.int64), np.zeros((700, 2), np.int64), np.zeros((1, 1)), cover, cover, cover)
     log_b = rng.normal(0, 30, (9, 300))
     copies = DeviceCopies(torch.device("cpu"))
-    np.testing.assert_allclose(posterior_cover(log_b, cover, copies), posterior_cover(log_b, cover), rtol=1e-12, atol=1e-15)
-    first = copies(cover)
-    assert copies(cover) is first and len(copies._held) == 1
+    np.testing.assert_allclose(posterior_cover(log_b, maps, copies), posterior_cover(log_b, maps), rtol=1e-12, atol=1e-15)
+    single = log_b.astype(np.float32)  # a float32 belief: its product in float32 on either side
+    on_torch = posterior_cover(single, maps, copies)
+    assert on_torch.dtype == posterior_cover(single, maps).dtype == np.float32
+    np.testing.assert_allclose(on_torch, posterior_cover(single, maps), rtol=1e-5, atol=1e-7)
+    first = copies(cover, np.float64)
+    assert copies(cover, np.float64) is first and len(copies._held) == 2  # float64 and float32 copies of one array
     other = cover * 0.5
-    assert copies(other) is not first and torch.equal(copies(other), torch.from_numpy(other).double())
+    assert copies(other, np.float64) is not first and torch.equal(copies(other, np.float64), torch.from_numpy(other).double())
     del other
-    copies(cover.copy())  # a third array: the dead one's copy is dropped
-    assert len(copies._held) == 2
+    copies(cover.copy(), np.float64)  # another array: the dead one's copy is dropped
+    assert len(copies._held) == 3
 
 
 def test_the_searcher_plays_the_same_episodes_with_its_products_in_torch(tiny):

@@ -597,9 +597,10 @@ def test_kriging_searcher_finds_the_tiny_users(tiny):
         assert df["success"].mean() >= 0.9
 
 
-def test_a_float64_belief_reads_the_cover_cast_once_and_gets_the_same_sums():
+def test_a_belief_reads_the_cover_in_its_own_precision_and_a_float64_one_casts_it_once():
     """``CandidateMaps.cover64`` is made once per canvas's maps, and a float64 belief's product with it is the product
-    with the float32 ``cover`` to the bit (numpy casts that one at every call), whatever the number of rows."""
+    with the float32 ``cover`` to the bit (numpy casts that one at every call), whatever the number of rows; a float32
+    belief's product stays the float32 one."""
     from uavplace.rl.belief import CandidateMaps, posterior_cover
 
     rng = np.random.default_rng(11)
@@ -609,4 +610,10 @@ def test_a_float64_belief_reads_the_cover_cast_once_and_gets_the_same_sums():
     assert maps.cover64 is maps.cover64 and maps.cover64.dtype == np.float64
     for rows in (1, 2, 7, 64, 257):
         log_b = rng.normal(0, 20, (rows, 333))
-        assert np.array_equal(posterior_cover(log_b, maps.cover64), posterior_cover(log_b, maps.cover)), rows
+        b = np.exp(log_b - log_b.max(axis=1, keepdims=True))
+        b /= b.sum(axis=1, keepdims=True)
+        assert np.array_equal(posterior_cover(log_b, maps), b @ cover), rows  # numpy's cast at every product
+        single = log_b.astype(np.float32)  # a float32 belief stays in float32, over the float32 cover
+        b = np.exp(single - single.max(axis=1, keepdims=True))
+        b /= b.sum(axis=1, keepdims=True)
+        assert posterior_cover(single, maps).dtype == np.float32 and np.array_equal(posterior_cover(single, maps), b @ cover)

@@ -77,35 +77,38 @@ def probit_of(cover: np.ndarray) -> np.ndarray:
 
 
 class DeviceCopies:
-    """Arrays copied once to a torch ``device`` (float64, as numpy computes with them): a copy is kept while the array
-    it copies lives (held by a weak reference, so an array made later at the same address is copied anew)."""
+    """Arrays copied once to a torch ``device`` in a dtype: a copy is kept while the array it copies lives (held by a
+    weak reference, so an array made later at the same address is copied anew)."""
 
     def __init__(self, device: torch.device) -> None:
         self.device = device
-        self._held: dict[int, tuple[weakref.ref, torch.Tensor]] = {}
+        self._held: dict[tuple[int, str], tuple[weakref.ref, torch.Tensor]] = {}
 
-    def __call__(self, array: np.ndarray) -> torch.Tensor:
-        held = self._held.get(id(array))
+    def __call__(self, array: np.ndarray, dtype: np.dtype) -> torch.Tensor:
+        key = (id(array), np.dtype(dtype).str)
+        held = self._held.get(key)
         if held is not None and held[0]() is array:
             return held[1]
         self._held = {k: v for k, v in self._held.items() if v[0]() is not None}
-        copy = torch.from_numpy(np.ascontiguousarray(array)).to(self.device, torch.float64)
-        self._held[id(array)] = (weakref.ref(array), copy)
+        copy = torch.from_numpy(np.ascontiguousarray(array, dtype)).to(self.device)
+        self._held[key] = (weakref.ref(array), copy)
         return copy
 
 
-def posterior_cover(log_b: np.ndarray, cover: np.ndarray, on_device: DeviceCopies | None = None) -> np.ndarray:
+def posterior_cover(log_b: np.ndarray, maps: CandidateMaps, on_device: DeviceCopies | None = None) -> np.ndarray:
     """``[R, M]`` the posterior probability that each cell reaches P_T, ``b @ cover``, for log-beliefs ``log_b`` [R, C]
-    (any offset) over the candidates of ``cover`` [C, M]: the rows in one matrix product, which reads ``cover`` once
-    for them all (the planner's main cost). A float64 belief takes ``CandidateMaps.cover64`` (numpy casts a float32
-    ``cover`` at every product), a float32 one ``cover``. ``on_device``: the product in torch on its device (``cover`` copied there
-    once), float64 as here; None: numpy on the CPU."""
+    (any offset) over the candidates of ``maps`` [C, M]: the rows in one matrix product, which reads the cover once
+    for them all (the planner's main cost). In the precision of ``log_b`` with the float32 cover, as numpy gives it: a
+    float32 belief's product in float32, a float64 one's over ``CandidateMaps.cover64`` (made once; numpy would cast
+    the cover at every product, to the same sums). ``on_device``: the product in torch on its device (the cover
+    copied there once), in the same precision; None: numpy on the CPU."""
+    dtype = np.result_type(log_b.dtype, maps.cover.dtype)
     if on_device is not None:
-        b = torch.softmax(torch.from_numpy(np.asarray(log_b, np.float64)).to(on_device.device), dim=1)
-        return (b @ on_device(cover)).cpu().numpy()
+        b = torch.softmax(torch.from_numpy(np.asarray(log_b, dtype)).to(on_device.device), dim=1)
+        return (b @ on_device(maps.cover, dtype)).cpu().numpy()
     b = np.exp(log_b - log_b.max(axis=1, keepdims=True))
     b /= b.sum(axis=1, keepdims=True)
-    return b @ cover
+    return b @ (maps.cover64 if dtype == np.float64 else maps.cover)
 
 
 def device_copies(device: str) -> DeviceCopies | None:

@@ -116,7 +116,7 @@ class BeliefTracker:
             cm, columns = self.candidates(c)
             log_b = self.log_b[rows[members], : len(cm.cells)]
             scores = np.zeros((len(kept), cm.cover.shape[1] + 1), np.float32)  # the last column: -1's zero
-            scores[:, :-1] = posterior_cover(log_b, cm.cover)[[members.index(i) for i in kept]]
+            scores[:, :-1] = posterior_cover(log_b, cm)[[members.index(i) for i in kept]]
             scores *= np.float32(100.0)
             targets = rows[kept]
             if at is None or self.window is None:
