@@ -174,7 +174,10 @@ def main() -> None:
     head += ["predicted maps: told where - genie"]
     head += ["maps: searcher - true maps", "interaction"] if args.true_maps else []
     head += ["maps: searcher - ceiling", "planner: ceiling told where - genie"] if args.ceiling else []
-    rows = [head + [f"success ({' / '.join(['searcher', 'told', *truths])})", "median / genie's (searcher, ceiling)"]]
+    rows = [
+        head
+        + [f"success ({' / '.join(['searcher', 'told', *truths])})", f"median / genie's ({' / '.join(['searcher', *truths])})"]
+    ]
     for city in args.city or VALIDATION:
         bundle = load_bundle(city, root=args.root)
         if bundle.manifest.config.role == "test":
@@ -204,7 +207,7 @@ def main() -> None:
         if args.ceiling:
             row += [mean_with_interval(search - steps[CEILING], users), mean_with_interval(steps[CEILING_TOLD] - genie, users)]
         success = [f"{ok[name]:.1f}" for name in (SEARCHER, TOLD, *truths)]
-        ratios = [f"{steps[name].median() / genie.median():.2f}" for name in (SEARCHER, *([CEILING] if args.ceiling else []))]
+        ratios = [f"{steps[name].median() / genie.median():.2f}" for name in (SEARCHER, *truths)]
         rows.append(row + [" / ".join(success), " / ".join(ratios)])
         print(f"{city}: {time.perf_counter() - t0:.0f} s", flush=True)
     print(markdown_table(rows))
