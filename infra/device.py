@@ -41,10 +41,14 @@ def torch_device(device: str, cuda_available: bool | None = None) -> torch.devic
 
 
 def require_torch_device(device: str) -> None:
-    """A command's check of its ``--device`` before any work: ``click.BadParameter`` where torch cannot run there."""
+    """A command's check of its ``--device`` before any work: ``click.BadParameter`` where torch cannot run there.
+    Only ``cuda`` asks torch (imported then); ``auto`` and ``cpu`` always run."""
     import click
 
     try:
-        torch_device(device)
+        if device.startswith("cuda"):
+            torch_device(device)
+        else:
+            pick(device, False, "torch")
     except ValueError as err:
         raise click.BadParameter(str(err), param_hint="'--device'") from None

@@ -22,7 +22,7 @@ from uavplace.schemas.base import MAX_SEED, Contract, InputError
 from uavplace.schemas.constants import ALTITUDE_M, CARRIER_HZ, GRID_M, TX_POWER_DBM
 from uavplace.simulate.raytrace import RayTraceConfig, mitsuba_variant
 from uavplace.simulate.routes import KINDS
-from uavplace.simulate.scene import ALL_CONCRETE, MATERIALS, parse_mix
+from uavplace.simulate.scene import MATERIALS, parse_mix
 
 _METRES = {"type": "metres"}
 _LIST = {"type": "list"}
@@ -262,7 +262,7 @@ class Simulation(Contract):
             routes=self.routes,
             route_length_m=self.route_length_m,
             route_kinds=self.route_kinds,
-            materials=parse_mix(self.materials),
+            materials=self.materials,
         )
 
     def raytrace(self) -> RayTraceConfig:
@@ -309,7 +309,7 @@ class SimulationSpec:
     routes: int = _default("routes")  # user routes drawn on open ground, every point traced as a user (simulate.routes)
     route_length_m: float = _default("route_length_m")
     route_kinds: tuple[str, ...] = _default("route_kinds")
-    materials: tuple[tuple[str, float], ...] = ALL_CONCRETE  # each building's class drawn in these shares (scene.py)
+    materials: tuple[str, ...] = _default("materials")  # each building's class dealt in these shares (scene.parse_mix)
 
 
 def _count(value: float) -> int | float:

@@ -60,7 +60,7 @@ from uavplace.simulate.raytrace import (
     sionna_versions,
 )
 from uavplace.simulate.routes import KINDS, MAX_STEP_M, ROUTE_SET, Route, draw_routes, write_routes_csv
-from uavplace.simulate.scene import CONCRETE, GROUND_MARGIN_M, Block, assign_materials, walls_of, write_scene
+from uavplace.simulate.scene import CONCRETE, GROUND_MARGIN_M, Block, assign_materials, parse_mix, walls_of, write_scene
 from uavplace.simulate.sources import check_bounded, check_simulation, load_geometry, surrounded
 from uavplace.simulate.trace_cache import cached_traces, read_cache_entry, spec_record, trace_key, write_cache_entry
 from uavplace.simulate.transmission import EVERY_SHAPE
@@ -351,7 +351,8 @@ def simulate_city(
     opened = open_cells(blocks, grid)
     with tempfile.TemporaryDirectory(prefix="uavplace-scene-") as tmp:
         margin = GROUND_MARGIN_M + spec.surround_m  # the ground under every traced building
-        materials_of = assign_materials([b.building for b in traced], spec.materials, spec.seed)
+        mix = parse_mix(spec.materials)
+        materials_of = assign_materials([b.building for b in traced], mix, spec.seed)
         xml, materials = write_scene(tmp, traced, box, rt_config.frequency_hz, ground_margin_m=margin, materials_of=materials_of)
         job = RadioMapJob(str(xml), tuple(map(tuple, sources.tolist())), center, size, spec.grid_m)
         seconds = {"raytrace": 0.0, "direct": 0.0}
@@ -475,7 +476,7 @@ def simulate_city(
             "phase_deg": "not computed (the radio map is an incoherent power sum); written as 0 in the power outputs",
             "unreached_power_dbm": UNREACHED_POWER_DBM,
             "materials": materials,
-            **({"building_materials": {str(b): m for b, m in sorted(materials_of.items())}} if len(spec.materials) > 1 else {}),
+            **({"building_materials": {str(b): m for b, m in sorted(materials_of.items())}} if len(mix) > 1 else {}),
             "packages": sionna_versions(),
             "cells": {
                 "user_cells": int(gain.size),

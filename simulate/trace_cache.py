@@ -23,7 +23,7 @@ from uavplace.simulate.raytrace import (
     RayTraceConfig,
     raytrace_record,
 )
-from uavplace.simulate.scene import ALL_CONCRETE
+from uavplace.simulate.scene import ALL_CONCRETE, parse_mix
 
 #: Settings that only change how the traced maps are filled or completed: a trace cache entry serves any of their values.
 FILL_ONLY = ("gap_fill_reach_m", "gap_fill_decay_db_per_m", "gap_fill_walk", "complete_missed_samples")
@@ -40,7 +40,7 @@ def spec_record(spec: SimulationSpec) -> dict:
     doc = asdict(spec)
     if not spec.surround_m:  # as before --surround: a crop's buildings only
         del doc["surround_m"]
-    if spec.materials == ALL_CONCRETE:  # as before --materials: every building concrete
+    if parse_mix(spec.materials) == ALL_CONCRETE:  # as before --materials: every building concrete
         del doc["materials"]
     return doc if spec.routes else {k: v for k, v in doc.items() if not k.startswith("route")}
 

@@ -87,10 +87,12 @@ def test_a_material_mix_is_read_checked_and_dealt_to_the_buildings_by_the_seed(t
     assert set(assign_materials(buildings, ALL_CONCRETE, seed=5).values()) == {"concrete"}
     assert set(MATERIALS) >= {"concrete", "brick", "glass", "metal", "wood"}
     plain = SimulationSpec(source="procedural:tiny", name="t")
-    mixed = SimulationSpec(source="procedural:tiny", name="t", materials=mix)
-    assert "materials" not in spec_record(plain) and spec_record(mixed)["materials"] == mix
-    assert "materials" not in json.loads(trace_key(plain, RayTraceConfig()))["spec"]
-    assert json.loads(trace_key(mixed, RayTraceConfig()))["spec"]["materials"] == [list(m) for m in mix]
+    words = ("concrete=0.4", "brick=0.3", "glass=0.2", "metal=0.1")
+    mixed = SimulationSpec(source="procedural:tiny", name="t", materials=words)
+    assert "materials" not in spec_record(plain) and spec_record(mixed)["materials"] == words
+    for concrete in (plain, SimulationSpec(source="procedural:tiny", name="t", materials=("concrete=1",))):
+        assert "materials" not in json.loads(trace_key(concrete, RayTraceConfig()))["spec"]
+    assert json.loads(trace_key(mixed, RayTraceConfig()))["spec"]["materials"] == list(words)
     res = CliRunner().invoke(
         uavdata, ["simulate", "procedural:tiny", "--name", "t", "--out", str(tmp_path), "--materials", "glass=0.5"]
     )
@@ -519,7 +521,7 @@ def test_simulate_with_a_material_mix_records_each_buildings_class_and_paths_go_
     assert {m["itu_name"]: m["shapes"] for m in record["materials"]} == {
         "medium_dry_ground": ["ground"], "glass": ["buildings-glass"], "metal": ["buildings-metal"]
     }  # fmt: skip
-    assert record["spec"]["materials"] == [["glass", 0.5], ["metal", 0.5]]
+    assert record["spec"]["materials"] == ["glass=0.5", "metal=0.5"]
     direct = {}
     for name, words in (("plain", []), ("metal", ["--materials", "metal"])):
         _simulate(tmp_path, *common, "--name", name, *words)
