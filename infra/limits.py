@@ -105,7 +105,7 @@ class Limits(Contract):
     prediction_bytes: int = Field(
         default=4 * GiB,
         ge=1,
-        description="The map searcher's predicted maps of one city, candidates x legal cells x 20 bytes (24 where it krigs)",
+        description="The map searcher's predicted maps of one city, candidates x legal cells x 12 bytes (16 where it krigs)",
     )
     train_steps: int = Field(default=10_000_000_000, ge=1, description="Environment steps of one training (--steps, total_steps)")
 

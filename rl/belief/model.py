@@ -168,7 +168,7 @@ class BeliefModel:
         legal = np.argwhere(legal_map)
         check_limit(
             "prediction_bytes",
-            (24 if cfg.kriged_planner else 20) * len(cells) * len(legal),  # mu, p_dead, cover, its float64, probit
+            (16 if cfg.kriged_planner else 12) * len(cells) * len(legal),  # mu, p_dead, cover [, probit]; not cover64
             settings["city"],
             f"predicted maps of {len(cells)} candidates x {len(legal)} cells (a larger stride has fewer)",
         )
