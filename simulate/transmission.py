@@ -79,7 +79,9 @@ def direct_path_gains(
     # The vertical antenna's field is along theta-hat of the departure direction.
     sin_t = np.sqrt(np.maximum(1.0 - k[:, 2] ** 2, 1e-12))
     field = np.c_[k[:, 2] * k[:, 0] / sin_t, k[:, 2] * k[:, 1] / sin_t, -sin_t]
-    shapes = [(mi.ShapePtr(shape), slabs.get(shape.id(), slabs.get(EVERY_SHAPE))) for shape in mi_scene.shapes()]
+    # each wall's shape and slab; a crossing of a shape without one (the ground) carries nothing, so it is not looked up
+    walls = [(shape, slabs.get(shape.id(), slabs.get(EVERY_SHAPE))) for shape in mi_scene.shapes()]
+    shapes = [(mi.ShapePtr(shape), slab) for shape, slab in walls if slab is not None]
     origin = np.broadcast_to(user, cells.shape).copy()
     left = length.copy()
     crossed = np.zeros(len(cells), np.int64)
@@ -106,7 +108,7 @@ def direct_path_gains(
         power = np.zeros(len(todo))
         for pointer, slab in shapes:  # each crossing through its own shape's slab
             on = np.asarray(si.shape == pointer, bool)[hit]
-            if on.any() and slab is not None:
+            if on.any():
                 t_te, t_tm = slab_transmission(cos_theta[on], slab[0], slab[1], wavelength_m)
                 power[on] = share_te[on] * t_te + (1 - share_te[on]) * t_tm
         gain[todo] *= power

@@ -230,7 +230,7 @@ class MapSearchPolicy(BeliefModel):
         b = np.exp(log_b - log_b.max())
         keep = b > 1e-6
         b = (b[keep] / b[keep].sum()).astype(np.float64)
-        cover = maps.cover64[keep]
+        cover = maps.cover[keep].astype(np.float64)  # the kept rows only: a float32 belief's maps have no cover64
         discount, _, _ = self.paths_from(public, canvas, maps, here)
         score = np.where(seen | (discount < 0), -1.0, (b @ cover) * discount)
         k = min(self.config.lookahead_targets, len(score))
