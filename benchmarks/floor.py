@@ -7,7 +7,9 @@ kinds of arithmetic its rollouts cannot skip without changing a number:
   ``torch.utils.flop_counter``), and the best rate of each network on this machine, a full batch of 256 rows;
 - the belief product of the map searcher and of the hybrid's belief channel: at every step of a row, its belief
   times every candidate's cover, ``2 C M`` FLOPs for ``C`` candidates and ``M`` legal cells of the row's canvas
-  (the canvases' shapes from the predicted maps, with the buildings shown and blanked).
+  (the canvases' shapes from the predicted maps, with the buildings shown and blanked); the hybrid's in the precision
+  its channel is played in (``EnvConfig.belief_precision`` of ``data/agents/hybrid``: bfloat16 since issue 90), at
+  the rate of torch's bfloat16 product at the same shape.
 
 With the cache cold the report also predicts every candidate's map of every canvas it plays (with the buildings shown
 and blanked): it counts them, times the predictor on one canvas with no cache and counts its FLOPs there, for the
@@ -36,7 +38,15 @@ import torch
 from torch.utils.flop_counter import FlopCounterMode
 
 from uavplace.dataset.bundle import load_bundle
-from uavplace.eval.evaluate import NO_BUILDINGS, ReportConfig, default_agents, default_baselines, load_agent, report_env
+from uavplace.eval.evaluate import (
+    NO_BUILDINGS,
+    SHIPPED_AGENTS,
+    ReportConfig,
+    default_agents,
+    default_baselines,
+    load_agent,
+    report_env,
+)
 from uavplace.rl.belief import PredictionCache
 from uavplace.rl.predictor import load_predictor
 from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
@@ -141,13 +151,24 @@ def main() -> None:
     a = np.random.default_rng(0).random((BATCH, largest[0]), np.float32)
     b = np.random.default_rng(1).random(largest, np.float32)
     peak = rate(lambda: a @ b, 2.0 * BATCH * largest[0] * largest[1], args.seconds)
-    rows = [(part, flops, peak) for part, flops, _ in rows]
+    low_a, low_b = torch.from_numpy(a).bfloat16(), torch.from_numpy(b).bfloat16()
+    low = rate(lambda: low_a @ low_b, 2.0 * BATCH * largest[0] * largest[1], args.seconds)
+    hybrid = load_agent(SHIPPED_AGENTS / "hybrid", 0.0, 0).config.env_config(evaluation=True).belief_precision
+    in_bf16 = hybrid == "bfloat16"
+    rows = [
+        (
+            part + (" (bfloat16)" if in_bf16 and PRODUCT_METHODS[1] in part else ""),
+            flops,
+            low if in_bf16 and PRODUCT_METHODS[1] in part else peak,
+        )
+        for part, flops, _ in rows
+    ]
     for name, (per_sample, best) in network_rates(args.seconds).items():
         samples = sum(n for method, n in steps.items() if method == name or method == name + NO_BUILDINGS)
         rows.append((f"{name}: networks ({samples} samples, {per_sample / 1e6:.2f} MFLOP each)", samples * per_sample, best))
     print(
-        f"float32 product of {BATCH} x {largest[0]} by {largest[0]} x {largest[1]}: {peak / 1e9:.1f} GFLOP/s "
-        f"(torch threads {torch.get_num_threads()})\n"
+        f"float32 product of {BATCH} x {largest[0]} by {largest[0]} x {largest[1]}: {peak / 1e9:.1f} GFLOP/s, in "
+        f"bfloat16 (torch) {low / 1e9:.1f} GFLOP/s (torch threads {torch.get_num_threads()})\n"
     )
     print("| part | TFLOP | its best rate, GFLOP/s | s at its best rate | s at the product's peak |")
     print("|---|---|---|---|---|")

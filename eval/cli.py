@@ -124,9 +124,9 @@ def task_options(command: Callable) -> Callable:
     type=click.IntRange(1),
     default=1,
     show_default=True,
-    help="Placement: play each city's methods, in pieces of their episodes, as Ray tasks on this many CPUs of this "
-    "machine (1: one after the other in this process, torch on every core: on 2 cores the faster, docs/benchmarks.md). "
-    "The numbers are the same whatever it is (eval/parallel.py).",
+    help="Play each city's methods, in pieces of their episodes, as Ray tasks on this many CPUs of this machine "
+    "(every task; 1: one after the other in this process, torch on every core: on 2 cores the faster, "
+    "docs/benchmarks.md). The numbers are the same whatever it is (eval/parallel.py).",
 )
 @ray_address_option("the methods (with it, --workers is the cluster's CPUs)")
 @root_option

@@ -212,9 +212,10 @@ def evaluate(
                 policy.canvas_maps(public, int(canvas))
     recorded = {name: record if name == shown else None for name, _, _ in methods}
     if parallel:
-        from uavplace.eval.parallel import play_on_ray
+        from uavplace.eval.parallel import Method, play_on_ray
 
-        return play_on_ray(methods, specs, recorded, on_progress)
+        on_ray = [Method(name, policy, mapset, specs[name], recorded[name]) for name, policy, mapset in methods]
+        return play_on_ray(on_ray, run_episodes, on_progress=on_progress)
     for name, policy, mapset in methods:
         report = None if on_progress is None else (lambda done, total, name=name: on_progress(name, done, total))
         results[name] = run_episodes(mapset, policy, specs[name], on_step=report, record=recorded[name])

@@ -123,6 +123,14 @@ class SearchConfig(Contract):
         description="Share of the likelihood that is flat: one measurement the predictor "
         "got wrong lowers a candidate, never rules it out",
     )
+    precision: Literal["belief", "bfloat16"] = Field(
+        default="belief",
+        description="The planner's belief product (each row's belief times every candidate's cover, its main cost): "
+        "'belief' in the belief's own precision (float32; float64 for the tracking searcher), 'bfloat16' both "
+        "rounded to bfloat16 and the sums too (within 1.2 % of each cell's value; 2 to 4 x faster on a CPU with "
+        "bfloat16 units). The tracking and fleet searchers play bfloat16, the placement searcher 'belief' (its "
+        "ablation's ties move in bfloat16: docs/benchmarks.md)",
+    )
     planner: Literal["cover", "info", "lookahead"] = Field(
         default="cover",
         description="cover: move toward the unvisited cell of best discounted posterior probability of reaching P_T; "

@@ -14,6 +14,7 @@ from click.testing import CliRunner
 from uavplace.cli import uavdata, uavrl
 from uavplace.infra.device import pick, torch_device
 from uavplace.rl.belief.model import CandidateMaps, DeviceCopies, posterior_cover
+from uavplace.rl.config import SearchConfig
 from uavplace.simulate.config import Simulation
 from uavplace.simulate.raytrace import VARIANTS, RayTraceConfig, mitsuba_variant, raytrace_record
 
@@ -58,6 +59,29 @@ def test_the_belief_product_in_torch_is_numpys():
     assert len(copies._held) == 3
 
 
+def test_the_belief_product_in_bfloat16_is_near_float32s_and_each_rows_own():
+    """``posterior_cover(..., precision="bfloat16")`` (the hybrid's channel): within 3 x 2^-8 of the float32 product's
+    value (a belief, a cover and a sum each rounded once); a row's values the same in a batch of any other rows and
+    with one torch thread or two (a report cuts its episodes into pieces: ``eval.parallel``); any other name refused."""
+    rng = np.random.default_rng(5)
+    cover = rng.random((400, 900)).astype(np.float32)
+    maps = CandidateMaps(np.zeros((400, 2), np.int64), np.zeros((900, 2), np.int64), np.zeros((1, 1)), cover, cover, cover)
+    log_b = rng.normal(0, 3, (64, 400)).astype(np.float32)
+    exact, low = posterior_cover(log_b, maps), posterior_cover(log_b, maps, precision="bfloat16")
+    assert low.dtype == np.float32 and low.shape == exact.shape
+    assert (np.abs(low - exact) <= 3 * 2.0**-8 * exact).all() and not np.array_equal(low, exact)
+    threads = torch.get_num_threads()
+    try:
+        for n in (1, 2):
+            torch.set_num_threads(n)
+            for rows in (slice(0, 1), slice(5, 7), slice(10, 47), slice(0, 64)):
+                assert np.array_equal(posterior_cover(log_b[rows], maps, precision="bfloat16"), low[rows])
+    finally:
+        torch.set_num_threads(threads)
+    with pytest.raises(ValueError, match="not 'float16'"):
+        posterior_cover(log_b, maps, precision="float16")
+
+
 def test_the_searcher_plays_the_same_episodes_with_its_products_in_torch(tiny):
     from uavplace.rl.predictor import load_predictor
     from uavplace.rl.tasks.placement.config import EnvConfig
@@ -67,8 +91,9 @@ def test_the_searcher_plays_the_same_episodes_with_its_products_in_torch(tiny):
 
     maps = MapSet.load("tiny", EnvConfig(t_max=60, rotate=False), root=str(tiny))
     episodes = maps.episode_list(16, 2)
-    numpy_side = MapSearchPolicy(load_predictor(), device="cpu")
-    torch_side = MapSearchPolicy(load_predictor(), device="cpu")
+    own = SearchConfig(precision="belief")  # numpy's float32 product against torch's
+    numpy_side = MapSearchPolicy(load_predictor(), own, device="cpu")
+    torch_side = MapSearchPolicy(load_predictor(), own, device="cpu")
     torch_side.on_device = DeviceCopies(torch.device("cpu"))  # the GPU's code path, on the CPU
     a, b = (run_episodes(maps, p, episodes) for p in (numpy_side, torch_side))
     np.testing.assert_array_equal(a["steps"].to_numpy(), b["steps"].to_numpy())
@@ -103,3 +128,28 @@ def test_cuda_without_a_gpu_is_refused_by_every_command(tmp_path):
         res = CliRunner().invoke(command, args)
         assert res.exit_code == 2 and "--device" in res.output and "no GPU" in res.output, res.output
         assert not any(tmp_path.iterdir())
+
+
+def test_the_searcher_plans_on_the_product_in_its_settings_precision(tiny, monkeypatch):
+    """``SearchConfig.precision``: the map searcher multiplies in bfloat16 by default and in the belief's own precision
+    with 'belief' (the product it is handed each step says which); it finds every tiny user either way."""
+    import uavplace.rl.tasks.placement.searcher as placement
+    from uavplace.rl.predictor import load_predictor
+    from uavplace.rl.tasks.placement.config import EnvConfig
+    from uavplace.rl.tasks.placement.rollout import run_episodes
+    from uavplace.rl.world.maps import MapSet
+
+    assert SearchConfig().precision == "bfloat16"
+    maps = MapSet.load("tiny", EnvConfig(t_max=60, rotate=False), root=str(tiny))
+    episodes = maps.episode_list(24, 4)
+    asked: list[str] = []
+
+    def told(log_b, maps, on_device=None, precision="belief"):  # noqa: ANN001, ANN202 - posterior_cover's signature
+        asked.append(precision)
+        return posterior_cover(log_b, maps, on_device, precision)
+
+    monkeypatch.setattr(placement, "posterior_cover", told)
+    for precision in ("belief", "bfloat16"):
+        asked.clear()
+        played = run_episodes(maps, placement.MapSearchPolicy(load_predictor(), SearchConfig(precision=precision)), episodes)
+        assert set(asked) == {precision} and played["success"].all()

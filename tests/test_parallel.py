@@ -89,3 +89,60 @@ def test_a_policy_in_a_task_finds_the_prediction_cache_from_another_folder(tmp_p
     policy._canvases[("v", 0, 5.0)] = "maps held in memory"
     moved = copy.deepcopy(policy)  # what travels: __getstate__, as Ray's serialiser takes it
     assert moved.cache.folder == tmp_path / "data" / "processed" / ".predictions" and moved._canvases == {}
+
+
+@pytest.fixture(scope="module")
+def walk(tmp_path_factory):
+    """A grid city with two routes (``tests.test_tracking``'s), ingested and built: the tracking task's world."""
+    from tests.conftest import write_grid_city
+    from tests.test_tracking import ROUTES
+    from uavplace.dataset.build import build_city
+    from uavplace.ingest.pipeline import ingest_city
+    from uavplace.schemas.bundle import BuildConfig
+
+    tmp = tmp_path_factory.mktemp("walk")
+    ingest_city(write_grid_city(tmp / "raw", nx=6, ny=5, n_tx=3, seed=2, dead_share=0.0, routes=ROUTES), tmp / "p", name="walk")
+    build_city("walk", BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=-45.0), tmp / "p")
+    return tmp / "p"
+
+
+def _reports_on_one_and_two_workers(tmp_path, args: list[str], files: list[str]) -> None:
+    """`uavrl report ARGS --workers 1` and `--workers 2` write ``files`` alike, to the bit."""
+    from click.testing import CliRunner
+
+    from uavplace.cli import uavrl
+
+    read = {"csv": pd.read_csv, "parquet": pd.read_parquet}
+    written = {}
+    for workers in ("1", "2"):
+        out = tmp_path / f"w{workers}"
+        res = CliRunner().invoke(uavrl, [*args, "--quiet", "--workers", workers, "--out", str(out)])
+        assert res.exit_code == 0, res.output
+        written[workers] = [read[f.rsplit(".", 1)[1]](out / f) for f in files]
+    for name, one, two in zip(files, written["1"], written["2"], strict=True):
+        assert len(one) > 0, name
+        pd.testing.assert_frame_equal(one, two, check_exact=True)
+
+
+def test_the_tracking_report_is_the_same_on_one_worker_and_on_two(walk, tmp_path, local_ray, monkeypatch):
+    """`uavrl report --task tracking --workers 2`: every method (a placement agent, the hybrid that carries the
+    searcher's belief, the tracking searcher, the baselines whose draws are keyed by an episode's place in the list)
+    in pieces of its episodes plays every episode as `--workers 1` does."""
+    import uavplace.eval.parallel as parallel
+
+    monkeypatch.setattr(parallel, "MIN_PIECE", 5)  # every method in pieces, even on a few episodes
+    agents = [a for n in ("proposed", "hybrid") for a in ("--run", str(shipped(f"data/agents/{n}")))]
+    args = ["report", "--task", "tracking", "--dataset", "walk", "--root", str(walk), "--episodes", "12", "--horizon",
+            "20", "--bootstrap", "100", *agents]  # fmt: skip
+    _reports_on_one_and_two_workers(tmp_path, args, ["tracking.csv", "walk-episodes.parquet"])
+
+
+def test_the_fleet_report_is_the_same_on_one_worker_and_on_two(tiny, tmp_path, local_ray, monkeypatch):
+    """`uavrl report --task fleet --workers 2`: the fleet searcher, the agents on every UAV and the baselines in
+    pieces play every episode as `--workers 1` does."""
+    import uavplace.eval.parallel as parallel
+
+    monkeypatch.setattr(parallel, "MIN_PIECE", 5)
+    args = ["report", "--task", "fleet", "--dataset", "tiny", "--root", str(tiny), "--episodes", "12", "--users", "2",
+            "--bootstrap", "100"]  # fmt: skip
+    _reports_on_one_and_two_workers(tmp_path, args, ["results.csv", "differences.csv", "episodes.parquet"])

@@ -60,6 +60,19 @@ class ReportRequest(BaseModel):
         """``--predictor``'s value: a predictor's path, or None for 'none' (the searchers left out)."""
         return None if self.predictor.lower() == "none" else self.predictor
 
+    def joined_ray(self, after: contextlib.ExitStack) -> bool:
+        """Whether the report plays its methods as Ray tasks (``eval.parallel``): with ``--workers`` above 1 (a local
+        Ray of that many CPUs, started here and shut down by ``after``) or ``--ray-address`` (that cluster, joined)."""
+        if self.ray_address is None and self.workers == 1:
+            return False
+        from uavplace.infra.cluster import start_ray
+
+        if start_ray(self.ray_address, 1, "--workers", self.workers if self.ray_address is None else None):
+            import ray
+
+            after.callback(ray.shutdown)
+        return True
+
     def shared_settings(self, runs: list[Path]) -> dict:
         """The fields of ``eval.config.ReportSettings`` every task's report settings take from the request as they are
         (the agents ``runs`` as the report chose them)."""

@@ -10,7 +10,6 @@ import click
 
 from uavplace.eval.config import ReportConfig
 from uavplace.eval.reports.base import ReportRequest, TaskReport, check_runs_once, check_training_settings, print_table
-from uavplace.infra.cluster import start_ray
 from uavplace.infra.console import LogLines, command_line, console, plain_table, say, stdout
 
 #: The columns of a report's table that a terminal shows (they fit 120 columns).
@@ -37,12 +36,7 @@ def play(request: ReportRequest, after: contextlib.ExitStack) -> None:
     if not request.overwrite:
         for folder in folders.values():
             check_same_agents(folder, chosen)
-    parallel = request.ray_address is not None or request.workers > 1
-    workers = request.workers if request.ray_address is None else None
-    if parallel and start_ray(request.ray_address, 1, "--workers", workers):
-        import ray
-
-        after.callback(ray.shutdown)
+    parallel = request.joined_ray(after)
     settings = ReportConfig(
         dataset=datasets[0],
         t_max=t_max,

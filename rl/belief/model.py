@@ -84,24 +84,42 @@ class DeviceCopies:
         self.device = device
         self._held: dict[tuple[int, str], tuple[weakref.ref, torch.Tensor]] = {}
 
-    def __call__(self, array: np.ndarray, dtype: np.dtype) -> torch.Tensor:
-        key = (id(array), np.dtype(dtype).str)
+    def __call__(self, array: np.ndarray, dtype: np.dtype | torch.dtype) -> torch.Tensor:
+        key = (id(array), str(dtype) if isinstance(dtype, torch.dtype) else np.dtype(dtype).str)
         held = self._held.get(key)
         if held is not None and held[0]() is array:
             return held[1]
         self._held = {k: v for k, v in self._held.items() if v[0]() is not None}
-        copy = torch.from_numpy(np.ascontiguousarray(array, dtype)).to(self.device)
+        if isinstance(dtype, torch.dtype):  # a dtype numpy has not (bfloat16): cast by torch
+            copy = torch.from_numpy(np.ascontiguousarray(array)).to(self.device, dtype)
+        else:
+            copy = torch.from_numpy(np.ascontiguousarray(array, dtype)).to(self.device)
         self._held[key] = (weakref.ref(array), copy)
         return copy
 
 
-def posterior_cover(log_b: np.ndarray, maps: CandidateMaps, on_device: DeviceCopies | None = None) -> np.ndarray:
+def posterior_cover(
+    log_b: np.ndarray, maps: CandidateMaps, on_device: DeviceCopies | None = None, precision: str = "belief"
+) -> np.ndarray:
     """``[R, M]`` the posterior probability that each cell reaches P_T, ``b @ cover``, for log-beliefs ``log_b`` [R, C]
     (any offset) over the candidates of ``maps`` [C, M]: the rows in one matrix product, which reads the cover once
     for them all (the planner's main cost). In the precision of ``log_b`` with the float32 cover, as numpy gives it: a
     float32 belief's product in float32, a float64 one's over ``CandidateMaps.cover64`` (made once; numpy would cast
     the cover at every product, to the same sums). ``on_device``: the product in torch on its device (the cover
-    copied there once), in the same precision; None: numpy on the CPU."""
+    copied there once), in the same precision; None: numpy on the CPU.
+
+    ``precision`` "bfloat16" (``SearchConfig.precision``, the hybrid's ``EnvConfig.belief_precision``): the belief (in
+    float32) and the cover rounded to bfloat16, multiplied by torch (on ``on_device``'s device, else the CPU) and the sums rounded to
+    bfloat16 too, returned as float32: within 3 x 2^-8 (bfloat16 keeps 8 bits) of the float32 product's value, each row's the same in any
+    batch (``tests/test_belief.py``)."""
+    if precision == "bfloat16":
+        copies = on_device or _CPU_COPIES
+        b = np.exp(log_b - log_b.max(axis=1, keepdims=True), dtype=np.float32)
+        b /= b.sum(axis=1, keepdims=True)
+        low = torch.from_numpy(b).to(copies.device, torch.bfloat16)
+        return (low @ copies(maps.cover, torch.bfloat16)).float().cpu().numpy()
+    if precision != "belief":
+        raise ValueError(f"a belief product in the belief's precision ('belief') or 'bfloat16', not {precision!r}")
     dtype = np.result_type(log_b.dtype, maps.cover.dtype)
     if on_device is not None:
         b = torch.softmax(torch.from_numpy(np.asarray(log_b, dtype)).to(on_device.device), dim=1)
@@ -109,6 +127,10 @@ def posterior_cover(log_b: np.ndarray, maps: CandidateMaps, on_device: DeviceCop
     b = np.exp(log_b - log_b.max(axis=1, keepdims=True))
     b /= b.sum(axis=1, keepdims=True)
     return b @ (maps.cover64 if dtype == np.float64 else maps.cover)
+
+
+#: The CPU's copies of the covers a bfloat16 product reads (``posterior_cover``), each made once while its cover lives.
+_CPU_COPIES = DeviceCopies(torch.device("cpu"))
 
 
 def device_copies(device: str) -> DeviceCopies | None:

@@ -24,7 +24,8 @@ class BeliefTracker:
     symmetry ``k`` reads its city's predictions at ``k = 0`` through the turned column map (``candidates``): the
     predicted maps of the unturned city, turned, never predicted again. It is told only what the UAV measures
     (``start``, ``measure``): the users' maps stay in the env. With ``MapSet.buildings_shown`` False (after
-    ``show_buildings(None)``) the predictor is shown open ground, as in the searcher's ablation.
+    ``show_buildings(None)``) the predictor is shown open ground, as in the searcher's ablation. ``precision``: the
+    cover's product in float32 or in bfloat16 (``EnvConfig.belief_precision``, ``posterior_cover``).
     """
 
     def __init__(
@@ -35,9 +36,11 @@ class BeliefTracker:
         config: SearchConfig,
         cache: PredictionCache,
         window: int | None = None,
+        precision: str = "float32",
     ) -> None:
         self.maps = maps
         self.window = window
+        self.precision = "belief" if precision == "float32" else precision  # posterior_cover's name: its beliefs are float32
         self.public = PublicMaps.of(maps)
         self.models = {b: BeliefModel(predictor, config.model_copy(update={"buildings": b}), cache) for b in (True, False)}
         self._columns: dict[tuple[int, bool], np.ndarray] = {}
@@ -116,7 +119,7 @@ class BeliefTracker:
             cm, columns = self.candidates(c)
             log_b = self.log_b[rows[members], : len(cm.cells)]
             scores = np.zeros((len(kept), cm.cover.shape[1] + 1), np.float32)  # the last column: -1's zero
-            scores[:, :-1] = posterior_cover(log_b, cm)[[members.index(i) for i in kept]]
+            scores[:, :-1] = posterior_cover(log_b, cm, precision=self.precision)[[members.index(i) for i in kept]]
             scores *= np.float32(100.0)
             targets = rows[kept]
             if at is None or self.window is None:

@@ -38,7 +38,8 @@ class EpisodeRows:
     """What the batched environments share: ``num_envs`` rows of episodes (placement's ``BatchedEnv``, the tracking
     task's ``rl.tasks.tracking.TrackingEnv``), drawn with the generator seeded by ``reset(seed)`` (``_sample``) or taken in
     order from ``queue`` (episode specs, one row each) when one is given: evaluation then plays exactly those, and
-    ``exhausted`` tells which rows have no episode left. A subclass starts the episodes (``_start``) and observes them.
+    ``exhausted`` tells which rows have no episode left (a queue's episode ids count from ``first``: the queue's
+    place in a longer list, whose per-episode random draws it keeps, ``eval.parallel``). A subclass starts the episodes (``_start``) and observes them.
 
     The trainer (``rl.agent.train``) reads every environment through one interface: ``reset(seed)``, ``step(actions)``
     (``info["final_index"]``, ``final_obs`` and ``final_mask`` of the rows whose episodes were cut short, then
@@ -46,10 +47,11 @@ class EpisodeRows:
     ``neighbour_visits`` where the revisit penalty is trained, and ``state_arrays``, ``check_state``,
     ``_episodes_started`` and ``rng``, what a checkpoint keeps (``rl.tasks.fleet.FleetTrainEnv`` offers the same)."""
 
-    def _init_rows(self, num_envs: int, queue: np.ndarray | None, dtype: type = np.int64) -> None:
+    def _init_rows(self, num_envs: int, queue: np.ndarray | None, dtype: type = np.int64, first: int = 0) -> None:
         self.num_envs = num_envs
         self.queue = None if queue is None else np.asarray(queue, dtype)
         self.queue_pos = 0
+        self.queue_first = first
         self.exhausted = np.zeros(num_envs, bool)
         self.rng = np.random.default_rng()
         self._episodes_started = 0
@@ -74,7 +76,7 @@ class EpisodeRows:
         specs = np.zeros((k, self.queue.shape[1]), self.queue.dtype)
         specs[:] = self.queue[0] if len(self.queue) else 0
         specs[:take] = self.queue[self.queue_pos : self.queue_pos + take]
-        ids = np.where(np.arange(k) < take, self.queue_pos + np.arange(k), -1)
+        ids = np.where(np.arange(k) < take, self.queue_first + self.queue_pos + np.arange(k), -1)
         self.queue_pos += take
         return specs, ids
 

@@ -23,9 +23,12 @@ def play(request: base.ReportRequest, after: contextlib.ExitStack) -> None:
     t_max, uavs, users = request.t_max, request.uavs, request.users
     task = FleetConfig(uavs=uavs, users=users, t_max=t_max, p_t_db=request.p_t_db)
     config = FleetReportConfig(datasets=list(request.datasets), task=task, **request.shared_settings(runs))
+    parallel = request.joined_ray(after)
     with base.reporting("fleet report", request.quiet) as on_progress:
         out = base.report_folder(request, "fleet")
-        table, diff, page = make_fleet_report(config, out, root=request.root, command=command_line(), on_progress=on_progress)
+        table, diff, page = make_fleet_report(
+            config, out, root=request.root, command=command_line(), on_progress=on_progress, parallel=parallel
+        )
     for city in config.datasets:
         title = (
             f"{request.episodes} fleet episodes in {city} ({uavs} UAVs, {users} users, t_max {t_max}, P_T {request.p_t_db:g} dB)"

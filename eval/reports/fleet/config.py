@@ -5,7 +5,8 @@ from __future__ import annotations
 from pydantic import Field
 
 from uavplace.eval.config import ReportSettings
-from uavplace.rl.tasks.fleet.config import FleetConfig
+from uavplace.rl.config import SearchConfig
+from uavplace.rl.tasks.fleet.config import FleetConfig, fleet_search
 
 
 class FleetReportConfig(ReportSettings):
@@ -14,3 +15,8 @@ class FleetReportConfig(ReportSettings):
 
     datasets: list[str] = Field(min_length=1, description="Cities (built datasets)")
     task: FleetConfig = Field(default_factory=FleetConfig, description="The fleet task (rl/tasks/fleet/)")
+    search: SearchConfig = Field(
+        default_factory=fleet_search,
+        description="The fleet searcher's settings (rl/tasks/fleet/config.py, fleet_search: the map searcher's, its "
+        "belief products in bfloat16)",
+    )

@@ -63,9 +63,14 @@ _FLEET_PREFIX: dict[str, str | None] = {"placement": None, "fleet": ""}
 
 
 def fleet_results(
-    config: FleetReportConfig, bundle: Bundle, root: Path, on_progress: Callable[[str], None] | None = None
+    config: FleetReportConfig,
+    bundle: Bundle,
+    root: Path,
+    on_progress: Callable[[str], None] | None = None,
+    parallel: bool = False,
 ) -> dict[str, pd.DataFrame]:
-    """``{method: run_fleet frame}`` of one city's bundle, the oracle first."""
+    """``{method: run_fleet frame}`` of one city's bundle, the oracle first. ``parallel``: the methods' rollouts as
+    Ray tasks (``eval.parallel``; Ray started or joined by the caller), the same frames as one after the other."""
     city = bundle.city
     maps = FleetMaps.of([bundle], config.task)
     episodes = maps.episode_list(config.episodes, config.seed)
@@ -85,11 +90,22 @@ def fleet_results(
             FleetPlacement(agent.policy, agent.config.env_config(evaluation=True), agent.name, prefix=prefix).bind(maps)
         )
     policies += [FleetRandomWalk(config.seed), FleetGreedy(config.seed)]
+    kept = [np.arange(len(episodes))] + [None] * (len(policies) - 1)  # the first method's paths: the figure draws three
     results: dict[str, pd.DataFrame] = {}
-    for i, policy in enumerate(policies):  # the first method's paths kept: the figure draws three of them
-        if on_progress is not None:
-            on_progress(f"{city}, method {i + 1} of {len(policies)}: {policy.name}")
-        results[policy.name] = run_fleet(maps, policy, episodes, record=np.arange(len(episodes)) if i == 0 else None)
+    if parallel:
+        from uavplace.eval.parallel import Method, play_on_ray
+
+        def told(name: str, done: int, total: int) -> None:
+            if on_progress is not None:
+                on_progress(f"{city}, {name}: {done} of {total} episodes")
+
+        on_ray = [Method(p.name, p, maps, episodes, record) for p, record in zip(policies, kept, strict=True)]
+        results = play_on_ray(on_ray, run_fleet, on_progress=told)
+    else:
+        for i, (policy, record) in enumerate(zip(policies, kept, strict=True)):
+            if on_progress is not None:
+                on_progress(f"{city}, method {i + 1} of {len(policies)}: {policy.name}")
+            results[policy.name] = run_fleet(maps, policy, episodes, record=record)
     first = next(iter(results.values()))
     reached = first["oracle_steps"] <= config.task.t_max
     oracle = first.assign(success=reached, steps=first["oracle_steps"].where(reached, config.task.t_max + 1))
@@ -193,17 +209,23 @@ def summary_rows(table: pd.DataFrame, diff: pd.DataFrame, t_max: int) -> list[li
 
 
 def make_fleet_report(
-    config: FleetReportConfig, out: Path, root: Path, command: str = "", on_progress: Callable[[str], None] | None = None
+    config: FleetReportConfig,
+    out: Path,
+    root: Path,
+    command: str = "",
+    on_progress: Callable[[str], None] | None = None,
+    parallel: bool = False,
 ) -> tuple[pd.DataFrame, pd.DataFrame, Path]:
     """Play every city, tabulate, and write ``out`` (see the module's docstring). Returns (results table, paired
-    differences, the Markdown file), every city in each."""
+    differences, the Markdown file), every city in each. ``parallel``: the rollouts on Ray (``fleet_results``)."""
     check_replaceable(out, FLEET_JSON, "fleet report")
     tables, diffs, frames, sections, versions, shown_episodes, found = [], [], [], [], {}, {}, []
     pages: dict[str, dict] = {}  # per city: what its section of fleet.html shows
     for number, city in enumerate(config.datasets, 1):
         bundle = load_bundle(city, root=root)
         where = f"city {number} of {len(config.datasets)}: "
-        results = fleet_results(config, bundle, root, on_progress and (lambda what, where=where: on_progress(where + what)))
+        told = on_progress and (lambda what, where=where: on_progress(where + what))
+        results = fleet_results(config, bundle, root, told, parallel)
         shown = next(m for m in results if m != ORACLE)
         shown_episodes[city] = (bundle, results[shown], shown)
         table = bootstrap_table(results, n_boot=config.n_boot, seed=config.seed)

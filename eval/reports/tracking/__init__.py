@@ -33,9 +33,12 @@ def play(request: ReportRequest, after: contextlib.ExitStack) -> None:
         trajectories=request.trajectories,
         **request.shared_settings(runs),
     )
+    parallel = request.joined_ray(after)
     with reporting("tracking report", request.quiet) as on_progress:
         out = report_folder(request, "tracking")
-        table, page = make_tracking_report(config, out, root=request.root, command=command_line(), on_progress=on_progress)
+        table, page = make_tracking_report(
+            config, out, root=request.root, command=command_line(), on_progress=on_progress, parallel=parallel
+        )
     for city, rows in table.groupby("city", sort=False):
         title = f"{request.episodes} tracking episodes in {city} (horizon {horizon}, P_T {request.p_t_db:g} dB)"
         print_table(table_rows(rows, horizon), title)

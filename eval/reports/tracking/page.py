@@ -329,9 +329,12 @@ def make_tracking_report(
     root: str | Path = "data/processed",
     command: str = "",
     on_progress: Callable[[str], None] | None = None,
+    parallel: bool = False,
 ) -> tuple[pd.DataFrame, Path]:
     """Evaluate every method on each city of ``config`` and write the report folder ``out`` (atomically; an existing
-    folder is replaced only if it is a tracking report). Returns the table (every city) and the page."""
+    folder is replaced only if it is a tracking report). Returns the table (every city) and the page. ``parallel``:
+    the methods' rollouts as Ray tasks (``eval.parallel``; Ray started or joined by the caller), the same episodes as
+    one after the other here."""
     out = Path(out)
     check_replaceable(out, TRACKING_JSON, "tracking report")
     bundles = [load_bundle(name, root=root) for name in config.datasets]
@@ -362,12 +365,23 @@ def make_tracking_report(
                 "P_T from which a cell at P_T is reachable: choose another --p-t-db",
                 field="p_t_db",
             ) from None
-        results: dict[str, TrackingEpisodes] = {}
         methods = tracking_methods(config.task, config.seed, agents, config.hold, searcher)
-        for j, policy in enumerate(methods, 1):
-            if on_progress is not None:
-                on_progress(f"city {number} of {len(bundles)}: {b.city}, method {j} of {len(methods)}: {policy.name}")
-            results[policy.name] = run_tracking(routes, policy, episodes, record=True)
+        where = f"city {number} of {len(bundles)}: {b.city}"
+        results: dict[str, TrackingEpisodes] = {}
+        if parallel:
+            from uavplace.eval.parallel import Method, play_on_ray
+
+            def told(name: str, done: int, total: int, where: str = where) -> None:
+                if on_progress is not None:
+                    on_progress(f"{where}, {name}: {done} of {total} episodes")
+
+            on_ray = [Method(p.name, p, routes, episodes, options={"record": True}) for p in methods]
+            results = play_on_ray(on_ray, run_tracking, TrackingEpisodes.joined, told)
+        else:
+            for j, policy in enumerate(methods, 1):
+                if on_progress is not None:
+                    on_progress(f"{where}, method {j} of {len(methods)}: {policy.name}")
+                results[policy.name] = run_tracking(routes, policy, episodes, record=True)
         per_city.append((b, routes, results, tracking_table(results, config.n_boot, config.seed)))
     with atomic_directory(out, marker=TRACKING_JSON, what="tracking report") as tmp:
         number = 1

@@ -7,6 +7,7 @@ from typing import ClassVar, Literal
 import numpy as np
 from pydantic import Field, field_validator
 
+from uavplace.rl.config import SearchConfig
 from uavplace.rl.tasks.entry import RunTask
 from uavplace.rl.world.maps import MOVES
 from uavplace.rl.world.settings import ObservationSettings
@@ -14,6 +15,12 @@ from uavplace.rl.world.settings import ObservationSettings
 #: The fleet's 5 actions per UAV in map coordinates (dy, dx): the 4 placement moves, then 4 = stay.
 FLEET_MOVES = np.vstack([MOVES, [[0, 0]]])
 STAY = 4
+
+
+def fleet_search() -> SearchConfig:
+    """The fleet searcher's settings: the map searcher's with its belief products in bfloat16
+    (``SearchConfig.precision``: issue 90's validation comparison on etoile-val and florence-val, docs/benchmarks.md)."""
+    return SearchConfig(precision="bfloat16")
 
 
 class FleetConfig(ObservationSettings):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import pandas as pd
 
@@ -15,13 +17,17 @@ def run_fleet(
     episodes: np.ndarray,
     num_envs: int = 64,  # noqa: ANN001
     record: np.ndarray | None = None,
+    first: int = 0,
+    on_step: Callable[[int, int], None] | None = None,
 ) -> pd.DataFrame:
     """Play ``episodes`` with ``policy`` (``reset(rows, num_envs, uavs)``, ``act(mask, FleetView) -> [E, K]``); one
     row per episode: ``success`` (every user served at one step within ``t_max``), ``steps`` (to that step; ``t_max
     + 1`` when it failed), ``users_served`` (the share of users served at some step), ``oracle_steps`` and ``spl``
     (success x oracle steps / max(steps, oracle steps)); and, for ``eval.metrics``, the oracle's steps as
     ``genie_steps``, the user set as ``user``, the city, and the first UAV's start. ``record``: episode numbers whose
-    paths are kept, ``attrs["paths"][i]`` [T + 1, K, 2] map cells of every UAV at every step."""
+    paths are kept, ``attrs["paths"][i]`` [T + 1, K, 2] map cells of every UAV at every step. ``first``: the episodes'
+    place in a longer list (``eval.parallel`` plays one in contiguous pieces), which numbers them (an episode's random
+    draws are keyed by the episode itself, ``FleetMaps.episode_keys``). ``on_step(done, total)`` reports progress."""
     episodes = np.asarray(episodes, np.int64)
     cfg = maps.config
     n = min(num_envs, len(episodes))
@@ -41,6 +47,7 @@ def run_fleet(
     env.begin(np.arange(n), episodes[:n], np.arange(n))
     policy.reset(np.arange(n), n, cfg.uavs)
     remember(np.arange(n))
+    finished = 0
     while not env.done.all():
         running = np.flatnonzero(~env.done)
         _, terminated, truncated = env.step(policy.act(env.action_mask(), FleetView.of(env)))
@@ -56,12 +63,15 @@ def run_fleet(
             policy.reset(refill, n, cfg.uavs)
             remember(refill)
             nxt += len(refill)
+        finished += len(ended)
+        if len(ended) and on_step is not None:
+            on_step(finished, len(episodes))
     oracle = oracle_steps(maps, episodes)
     spl = success * oracle / np.maximum(np.maximum(steps, oracle), 1)
     city, users, starts = maps.split(episodes)
     frame = pd.DataFrame(
         {
-            "episode": np.arange(len(episodes)),
+            "episode": first + np.arange(len(episodes)),
             "success": success,
             "steps": steps,
             "users_served": share,
@@ -76,5 +86,5 @@ def run_fleet(
             "start_x": starts[:, 0, 1],
         }
     )
-    frame.attrs["paths"] = {i: np.stack(p) for i, p in paths.items()}
+    frame.attrs["paths"] = {first + i: np.stack(p) for i, p in paths.items()}
     return frame

@@ -106,7 +106,8 @@ class FleetSearcher:
         for canvas, rows in by_canvas.items():  # the plans: a city's rows' users in one matrix product
             cm = self.searcher.canvas_maps(public, canvas)
             self.searcher.prefetch_paths(public, canvas, cm, np.concatenate(uav_cells[canvas]))
-            covers = posterior_cover(np.concatenate([np.stack(self.log_b[r]) for r in rows]), cm, self.searcher.on_device)
+            log_b = np.concatenate([np.stack(self.log_b[r]) for r in rows])
+            covers = posterior_cover(log_b, cm, self.searcher.on_device, self.searcher.config.precision)
             for i, r in enumerate(rows):
                 out[r] = self._plan(cm, canvas, covers[i * cfg.users : (i + 1) * cfg.users], view, r, mask[r])
         return out

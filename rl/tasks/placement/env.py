@@ -91,7 +91,8 @@ class BatchedEnv(EpisodeRows):
 
             predictor = load_predictor(self.config.belief_predictor or DEFAULT_PREDICTOR)
             cache = PredictionCache(maps.bundles[0].path.parent.parent / PREDICTIONS)
-            self.belief = BeliefTracker(maps, n, predictor, SearchConfig(), cache, window=w)
+            precision = self.config.belief_precision
+            self.belief = BeliefTracker(maps, n, predictor, SearchConfig(), cache, window=w, precision=precision)
             self._belief_windows = np.lib.stride_tricks.sliding_window_view(self.belief.cover, (w, w), axis=(1, 2))
 
     @property

@@ -21,6 +21,7 @@ def run_episodes(
     num_envs: int = 256,
     on_step: Callable[[int, int], None] | None = None,
     record: np.ndarray | None = None,
+    first: int = 0,
 ) -> pd.DataFrame:
     """Play ``episodes`` (``[K, 3]`` specs from ``MapSet.sample_episodes``) to their end with ``policy``.
 
@@ -28,7 +29,9 @@ def run_episodes(
     (the start's cell of the bundle's map, the view's symmetry undone, whatever the window), ``genie_steps`` (shortest possible), ``steps`` (moves played), ``success`` (P_T reached
     within ``t_max``) and ``return_`` (sum of rewards). ``on_step(done, total)`` reports progress.
     ``record``: episode numbers whose cells, start included, go to ``df.attrs["paths"]``
-    (``{episode: [T + 1, 2] (iy, ix)}``, cells of the bundle's map, the view's rotation undone).
+    (``{episode: [T + 1, 2] (iy, ix)}``, cells of the bundle's map, the view's rotation undone). ``first``: the
+    episodes' place in a longer list (``eval.parallel`` plays one in contiguous pieces), which numbers them in the
+    frame and the paths (``record`` counts from the first given; an episode's random draws are keyed by its start).
     """
     k = len(episodes)
     env = BatchedEnv(maps, min(num_envs, k), queue=episodes)
@@ -86,7 +89,7 @@ def run_episodes(
     start_y, start_x = maps.unrotate(view, episodes[:, 1], episodes[:, 2])
     df = pd.DataFrame(
         {
-            "episode": np.arange(k),
+            "episode": first + np.arange(k),
             "view": view,
             "city": [s.city for s in scen],
             "user": [s.user for s in scen],
@@ -99,7 +102,7 @@ def run_episodes(
             "return_": ret,
         }
     )
-    df.attrs["paths"] = paths
+    df.attrs["paths"] = {first + e: p for e, p in paths.items()}
     return df
 
 

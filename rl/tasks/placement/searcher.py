@@ -192,7 +192,7 @@ class MapSearchPolicy(BeliefModel):
         for c, rows in by_canvas.items():  # the plans, a canvas's rows in one product
             maps = self.canvas_maps(public, c)
             self.prefetch_paths(public, c, maps, here[rows])
-            scores = posterior_cover(np.stack([self.belief[r] for r in rows]), maps, self.on_device)
+            scores = posterior_cover(np.stack([self.belief[r] for r in rows]), maps, self.on_device, self.config.precision)
             floor_db = float(public.settings[public.bundle_of(c)]["floor_db"])
             p_t = public.config.p_t_db
             for i, r in enumerate(rows):

@@ -79,8 +79,9 @@ def tracking_search() -> SearchConfig:
     """The tracking searcher's settings: the map searcher's with a distance scale of 192 cells (``reach_cells``; the
     placement searcher's is 12), so that a likely cell far away beats an unlikely one nearby: the user moves, and a
     cell near the UAV stays unlikely. Chosen on the validation cities etoile-val-routes and trk-val
-    (experiments/log/tracking.md)."""
-    return SearchConfig(reach_cells=192.0)
+    (experiments/log/tracking.md). Its belief product in bfloat16 (``SearchConfig.precision``: issue 90's
+    validation comparison on the same cities, docs/benchmarks.md)."""
+    return SearchConfig(reach_cells=192.0, precision="bfloat16")
 
 
 class TrackingTask(TrackingConfig, RunTask):

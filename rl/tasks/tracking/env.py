@@ -31,8 +31,9 @@ class TrackingEnv(EpisodeRows):
         queue: np.ndarray | None = None,
         autoreset: bool = True,
         compact: bool = False,
+        first: int = 0,
     ) -> None:
-        self._init_rows(num_envs, queue, np.float64)
+        self._init_rows(num_envs, queue, np.float64, first)
         self.routes, self.config, self.maps, self.autoreset = routes, routes.config, routes.maps, autoreset
         self.compact = compact
         n, L, w = num_envs, self.maps.side, routes.config.window

@@ -38,6 +38,13 @@ class Holding:
     def __init__(self, policy) -> None:  # noqa: ANN001 - a tracking method (MovesOnly, PlacementInTracking)
         self.policy, self.name = policy, f"{policy.name} + hold"
 
+    def bind(self, routes: RouteSet) -> Holding:
+        """Lay ``policy`` on ``routes``' cities where it is laid (``PlacementInTracking.bind``): played alone (a copy
+        in a Ray task), the held method is bound as it would be when played first."""
+        if hasattr(self.policy, "bind"):
+            self.policy.bind(routes)
+        return self
+
     def reset(self, rows: np.ndarray, num_envs: int) -> None:
         self.policy.reset(rows, num_envs)
 

@@ -144,7 +144,7 @@ class TrackingSearchPolicy:
             if not going.any():
                 continue
             # the plans, the canvas's rows still below P_T in one product
-            scores = posterior_cover(np.logaddexp.reduce(log_b[going], axis=1), maps, s.on_device)
+            scores = posterior_cover(np.logaddexp.reduce(log_b[going], axis=1), maps, s.on_device, s.config.precision)
             for r, score in zip(rows[going], scores, strict=True):
                 here = int(maps.index[env.pos[r, 0] - p, env.pos[r, 1] - p])
                 others = np.zeros(len(maps.legal), bool)
