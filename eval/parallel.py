@@ -3,12 +3,12 @@ plays through it: placement's (``run_episodes``), the tracking task's (``run_tra
 (``run_fleet``), each rollout told its piece's place in the whole list (``first``).
 
 Every random choice of an episode is drawn from that episode and step (``rl.randomness``; a tracking episode's from
-its place in the list, which ``first`` keeps), and an episode plays the same whatever else shares its batch: so a method's episodes can be cut into contiguous pieces, each played by its
-own task, and put back together. The results are the same frames, to the bit, whether the methods play one after
-the other in this process or in pieces on any number of workers (``tests/test_parallel.py``). Pieces, not whole
-methods, because one method can hold most of a report's time (the hybrid, which updates the searcher's belief every
-step: ``benchmarks/breakdown.py``); every method is cut into as many pieces as the cluster has CPUs (pieces of at
-least ``MIN_PIECE`` episodes).
+its place in the list, which ``first`` keeps), and an episode plays the same whatever else shares its batch: so a
+method's episodes can be cut into contiguous pieces, each played by its own task, and put back together. The results
+are the same frames, to the bit, whether the methods play one after the other in this process or in pieces on any
+number of workers (``tests/test_parallel.py``). Pieces, not whole methods, because one method can hold most of a
+report's time (the hybrid, which updates the searcher's belief every step: ``benchmarks/breakdown.py``); every method
+is cut into as many pieces as the cluster has CPUs (pieces of at least ``MIN_PIECE`` episodes).
 
 The searchers' predicted maps are made first, in this process, and kept in the prediction cache; a task reads them
 from there (a policy travels without its in-memory maps). Progress comes back from the tasks through a Ray queue, at

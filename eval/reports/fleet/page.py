@@ -99,6 +99,9 @@ def fleet_results(
             if on_progress is not None:
                 on_progress(f"{city}, {name}: {done} of {total} episodes")
 
+        for p in policies:  # the searcher's maps made once here, kept in the cache the tasks read
+            if isinstance(p, FleetSearcher):
+                p.predict()
         on_ray = [Method(p.name, p, maps, episodes, record) for p, record in zip(policies, kept, strict=True)]
         results = play_on_ray(on_ray, run_fleet, on_progress=told)
     else:

@@ -72,6 +72,14 @@ class FleetSearcher:
         self.public, self.symmetries = PublicMaps.of(MapSet(maps.bundles, env)), env.symmetries
         return self
 
+    def predict(self) -> None:
+        """Every bound city's predicted maps, made now (and kept in the cache): a report does it before its Ray tasks,
+        which then read them instead of each predicting them again."""
+        if self.public is None:
+            raise ValueError("FleetSearcher.bind(maps) first: it predicts from the bundles' public maps")
+        for city in range(len(self.public.settings)):
+            self.searcher.canvas_maps(self.public, self.symmetries * city)
+
     def reset(self, rows: np.ndarray, num_envs: int, uavs: int) -> None:
         if len(self.log_b) != num_envs:
             self.log_b = [[] for _ in range(num_envs)]
