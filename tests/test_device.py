@@ -131,15 +131,19 @@ def test_cuda_without_a_gpu_is_refused_by_every_command(tmp_path):
 
 
 def test_the_searcher_plans_on_the_product_in_its_settings_precision(tiny, monkeypatch):
-    """``SearchConfig.precision``: the map searcher multiplies in bfloat16 by default and in the belief's own precision
-    with 'belief' (the product it is handed each step says which); it finds every tiny user either way."""
+    """``SearchConfig.precision``: the map searcher multiplies in its belief's own precision by default ('belief') and in
+    bfloat16 when told (the product it is handed each step says which), as the tracking and fleet searchers' settings
+    tell theirs; it finds every tiny user either way."""
     import uavplace.rl.tasks.placement.searcher as placement
     from uavplace.rl.predictor import load_predictor
     from uavplace.rl.tasks.placement.config import EnvConfig
     from uavplace.rl.tasks.placement.rollout import run_episodes
     from uavplace.rl.world.maps import MapSet
 
-    assert SearchConfig().precision == "bfloat16"
+    from uavplace.rl.tasks.fleet.config import fleet_search
+    from uavplace.rl.tasks.tracking.config import tracking_search
+
+    assert SearchConfig().precision == "belief" and tracking_search().precision == fleet_search().precision == "bfloat16"
     maps = MapSet.load("tiny", EnvConfig(t_max=60, rotate=False), root=str(tiny))
     episodes = maps.episode_list(24, 4)
     asked: list[str] = []
