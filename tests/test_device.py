@@ -136,12 +136,11 @@ def test_the_searcher_plans_on_the_product_in_its_settings_precision(tiny, monke
     tell theirs; it finds every tiny user either way."""
     import uavplace.rl.tasks.placement.searcher as placement
     from uavplace.rl.predictor import load_predictor
+    from uavplace.rl.tasks.fleet.config import fleet_search
     from uavplace.rl.tasks.placement.config import EnvConfig
     from uavplace.rl.tasks.placement.rollout import run_episodes
-    from uavplace.rl.world.maps import MapSet
-
-    from uavplace.rl.tasks.fleet.config import fleet_search
     from uavplace.rl.tasks.tracking.config import tracking_search
+    from uavplace.rl.world.maps import MapSet
 
     assert SearchConfig().precision == "belief" and tracking_search().precision == fleet_search().precision == "bfloat16"
     maps = MapSet.load("tiny", EnvConfig(t_max=60, rotate=False), root=str(tiny))

@@ -109,9 +109,9 @@ def posterior_cover(
     copied there once), in the same precision; None: numpy on the CPU.
 
     ``precision`` "bfloat16" (``SearchConfig.precision``, the hybrid's ``EnvConfig.belief_precision``): the belief (in
-    float32) and the cover rounded to bfloat16, multiplied by torch (on ``on_device``'s device, else the CPU) and the sums rounded to
-    bfloat16 too, returned as float32: within 3 x 2^-8 (bfloat16 keeps 8 bits) of the float32 product's value, each row's the same in any
-    batch (``tests/test_belief.py``)."""
+    float32) and the cover rounded to bfloat16, multiplied by torch (on ``on_device``'s device, else the CPU) and the
+    sums rounded to bfloat16 too, returned as float32: within 3 x 2^-8 (bfloat16 keeps 8 bits) of the float32
+    product's value, each row's the same in any batch (``tests/test_device.py``)."""
     if precision == "bfloat16":
         copies = on_device or _CPU_COPIES
         b = np.exp(log_b - log_b.max(axis=1, keepdims=True), dtype=np.float32)

@@ -39,7 +39,8 @@ class EpisodeRows:
     task's ``rl.tasks.tracking.TrackingEnv``), drawn with the generator seeded by ``reset(seed)`` (``_sample``) or taken in
     order from ``queue`` (episode specs, one row each) when one is given: evaluation then plays exactly those, and
     ``exhausted`` tells which rows have no episode left (a queue's episode ids count from ``first``: the queue's
-    place in a longer list, whose per-episode random draws it keeps, ``eval.parallel``). A subclass starts the episodes (``_start``) and observes them.
+    place in a longer list, whose per-episode random draws it keeps, ``eval.parallel``). A subclass starts the
+    episodes (``_start``) and observes them.
 
     The trainer (``rl.agent.train``) reads every environment through one interface: ``reset(seed)``, ``step(actions)``
     (``info["final_index"]``, ``final_obs`` and ``final_mask`` of the rows whose episodes were cut short, then
