@@ -154,15 +154,8 @@ def main() -> None:
     low_a, low_b = torch.from_numpy(a).bfloat16(), torch.from_numpy(b).bfloat16()
     low = rate(lambda: low_a @ low_b, 2.0 * BATCH * largest[0] * largest[1], args.seconds)
     hybrid = load_agent(SHIPPED_AGENTS / "hybrid", 0.0, 0).config.env_config(evaluation=True).belief_precision
-    in_bf16 = hybrid == "bfloat16"
-    rows = [
-        (
-            part + (" (bfloat16)" if in_bf16 and PRODUCT_METHODS[1] in part else ""),
-            flops,
-            low if in_bf16 and PRODUCT_METHODS[1] in part else peak,
-        )
-        for part, flops, _ in rows
-    ]
+    low_rows = {part for part, _, _ in rows if hybrid == "bfloat16" and PRODUCT_METHODS[1] in part}
+    rows = [(part + " (bfloat16)", flops, low) if part in low_rows else (part, flops, peak) for part, flops, _ in rows]
     for name, (per_sample, best) in network_rates(args.seconds).items():
         samples = sum(n for method, n in steps.items() if method == name or method == name + NO_BUILDINGS)
         rows.append((f"{name}: networks ({samples} samples, {per_sample / 1e6:.2f} MFLOP each)", samples * per_sample, best))

@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -106,7 +106,7 @@ def play_on_ray(
     done: dict[str, dict[int, int]] = {m.name: {} for m in methods}
     for m in methods:
         world_ref = stored.setdefault(id(m.world), ray.put(m.world))  # one copy of each world for all its methods
-        method_ref = ray.put(Method(m.name, m.policy, None, m.specs, m.record, m.options))  # its world put once above
+        method_ref = ray.put(replace(m, world=None))  # its world put once above
         for first, stop in pieces(len(m.specs), workers):
             ref = task.remote(play_ref, method_ref, world_ref, first, stop, (m.name, first), queue)
             pending[ref] = (m.name, first)

@@ -58,20 +58,8 @@ def test_methods_on_ray_play_the_same_episodes(tiny, tmp_path, local_ray, monkey
 
 def test_the_report_is_the_same_on_one_worker_and_on_two(tiny, tmp_path, local_ray):
     """`uavrl report --workers 2` (on the local Ray) writes the same tables and episodes as `--workers 1`."""
-    from click.testing import CliRunner
-
-    from uavplace.cli import uavrl
-
-    frames = {}
-    for workers in ("1", "2"):
-        out = tmp_path / f"w{workers}"
-        args = ["report", "--dataset", "tiny", "--root", str(tiny), "--episodes", "16", "--bootstrap", "100",
-                "--quiet", "--workers", workers, "--out", str(out)]  # fmt: skip
-        res = CliRunner().invoke(uavrl, args)
-        assert res.exit_code == 0, res.output
-        frames[workers] = (pd.read_csv(out / "results.csv"), pd.read_parquet(out / "episodes.parquet"))
-    for one, two in zip(frames["1"], frames["2"], strict=True):
-        pd.testing.assert_frame_equal(one, two, check_exact=True)
+    args = ["report", "--dataset", "tiny", "--root", str(tiny), "--episodes", "16", "--bootstrap", "100"]
+    _reports_on_one_and_two_workers(tmp_path, args, ["results.csv", "episodes.parquet"])
 
 
 def test_a_policy_in_a_task_finds_the_prediction_cache_from_another_folder(tmp_path, monkeypatch):
@@ -94,16 +82,9 @@ def test_a_policy_in_a_task_finds_the_prediction_cache_from_another_folder(tmp_p
 @pytest.fixture(scope="module")
 def walk(tmp_path_factory):
     """A grid city with two routes (``tests.test_tracking``'s), ingested and built: the tracking task's world."""
-    from tests.conftest import write_grid_city
-    from tests.test_tracking import ROUTES
-    from uavplace.dataset.build import build_city
-    from uavplace.ingest.pipeline import ingest_city
-    from uavplace.schemas.bundle import BuildConfig
+    from tests.test_tracking import build_walk
 
-    tmp = tmp_path_factory.mktemp("walk")
-    ingest_city(write_grid_city(tmp / "raw", nx=6, ny=5, n_tx=3, seed=2, dead_share=0.0, routes=ROUTES), tmp / "p", name="walk")
-    build_city("walk", BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=-45.0), tmp / "p")
-    return tmp / "p"
+    return build_walk(tmp_path_factory.mktemp("walk"))
 
 
 def _reports_on_one_and_two_workers(tmp_path, args: list[str], files: list[str]) -> None:

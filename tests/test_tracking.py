@@ -4,6 +4,7 @@ bundle, the env's time stepping, and the oracle against brute force."""
 from __future__ import annotations
 
 import itertools
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -40,12 +41,16 @@ ROUTES = [
 ]
 
 
-@pytest.fixture(scope="module")
-def root(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("tracking")
+def build_walk(tmp: Path) -> Path:
+    """The grid city ``walk`` with the two ``ROUTES``, written under ``tmp``, ingested and built: its bundles' root."""
     ingest_city(write_grid_city(tmp / "raw", nx=6, ny=5, n_tx=3, seed=2, dead_share=0.0, routes=ROUTES), tmp / "p", name="walk")
     build_city("walk", BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=-45.0), tmp / "p")
     return tmp / "p"
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory):
+    return build_walk(tmp_path_factory.mktemp("tracking"))
 
 
 def test_routes_keep_to_open_ground_and_their_sampling():

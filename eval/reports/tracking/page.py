@@ -50,7 +50,6 @@ from uavplace.rl.tasks.tracking import (
     TrackingSearchPolicy,
     run_tracking,
 )
-from uavplace.rl.world.view import PublicMaps
 from uavplace.schemas import InputError
 from uavplace.schemas.base import uavplace_version
 from uavplace.schemas.constants import reaches_target
@@ -376,10 +375,8 @@ def make_tracking_report(
                 if on_progress is not None:
                     on_progress(f"{where}, {name}: {done} of {total} episodes")
 
-            if searcher is not None:  # its maps made once here, kept in the cache the tasks read (the hybrid's too)
-                public = PublicMaps.of(routes.maps)
-                for canvas in np.unique(routes.canvas):
-                    searcher.searcher.canvas_maps(public, int(canvas))
+            if searcher is not None:  # its maps made once here, kept in the cache the tasks read
+                searcher.predict(routes)
             on_ray = [Method(p.name, p, routes, episodes, options={"record": True}) for p in methods]
             results = play_on_ray(on_ray, run_tracking, TrackingEpisodes.joined, told)
         else:

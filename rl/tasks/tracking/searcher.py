@@ -33,6 +33,8 @@ from uavplace.rl.config import PLACEMENT_PLAN_SETTINGS
 from uavplace.rl.tasks.placement.searcher import MapSearchPolicy
 from uavplace.rl.tasks.tracking.config import STAY, MotionModel
 from uavplace.rl.tasks.tracking.env import TrackingView
+from uavplace.rl.tasks.tracking.maps import RouteSet
+from uavplace.rl.world.view import PublicMaps
 
 #: The tracking searcher's name in tables.
 TRACKING_SEARCHER = "tracking searcher"
@@ -86,6 +88,13 @@ class TrackingSearchPolicy:
         self.prior = np.log(np.asarray(motion.weights, np.float64))
         self.belief: list[np.ndarray | None] = []  # per row: [speed classes, candidates] log-belief
         self._moves: dict[tuple, list[sparse.csr_matrix]] = {}
+
+    def predict(self, routes: RouteSet) -> None:
+        """The predicted maps of every canvas of ``routes``, made now (and kept in the cache, where the hybrid's channel
+        reads the same): a report does it before its Ray tasks, which then read them instead of each predicting them."""
+        public = PublicMaps.of(routes.maps)
+        for canvas in np.unique(routes.canvas):
+            self.searcher.canvas_maps(public, int(canvas))
 
     def reset(self, rows: np.ndarray, num_envs: int) -> None:
         if len(self.belief) != num_envs:
