@@ -76,10 +76,11 @@ def compare(before: Path, after: Path) -> tuple[list[list[str]], int]:
     return rows, moved
 
 
-def play(base: str, report: list[str], out: Path) -> tuple[Path, Path]:
-    """`uavrl report REPORT` with the code of ``base`` into ``out``/base, then with this tree's into ``out``/tree."""
+def play(base: str, report: list[str], out: Path, head: str | None = None) -> tuple[Path, Path]:
+    """`uavrl report REPORT` with the code of ``base`` into ``out``/base, then with this tree's (or commit ``head``'s)
+    into ``out``/tree."""
     folders = (out / "base", out / "tree")
-    for path, folder in zip((str(shim(base)), ""), folders, strict=True):
+    for path, folder in zip((str(shim(base)), str(shim(head)) if head else ""), folders, strict=True):
         env = os.environ | {"PYTHONPATH": path} if path else os.environ
         command = [sys.executable, "-c", "from uavplace.cli import uavrl; uavrl()", "report", *report]
         command += ["--out", str(folder), "--quiet", "--overwrite"]
@@ -92,11 +93,12 @@ def play(base: str, report: list[str], out: Path) -> tuple[Path, Path]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--base", default="HEAD", help="the earlier commit (default: HEAD, the tree's changes against it)")
+    ap.add_argument("--head", help="the later commit (default: this tree; a commit lets the tree change while the reports play)")
     ap.add_argument("--out", type=Path, default=REPO / "runs" / "moved", help="where both reports go (default: runs/moved)")
     ap.add_argument("--compare", nargs=2, type=Path, metavar=("BEFORE", "AFTER"), help="compare two report folders only")
     ap.add_argument("report", nargs="*", help="`uavrl report`'s options, after --")
     args = ap.parse_args()
-    before, after = args.compare if args.compare else play(args.base, args.report, args.out)
+    before, after = args.compare if args.compare else play(args.base, args.report, args.out, args.head)
     rows, moved = compare(before, after)
     print("| city | method | statistic | before [95 % interval] | after | |")
     print("|---|---|---|---|---|---|")

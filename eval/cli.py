@@ -78,7 +78,13 @@ def task_options(command: Callable) -> Callable:
 )
 @task_option("; ".join(f"{name}: {task_report(name).summary}" for name in TASKS) + ".")
 @task_options
-@model_options(ReportSettings, "predictor", "device")
+@model_options(
+    ReportSettings,
+    "predictor",
+    "device",
+    "network_precision",
+    unset={"network_precision": "the task's own: float32 in placement, bfloat16 in tracking and fleet"},
+)
 @click.option(
     "--search",
     multiple=True,

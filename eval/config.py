@@ -5,7 +5,10 @@ them before any heavy work."""
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import ConfigDict, Field
+from pydantic.fields import FieldInfo
 
 from uavplace.infra.device import DEVICE_HELP, Device
 from uavplace.rl.config import DEFAULT_PREDICTOR, EpisodeSettings, MapErrorSettings, MeasurementSettings, SearchConfig
@@ -13,6 +16,20 @@ from uavplace.schemas.base import MAX_SEED, Contract
 
 #: The evaluation protocol's fields every report shares with ``EpisodeSettings`` (declared there once).
 _EPISODE = EpisodeSettings.model_fields
+
+
+#: How the agents' networks compute as they act (rl/agent/dqn.py, ``NETWORK_PRECISIONS``).
+NetworkPrecision = Literal["float32", "bfloat16"]
+
+
+def network_precision(default: str) -> FieldInfo:
+    """The ``network_precision`` field of a report's settings, with its task's ``default``."""
+    return Field(
+        default=default,
+        description="The agents' networks' arithmetic as they act (rl/agent/dqn.py, DQNPolicy): 'float32', or "
+        "'bfloat16' (the layers before the heads under torch's bfloat16 autocast, the heads in float32: 2 to 4 x "
+        "faster on a CPU with bfloat16 units; moves may differ, validated per report in docs/benchmarks.md)",
+    )
 
 
 class ReportSettings(Contract):
@@ -51,6 +68,7 @@ class ReportSettings(Contract):
         description="How every method's 3D map differs from the traced city (rl/config.py, MapErrorSettings): the "
         "traced city's by default; the genie and the users' maps never err",
     )
+    network_precision: NetworkPrecision = network_precision("float32")
     device: Device = Field(
         default="auto",
         description=f"Where the agents' networks and the searchers' belief products run: {DEVICE_HELP} "

@@ -87,15 +87,22 @@ def has_record(folder: Path) -> bool:
     return os.path.lexists(folder / RUN_JSON)
 
 
-def load_agent(folder: str | Path, epsilon: float, seed: int, task: str | None = "placement", device: str = "cpu") -> Agent:
+def load_agent(
+    folder: str | Path,
+    epsilon: float,
+    seed: int,
+    task: str | None = "placement",
+    device: str = "cpu",
+    precision: str = "float32",
+) -> Agent:
     """A run folder (``run.json`` + ``checkpoints/best.pt``) as an evaluable agent, its network on ``device``
-    (``infra.device``'s setting); ``InputError`` if it is not one, or if it learnt another task than ``task`` (None:
-    either)."""
+    (``infra.device``'s setting) acting in ``precision`` (``DQNPolicy``); ``InputError`` if it is not one, or if it
+    learnt another task than ``task`` (None: either)."""
     folder = Path(folder)
     ckpt = best_checkpoint(folder)
     run = read_run_json(folder) if has_record(folder) else None  # a run.json that is no file is refused there
     ck = load_tensors(ckpt)
-    policy, config = policy_from_checkpoint(ck, ckpt, epsilon=epsilon, seed=seed, device=device)
+    policy, config = policy_from_checkpoint(ck, ckpt, epsilon=epsilon, seed=seed, device=device, precision=precision)
     if run is not None and run.config.model_dump() != config.model_dump():
         held, played = run.config.model_dump(), config.model_dump()
         differ = [k for k in held if held[k] != played[k]]
@@ -297,7 +304,10 @@ def blanked_agents(config: ReportConfig, agents: list[Agent]) -> list[Agent]:
     """The agents that read the building map, loaded again and named ``X, no buildings``: ``evaluate`` them with
     ``blanked_results`` (the same episodes, the map blanked)."""
     sighted = [a for a in agents if not a.config.env_config(evaluation=True).blind]  # a blind agent reads no map
-    readers = [load_agent(a.folder, config.test_epsilon, config.seed, device=config.device) for a in sighted]
+    readers = [
+        load_agent(a.folder, config.test_epsilon, config.seed, device=config.device, precision=config.network_precision)
+        for a in sighted
+    ]
     for reader, agent in zip(readers, sighted, strict=True):
         reader.name = reader.policy.name = agent.name + NO_BUILDINGS
     return readers

@@ -18,7 +18,7 @@ from uavplace.dataset.bundle import load_bundle
 from uavplace.ingest.pipeline import ingest_city
 from uavplace.rl.agent.config import DQNConfig, preset_config
 from uavplace.rl.agent.dqn import DQN, DQNPolicy, genie_move_loss, masked_argmax, to_tensor
-from uavplace.rl.agent.network import FoveaQNetwork, QNetwork
+from uavplace.rl.agent.network import FoveaQNetwork, MeanQ, QNetwork
 from uavplace.rl.agent.pqn import q_lambda_returns
 from uavplace.rl.agent.replay import Batch, ReplayBuffer
 from uavplace.rl.agent.runs import load_policy, read_run_json
@@ -471,6 +471,38 @@ def test_recurrent_policy_keeps_a_state_per_row(city_root):
     assert policy.hidden[2].abs().sum() == 0 and (policy.hidden[[0, 1, 3]].abs().sum(dim=1) > 0).all()
 
 
+@pytest.mark.parametrize("arch", ["fovea", "conv"])
+def test_a_bfloat16_policy_acts_near_float32_and_each_row_as_in_any_batch(city_root, arch):
+    """``precision="bfloat16"``: the features under bfloat16 autocast stay near float32's, and a row's state and move
+    are the same to the bit whether it plays with every row or with some of them (Ray's pieces change the batch)."""
+    cfg = EnvConfig(window=21)
+    env = BatchedEnv(MapSet([load_bundle("tiny", root=city_root)], cfg), 6)
+    obs, info = env.reset(seed=0)
+    torch.manual_seed(1)
+    if arch == "fovea":
+        net = FoveaQNetwork(cfg.num_channels, 21, hidden=32, fovea=7, recurrent=True)
+    else:
+        net = QNetwork(cfg.num_channels, 21, hidden=32, channels=(8, 16, 16), recurrent=True)
+    with pytest.raises(ValueError, match="unknown network precision 'half'"):
+        DQNPolicy(net, precision="half")
+    full, low, pieces = (DQNPolicy(net, epsilon=0.0, precision=p) for p in ("float32", "bfloat16", "bfloat16"))
+    for policy in (full, low, pieces):
+        policy.reset(np.arange(6), 6)
+    mask = info["action_mask"]
+    for live in ([0, 2, 5], [1, 3, 4]):  # the six rows' first move in two batches of three
+        env.exhausted[:] = True
+        env.exhausted[live] = False
+        pieces.act(obs, mask, env)
+    env.exhausted[:] = False
+    full.act(obs, mask, env)
+    low.act(obs, mask, env)
+    assert low.hidden.dtype == torch.float32 and not torch.equal(low.hidden, full.hidden)
+    assert torch.allclose(low.hidden, full.hidden, atol=0.05)
+    assert torch.equal(pieces.hidden, low.hidden)
+    assert np.array_equal(pieces.act(obs, mask, env), low.act(obs, mask, env))  # the second move, all rows together
+    assert torch.equal(pieces.hidden, low.hidden)
+
+
 @pytest.mark.parametrize(
     "learner", [{"learner": "replay", "recurrent": False}, {"recurrent": False}, {}], ids=["replay", "pqn", "pqn-gru"]
 )
@@ -728,6 +760,23 @@ def test_aux_genie_head_learns_the_genie_moves(tmp_path, city_root):
 
 def snapshot_bytes(folder):
     return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+@pytest.mark.parametrize("recurrent", [False, True])
+def test_an_ensemble_pools_its_observation_once_and_computes_what_its_members_do(recurrent):
+    """Foveated members of one view geometry share the pooled views: the ensemble's features are, to the bit, its
+    members' own side by side; members of other geometries each pool their own."""
+    torch.manual_seed(0)
+    obs = torch.randn(7, 3, 21, 21) * 30
+    for fovea in ((5, 5, 5), (5, 7, 5)):
+        nets = [FoveaQNetwork(3, window=21, hidden=16, fovea=f, recurrent=recurrent).eval() for f in fovea]
+        mean = MeanQ(nets)
+        h = torch.randn(7, 48) if recurrent else None
+        parts = h.chunk(3, dim=1) if recurrent else (None,) * 3
+        with torch.inference_mode():
+            alone = torch.cat([net.encode(obs, part) for net, part in zip(nets, parts, strict=True)], dim=1)
+            assert torch.equal(mean.encode(obs, h), alone)
+            assert torch.equal(mean.embed(obs), torch.cat([net.embed(obs) for net in nets], dim=1))
 
 
 def test_ensemble_acts_on_the_mean_q_and_plays_like_a_run(tmp_path, corpus_root):

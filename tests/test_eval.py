@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
-from tests.conftest import write_grid_city
+from tests.conftest import REPO, write_grid_city
 from uavplace.cli import uavrl
 from uavplace.dataset.build import build_city
 from uavplace.eval.metrics import bootstrap_table, difference_table, ecdf, format_stat, group_tables
@@ -412,7 +412,6 @@ def test_a_default_build_is_what_the_shipped_agents_expect_and_another_is_named(
 
     from click.testing import CliRunner
 
-    from tests.conftest import REPO
     from uavplace.cli import uavrl
     from uavplace.dataset.build import build_city
     from uavplace.eval.evaluate import unlike_training
@@ -513,7 +512,6 @@ def test_a_report_folder_takes_one_report_at_a_time(tiny, tmp_path):
 def test_a_missing_training_bundle_is_said_in_words_in_the_caption(tmp_path):
     """The shipped agents' training bundles are not on a user's machine: the training figure's note says so in
     words, naming a few cities, never an error message."""
-    from tests.conftest import REPO
     from uavplace.eval.evaluate import load_agent, training_bounds
 
     agent = load_agent(REPO / "data" / "agents" / "best", 0.096, 0)
@@ -582,6 +580,30 @@ def test_report_search_sets_the_searchers_settings(tiny, tmp_path):
     for task, pair, says in refused:  # a setting its searcher does not read would be recorded and not played
         with pytest.raises(click.BadParameter, match=says):
             task_report(task).search((pair,))
+
+
+def test_report_network_precision_is_the_tasks_own_unless_given(tiny, tmp_path):
+    """``--network-precision``: placement's agents act in float32 by default, the tracking and fleet reports' in
+    bfloat16; given, it is what the record says and what every agent is handed."""
+    from uavplace.eval.config import ReportConfig
+    from uavplace.eval.reports.fleet.config import FleetReportConfig
+    from uavplace.eval.reports.tracking.config import TrackingReportConfig
+
+    assert ReportConfig(dataset="x").network_precision == "float32"
+    assert (
+        TrackingReportConfig(datasets=["x"]).network_precision
+        == FleetReportConfig(datasets=["x"]).network_precision
+        == "bfloat16"
+    )
+    args = ["report", "--dataset", "tiny", "--root", str(tiny), "--episodes", "4", "--bootstrap", "100", "--quiet",
+            "--run", str(REPO / "data" / "agents" / "proposed"), "--predictor", "none"]  # fmt: skip
+    for given, recorded in ((None, "float32"), ("bfloat16", "bfloat16")):
+        out = tmp_path / str(given)
+        res = CliRunner().invoke(uavrl, [*args, "--out", str(out), *(["--network-precision", given] if given else [])])
+        assert res.exit_code == 0, res.output
+        assert json.loads((out / "report.json").read_text())["report_config"]["network_precision"] == recorded
+    res = CliRunner().invoke(uavrl, [*args, "--out", str(tmp_path / "no"), "--network-precision", "half"])
+    assert res.exit_code == 2 and "--network-precision" in res.output and not (tmp_path / "no").exists()
 
 
 def test_levers_refuses_a_run_given_twice(tmp_path):

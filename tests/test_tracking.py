@@ -178,6 +178,18 @@ def test_oracle_equals_brute_force(seed):
     assert value == sum(bool(covered[t, path[t + 1][0], path[t + 1][1]]) for t in range(5))
 
 
+def test_oracle_breaks_ties_by_staying_and_counts_past_int16():
+    """Where every step is covered everywhere, the oracle stays where it starts (ties go to staying); a horizon
+    longer than int16 can count is counted whole."""
+    legal = np.array([[True, True, False], [True, True, True]])
+    path, value = oracle_path(legal, np.ones((7, 2, 3), bool), (1, 1))
+    assert value == 7 and (path == (1, 1)).all()
+    covered = np.zeros((40_000, 1, 2), bool)
+    covered[:, 0, 1] = True  # only the right cell covers: the first move goes there and stays
+    path, value = oracle_path(np.ones((1, 2), bool), covered, (0, 0))
+    assert value == 40_000 and (path[1:] == (0, 1)).all()
+
+
 def test_env_steps_time_and_the_oracle_bounds_every_method(root):
     """The env moves the user by speed x step time, keeps the UAV in place on stay, truncates at the horizon; on the
     same episodes the oracle covers at least as much as the re-planning genie and a random walk, and exactly what

@@ -48,6 +48,7 @@ class ReportRequest(BaseModel):
     measurement: MeasurementSettings = MeasurementSettings()
     map_error: MapErrorSettings = MapErrorSettings()
     device: Device = "auto"
+    network_precision: str | None = None
     overwrite: bool = False
     strict: bool = False
     workers: int = 1
@@ -75,9 +76,13 @@ class ReportRequest(BaseModel):
 
     def shared_settings(self, runs: list[Path]) -> dict:
         """The fields of ``eval.config.ReportSettings`` every task's report settings take from the request as they are
-        (the agents ``runs`` as the report chose them)."""
+        (the agents ``runs`` as the report chose them; ``--network-precision`` where it was given, else the task's
+        own)."""
         fields = ("episodes", "seed", "test_epsilon", "n_boot", "search", "measurement", "map_error", "device")
-        return {"runs": [str(r) for r in runs], "predictor": self.predictor_or_none} | {k: getattr(self, k) for k in fields}
+        given = {} if self.network_precision is None else {"network_precision": self.network_precision}
+        return (
+            {"runs": [str(r) for r in runs], "predictor": self.predictor_or_none} | {k: getattr(self, k) for k in fields} | given
+        )
 
 
 @dataclass(frozen=True)

@@ -49,7 +49,10 @@ class DuelingQ(nn.Module):
 
     def encode(self, obs: torch.Tensor, h: torch.Tensor | None = None) -> torch.Tensor:
         """``[B, hidden]``, what both heads read: ``embed(obs)``, or for a recurrent network the next state from ``h``."""
-        z = self.embed(obs)
+        return self.recur(self.embed(obs), h)
+
+    def recur(self, z: torch.Tensor, h: torch.Tensor | None = None) -> torch.Tensor:
+        """``[B, hidden]`` from features ``z``: ``z`` itself, or for a recurrent network the next state from ``h``."""
         return z if self.core is None else self.core(z, h)
 
     def step(self, obs: torch.Tensor, h: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -213,8 +216,18 @@ class FoveaQNetwork(DuelingQ):
         )
         self._build_heads(hidden, n_actions, aux, recurrent)
 
+    @property
+    def view_geometry(self) -> tuple[int, int, int, bool, bool]:
+        """What ``views`` computes from an observation: networks of one geometry read the same views."""
+        return self.fovea, self.stride, self.kernel, self.extremes, self.middle
+
     def embed(self, obs: torch.Tensor) -> torch.Tensor:
         """``[B, hidden]``: the features both heads read (a recurrent network's GRU input)."""
+        return self.fc(self.views(obs))
+
+    def views(self, obs: torch.Tensor) -> torch.Tensor:
+        """``[B, views * C, f, f]``: the centre and the pooled surround (and the other views it was built with) that
+        the fully connected layers read."""
         x = obs / INPUT_SCALE
         c, h = x.shape[-1] // 2, self.fovea // 2
         centre = x[..., c - h : c + h + 1, c - h : c + h + 1]  # [B, C, f, f]
@@ -224,7 +237,7 @@ class FoveaQNetwork(DuelingQ):
         if self.middle:
             m = self.fovea
             views.append(F.avg_pool2d(x[..., c - m : c + m + 1, c - m : c + m + 1], 3, 2))  # [B, C, f, f]
-        return self.fc(torch.cat(views, dim=1))
+        return torch.cat(views, dim=1)
 
 
 def add_input_channel(state: dict[str, torch.Tensor], net: DuelingQ, index: int) -> dict[str, torch.Tensor]:
@@ -272,13 +285,22 @@ class MeanQ(nn.Module):
     def initial_state(self, n: int) -> torch.Tensor:
         return torch.cat([net.initial_state(n) for net in self.nets], dim=1)
 
+    def _features(self, obs: torch.Tensor) -> list[torch.Tensor]:
+        """Each member's ``embed(obs)``; foveated members of one view geometry pool the observation once."""
+        first = self.nets[0]
+        if isinstance(first, FoveaQNetwork) and all(net.view_geometry == first.view_geometry for net in self.nets):
+            views = first.views(obs)
+            return [net.fc(views) for net in self.nets]
+        return [net.embed(obs) for net in self.nets]
+
     def embed(self, obs: torch.Tensor) -> torch.Tensor:
-        return torch.cat([net.embed(obs) for net in self.nets], dim=1)
+        return torch.cat(self._features(obs), dim=1)
 
     def encode(self, obs: torch.Tensor, h: torch.Tensor | None = None) -> torch.Tensor:
         if not self.recurrent:
             return self.embed(obs)
-        return torch.cat([net.encode(obs, part) for net, part in zip(self.nets, self._parts(h), strict=True)], dim=1)
+        parts = zip(self.nets, self._features(obs), self._parts(h), strict=True)
+        return torch.cat([net.recur(z, part) for net, z, part in parts], dim=1)
 
     def head(self, z: torch.Tensor) -> torch.Tensor:
         """The mean of the members' Q values ``[B, n_actions]``."""

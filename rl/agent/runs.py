@@ -107,12 +107,12 @@ def new_run_dir(runs: str | Path, config: DQNConfig) -> Path:
 
 
 def policy_from_checkpoint(
-    ck: dict, path: str | Path, epsilon: float = 0.096, seed: int = 0, device: str = "cpu"
+    ck: dict, path: str | Path, epsilon: float = 0.096, seed: int = 0, device: str = "cpu", precision: str = "float32"
 ) -> tuple[DQNPolicy, DQNConfig]:
     """The policy a loaded ``best.pt`` (``load_tensors``) holds, with its config, its network on ``device``
-    (``infra.device``'s setting); ``InputError`` naming ``path``."""
+    (``infra.device``'s setting) acting in ``precision`` (``DQNPolicy``); ``InputError`` naming ``path``."""
     net, config = network_from_checkpoint(ck, path)
-    return DQNPolicy.from_config(net.to(torch_device(device)), config, epsilon, seed), config
+    return DQNPolicy.from_config(net.to(torch_device(device)), config, epsilon, seed, precision), config
 
 
 def network_from_checkpoint(ck: dict, path: str | Path) -> tuple[nn.Module, DQNConfig]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pydantic import Field
 
-from uavplace.eval.config import ReportSettings
+from uavplace.eval.config import NetworkPrecision, ReportSettings, network_precision
 from uavplace.rl.config import SearchConfig
 from uavplace.rl.tasks.fleet.config import FleetConfig, fleet_search
 
@@ -15,6 +15,7 @@ class FleetReportConfig(ReportSettings):
 
     datasets: list[str] = Field(min_length=1, description="Cities (built datasets)")
     task: FleetConfig = Field(default_factory=FleetConfig, description="The fleet task (rl/tasks/fleet/)")
+    network_precision: NetworkPrecision = network_precision("bfloat16")
     search: SearchConfig = Field(
         default_factory=fleet_search,
         description="The fleet searcher's settings (rl/tasks/fleet/config.py, fleet_search: the map searcher's, its "

@@ -80,7 +80,7 @@ def fleet_results(
         searcher = FleetSearcher(load_predictor(config.predictor), config.search, cache, device=config.device)
         policies.append(searcher.bind(maps))
     for run in config.runs:
-        agent = load_agent(run, config.test_epsilon, config.seed, task=None, device=config.device)
+        agent = load_agent(run, config.test_epsilon, config.seed, None, config.device, config.network_precision)
         if agent.config.task.kind not in _FLEET_PREFIX:
             raise InputError(
                 run, f"a {agent.config.task.kind} agent: the fleet plays placement agents and fleet-trained ones", field="task"

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pydantic import Field
 
-from uavplace.eval.config import TRAJECTORIES, ReportSettings
+from uavplace.eval.config import TRAJECTORIES, NetworkPrecision, ReportSettings, network_precision
 from uavplace.rl.config import SearchConfig
 from uavplace.rl.tasks.tracking.config import MotionModel, TrackingConfig, tracking_search
 
@@ -22,6 +22,7 @@ class TrackingReportConfig(ReportSettings):
         "hill-climbing) holding its cell while its own measurement is at or above P_T (rl/tasks/tracking/policies.py, "
         "Holding), as a row '... + hold' after the method as it is",
     )
+    network_precision: NetworkPrecision = network_precision("bfloat16")
     motion: MotionModel = Field(default_factory=MotionModel, description="The tracking searcher's motion model")
     search: SearchConfig = Field(
         default_factory=tracking_search,

@@ -338,7 +338,7 @@ def make_tracking_report(
     out = Path(out)
     check_replaceable(out, TRACKING_JSON, "tracking report")
     bundles = [load_bundle(name, root=root) for name in config.datasets]
-    agents = [load_agent(r, config.test_epsilon, config.seed, task=None, device=config.device) for r in config.runs]
+    agents = [load_agent(r, config.test_epsilon, config.seed, None, config.device, config.network_precision) for r in config.runs]
     for b in bundles:
         if b.routes is None:
             raise InputError(

@@ -130,28 +130,37 @@ def episode_metrics(covered: np.ndarray) -> dict[str, np.ndarray]:
     }
 
 
+#: The candidates of one step of ``oracle_path``'s path, in the order its ties go: stay, then moves 0-3.
+_ORDER = np.array([STAY, *range(STAY)])
+
+
 def oracle_path(legal: np.ndarray, covered: np.ndarray, start: tuple[int, int]) -> tuple[np.ndarray, int]:
     """The UAV's cells ``[H + 1, 2]`` (start first) that cover the most of steps 1..H, by dynamic programming over
     (time, cell): ``covered`` ``[H, ny, nx]`` (step t's map: the cell covers the user then), ``legal`` ``[ny, nx]``;
-    moves to a 4-neighbour or stay. Returns (path, covered steps). Ties go to staying, then actions 0-3 in order."""
+    moves to a 4-neighbour or stay. Returns (path, covered steps). Ties go to staying, then actions 0-3 in order.
+
+    The programme keeps, for every step, the count of being in each cell then (a border of blocked cells around the
+    grid, so that a move's neighbour is a view, not a copy), and takes the moves only along the path it returns."""
     h, ny, nx = covered.shape
-    neg = np.iinfo(np.int32).min // 4
-    value = np.zeros((ny, nx), np.int32)  # best covered count from step t on, standing in the cell after step t - 1
-    choice = np.zeros((h, ny, nx), np.int8)
+    dtype = np.int16 if h < np.iinfo(np.int16).max // 4 else np.int32
+    neg = np.iinfo(dtype).min // 2  # blocked: below any count, and no count added to it reaches one
+    inner = (slice(1, ny + 1), slice(1, nx + 1))
+    illegal = ~legal
+    here = np.full((h, ny + 2, nx + 2), neg, dtype)  # being in the cell at step t (covered from t on)
+    value = np.zeros((ny, nx), dtype)  # best covered count from step t on, standing in the cell after step t - 1
+    best = np.empty((ny, nx), dtype)
     for t in range(h - 1, -1, -1):
-        here = np.where(legal, covered[t].astype(np.int32) + value, neg)  # being in the cell at step t
-        best = here.copy()
-        arg = np.full((ny, nx), STAY, np.int8)
-        for a, (dy, dx) in enumerate(MOVES):  # from cell c, moving to c + (dy, dx)
-            shifted = np.full((ny, nx), neg, np.int32)
-            ys, yd = (slice(0, ny - dy), slice(dy, ny)) if dy >= 0 else (slice(-dy, ny), slice(0, ny + dy))
-            xs, xd = (slice(0, nx - dx), slice(dx, nx)) if dx >= 0 else (slice(-dx, nx), slice(0, nx + dx))
-            shifted[ys, xs] = here[yd, xd]
-            better = shifted > best
-            best = np.where(better, shifted, best)
-            arg = np.where(better, a, arg)
-        choice[t], value = arg, np.where(legal, best, neg)
-    path = [np.array(start)]
+        now = here[t]
+        np.add(covered[t], value, out=now[inner])
+        np.copyto(now[inner], neg, where=illegal)
+        best[...] = now[inner]
+        for dy, dx in MOVES:  # from cell c, moving to c + (dy, dx)
+            np.maximum(best, now[1 + dy : ny + 1 + dy, 1 + dx : nx + 1 + dx], out=best)
+        np.copyto(best, neg, where=illegal)
+        value, best = best, value
+    path = np.empty((h + 1, 2), np.int64)
+    path[0] = start
     for t in range(h):
-        path.append(path[-1] + TRACK_MOVES[choice[t, path[-1][0], path[-1][1]]])
-    return np.array(path), int(value[start])
+        cells = path[t] + TRACK_MOVES[_ORDER] + 1  # the candidates' cells on the bordered grid
+        path[t + 1] = path[t] + TRACK_MOVES[_ORDER[np.argmax(here[t, cells[:, 0], cells[:, 1]])]]
+    return path, int(value[start])
