@@ -81,10 +81,13 @@ def test_a_policy_in_a_task_finds_the_prediction_cache_from_another_folder(tmp_p
 
 @pytest.fixture(scope="module")
 def walk(tmp_path_factory):
-    """A grid city with two routes (``tests.test_tracking``'s), ingested and built: the tracking task's world."""
+    """Two grid cities with two routes each (``tests.test_tracking``'s ``walk`` and another drawn alike, ``stroll``),
+    ingested and built: the tracking task's worlds."""
     from tests.test_tracking import build_walk
 
-    return build_walk(tmp_path_factory.mktemp("walk"))
+    tmp = tmp_path_factory.mktemp("walk")
+    build_walk(tmp, "stroll", seed=5)
+    return build_walk(tmp)
 
 
 def _reports_on_one_and_two_workers(tmp_path, args: list[str], files: list[str]) -> None:
@@ -108,14 +111,15 @@ def _reports_on_one_and_two_workers(tmp_path, args: list[str], files: list[str])
 def test_the_tracking_report_is_the_same_on_one_worker_and_on_two(walk, tmp_path, local_ray, monkeypatch):
     """`uavrl report --task tracking --workers 2`: every method (a placement agent, the hybrid that carries the
     searcher's belief, the tracking searcher, the baselines whose draws are keyed by an episode's place in the list)
-    in pieces of its episodes plays every episode as `--workers 1` does."""
+    in pieces of its episodes plays every episode as `--workers 1` does; two cities' methods, of the same names,
+    played in one go."""
     import uavplace.eval.parallel as parallel
 
     monkeypatch.setattr(parallel, "MIN_PIECE", 5)  # every method in pieces, even on a few episodes
     agents = [a for n in ("proposed", "hybrid") for a in ("--run", str(shipped(f"data/agents/{n}")))]
-    args = ["report", "--task", "tracking", "--dataset", "walk", "--root", str(walk), "--episodes", "12", "--horizon",
-            "20", "--bootstrap", "100", *agents]  # fmt: skip
-    _reports_on_one_and_two_workers(tmp_path, args, ["tracking.csv", "walk-episodes.parquet"])
+    args = ["report", "--task", "tracking", "--dataset", "walk", "--dataset", "stroll", "--root", str(walk), "--episodes",
+            "12", "--horizon", "20", "--bootstrap", "100", *agents]  # fmt: skip
+    _reports_on_one_and_two_workers(tmp_path, args, ["tracking.csv", "walk-episodes.parquet", "stroll-episodes.parquet"])
 
 
 def test_the_fleet_report_is_the_same_on_one_worker_and_on_two(tiny, tmp_path, local_ray, monkeypatch):

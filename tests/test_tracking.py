@@ -41,10 +41,12 @@ ROUTES = [
 ]
 
 
-def build_walk(tmp: Path) -> Path:
-    """The grid city ``walk`` with the two ``ROUTES``, written under ``tmp``, ingested and built: its bundles' root."""
-    ingest_city(write_grid_city(tmp / "raw", nx=6, ny=5, n_tx=3, seed=2, dead_share=0.0, routes=ROUTES), tmp / "p", name="walk")
-    build_city("walk", BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=-45.0), tmp / "p")
+def build_walk(tmp: Path, name: str = "walk", seed: int = 2) -> Path:
+    """The grid city ``name`` (drawn by ``seed``) with the two ``ROUTES``, written under ``tmp``, ingested and built:
+    its bundles' root."""
+    raw = write_grid_city(tmp / f"raw-{name}", nx=6, ny=5, n_tx=3, seed=seed, dead_share=0.0, routes=ROUTES)
+    ingest_city(raw, tmp / "p", name=name)
+    build_city(name, BuildConfig(grid_m=4.0, altitude_m=10.0, noise_dbm=-45.0), tmp / "p")
     return tmp / "p"
 
 

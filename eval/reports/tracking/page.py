@@ -322,6 +322,32 @@ def plot_episodes(routes: RouteSet, res: TrackingEpisodes, method: str, picked: 
     return Figure(out, caption)
 
 
+def _play_cities_on_ray(
+    cities: list[tuple], searcher: TrackingSearchPolicy | None, on_progress: Callable[[str], None] | None
+) -> list[dict[str, TrackingEpisodes]]:
+    """Every city's methods as Ray tasks in one go (``eval.parallel``), so that no worker waits for a city's last
+    piece or its tables before the next city starts: each city's ``{method: episodes}``, as played one after another.
+    The searcher's maps of every city are made first, here, and kept in the cache the tasks read."""
+    from uavplace.eval.parallel import Method, play_on_ray
+
+    on_ray, named = [], {}
+    for number, (b, routes, episodes, methods) in enumerate(cities, 1):
+        if searcher is not None:
+            searcher.predict(routes)
+        for p in methods:
+            key = f"{number}/{p.name}"  # a method's name is its own only within its city
+            named[key] = (number, b.city, p.name)
+            on_ray.append(Method(key, p, routes, episodes, options={"record": True}))
+
+    def told(key: str, done: int, total: int) -> None:
+        if on_progress is not None:
+            number, city, name = named[key]
+            on_progress(f"city {number} of {len(cities)}: {city}, {name}: {done} of {total} episodes")
+
+    results = play_on_ray(on_ray, run_tracking, TrackingEpisodes.joined, told)
+    return [{p.name: results[f"{number}/{p.name}"] for p in methods} for number, (*_, methods) in enumerate(cities, 1)]
+
+
 def make_tracking_report(
     config: TrackingReportConfig,
     out: str | Path,
@@ -354,7 +380,8 @@ def make_tracking_report(
         cache = PredictionCache(Path(root) / PREDICTIONS)
         placement = MapSearchPolicy(load_predictor(config.predictor), config.search, cache, device=config.device)
         searcher = TrackingSearchPolicy(placement, config.motion)
-    for number, b in enumerate(bundles, 1):
+    cities = []  # (bundle, its routes, its episodes, its methods), every city's before any is played
+    for b in bundles:
         routes = RouteSet([b], config.task)
         try:
             episodes = routes.sample_episodes(config.episodes, np.random.default_rng([config.seed, 7]))
@@ -365,26 +392,22 @@ def make_tracking_report(
                 "P_T from which a cell at P_T is reachable: choose another --p-t-db",
                 field="p_t_db",
             ) from None
-        methods = tracking_methods(config.task, config.seed, agents, config.hold, searcher)
-        where = f"city {number} of {len(bundles)}: {b.city}"
-        results: dict[str, TrackingEpisodes] = {}
-        if parallel:
-            from uavplace.eval.parallel import Method, play_on_ray
-
-            def told(name: str, done: int, total: int, where: str = where) -> None:
-                if on_progress is not None:
-                    on_progress(f"{where}, {name}: {done} of {total} episodes")
-
-            if searcher is not None:  # its maps made once here, kept in the cache the tasks read
-                searcher.predict(routes)
-            on_ray = [Method(p.name, p, routes, episodes, options={"record": True}) for p in methods]
-            results = play_on_ray(on_ray, run_tracking, TrackingEpisodes.joined, told)
-        else:
+        cities.append((b, routes, episodes, tracking_methods(config.task, config.seed, agents, config.hold, searcher)))
+    if parallel:
+        played = _play_cities_on_ray(cities, searcher, on_progress)
+    else:
+        played = []
+        for number, (b, routes, episodes, methods) in enumerate(cities, 1):
+            results: dict[str, TrackingEpisodes] = {}
             for j, policy in enumerate(methods, 1):
                 if on_progress is not None:
-                    on_progress(f"{where}, method {j} of {len(methods)}: {policy.name}")
+                    on_progress(f"city {number} of {len(cities)}: {b.city}, method {j} of {len(methods)}: {policy.name}")
                 results[policy.name] = run_tracking(routes, policy, episodes, record=True)
-        per_city.append((b, routes, results, tracking_table(results, config.n_boot, config.seed)))
+            played.append(results)
+    per_city = [
+        (b, routes, results, tracking_table(results, config.n_boot, config.seed))
+        for (b, routes, _, _), results in zip(cities, played, strict=True)
+    ]
     with atomic_directory(out, marker=TRACKING_JSON, what="tracking report") as tmp:
         number = 1
         for b, routes, results, table in per_city:
