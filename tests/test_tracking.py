@@ -21,6 +21,7 @@ from uavplace.rl.tasks.tracking import (
     Holding,
     MovesOnly,
     OraclePolicy,
+    PlacementInTracking,
     ReplanningGenie,
     RouteSet,
     TrackingConfig,
@@ -295,6 +296,47 @@ def test_holding_stays_exactly_while_its_own_measurement_covers(root):
     # the measurement after step t), and leaves the start cells, which are below P_T
     assert np.array_equal(moved[:, 1:], ~held.covered[:, :-1]) and moved[:, 0].all()
     assert Holding(inner).name == "steered random walk + hold"
+
+
+def test_methods_that_read_no_observation_are_handed_none_and_play_the_same(root):
+    """``run_tracking`` makes no observation for a policy that reads none (the oracle, the re-planning genie, a
+    placement agent through its mirror, held or not): it is handed None, and every episode plays as when it is handed
+    every step's observation."""
+    from uavplace.rl.tasks.placement.config import EnvConfig
+    from uavplace.rl.tasks.placement.policies import RandomWalkPolicy
+
+    config = TrackingConfig(horizon=25, window=9, p_t_db=5.0)
+    routes = RouteSet([load_bundle("walk", root=root)], config)
+    episodes = routes.sample_episodes(16, np.random.default_rng(4))
+
+    class Handed:
+        """``policy`` as it is, recording what it is handed; ``sees``: handed every observation."""
+
+        def __init__(self, policy, sees: bool) -> None:  # noqa: ANN001
+            self.policy, self.name, self.reads_observation = policy, policy.name, sees
+            self.privileged, self.handed = getattr(policy, "privileged", False), set()
+
+        def bind(self, routes):  # noqa: ANN001, ANN202
+            if hasattr(self.policy, "bind"):
+                self.policy.bind(routes)
+
+        def reset(self, rows, num_envs):  # noqa: ANN001, ANN202
+            self.policy.reset(rows, num_envs)
+
+        def act(self, obs, mask, env):  # noqa: ANN001, ANN202
+            self.handed.add(type(obs).__name__)
+            return self.policy.act(obs, mask, env)
+
+    def placement():  # noqa: ANN202
+        return PlacementInTracking(RandomWalkPolicy(seed=0), EnvConfig(window=9), "walker")
+
+    for make in (OraclePolicy, ReplanningGenie, placement, lambda: Holding(placement())):
+        assert make().reads_observation is False
+        blind, sees = Handed(make(), False), Handed(make(), True)
+        played = [run_tracking(routes, p, episodes, num_envs=8, record=True) for p in (blind, sees)]
+        assert blind.handed == {"NoneType"} and sees.handed == {"ndarray"}
+        assert np.array_equal(played[0].covered, played[1].covered) and np.array_equal(played[0].path, played[1].path)
+    assert Holding(MovesOnly(RandomWalkPolicy(seed=0))).reads_observation  # its greedy or random walk reads it
 
 
 def test_tracking_table_intervals_resample_routes():

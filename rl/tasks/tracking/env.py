@@ -17,7 +17,8 @@ class TrackingEnv(EpisodeRows):
     ``RouteSet.sample_episodes``) or drawn with the generator of ``reset(seed)``; a finished episode restarts at once
     (``info["final_index"]``, with the ended rows' last observation, mask, cell and route point) unless the queue has
     run out (``exhausted``), or unless ``autoreset`` is False (the single Gymnasium env). ``compact``: uint8
-    observations (``rl.world.rows.encode_obs``, 1 dB / 1 m / 1 s a step), as the trainer stores them.
+    observations (``rl.world.rows.encode_obs``, 1 dB / 1 m / 1 s a step), as the trainer stores them. ``observing``
+    off (``run_tracking``, for a policy that reads no observation): ``observe`` makes none and returns None.
 
     The trainer's interface is placement's (``rl.world.rows.EpisodeRows``, which it shares with ``BatchedEnv``), with
     ``info["sinr"]``, ``info["steps"]`` and ``info["covered_share"]`` (each row's episode so far; at its end, the
@@ -36,6 +37,7 @@ class TrackingEnv(EpisodeRows):
         self._init_rows(num_envs, queue, np.float64, first)
         self.routes, self.config, self.maps, self.autoreset = routes, routes.config, routes.maps, autoreset
         self.compact = compact
+        self.observing = True
         n, L, w = num_envs, self.maps.side, routes.config.window
         self.route = np.zeros(n, np.int64)
         self.start_s = np.zeros(n)
@@ -140,7 +142,10 @@ class TrackingEnv(EpisodeRows):
         """What the rows' UAVs know now: what a policy other than the re-planning genie and the oracle receives."""
         return TrackingView(self)
 
-    def observe(self) -> np.ndarray:
+    def observe(self) -> np.ndarray | None:
+        """The rows' observations ``[N, C, w, w]``; None while ``observing`` is off (a policy that reads none)."""
+        if not self.observing:
+            return None
         cfg, rows = self.config, self._rows
         y0, x0 = self.pos[:, 0] - cfg.window // 2, self.pos[:, 1] - cfg.window // 2
         obs = np.empty((self.num_envs, cfg.num_channels, cfg.window, cfg.window), np.float32)
@@ -175,7 +180,8 @@ class TrackingEnv(EpisodeRows):
             ended = np.flatnonzero(truncated)
             info["final_index"] = ended
             info["final_pos"], info["final_point"] = self.pos[ended].copy(), self.point()[ended]
-            info["final_obs"], info["final_mask"] = self.observe()[ended], self.action_mask()[ended]
+            obs = self.observe()
+            info["final_obs"], info["final_mask"] = None if obs is None else obs[ended], self.action_mask()[ended]
             self._start(ended)
         info["action_mask"] = self.action_mask()
         return self.observe(), reward, np.zeros(self.num_envs, bool), truncated, info

@@ -48,10 +48,13 @@ class Holding:
     def reset(self, rows: np.ndarray, num_envs: int) -> None:
         self.policy.reset(rows, num_envs)
 
-    def act(self, obs: np.ndarray, mask: np.ndarray, env: TrackingView) -> np.ndarray:
+    @property
+    def reads_observation(self) -> bool:
+        return getattr(self.policy, "reads_observation", True)
+
+    def act(self, obs: np.ndarray | None, mask: np.ndarray, env: TrackingView) -> np.ndarray:
         action = self.policy.act(obs, mask, env)
-        centre = env.config.window // 2
-        return np.where(env.config.reaches(obs[:, -1, centre, centre]), STAY, action)
+        return np.where(env.config.reaches(env.measured()), STAY, action)  # the SINR memory's centre
 
 
 class PlacementInTracking:
@@ -61,6 +64,8 @@ class PlacementInTracking:
     context) from the UAVs' positions and measurements (``TrackingView``), as if the user's map were the placement
     episode's; the agent sees its observations and that env's ``AgentView``, moves by its own rule (never stays) and
     keeps acting after it first reaches P_T. ``bind`` (``run_tracking`` calls it) lays it on the routes' cities."""
+
+    reads_observation = False  # its agent reads the mirror's
 
     def __init__(self, policy, env: EnvConfig, name: str | None = None) -> None:  # noqa: ANN001 - a placement Policy
         self.policy, self.name = policy, name or policy.name
@@ -139,6 +144,7 @@ class ReplanningGenie:
 
     name = "re-planning genie"
     privileged = True  # reads the user's map now: receives the env itself
+    reads_observation = False
 
     def reset(self, rows: np.ndarray, num_envs: int) -> None:
         pass
@@ -158,6 +164,7 @@ class OraclePolicy:
 
     name = "oracle"
     privileged = True  # reads the whole route and every map: receives the env itself
+    reads_observation = False
 
     def __init__(self) -> None:
         self.plans = np.zeros((0, 0, 2), np.int64)  # [num_envs, horizon + 1, 2]: each row's planned canvas cells

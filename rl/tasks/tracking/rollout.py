@@ -66,6 +66,7 @@ def run_tracking(
     if hasattr(policy, "bind"):
         policy.bind(routes)
     env = TrackingEnv(routes, min(num_envs, k), queue=np.asarray(episodes, float), first=first)
+    env.observing = getattr(policy, "reads_observation", True)  # the oracle, the searcher, ... are handed None
     obs, info = env.reset()
     policy.reset(np.arange(env.num_envs), env.num_envs)
     covered = np.zeros((k, h), bool)

@@ -78,6 +78,8 @@ class TrackingSearchPolicy:
     """The tracking searcher of the module's docstring as a tracking method (``reset``, ``act(obs, mask, view)`` of a
     ``rl.tasks.tracking.TrackingView``, 5 actions)."""
 
+    reads_observation = False  # it reads its measurements from the view
+
     name = TRACKING_SEARCHER
     #: The ``SearchConfig`` fields it does not read (it plans as the cover planner, a step at a time).
     unread_settings = PLACEMENT_PLAN_SETTINGS | {"planner", "fleet_plan", "info_weight", "info_radius", "info_bin_db"}
