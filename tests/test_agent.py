@@ -953,7 +953,7 @@ def test_a_first_ctrl_c_ends_the_suite_during_a_training_test(tmp_path):
         assert signal.getsignal(signal.SIGINT) is before and not pressed()
     victims = [f"tests/test_agent.py::test_short_training_run_learns[{v}]" for v in ("replay", "pqn")]
     inner = tmp_path / "inner"
-    command = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--basetemp", str(inner), *victims]
+    command = [sys.executable, "-m", "pytest", "-q", "-n", "0", "-p", "no:cacheprovider", "--basetemp", str(inner), *victims]
     run = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         deadline = time.perf_counter() + 300

@@ -28,7 +28,6 @@ from uavplace.rl.predictor.learned import (
     UNetConfig,
     _batch,
     _loss,
-    input_planes,
     load_learned,
     save_learned,
     train_learned,
@@ -70,29 +69,6 @@ def test_untrained_network_is_the_physics_tier(tiny):
     want_mu, want_dead = PhysicsPredictor(constants).predict(scene, users, cells)
     np.testing.assert_allclose(mu, want_mu, atol=1e-3)
     np.testing.assert_allclose(p_dead, want_dead, atol=1e-4)
-
-
-def test_a_batchs_input_planes_made_side_by_side_are_each_users_own(tiny):
-    """With two torch threads the batch's input planes are made by two threads: every user's planes, and so the
-    predictions, are those made one user at a time, in the users' order."""
-    bundle = load_bundle("tiny", root=tiny)
-    scene = Scene.of(bundle)
-    model = LearnedModel(weights_sha256="0" * 64, **_fields(_constants(), SMALL))
-    torch.manual_seed(0)
-    learned = LearnedPredictor(model, MapUNet(SMALL.widths), batch=8)
-    users, cells = np.argwhere(scene.ground_height_m <= 0)[:11], np.argwhere(~bundle.blocked)
-    threads = torch.get_num_threads()
-    try:
-        torch.set_num_threads(2)
-        side_by_side = learned.predict(scene, users, cells)
-        one_by_one = [learned.predict(scene, users[i : i + 1], cells) for i in range(len(users))]
-    finally:
-        torch.set_num_threads(threads)
-    for got, alone in zip(side_by_side, zip(*one_by_one, strict=True), strict=True):
-        np.testing.assert_allclose(got, np.concatenate(alone), atol=1e-5)
-    planes = [input_planes(scene, learned.constants, (int(u[0]), int(u[1]))) for u in users[:8]]
-    made = list(learned._threads.map(lambda u: learned._planes(scene, u), users[:8]))
-    assert all(np.array_equal(a, b) for a, b in zip(planes, made, strict=True))
 
 
 def test_training_lowers_the_loss_and_is_seeded(tiny):

@@ -88,7 +88,7 @@ def _commands() -> list[tuple[str, str, str, tuple[str, ...]]]:
         ("uavrl", "levers", "EpisodeSettings", ("episodes", "seed")),
         ("uavrl", "train-predictor", "UNetConfig", ("widths", "steps", "batch", "seed", "threads")),
         ("uavrl", "report", "FleetConfig", ("uavs", "users")),
-        ("uavrl", "report", "ReportSettings", ("predictor", "device")),
+        ("uavrl", "report", "ReportSettings", ("predictor", "device", "network_precision")),
         ("uavrl", "report", "TrackingConfig", ("horizon",)),
         ("uavrl", "report", "TrackingReportConfig", ("hold",)),
     ]

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -173,25 +172,6 @@ class LearnedPredictor:
         self.constants = model.constants
         self.error_db = model.error_db
 
-    @property
-    def _threads(self) -> ThreadPoolExecutor:
-        """The threads that make a batch's input planes side by side, as many as torch's (its intra-op threads: one
-        where a test or a Ray worker sets one): numpy's profile arithmetic lets go of the GIL, so each user's
-        features, the same numbers as one at a time, take the cores the network's batch will."""
-        n = torch.get_num_threads()
-        threads, pool = self.__dict__.get("_pool", (0, None))
-        if threads != n:
-            if pool is not None:
-                pool.shutdown()
-            threads, pool = self.__dict__["_pool"] = (n, ThreadPoolExecutor(max_workers=n, thread_name_prefix="planes"))
-        return pool
-
-    def _planes(self, scene: Scene, user: np.ndarray) -> np.ndarray:
-        return input_planes(scene, self.constants, (int(user[0]), int(user[1])))
-
-    def __getstate__(self) -> dict:
-        return {k: v for k, v in self.__dict__.items() if k != "_pool"}  # threads stay in their process
-
     def version(self) -> str:
         return version_of(
             {
@@ -212,7 +192,7 @@ class LearnedPredictor:
         floor = torch.tensor([scene.floor_db], dtype=torch.float32)
         for i in range(0, len(users), self.batch):
             chunk = users[i : i + self.batch]
-            x = np.stack(list(self._threads.map(lambda u: _pad_to(self._planes(scene, u), py, px), chunk)))
+            x = np.stack([_pad_to(input_planes(scene, self.constants, (int(u[0]), int(u[1]))), py, px) for u in chunk])
             mu_b, logit_b = _outputs(self.net, torch.from_numpy(x), floor.expand(len(chunk)))
             yield i, mu_b[:, cells[:, 0], cells[:, 1]], logit_b[:, cells[:, 0], cells[:, 1]]
 
