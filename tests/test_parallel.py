@@ -4,6 +4,7 @@ searchers, the baselines), the recorded paths, the progress (each method's episo
 
 from __future__ import annotations
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -131,3 +132,35 @@ def test_the_fleet_report_is_the_same_on_one_worker_and_on_two(tiny, tmp_path, l
     args = ["report", "--task", "fleet", "--dataset", "tiny", "--root", str(tiny), "--episodes", "12", "--users", "2",
             "--bootstrap", "100"]  # fmt: skip
     _reports_on_one_and_two_workers(tmp_path, args, ["results.csv", "differences.csv", "episodes.parquet"])
+
+
+def test_a_learned_tiers_planes_made_by_ray_tasks_give_the_same_predictions(tiny, local_ray, monkeypatch):
+    """In the driver of a joined Ray, the learned tier's input planes are Ray tasks a few batches ahead of the network:
+    the predictions are those made in this process alone, to the bit, batch by batch in order."""
+    import torch
+
+    import uavplace.rl.predictor.learned as learned
+    from uavplace.dataset.bundle import load_bundle
+    from uavplace.rl.config import UNetConfig
+    from uavplace.rl.predictor import PhysicsConstants, Scene
+
+    bundle = load_bundle("tiny", root=tiny)
+    scene = Scene.of(bundle)
+    constants = PhysicsConstants(intercept_db=-20, log_d_db=-23, wall_db=-9, diffraction_weight=0.1, dead_level_db=-13,
+                                 dead_scale_db=4, error_db=10, max_walls=3)  # fmt: skip
+    config = UNetConfig(widths=[4, 8], steps=1)
+    model = learned.LearnedModel(weights_sha256="0" * 64, config=config, constants=constants, error_db=9.0, users=1,
+                                 train_seconds=0.0, final_loss=0.0)  # fmt: skip
+    torch.manual_seed(0)
+    net = learned.MapUNet(config.widths)
+    for p in net.parameters():  # not the physics tier's zero head: the network's own numbers show in the maps
+        torch.nn.init.normal_(p, std=0.1)
+    predictor = learned.LearnedPredictor(model, net, batch=3)
+    users, cells = np.argwhere(scene.ground_height_m <= 0)[:11], np.argwhere(~bundle.blocked)
+    assert learned._ray_driver()
+    on_ray = predictor.predict(scene, users, cells)
+    monkeypatch.setattr(learned, "_ray_driver", lambda: False)
+    alone = predictor.predict(scene, users, cells)
+    for a, b in zip(on_ray, alone, strict=True):
+        assert np.array_equal(a, b)
+    assert not np.array_equal(alone[0][0], alone[0][1])  # the users' maps differ: an order mixed up would show

@@ -140,6 +140,21 @@ def input_planes(scene: Scene, constants: PhysicsConstants, user: tuple[int, int
     return np.stack(planes).astype(np.float32)
 
 
+def _padded_planes(scene: Scene, constants: PhysicsConstants, users: np.ndarray, ny: int, nx: int) -> np.ndarray:
+    """``[len(users), len(PLANES), ny, nx]``: ``input_planes`` of each of ``users``, padded to ``ny`` x ``nx`` (a batch's
+    input, made here or in a Ray task)."""
+    return np.stack([_pad_to(input_planes(scene, constants, (int(u[0]), int(u[1]))), ny, nx) for u in users])
+
+
+def _ray_driver() -> bool:
+    """Whether this process is the driver of a Ray it has joined (``infra.cluster.start_ray``: a report's ``--workers``
+    or ``--ray-address``), not one of its tasks; Ray is not imported to ask."""
+    import sys
+
+    ray = sys.modules.get("ray")
+    return ray is not None and ray.is_initialized() and ray.get_runtime_context().get_task_id() is None
+
+
 def _physics_logit(planes: torch.Tensor) -> torch.Tensor:
     p = planes[:, PLANES.index("physics_dead")].clamp(1e-6, 1 - 1e-6)
     return torch.log(p) - torch.log1p(-p)
@@ -184,16 +199,40 @@ class LearnedPredictor:
             }
         )
 
+    def _planes(self, scene: Scene, users: np.ndarray, ny: int, nx: int):  # noqa: ANN202 - a generator of arrays
+        """Each batch's padded input planes, in order. In the driver of a Ray it has joined, the batches' planes (the
+        physics tier's path features, two thirds of a prediction) are Ray tasks, a few ahead of the batch the network
+        reads here: the same arrays, and the network runs here on them as it would alone."""
+        starts = range(0, len(users), self.batch)
+        if not _ray_driver() or len(starts) < 2:
+            for i in starts:
+                yield _padded_planes(scene, self.constants, users[i : i + self.batch], ny, nx)
+            return
+        import ray
+
+        task = ray.remote(num_cpus=1, max_retries=0)(_padded_planes)
+        ahead = 2 * max(1, int(ray.cluster_resources().get("CPU", 1)))
+        scene_ref = ray.put(scene)
+        refs, submitted = [], 0
+        try:
+            for _ in starts:
+                while submitted < len(starts) and len(refs) < ahead:
+                    k = starts[submitted]
+                    refs.append(task.remote(scene_ref, self.constants, users[k : k + self.batch], ny, nx))
+                    submitted += 1
+                yield np.array(ray.get(refs.pop(0)))  # a writable copy of the store's read-only array
+        finally:
+            for ref in refs:
+                ray.cancel(ref, force=True)
+
     @torch.no_grad()
     def _chunks(self, scene: Scene, users: np.ndarray, cells: np.ndarray):  # noqa: ANN202 - a generator of tensors
         """Per chunk of at most ``batch`` users: (its first row, ``mu`` [b, M], the uncalibrated dead logit [b, M])."""
         ny, nx = scene.ground_height_m.shape
         py, px = _padded(ny, nx, self.net.multiple)
         floor = torch.tensor([scene.floor_db], dtype=torch.float32)
-        for i in range(0, len(users), self.batch):
-            chunk = users[i : i + self.batch]
-            x = np.stack([_pad_to(input_planes(scene, self.constants, (int(u[0]), int(u[1]))), py, px) for u in chunk])
-            mu_b, logit_b = _outputs(self.net, torch.from_numpy(x), floor.expand(len(chunk)))
+        for i, x in zip(range(0, len(users), self.batch), self._planes(scene, users, py, px), strict=True):
+            mu_b, logit_b = _outputs(self.net, torch.from_numpy(x), floor.expand(len(x)))
             yield i, mu_b[:, cells[:, 0], cells[:, 1]], logit_b[:, cells[:, 0], cells[:, 1]]
 
     def predict(self, scene: Scene, users: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
