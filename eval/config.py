@@ -5,21 +5,15 @@ them before any heavy work."""
 
 from __future__ import annotations
 
-from typing import Literal
-
 from pydantic import ConfigDict, Field
 from pydantic.fields import FieldInfo
 
-from uavplace.infra.device import DEVICE_HELP, Device
+from uavplace.infra.device import DEVICE_HELP, Device, NetworkPrecision
 from uavplace.rl.config import DEFAULT_PREDICTOR, EpisodeSettings, MapErrorSettings, MeasurementSettings, SearchConfig
 from uavplace.schemas.base import MAX_SEED, Contract
 
 #: The evaluation protocol's fields every report shares with ``EpisodeSettings`` (declared there once).
 _EPISODE = EpisodeSettings.model_fields
-
-
-#: How the agents' networks compute as they act (rl/agent/dqn.py, ``NETWORK_PRECISIONS``).
-NetworkPrecision = Literal["float32", "bfloat16"]
 
 
 def network_precision(default: str) -> FieldInfo:

@@ -13,7 +13,7 @@ import pandas as pd
 
 from uavplace.dataset.bundle import Bundle, load_bundle, read_manifest, resolve
 from uavplace.dataset.difficulty import valid_starts
-from uavplace.eval.config import ReportConfig
+from uavplace.eval.config import ReportConfig, ReportSettings
 from uavplace.eval.metrics import bootstrap_table, difference_table
 from uavplace.infra.files import shipped
 from uavplace.infra.tensors import load_tensors
@@ -124,6 +124,11 @@ def load_agent(
         except (OSError, ValueError) as exc:
             raise InputError(folder / "metrics.parquet", f"unreadable ({str(exc)[:160]})") from None
     return Agent(policy.name, folder, config, run, policy, ck.get("eval"), metrics)
+
+
+def report_agent(folder: str | Path, settings: ReportSettings, task: str | None = "placement") -> Agent:
+    """``load_agent`` as a report plays it: its ``settings``' random moves, seed, device and network precision."""
+    return load_agent(folder, settings.test_epsilon, settings.seed, task, settings.device, settings.network_precision)
 
 
 #: Where the shipped agents live: the project's ``data/agents``, wherever a command runs.
@@ -304,10 +309,7 @@ def blanked_agents(config: ReportConfig, agents: list[Agent]) -> list[Agent]:
     """The agents that read the building map, loaded again and named ``X, no buildings``: ``evaluate`` them with
     ``blanked_results`` (the same episodes, the map blanked)."""
     sighted = [a for a in agents if not a.config.env_config(evaluation=True).blind]  # a blind agent reads no map
-    readers = [
-        load_agent(a.folder, config.test_epsilon, config.seed, device=config.device, precision=config.network_precision)
-        for a in sighted
-    ]
+    readers = [report_agent(a.folder, config) for a in sighted]
     for reader, agent in zip(readers, sighted, strict=True):
         reader.name = reader.policy.name = agent.name + NO_BUILDINGS
     return readers

@@ -34,8 +34,8 @@ from uavplace.eval.evaluate import (
     default_baselines,
     evaluate,
     groups_of,
-    load_agent,
     references,
+    report_agent,
     results_table,
     shown_method,
     stages,
@@ -87,10 +87,7 @@ def make_report(
     status(f"loading the bundle of {config.dataset}")
     bundle = load_bundle(config.dataset, root=root)
     status(f"loading {len(config.runs)} agents")
-    agents = [
-        load_agent(r, config.test_epsilon, config.seed, device=config.device, precision=config.network_precision)
-        for r in config.runs
-    ]
+    agents = [report_agent(r, config) for r in config.runs]
     check_unseen(agents, bundle)
     twice = set(repeated([a.name for a in agents]))
     for a in agents:  # same agent and preset twice: tell them apart by folder

@@ -57,6 +57,15 @@ def check_ray_head(address: str, endpoint: tuple[str, int]) -> None:
         )
 
 
+def ray_driver() -> bool:
+    """Whether this process is the driver of a Ray it has joined (``start_ray``: a report's ``--workers`` or
+    ``--ray-address``), not one of its tasks; Ray is not imported to ask."""
+    import sys
+
+    ray = sys.modules.get("ray")
+    return ray is not None and ray.is_initialized() and ray.get_runtime_context().get_task_id() is None
+
+
 def start_ray(address: str | None, cpus_per_task: float, cpus_option: str, num_cpus: int | None = None) -> bool:
     """Start a local Ray (``address`` None) or join the cluster at ``address``, for tasks of ``cpus_per_task`` CPUs;
     True when this call started it (the caller shuts it down). Refused in one line (``InputError``): an address that

@@ -7,7 +7,7 @@ there is one"). A choice of ``cuda`` on a machine without one is an error, never
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Literal, get_args
 
 if TYPE_CHECKING:
     import torch
@@ -15,6 +15,11 @@ if TYPE_CHECKING:
 #: The settings of a ``--device`` option.
 Device = Literal["auto", "cpu", "cuda"]
 DEVICES: tuple[str, ...] = ("auto", "cpu", "cuda")
+#: How an acting network's features are computed (``rl.agent.dqn.DQNPolicy``'s ``precision``, a report's
+#: ``network_precision``): float32, or under torch's bfloat16 autocast (2 to 4 x faster on a CPU with bfloat16 units;
+#: its moves validated per report, docs/benchmarks.md).
+NetworkPrecision = Literal["float32", "bfloat16"]
+NETWORK_PRECISIONS: tuple[str, ...] = get_args(NetworkPrecision)
 #: The description every ``--device`` option shares.
 DEVICE_HELP = "auto: CUDA where there is a GPU, else the CPU; cpu; cuda (an error without a GPU)"
 

@@ -157,9 +157,9 @@ def test_a_learned_tiers_planes_made_by_ray_tasks_give_the_same_predictions(tiny
         torch.nn.init.normal_(p, std=0.1)
     predictor = learned.LearnedPredictor(model, net, batch=3)
     users, cells = np.argwhere(scene.ground_height_m <= 0)[:11], np.argwhere(~bundle.blocked)
-    assert learned._ray_driver()
+    assert learned.ray_driver()
     on_ray = predictor.predict(scene, users, cells)
-    monkeypatch.setattr(learned, "_ray_driver", lambda: False)
+    monkeypatch.setattr(learned, "ray_driver", lambda: False)
     alone = predictor.predict(scene, users, cells)
     for a, b in zip(on_ray, alone, strict=True):
         assert np.array_equal(a, b)

@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from uavplace.infra.device import torch_device
+from uavplace.infra.device import NETWORK_PRECISIONS, torch_device
 from uavplace.infra.limits import check_limit
 from uavplace.rl.agent.config import DQNConfig
 from uavplace.rl.agent.network import FoveaQNetwork, MeanQ, QNetwork
@@ -93,11 +93,6 @@ def genie_move_loss(logits: torch.Tensor, genie: torch.Tensor) -> torch.Tensor:
         return logits.sum() * 0.0
     log_p = torch.log_softmax(logits[has], dim=1)
     return -torch.logsumexp(log_p.masked_fill(~genie[has], float("-inf")), dim=1).mean()
-
-
-#: How an acting network's features may be computed (``DQNPolicy``'s ``precision``): float32, or under bfloat16
-#: autocast (2 to 4 x faster on a CPU with bfloat16 units; its moves validated per report, docs/benchmarks.md).
-NETWORK_PRECISIONS = ("float32", "bfloat16")
 
 
 class DQN:

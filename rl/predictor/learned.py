@@ -30,6 +30,7 @@ from torch.nn import functional as F
 from uavplace.dataset.bundle import Bundle
 from uavplace.dataset.export import read_radiomapseer
 from uavplace.dataset.trainmaps import TrainingMaps, read_pack, select_packs
+from uavplace.infra.cluster import ray_driver
 from uavplace.infra.files import read_model_json, sha256_file, write_model_json
 from uavplace.infra.limits import check_limit
 from uavplace.infra.tensors import save_tensors
@@ -146,15 +147,6 @@ def _padded_planes(scene: Scene, constants: PhysicsConstants, users: np.ndarray,
     return np.stack([_pad_to(input_planes(scene, constants, (int(u[0]), int(u[1]))), ny, nx) for u in users])
 
 
-def _ray_driver() -> bool:
-    """Whether this process is the driver of a Ray it has joined (``infra.cluster.start_ray``: a report's ``--workers``
-    or ``--ray-address``), not one of its tasks; Ray is not imported to ask."""
-    import sys
-
-    ray = sys.modules.get("ray")
-    return ray is not None and ray.is_initialized() and ray.get_runtime_context().get_task_id() is None
-
-
 def _physics_logit(planes: torch.Tensor) -> torch.Tensor:
     p = planes[:, PLANES.index("physics_dead")].clamp(1e-6, 1 - 1e-6)
     return torch.log(p) - torch.log1p(-p)
@@ -204,7 +196,7 @@ class LearnedPredictor:
         physics tier's path features, two thirds of a prediction) are Ray tasks, a few ahead of the batch the network
         reads here: the same arrays, and the network runs here on them as it would alone."""
         starts = range(0, len(users), self.batch)
-        if not _ray_driver() or len(starts) < 2:
+        if not ray_driver() or len(starts) < 2:
             for i in starts:
                 yield _padded_planes(scene, self.constants, users[i : i + self.batch], ny, nx)
             return

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from pydantic import Field
 
-from uavplace.eval.config import NetworkPrecision, ReportSettings, network_precision
+from uavplace.eval.config import ReportSettings, network_precision
+from uavplace.infra.device import NetworkPrecision
 from uavplace.rl.config import SearchConfig
 from uavplace.rl.tasks.fleet.config import FleetConfig, fleet_search
 

@@ -28,7 +28,7 @@ import numpy as np
 import pandas as pd
 
 from uavplace.dataset.bundle import Bundle, load_bundle
-from uavplace.eval.evaluate import load_agent
+from uavplace.eval.evaluate import report_agent
 from uavplace.eval.figures import Figure
 from uavplace.eval.findings import city_findings, difference_cell
 from uavplace.eval.metrics import bootstrap_table, difference_table
@@ -80,7 +80,7 @@ def fleet_results(
         searcher = FleetSearcher(load_predictor(config.predictor), config.search, cache, device=config.device)
         policies.append(searcher.bind(maps))
     for run in config.runs:
-        agent = load_agent(run, config.test_epsilon, config.seed, None, config.device, config.network_precision)
+        agent = report_agent(run, config, None)
         if agent.config.task.kind not in _FLEET_PREFIX:
             raise InputError(
                 run, f"a {agent.config.task.kind} agent: the fleet plays placement agents and fleet-trained ones", field="task"

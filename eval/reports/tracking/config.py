@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from pydantic import Field
 
-from uavplace.eval.config import TRAJECTORIES, NetworkPrecision, ReportSettings, network_precision
+from uavplace.eval.config import TRAJECTORIES, ReportSettings, network_precision
+from uavplace.infra.device import NetworkPrecision
 from uavplace.rl.config import SearchConfig
 from uavplace.rl.tasks.tracking.config import MotionModel, TrackingConfig, tracking_search
 

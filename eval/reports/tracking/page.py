@@ -26,7 +26,7 @@ import numpy as np
 import pandas as pd
 
 from uavplace.dataset.bundle import load_bundle
-from uavplace.eval.evaluate import Agent, check_unseen, load_agent
+from uavplace.eval.evaluate import Agent, check_unseen, report_agent
 from uavplace.eval.figures import Figure, _pyplot, draw_blocked
 from uavplace.eval.metrics import _weighted_quantile, resample_counts
 from uavplace.eval.render import _CSS, _figure, _templates
@@ -344,8 +344,11 @@ def _play_cities_on_ray(
             number, city, name = named[key]
             on_progress(f"city {number} of {len(cities)}: {city}, {name}: {done} of {total} episodes")
 
-    results = play_on_ray(on_ray, run_tracking, TrackingEpisodes.joined, told)
-    return [{p.name: results[f"{number}/{p.name}"] for p in methods} for number, (*_, methods) in enumerate(cities, 1)]
+    played: list[dict[str, TrackingEpisodes]] = [{} for _ in cities]
+    for key, episodes in play_on_ray(on_ray, run_tracking, TrackingEpisodes.joined, told).items():
+        number, _, name = named[key]
+        played[number - 1][name] = episodes
+    return played
 
 
 def make_tracking_report(
@@ -364,7 +367,7 @@ def make_tracking_report(
     out = Path(out)
     check_replaceable(out, TRACKING_JSON, "tracking report")
     bundles = [load_bundle(name, root=root) for name in config.datasets]
-    agents = [load_agent(r, config.test_epsilon, config.seed, None, config.device, config.network_precision) for r in config.runs]
+    agents = [report_agent(r, config, None) for r in config.runs]
     for b in bundles:
         if b.routes is None:
             raise InputError(

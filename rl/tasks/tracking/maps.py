@@ -130,8 +130,9 @@ def episode_metrics(covered: np.ndarray) -> dict[str, np.ndarray]:
     }
 
 
-#: The candidates of one step of ``oracle_path``'s path, in the order its ties go: stay, then moves 0-3.
+#: The actions of one step of ``oracle_path``'s path, in the order its ties go (stay, then moves 0-3), and their moves.
 _ORDER = np.array([STAY, *range(STAY)])
+_ORDER_MOVES = TRACK_MOVES[_ORDER]
 
 
 def oracle_path(legal: np.ndarray, covered: np.ndarray, start: tuple[int, int]) -> tuple[np.ndarray, int]:
@@ -161,6 +162,6 @@ def oracle_path(legal: np.ndarray, covered: np.ndarray, start: tuple[int, int]) 
     path = np.empty((h + 1, 2), np.int64)
     path[0] = start
     for t in range(h):
-        cells = path[t] + TRACK_MOVES[_ORDER] + 1  # the candidates' cells on the bordered grid
-        path[t + 1] = path[t] + TRACK_MOVES[_ORDER[np.argmax(here[t, cells[:, 0], cells[:, 1]])]]
+        cells = path[t] + _ORDER_MOVES + 1  # the candidates' cells on the bordered grid
+        path[t + 1] = path[t] + _ORDER_MOVES[np.argmax(here[t, cells[:, 0], cells[:, 1]])]
     return path, int(value[start])
